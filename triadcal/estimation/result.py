@@ -1,0 +1,194 @@
+"""The calibration result: values with units, saved and loaded as results-json v1.
+
+The stable contract is ../shared/docs/results-json.md (``format: triadcal.result``,
+``version: 1``). A result can be applied to raw readings:
+``A_IMU = Ca^-1 (K W - S)`` at the reading's temperature (seed paper, introduction).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..models.model import Covariates, Model
+from ..models.sensor import AXES, dcm
+from ..models.units import TO_INTERNAL
+
+FORMAT = "triadcal.result"
+VERSION = 1
+METHODS = ("classical", "joint", "posterior")
+
+
+@dataclass
+class ParameterValue:
+    """A value with its standard uncertainty (k = 1) in ``unit``."""
+
+    value: float
+    u: float
+    unit: str
+
+    def to_dict(self) -> dict:
+        return {"value": float(self.value), "u": float(self.u), "unit": self.unit}
+
+
+@dataclass
+class CalibrationResult:
+    """A calibration of one unit, in reporting units (arcsec, ppm, g, degC, ...).
+
+    ``correlation`` (optional) is the correlation matrix of the parameters named in
+    ``correlation_names``; ``fit`` holds chi2/dof, counts and estimator details;
+    ``notes`` carry anything the reader must know (identifiability, priors).
+    """
+
+    unit: str
+    method: str
+    parameters: dict
+    status: str = "ok"
+    effects: tuple = ()
+    reference_temperature_C: float = 20.0
+    temperature_range_C: Optional[tuple] = None
+    intervals: dict = field(default_factory=dict)
+    fit: dict = field(default_factory=dict)
+    correlation_names: tuple = ()
+    correlation: Optional[np.ndarray] = None
+    notes: list = field(default_factory=list)
+    extra: dict = field(default_factory=dict)
+
+    # -- access --------------------------------------------------------------------
+    def __getitem__(self, name: str) -> ParameterValue:
+        return self.parameters[name]
+
+    def values(self) -> dict:
+        return {k: v.value for k, v in self.parameters.items()}
+
+    def covariance(self, names: Sequence[str]) -> np.ndarray:
+        """Covariance (reporting units) of ``names``; uncorrelated where no correlation is known."""
+        u = np.array([self.parameters[n].u for n in names])
+        R = np.eye(len(names))
+        if self.correlation is not None:
+            index = {n: i for i, n in enumerate(self.correlation_names)}
+            for i, a in enumerate(names):
+                for j, b in enumerate(names):
+                    if a in index and b in index:
+                        R[i, j] = self.correlation[index[a], index[b]]
+        return R * np.outer(u, u)
+
+    # -- JSON ----------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        d = {
+            "format": FORMAT, "version": VERSION, "unit": self.unit, "method": self.method,
+            "status": self.status, "effects": list(self.effects),
+            "reference_temperature_C": self.reference_temperature_C,
+            "temperature_range_C": None if self.temperature_range_C is None else list(self.temperature_range_C),
+            "parameters": {k: v.to_dict() for k, v in self.parameters.items()},
+            "intervals": self.intervals, "fit": self.fit, "notes": list(self.notes),
+        }
+        if self.correlation is not None:
+            d["correlation"] = {"names": list(self.correlation_names),
+                                "matrix": np.round(np.asarray(self.correlation), 6).tolist()}
+        d.update(self.extra)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "<dict>") -> "CalibrationResult":
+        if d.get("format") != FORMAT:
+            raise ValueError(f"{source}: not a calibration result (format {d.get('format')!r}, expected {FORMAT!r})")
+        if d.get("version") != VERSION:
+            raise ValueError(f"{source}: result version {d.get('version')!r} is not known to this "
+                             f"triadcal (it reads version {VERSION})")
+        known = {"format", "version", "unit", "method", "status", "effects", "reference_temperature_C",
+                 "temperature_range_C", "parameters", "intervals", "fit", "notes", "correlation"}
+        params = {}
+        for k, v in d["parameters"].items():
+            if v.get("unit") not in TO_INTERNAL and not str(v.get("unit", "")).startswith("g/"):
+                raise ValueError(f"{source}: parameter {k} has unknown unit {v.get('unit')!r}")
+            params[k] = ParameterValue(float(v["value"]), float(v["u"]), v["unit"])
+        corr = d.get("correlation")
+        return cls(
+            unit=d["unit"], method=d["method"], parameters=params, status=d.get("status", "ok"),
+            effects=tuple(d.get("effects", ())),
+            reference_temperature_C=float(d.get("reference_temperature_C", 20.0)),
+            temperature_range_C=None if d.get("temperature_range_C") is None else tuple(d["temperature_range_C"]),
+            intervals=d.get("intervals", {}), fit=d.get("fit", {}),
+            correlation_names=tuple(corr["names"]) if corr else (),
+            correlation=np.array(corr["matrix"], float) if corr else None,
+            notes=list(d.get("notes", [])), extra={k: v for k, v in d.items() if k not in known})
+
+    def save(self, path) -> None:
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(self.to_dict(), fh, indent=2, allow_nan=False)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path) -> "CalibrationResult":
+        with open(path, encoding="utf-8") as fh:
+            try:
+                d = json.load(fh)
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"{path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
+        return cls.from_dict(d, str(path))
+
+    # -- applying the calibration -------------------------------------------------
+    def model(self) -> Model:
+        """The model whose parameters this result holds (effects that act on the readings)."""
+        return Model([e for e in self.effects if e != "bench_tilt"], self.reference_temperature_C)
+
+    def apply(self, w, temperature_C) -> np.ndarray:
+        """Calibrated acceleration in the IMU frame (g): ``A_IMU = Ca^-1 (K W - S)``.
+
+        ``w`` (n, 3) raw outputs, ``temperature_C`` (n, 3) or (n,) the accelerometers'
+        temperatures. Thermal terms are evaluated at the reading's temperature, on the
+        mid-line of the hysteresis loop (the branch of a reading is not known); a
+        second-order or asymmetric transfer is inverted to first order.
+        """
+        w = np.atleast_2d(np.asarray(w, float))
+        T = np.asarray(temperature_C, float)
+        T = np.broadcast_to(T[:, None] if T.ndim == 1 else T, w.shape)
+        model = self.model()
+        missing = [n for n in model.names if n not in self.parameters]
+        if missing:
+            raise ValueError(f"result lacks parameters {missing} of its own model {model!r}")
+        p = model.to_internal({n: self.parameters[n].value for n in model.names})
+        zeros = np.zeros(len(w))
+        cov = Covariates(axis1=zeros, axis2=zeros, temp=tuple(T[:, i] for i in range(3)),
+                         temp_rate=(zeros, zeros, zeros), branch=zeros, time_s=zeros)
+        K, S, angles = model.terms(p, cov)
+        sensed = np.stack([w[:, i] * K[i] - S[i] for i in range(3)], axis=1)
+        for i, a in enumerate(AXES):
+            if f"K2_{a}" in p:
+                sensed[:, i] -= p[f"K2_{a}"] * sensed[:, i] ** 2
+            if f"K_{a}_asymmetry" in p:
+                sensed[:, i] -= p[f"K_{a}_asymmetry"] * np.abs(sensed[:, i])
+        Ca = np.array([[np.broadcast_to(np.asarray(x, float), (len(w),)) for x in row]
+                       for row in dcm(angles)])  # (3, 3, n)
+        return np.linalg.solve(np.moveaxis(Ca, -1, 0), sensed[..., None])[..., 0]
+
+    def matrix(self) -> np.ndarray:
+        """Ca at the reference temperature (mid-line), 3x3."""
+        from ..models.units import ARCSEC
+        angles = {k[3:]: self.parameters[k].value * ARCSEC for k in self.parameters
+                  if k.startswith("Ca_") and len(k) == 5}
+        return np.array(dcm(angles), float)
+
+
+def round_to_uncertainty(value: float, u: float, digits: int = 2) -> tuple[str, str]:
+    """Value and uncertainty as strings, ``u`` to ``digits`` significant digits (GUM 7.2.6)."""
+    if not (u > 0 and math.isfinite(u)):
+        return f"{value:.6g}", f"{u:g}"
+    exponent = math.floor(math.log10(u)) - (digits - 1)
+    decimals = max(0, -exponent)
+    q = 10.0 ** exponent
+    u_r = round(u / q) * q
+    v_r = round(value / q) * q
+    return f"{v_r:.{decimals}f}", f"{u_r:.{decimals}f}"

@@ -1,0 +1,1 @@
+"""File formats: bench CSV v1 and the JSON results."""

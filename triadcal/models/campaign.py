@@ -1,0 +1,169 @@
+"""Campaign data: the position-averaged visits of a multi-position thermal test.
+
+The data object every estimator takes, whether it came from bench CSV v1
+(../shared/docs/bench-csv.md), the simulator or the capture layer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Optional
+
+import numpy as np
+
+from .effects.hysteresis import BRANCH
+from .kinematics import gravity_in_imu
+from .model import Covariates
+from .units import DEG, STANDARD_GRAVITY_M_S2
+
+#: The default 12-position plan of bench-csv.md: label -> (axis1_deg, axis2_deg).
+DEFAULT_PLAN: dict[str, tuple[float, float]] = {
+    "P01": (0.0, 0.0), "P02": (180.0, 0.0), "P03": (0.0, 180.0), "P04": (180.0, 180.0),
+    "P05": (90.0, 90.0), "P06": (270.0, 270.0), "P07": (270.0, 90.0), "P08": (90.0, 270.0),
+    "P09": (180.0, 90.0), "P10": (0.0, 270.0), "P11": (0.0, 90.0), "P12": (180.0, 270.0),
+}
+
+DIRECTIONS = tuple(BRANCH)
+
+
+def nominal_gravity(axis1_deg, axis2_deg):
+    """Unit gravity vector in the IMU frame of a level, perfect bench: shape (n, 3)."""
+    g = gravity_in_imu(np.radians(np.asarray(axis1_deg, float)), np.radians(np.asarray(axis2_deg, float)),
+                       (0.0, 0.0, 1.0))
+    return np.stack(np.broadcast_arrays(*g), axis=-1)
+
+
+def up_axis_label(axis1_deg, axis2_deg, threshold: float = 0.99):
+    """Label of the IMU axis that points up or down ('+X', '-Z', ...; '' when none does)."""
+    g = nominal_gravity(axis1_deg, axis2_deg).reshape(-1, 3)
+    out = []
+    for row in g:
+        i = int(np.argmax(np.abs(row)))
+        out.append(("+" if row[i] > 0 else "-") + "XYZ"[i] if abs(row[i]) >= threshold else "")
+    return np.array(out)
+
+
+@dataclass
+class Campaign:
+    """Visits of a bench campaign (one row of bench CSV v1 each).
+
+    Units are in the names: ``setpoint_C``, ``time_s``, ``axis1_deg``, ``tau_s``; ``w`` holds
+    the mean outputs of the X, Y, Z accelerometers (volts or the instrument's unit,
+    ``output_unit``), ``t`` their temperature sensors in degC.
+    """
+
+    unit: np.ndarray
+    setpoint_C: np.ndarray
+    direction: np.ndarray
+    time_s: np.ndarray
+    position: np.ndarray
+    axis1_deg: np.ndarray
+    axis2_deg: np.ndarray
+    tau_s: np.ndarray
+    w: np.ndarray
+    t: np.ndarray
+    cycle: np.ndarray
+    state: np.ndarray
+    sd: Optional[np.ndarray] = None
+    n_samples: Optional[np.ndarray] = None
+    metadata: dict = field(default_factory=dict)
+    source: Optional[str] = None
+    lines: Optional[np.ndarray] = None
+    #: columns the format does not define, kept as text so nothing is dropped
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        n = len(self.time_s)
+        for name in ("unit", "setpoint_C", "direction", "position", "axis1_deg", "axis2_deg",
+                     "tau_s", "cycle", "state"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"campaign field {name} has {len(getattr(self, name))} entries, expected {n}")
+        if self.w.shape != (n, 3) or self.t.shape != (n, 3):
+            raise ValueError("campaign fields w and t must have shape (n_visits, 3)")
+
+    # -- basic facts ---------------------------------------------------------------
+    @property
+    def n_visits(self) -> int:
+        return len(self.time_s)
+
+    @property
+    def output_unit(self) -> str:
+        return str(self.metadata.get("output_unit", "V"))
+
+    @property
+    def local_g_m_s2(self) -> float:
+        return float(self.metadata.get("local_g_m_s2", STANDARD_GRAVITY_M_S2))
+
+    @property
+    def gravity_g(self) -> float:
+        """Magnitude of the local apparent gravity in g (standard gravity)."""
+        return self.local_g_m_s2 / STANDARD_GRAVITY_M_S2
+
+    @property
+    def branch(self) -> np.ndarray:
+        """Hysteresis branch of each visit: +1 cooling, -1 heating, 0 none."""
+        return np.array([BRANCH[d] for d in self.direction])
+
+    @property
+    def units(self) -> list[str]:
+        return sorted(set(self.unit.tolist()))
+
+    @property
+    def setpoint_blocks(self) -> np.ndarray:
+        """Index of the setpoint visit each row belongs to (consecutive in time)."""
+        order = np.argsort(self.time_s, kind="stable")
+        key = list(zip(self.unit[order], self.state[order], self.cycle[order],
+                       self.setpoint_C[order], self.direction[order]))
+        block = np.zeros(self.n_visits, int)
+        b = 0
+        for k in range(1, len(order)):
+            if key[k] != key[k - 1]:
+                b += 1
+            block[order[k]] = b
+        return block
+
+    def temperature_rate(self) -> np.ndarray:
+        """Rate of change of each temperature sensor (degC/s), shape (n, 3).
+
+        Central differences against ``time_s`` within each setpoint block (one-sided at its
+        ends); zero for a block with a single visit.
+        """
+        rate = np.zeros_like(self.t)
+        blocks = self.setpoint_blocks
+        for b in np.unique(blocks):
+            idx = np.flatnonzero(blocks == b)
+            idx = idx[np.argsort(self.time_s[idx])]
+            if len(idx) >= 2:
+                rate[idx] = np.gradient(self.t[idx], self.time_s[idx], axis=0)
+        return rate
+
+    def up_axis(self) -> np.ndarray:
+        """Nominal up axis of each visit ('+X', '-Y', ...), from the bench kinematics."""
+        return up_axis_label(self.axis1_deg, self.axis2_deg)
+
+    def output_sigma(self) -> Optional[np.ndarray]:
+        """Standard uncertainty of each mean output from ``sd_*`` and ``n_samples``, or None."""
+        if self.sd is None or self.n_samples is None:
+            return None
+        return self.sd / np.sqrt(self.n_samples)[:, None]
+
+    def covariates(self) -> Covariates:
+        rate = self.temperature_rate()
+        return Covariates(
+            axis1=self.axis1_deg * DEG, axis2=self.axis2_deg * DEG,
+            temp=tuple(self.t[:, i] for i in range(3)),
+            temp_rate=tuple(rate[:, i] for i in range(3)),
+            branch=self.branch, time_s=self.time_s.astype(float))
+
+    def select(self, mask) -> "Campaign":
+        """A campaign with the visits selected by a boolean mask or index array."""
+        idx = np.asarray(mask)
+        def t(v):
+            return None if v is None else v[idx]
+        return replace(self, unit=self.unit[idx], setpoint_C=self.setpoint_C[idx],
+                       direction=self.direction[idx], time_s=self.time_s[idx],
+                       position=self.position[idx], axis1_deg=self.axis1_deg[idx],
+                       axis2_deg=self.axis2_deg[idx], tau_s=self.tau_s[idx], w=self.w[idx],
+                       t=self.t[idx], cycle=self.cycle[idx], state=self.state[idx],
+                       sd=t(self.sd), n_samples=t(self.n_samples), lines=t(self.lines),
+                       metadata=dict(self.metadata), extra={k: v[idx] for k, v in self.extra.items()})

@@ -1,0 +1,38 @@
+"""Switchable effects of the model, by their names in results-json.md.
+
+``EFFECTS`` lists them in the canonical order in which their hooks are applied.
+``position_error`` and ``heavy_tails`` act on the noise, not the mean: the simulator
+draws them (:class:`triadcal.models.simulate.NoiseModel`).
+"""
+
+from .asymmetry import ScaleAsymmetry
+from .base import Effect
+from .bias_drift import BiasDrift
+from .hysteresis import Hysteresis
+from .nonlinearity import ScaleNonlinearity
+from .thermal import AngleTempco, BiasTempco, ScaleTempco
+from .thermal_lag import ThermalLag
+from .tilt import BenchTilt
+
+EFFECTS: dict[str, type[Effect]] = {
+    cls.name: cls
+    for cls in (BenchTilt, ThermalLag, AngleTempco, Hysteresis, ScaleTempco, BiasTempco,
+                BiasDrift, ScaleNonlinearity, ScaleAsymmetry)
+}
+NOISE_EFFECTS = ("position_error", "heavy_tails")
+VOCABULARY = tuple(EFFECTS) + NOISE_EFFECTS
+
+#: the model a metrologist uses for a thermal campaign on a tilted bench
+DEFAULT_EFFECTS = ("bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis")
+
+
+def get_effects(names) -> tuple[Effect, ...]:
+    """Effect instances for ``names`` in canonical order; unknown names raise ValueError."""
+    names = list(dict.fromkeys(names))
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        raise ValueError(
+            f"unknown effect(s) {', '.join(unknown)}; the model's effects are: {', '.join(EFFECTS)}"
+            + (" (position_error and heavy_tails are noise options of the simulator)"
+               if set(unknown) & set(NOISE_EFFECTS) else ""))
+    return tuple(cls() for n, cls in EFFECTS.items() if n in names)

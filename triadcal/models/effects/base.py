@@ -1,0 +1,49 @@
+"""The interface every switchable effect of the model implements.
+
+An effect is a small class with a ``name`` from the vocabulary of
+../shared/docs/results-json.md, its parameters, and one or more hooks that modify an
+intermediate quantity of eq. 1. The default hooks leave everything unchanged, so an
+effect overrides only what it touches. Hooks receive ``p`` (parameter name ->
+internal value) and ``cov`` (:class:`triadcal.models.model.Covariates`) and must be
+written with :mod:`triadcal.models.ops` so they run on numpy and CasADi alike.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+
+class Effect:
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+
+    def parameters(self):
+        """Tuple of :class:`~triadcal.models.parameters.ParameterSpec`."""
+        return ()
+
+    def gravity_base(self, p, cov, f):
+        """Apparent gravity direction in the base frame (3-tuple)."""
+        return f
+
+    def temperature(self, p, cov, dT):
+        """Temperature of each sensing element, as deviations from the reference (3-tuple, degC)."""
+        return dT
+
+    def angles(self, p, cov, dT, angles):
+        """Orientation angles in rad (dict ``'xy' -> value``)."""
+        return angles
+
+    def scale(self, p, cov, dT, K):
+        """Scale factors (3-tuple, g per output unit)."""
+        return K
+
+    def bias(self, p, cov, dT, S):
+        """Biases (3-tuple, g)."""
+        return S
+
+    def transfer(self, p, cov, sensed):
+        """Acceleration along each sensing axis as the sensor responds to it (3-tuple, g)."""
+        return sensed
+
+    def __repr__(self) -> str:
+        return f"<effect {self.name}>"

@@ -1,0 +1,38 @@
+"""Thermal hysteresis of the orientation angles (seed paper, eq. 5 and Table 1).
+
+The paper: the temperature dependence of the reference plane's orientation
+(dCa_Ta of eq. 5) "has a hysteresis loop" (Table 1: +-4" to +-60"). Modelled as two
+branches of the loop, parallel to the mid-line: ``angle = mid-line + h * b`` with
+``b = +1`` on the cooling branch, ``-1`` on the heating branch and ``0`` for a setpoint
+reached with no known history (direction ``none``, e.g. a unit soaked at ambient).
+``h = (cooling - heating) / 2`` as in results-json.md. This saturated-loop form holds
+when each sweep spans well more than the loop's own width, as bench campaigns do.
+"""
+
+from __future__ import annotations
+
+from ..parameters import per_angle
+from ..sensor import ANGLE_NAMES
+from .base import Effect
+
+BRANCH = {"heating": -1.0, "cooling": 1.0, "none": 0.0}
+
+
+def branch_offset(half_width, branch):
+    """Offset of the branch from the mid-line: ``h * b`` (b = +1 cooling, -1 heating, 0 none)."""
+    return half_width * branch
+
+
+class Hysteresis(Effect):
+    name = "hysteresis"
+    description = "half-width of the thermal hysteresis loop of each angle, (cooling - heating)/2 (arcsec)"
+
+    def parameters(self):
+        return per_angle("Ca_{ab}_hysteresis", "arcsec", 10.0,
+                         "hysteresis of Ca_{a}{b}: (cooling - heating)/2", self.name)
+
+    def angles(self, p, cov, dT, angles):
+        out = dict(angles)
+        for ab in ANGLE_NAMES:
+            out[ab] = angles[ab] + branch_offset(p[f"Ca_{ab}_hysteresis"], cov.branch)
+        return out

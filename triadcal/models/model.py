@@ -1,0 +1,129 @@
+"""The joint measurement model: eq. 1 with the bench kinematics and switchable effects.
+
+One definition of the physics serves the simulator (numpy, vectorised over visits)
+and the estimators (CasADi symbols): :meth:`Model.predict` only uses
+:mod:`triadcal.models.ops` and elementwise arithmetic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from . import kinematics, sensor
+from .effects import DEFAULT_EFFECTS, Effect, get_effects
+from .parameters import CORE_PARAMETERS, ParameterSpec
+from .sensor import ANGLE_NAMES, AXES
+
+
+@dataclass
+class Covariates:
+    """What the model needs to know of each visit (arrays over visits, or CasADi values).
+
+    Angles in radians (commanded bench angles; ``axis*_error`` and ``wobble`` are the
+    simulator's per-visit bench errors, zero for an estimator), temperatures of the
+    three accelerometer sensors in degC, their rates in degC/s, the hysteresis branch
+    (+1 cooling, -1 heating, 0 none) and the time since the start of the campaign in s.
+    """
+
+    axis1: Any
+    axis2: Any
+    temp: tuple
+    temp_rate: tuple
+    branch: Any
+    time_s: Any
+    axis1_error: Any = 0.0
+    axis2_error: Any = 0.0
+    wobble: Any = 0.0
+
+    def take(self, index) -> "Covariates":
+        """The covariates of a subset of visits (numpy only)."""
+        def t(v):
+            return v[index] if isinstance(v, np.ndarray) and v.ndim else v
+        return Covariates(t(self.axis1), t(self.axis2), tuple(t(v) for v in self.temp),
+                          tuple(t(v) for v in self.temp_rate), t(self.branch), t(self.time_s),
+                          t(self.axis1_error), t(self.axis2_error), t(self.wobble))
+
+
+class Model:
+    """Eq. 1 with bench kinematics and a set of effects.
+
+    ``parameters`` lists the core parameters (K, S, the six angles) followed by those of
+    the effects in canonical order. ``gravity_g`` is the magnitude of the local apparent
+    gravity in g (local g / standard gravity).
+    """
+
+    def __init__(self, effects: Sequence[str] = DEFAULT_EFFECTS, reference_temperature_C: float = 20.0):
+        self.effects: tuple[Effect, ...] = get_effects(effects)
+        self.reference_temperature_C = float(reference_temperature_C)
+        specs: list[ParameterSpec] = list(CORE_PARAMETERS)
+        for e in self.effects:
+            specs.extend(e.parameters())
+        self.parameters: tuple[ParameterSpec, ...] = tuple(specs)
+        self.names: tuple[str, ...] = tuple(s.name for s in specs)
+        self.spec: dict[str, ParameterSpec] = {s.name: s for s in specs}
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        return tuple(e.name for e in self.effects)
+
+    def __repr__(self) -> str:
+        return f"Model(effects={list(self.effect_names)}, T0={self.reference_temperature_C} degC)"
+
+    # -- conversions ----------------------------------------------------------------
+    def to_internal(self, values: Mapping[str, Any]) -> dict[str, Any]:
+        """Reporting units -> internal units, for every parameter of the model.
+
+        Missing parameters take their nominal value (1 for K, 0 otherwise).
+        """
+        unknown = set(values) - set(self.names)
+        if unknown:
+            raise KeyError(f"parameters not in {self!r}: {sorted(unknown)}")
+        return {s.name: values.get(s.name, s.nominal) * s.to_internal for s in self.parameters}
+
+    def vector(self, values: Mapping[str, float]) -> np.ndarray:
+        """Reporting-unit values as a vector in the order of ``names`` (nominal where missing)."""
+        return np.array([float(values.get(s.name, s.nominal)) for s in self.parameters])
+
+    def scales(self) -> np.ndarray:
+        """Reporting -> internal factors in the order of ``names``."""
+        return np.array([s.to_internal for s in self.parameters])
+
+    # -- the physics ------------------------------------------------------------------
+    def terms(self, p: Mapping[str, Any], cov: Covariates):
+        """Scale factors, biases and orientation angles (internal units) at each visit's
+        temperature, branch and time: ``(K, S, angles)`` after every effect's hooks."""
+        dT = tuple(t - self.reference_temperature_C for t in cov.temp)
+        for e in self.effects:
+            dT = e.temperature(p, cov, dT)
+        angles = {ab: p[f"Ca_{ab}"] for ab in ANGLE_NAMES}
+        K = tuple(p[f"K_{a}"] for a in AXES)
+        S = tuple(p[f"S_{a}"] for a in AXES)
+        for e in self.effects:
+            angles = e.angles(p, cov, dT, angles)
+            K = e.scale(p, cov, dT, K)
+            S = e.bias(p, cov, dT, S)
+        return K, S, angles
+
+    def predict(self, p: Mapping[str, Any], cov: Covariates, gravity_g: Any = 1.0):
+        """Outputs ``(W_x, W_y, W_z)`` of every visit (eq. 1 solved for W).
+
+        ``p`` maps every parameter name to its internal value (radians, g, fractions,
+        seconds: see :meth:`to_internal`).
+        """
+        # gravity direction in the base frame, rotated into the IMU frame (bench-csv.md)
+        f = (0.0, 0.0, 1.0)
+        for e in self.effects:
+            f = e.gravity_base(p, cov, f)
+        g_imu = kinematics.gravity_in_imu(cov.axis1 + cov.axis1_error, cov.axis2 + cov.axis2_error,
+                                          f, cov.wobble)
+        g_imu = tuple(gravity_g * c for c in g_imu)
+
+        K, S, angles = self.terms(p, cov)
+        Ca = sensor.dcm(angles)
+        sensed = tuple(sensor.sensed_acceleration(Ca[i], g_imu) for i in range(3))
+        for e in self.effects:
+            sensed = e.transfer(p, cov, sensed)
+        return tuple(sensor.output(sensed[i], K[i], S[i]) for i in range(3))

@@ -1,0 +1,296 @@
+"""Bench-campaign simulator: the same physics as the estimators (:class:`Model`).
+
+A campaign is a sequence of chamber setpoints; at each, the chamber is commanded,
+the unit soaks, then every position of the plan is visited (a bench move and settle,
+then an averaging window of ``tau_s``). The chamber follows its setpoint with a
+first-order time constant, the unit follows the chamber with another; each
+accelerometer's temperature sensor reads the unit's temperature plus its own
+self-heating and white reading noise. Outputs come from :meth:`Model.predict` with
+per-visit bench positioning errors and wobble (sigma_1, sigma_2 of eq. 4), plus the
+white output noise of intensity Q averaged over tau (variance Q / tau).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+
+from .. import __version__
+from .campaign import DEFAULT_PLAN, Campaign
+from .effects import DEFAULT_EFFECTS, EFFECTS, NOISE_EFFECTS
+from .model import Covariates, Model
+from .units import ARCSEC, DEG, STANDARD_GRAVITY_M_S2
+
+#: 12 positions x 15 setpoints: soaked at ambient, heated to +70, cooled to -40, heated back
+STANDARD_SETPOINTS_C = (20.0, 35.0, 55.0, 70.0, 55.0, 35.0, 20.0, 5.0, -10.0, -25.0, -40.0,
+                        -25.0, -10.0, 5.0, 20.0)
+
+
+@dataclass
+class Schedule:
+    """Thermal and timing plan of a campaign.
+
+    The first setpoint is reached from ``start_C`` with no known history (direction
+    ``none``: the unit has soaked at ambient); every later one is ``heating`` or
+    ``cooling`` by comparison with the previous setpoint.
+    """
+
+    setpoints_C: Sequence[float] = STANDARD_SETPOINTS_C
+    start_C: float = 20.0
+    soak_s: float = 7200.0
+    tau_s: float = 30.0
+    move_s: float = 20.0
+    chamber_time_constant_s: float = 600.0
+    unit_time_constant_s: float = 1200.0
+    self_heating_C: tuple = (0.30, 0.35, 0.25)
+
+    def directions(self) -> list[str]:
+        out = []
+        for k, sp in enumerate(self.setpoints_C):
+            if k == 0:
+                out.append("none")
+            elif sp == self.setpoints_C[k - 1]:
+                out.append(out[-1])
+            else:
+                out.append("heating" if sp > self.setpoints_C[k - 1] else "cooling")
+        return out
+
+
+@dataclass
+class NoiseModel:
+    """Random errors of a campaign (eq. 4's terms).
+
+    ``Q_V2s`` white-noise intensity of each output (output unit^2 s); ``sigma_position_arcsec``
+    random error of each bench axis per visit (sigma_1); ``sigma_wobble_arcsec`` wobble of
+    axis 1 per visit (sigma_2); ``heavy_tails_dof`` draws the averaged output noise from a
+    Student-t with that many degrees of freedom and the same standard deviation (the
+    ``heavy_tails`` effect; None for Gaussian).
+    """
+
+    Q_V2s: float = 3e-9
+    sample_rate_hz: float = 100.0
+    sigma_position_arcsec: float = 0.0
+    sigma_wobble_arcsec: float = 0.0
+    temp_noise_C: float = 0.01
+    heavy_tails_dof: Optional[float] = None
+
+    def output_sigma(self, tau_s):
+        """Standard deviation of a mean over ``tau_s``: sqrt(Q / tau) (white noise)."""
+        return np.sqrt(self.Q_V2s / np.asarray(tau_s, float))
+
+
+@dataclass
+class Truth:
+    """What a simulated campaign is made of: the unit's parameters (reporting units),
+    the active effects, and the noise."""
+
+    unit: str = "SN-SIM-0001"
+    effects: tuple = DEFAULT_EFFECTS
+    parameters: dict = field(default_factory=dict)
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    reference_temperature_C: float = 20.0
+    local_g_m_s2: float = STANDARD_GRAVITY_M_S2
+
+    def model(self) -> Model:
+        return Model(self.effects, self.reference_temperature_C)
+
+    def to_dict(self) -> dict:
+        model = self.model()
+        return {
+            "format": "triadcal.truth", "version": 1, "unit": self.unit,
+            "effects": list(self.effects),
+            "reference_temperature_C": self.reference_temperature_C,
+            "local_g_m_s2": self.local_g_m_s2,
+            "parameters": {n: {"value": float(self.parameters.get(n, model.spec[n].nominal)),
+                               "unit": model.spec[n].unit} for n in model.names},
+            "noise": asdict(self.noise),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> "Truth":
+        if d.get("format") != "triadcal.truth" or d.get("version") != 1:
+            raise ValueError(f"not a triadcal.truth version 1 document (format={d.get('format')!r}, "
+                             f"version={d.get('version')!r})")
+        return cls(unit=d["unit"], effects=tuple(d["effects"]),
+                   parameters={k: v["value"] for k, v in d["parameters"].items()},
+                   noise=NoiseModel(**d["noise"]),
+                   reference_temperature_C=d["reference_temperature_C"],
+                   local_g_m_s2=d["local_g_m_s2"])
+
+    def save(self, path) -> None:
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump(self.to_dict(), fh, indent=2)
+
+    @classmethod
+    def load(cls, path) -> "Truth":
+        with open(path, encoding="utf-8") as fh:
+            return cls.from_dict(json.load(fh))
+
+
+def _angles(values):
+    return dict(zip(("xy", "xz", "yx", "yz", "zx", "zy"), values))
+
+
+def _preset(K, S, angles, tempco, hyst, K_tc, S_tc, K2, asym, drift, lag_min, tilt_arcsec, tilt_beta_deg):
+    p = {}
+    for a, k, s, ktc, stc, k2, e, d in zip("xyz", K, S, K_tc, S_tc, K2, asym, drift):
+        p.update({f"K_{a}": k, f"S_{a}": s, f"K_{a}_tempco": ktc, f"S_{a}_tempco": stc,
+                  f"K2_{a}": k2, f"K_{a}_asymmetry": e, f"S_{a}_drift": d})
+    for ab, v in _angles(angles).items():
+        p[f"Ca_{ab}"] = v
+    for ab, v in _angles(tempco).items():
+        p[f"Ca_{ab}_tempco"] = v
+    for ab, v in _angles(hyst).items():
+        p[f"Ca_{ab}_hysteresis"] = v
+    p["tilt_x"] = tilt_arcsec * np.cos(tilt_beta_deg * DEG)
+    p["tilt_y"] = tilt_arcsec * np.sin(tilt_beta_deg * DEG)
+    p["thermal_lag"] = lag_min
+    return p
+
+
+#: Units drawn from the seed paper's Tables 1-2 (angles within the measured maximum
+#: deviation, tempcos of the measured size, hysteresis half-widths of Table 1), on a
+#: bench tilted by 60" toward 30 deg. Every effect of the vocabulary has a value, so a
+#: preset can switch any of them on.
+PRESETS: dict[str, dict] = {
+    # quartz AK-18: max deviation 8.5', angle tempco 0.8"/degC, hysteresis +-15"
+    "ak18-quartz": _preset(
+        K=(1.00021, 0.99987, 1.00043), S=(8.0e-4, -1.2e-3, 5.0e-4),
+        angles=(312.0, -145.0, 88.0, -420.0, 240.0, 505.0),
+        tempco=(0.8, -0.6, 0.5, 0.7, -0.8, 0.4), hyst=(12.0, -8.0, 15.0, 6.0, -10.0, 9.0),
+        K_tc=(15.0, -20.0, 25.0), S_tc=(20.0, -15.0, 30.0), K2=(10.0, -8.0, 12.0),
+        asym=(20.0, -15.0, 25.0), drift=(3.0, -2.0, 4.0), lag_min=4.0,
+        tilt_arcsec=60.0, tilt_beta_deg=30.0),
+    # silicon A-18: max deviation 14.5', angle tempco 4.9"/degC, hysteresis up to +-60"
+    "a18-silicon": _preset(
+        K=(0.99912, 1.00074, 0.99958), S=(2.1e-3, -1.6e-3, 9.0e-4),
+        angles=(-610.0, 420.0, 870.0, -230.0, 515.0, -760.0),
+        tempco=(4.9, -3.8, 4.2, -4.6, 3.1, 4.5), hyst=(35.0, -28.0, 40.0, 22.0, -30.0, 33.0),
+        K_tc=(110.0, -90.0, 130.0), S_tc=(100.0, -80.0, 120.0), K2=(40.0, -30.0, 50.0),
+        asym=(60.0, -45.0, 70.0), drift=(10.0, -8.0, 12.0), lag_min=8.0,
+        tilt_arcsec=60.0, tilt_beta_deg=30.0),
+}
+
+
+def preset_truth(name: str = "ak18-quartz", effects: Sequence[str] = DEFAULT_EFFECTS,
+                 noise: Optional[NoiseModel] = None, unit: str = "SN-SIM-0001", **overrides) -> Truth:
+    """A :class:`Truth` from a preset, keeping the parameters of the chosen effects.
+
+    ``overrides`` set parameters by name (reporting units).
+    """
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
+    effects = tuple(e for e in effects if e not in NOISE_EFFECTS)
+    model = Model(effects)
+    params = {n: PRESETS[name][n] for n in model.names}
+    for k, v in overrides.items():
+        if k not in model.spec:
+            raise ValueError(f"parameter {k!r} is not in the model with effects {list(effects)}")
+        params[k] = float(v)
+    return Truth(unit=unit, effects=tuple(model.effect_names), parameters=params,
+                 noise=noise or NoiseModel())
+
+
+def thermal_history(schedule: Schedule, times: np.ndarray, setpoint_start: np.ndarray,
+                    setpoint_values: np.ndarray, dt: float = 5.0):
+    """Chamber and unit temperatures (degC) and the unit's rate (degC/s) at ``times``.
+
+    The chamber follows its setpoint with time constant tau_c, the unit follows the
+    chamber with tau_u (two first-order lags in series, integrated exactly for a
+    piecewise-constant input on a ``dt`` grid and interpolated).
+    """
+    t_end = float(np.max(times)) + dt
+    grid = np.arange(0.0, t_end + dt, dt)
+    idx = np.searchsorted(setpoint_start, grid, side="right") - 1
+    sp = setpoint_values[np.clip(idx, 0, None)]
+    a_c = np.exp(-dt / schedule.chamber_time_constant_s)
+    a_u = np.exp(-dt / schedule.unit_time_constant_s)
+    chamber = np.empty_like(grid)
+    unit = np.empty_like(grid)
+    chamber[0] = unit[0] = schedule.start_C
+    for k in range(1, len(grid)):
+        chamber[k] = sp[k] + (chamber[k - 1] - sp[k]) * a_c
+        mid = 0.5 * (chamber[k] + chamber[k - 1])
+        unit[k] = mid + (unit[k - 1] - mid) * a_u
+    ch = np.interp(times, grid, chamber)
+    un = np.interp(times, grid, unit)
+    rate = (ch - un) / schedule.unit_time_constant_s
+    return ch, un, rate
+
+
+def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
+                      schedule: Optional[Schedule] = None, seed: int = 0,
+                      state: str = "initial") -> Campaign:
+    """Simulate a bench campaign; the same seed gives the same campaign."""
+    plan = dict(DEFAULT_PLAN if plan is None else plan)
+    schedule = schedule or Schedule()
+    rng = np.random.default_rng(seed)
+    noise = truth.noise
+    model = truth.model()
+
+    labels, a1, a2, sp_c, dirs, times, taus, starts = [], [], [], [], [], [], [], []
+    t = 0.0
+    for sp, d in zip(schedule.setpoints_C, schedule.directions()):
+        starts.append(t)
+        t += schedule.soak_s
+        for label, (ax1, ax2) in plan.items():
+            t += schedule.move_s
+            labels.append(label)
+            a1.append(ax1)
+            a2.append(ax2)
+            sp_c.append(sp)
+            dirs.append(d)
+            times.append(t + schedule.tau_s / 2)
+            taus.append(schedule.tau_s)
+            t += schedule.tau_s
+    n = len(labels)
+    times = np.array(times)
+    _, unit_T, unit_rate = thermal_history(schedule, times, np.array(starts),
+                                           np.array(schedule.setpoints_C, float))
+    sensor_T = unit_T[:, None] + np.asarray(schedule.self_heating_C)[None, :]
+    branch = np.array([{"none": 0.0, "heating": -1.0, "cooling": 1.0}[d] for d in dirs])
+
+    cov = Covariates(
+        axis1=np.radians(a1), axis2=np.radians(a2),
+        temp=tuple(sensor_T[:, i] for i in range(3)),
+        temp_rate=tuple(unit_rate for _ in range(3)),
+        branch=branch, time_s=times,
+        axis1_error=rng.normal(0.0, noise.sigma_position_arcsec * ARCSEC, n),
+        axis2_error=rng.normal(0.0, noise.sigma_position_arcsec * ARCSEC, n),
+        wobble=rng.normal(0.0, noise.sigma_wobble_arcsec * ARCSEC, n))
+    gravity_g = truth.local_g_m_s2 / STANDARD_GRAVITY_M_S2
+    w_true = np.stack(model.predict(model.to_internal(truth.parameters), cov, gravity_g), axis=1)
+
+    tau = np.array(taus)
+    sigma = noise.output_sigma(tau)[:, None]
+    if noise.heavy_tails_dof is not None:
+        nu = float(noise.heavy_tails_dof)
+        if nu <= 2:
+            raise ValueError("heavy_tails_dof must exceed 2 for a finite variance")
+        eps = rng.standard_t(nu, size=(n, 3)) * np.sqrt((nu - 2) / nu)
+    else:
+        eps = rng.standard_normal((n, 3))
+    w = w_true + sigma * eps
+    t_read = sensor_T + rng.normal(0.0, noise.temp_noise_C, (n, 3))
+
+    n_samples = np.maximum(1, np.round(tau * noise.sample_rate_hz)).astype(int)
+    sd_raw = np.sqrt(noise.Q_V2s * noise.sample_rate_hz)
+    sd = sd_raw * np.sqrt(rng.chisquare(np.maximum(n_samples - 1, 1)[:, None], (n, 3))
+                          / np.maximum(n_samples - 1, 1)[:, None])
+
+    metadata = {
+        "generator": f"triadcal {__version__} simulate",
+        "seed": str(seed),
+        "bench": "simulated two-axis bench",
+        "local_g_m_s2": repr(truth.local_g_m_s2),
+        "output_unit": "V",
+        "Q_V2s": repr(noise.Q_V2s),
+    }
+    return Campaign(
+        unit=np.full(n, truth.unit), setpoint_C=np.array(sp_c, float), direction=np.array(dirs),
+        time_s=times, position=np.array(labels), axis1_deg=np.array(a1, float),
+        axis2_deg=np.array(a2, float), tau_s=tau, w=w, t=t_read, cycle=np.zeros(n, int),
+        state=np.full(n, state), sd=sd, n_samples=n_samples, metadata=metadata)

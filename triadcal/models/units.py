@@ -1,0 +1,32 @@
+"""Unit conversions used at every boundary (reporting unit <-> internal unit).
+
+Internal units of the physics: angles in radians, scale factors in g per output
+unit, biases and accelerations in g, temperatures in degC, times in seconds.
+Reporting units follow ../shared/docs/results-json.md.
+"""
+
+import math
+
+ARCSEC = math.pi / (180.0 * 3600.0)   #: radians per arcsecond
+DEG = math.pi / 180.0                 #: radians per degree
+ARCMIN = 60.0 * ARCSEC
+PPM = 1e-6
+UG = 1e-6                             #: g per micro-g
+STANDARD_GRAVITY_M_S2 = 9.80665       #: g_n, m/s^2 per g
+
+#: internal value = reporting value * TO_INTERNAL[unit]
+TO_INTERNAL = {
+    "arcsec": ARCSEC,
+    "arcsec/degC": ARCSEC,
+    "deg": DEG,
+    "g": 1.0,
+    "g/V": 1.0,
+    "ppm": PPM,
+    "ppm/degC": PPM,
+    "ug": UG,
+    "ug/degC": UG,
+    "ug/g2": UG,
+    "ug/h": UG / 3600.0,
+    "min": 60.0,
+    "1": 1.0,
+}
