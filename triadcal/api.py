@@ -38,3 +38,41 @@ def simulate(output=None, *, truth_path=None, preset: str = "ak18-quartz",
     if truth_path is not None:
         truth.save(truth_path)
     return truth, campaign
+
+
+def example_path():
+    """Path of the built-in example campaign (bench CSV v1, simulated ak18-quartz unit)."""
+    from importlib.resources import files
+
+    return files("triadcal") / "data" / "example_campaign.csv"
+
+
+def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS,
+        reference_temperature_C: float = 20.0, loss: str = "l2", strict: bool = False,
+        json_path=None, netcdf_path=None):
+    """Calibrate from a campaign (``triadcal fit``): ``data`` is a bench CSV path, a
+    :class:`~triadcal.models.campaign.Campaign`, or None for the built-in example.
+    Returns a :class:`~triadcal.estimation.result.CalibrationResult`."""
+    from .io.bench_csv import read_bench_csv
+    from .models.campaign import Campaign
+
+    campaign = data if isinstance(data, Campaign) else read_bench_csv(example_path() if data is None else data)
+    if method == "classical":
+        from .estimation.classical import fit_classical
+
+        result = fit_classical(campaign, reference_temperature_C=reference_temperature_C)
+    elif method == "joint":
+        from .estimation.joint import fit_joint
+
+        result, problem, solution = fit_joint(
+            campaign, effects, reference_temperature_C=reference_temperature_C, loss=loss,
+            unidentifiable="refuse" if strict else "fix", return_problem=True)
+        if netcdf_path is not None:
+            from .io.netcdf import write_fit_netcdf
+
+            write_fit_netcdf(netcdf_path, campaign, problem, solution, result)
+    else:
+        raise ValueError(f"unknown method {method!r}: choose classical or joint")
+    if json_path is not None:
+        result.save(json_path)
+    return result

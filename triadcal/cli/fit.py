@@ -1,0 +1,51 @@
+"""``triadcal fit``: calibrate from a bench CSV v1 campaign (classical eq. 2-3, or joint)."""
+
+from __future__ import annotations
+
+import sys
+
+from ..models.effects import DEFAULT_EFFECTS, EFFECTS
+from ._common import name_list
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "fit", help="calibrate a unit from a bench campaign (classical or joint least squares)",
+        description="Calibrate from a bench CSV v1 campaign. --method classical: the paper's eq. 2 at "
+                    "each setpoint and its linear thermal correction. --method joint: one CasADi "
+                    "least-squares fit of every term over all positions and temperatures.")
+    p.add_argument("data", nargs="?", help="bench CSV v1 file")
+    p.add_argument("--example", action="store_true", help="use the built-in example campaign")
+    p.add_argument("--method", choices=("classical", "joint"), default="joint")
+    p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS),
+                   help=f"effects of the joint model, from: {', '.join(EFFECTS)}; default: "
+                        f"{','.join(DEFAULT_EFFECTS)} (the thermal-campaign model: bench tilt, linear "
+                        "tempcos of angles, scale factors and biases, hysteresis of the angles)")
+    p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
+                   help="reference temperature of the thermal model, degC (default 20)")
+    p.add_argument("--loss", choices=("l2", "huber", "student_t"), default="l2",
+                   help="robust loss for the joint fit (default l2)")
+    p.add_argument("--strict", action="store_true",
+                   help="refuse when a parameter cannot be determined (default: hold it at 0 and say so)")
+    p.add_argument("--json", metavar="OUT", help="write the result (results-json v1)")
+    p.add_argument("--netcdf", metavar="OUT.nc", help="write residuals per visit and axis (joint)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..api import fit
+    from ..reports.summary import summary_text
+
+    if bool(args.data) == bool(args.example):
+        raise ValueError("give a bench CSV file or --example")
+    result = fit(args.data, method=args.method, effects=name_list(args.effects),
+                 reference_temperature_C=args.reference_temperature, loss=args.loss,
+                 strict=args.strict, json_path=args.json, netcdf_path=args.netcdf)
+    print(summary_text(result))
+    if args.json:
+        print(f"result written to {args.json}")
+    if args.netcdf:
+        print(f"residuals written to {args.netcdf}")
+    for note in result.notes:
+        print(f"note: {note}", file=sys.stderr)
+    return 0 if result.status == "ok" else 3

@@ -1,0 +1,352 @@
+"""Joint calibration: one least-squares fit of every term over all visits at once.
+
+The model is :class:`triadcal.models.model.Model` (eq. 1 with the bench kinematics and
+the chosen effects); CasADi builds the residuals and their exact Jacobian once, as a
+per-visit function mapped over the visits, and a Levenberg-Marquardt iteration in
+numpy solves the normal equations (the problem is nearly linear: it converges in a
+few iterations; IPOPT gives the same optimum and is slower, see
+``benchmarks/fit.py``). The covariance is the inverse Fisher information at the
+optimum, ``(J^T J)^-1`` on the normalised residuals, scaled by the residual variance
+when the noise is estimated rather than known.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import casadi as ca
+import numpy as np
+from scipy import stats
+
+from ..models.campaign import Campaign, nominal_gravity
+from ..models.effects import DEFAULT_EFFECTS
+from ..models.kinematics import tilt_polar
+from ..models.model import Covariates, Model
+from ..models.sensor import ANGLE_NAMES, AXES
+from ..models.units import ARCSEC, DEG
+from .result import CalibrationResult, ParameterValue
+
+#: covariates of one visit, in the order of the mapped function's second input
+COVARIATES = ("axis1", "axis2", "t_x", "t_y", "t_z", "rate_x", "rate_y", "rate_z", "branch", "time_s")
+LOSSES = ("l2", "huber", "student_t")
+
+
+class IdentifiabilityError(ValueError):
+    """The plan or the data cannot determine some parameters of the requested model."""
+
+
+@dataclass
+class NoiseSource:
+    """Standard deviation of each mean output and where it came from."""
+
+    sigma: np.ndarray          # (n, 3), output unit
+    known: bool                # True: from the data (sd_*/n or Q); False: relative weights only
+    description: str
+
+
+def noise_of(campaign: Campaign) -> NoiseSource:
+    """Weights of the fit: ``sd_*/sqrt(n_samples)`` where present, else ``sqrt(Q/tau)`` from a
+    ``Q_V2s`` metadata line, else ``1/sqrt(tau)`` relative weights with the scale estimated."""
+    s = campaign.output_sigma()
+    if s is not None:
+        return NoiseSource(s, True, "sd_*/sqrt(n_samples) of each visit")
+    if "Q_V2s" in campaign.metadata:
+        Q = float(campaign.metadata["Q_V2s"])
+        return NoiseSource(np.repeat(np.sqrt(Q / campaign.tau_s)[:, None], 3, axis=1), True,
+                           f"white noise Q = {Q:g} (output unit)^2 s from the file's metadata, sqrt(Q/tau_s)")
+    return NoiseSource(np.repeat((1.0 / np.sqrt(campaign.tau_s))[:, None], 3, axis=1), False,
+                       "estimated from the residuals (weights 1/sqrt(tau_s))")
+
+
+class JointProblem:
+    """Residuals of a model on a campaign, compiled once with CasADi.
+
+    ``x`` is the parameter vector in reporting units (order of ``names``); the
+    residuals are ``(W_obs - W_model) / sigma`` for every visit and axis, shape (3 n,).
+    Parameters in ``fixed`` are held at the given values (reporting units).
+    """
+
+    def __init__(self, campaign: Campaign, model: Model, sigma: np.ndarray, fixed: Optional[dict] = None):
+        self.campaign = campaign
+        self.model = model
+        self.fixed = dict(fixed or {})
+        self.names = tuple(n for n in model.names if n not in self.fixed)
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self.sigma = np.asarray(sigma, float)
+        self.n = campaign.n_visits
+        t0 = time.perf_counter()
+        x = ca.SX.sym("x", len(self.names))
+        c = ca.SX.sym("c", len(COVARIATES))
+        p = {}
+        for s in model.parameters:
+            p[s.name] = (x[self.index[s.name]] if s.name in self.index else self.fixed[s.name]) * s.to_internal
+        cov = Covariates(axis1=c[0], axis2=c[1], temp=(c[2], c[3], c[4]), temp_rate=(c[5], c[6], c[7]),
+                         branch=c[8], time_s=c[9])
+        g = ca.SX.sym("g")
+        w = ca.vertcat(*model.predict(p, cov, g))
+        per_visit = ca.Function("visit", [x, c, g], [w, ca.jacobian(w, x)])
+        self._mapped = per_visit.map(self.n, "serial")
+        self._predict = ca.Function("visit_w", [x, c, g], [w]).map(self.n, "serial")
+        rate = campaign.temperature_rate()
+        self.cov_matrix = np.vstack([np.radians(campaign.axis1_deg), np.radians(campaign.axis2_deg),
+                                     campaign.t.T, rate.T, campaign.branch, campaign.time_s])
+        self.gravity_g = campaign.gravity_g
+        self.build_seconds = time.perf_counter() - t0
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        """Model outputs (n, 3) at ``x``."""
+        return np.asarray(self._predict(x, self.cov_matrix, self.gravity_g)).T
+
+    def residuals_and_jacobian(self, x: np.ndarray):
+        w, J = self._mapped(x, self.cov_matrix, self.gravity_g)
+        w = np.asarray(w).T                                   # (n, 3)
+        J = np.asarray(J).reshape(3, self.n, len(self.names))  # columns of visit k: k*npar..
+        J = J.transpose(1, 0, 2)                              # (n, 3, npar)
+        r = (self.campaign.w - w) / self.sigma
+        Jr = -J / self.sigma[:, :, None]
+        return r.reshape(-1), Jr.reshape(-1, len(self.names))
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return ((self.campaign.w - self.predict(x)) / self.sigma).reshape(-1)
+
+
+def start_values(campaign: Campaign, model: Model) -> dict:
+    """Start of the iteration from a per-axis linear fit of the outputs on the nominal
+    gravity (eq. 1 with a level, perfect bench): ``W_a = (Ca_a . G + S_a) / K_a``."""
+    G = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg) * campaign.gravity_g
+    A = np.column_stack([G, np.ones(len(G))])
+    start = {}
+    for i, a in enumerate(AXES):
+        coef, *_ = np.linalg.lstsq(A, campaign.w[:, i], rcond=None)
+        b, c = coef[:3], coef[3]
+        K = 1.0 / np.linalg.norm(b)
+        start[f"K_{a}"] = K
+        start[f"S_{a}"] = K * c
+        for j, bb in enumerate(AXES):
+            if bb != a:
+                start[f"Ca_{a}{bb}"] = K * b[j] / ARCSEC
+    return {n: start.get(n, model.spec[n].nominal) for n in model.names}
+
+
+def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]:
+    """Parameters the data cannot determine, with the reason, from the design of the campaign."""
+    problems = {}
+    eff = set(model.effect_names)
+    T = campaign.t.mean(axis=1)
+    branches = set(campaign.branch.tolist())
+    if "hysteresis" in eff and not {-1.0, 1.0} <= branches:
+        have = {-1.0: "heating", 1.0: "cooling", 0.0: "none"}
+        for ab in ANGLE_NAMES:
+            problems[f"Ca_{ab}_hysteresis"] = (
+                "hysteresis needs visits on both a heating and a cooling branch; the data has only "
+                + ", ".join(sorted(have[b] for b in branches)))
+    if np.ptp(T) < 1.0:
+        for e, fmt, names in (("angle_tempco", "Ca_{}_tempco", ANGLE_NAMES), ("scale_tempco", "K_{}_tempco", AXES),
+                              ("bias_tempco", "S_{}_tempco", AXES)):
+            if e in eff:
+                for x in names:
+                    problems[fmt.format(x)] = f"a temperature coefficient needs more than one temperature; the data spans {np.ptp(T):.2f} degC"
+    if "thermal_lag" in eff and np.max(np.abs(campaign.temperature_rate())) < 1e-5:
+        problems["thermal_lag"] = "thermal lag needs temperatures that change during the visits; the rates are ~0"
+    if "bias_drift" in eff and np.ptp(campaign.time_s) <= 0:
+        for a in AXES:
+            problems[f"S_{a}_drift"] = "bias drift needs visits at different times"
+    return problems
+
+
+def null_space_problems(J: np.ndarray, names: Sequence[str], rtol: float = 1e-8) -> dict[str, str]:
+    """Parameters in the numerical null space of the (column-scaled) Jacobian."""
+    norms = np.linalg.norm(J, axis=0)
+    out = {}
+    for i in np.flatnonzero(norms == 0):
+        out[names[i]] = "the data carry no information on it (zero sensitivity)"
+    ok = norms > 0
+    Js = J[:, ok] / norms[ok]
+    _, s, vt = np.linalg.svd(Js, full_matrices=False)
+    sub = [n for n, k in zip(names, ok) if k]
+    for k in np.flatnonzero(s < rtol * s[0]):
+        v = vt[k]
+        involved = [sub[i] for i in np.flatnonzero(np.abs(v) > 0.2)]
+        for n in involved:
+            out[n] = ("not separable from " + ", ".join(m for m in involved if m != n)
+                      + " with this plan (a combination of them has no effect on the outputs)")
+    return out
+
+
+def robust_weights(r: np.ndarray, loss: str, nu: float = 4.0, c: float = 1.345) -> np.ndarray:
+    """IRLS weights of normalised residuals for a robust loss (Huber with c, Student-t with nu)."""
+    if loss == "l2":
+        return np.ones_like(r)
+    if loss == "huber":
+        a = np.abs(r)
+        return np.where(a <= c, 1.0, c / np.maximum(a, 1e-300))
+    if loss == "student_t":
+        return (nu + 1.0) / (nu + r * r)
+    raise ValueError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+
+
+@dataclass
+class Solution:
+    x: np.ndarray
+    cost: float
+    iterations: int
+    converged: bool
+    r: np.ndarray
+    J: np.ndarray
+    weights: np.ndarray = field(default=None)
+
+
+def levenberg_marquardt(problem: JointProblem, x0: np.ndarray, loss: str = "l2", max_iter: int = 100,
+                        nu: float = 4.0) -> Solution:
+    """Minimise the (robust) sum of squared normalised residuals with exact Jacobians."""
+    x = np.array(x0, float)
+    r, J = problem.residuals_and_jacobian(x)
+    wts = robust_weights(r, loss, nu)
+    lam = 1e-3
+    converged = False
+    it = 0
+    for it in range(1, max_iter + 1):
+        sw = np.sqrt(wts)
+        Jw, rw = J * sw[:, None], r * sw
+        cost = float(rw @ rw)
+        d = np.linalg.norm(Jw, axis=0)
+        d[d == 0] = 1.0
+        A = Jw / d
+        g = A.T @ rw
+        H = A.T @ A
+        improved = False
+        while lam < 1e12:
+            step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), g) / d
+            x_new = x + step
+            r_new, J_new = problem.residuals_and_jacobian(x_new)
+            w_new = robust_weights(r_new, loss, nu)
+            cost_new = float(np.sum(w_new * r_new * r_new))
+            if np.isfinite(cost_new) and cost_new <= cost * (1 + 1e-15):
+                improved = True
+                break
+            lam *= 10.0
+        if not improved:
+            converged = True  # no descent direction left: at the optimum within rounding
+            break
+        # step small against the uncertainty of each parameter -> done
+        try:
+            u = np.sqrt(np.diag(np.linalg.inv(H))) / d
+        except np.linalg.LinAlgError:
+            u = np.full_like(step, np.inf)
+        x, r, J, wts = x_new, r_new, J_new, w_new
+        lam = max(lam / 10.0, 1e-12)
+        if np.all(np.abs(step) <= 1e-6 * u) or abs(cost - cost_new) <= 1e-14 * max(cost, 1e-300):
+            converged = True
+            break
+    return Solution(x, float(np.sum(wts * r * r)), it, converged, r, J, wts)
+
+
+def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
+              reference_temperature_C: float = 20.0, loss: str = "l2", nu: float = 4.0,
+              fix: Optional[dict] = None, unidentifiable: str = "fix",
+              return_problem: bool = False):
+    """Fit the joint model to a campaign (``triadcal fit --method joint``).
+
+    ``unidentifiable``: ``"fix"`` holds parameters the data cannot determine at their
+    nominal value (0) and says so in the notes (they are then absent from the result),
+    ``"refuse"`` raises :class:`IdentifiabilityError`. ``fix`` holds chosen parameters at
+    given values. ``loss``: ``l2``, ``huber`` (c = 1.345) or ``student_t`` (``nu`` dof).
+    """
+    if loss not in LOSSES:
+        raise ValueError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    units = campaign.units
+    if len(units) != 1 or len(set(campaign.state.tolist())) != 1:
+        raise ValueError(f"{campaign.source or 'campaign'}: a fit takes one unit in one mechanical state; "
+                         f"found units {units} and states {sorted(set(campaign.state.tolist()))} "
+                         "(select one, e.g. with Campaign.select)")
+    model = Model(effects, reference_temperature_C)
+    noise = noise_of(campaign)
+    notes = []
+    problems = identifiability_problems(campaign, model)
+    fixed = dict(fix or {})
+    start = start_values(campaign, model)
+    if not problems:
+        probe = JointProblem(campaign, model, noise.sigma, fixed)
+        x0 = np.array([start[n] for n in probe.names])
+        _, J0 = probe.residuals_and_jacobian(x0)
+        problems = null_space_problems(J0, probe.names)
+    if problems:
+        if unidentifiable == "refuse":
+            raise IdentifiabilityError(
+                f"{campaign.source or 'campaign'}: the data cannot determine "
+                + "; ".join(f"{k}: {v}" for k, v in problems.items()))
+        for k, v in problems.items():
+            fixed.setdefault(k, model.spec[k].nominal)
+            notes.append(f"{k} not estimated, held at {model.spec[k].nominal:g} {model.spec[k].unit}: {v}")
+    problem = JointProblem(campaign, model, noise.sigma, fixed)
+    x0 = np.array([start[n] for n in problem.names])
+    t0 = time.perf_counter()
+    sol = levenberg_marquardt(problem, x0, loss=loss, nu=nu)
+    solve_seconds = time.perf_counter() - t0
+
+    n_obs, n_par = sol.r.size, len(problem.names)
+    dof = n_obs - n_par
+    chi2 = float(np.sum(sol.r ** 2))
+    chi2_dof = chi2 / dof if dof > 0 else float("nan")
+    sw = np.sqrt(sol.weights)
+    Jw = sol.J * sw[:, None]
+    d = np.linalg.norm(Jw, axis=0)
+    d[d == 0] = 1.0
+    cov = np.linalg.pinv((Jw / d).T @ (Jw / d)) / np.outer(d, d)
+    if loss != "l2":
+        # robust loss: residual variance of the weighted residuals (Huber's proposal 2 style)
+        s2 = float(np.sum(sol.weights * sol.r ** 2)) / max(dof, 1)
+        cov = cov * max(s2, 1e-300) if not noise.known else cov * max(1.0, s2)
+    elif not noise.known:
+        cov = cov * chi2_dof
+    u = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(u, u)
+
+    params = {n: ParameterValue(float(v), float(s), model.spec[n].unit)
+              for n, v, s in zip(problem.names, sol.x, u)}
+    if "tilt_x" in problem.index and "tilt_y" in problem.index:
+        params.update(tilt_polar_values(sol.x, cov, problem.index))
+    status = "ok" if sol.converged else "not_converged"
+    p_gap = float(stats.chi2.sf(chi2, dof)) if noise.known and dof > 0 else None
+    if p_gap is not None and p_gap < 0.001:
+        notes.append(f"chi2/dof = {chi2_dof:.3g} with known noise (p = {p_gap:.2g}): the model misses "
+                     "something in the data; run `triadcal diagnose` before trusting the uncertainties")
+    fit = {"chi2_dof": chi2_dof, "n_obs": n_obs, "n_params": n_par, "iterations": sol.iterations,
+           "loss": loss if loss != "student_t" else f"student_t(nu={nu:g})",
+           "noise": noise.description, "noise_known": noise.known,
+           "gap_p_value": p_gap, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds}
+    if not noise.known:
+        fit["noise_scale_estimate"] = math.sqrt(chi2_dof) if dof > 0 else None
+    T = campaign.t
+    result = CalibrationResult(
+        unit=units[0], method="joint", parameters=params, status=status,
+        effects=tuple(model.effect_names), reference_temperature_C=reference_temperature_C,
+        temperature_range_C=(float(T.min()), float(T.max())), fit=fit,
+        correlation_names=problem.names, correlation=corr, notes=notes,
+        extra={"fixed": {k: {"value": v, "unit": model.spec[k].unit} for k, v in fixed.items()},
+               "output_unit": campaign.output_unit, "local_g_m_s2": campaign.local_g_m_s2,
+               "source": campaign.source})
+    if return_problem:
+        return result, problem, sol
+    return result
+
+
+def tilt_polar_values(x: np.ndarray, cov: np.ndarray, index: dict) -> dict:
+    """tilt_delta (arcsec) and tilt_beta (deg) with delta-method uncertainties."""
+    i, j = index["tilt_x"], index["tilt_y"]
+    tx, ty = x[i] * ARCSEC, x[j] * ARCSEC
+    delta, beta = tilt_polar(tx, ty)
+    r = math.hypot(tx, ty)
+    C = cov[np.ix_([i, j], [i, j])] * ARCSEC ** 2
+    if r > 0:
+        gd = np.array([tx, ty]) / r / math.sqrt(max(1 - r * r, 1e-300))
+        gb = np.array([-ty, tx]) / (r * r)
+        ud = math.sqrt(gd @ C @ gd)
+        ub = math.sqrt(gb @ C @ gb)
+    else:
+        ud, ub = math.sqrt(np.trace(C) / 2), math.pi
+    return {"tilt_delta": ParameterValue(float(delta) / ARCSEC, ud / ARCSEC, "arcsec"),
+            "tilt_beta": ParameterValue(float(beta) / DEG, min(ub, math.pi) / DEG, "deg")}

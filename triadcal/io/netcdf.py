@@ -1,0 +1,40 @@
+"""Residuals of a fit per visit and axis as netCDF (xarray, h5netcdf engine)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def fit_dataset(campaign, problem, solution, result):
+    """An ``xarray.Dataset`` of the fit: observed and modelled outputs, raw and normalised
+    residuals per visit and axis, with the visit's conditions as coordinates."""
+    import xarray as xr
+
+    n = campaign.n_visits
+    w_model = problem.predict(solution.x)
+    ds = xr.Dataset(
+        {
+            "w_observed": (("visit", "axis"), campaign.w, {"units": campaign.output_unit}),
+            "w_model": (("visit", "axis"), w_model, {"units": campaign.output_unit}),
+            "residual": (("visit", "axis"), campaign.w - w_model, {"units": campaign.output_unit}),
+            "residual_normalised": (("visit", "axis"), solution.r.reshape(n, 3),
+                                    {"units": "1", "long_name": "(observed - model) / sigma"}),
+            "sigma": (("visit", "axis"), problem.sigma, {"units": campaign.output_unit}),
+            "temperature": (("visit", "axis"), campaign.t, {"units": "degC"}),
+        },
+        coords={
+            "visit": np.arange(n), "axis": ["x", "y", "z"],
+            "position": ("visit", campaign.position.astype(str)),
+            "up_axis": ("visit", campaign.up_axis().astype(str)),
+            "setpoint_C": ("visit", campaign.setpoint_C, {"units": "degC"}),
+            "direction": ("visit", campaign.direction.astype(str)),
+            "time_s": ("visit", campaign.time_s, {"units": "s"}),
+        },
+        attrs={"unit": result.unit, "method": result.method, "effects": ",".join(result.effects),
+               "chi2_dof": float(result.fit.get("chi2_dof", np.nan)), "source": str(campaign.source)},
+    )
+    return ds
+
+
+def write_fit_netcdf(path, campaign, problem, solution, result) -> None:
+    fit_dataset(campaign, problem, solution, result).to_netcdf(path, engine="h5netcdf")

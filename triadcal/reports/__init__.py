@@ -1,0 +1,1 @@
+"""Reports: certificates, plots and terminal summaries (no estimation here)."""
