@@ -51,14 +51,17 @@ def noise_of(campaign: Campaign) -> NoiseSource:
     """Weights of the fit: ``sd_*/sqrt(n_samples)`` where present, else ``sqrt(Q/tau)`` from a
     ``Q_V2s`` metadata line, else ``1/sqrt(tau)`` relative weights with the scale estimated."""
     s = campaign.output_sigma()
+    why = ""
     if s is not None:
-        return NoiseSource(s, True, "sd_*/sqrt(n_samples) of each visit")
-    if "Q_V2s" in campaign.metadata:
+        if np.all(s > 0):
+            return NoiseSource(s, True, "sd_*/sqrt(n_samples) of each visit")
+        why = "; sd_* is zero in some visits, so it cannot weight the fit"
+    elif "Q_V2s" in campaign.metadata and float(campaign.metadata["Q_V2s"]) > 0:
         Q = float(campaign.metadata["Q_V2s"])
         return NoiseSource(np.repeat(np.sqrt(Q / campaign.tau_s)[:, None], 3, axis=1), True,
                            f"white noise Q = {Q:g} (output unit)^2 s from the file's metadata, sqrt(Q/tau_s)")
     return NoiseSource(np.repeat((1.0 / np.sqrt(campaign.tau_s))[:, None], 3, axis=1), False,
-                       "estimated from the residuals (weights 1/sqrt(tau_s))")
+                       "estimated from the residuals (weights 1/sqrt(tau_s))" + why)
 
 
 class JointProblem:
@@ -122,6 +125,8 @@ def start_values(campaign: Campaign, model: Model) -> dict:
     for i, a in enumerate(AXES):
         coef, *_ = np.linalg.lstsq(A, campaign.w[:, i], rcond=None)
         b, c = coef[:3], coef[3]
+        if np.max(np.abs(G[:, i])) < 0.5 or not np.all(np.isfinite(coef)):
+            continue  # the axis never points up or down: no start from the data, nominal values
         K = 1.0 / np.linalg.norm(b)
         start[f"K_{a}"] = K
         start[f"S_{a}"] = K * c
@@ -165,7 +170,8 @@ def null_space_problems(J: np.ndarray, names: Sequence[str], rtol: float = 1e-8)
         out[names[i]] = "the data carry no information on it (zero sensitivity)"
     ok = norms > 0
     Js = J[:, ok] / norms[ok]
-    _, s, vt = np.linalg.svd(Js, full_matrices=False)
+    _, s, vt = np.linalg.svd(Js, full_matrices=True)
+    s = np.concatenate([s, np.zeros(vt.shape[0] - len(s))])   # fewer observations than parameters
     sub = [n for n, k in zip(names, ok) if k]
     for k in np.flatnonzero(s < rtol * s[0]):
         v = vt[k]
@@ -229,16 +235,15 @@ def levenberg_marquardt(problem: JointProblem, x0: np.ndarray, loss: str = "l2",
                 break
             lam *= 10.0
         if not improved:
-            converged = True  # no descent direction left: at the optimum within rounding
+            # no descent direction left: at the optimum within rounding, if the gradient vanishes
+            converged = bool(np.linalg.norm(g) <= 1e-6 * max(1.0, np.sqrt(cost)))
             break
-        # step small against the uncertainty of each parameter -> done
-        try:
-            u = np.sqrt(np.diag(np.linalg.inv(H))) / d
-        except np.linalg.LinAlgError:
-            u = np.full_like(step, np.inf)
+        # done when the cost no longer falls and every step is tiny against its uncertainty
+        u = np.sqrt(np.abs(np.diag(np.linalg.pinv(H)))) / d
         x, r, J, wts = x_new, r_new, J_new, w_new
         lam = max(lam / 10.0, 1e-12)
-        if np.all(np.abs(step) <= 1e-6 * u) or abs(cost - cost_new) <= 1e-14 * max(cost, 1e-300):
+        small_step = np.all(np.abs(step) <= 1e-4 * u) and np.all(u > 0)
+        if small_step and cost - cost_new <= 1e-9 * max(cost_new, 1.0):
             converged = True
             break
     return Solution(x, float(np.sum(wts * r * r)), it, converged, r, J, wts)
@@ -270,7 +275,10 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     start = start_values(campaign, model)
     if not problems:
         probe = JointProblem(campaign, model, noise.sigma, fixed)
-        x0 = np.array([start[n] for n in probe.names])
+        # probe at a generic point: effect terms at their typical size, so that terms whose
+        # sensitivity is a product (e.g. thermal lag x tempco) are not judged at zero
+        x0 = np.array([start[n] if model.spec[n].effect == "core" else model.spec[n].typical
+                       for n in probe.names])
         _, J0 = probe.residuals_and_jacobian(x0)
         problems = null_space_problems(J0, probe.names)
     if problems:
@@ -319,7 +327,9 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
            "noise": noise.description, "noise_known": noise.known,
            "gap_p_value": p_gap, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds}
     if not noise.known:
-        fit["noise_scale_estimate"] = math.sqrt(chi2_dof) if dof > 0 else None
+        # weights were 1/sqrt(tau): the residual variance estimates the white-noise intensity Q
+        fit["Q_estimate"] = chi2_dof if dof > 0 else None
+        fit["Q_unit"] = f"{campaign.output_unit}^2 s"
     T = campaign.t
     result = CalibrationResult(
         unit=units[0], method="joint", parameters=params, status=status,

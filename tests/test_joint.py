@@ -1,0 +1,152 @@
+"""Joint least-squares fit: recovery, identifiability, robust loss, outputs."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from triadcal.estimation.joint import IdentifiabilityError, fit_joint
+from triadcal.estimation.result import CalibrationResult
+from triadcal.io.bench_csv import write_bench_csv
+from triadcal.models.campaign import DEFAULT_PLAN, nominal_gravity
+from triadcal.models.effects import DEFAULT_EFFECTS
+from triadcal.models.simulate import NoiseModel, Schedule, preset_truth, simulate_campaign
+
+
+def z_scores(result, truth):
+    return {n: (p.value - truth.parameters[n]) / p.u for n, p in result.parameters.items()
+            if n in truth.parameters}
+
+
+@pytest.mark.parametrize("preset", ["ak18-quartz", "a18-silicon"])
+def test_joint_recovers_truth_within_4u(preset):
+    truth = preset_truth(preset)
+    result = fit_joint(simulate_campaign(truth, seed=11))
+    assert result.status == "ok"
+    z = z_scores(result, truth)
+    assert set(z) == set(truth.parameters)
+    bad = {n: round(v, 2) for n, v in z.items() if abs(v) > 4}
+    assert not bad, bad
+    assert 0.8 < result.fit["chi2_dof"] < 1.2
+    # tilt in its polar form: 60" toward 30 deg
+    assert abs(result["tilt_delta"].value - 60.0) < 4 * result["tilt_delta"].u
+    assert abs(result["tilt_beta"].value - 30.0) < 4 * result["tilt_beta"].u
+
+
+def test_every_effect_of_the_model_is_recovered():
+    effects = ["bench_tilt", "thermal_lag", "angle_tempco", "hysteresis", "scale_tempco", "bias_tempco",
+               "bias_drift", "scale_nonlinearity", "scale_asymmetry"]
+    truth = preset_truth("a18-silicon", effects, noise=NoiseModel(temp_noise_C=0.0))
+    sched = Schedule(soak_s=1800.0)   # short soak: the unit is still moving, so the lag is seen
+    result = fit_joint(simulate_campaign(truth, schedule=sched, seed=5), effects)
+    assert result.status == "ok", result.notes
+    z = z_scores(result, truth)
+    assert set(z) == set(truth.parameters)
+    assert max(abs(v) for v in z.values()) < 4.5, {n: v for n, v in z.items() if abs(v) > 4}
+
+
+def test_heating_only_campaign_holds_hysteresis_and_says_why():
+    truth = preset_truth()
+    c = simulate_campaign(truth, schedule=Schedule(setpoints_C=(-40.0, -10.0, 20.0, 50.0, 70.0)), seed=2)
+    result = fit_joint(c)
+    assert not any(n.endswith("_hysteresis") for n in result.parameters)
+    assert sum("hysteresis" in note and "heating" in note for note in result.notes) == 6
+    with pytest.raises(IdentifiabilityError, match="Ca_xy_hysteresis: hysteresis needs visits on both"):
+        fit_joint(c, unidentifiable="refuse")
+
+
+def test_one_temperature_holds_the_tempcos():
+    c = simulate_campaign(preset_truth(), schedule=Schedule(setpoints_C=(20.0,)), seed=2)
+    result = fit_joint(c)
+    assert not any(n.endswith("_tempco") for n in result.parameters)
+    assert any("K_x_tempco" in note and "more than one temperature" in note for note in result.notes)
+    assert {"Ca_xy", "K_x", "S_x", "tilt_x"} <= set(result.parameters)
+
+
+def test_plan_that_cannot_see_a_parameter_is_named():
+    plan = {k: DEFAULT_PLAN[k] for k in ("P01", "P02", "P03", "P04")}   # only Y up and down
+    truth = preset_truth(effects=["bench_tilt"])
+    c = simulate_campaign(truth, plan=plan, schedule=Schedule(setpoints_C=(20.0,)), seed=1)
+    with pytest.raises(IdentifiabilityError) as err:
+        fit_joint(c, ["bench_tilt"], unidentifiable="refuse")
+    assert "K_x" in str(err.value) and "not separable" in str(err.value)
+
+
+def test_weights_and_estimated_noise():
+    truth = preset_truth()
+    c = simulate_campaign(truth, seed=4)
+    known = fit_joint(c)
+    c.sd = None
+    c.n_samples = None
+    c.metadata.pop("Q_V2s")
+    est = fit_joint(c)
+    assert not est.fit["noise_known"] and known.fit["noise_known"]
+    # with the noise estimated, its intensity Q is reported (weights 1/sqrt(tau)) ...
+    # (the known weights are the sample sd of 3000 samples, 1.3 % scatter each: hence 2 %)
+    assert est.fit["Q_estimate"] == pytest.approx(3e-9 * known.fit["chi2_dof"], rel=0.02)
+    # ... and agree with the known-noise ones within the scatter of a variance estimate
+    ratio = est["Ca_xy"].u / known["Ca_xy"].u
+    assert abs(ratio - 1) < 4 * np.sqrt(1 / (2 * 508))
+
+
+def test_robust_loss_resists_outliers_and_is_recorded():
+    truth = preset_truth(noise=NoiseModel(heavy_tails_dof=2.5))
+    c = simulate_campaign(truth, seed=8)
+    c.w[17, 0] += 200 * np.sqrt(3e-9 / 30)   # one gross outlier on X, in a position where X is horizontal
+    l2 = fit_joint(c)
+    hub = fit_joint(c, loss="huber")
+    assert hub.fit["loss"] == "huber"
+    err = lambda r: np.mean([abs(r[n].value - truth.parameters[n]) / r[n].u for n in truth.parameters])
+    assert err(hub) < err(l2)
+
+
+def test_apply_returns_gravity_in_imu_frame():
+    truth = preset_truth(noise=NoiseModel(Q_V2s=0.0, temp_noise_C=0.0))
+    sched = Schedule(setpoints_C=(20.0, 45.0, -5.0))
+    c = simulate_campaign(truth, schedule=sched, seed=0)
+    result = fit_joint(c, ["angle_tempco", "scale_tempco", "bias_tempco", "bench_tilt"])
+    a = result.apply(c.w, c.t)
+    # the bench's tilt is not part of the unit's calibration: compare with the tilted gravity
+    g = nominal_gravity(c.axis1_deg, c.axis2_deg)
+    assert np.max(np.abs(np.linalg.norm(a, axis=1) - 1.0)) < 1e-6
+    assert np.max(np.abs(a - g)) < 5e-4   # 60" tilt = 2.9e-4 rad
+
+
+def test_cli_json_and_netcdf(tmp_path):
+    csv = tmp_path / "c.csv"
+    truth = preset_truth()
+    write_bench_csv(simulate_campaign(truth, seed=21), csv)
+    out, nc = tmp_path / "r.json", tmp_path / "r.nc"
+    proc = subprocess.run([sys.executable, "-m", "triadcal.cli", "fit", str(csv), "--method", "joint",
+                           "--json", str(out), "--netcdf", str(nc)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "Ca_xy" in proc.stdout and "chi2/dof" in proc.stdout
+    d = json.loads(out.read_text())
+    assert d["format"] == "triadcal.result" and d["version"] == 1 and d["method"] == "joint"
+    assert d["parameters"]["Ca_xy"]["unit"] == "arcsec"
+    assert d["parameters"]["K_x_tempco"]["unit"] == "ppm/degC"
+    assert d["parameters"]["tilt_beta"]["unit"] == "deg"
+    assert len(d["correlation"]["names"]) == d["fit"]["n_params"]
+    R = np.array(d["correlation"]["matrix"])
+    assert np.allclose(np.diag(R), 1.0) and np.allclose(R, R.T)
+    back = CalibrationResult.load(out)
+    assert back["Ca_xy"].value == d["parameters"]["Ca_xy"]["value"]
+
+    import xarray as xr
+    ds = xr.open_dataset(nc, engine="h5netcdf")
+    assert ds["residual_normalised"].shape == (180, 3)
+    assert set(ds["direction"].values.tolist()) == {"none", "heating", "cooling"}
+    assert float((ds["residual_normalised"] ** 2).mean()) == pytest.approx(d["fit"]["chi2_dof"], rel=0.1)
+
+
+def test_cli_refuses_bad_effect_and_strict(tmp_path):
+    csv = tmp_path / "c.csv"
+    write_bench_csv(simulate_campaign(preset_truth(), schedule=Schedule(setpoints_C=(20.0,)), seed=1), csv)
+    p = subprocess.run([sys.executable, "-m", "triadcal.cli", "fit", str(csv), "--effects", "bench_tilt,wobble"],
+                       capture_output=True, text=True)
+    assert p.returncode == 1 and "unknown effect(s) wobble" in p.stderr and "Traceback" not in p.stderr
+    p = subprocess.run([sys.executable, "-m", "triadcal.cli", "fit", str(csv), "--strict"],
+                       capture_output=True, text=True)
+    assert p.returncode == 1 and "Ca_xy_tempco" in p.stderr and "more than one temperature" in p.stderr
