@@ -1,0 +1,84 @@
+"""Statistical properties of the joint fit, by simulation (slow).
+
+1000 campaigns of the standard plan (12 positions x 15 setpoints, heating and cooling
+sweeps between -40 and +70 degC), bench tilt, tempcos and hysteresis on, white output
+noise of known intensity. Tolerances come from sampling theory, stated at each check.
+"""
+
+import numpy as np
+import pytest
+
+from triadcal.estimation.joint import JointProblem, fit_joint
+from triadcal.models.model import Model
+from triadcal.models.simulate import preset_truth, simulate_campaign
+
+N = 1000
+ANGLES = ("Ca_xy", "Ca_xz", "Ca_yx", "Ca_yz", "Ca_zx", "Ca_zy")
+
+
+def campaign(truth, seed):
+    c = simulate_campaign(truth, seed=seed)
+    c.sd = None            # weights from the known intensity Q: sigma = sqrt(Q / tau) exactly
+    c.n_samples = None
+    return c
+
+
+@pytest.fixture(scope="module")
+def runs():
+    truth = preset_truth("ak18-quartz")
+    names = None
+    est, u = [], []
+    for seed in range(N):
+        r = fit_joint(campaign(truth, seed))
+        assert r.status == "ok"
+        if names is None:
+            names = [n for n in r.parameters if n in truth.parameters]
+        est.append([r[n].value for n in names])
+        u.append([r[n].u for n in names])
+    # Cramer-Rao bound: inverse Fisher information at the truth (Gaussian noise, known sigma)
+    c0 = campaign(truth, 0)
+    model = Model(truth.effects)
+    problem = JointProblem(c0, model, np.sqrt(float(c0.metadata["Q_V2s"]) / c0.tau_s)[:, None].repeat(3, 1))
+    x = np.array([truth.parameters[n] for n in problem.names])
+    _, J = problem.residuals_and_jacobian(x)
+    crb = np.linalg.inv(J.T @ J)
+    crb_sd = {n: np.sqrt(crb[i, i]) for i, n in enumerate(problem.names)}
+    return truth, names, np.array(est), np.array(u), crb_sd
+
+
+@pytest.mark.slow
+def test_coverage_3u(runs):
+    truth, names, est, u, _ = runs
+    z = (est - np.array([truth.parameters[n] for n in names])) / u
+    inside = np.mean(np.abs(z) <= 3)
+    # Gaussian: 99.73 %; required >= 99 %
+    assert inside >= 0.99, inside
+
+
+@pytest.mark.slow
+def test_reported_u_matches_spread(runs):
+    truth, names, est, u, _ = runs
+    spread = est.std(axis=0, ddof=1)
+    ratio = spread / u.mean(axis=0)
+    # sampling error of an SD from N = 1000: 1/sqrt(2 (N-1)) = 2.2 %; 10 % is 4.5 of those
+    bad = {n: round(r, 3) for n, r in zip(names, ratio) if abs(r - 1) > 0.10}
+    assert not bad, bad
+
+
+@pytest.mark.slow
+def test_angles_reach_the_cramer_rao_bound(runs, capsys):
+    truth, names, est, u, crb_sd = runs
+    rows = []
+    ratios = []
+    for n in ANGLES:
+        i = names.index(n)
+        mse = np.mean((est[:, i] - truth.parameters[n]) ** 2)
+        ratios.append(mse / crb_sd[n] ** 2)
+        rows.append(f"{n}: RMSE {np.sqrt(mse):.4f}\" CRB {crb_sd[n]:.4f}\" MSE/CRB {ratios[-1]:.3f}")
+    pooled = float(np.mean(ratios))
+    with capsys.disabled():
+        print("\n" + "\n".join(rows) + f"\npooled MSE/CRB over the six angles: {pooled:.3f}")
+    # MSE/CRB of an efficient estimator averages 1 with sampling SD sqrt(2/(6 N)) = 1.8 %;
+    # 5 % is 2.7 of those. Each angle alone: SD sqrt(2/N) = 4.5 %, allowed 4 of them.
+    assert abs(pooled - 1) < 0.05
+    assert all(abs(r - 1) < 4 * np.sqrt(2 / N) for r in ratios), ratios

@@ -1,0 +1,496 @@
+"""The seed paper's classical method: eq. 2-3 at each setpoint, then a linear thermal line.
+
+At each setpoint block (:attr:`Campaign.setpoint_blocks`) the visits are grouped by
+the IMU axis that points up or down, derived from the bench kinematics
+(:meth:`Campaign.up_axis`, never from position labels). For accelerometer ``a`` and
+IMU axis ``b`` (eq. 2-3, generalised to any number of visits per group)::
+
+    W_a^b  = (mean of W_a over visits with +b up - mean over visits with -b up) / 2
+    Ca_ab  = W_a^b / N_a,     N_a = sqrt(sum_b (W_a^b)^2)             (eq. 2)
+    K_a    = G / N_a                      (g per output unit, eq. 1: K W = Ca G + S)
+    S_a    = K_a * (1/3) sum_b (mean_{+b} W_a + mean_{-b} W_a) / 2    (balanced mean)
+
+Every estimate is an explicit function of the readings, so its standard uncertainty
+is propagated exactly to first order (the Jacobian of these formulas) from the
+standard deviation of each mean output: estimated from the residuals of the
+per-setpoint linear model (default), or taken from ``sd_* / sqrt(n_samples)``.
+
+The paper's thermal correction then fits each quantity against the setpoint's mean
+accelerometer temperature (mean of ``t_x t_y t_z`` over the block's visits) with a
+straight line by weighted least squares, reports its value at the reference
+temperature and its slope (``*_tempco``), and scales the line's covariance by the
+Birge ratio ``max(1, chi2/dof)`` so that scatter the per-setpoint uncertainties do not
+explain (hysteresis, unmodelled drift) widens the uncertainty instead of being ignored.
+
+:func:`classical_angle_sd` gives the standard deviation of the classical angle
+estimate for the simulator's noise model (white output noise, bench positioning
+errors and wobble); docs/classical.md derives it and relates it to eq. 4.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Optional
+
+import numpy as np
+
+from ..models.campaign import DEFAULT_PLAN, Campaign, nominal_gravity, up_axis_label
+from ..models.kinematics import gravity_in_imu
+from ..models.sensor import ANGLE_NAMES, AXES
+from ..models.units import ARCSEC, PPM, UG
+from .result import CalibrationResult, ParameterValue
+
+IMU_AXES = "XYZ"
+NOISE_SOURCES = ("residuals", "sd")
+THERMAL_EFFECTS = ("angle_tempco", "scale_tempco", "bias_tempco")
+
+
+class ClassicalPlanError(ValueError):
+    """The plan of a setpoint does not let eq. 2 be formed (an IMU axis never up or down)."""
+
+
+# --------------------------------------------------------------------------------------
+# eq. 2-3 at one setpoint: coefficients, estimates and their exact linear propagation
+# --------------------------------------------------------------------------------------
+@dataclass
+class Pairing:
+    """Linear coefficients of eq. 2-3 over the visits of one setpoint block.
+
+    ``difference[b] @ w`` is ``W^b`` (half the difference of the up and down means of
+    IMU axis ``b``); ``balanced @ w`` is the mean over a balanced set (each group
+    weighted equally), which cancels gravity; ``groups`` maps '+X', '-X', ... to the
+    indices of its visits; ``unused`` are visits with no IMU axis vertical.
+    """
+
+    difference: np.ndarray   # (3, n)
+    balanced: np.ndarray     # (n,)
+    groups: dict
+    unused: np.ndarray
+
+
+def pairing(up_labels, where: str = "campaign") -> Pairing:
+    """Coefficients of eq. 2-3 from each visit's up axis ('+X', '-Y', ..., '' for none).
+
+    Raises :class:`ClassicalPlanError` naming every missing group when an IMU axis is
+    never up or never down (eq. 2 needs both).
+    """
+    up = np.asarray(up_labels)
+    n = len(up)
+    groups = {s + b: np.flatnonzero(up == s + b) for b in IMU_AXES for s in "+-"}
+    missing = [g for g, idx in groups.items() if len(idx) == 0]
+    if missing:
+        raise ClassicalPlanError(
+            f"{where}: the classical method (eq. 2) needs every IMU axis pointing up and pointing "
+            f"down at least once; missing: {', '.join(g + ' up' for g in missing)} "
+            f"(the visits point {', '.join(sorted(set(u or 'no axis' for u in up.tolist())))} up). "
+            "Add such positions to the plan or use `triadcal fit --method joint`.")
+    D = np.zeros((3, n))
+    bal = np.zeros(n)
+    for k, b in enumerate(IMU_AXES):
+        p, m = groups["+" + b], groups["-" + b]
+        D[k, p] = 0.5 / len(p)
+        D[k, m] = -0.5 / len(m)
+        bal[p] += 0.5 / len(p) / 3.0
+        bal[m] += 0.5 / len(m) / 3.0
+    return Pairing(D, bal, groups, np.flatnonzero(up == ""))
+
+
+def row_estimate(w: np.ndarray, pair: Pairing, gravity_g: float):
+    """Eq. 2 for one accelerometer: values and Jacobian w.r.t. its readings ``w`` (n,).
+
+    Returns ``(values, jacobian)`` for the five quantities ``(Ca_a,b1, Ca_a,b2, ... )``
+    in the order: the three elements of row ``a`` of Ca (dimensionless, direction
+    cosines), ``K_a`` (g per output unit), ``S_a`` (g).
+    """
+    Wb = pair.difference @ w
+    N = float(np.linalg.norm(Wb))
+    row = Wb / N
+    dN = row @ pair.difference                      # dN/dw
+    dRow = (pair.difference - np.outer(row, dN)) / N
+    K = gravity_g / N
+    dK = -gravity_g / N ** 2 * dN
+    m = float(pair.balanced @ w)
+    S = K * m
+    dS = m * dK + K * pair.balanced
+    return np.concatenate([row, [K, S]]), np.vstack([dRow, dK, dS])
+
+
+def tilt_sensitivity(axis1_deg, axis2_deg) -> np.ndarray:
+    """Change of the IMU-frame gravity direction per unit horizontal tilt, shape (n, 3, 2).
+
+    From the kinematics (bench-csv.md): gravity_in_imu is linear in the base-frame
+    vector, so the columns are the base ``e_x`` and ``e_y`` expressed in the IMU frame.
+    """
+    a1, a2 = np.radians(np.asarray(axis1_deg, float)), np.radians(np.asarray(axis2_deg, float))
+    cols = [np.stack(np.broadcast_arrays(*gravity_in_imu(a1, a2, f)), axis=-1)
+            for f in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))]
+    return np.stack(cols, axis=-1)
+
+
+def residual_design(axis1_deg, axis2_deg, a: int) -> np.ndarray:
+    """Columns of the per-setpoint linear model of output ``a``.
+
+    ``W_a = sum_b W_a^b g_b + bias + tilt terms`` with ``g`` the nominal gravity of a
+    level bench and the two first-order tilt columns (so that a bench tilt, which the
+    pairing cancels in the estimates, does not inflate the noise estimate).
+    """
+    g = nominal_gravity(axis1_deg, axis2_deg).reshape(-1, 3)
+    h = tilt_sensitivity(axis1_deg, axis2_deg).reshape(-1, 3, 2)[:, a, :]
+    return np.column_stack([g, np.ones(len(g)), h])
+
+
+# --------------------------------------------------------------------------------------
+# the thermal line
+# --------------------------------------------------------------------------------------
+@dataclass
+class Line:
+    """Weighted straight line ``y = a + b (T - T_ref)`` (or a weighted mean when ``slope`` is False)."""
+
+    coef: np.ndarray    # (a,) or (a, b)
+    cov: np.ndarray     # covariance after Birge scaling
+    chi2: float
+    dof: int
+    birge: float        # factor applied to the covariance
+
+    @property
+    def chi2_dof(self) -> Optional[float]:
+        return self.chi2 / self.dof if self.dof > 0 else None
+
+
+def thermal_line(T: np.ndarray, y: np.ndarray, var: np.ndarray, T_ref: float, slope: bool) -> Line:
+    """Weighted least squares of ``y`` against ``T - T_ref`` with weights ``1/var``.
+
+    The covariance ``(X^T W X)^-1`` is multiplied by ``max(1, chi2/dof)`` (Birge ratio).
+    When no variance is known (all zero), equal weights are used and the covariance is
+    scaled by ``chi2/dof`` (the scatter alone).
+    """
+    X = np.column_stack([np.ones_like(T), T - T_ref]) if slope else np.ones((len(T), 1))
+    known = bool(np.all(var > 0))
+    wts = 1.0 / var if known else np.ones_like(y)
+    A = X.T @ (wts[:, None] * X)
+    cov = np.linalg.inv(A)
+    coef = cov @ (X.T @ (wts * y))
+    r = y - X @ coef
+    chi2 = float(np.sum(wts * r * r))
+    dof = len(y) - X.shape[1]
+    if dof > 0:
+        birge = max(1.0, chi2 / dof) if known else chi2 / dof
+    else:
+        birge = 1.0
+    return Line(coef, cov * birge, chi2, dof, birge)
+
+
+# --------------------------------------------------------------------------------------
+# the estimator
+# --------------------------------------------------------------------------------------
+def _quantity_names():
+    names = []
+    for a in AXES:
+        names += [f"Ca_{a}{b}" for b in AXES if b != a]
+    return names + [f"K_{a}" for a in AXES] + [f"S_{a}" for a in AXES]
+
+
+def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
+                  noise: str = "residuals") -> CalibrationResult:
+    """The paper's classical calibration (``triadcal fit --method classical``).
+
+    Eq. 2-3 at every setpoint block with the up/down pairing of the bench kinematics,
+    then the paper's linear thermal correction of every angle, scale factor and bias
+    against the setpoint's mean accelerometer temperature (values at
+    ``reference_temperature_C`` plus ``*_tempco``). With a single setpoint temperature
+    no tempco can be formed: they are absent, and the values are reported at the
+    measured mean temperature (``reference_temperature_C`` of the result says which).
+
+    ``noise``: ``"residuals"`` (default) estimates the variance of each mean output from
+    the residuals of the per-setpoint linear model, pooled over the setpoints for each
+    accelerometer (it contains every per-visit error the pairing does not cancel:
+    output noise, bench positioning and wobble); ``"sd"`` uses ``sd_* / sqrt(n_samples)``
+    of the file (output noise only). The per-setpoint estimates are in
+    ``result.extra["per_setpoint"]``.
+    """
+    if noise not in NOISE_SOURCES:
+        raise ValueError(f"unknown noise source {noise!r}: choose one of {', '.join(NOISE_SOURCES)}")
+    src = campaign.source or "campaign"
+    units = campaign.units
+    if len(units) != 1 or len(set(campaign.state.tolist())) != 1:
+        raise ValueError(f"{src}: a fit takes one unit in one mechanical state; found units {units} and "
+                         f"states {sorted(set(campaign.state.tolist()))} (select one, e.g. with Campaign.select)")
+    G = campaign.gravity_g
+    notes: list[str] = []
+    blocks = campaign.setpoint_blocks
+    up = campaign.up_axis()
+    block_ids = sorted(np.unique(blocks), key=lambda b: float(np.min(campaign.time_s[blocks == b])))
+
+    # -- pairing and residual noise per block ------------------------------------------
+    per_block = []
+    rss = np.zeros(3)
+    dof_total = 0
+    for b in block_ids:
+        idx = np.flatnonzero(blocks == b)
+        idx = idx[np.argsort(campaign.time_s[idx], kind="stable")]
+        sp, direction, cycle = float(campaign.setpoint_C[idx[0]]), str(campaign.direction[idx[0]]), int(campaign.cycle[idx[0]])
+        where = f"{src}: setpoint {sp:g} degC ({direction}, cycle {cycle}"
+        if campaign.lines is not None:
+            where += f", lines {int(np.min(campaign.lines[idx]))}-{int(np.max(campaign.lines[idx]))}"
+        where += ")"
+        pair = pairing(up[idx], where)
+        if len(pair.unused):
+            notes.append(f"{where}: positions {', '.join(sorted(set(campaign.position[idx][pair.unused].tolist())))} "
+                         "have no IMU axis vertical; eq. 2 does not use them (they enter the noise estimate)")
+        h = tilt_sensitivity(campaign.axis1_deg[idx], campaign.axis2_deg[idx])  # (n, 3, 2)
+        leak = np.einsum("bi,iac->bac", pair.difference, h)   # tilt -> W^b of axis a
+        for k, bb in enumerate(IMU_AXES):
+            for ai, a in enumerate(AXES):
+                if a != bb.lower() and np.max(np.abs(leak[k, ai])) > 1e-9:
+                    notes.append(f"{where}: the up/down groups of {bb} are not half-turn pairs; a bench tilt "
+                                 f"enters Ca_{a}{bb.lower()} with factor {np.max(np.abs(leak[k, ai])):.3g}")
+        sqrt_tau = np.sqrt(campaign.tau_s[idx])
+        rss_b = np.zeros(3)
+        dof_b = 0
+        for ai in range(3):
+            X = residual_design(campaign.axis1_deg[idx], campaign.axis2_deg[idx], ai) * sqrt_tau[:, None]
+            y = campaign.w[idx, ai] * sqrt_tau
+            coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+            rank = np.linalg.matrix_rank(X)
+            rss_b[ai] = float(np.sum((y - X @ coef) ** 2))
+            dof_b = len(idx) - rank
+        rss += rss_b
+        dof_total += dof_b
+        per_block.append(dict(idx=idx, pair=pair, setpoint_C=sp, direction=direction, cycle=cycle))
+
+    # -- output noise ------------------------------------------------------------------
+    sd_sigma = campaign.output_sigma()
+    use = noise
+    if use == "residuals" and dof_total == 0:
+        if sd_sigma is None:
+            raise ValueError(f"{src}: cannot estimate the output noise: the per-setpoint linear model leaves no "
+                             "residual degrees of freedom with this plan, and the file has no sd_*/n_samples "
+                             "columns; add positions or those columns")
+        use = "sd"
+        notes.append("no residual degrees of freedom: output noise from sd_*/sqrt(n_samples) instead")
+    if use == "sd" and sd_sigma is None:
+        raise ValueError(f"{src}: noise='sd' needs the sd_x, sd_y, sd_z and n_samples columns, which the file lacks")
+    fit_noise: dict = {}
+    Q_res = rss / dof_total if dof_total > 0 else None   # output-unit^2 s (variance x tau)
+    if Q_res is not None:
+        fit_noise["Q_effective_from_residuals"] = [float(q) for q in Q_res]
+        fit_noise["residual_dof_per_axis"] = int(dof_total)
+    if sd_sigma is not None:
+        Q_sd = np.mean(sd_sigma ** 2 * campaign.tau_s[:, None], axis=0)
+        fit_noise["Q_from_sd"] = [float(q) for q in Q_sd]
+        if Q_res is not None:
+            fit_noise["residual_to_sd_ratio"] = [float(math.sqrt(r / s)) if s > 0 else None
+                                                 for r, s in zip(Q_res, Q_sd)]
+    if use == "residuals":
+        sigma = np.sqrt(Q_res[None, :] / campaign.tau_s[:, None])
+        noise_desc = (f"residuals of the per-setpoint linear model (nominal gravity, bias, first-order tilt), "
+                      f"pooled over {len(block_ids)} setpoint(s), {dof_total} dof per accelerometer; "
+                      "variance of a mean taken as Q_eff / tau_s")
+    else:
+        sigma = sd_sigma
+        noise_desc = "sd_*/sqrt(n_samples) of each visit (output noise only; bench positioning errors not included)"
+
+    # -- eq. 2 per block with exact linear propagation ------------------------------------
+    qnames = _quantity_names()
+    est = np.zeros((len(per_block), len(qnames)))
+    var = np.zeros_like(est)
+    temps = np.zeros(len(per_block))
+    per_setpoint = []
+    for k, blk in enumerate(per_block):
+        idx, pair = blk["idx"], blk["pair"]
+        vals, us = {}, {}
+        for ai, a in enumerate(AXES):
+            v, J = row_estimate(campaign.w[idx, ai], pair, G)
+            V = np.sum(J * J * (sigma[idx, ai] ** 2)[None, :], axis=1)
+            for bi, b in enumerate(AXES):
+                if b != a:
+                    vals[f"Ca_{a}{b}"], us[f"Ca_{a}{b}"] = v[bi], V[bi]
+            vals[f"K_{a}"], us[f"K_{a}"] = v[3], V[3]
+            vals[f"S_{a}"], us[f"S_{a}"] = v[4], V[4]
+        est[k] = [vals[n] for n in qnames]
+        var[k] = [us[n] for n in qnames]
+        temps[k] = float(np.mean(campaign.t[idx]))
+        per_setpoint.append({
+            "setpoint_C": blk["setpoint_C"], "direction": blk["direction"], "cycle": blk["cycle"],
+            "mean_temperature_C": temps[k], "time_s": float(np.mean(campaign.time_s[idx])),
+            "n_visits": int(len(idx)),
+            "parameters": {n: _reporting(n, est[k, j], math.sqrt(var[k, j]), campaign.output_unit)
+                           for j, n in enumerate(qnames)},
+        })
+
+    # -- the paper's linear thermal correction -------------------------------------------
+    distinct = len(set(round(t, 6) for t in (b["setpoint_C"] for b in per_block)))
+    slope = distinct >= 2 and len(per_block) >= 3 or (distinct >= 2 and len(per_block) == 2)
+    T_ref = float(reference_temperature_C)
+    if not slope:
+        T_ref = float(np.mean(temps))
+        notes.append(f"a single setpoint temperature: no thermal correction and no tempcos; the values are at the "
+                     f"accelerometers' mean temperature {T_ref:.2f} degC, not at {reference_temperature_C:g} degC")
+    if not np.all(var > 0):
+        notes.append("the per-setpoint variances are zero (no output noise); the thermal line is unweighted and "
+                     "its uncertainty comes from its scatter alone")
+    params: dict = {}
+    corr_names: list = []
+    blocks_cov: list = []
+    chi2_by, chi2_sum, dof_sum = {}, 0.0, 0
+    unit_out = campaign.output_unit
+    for j, n in enumerate(qnames):
+        line = thermal_line(temps, est[:, j], var[:, j], T_ref, slope)
+        chi2_by[n] = line.chi2_dof
+        chi2_sum += line.chi2
+        dof_sum += line.dof
+        names_j, vals_j, cov_j = _to_reporting(n, line, slope, unit_out)
+        for nm, (v, u, unit) in zip(names_j, vals_j):
+            params[nm] = ParameterValue(float(v), float(u), unit)
+        corr_names += names_j
+        blocks_cov.append(cov_j)
+    order = [f"Ca_{ab}" for ab in ANGLE_NAMES] + [f"K_{a}" for a in AXES] + [f"S_{a}" for a in AXES]
+    ordered = {}
+    for base in order:
+        for nm in (base, base + "_tempco"):
+            if nm in params:
+                ordered[nm] = params[nm]
+    cov_all = _block_diag(blocks_cov)
+    u_all = np.sqrt(np.diag(cov_all))
+    corr = cov_all / np.outer(np.where(u_all > 0, u_all, 1.0), np.where(u_all > 0, u_all, 1.0))
+
+    fit = {"n_obs": int(est.size), "n_params": int(len(params)),
+           "chi2_dof": (chi2_sum / dof_sum) if dof_sum > 0 else None,
+           "chi2_dof_by_parameter": chi2_by,
+           "n_setpoints": len(per_block), "n_visits": int(campaign.n_visits),
+           "thermal_model": ("straight line against the setpoint's mean accelerometer temperature (mean of "
+                             "t_x t_y t_z), weighted least squares, covariance scaled by max(1, chi2/dof) (Birge)")
+           if slope else "none (single setpoint temperature)",
+           "noise_source": use, "noise": noise_desc, **fit_noise}
+    T = campaign.t
+    return CalibrationResult(
+        unit=units[0], method="classical", parameters=ordered, status="ok",
+        effects=THERMAL_EFFECTS if slope else (), reference_temperature_C=T_ref,
+        temperature_range_C=(float(T.min()), float(T.max())), fit=fit,
+        correlation_names=tuple(corr_names), correlation=corr, notes=notes,
+        extra={"per_setpoint": per_setpoint, "output_unit": unit_out,
+               "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source})
+
+
+def _scale_unit(output_unit: str) -> str:
+    return "g/V" if output_unit == "V" else f"g/{output_unit}"
+
+
+def _reporting(name: str, value: float, u: float, output_unit: str) -> dict:
+    """One per-setpoint quantity in its reporting unit (arcsec for angles)."""
+    if name.startswith("Ca_"):
+        return {"value": float(value / ARCSEC), "u": float(u / ARCSEC), "unit": "arcsec"}
+    if name.startswith("K_"):
+        return {"value": float(value), "u": float(u), "unit": _scale_unit(output_unit)}
+    return {"value": float(value), "u": float(u), "unit": "g"}
+
+
+def _to_reporting(name: str, line: Line, slope: bool, output_unit: str):
+    """Names, (value, u, unit) and covariance (reporting units) of a thermal line's result."""
+    a = line.coef[0]
+    if name.startswith("Ca_"):
+        f = np.array([1 / ARCSEC, 1 / ARCSEC])
+        units = ("arcsec", "arcsec/degC")
+        Jm = np.diag(f[: len(line.coef)])
+        coef = line.coef * f[: len(line.coef)]
+    elif name.startswith("K_"):
+        units = (_scale_unit(output_unit), "ppm/degC")
+        if slope:
+            b = line.coef[1]
+            coef = np.array([a, b / a / PPM])
+            Jm = np.array([[1.0, 0.0], [-b / a ** 2 / PPM, 1 / a / PPM]])
+        else:
+            coef, Jm = np.array([a]), np.eye(1)
+    else:
+        units = ("g", "ug/degC")
+        f = np.array([1.0, 1.0 / UG])
+        Jm = np.diag(f[: len(line.coef)])
+        coef = line.coef * f[: len(line.coef)]
+    cov = Jm @ line.cov @ Jm.T
+    u = np.sqrt(np.diag(cov))
+    names = [name, name + "_tempco"][: len(coef)]
+    return names, list(zip(coef, u, units)), cov
+
+
+def _block_diag(mats):
+    n = sum(m.shape[0] for m in mats)
+    out = np.zeros((n, n))
+    k = 0
+    for m in mats:
+        s = m.shape[0]
+        out[k:k + s, k:k + s] = m
+        k += s
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# standard deviation of the classical angles for the simulator's noise model
+# --------------------------------------------------------------------------------------
+def gravity_derivatives(axis1_deg, axis2_deg) -> np.ndarray:
+    """Derivatives of the IMU-frame gravity direction (level bench) with respect to the
+    bench errors of the simulator: ``(n, 3, 3)`` = visit x IMU axis x (axis-1 error,
+    axis-2 error, wobble), per radian. Exact derivatives of
+    :func:`triadcal.models.kinematics.gravity_in_imu` (CasADi automatic differentiation)."""
+    import casadi as ca
+
+    e = ca.SX.sym("e", 3)
+    a1 = ca.SX.sym("a1")
+    a2 = ca.SX.sym("a2")
+    g = ca.vertcat(*gravity_in_imu(a1 + e[0], a2 + e[1], (0.0, 0.0, 1.0), e[2]))
+    f = ca.Function("dg", [a1, a2, e], [ca.jacobian(g, e)])
+    out = [np.array(f(np.radians(x1), np.radians(x2), np.zeros(3)))
+           for x1, x2 in zip(np.atleast_1d(axis1_deg), np.atleast_1d(axis2_deg))]
+    return np.array(out)
+
+
+def classical_angle_sd(plan: Optional[Mapping[str, tuple]] = None, *, Q_V2s: float, tau_s: float,
+                       sigma_position_arcsec: float = 0.0, sigma_wobble_arcsec: float = 0.0,
+                       K_g_per_V: float = 1.0, gravity_g: float = 1.0) -> dict:
+    """Standard deviation (arcsec) of each classical angle estimate at one setpoint.
+
+    The simulator's noise model (models/simulate.py): white output noise of variance
+    ``Q / tau`` on every mean output, independent positioning errors ``sigma_1`` of each
+    bench axis and a wobble ``sigma_2`` of axis 1 about base ``e_y`` at every visit. To
+    first order (small angles; docs/classical.md)::
+
+        Var(Ca_ab) = sum_i c_bi^2 [ K_a^2 Q / (G^2 tau) + sigma_1^2 (d1_ia^2 + d2_ia^2) + sigma_2^2 dw_ia^2 ]
+
+    with ``c_bi`` the eq. 2-3 coefficients (+-1/4 for the default plan) and ``d*_ia`` the
+    derivative of gravity component ``a`` with respect to each bench error at visit
+    ``i``. For the default 12-position plan this is ``sqrt(n^2 + sigma_2^2)/2`` for Ca_xy
+    and ``sqrt(n^2 + sigma_1^2)/2`` for the five others, ``n = K sqrt(Q/tau)/G`` in arcsec.
+    """
+    plan = dict(DEFAULT_PLAN if plan is None else plan)
+    a1 = np.array([v[0] for v in plan.values()], float)
+    a2 = np.array([v[1] for v in plan.values()], float)
+    pair = pairing(up_axis_label(a1, a2), "plan")
+    d = gravity_derivatives(a1, a2)                              # (n, 3, 3)
+    noise_var = (K_g_per_V / gravity_g) ** 2 * Q_V2s / tau_s     # rad^2
+    s1, s2 = sigma_position_arcsec * ARCSEC, sigma_wobble_arcsec * ARCSEC
+    out = {}
+    for ab in ANGLE_NAMES:
+        a, b = AXES.index(ab[0]), AXES.index(ab[1])
+        c2 = pair.difference[b] ** 2
+        per_visit = noise_var + s1 ** 2 * (d[:, a, 0] ** 2 + d[:, a, 1] ** 2) + s2 ** 2 * d[:, a, 2] ** 2
+        out[f"Ca_{ab}"] = float(math.sqrt(np.sum(c2 * per_visit)) / ARCSEC)
+    return out
+
+
+def classical_angle_sd_default_plan(*, Q_V2s: float, tau_s: float, sigma_position_arcsec: float = 0.0,
+                                    sigma_wobble_arcsec: float = 0.0, K_g_per_V: float = 1.0,
+                                    gravity_g: float = 1.0) -> dict:
+    """Closed form of :func:`classical_angle_sd` for the default 12-position plan (arcsec).
+
+    Only rotations about the third IMU axis ``c`` (neither ``a`` nor ``b``) move gravity
+    along ``a`` while ``b`` is vertical. With Y vertical (P01-P04) axis 2 lies along X
+    and the wobble axis along Z; with X or Z vertical axis 1 (Y) and axis 2 are both
+    horizontal and the wobble axis is vertical. Hence Ca_xy sees the wobble, the five
+    other angles one bench axis (sigma_1), each through four visits weighted 1/4.
+    """
+    n2 = (K_g_per_V / gravity_g) ** 2 * Q_V2s / tau_s / ARCSEC ** 2
+    out = {}
+    for ab in ANGLE_NAMES:
+        s = sigma_wobble_arcsec if ab == "xy" else sigma_position_arcsec
+        out[f"Ca_{ab}"] = 0.5 * math.sqrt(n2 + s * s)
+    return out
