@@ -150,3 +150,47 @@ def test_cli_refuses_bad_effect_and_strict(tmp_path):
     p = subprocess.run([sys.executable, "-m", "triadcal.cli", "fit", str(csv), "--strict"],
                        capture_output=True, text=True)
     assert p.returncode == 1 and "Ca_xy_tempco" in p.stderr and "more than one temperature" in p.stderr
+
+
+def test_joint_model_brings_thermal_residuals_to_the_noise_where_the_linear_correction_leaves_hysteresis(capsys):
+    """Issue 3: with hysteresis present (silicon A-18-like unit, +-22..40"), compare the
+    per-setpoint angles of eq. 2 with (a) the paper's linear thermal correction and (b) the
+    joint model (line + hysteresis branch), both in units of the per-setpoint uncertainty."""
+    from triadcal.estimation.classical import fit_classical
+
+    truth = preset_truth("a18-silicon")
+    c = simulate_campaign(truth, seed=3)
+    classical = fit_classical(c)
+    joint = fit_joint(c)
+    blocks = c.setpoint_blocks
+    chi_lin, chi_joint, res_lin = [], [], {}
+    for k, row in enumerate(classical.extra["per_setpoint"]):
+        # the visits of this setpoint (time of the block's mid-visit identifies it)
+        b = blocks[np.argmin(np.abs(c.time_s - row["time_s"]))]
+        idx = blocks == b
+        branch = {"heating": -1.0, "cooling": 1.0, "none": 0.0}[row["direction"]]
+        for ab in ("xy", "xz", "yx", "yz", "zx", "zy"):
+            name = f"Ca_{ab}"
+            theta, u = row["parameters"][name]["value"], row["parameters"][name]["u"]
+            T_mean = row["mean_temperature_C"]
+            line = classical[name].value + classical[f"{name}_tempco"].value * (T_mean - 20.0)
+            t_a = float(np.mean(c.t[idx, "xyz".index(ab[0])]))
+            model = (joint[name].value + joint[f"{name}_tempco"].value * (t_a - 20.0)
+                     + joint[f"{name}_hysteresis"].value * branch)
+            chi_lin.append(((theta - line) / u) ** 2)
+            chi_joint.append(((theta - model) / u) ** 2)
+            res_lin.setdefault(name, []).append(theta - line)
+    n = len(chi_joint)
+    chi2_lin, chi2_joint = float(np.mean(chi_lin)), float(np.mean(chi_joint))
+    rms_lin = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in res_lin.items()}
+    with capsys.disabled():
+        print(f"\nthermal residuals of the per-setpoint angles ({n} = 15 setpoints x 6 angles):"
+              f"\n  paper's linear correction: chi2/N = {chi2_lin:.1f}, RMS by angle "
+              + ", ".join(f"{k} {v:.1f}\"" for k, v in rms_lin.items())
+              + f"\n  joint model (line + hysteresis): chi2/N = {chi2_joint:.2f}")
+    # joint: chi2 of 90 terms at the noise; 99.9 % quantile of chi2_90 / 90 is 1.47
+    assert chi2_joint < 1.47
+    # linear: the hysteresis stays, of the size of the loop's half-width (22-40")
+    assert chi2_lin > 100
+    for ab, h in (("xy", 35.0), ("yx", 40.0), ("zy", 33.0)):
+        assert 0.6 * h < rms_lin[f"Ca_{ab}"] < 1.2 * h
