@@ -168,7 +168,7 @@ def test_dcm_rows_are_unit_vectors_with_the_angles_off_the_diagonal():
     np.testing.assert_allclose(np.linalg.norm(Ca, axis=1), 1.0, atol=1e-15)
     for ab, v in angles.items():
         assert Ca["xyz".index(ab[0]), "xyz".index(ab[1])] == v
-    assert (np.diag(Ca) > 0.99999).all()
+    assert (np.diag(Ca) > 0.9999).all()
 
 
 def test_predict_is_eq_1():
@@ -232,8 +232,9 @@ def casadi_predict(model: Model, values: dict, cov: Covariates, gravity_g: float
     return np.array(f(model.vector(values)))
 
 
-@pytest.mark.parametrize("effects", [(), *((e,) for e in ALL_EFFECTS), ALL_EFFECTS],
-                         ids=["core", *ALL_EFFECTS, "all"])
+@pytest.mark.parametrize("effects", [(), *((e,) for e in ALL_EFFECTS), ("thermal_lag", "angle_tempco"),
+                                     ALL_EFFECTS],
+                         ids=["core", *ALL_EFFECTS, "thermal_lag+angle_tempco", "all"])
 def test_numpy_and_casadi_agree(rich_covariates, effects):
     model = Model(effects)
     values = preset_values(model, "a18-silicon")
@@ -241,8 +242,10 @@ def test_numpy_and_casadi_agree(rich_covariates, effects):
     W_ca = casadi_predict(model, values, rich_covariates, gravity_g=1.0008)
     assert W_ca.shape == W_np.shape == (len(rich_covariates.axis1), 3)
     np.testing.assert_allclose(W_ca, W_np, rtol=0, atol=1e-12)
-    if effects:  # the effect is really switched on: its parameters matter
-        base = predict(Model([]), preset_values(Model([]), "a18-silicon"), rich_covariates, 1.0008)
+    base = predict(Model([]), preset_values(Model([]), "a18-silicon"), rich_covariates, 1.0008)
+    if effects == ("thermal_lag",):  # a lag only shifts the temperature of thermal terms: none here
+        np.testing.assert_array_equal(W_np, base)
+    elif effects:  # the effect is really switched on: its parameters matter
         assert np.max(np.abs(W_np - base)) > 1e-9
 
 
@@ -457,7 +460,7 @@ def noiseless(truth_effects, preset="a18-silicon", local_g=STANDARD_GRAVITY_M_S2
                          ids=["core", "tempcos"])
 def test_apply_recovers_nominal_gravity(effects):
     truth, c = noiseless(effects)
-    assert np.ptp(c.t) > 100.0  # the tempcos are really exercised
+    assert np.ptp(c.t) > 50.0  # the tempcos are really exercised
     A = truth_result(truth).apply(c.w, c.t)
     np.testing.assert_allclose(A, nominal_gravity(c.axis1_deg, c.axis2_deg), rtol=0, atol=1e-9)
 
@@ -467,12 +470,12 @@ def test_apply_recovers_local_gravity_and_mean_temperature_input():
     A = truth_result(truth).apply(c.w, c.t)
     np.testing.assert_allclose(A, nominal_gravity(c.axis1_deg, c.axis2_deg) * 9.8123 / STANDARD_GRAVITY_M_S2,
                                rtol=0, atol=1e-9)
-    # one temperature per reading (n,) is accepted and broadcast to the three sensors
-    truth, c = noiseless(("bias_tempco",))
-    c.t[:] = c.t.mean(axis=1, keepdims=True)
-    truth2, c2 = noiseless(())
-    A = truth_result(truth2).apply(c2.w, c2.t[:, 0])
-    np.testing.assert_allclose(A, nominal_gravity(c2.axis1_deg, c2.axis2_deg), atol=1e-9)
+    # one temperature per reading (n,) is accepted and stands for all three sensors
+    truth, c = noiseless(("angle_tempco", "scale_tempco", "bias_tempco"))
+    r = truth_result(truth)
+    T = c.t.mean(axis=1)
+    np.testing.assert_array_equal(r.apply(c.w, T), r.apply(c.w, np.repeat(T[:, None], 3, axis=1)))
+    assert np.max(np.abs(r.apply(c.w, T) - r.apply(c.w, c.t))) > 1e-7
 
 
 def test_apply_uses_the_hysteresis_mid_line():

@@ -16,8 +16,8 @@ def register(sub) -> None:
                     "Same seed, same file.")
     p.add_argument("-o", "--output", required=True, help="bench CSV v1 file to write")
     p.add_argument("--truth", help="write the true parameters and noise here (JSON)")
-    p.add_argument("--preset", default="ak18-quartz", choices=sorted(PRESETS),
-                   help="unit drawn from the paper's Tables 1-2 (default: ak18-quartz)")
+    p.add_argument("--preset", default="ak18-quartz",
+                   help=f"one of {', '.join(sorted(PRESETS))}: unit drawn from the paper's Tables 1-2 (default: ak18-quartz)")
     p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS),
                    help=f"comma-separated effects present in the unit, from: {', '.join(VOCABULARY)} "
                         f"(default: {','.join(DEFAULT_EFFECTS)}); 'none' for eq. 1 only")

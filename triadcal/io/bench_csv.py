@@ -41,7 +41,7 @@ def read_bench_csv(path: Union[str, os.PathLike]) -> Campaign:
     """Read a bench CSV v1 file into a :class:`~triadcal.models.campaign.Campaign`."""
     path = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = Path(path).read_text(encoding="utf-8-sig")  # tolerate a BOM (spreadsheet export)
     except UnicodeDecodeError as exc:
         raise BenchCSVError(path, text_line_of_offset(Path(path).read_bytes(), exc.start), None,
                             "not UTF-8 text") from None
@@ -94,16 +94,17 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
     cols: dict[str, list] = {h: [] for h in header}
     line_numbers: list[int] = []
     keys: dict[tuple, int] = {}
+    times: dict[tuple, int] = {}
     reader = csv.reader(lines[k + 1:])
     for offset, row in enumerate(reader):
         lineno = header_line + 1 + offset
         if not row or (len(row) == 1 and not row[0].strip()):
             continue  # a blank line carries no data
-        if row[0].lstrip().startswith("#"):
-            raise BenchCSVError(path, lineno, None, "comment lines are allowed only before the header")
         if len(row) != len(header):
-            raise BenchCSVError(path, lineno, None,
-                                f"{len(row)} fields, the header has {len(header)}")
+            col = header[len(row)] if len(row) < len(header) else None
+            raise BenchCSVError(path, lineno, col,
+                                f"{len(row)} fields, the header has {len(header)}"
+                                + (" (this column and those after it have no field)" if col else ""))
         values = dict(zip(header, (v.strip() for v in row)))
         if all(values.get(c, "") == "" for c in ("w_x", "w_y", "w_z")):
             raise BenchCSVError(path, lineno, "w_x",
@@ -118,6 +119,12 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
                                 f"duplicated row: position {values['position']!r} at the same time "
                                 f"and setpoint as line {keys[key]}")
         keys[key] = lineno
+        when = (values["unit"], values.get("state", ""), cols["time_s"][-1])
+        if when in times:
+            raise BenchCSVError(path, lineno, "time_s",
+                                f"a second visit of unit {values['unit']!r} at the same time as line {times[when]} "
+                                "(a unit is in one position at a time)")
+        times[when] = lineno
         line_numbers.append(lineno)
     n = len(line_numbers)
     if n == 0:
@@ -151,14 +158,14 @@ def to_float(s: str) -> Optional[float]:
 
 def check_field(path: str, line: int, column: str, value: str):
     """Validate and convert one field; raise :class:`BenchCSVError` naming it."""
+    if column not in COLUMNS:
+        return value
     if value == "":
         if column == "state":
             return "initial"
         if column == "cycle":
             return 0
         raise BenchCSVError(path, line, column, "empty field")
-    if column not in COLUMNS:
-        return value
     if column in FLOATS:
         v = to_float(value)
         if v is None:

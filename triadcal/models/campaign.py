@@ -133,8 +133,9 @@ class Campaign:
         for b in np.unique(blocks):
             idx = np.flatnonzero(blocks == b)
             idx = idx[np.argsort(self.time_s[idx])]
-            if len(idx) >= 2:
-                rate[idx] = np.gradient(self.t[idx], self.time_s[idx], axis=0)
+            t_idx = self.time_s[idx]
+            if len(idx) >= 2 and np.all(np.diff(t_idx) > 0):
+                rate[idx] = np.gradient(self.t[idx], t_idx, axis=0)
         return rate
 
     def up_axis(self) -> np.ndarray:

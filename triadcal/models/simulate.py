@@ -204,7 +204,7 @@ def thermal_history(schedule: Schedule, times: np.ndarray, setpoint_start: np.nd
     """
     t_end = float(np.max(times)) + dt
     grid = np.arange(0.0, t_end + dt, dt)
-    idx = np.searchsorted(setpoint_start, grid, side="right") - 1
+    idx = np.searchsorted(setpoint_start, grid, side="left") - 1
     sp = setpoint_values[np.clip(idx, 0, None)]
     a_c = np.exp(-dt / schedule.chamber_time_constant_s)
     a_u = np.exp(-dt / schedule.unit_time_constant_s)
