@@ -128,16 +128,17 @@ def tilt_sensitivity(axis1_deg, axis2_deg) -> np.ndarray:
     return np.stack(cols, axis=-1)
 
 
-def residual_design(axis1_deg, axis2_deg, a: int) -> np.ndarray:
-    """Columns of the per-setpoint linear model of output ``a``.
+def residual_design(axis1_deg, axis2_deg, row) -> np.ndarray:
+    """Columns of the per-setpoint linear model of one output.
 
     ``W_a = sum_b W_a^b g_b + bias + tilt terms`` with ``g`` the nominal gravity of a
-    level bench and the two first-order tilt columns (so that a bench tilt, which the
-    pairing cancels in the estimates, does not inflate the noise estimate).
+    level bench and the two first-order tilt columns ``row . (base e_x, e_y in the IMU
+    frame)`` (``row``: the estimated row of Ca), so that a bench tilt, which the pairing
+    cancels in the estimates, does not inflate the noise estimate.
     """
     g = nominal_gravity(axis1_deg, axis2_deg).reshape(-1, 3)
-    h = tilt_sensitivity(axis1_deg, axis2_deg).reshape(-1, 3, 2)[:, a, :]
-    return np.column_stack([g, np.ones(len(g)), h])
+    h = tilt_sensitivity(axis1_deg, axis2_deg).reshape(-1, 3, 2)
+    return np.column_stack([g, np.ones(len(g)), np.einsum("b,ibc->ic", np.asarray(row, float), h)])
 
 
 # --------------------------------------------------------------------------------------
@@ -177,7 +178,7 @@ def thermal_line(T: np.ndarray, y: np.ndarray, var: np.ndarray, T_ref: float, sl
     if dof > 0:
         birge = max(1.0, chi2 / dof) if known else chi2 / dof
     else:
-        birge = 1.0
+        birge = 1.0 if known else 0.0   # nothing to scale by: no uncertainty can be given
     return Line(coef, cov * birge, chi2, dof, birge)
 
 
@@ -192,7 +193,7 @@ def _quantity_names():
 
 
 def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
-                  noise: str = "residuals") -> CalibrationResult:
+                  noise: str = "residuals", temperature: str = "mean") -> CalibrationResult:
     """The paper's classical calibration (``triadcal fit --method classical``).
 
     Eq. 2-3 at every setpoint block with the up/down pairing of the bench kinematics,
@@ -208,9 +209,17 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     output noise, bench positioning and wobble); ``"sd"`` uses ``sd_* / sqrt(n_samples)``
     of the file (output noise only). The per-setpoint estimates are in
     ``result.extra["per_setpoint"]``.
+
+    ``temperature``: ``"mean"`` (the paper) regresses every quantity on the mean of
+    ``t_x t_y t_z``; ``"own"`` regresses row ``a`` of Ca, ``K_a`` and ``S_a`` on
+    accelerometer ``a``'s own sensor ``t_a`` (the convention of the joint model). The
+    slopes agree; the values at the reference temperature differ by
+    ``tempco * (offset of t_a from the mean)``.
     """
     if noise not in NOISE_SOURCES:
         raise ValueError(f"unknown noise source {noise!r}: choose one of {', '.join(NOISE_SOURCES)}")
+    if temperature not in ("mean", "own"):
+        raise ValueError(f"unknown temperature choice {temperature!r}: choose 'mean' (the paper) or 'own'")
     src = campaign.source or "campaign"
     units = campaign.units
     if len(units) != 1 or len(set(campaign.state.tolist())) != 1:
@@ -225,7 +234,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     # -- pairing and residual noise per block ------------------------------------------
     per_block = []
     rss = np.zeros(3)
-    dof_total = 0
+    dof = np.zeros(3, int)
     for b in block_ids:
         idx = np.flatnonzero(blocks == b)
         idx = idx[np.argsort(campaign.time_s[idx], kind="stable")]
@@ -246,22 +255,20 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                     notes.append(f"{where}: the up/down groups of {bb} are not half-turn pairs; a bench tilt "
                                  f"enters Ca_{a}{bb.lower()} with factor {np.max(np.abs(leak[k, ai])):.3g}")
         sqrt_tau = np.sqrt(campaign.tau_s[idx])
-        rss_b = np.zeros(3)
-        dof_b = 0
         for ai in range(3):
-            X = residual_design(campaign.axis1_deg[idx], campaign.axis2_deg[idx], ai) * sqrt_tau[:, None]
+            row = row_estimate(campaign.w[idx, ai], pair, G)[0][:3]
+            X = residual_design(campaign.axis1_deg[idx], campaign.axis2_deg[idx], row) * sqrt_tau[:, None]
             y = campaign.w[idx, ai] * sqrt_tau
             coef, *_ = np.linalg.lstsq(X, y, rcond=None)
             rank = np.linalg.matrix_rank(X)
-            rss_b[ai] = float(np.sum((y - X @ coef) ** 2))
-            dof_b = len(idx) - rank
-        rss += rss_b
-        dof_total += dof_b
+            rss[ai] += float(np.sum((y - X @ coef) ** 2))
+            dof[ai] += len(idx) - rank
         per_block.append(dict(idx=idx, pair=pair, setpoint_C=sp, direction=direction, cycle=cycle))
 
     # -- output noise ------------------------------------------------------------------
     sd_sigma = campaign.output_sigma()
     use = noise
+    dof_total = int(dof.min())
     if use == "residuals" and dof_total == 0:
         if sd_sigma is None:
             raise ValueError(f"{src}: cannot estimate the output noise: the per-setpoint linear model leaves no "
@@ -272,10 +279,10 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     if use == "sd" and sd_sigma is None:
         raise ValueError(f"{src}: noise='sd' needs the sd_x, sd_y, sd_z and n_samples columns, which the file lacks")
     fit_noise: dict = {}
-    Q_res = rss / dof_total if dof_total > 0 else None   # output-unit^2 s (variance x tau)
+    Q_res = rss / dof if dof_total > 0 else None   # output-unit^2 s (variance x tau)
     if Q_res is not None:
         fit_noise["Q_effective_from_residuals"] = [float(q) for q in Q_res]
-        fit_noise["residual_dof_per_axis"] = int(dof_total)
+        fit_noise["residual_dof"] = [int(d) for d in dof]
     if sd_sigma is not None:
         Q_sd = np.mean(sd_sigma ** 2 * campaign.tau_s[:, None], axis=0)
         fit_noise["Q_from_sd"] = [float(q) for q in Q_sd]
@@ -296,6 +303,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     est = np.zeros((len(per_block), len(qnames)))
     var = np.zeros_like(est)
     temps = np.zeros(len(per_block))
+    temps_own = np.zeros((len(per_block), 3))
     per_setpoint = []
     for k, blk in enumerate(per_block):
         idx, pair = blk["idx"], blk["pair"]
@@ -311,9 +319,11 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         est[k] = [vals[n] for n in qnames]
         var[k] = [us[n] for n in qnames]
         temps[k] = float(np.mean(campaign.t[idx]))
+        temps_own[k] = np.mean(campaign.t[idx], axis=0)
         per_setpoint.append({
             "setpoint_C": blk["setpoint_C"], "direction": blk["direction"], "cycle": blk["cycle"],
-            "mean_temperature_C": temps[k], "time_s": float(np.mean(campaign.time_s[idx])),
+            "mean_temperature_C": temps[k], "sensor_temperature_C": [float(x) for x in temps_own[k]],
+            "time_s": float(np.mean(campaign.time_s[idx])),
             "n_visits": int(len(idx)),
             "parameters": {n: _reporting(n, est[k, j], math.sqrt(var[k, j]), campaign.output_unit)
                            for j, n in enumerate(qnames)},
@@ -321,7 +331,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
 
     # -- the paper's linear thermal correction -------------------------------------------
     distinct = len(set(round(t, 6) for t in (b["setpoint_C"] for b in per_block)))
-    slope = distinct >= 2 and len(per_block) >= 3 or (distinct >= 2 and len(per_block) == 2)
+    slope = distinct >= 2
     T_ref = float(reference_temperature_C)
     if not slope:
         T_ref = float(np.mean(temps))
@@ -336,7 +346,8 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     chi2_by, chi2_sum, dof_sum = {}, 0.0, 0
     unit_out = campaign.output_unit
     for j, n in enumerate(qnames):
-        line = thermal_line(temps, est[:, j], var[:, j], T_ref, slope)
+        T_j = temps if temperature == "mean" else temps_own[:, AXES.index(n.split("_")[1][0])]
+        line = thermal_line(T_j, est[:, j], var[:, j], T_ref, slope)
         chi2_by[n] = line.chi2_dof
         chi2_sum += line.chi2
         dof_sum += line.dof
@@ -355,12 +366,13 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     u_all = np.sqrt(np.diag(cov_all))
     corr = cov_all / np.outer(np.where(u_all > 0, u_all, 1.0), np.where(u_all > 0, u_all, 1.0))
 
-    fit = {"n_obs": int(est.size), "n_params": int(len(params)),
+    fit = {"n_obs": int(est.size), "temperature": ("mean of t_x t_y t_z" if temperature == "mean"
+                                                   else "each accelerometer's own sensor t_a"), "n_params": int(len(params)),
            "chi2_dof": (chi2_sum / dof_sum) if dof_sum > 0 else None,
            "chi2_dof_by_parameter": chi2_by,
            "n_setpoints": len(per_block), "n_visits": int(campaign.n_visits),
-           "thermal_model": ("straight line against the setpoint's mean accelerometer temperature (mean of "
-                             "t_x t_y t_z), weighted least squares, covariance scaled by max(1, chi2/dof) (Birge)")
+           "thermal_model": ("straight line against the setpoint's mean accelerometer temperature, weighted "
+                             "least squares, covariance scaled by max(1, chi2/dof) (Birge ratio)")
            if slope else "none (single setpoint temperature)",
            "noise_source": use, "noise": noise_desc, **fit_noise}
     T = campaign.t

@@ -1,0 +1,81 @@
+"""``triadcal budget``: the paper's error budgets, eq. 4 (bench test) and eq. 5-7 (thermal drift)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "budget", help="error budget of the orientation angles (the paper's eq. 4, or eq. 5-7 with --thermal)",
+        description="Eq. 4: error of an orientation angle from the bench test (defaults: the paper's example, "
+                    "11.52\"), with the standard deviation of the classical estimate per angle for comparison. "
+                    "--thermal: eq. 5-7, thermal drift of the axes for a unit of the paper's Table 1 "
+                    "(--accelerometer) or for all of them.")
+    p.add_argument("--K", type=float, default=1.0, metavar="G_PER_V", help="scale factor K, g/V (default 1)")
+    p.add_argument("--Q", type=float, default=3e-9, metavar="V2S", help="white-noise intensity, V^2 s (default 3e-9)")
+    p.add_argument("--tau", type=float, default=30.0, metavar="S", help="averaging time per position, s (default 30)")
+    p.add_argument("--sigma1", type=float, default=5.0, metavar="ARCSEC",
+                   help="bench positioning error, arcsec (default 5)")
+    p.add_argument("--sigma2", type=float, default=2.0, metavar="ARCSEC", help="wobble of the axes, arcsec (default 2)")
+    p.add_argument("--G", type=float, default=1.0, metavar="G", help="local gravity, g (default 1)")
+    p.add_argument("--thermal", action="store_true", help="thermal drift budget, eq. 5-7")
+    p.add_argument("--accelerometer", metavar="NAME",
+                   help="unit of Table 1 (A-18, AK-15, BA-3, A-18T, AK-18, AAK-02, QA-3000); default: all")
+    p.add_argument("--k-ca", type=float, default=None, metavar="ARCSEC_PER_C",
+                   help="tempco of the reference plane for eq. 7 (default 1.5 quartz, 6 silicon)")
+    p.add_argument("--dT", type=float, default=0.2, metavar="DEGC", help="temperature error, degC (default 0.2)")
+    p.add_argument("--cte-body", type=float, default=22.9e-6, metavar="PER_C",
+                   help="CTE of the IMU body parts, 1/degC (default 22.9e-6, D-16)")
+    p.add_argument("--cte-accelerometer", type=float, default=15e-6, metavar="PER_C",
+                   help="CTE of the accelerometer body, 1/degC (default 15e-6, steel)")
+    p.add_argument("--T-max", type=float, default=85.0, metavar="DEGC", help="maximum temperature, degC (default 85)")
+    p.add_argument("--T0", type=float, default=20.0, metavar="DEGC", help="normal temperature, degC (default 20)")
+    p.add_argument("--json", metavar="OUT", help="write the budget tables (triadcal.budget v1)")
+    p.set_defaults(func=run)
+
+
+def _table(b) -> str:
+    lines = [f"{b.title} ({b.equation})",
+             f"  {'source':<72} {'u':>11} {'unit':<7} {'sensitivity':>14} {'contribution':>12}"]
+    for c in b.components:
+        sens = f"{c.sensitivity:.4g} {c.sensitivity_unit}" if c.sensitivity_unit != "1" else f"{c.sensitivity:.4g}"
+        lines.append(f"  {c.source:<72} {c.standard_uncertainty:>11.4g} {c.unit:<7} {sens:>14} "
+                     f"{c.contribution:>10.2f} {b.unit}")
+    lines.append(f"  {'total (' + b.combination + ')':<72} {'':>11} {'':<7} {'':>14} {b.total:>10.2f} {b.unit}")
+    if "classical_sd_arcsec" in b.extra:
+        sd = b.extra["classical_sd_arcsec"]
+        lines.append("  standard deviation of the classical estimate, default 12-position plan: "
+                     + ", ".join(f"{k} {v:.2f}" for k, v in sd.items()) + " arcsec")
+    for n in b.notes:
+        lines.append(f"  note: {n}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from ..estimation.budget import budget
+
+    tables = budget(thermal=args.thermal, accelerometer_name=args.accelerometer, K_g_per_V=args.K, Q_V2s=args.Q,
+                    tau_s=args.tau, sigma1_arcsec=args.sigma1, sigma2_arcsec=args.sigma2, G_g=args.G,
+                    k_ca_arcsec_per_C=args.k_ca, dT_C=args.dT, cte_body_per_C=args.cte_body,
+                    cte_accelerometer_per_C=args.cte_accelerometer, T_max_C=args.T_max, T0_C=args.T0)
+    if args.thermal and args.accelerometer is None:
+        print("thermal drift of the axes (eq. 5-7) for the units of Table 1")
+        print(f"  {'unit':<9} {'material':<8} {'dCa_Ta':>8} {'dCa_Tn':>8} {'dCa_Tk':>8} {'dCa_T':>8}  arcsec")
+        for b in tables:
+            parts = {c.symbol: c.contribution for c in b.components}
+            acc = b.extra["accelerometer"]
+            print(f"  {acc['name']:<9} {acc['material']:<8} {parts['dCa_Ta']:>8.2f} {parts['dCa_Tn']:>8.2f} "
+                  f"{parts['dCa_Tk']:>8.2f} {b.total:>8.2f}")
+    else:
+        print("\n\n".join(_table(b) for b in tables))
+    if args.json:
+        doc = {"format": "triadcal.budget", "version": 1, "tables": [b.to_dict() for b in tables]}
+        path = Path(args.json)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+        print(f"budget written to {args.json}")
+    return 0

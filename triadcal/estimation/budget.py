@@ -1,0 +1,214 @@
+"""Error budgets of the seed paper: eq. 4 (calibration) and eq. 5-7 (thermal drift of the axes).
+
+Eq. 4, the paper's error of an orientation angle from the bench test::
+
+    sigma_eff = 2 sqrt( K^2 Q / (G^2 tau) (180 3600 / pi)^2 + sigma_1^2 + sigma_2^2 )   [arcsec]
+
+Eq. 5-7, the thermal drift of the axes::
+
+    dCa_T  = sqrt(dCa_Ta^2 + dCa_Tn^2 + dCa_Tk^2)                  (5)
+    dCa_Tn = 0.1 (KTR_body - KTR_accelerometer) (T_max - T0)        (6)  [rad]
+    dCa_Tk = dT k_ca                                                (7)
+
+Table 1 of the paper (``TABLE_1``) gives dCa_Ta, the instability of the accelerometer's
+reference plane (half-width of its hysteresis loop) for seven units. docs/budget.md
+relates eq. 4 to the standard deviation of the classical estimate
+(:func:`triadcal.estimation.classical.classical_angle_sd`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Optional
+
+from ..models.units import ARCSEC
+
+#: radians -> arcseconds (the paper's 180 * 3600 / pi)
+RAD_TO_ARCSEC = 1.0 / ARCSEC
+
+#: thermal expansion coefficients of the paper's example (1/degC)
+CTE_STEEL_PER_C = 15e-6      # accelerometer body
+CTE_D16_PER_C = 22.9e-6      # IMU body parts, D-16 aluminium alloy
+#: tempco of the reference-plane angle used by the paper for eq. 7 (arcsec/degC)
+K_CA_ARCSEC_PER_C = {"quartz": 1.5, "silicon": 6.0}
+
+
+@dataclass(frozen=True)
+class AccelerometerType:
+    """One column of the paper's Table 1."""
+
+    name: str
+    dCa_Ta_arcsec: float          #: instability of the reference plane (+-, arcsec)
+    material: str                 #: pendulum material: 'quartz' or 'silicon'
+    range_g: float
+    temperature_range_C: tuple
+
+
+TABLE_1: tuple[AccelerometerType, ...] = (
+    AccelerometerType("A-18", 60.0, "silicon", 40.0, (-50.0, 75.0)),
+    AccelerometerType("AK-15", 4.0, "quartz", 20.0, (-60.0, 70.0)),
+    AccelerometerType("BA-3", 20.0, "silicon", 50.0, (-55.0, 85.0)),
+    AccelerometerType("A-18T", 15.0, "silicon", 40.0, (-50.0, 85.0)),
+    AccelerometerType("AK-18", 15.0, "quartz", 35.0, (-55.0, 75.0)),
+    AccelerometerType("AAK-02", 20.0, "quartz", 50.0, (-55.0, 85.0)),
+    AccelerometerType("QA-3000", 16.5, "quartz", 60.0, (-55.0, 95.0)),
+)
+
+
+def accelerometer(name: str) -> AccelerometerType:
+    """A unit of Table 1 by name (case-insensitive)."""
+    for a in TABLE_1:
+        if a.name.lower() == name.strip().lower():
+            return a
+    raise ValueError(f"unknown accelerometer {name!r}; Table 1 lists: {', '.join(a.name for a in TABLE_1)}")
+
+
+# -- eq. 4 --------------------------------------------------------------------------------
+def noise_term_arcsec(K_g_per_V: float, Q_V2s: float, tau_s: float, G_g: float = 1.0) -> float:
+    """Angle equivalent of the output noise averaged over tau: ``K sqrt(Q / tau) / G`` in arcsec
+    (the first term under the root of eq. 4; 2.06" for the paper's example)."""
+    return K_g_per_V * math.sqrt(Q_V2s / tau_s) / G_g * RAD_TO_ARCSEC
+
+
+def sigma_eff_arcsec(K_g_per_V: float, Q_V2s: float, tau_s: float, sigma1_arcsec: float,
+                     sigma2_arcsec: float, G_g: float = 1.0) -> float:
+    """Eq. 4: the paper's error of an orientation angle, arcsec (11.52" in its example)."""
+    n = noise_term_arcsec(K_g_per_V, Q_V2s, tau_s, G_g)
+    return 2.0 * math.sqrt(n * n + sigma1_arcsec ** 2 + sigma2_arcsec ** 2)
+
+
+# -- eq. 5-7 ------------------------------------------------------------------------------
+def mounting_drift_arcsec(cte_body_per_C: float = CTE_D16_PER_C, cte_accelerometer_per_C: float = CTE_STEEL_PER_C,
+                          T_max_C: float = 85.0, T0_C: float = 20.0) -> float:
+    """Eq. 6: drift of the mounting surfaces from the CTE mismatch, arcsec (10.6" for steel on D-16)."""
+    return 0.1 * abs(cte_body_per_C - cte_accelerometer_per_C) * (T_max_C - T0_C) * RAD_TO_ARCSEC
+
+
+def correction_error_arcsec(dT_C: float, k_ca_arcsec_per_C: float) -> float:
+    """Eq. 7: error of the thermal correction from the temperature error dT, arcsec."""
+    return dT_C * k_ca_arcsec_per_C
+
+
+def thermal_drift_arcsec(dCa_Ta_arcsec: float, dCa_Tn_arcsec: float, dCa_Tk_arcsec: float) -> float:
+    """Eq. 5: total thermal drift of an axis, arcsec (root sum of squares)."""
+    return math.sqrt(dCa_Ta_arcsec ** 2 + dCa_Tn_arcsec ** 2 + dCa_Tk_arcsec ** 2)
+
+
+# -- budget tables ------------------------------------------------------------------------
+@dataclass
+class BudgetComponent:
+    """One row: ``contribution = |sensitivity| * standard_uncertainty`` in the budget's unit."""
+
+    source: str
+    standard_uncertainty: float
+    unit: str
+    sensitivity: float
+    sensitivity_unit: str
+    contribution: float
+    symbol: str = ""               #: the paper's name of the term (dCa_Ta, sigma_1, ...)
+
+
+@dataclass
+class Budget:
+    """A table of components sorted by contribution (largest first) and their combination."""
+
+    title: str
+    equation: str
+    components: list
+    total: float
+    unit: str = "arcsec"
+    combination: str = "root sum of squares"
+    notes: list = field(default_factory=list)
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"title": self.title, "equation": self.equation, "unit": self.unit,
+                "combination": self.combination, "total": self.total,
+                "components": [asdict(c) for c in self.components], "notes": list(self.notes), **self.extra}
+
+
+def _sorted(components):
+    return sorted(components, key=lambda c: -abs(c.contribution))
+
+
+def calibration_budget(K_g_per_V: float = 1.0, Q_V2s: float = 3e-9, tau_s: float = 30.0,
+                       sigma1_arcsec: float = 5.0, sigma2_arcsec: float = 2.0, G_g: float = 1.0) -> Budget:
+    """Eq. 4 as a budget table (defaults: the paper's example, 11.52").
+
+    Contributions include eq. 4's factor 2. ``extra['classical_sd_arcsec']`` gives, for
+    comparison, the standard deviation of the classical estimate of each angle for the
+    default 12-position plan (docs/classical.md): eq. 4 is four times the largest of them.
+    """
+    from .classical import classical_angle_sd_default_plan
+
+    sens_noise = 2.0 * K_g_per_V / G_g * RAD_TO_ARCSEC
+    comps = [
+        BudgetComponent("output white noise averaged over tau, sqrt(Q/tau)", math.sqrt(Q_V2s / tau_s), "V",
+                        sens_noise, "arcsec/V", sens_noise * math.sqrt(Q_V2s / tau_s), "noise"),
+        BudgetComponent("bench positioning error sigma_1", sigma1_arcsec, "arcsec", 2.0, "1", 2.0 * sigma1_arcsec, "sigma_1"),
+        BudgetComponent("wobble of the bench axes sigma_2", sigma2_arcsec, "arcsec", 2.0, "1", 2.0 * sigma2_arcsec, "sigma_2"),
+    ]
+    total = sigma_eff_arcsec(K_g_per_V, Q_V2s, tau_s, sigma1_arcsec, sigma2_arcsec, G_g)
+    sd = classical_angle_sd_default_plan(Q_V2s=Q_V2s, tau_s=tau_s, sigma_position_arcsec=sigma1_arcsec,
+                                         sigma_wobble_arcsec=sigma2_arcsec, K_g_per_V=K_g_per_V, gravity_g=G_g)
+    return Budget(
+        "error of an orientation angle from the bench test", "eq. 4", _sorted(comps), total,
+        notes=["eq. 4 as printed: 2 sqrt(noise^2 + sigma_1^2 + sigma_2^2); the standard deviation of the "
+               "classical estimate (default plan) is sqrt(noise^2 + sigma^2)/2 per angle, with sigma = sigma_2 "
+               "for Ca_xy and sigma_1 for the other five (docs/classical.md)"],
+        extra={"inputs": {"K_g_per_V": K_g_per_V, "Q_V2s": Q_V2s, "tau_s": tau_s, "sigma1_arcsec": sigma1_arcsec,
+                          "sigma2_arcsec": sigma2_arcsec, "G_g": G_g},
+               "noise_term_arcsec": noise_term_arcsec(K_g_per_V, Q_V2s, tau_s, G_g),
+               "classical_sd_arcsec": sd})
+
+
+def thermal_budget(accelerometer_name: str = "AK-18", *, k_ca_arcsec_per_C: Optional[float] = None,
+                   dT_C: float = 0.2, cte_body_per_C: float = CTE_D16_PER_C,
+                   cte_accelerometer_per_C: float = CTE_STEEL_PER_C, T_max_C: float = 85.0,
+                   T0_C: float = 20.0) -> Budget:
+    """Eq. 5-7 for a unit of Table 1 (k_ca defaults to 1.5"/degC quartz, 6"/degC silicon)."""
+    acc = accelerometer(accelerometer_name)
+    k_ca = K_CA_ARCSEC_PER_C[acc.material] if k_ca_arcsec_per_C is None else k_ca_arcsec_per_C
+    tn = mounting_drift_arcsec(cte_body_per_C, cte_accelerometer_per_C, T_max_C, T0_C)
+    tk = correction_error_arcsec(dT_C, k_ca)
+    dcte = abs(cte_body_per_C - cte_accelerometer_per_C)
+    comps = [
+        BudgetComponent(f"reference-plane instability of the {acc.name} (Table 1, dCa_Ta)", acc.dCa_Ta_arcsec,
+                        "arcsec", 1.0, "1", acc.dCa_Ta_arcsec, "dCa_Ta"),
+        BudgetComponent("CTE mismatch of body and accelerometer over T_max - T0 (eq. 6, dCa_Tn)",
+                        dcte * (T_max_C - T0_C), "1", 0.1 * RAD_TO_ARCSEC, "arcsec", tn, "dCa_Tn"),
+        BudgetComponent("temperature error dT of the thermal correction (eq. 7, dCa_Tk)", dT_C, "degC",
+                        k_ca, "arcsec/degC", tk, "dCa_Tk"),
+    ]
+    return Budget(
+        f"thermal drift of the axes, {acc.name} ({acc.material})", "eq. 5-7", _sorted(comps),
+        thermal_drift_arcsec(acc.dCa_Ta_arcsec, tn, tk),
+        notes=["the paper combines the three parts as independent (root sum of squares, eq. 5); dCa_Ta and "
+               "dCa_Tn are maximum values, not standard uncertainties"],
+        extra={"accelerometer": asdict(acc),
+               "inputs": {"k_ca_arcsec_per_C": k_ca, "dT_C": dT_C, "cte_body_per_C": cte_body_per_C,
+                          "cte_accelerometer_per_C": cte_accelerometer_per_C, "T_max_C": T_max_C, "T0_C": T0_C}})
+
+
+def table1_thermal(**kwargs) -> list[Budget]:
+    """Eq. 5 for every unit of Table 1 (same keyword arguments as :func:`thermal_budget`)."""
+    return [thermal_budget(a.name, **kwargs) for a in TABLE_1]
+
+
+def budget(*, thermal: bool = False, accelerometer_name: Optional[str] = None, K_g_per_V: float = 1.0,
+           Q_V2s: float = 3e-9, tau_s: float = 30.0, sigma1_arcsec: float = 5.0, sigma2_arcsec: float = 2.0,
+           G_g: float = 1.0, k_ca_arcsec_per_C: Optional[float] = None, dT_C: float = 0.2,
+           cte_body_per_C: float = CTE_D16_PER_C, cte_accelerometer_per_C: float = CTE_STEEL_PER_C,
+           T_max_C: float = 85.0, T0_C: float = 20.0) -> list[Budget]:
+    """``triadcal budget``: eq. 4 (default), or eq. 5-7 with ``thermal=True`` for one unit of
+    Table 1 (``accelerometer_name``) or, without a name, for all of them. Returns budget tables."""
+    if not thermal:
+        if accelerometer_name is not None:
+            raise ValueError("an accelerometer of Table 1 is for the thermal budget: add --thermal (thermal=True)")
+        return [calibration_budget(K_g_per_V, Q_V2s, tau_s, sigma1_arcsec, sigma2_arcsec, G_g)]
+    kw = dict(k_ca_arcsec_per_C=k_ca_arcsec_per_C, dT_C=dT_C, cte_body_per_C=cte_body_per_C,
+              cte_accelerometer_per_C=cte_accelerometer_per_C, T_max_C=T_max_C, T0_C=T0_C)
+    if accelerometer_name is None:
+        return table1_thermal(**kw)
+    return [thermal_budget(accelerometer_name, **kw)]
