@@ -76,3 +76,19 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     if json_path is not None:
         result.save(json_path)
     return result
+
+
+def capture(*args, **kwargs):
+    """Run a bench campaign on hardware or the emulator (``triadcal capture``);
+    see :func:`triadcal.hardware.capture.capture`."""
+    from .hardware.capture import capture as _capture
+
+    return _capture(*args, **kwargs)
+
+
+def emulate(*args, **kwargs):
+    """Start the instrument emulator on pseudo-terminals (``triadcal emulate``);
+    see :func:`triadcal.hardware.emulator.emulate`."""
+    from .hardware.emulator import emulate as _emulate
+
+    return _emulate(*args, **kwargs)

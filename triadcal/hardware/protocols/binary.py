@@ -14,8 +14,10 @@ Frame (little-endian, 54 bytes)::
 
 The parser hunts for the sync word, checks type, length and CRC, and on failure
 resumes the hunt one byte after the failed sync word, so a damaged frame costs at
-most itself. A damaged frame is counted once; false sync words found while
-re-synchronising are counted as discarded bytes, not as more damaged frames.
+most itself. A damaged frame is counted once: a failed frame counts when it follows a
+good one, carries a valid type and length, or starts right where a frame would follow
+the last damaged one; false sync words found inside damaged
+bytes while re-synchronising are counted as discarded bytes, not as more frames.
 """
 
 from __future__ import annotations
@@ -83,6 +85,8 @@ class Parser:
         self.buf = b""
         self.stats = ParserStats()
         self.in_sync = True   # last thing seen was a good frame (or nothing yet)
+        self.base = 0         # stream offset of buf[0]
+        self.expect = -1      # stream offset where a frame would follow the last damaged one
 
     def feed(self, data: bytes) -> list[Frame]:
         buf = self.buf + data
@@ -95,12 +99,14 @@ class Parser:
             k = buf.find(SYNC, pos)
             if k < 0:
                 keep = 1 if n and buf[-1] == 0xA5 else 0
-                stats.garbage_bytes += n - pos - keep
+                stats.garbage_bytes += max(n - pos - keep, 0)
                 self.buf = buf[n - keep:]
+                self.base += n - keep
                 return out
             stats.garbage_bytes += k - pos
             if k + FRAME_LEN > n:
                 self.buf = buf[k:]
+                self.base += k
                 return out
             body = buf[k + 2:k + FRAME_LEN - 2]
             if body[:2] == _HEADER and crc(body, 0xFFFF) == _CRC.unpack_from(buf, k + FRAME_LEN - 2)[0]:
@@ -109,8 +115,9 @@ class Parser:
                 self.in_sync = True
                 pos = k + FRAME_LEN
             else:
-                if self.in_sync:
+                if self.in_sync or body[:2] == _HEADER or self.base + k == self.expect:
                     stats.corrupted += 1
                     self.in_sync = False
+                    self.expect = self.base + k + FRAME_LEN
                 stats.garbage_bytes += 1
                 pos = k + 1

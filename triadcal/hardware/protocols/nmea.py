@@ -21,6 +21,8 @@ N_FIELDS = 8
 #: longest valid sentence; anything longer without a terminator is damaged
 MAX_SENTENCE = 200
 SYNC = b"$"
+#: the checksum in upper-case hex only, as sent (a flipped case bit must not pass)
+_HEX = {b"%02X" % v: v for v in range(256)}
 
 
 def checksum(body: bytes) -> int:
@@ -103,13 +105,13 @@ class Parser:
                 if cx is None:
                     cx = np.bitwise_xor.accumulate(np.frombuffer(buf, np.uint8))
                     cx = np.concatenate(([0], cx)).tolist()   # cx[i] = XOR of buf[:i]
-                try:
-                    want = int(buf[star + 1:star + 3], 16)
-                    if cx[star] ^ cx[start + 1] == want:
+                want = _HEX.get(buf[star + 1:star + 3])
+                if want is not None and cx[star] ^ cx[start + 1] == want:
+                    try:
                         out.append(decode_body(buf[start + 1:star]))
                         ok = True
-                except ValueError:
-                    ok = False
+                    except ValueError:
+                        ok = False
             if ok:
                 stats.frames += 1
             else:

@@ -1,0 +1,174 @@
+"""Capture through real pseudo-terminals: end to end, injected faults, SIGKILL and resume."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from triadcal.hardware.capture import (CSV_NAME, RAW_NAME, CaptureSettings, Stabilisation, capture,
+                                       load_port_config, open_instruments)
+from triadcal.hardware.emulator import EmulatorTiming, FaultPlan, emulate
+from triadcal.hardware.storage import read_raw, read_events
+from triadcal.io.bench_csv import read_bench_csv
+from triadcal.models.campaign import DEFAULT_PLAN
+from triadcal.models.simulate import Truth
+
+CLI = [sys.executable, "-m", "triadcal.cli"]
+FAST_STAB = Stabilisation(rate_C_per_min=0.01, window_s=30.0, hold_s=30.0, timeout_s=3000.0)
+
+
+def check_visits_against_raw(out_dir, campaign):
+    """Every row's averages are exactly the mean of its raw 'record' samples, nothing shared."""
+    raw = read_raw(out_dir / RAW_NAME)
+    rec = raw["phase"] == "record"
+    assert len(set(campaign.extra["raw_visit"])) == campaign.n_visits
+    for i, tag in enumerate(campaign.extra["raw_visit"]):
+        m = rec & (raw["visit"] == tag)
+        assert m.sum() == campaign.n_samples[i]
+        np.testing.assert_allclose(campaign.w[i], raw["w"][m].mean(axis=0), rtol=0, atol=1e-12)
+    return raw
+
+
+def test_emulator_capture_fit_recovers_truth_within_4u(tmp_path):
+    joint = pytest.importorskip("triadcal.estimation.joint", reason="needs the joint fit (fit_joint)")
+    assert hasattr(joint, "fit_joint")
+    out = tmp_path / "campaign"
+    t0 = time.monotonic()
+    r = subprocess.run(CLI + ["capture", "--emulate", "--out", str(out), "--setpoints", "20",
+                              "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2", "--stab-window-s", "30",
+                              "--stab-hold-s", "30", "--emulate-effects", "bench_tilt", "--emulate-self-heating-tau-s", "60",
+                              "--emulate-seed", "3", "--no-progress"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    capture_s = time.monotonic() - t0
+    assert capture_s < 40, capture_s
+    c = read_bench_csv(out / CSV_NAME)
+    assert list(c.position) == list(DEFAULT_PLAN)          # one row per position, in order
+    assert float(c.metadata["Q_V2s"]) == pytest.approx(3e-9, rel=0.2)
+    check_visits_against_raw(out, c)
+    fit_json = tmp_path / "fit.json"
+    r = subprocess.run(CLI + ["fit", str(out / CSV_NAME), "--method", "joint", "--effects", "bench_tilt",
+                              "--json", str(fit_json)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    truth = Truth.load(out / "emulator_truth.json")
+    result = json.loads(fit_json.read_text())
+    z = {n: (p["value"] - truth.parameters[n]) / p["u"] for n, p in result["parameters"].items()
+         if n in truth.parameters}
+    assert set(z) == set(truth.parameters)                 # K, S, six angles, tilt
+    assert max(abs(v) for v in z.values()) < 4, z
+
+
+@pytest.mark.parametrize("protocol", ["nmea", "binary"])
+def test_faults_lose_no_accepted_sample_and_are_counted(tmp_path, protocol):
+    faults = FaultPlan(garbage_prob=0.02, bitflip_prob=0.02, drop_prob=0.01,
+                       disconnects=((150.0, 60.0),), stalls=((330.0, 300.0),), bench_ignore_prob=0.03)
+    timing = EmulatorTiming(time_scale=120.0, rate_hz=10.0, self_heating_time_constant_s=0.0)
+    em = emulate(tmp_path / "emu", effects=["bench_tilt"], protocol=protocol, timing=timing, faults=faults,
+                 seed=7, keep_log=True).start()
+    try:
+        imu, bench, chamber = open_instruments(load_port_config(em.directory / "ports.toml"))
+        plan = {k: DEFAULT_PLAN[k] for k in ("P01", "P02", "P05", "P06", "P09", "P10")}
+        settings = CaptureSettings(tau_s=30.0, settle_s=2.0, stabilisation=FAST_STAB, unit="SN-EMU-0001")
+        report = capture(tmp_path / "out", plan=plan, setpoints_C=[20.0], imu=imu, bench=bench,
+                         chamber=chamber, settings=settings)
+        bench.close()
+        chamber.close()
+    finally:
+        em.stop()
+    c = read_bench_csv(tmp_path / "out" / CSV_NAME)
+    assert list(c.position) == list(plan)
+    raw = check_visits_against_raw(tmp_path / "out", c)
+    # every accepted sample is stored once, exactly as the instrument sent it
+    seqs = raw["seq"]
+    assert np.all(np.diff(seqs) > 0)
+    assert len(seqs) == report.accepted_samples
+    log = {seq: (fate, fr) for seq, fate, fr in em.log}
+    for k in range(0, len(seqs), 7):
+        fate, fr = log[int(seqs[k])]
+        assert fate == "sent"
+        np.testing.assert_array_equal(raw["w"][k], fr.w)
+        np.testing.assert_array_equal(raw["t"][k], fr.t)
+    lo, hi = int(seqs[0]), int(seqs[-1])
+    span = [log[s][0] for s in range(lo, hi + 1)]
+    assert sum(f == "sent" for f in span) == len(seqs), em.fates   # nothing sent intact went missing
+    assert report.missing_frames == (hi - lo + 1) - len(seqs)
+    # every flipped frame the reader saw was caught, once: those in the span, plus possibly
+    # flipped ones just before the first accepted frame or after the last one
+    first = lo
+    while first - 1 in log and log[first - 1][0] in ("flipped", "dropped", "truncated", "overrun"):
+        first -= 1
+    last = hi
+    while last + 1 in log and log[last + 1][0] in ("flipped", "dropped", "truncated", "overrun"):
+        last += 1
+    # a frame the emulator could only half-write (line full: a real overrun) is damaged too
+    damaged = ("flipped", "truncated")
+    flipped = lambda a, b: sum(log[s][0] in damaged for s in range(a, b + 1))  # noqa: E731
+    assert flipped(lo, hi) > 0
+    assert flipped(lo, hi) <= report.corrupted_frames <= flipped(first, last), em.fates
+    assert report.duplicate_frames == 0
+    assert sum(f == "dropped" for f in span) > 0 and sum(f == "disconnected" for f in span) > 0
+    assert report.garbage_bytes > 0
+    assert report.disconnects >= 1 and report.reconnects >= 1 and report.stalls >= 1
+    assert em.bench_ignored > 0
+    saved = json.loads((tmp_path / "out" / "capture_report.json").read_text())
+    assert saved["corrupted_frames"] == report.corrupted_frames
+
+
+def test_sigkill_mid_campaign_then_resume_gives_the_visits_of_an_uninterrupted_run(tmp_path):
+    timing = EmulatorTiming(time_scale=120.0, rate_hz=10.0, chamber_time_constant_s=30.0,
+                            unit_time_constant_s=60.0, self_heating_time_constant_s=30.0)
+    em = emulate(tmp_path / "emu", effects=["bench_tilt"], timing=timing, seed=11).start()
+    plan = tmp_path / "plan.csv"
+    labels = ["P01", "P05", "P09", "P12"]
+    plan.write_text("position,axis1_deg,axis2_deg\n"
+                    + "".join(f"{k},{DEFAULT_PLAN[k][0]},{DEFAULT_PLAN[k][1]}\n" for k in labels))
+    out = tmp_path / "out"
+    cmd = CLI + ["capture", "--config", str(em.directory / "ports.toml"), "--out", str(out), "--plan", str(plan),
+                 "--setpoints", "20,25", "--settle-s", "2", "--stab-window-s", "30", "--stab-hold-s", "30",
+                 "--unit", "SN-EMU-0001", "--no-progress"]
+    try:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        deadline = time.monotonic() + 60
+        n_rows = 0
+        while time.monotonic() < deadline and n_rows < 3:
+            time.sleep(0.05)
+            if (out / CSV_NAME).exists():
+                n_rows = read_bench_csv(out / CSV_NAME).n_visits   # valid bench CSV at every moment
+        assert n_rows >= 3, proc.communicate(timeout=5)
+        time.sleep(0.2)                                           # into the next visit
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+        assert proc.returncode == -signal.SIGKILL
+        killed_at = read_bench_csv(out / CSV_NAME).n_visits
+        assert killed_at < 8
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+    finally:
+        em.stop()
+    c = read_bench_csv(out / CSV_NAME)
+    expected = [(sp, lab) for sp in (20.0, 25.0) for lab in labels]   # what an uninterrupted run writes
+    assert list(zip(c.setpoint_C.tolist(), c.position.tolist())) == expected
+    assert c.direction.tolist() == ["none"] * 4 + ["heating"] * 4
+    assert np.all(np.diff(c.time_s) > 0)
+    check_visits_against_raw(out, c)
+    sessions = {e["session"] for e in read_events(out / "raw" / "events.jsonl") if e["kind"] == "session_start"}
+    assert sessions == {1, 2}
+    tags = c.extra["raw_visit"]
+    assert sum(t.endswith("-1.1") for t in tags) == killed_at    # done before the kill
+    assert sum(t.endswith("-2.1") for t in tags) == 8 - killed_at
+    assert "Q_V2s" in c.metadata
+
+
+def test_resume_refuses_a_different_plan(tmp_path):
+    from triadcal.hardware.capture import CaptureError, _read_rows  # noqa: F401
+
+    (tmp_path / "capture.json").write_text(json.dumps({"plan": {"P01": [0.0, 0.0]}, "setpoints_C": [20.0],
+                                                       "tau_s": 30.0, "unit": "X", "sessions": []}))
+    with pytest.raises(CaptureError, match="different plan"):
+        capture(tmp_path, plan={"P02": (180.0, 0.0)}, setpoints_C=[20.0], imu=None, bench=None, chamber=None,
+                settings=CaptureSettings(unit="X"))

@@ -1,0 +1,129 @@
+"""``triadcal capture``: run (or resume) a bench campaign into a directory."""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+
+from ._common import float_list
+from .emulate import add_emulator_options, build_emulator
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "capture", help="run a bench campaign on the instruments (or the emulator) into a directory",
+        description="For each chamber setpoint: command the chamber, wait for the unit's temperatures to "
+                    "settle, then for each bench position move, settle and record tau seconds. Raw samples "
+                    "go to DIR/raw (append-only), position averages to DIR/campaign.csv (bench CSV v1) as "
+                    "visits complete. Run the same command again to resume an interrupted campaign.")
+    p.add_argument("--out", required=True, metavar="DIR", help="campaign directory")
+    p.add_argument("--plan", default="default",
+                   help="'default' (the 12-position plan) or a CSV file position,axis1_deg,axis2_deg")
+    p.add_argument("--setpoints", required=True, help="chamber setpoints in degC, in order, e.g. 20,70,-40")
+    p.add_argument("--tau-s", type=float, default=30.0, help="averaging time per position, s (default 30)")
+    p.add_argument("--settle-s", type=float, default=5.0, help="wait after in-position, s (default 5)")
+    p.add_argument("--unit", default=None, help="serial number of the unit (default SN-UNKNOWN, or the emulator's)")
+    p.add_argument("--operator", default="")
+    p.add_argument("--local-g", type=float, default=None, metavar="M_S2", help="local gravity, m/s^2")
+    p.add_argument("--stab-rate", type=float, default=0.01, metavar="DEGC_PER_MIN",
+                   help="stable when every |dT/dt| < this (default 0.01 degC/min)")
+    p.add_argument("--stab-window-s", type=float, default=120.0, help="slope window, s (default 120)")
+    p.add_argument("--stab-hold-s", type=float, default=300.0, help="... held for this long, s (default 300)")
+    p.add_argument("--stab-timeout-s", type=float, default=6 * 3600.0, help="give up after, s (default 6 h)")
+    p.add_argument("--config", help="TOML file with [imu], [bench], [chamber] ports (see docs/hardware.md)")
+    p.add_argument("--imu-port")
+    p.add_argument("--imu-protocol", choices=("nmea", "binary"))
+    p.add_argument("--bench-port")
+    p.add_argument("--chamber-port")
+    p.add_argument("--chamber-slave", type=int)
+    p.add_argument("--emulate", action="store_true",
+                   help="start the emulator in this process on a compressed clock and capture from it")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_emulator_options(p, prefix="emulate-")
+    p.set_defaults(func=run)
+
+
+def _progress_bar(disabled: bool):
+    from tqdm import tqdm
+
+    state = {"bar": None}
+
+    def progress(ev):
+        if disabled:
+            return
+        if state["bar"] is None:
+            state["bar"] = tqdm(total=ev["total"], initial=ev["done"], unit="visit", file=sys.stderr,
+                                dynamic_ncols=True)
+        bar = state["bar"]
+        bar.n = ev["done"]
+        kind = ev["event"]
+        if kind == "soak":
+            rate = ev.get("rate_C_per_min")
+            bar.set_postfix_str(f"{ev['setpoint_C']:g} degC: settling, dT/dt "
+                                + ("--" if rate is None else f"{rate:.3f} degC/min")
+                                + (f", chamber {ev['chamber_C']:.1f} degC" if ev.get("chamber_C") is not None
+                                   else ""), refresh=True)
+        elif kind in ("move", "record", "visit"):
+            bar.set_postfix_str(f"{ev['setpoint_C']:g} degC {ev['position']} {kind}", refresh=True)
+        elif kind == "done":
+            bar.close()
+
+    return progress
+
+
+def run(args) -> int:
+    from ..hardware.capture import (CaptureSettings, Stabilisation, capture, load_port_config,
+                                    open_instruments, plan_from_csv)
+    from ..models.campaign import DEFAULT_PLAN
+    from ..models.units import STANDARD_GRAVITY_M_S2
+
+    plan = DEFAULT_PLAN if args.plan == "default" else plan_from_csv(args.plan)
+    cfg = load_port_config(args.config) if args.config else {}
+    cfg = {k: dict(cfg.get(k, {})) for k in ("imu", "bench", "chamber")}
+    for section, key, value in (("imu", "port", args.imu_port), ("imu", "protocol", args.imu_protocol),
+                                ("bench", "port", args.bench_port), ("chamber", "port", args.chamber_port),
+                                ("chamber", "slave", args.chamber_slave)):
+        if value is not None:
+            cfg[section][key] = value
+    emulator = None
+    unit = args.unit
+    extra = {}
+    if args.emulate:
+        emulator = build_emulator(args, tempfile.mkdtemp(prefix="triadcal-emulator-"), prefix="emulate-")
+        emulator.start()
+        cfg = load_port_config(emulator.directory / "ports.toml")
+        unit = unit or emulator.truth.unit
+        from pathlib import Path
+
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        emulator.truth.save(Path(args.out) / "emulator_truth.json")
+        extra["emulator"] = f"triadcal emulate (clock x{args.time_scale:g}, {emulator.protocol})"
+    settings = CaptureSettings(
+        tau_s=args.tau_s, settle_s=args.settle_s, unit=unit or "SN-UNKNOWN", operator=args.operator,
+        local_g_m_s2=args.local_g or STANDARD_GRAVITY_M_S2,
+        stabilisation=Stabilisation(args.stab_rate, args.stab_window_s, args.stab_hold_s, args.stab_timeout_s))
+    try:
+        imu, bench, chamber = open_instruments(cfg)
+        try:
+            report = capture(args.out, plan=plan, setpoints_C=float_list(args.setpoints), imu=imu, bench=bench,
+                             chamber=chamber, settings=settings, progress=_progress_bar(args.no_progress),
+                             extra_metadata=extra)
+        finally:
+            bench.close()
+            chamber.close()
+    finally:
+        if emulator is not None:
+            emulator.stop()
+    r = report
+    print(f"wrote {r.csv_path}: {r.visits_done}/{r.visits_total} visits "
+          f"({r.visits_done - r.visits_done_before} in this session {r.session}) in {r.wall_seconds:.1f} s")
+    print(f"samples accepted {r.accepted_samples}, corrupted frames {r.corrupted_frames}, missing {r.missing_frames}, "
+          f"duplicates {r.duplicate_frames}, garbage bytes {r.garbage_bytes}, reconnects {r.reconnects}, "
+          f"stalls {r.stalls}, visits redone {r.redone_visits}")
+    if r.noise:
+        q = r.noise["Q_V2s"]
+        print(f"noise (Allan): Q = {q[0]:.3g}, {q[1]:.3g}, {q[2]:.3g} V^2 s (x, y, z)")
+    if emulator is not None:
+        print(f"emulator: {json.dumps(emulator.summary()['fates'])}")
+    return 0

@@ -1,0 +1,97 @@
+"""``triadcal emulate``: the IMU, bench and chamber on pseudo-terminals, until Ctrl-C."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from ..models.effects import DEFAULT_EFFECTS
+from ..models.simulate import PRESETS
+from ._common import name_list
+
+
+def _windows(items):
+    out = []
+    for item in items or ():
+        try:
+            at, dur = (float(v) for v in item.split(":"))
+        except ValueError:
+            raise ValueError(f"expected AT_S:FOR_S, got {item!r}") from None
+        out.append((at, dur))
+    return tuple(out)
+
+
+def add_emulator_options(p, prefix: str = "") -> None:
+    """Options shared with ``triadcal capture --emulate`` (``prefix`` 'emulate-' there)."""
+    p.add_argument(f"--{prefix}preset", default="ak18-quartz", choices=sorted(PRESETS),
+                   help="emulated unit (default ak18-quartz)")
+    p.add_argument(f"--{prefix}effects", default=",".join(DEFAULT_EFFECTS),
+                   help="effects present in the emulated unit ('none' for eq. 1 only)")
+    p.add_argument(f"--{prefix}protocol", default="nmea", choices=("nmea", "binary"),
+                   help="IMU wire protocol (default nmea)")
+    p.add_argument("--time-scale", type=float, default=60.0,
+                   help="instrument seconds per wall second (default 60)")
+    p.add_argument(f"--{prefix}rate-hz", type=float, default=10.0,
+                   help="IMU samples per instrument second (default 10)")
+    p.add_argument(f"--{prefix}Q", type=float, default=3e-9, help="white-noise intensity, V^2 s (default 3e-9)")
+    p.add_argument(f"--{prefix}chamber-tau-s", type=float, default=600.0,
+                   help="time constant of the chamber, s (default 600)")
+    p.add_argument(f"--{prefix}unit-tau-s", type=float, default=1200.0,
+                   help="time constant of the unit behind the chamber, s (default 1200)")
+    p.add_argument(f"--{prefix}self-heating-tau-s", type=float, default=300.0,
+                   help="time constant of the self-heating after power-on, s (default 300)")
+    p.add_argument(f"--{prefix}faults", default="none", choices=("none", "all"),
+                   help="'all': garbage bytes, flipped bits, dropped frames, a disconnect, a stall, "
+                        "ignored bench commands")
+    p.add_argument(f"--{prefix}disconnect", action="append", metavar="AT_S:FOR_S",
+                   help="disconnect the IMU line at AT_S for FOR_S instrument seconds (repeatable)")
+    p.add_argument(f"--{prefix}stall", action="append", metavar="AT_S:FOR_S",
+                   help="stall the IMU at AT_S for FOR_S instrument seconds (repeatable)")
+    p.add_argument(f"--{prefix}seed", type=int, default=0)
+
+
+def build_emulator(args, directory, prefix: str = ""):
+    from ..hardware.emulator import EmulatorTiming, FaultPlan, emulate
+
+    g = lambda name: getattr(args, (prefix + name).replace("-", "_"))  # noqa: E731
+    timing = EmulatorTiming(time_scale=args.time_scale, rate_hz=g("rate_hz"),
+                            chamber_time_constant_s=g("chamber_tau_s"), unit_time_constant_s=g("unit_tau_s"),
+                            self_heating_time_constant_s=g("self_heating_tau_s"))
+    faults = FaultPlan.all_faults() if g("faults") == "all" else FaultPlan()
+    if g("disconnect"):
+        faults.disconnects = tuple(faults.disconnects) + _windows(g("disconnect"))
+    if g("stall"):
+        faults.stalls = tuple(faults.stalls) + _windows(g("stall"))
+    return emulate(directory, preset=g("preset"), effects=name_list(g("effects")), Q_V2s=g("Q"),
+                   protocol=g("protocol"), timing=timing, faults=faults, seed=g("seed"))
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "emulate", help="run the IMU, bench and chamber emulator on pseudo-terminals",
+        description="Play the IMU readout, the two-axis bench (SCPI) and the thermal chamber (Modbus RTU) "
+                    "on pseudo-terminals, with the model's physics on a compressed clock. Writes ports.toml "
+                    "(a capture config) and truth.json in DIR. Runs until Ctrl-C or --duration.")
+    p.add_argument("dir", help="directory for the port symlinks, ports.toml and truth.json")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many wall seconds")
+    add_emulator_options(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    em = build_emulator(args, args.dir)
+    em.start()
+    print(f"emulating on {em.ports['imu']} (IMU, {em.protocol}), {em.ports['bench']} (bench, SCPI), "
+          f"{em.ports['chamber']} (chamber, Modbus RTU slave 1); clock x{em.timing.time_scale:g}")
+    print(f"capture config: {em.directory / 'ports.toml'}; truth: {em.directory / 'truth.json'}")
+    sys.stdout.flush()
+    t0 = time.monotonic()
+    try:
+        while args.duration is None or time.monotonic() - t0 < args.duration:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        em.stop()
+    print(f"stopped: {em.summary()}")
+    return 0

@@ -1,0 +1,539 @@
+"""Run a bench campaign: chamber setpoints, stabilisation, bench positions, averaging.
+
+:func:`capture` is the library function behind ``triadcal capture``. For each chamber
+setpoint it commands the chamber and waits for the stabilisation criterion
+(:class:`Stabilisation`); then for each position of the plan it moves the bench, waits
+for in-position plus ``settle_s``, and records ``tau_s`` seconds of samples (by the
+instrument's clock). Every accepted sample goes to the append-only raw store; each
+completed visit becomes one row of the bench CSV v1 ``campaign.csv``, rewritten
+atomically after every visit, so the file is a valid bench CSV at every moment.
+
+Resume: the completed rows of ``campaign.csv`` are the record of what is done. A new
+run on the same directory checks that the plan and setpoints match ``capture.json``,
+then continues with the next visit; a visit interrupted half-way is recorded again
+(its earlier samples stay in the raw store under their own visit tag, which no row
+points to). So no visit is repeated or lost, whatever moment the process died at.
+
+At the end, the white-noise intensity Q and the bias instability are estimated from
+the recording windows by an Allan deviation (:mod:`triadcal.hardware.noise`) and
+written into the CSV header (``# Q_V2s = ...``), where the joint fit finds them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections import deque
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Mapping, Optional, Sequence
+
+import numpy as np
+
+from .. import __version__
+from ..io.bench_csv import BenchCSVError, format_bench_csv, read_bench_csv
+from ..models.campaign import Campaign
+from ..models.simulate import Schedule
+from ..models.units import STANDARD_GRAVITY_M_S2
+from .drivers.bench import Bench, BenchError
+from .drivers.chamber import Chamber
+from .drivers.imu import ImuReadout, StreamThread
+from .noise import NoiseEstimate, allan_noise
+from .protocols import Frame
+from .storage import EventLog, RawStore, atomic_write_text, read_raw
+
+CSV_NAME = "campaign.csv"
+STATE_NAME = "capture.json"
+RAW_NAME = "raw/imu_samples.csv"
+EVENTS_NAME = "raw/events.jsonl"
+REPORT_NAME = "capture_report.json"
+
+
+class CaptureError(RuntimeError):
+    """The campaign cannot go on (instrument silent, not stable in time, mismatched resume)."""
+
+
+@dataclass
+class Stabilisation:
+    """When the unit counts as settled at a setpoint.
+
+    The rate of change of each accelerometer temperature sensor is the least-squares
+    slope of its readings over the last ``window_s`` seconds; the unit is stable once
+    the largest of the three stays below ``rate_C_per_min`` for ``hold_s`` seconds
+    without interruption. ``timeout_s`` (instrument time) stops the campaign with an
+    error instead of waiting for ever.
+    """
+
+    rate_C_per_min: float = 0.01
+    window_s: float = 120.0
+    hold_s: float = 300.0
+    timeout_s: float = 6 * 3600.0
+
+    def describe(self) -> str:
+        return (f"|dT/dt| of every accelerometer temperature (least-squares slope over {self.window_s:g} s) "
+                f"< {self.rate_C_per_min:g} degC/min for {self.hold_s:g} s")
+
+
+@dataclass
+class CaptureSettings:
+    """How each visit is made; times in instrument seconds."""
+
+    tau_s: float = 30.0
+    settle_s: float = 5.0
+    stabilisation: Stabilisation = field(default_factory=Stabilisation)
+    unit: str = "SN-UNKNOWN"
+    bench_name: str = "two-axis bench"
+    operator: str = ""
+    local_g_m_s2: float = STANDARD_GRAVITY_M_S2
+    output_unit: str = "V"
+    min_coverage: float = 0.9          # fraction of the expected samples a window must hold
+    max_attempts: int = 3              # per visit, then give up
+    move_timeout_s: float = 600.0
+    silence_timeout_wall_s: float = 30.0   # no frame at all for this long (wall clock): stop
+
+
+@dataclass
+class CaptureReport:
+    """What a capture session did; also written to ``capture_report.json``."""
+
+    out_dir: str
+    csv_path: str
+    session: int
+    visits_total: int
+    visits_done_before: int
+    visits_done: int
+    accepted_samples: int
+    duplicate_frames: int
+    missing_frames: int
+    corrupted_frames: int
+    garbage_bytes: int
+    reconnects: int
+    disconnects: int
+    stalls: int
+    redone_visits: int
+    noise: Optional[dict] = None
+    wall_seconds: float = 0.0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def plan_from_csv(path) -> dict:
+    """A bench plan from a CSV file with columns ``position,axis1_deg,axis2_deg``."""
+    import csv
+
+    plan = {}
+    with open(path, encoding="utf-8") as fh:
+        rows = [r for r in csv.reader(line for line in fh if not line.startswith("#")) if r]
+    if not rows or [h.strip() for h in rows[0]] != ["position", "axis1_deg", "axis2_deg"]:
+        raise ValueError(f"{path}: a plan file starts with the header 'position,axis1_deg,axis2_deg'")
+    for k, r in enumerate(rows[1:], start=2):
+        try:
+            plan[r[0].strip()] = (float(r[1]), float(r[2]))
+        except (ValueError, IndexError):
+            raise ValueError(f"{path}:{k}: expected a label and two angles in degrees, got {r}") from None
+    if not plan:
+        raise ValueError(f"{path}: the plan has no positions")
+    return plan
+
+
+class _Runner:
+    """Pumps frames from the reader into the raw store and the campaign's logic."""
+
+    def __init__(self, stream: StreamThread, raw: RawStore, events: EventLog, session: int,
+                 settings: CaptureSettings):
+        self.stream, self.raw, self.events, self.session = stream, raw, events, session
+        self.settings = settings
+        self.phase = "idle"
+        self.visit_tag = ""
+        self.window: Optional[tuple] = None       # (t0 or None, t1 or None, list)
+        self.last_seq: Optional[int] = None
+        self.last_time: Optional[float] = None
+        self.now: Optional[float] = None          # instrument time of the latest frame
+        self.accepted = self.duplicates = self.missing = 0
+        self.temps: deque = deque()
+        self._last_frame_wall = time.monotonic()
+        self.dt_estimates: deque = deque(maxlen=256)
+
+    def pump(self, timeout: float = 0.02) -> int:
+        batch = self.stream.get(timeout)
+        if not batch:
+            if time.monotonic() - self._last_frame_wall > self.settings.silence_timeout_wall_s:
+                raise CaptureError(f"no frame from the IMU for {self.settings.silence_timeout_wall_s:g} s "
+                                   "(wall clock); check the cable and run the same command again to resume")
+            return 0
+        self._last_frame_wall = time.monotonic()
+        accepted: list[Frame] = []
+        for f in batch:
+            if self.last_seq is not None:
+                if f.seq <= self.last_seq:
+                    if f.time_s < self.last_time - 1.0:          # the instrument restarted
+                        self.events.write("instrument_restart", seq=f.seq, time_s=f.time_s)
+                    else:
+                        self.duplicates += 1
+                        continue
+                elif f.seq > self.last_seq + 1:
+                    self.missing += f.seq - self.last_seq - 1
+                if f.time_s > self.last_time and f.seq == self.last_seq + 1:
+                    self.dt_estimates.append(f.time_s - self.last_time)
+            self.last_seq, self.last_time = f.seq, f.time_s
+            accepted.append(f)
+        if not accepted:
+            return 0
+        self.accepted += len(accepted)
+        self.now = accepted[-1].time_s
+        # split by phase: frames inside an open recording window are 'record'
+        if self.window is not None:
+            t0, t1, got = self.window
+            rec = [f for f in accepted if f.time_s >= t0 and f.time_s < t1]
+            before = [f for f in accepted if f.time_s < t0]
+            after = [f for f in accepted if f.time_s >= t1]
+            if before:
+                self.raw.append(before, self.session, self.phase, self.visit_tag)
+            if rec:
+                self.raw.append(rec, self.session, "record", self.visit_tag)
+                got.extend(rec)
+            if after:
+                self.raw.append(after, self.session, "idle", self.visit_tag)
+        else:
+            self.raw.append(accepted, self.session, self.phase, self.visit_tag)
+        if self.phase == "soak":
+            for f in accepted:
+                self.temps.append((f.time_s, f.t))
+        return len(accepted)
+
+    def wait_first_frame(self) -> None:
+        while self.now is None:
+            self.pump(0.05)
+
+    @property
+    def rate_hz(self) -> Optional[float]:
+        if not self.dt_estimates:
+            return None
+        return 1.0 / float(np.median(self.dt_estimates))
+
+
+def _max_temperature_rate(temps: deque, window_s: float, now: float) -> Optional[float]:
+    """Largest |slope| (degC/s) of the three temperatures over the last window, or None
+    while the window is not yet covered."""
+    while temps and temps[0][0] < now - window_s:
+        temps.popleft()
+    if len(temps) < 3 or temps[-1][0] - temps[0][0] < 0.9 * window_s:
+        return None
+    t = np.array([x[0] for x in temps])
+    T = np.array([x[1] for x in temps])
+    tc = t - t.mean()
+    slope = (tc @ (T - T.mean(axis=0))) / (tc @ tc)
+    return float(np.max(np.abs(slope)))
+
+
+def capture(out_dir, *, plan: Mapping[str, tuple], setpoints_C: Sequence[float],
+            imu: ImuReadout, bench: Bench, chamber: Chamber,
+            settings: Optional[CaptureSettings] = None,
+            progress: Optional[Callable[[dict], None]] = None,
+            extra_metadata: Optional[dict] = None) -> CaptureReport:
+    """Run (or resume) a campaign into ``out_dir`` (``triadcal capture``); see the module docstring.
+
+    ``progress`` is called with a dict (``event``: 'start', 'soak', 'move', 'record',
+    'visit', 'done'; plus ``done``, ``total``, ``setpoint_C``, ``position``, ``chamber_C``).
+    """
+    wall0 = time.monotonic()
+    settings = settings or CaptureSettings()
+    out = Path(out_dir)
+    (out / "raw").mkdir(parents=True, exist_ok=True)
+    plan = {str(k): (float(v[0]), float(v[1])) for k, v in plan.items()}
+    setpoints_C = [float(s) for s in setpoints_C]
+    if not plan or not setpoints_C:
+        raise ValueError("a campaign needs at least one bench position and one setpoint")
+    directions = Schedule(setpoints_C=setpoints_C).directions()
+    labels = list(plan)
+    total = len(labels) * len(setpoints_C)
+    notify = progress or (lambda ev: None)
+
+    # -- state: what the directory already holds --------------------------------------
+    state_path = out / STATE_NAME
+    identity = {"plan": {k: list(v) for k, v in plan.items()}, "setpoints_C": setpoints_C,
+                "tau_s": settings.tau_s, "unit": settings.unit}
+    if state_path.exists():
+        state = json.loads(state_path.read_text(encoding="utf-8"))
+        for key, value in identity.items():
+            if state.get(key) != value:
+                raise CaptureError(f"{out} holds a campaign with a different {key} ({state.get(key)!r}, "
+                                   f"now {value!r}); resume with the same settings or choose another --out")
+    else:
+        state = {"format": "triadcal.capture", "version": 1, **identity, "sessions": []}
+    rows = _read_rows(out / CSV_NAME, labels, setpoints_C, directions)
+    done_before = len(rows)
+    session = len(state["sessions"]) + 1
+    state["sessions"].append({"session": session, "started_wall": time.time(), "visits_before": done_before})
+    atomic_write_text(state_path, json.dumps(state, indent=2))
+
+    raw = RawStore(out / RAW_NAME)
+    events = EventLog(out / EVENTS_NAME)
+    events.write("session_start", session=session, visits_done=done_before, total=total,
+                 stabilisation=settings.stabilisation.describe())
+    imu.open()
+    stream = StreamThread(imu)
+    stream.start()
+    run = _Runner(stream, raw, events, session, settings)
+    redone = 0
+    metadata = {
+        "generator": f"triadcal {__version__} capture",
+        "bench": settings.bench_name,
+        "local_g_m_s2": repr(settings.local_g_m_s2),
+        "output_unit": settings.output_unit,
+        "raw_samples": RAW_NAME,
+        "stabilisation": settings.stabilisation.describe(),
+        "settle_s": f"{settings.settle_s:g}",
+        **({"operator": settings.operator} if settings.operator else {}),
+        **(extra_metadata or {}),
+    }
+    noise_est: Optional[NoiseEstimate] = None
+    try:
+        run.wait_first_frame()
+        # campaign time = instrument time + offset; a restarted instrument clock is caught up
+        offset = state.get("time_offset_s")
+        last_end = max((r["time_s"] + r["tau_s"] / 2 for r in rows), default=0.0)
+        if offset is None or run.now + offset < last_end:
+            offset = last_end - run.now
+            state["time_offset_s"] = offset
+            atomic_write_text(state_path, json.dumps(state, indent=2))
+        notify({"event": "start", "done": done_before, "total": total})
+
+        for k, (sp, direction) in enumerate(zip(setpoints_C, directions)):
+            if (k + 1) * len(labels) <= len(rows):
+                continue
+            # -- chamber and stabilisation --
+            chamber.set_setpoint_C(sp)
+            events.write("setpoint", index=k, setpoint_C=sp)
+            run.phase, run.visit_tag = "soak", f"s{k:03d}"
+            run.temps.clear()
+            crit = settings.stabilisation
+            t_start = run.now
+            stable_since = None
+            last_note = 0.0
+            while True:
+                run.pump()
+                rate = _max_temperature_rate(run.temps, crit.window_s, run.now)
+                if rate is not None and rate * 60.0 < crit.rate_C_per_min:
+                    stable_since = run.now if stable_since is None else stable_since
+                    if run.now - stable_since >= crit.hold_s:
+                        break
+                else:
+                    stable_since = None
+                if run.now - t_start > crit.timeout_s:
+                    raise CaptureError(f"setpoint {sp:g} degC: not stable after {crit.timeout_s:g} s "
+                                       f"({crit.describe()}); last rate "
+                                       f"{'unknown' if rate is None else f'{rate * 60:.3g} degC/min'}")
+                if time.monotonic() - last_note > 0.25:
+                    last_note = time.monotonic()
+                    notify({"event": "soak", "done": len(rows), "total": total, "setpoint_C": sp,
+                            "rate_C_per_min": None if rate is None else rate * 60.0,
+                            "chamber_C": _safe(chamber.temperature_C)})
+            events.write("stable", index=k, setpoint_C=sp, after_s=run.now - t_start)
+
+            for j, label in enumerate(labels):
+                if k * len(labels) + j < len(rows):
+                    continue
+                a1, a2 = plan[label]
+                for attempt in range(1, settings.max_attempts + 1):
+                    tag = f"s{k:03d}-{label}-{session}.{attempt}"
+                    row = _visit(run, bench, events, settings, tag, a1, a2, notify,
+                                 {"done": len(rows), "total": total, "setpoint_C": sp, "position": label})
+                    if row is not None:
+                        break
+                    redone += 1
+                else:
+                    raise CaptureError(f"position {label} at {sp:g} degC: too few samples in "
+                                       f"{settings.max_attempts} attempts (see {EVENTS_NAME})")
+                raw.sync()   # every sample of the visit is on disk before the visit counts
+                row.update(unit=settings.unit, setpoint_C=sp, direction=direction, position=label,
+                           axis1_deg=a1, axis2_deg=a2, tau_s=settings.tau_s, raw_visit=tag)
+                row["time_s"] = row.pop("mid_instrument_s") + offset
+                rows.append(row)
+                atomic_write_text(out / CSV_NAME, format_bench_csv(_campaign(rows, metadata)))
+                events.write("visit", index=len(rows), tag=tag, n_samples=row["n_samples"])
+                notify({"event": "visit", "done": len(rows), "total": total, "setpoint_C": sp,
+                        "position": label})
+        run.phase, run.visit_tag = "idle", ""
+        # -- noise from the recording windows of the visits the CSV points to --
+        noise_est = _campaign_noise(out / RAW_NAME, rows, run.rate_hz)
+        if noise_est is not None:
+            metadata.update(noise_est.metadata())
+        atomic_write_text(out / CSV_NAME, format_bench_csv(_campaign(rows, metadata)))
+        notify({"event": "done", "done": len(rows), "total": total})
+    finally:
+        stream.stop()
+        try:                      # frames read but not yet pumped are stored too
+            run.phase, run.visit_tag, run.window = "idle", "", None
+            while run.pump(0.0):
+                pass
+        except (CaptureError, RuntimeError):
+            pass
+        raw.close()
+        ps, ls = imu.parser_stats, imu.link_stats
+        report = CaptureReport(
+            out_dir=str(out), csv_path=str(out / CSV_NAME), session=session, visits_total=total,
+            visits_done_before=done_before, visits_done=len(rows), accepted_samples=run.accepted,
+            duplicate_frames=run.duplicates, missing_frames=run.missing, corrupted_frames=ps.corrupted,
+            garbage_bytes=ps.garbage_bytes, reconnects=ls.reconnects, disconnects=ls.disconnects,
+            stalls=ls.stalls, redone_visits=redone,
+            noise=None if noise_est is None else {
+                "Q_V2s": list(noise_est.Q_V2s), "bias_instability_V": list(noise_est.bias_instability_V),
+                "floor_reached": list(noise_est.floor_reached), "taus_s": noise_est.taus_s.tolist(),
+                "adev_V": noise_est.adev.tolist()},
+            wall_seconds=time.monotonic() - wall0)
+        for t, text in ls.events:
+            events.write("link", text=text, at_wall=t)
+        events.write("session_end", **{k: v for k, v in report.to_dict().items() if k != "noise"})
+        events.close()
+        atomic_write_text(out / REPORT_NAME, json.dumps(report.to_dict(), indent=2))
+    return report
+
+
+def _safe(fn):
+    try:
+        return fn()
+    except OSError:
+        return None
+
+
+def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettings, tag: str,
+           a1: float, a2: float, notify, info: dict) -> Optional[dict]:
+    """Move, settle, record one window; the row's values, or None when too few samples came."""
+    run.phase, run.visit_tag = "move", tag
+    notify({"event": "move", **info})
+    bench.move_to(a1, a2)
+    t_move = run.now
+    while True:
+        run.pump()
+        try:
+            ready = bench.in_position()
+        except BenchError as exc:      # keep polling until the move timeout
+            events.write("bench_error", text=str(exc))
+            ready = False
+        if ready:
+            break
+        if run.now - t_move > settings.move_timeout_s:
+            raise BenchError(f"bench did not reach ({a1}, {a2}) in {settings.move_timeout_s:g} s")
+    # in position: the first frame read after this moment starts the settling time
+    run.phase = "settle"
+    t_ready = None
+    while t_ready is None:
+        before = run.last_seq
+        run.pump()
+        if run.last_seq != before:
+            t_ready = run.now
+    window_start = t_ready + settings.settle_s
+    got: list[Frame] = []
+    run.window = (window_start, window_start + settings.tau_s, got)
+    notify({"event": "record", **info})
+    while run.now < window_start + settings.tau_s:
+        run.pump()
+    run.window = None
+    run.phase = "idle"
+    rate = run.rate_hz or 1.0
+    expected = settings.tau_s * rate
+    if len(got) < max(2, settings.min_coverage * expected):
+        events.write("visit_incomplete", tag=tag, n_samples=len(got), expected=expected)
+        return None
+    w = np.array([f.w for f in got])
+    t = np.array([f.t for f in got])
+    return {"w": w.mean(axis=0), "t": t.mean(axis=0), "sd": w.std(axis=0, ddof=1), "n_samples": len(got),
+            "mid_instrument_s": window_start + settings.tau_s / 2}
+
+
+def _campaign(rows: list, metadata: dict) -> Campaign:
+    n = len(rows)
+
+    def col(name, dtype=float):
+        return np.array([r[name] for r in rows], dtype=dtype)
+
+    return Campaign(
+        unit=col("unit", object).astype(str), setpoint_C=col("setpoint_C"),
+        direction=col("direction", object).astype(str), time_s=col("time_s"),
+        position=col("position", object).astype(str), axis1_deg=col("axis1_deg"),
+        axis2_deg=col("axis2_deg"), tau_s=col("tau_s"),
+        w=np.array([r["w"] for r in rows], float).reshape(n, 3),
+        t=np.array([r["t"] for r in rows], float).reshape(n, 3),
+        cycle=np.zeros(n, int), state=np.full(n, "initial"),
+        sd=np.array([r["sd"] for r in rows], float).reshape(n, 3), n_samples=col("n_samples", int),
+        metadata=dict(metadata), extra={"raw_visit": col("raw_visit", object).astype(str)})
+
+
+def _read_rows(path: Path, labels: list, setpoints: list, directions: list) -> list[dict]:
+    """Completed visits from an existing campaign.csv, checked against the campaign's order."""
+    if not path.exists():
+        return []
+    try:
+        c = read_bench_csv(path)
+    except BenchCSVError as exc:
+        raise CaptureError(f"cannot resume: {exc}") from None
+    if "raw_visit" not in c.extra or c.sd is None:
+        raise CaptureError(f"cannot resume: {path} was not written by triadcal capture (no raw_visit column)")
+    rows = []
+    for i in range(c.n_visits):
+        k, j = divmod(i, len(labels))
+        if k >= len(setpoints) or c.position[i] != labels[j] or c.setpoint_C[i] != setpoints[k]:
+            raise CaptureError(f"cannot resume: {path} line {c.lines[i]} holds {c.position[i]} at "
+                               f"{c.setpoint_C[i]:g} degC where the plan has "
+                               f"{labels[j] if k < len(setpoints) else 'nothing'}")
+        rows.append({"unit": c.unit[i], "setpoint_C": c.setpoint_C[i], "direction": c.direction[i],
+                     "time_s": c.time_s[i], "position": c.position[i], "axis1_deg": c.axis1_deg[i],
+                     "axis2_deg": c.axis2_deg[i], "tau_s": c.tau_s[i], "w": c.w[i], "t": c.t[i],
+                     "sd": c.sd[i], "n_samples": int(c.n_samples[i]), "raw_visit": c.extra["raw_visit"][i]})
+    return rows
+
+
+def _campaign_noise(raw_path: Path, rows: list, rate_hz: Optional[float]) -> Optional[NoiseEstimate]:
+    if not rows:
+        return None
+    raw = read_raw(raw_path)
+    rec = raw["phase"] == "record"
+    wanted = {r["raw_visit"] for r in rows}
+    windows = []
+    for tag in wanted:
+        m = rec & (raw["visit"] == tag)
+        if m.sum() >= 8:
+            windows.append(raw["w"][m])
+    if rate_hz is None:
+        dt = np.diff(raw["time_s"][rec])
+        dt = dt[dt > 0]
+        if not len(dt):
+            return None
+        rate_hz = 1.0 / float(np.median(dt))
+    try:
+        return allan_noise(windows, rate_hz)
+    except ValueError:
+        return None
+
+
+def load_port_config(path) -> dict:
+    """A capture config file (TOML): tables ``[imu]`` (port, protocol, baudrate),
+    ``[bench]`` (port, baudrate) and ``[chamber]`` (port, slave, baudrate)."""
+    import tomllib
+
+    try:
+        with open(path, "rb") as fh:
+            cfg = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not a valid TOML config file: {exc}") from None
+    for section in ("imu", "bench", "chamber"):
+        if section in cfg and "port" not in cfg[section]:
+            raise ValueError(f"{path}: [{section}] needs a 'port'")
+    return cfg
+
+
+def open_instruments(cfg: Mapping) -> tuple:
+    """(imu, bench, chamber) drivers from a config mapping (see :func:`load_port_config`)."""
+    from .drivers import ModbusChamber, ScpiBench, SerialImu
+
+    missing = [s for s in ("imu", "bench", "chamber") if s not in cfg or not cfg[s].get("port")]
+    if missing:
+        raise ValueError(f"no port given for: {', '.join(missing)} (use --config or --{missing[0]}-port)")
+    i, b, c = cfg["imu"], cfg["bench"], cfg["chamber"]
+    imu = SerialImu(i["port"], protocol=i.get("protocol", "nmea"), baudrate=int(i.get("baudrate", 921600)))
+    bench = ScpiBench(b["port"], baudrate=int(b.get("baudrate", 115200)))
+    chamber = ModbusChamber(c["port"], slave=int(c.get("slave", 1)), baudrate=int(c.get("baudrate", 19200)))
+    return imu, bench, chamber

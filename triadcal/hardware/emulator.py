@@ -1,0 +1,574 @@
+"""The three instruments on pseudo-terminals, driven by the model's physics.
+
+:class:`Emulator` opens one pseudo-terminal per instrument (Python's own :mod:`pty`,
+no system package) and keeps a stable symlink to each slave in its directory
+(``imu``, ``bench``, ``chamber``), the way udev names a USB adapter, so a reconnect
+can hand out a new pty behind the same name. ``ports.toml`` in the same directory
+is a capture config file naming them.
+
+Physics (:class:`UnitPhysics`): the outputs are :meth:`triadcal.models.model.Model.predict`
+of a :class:`~triadcal.models.simulate.Truth` (eq. 1 with its effects, the same call the
+simulator makes), at the bench's present angles (moves take time), at the sensors'
+temperatures: the chamber follows its setpoint and the unit follows the chamber as two
+first-order lags in series (the simulator's thermal model, here integrated in closed form
+between setpoint changes), each sensor reading the unit plus a self-heating that rises
+after power-on with its own time constant. White output noise of intensity Q per sample
+(standard deviation sqrt(Q f) at f samples/s, so a mean over tau has variance Q/tau as in
+the simulator), white temperature-reading noise.
+
+Clock: instrument time runs ``time_scale`` times faster than the wall clock, so a
+campaign of hours plays in seconds while every rate, time constant and averaging
+window keeps its meaning in instrument seconds.
+
+Faults (:class:`FaultPlan`): garbage bytes between frames, a flipped bit in a frame,
+dropped frames, disconnect and reconnect of the IMU line, a stalled IMU. Every frame's
+fate is counted (``fates``) and, with ``keep_log``, logged with its content, so a test
+can check what the receiver accepted against what was sent.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pty
+import select
+import threading
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..models.model import Covariates
+from ..models.simulate import NoiseModel, Schedule, Truth, preset_truth
+from ..models.units import ARCSEC, STANDARD_GRAVITY_M_S2
+from .drivers.chamber import REG_PV, REG_SP, REG_STATUS
+from .protocols import Frame, get_protocol
+from .protocols.binary import crc16_modbus
+
+#: bytes the emulator's garbage never contains, so that every damaged frame is counted
+#: exactly once (the parsers cope with any bytes; this keeps the tests' accounting exact)
+_SYNC_BYTES = {"nmea": set(b"$\r\n*"), "binary": {0xA5}}
+FATES = ("sent", "flipped", "dropped", "unattached", "disconnected", "overrun", "truncated")
+
+
+@dataclass
+class FaultPlan:
+    """Faults to inject into the IMU stream; times in instrument seconds.
+
+    Per frame: ``garbage_prob`` a burst of 1-16 random bytes before it, ``bitflip_prob`` one
+    bit flipped inside it (a bad checksum), ``drop_prob`` not sent at all (its sequence
+    number is used, so the receiver sees a gap). ``disconnects``: ``(at_s, for_s)`` pairs,
+    the IMU line goes away and comes back on a new pty behind the same name.
+    ``stalls``: ``(at_s, for_s)`` pairs, the IMU sends nothing (and uses no sequence numbers).
+    ``bench_ignore_prob``: the bench drops a command line without a word.
+    """
+
+    garbage_prob: float = 0.0
+    bitflip_prob: float = 0.0
+    drop_prob: float = 0.0
+    disconnects: Sequence[tuple] = ()
+    stalls: Sequence[tuple] = ()
+    bench_ignore_prob: float = 0.0
+
+    @classmethod
+    def all_faults(cls, start_s: float = 60.0) -> "FaultPlan":
+        """A bit of everything, for demonstrations and tests."""
+        return cls(garbage_prob=0.01, bitflip_prob=0.01, drop_prob=0.01,
+                   disconnects=((start_s, 60.0),), stalls=((start_s + 240.0, 120.0),),
+                   bench_ignore_prob=0.1)
+
+
+@dataclass
+class EmulatorTiming:
+    """Timing of the emulated instruments, in instrument seconds (except ``time_scale``)."""
+
+    time_scale: float = 60.0
+    rate_hz: float = 10.0
+    start_C: float = 20.0
+    chamber_time_constant_s: float = 600.0
+    unit_time_constant_s: float = 1200.0
+    self_heating_C: tuple = (0.30, 0.35, 0.25)
+    self_heating_time_constant_s: float = 300.0
+    bench_rate_deg_s: float = 10.0
+    bench_settle_s: float = 2.0
+
+    @classmethod
+    def from_schedule(cls, schedule: Schedule, **kw) -> "EmulatorTiming":
+        """The simulator's thermal constants (same chamber and unit)."""
+        return cls(start_C=schedule.start_C, chamber_time_constant_s=schedule.chamber_time_constant_s,
+                   unit_time_constant_s=schedule.unit_time_constant_s,
+                   self_heating_C=tuple(schedule.self_heating_C), **kw)
+
+
+class UnitPhysics:
+    """The unit on the bench in the chamber, as functions of instrument time (thread-safe)."""
+
+    def __init__(self, truth: Truth, timing: EmulatorTiming, seed: int = 0):
+        self.truth = truth
+        self.timing = timing
+        self.model = truth.model()
+        self.p = self.model.to_internal(truth.parameters)
+        self.gravity_g = truth.local_g_m_s2 / STANDARD_GRAVITY_M_S2
+        self.rng = np.random.default_rng(seed)
+        self.lock = threading.Lock()
+        T0 = timing.start_C
+        # thermal segment: since t0, setpoint sp, chamber c0 and unit u0 at t0
+        self._seg = (0.0, T0, T0, T0)
+        self.setpoint_C = T0
+        self._last_sp: Optional[float] = None
+        self.direction = "none"
+        # bench: a move from (a0) at t0 to (a1) arriving at t_arrive, in position at t_ready
+        self._move = (0.0, (0.0, 0.0), (0.0, 0.0), 0.0, 0.0)
+        self._errors = self._draw_bench_errors()
+
+    # -- thermal ----------------------------------------------------------------------
+    def _thermal(self, t):
+        t0, sp, c0, u0 = self._seg
+        tc, tu = self.timing.chamber_time_constant_s, self.timing.unit_time_constant_s
+        if abs(tc - tu) < 1e-9 * tu:
+            tu = tu * (1 + 1e-6)
+        x = np.maximum(np.asarray(t, float) - t0, 0.0)
+        A = c0 - sp
+        B = A * tc / (tc - tu)
+        ec, eu = np.exp(-x / tc), np.exp(-x / tu)
+        chamber = sp + A * ec
+        unit = sp + B * ec + (u0 - sp - B) * eu
+        return chamber, unit, (chamber - unit) / tu
+
+    def chamber_C(self, t: float) -> float:
+        with self.lock:
+            return float(self._thermal(t)[0])
+
+    def set_setpoint(self, t: float, sp: float) -> None:
+        """Command the chamber at instrument time ``t``; the hysteresis branch follows the
+        direction of the change (as :meth:`Schedule.directions`)."""
+        with self.lock:
+            c, u, _ = self._thermal(t)
+            self._seg = (t, float(sp), float(c), float(u))
+            if self._last_sp is not None and sp != self._last_sp:
+                self.direction = "heating" if sp > self._last_sp else "cooling"
+            self._last_sp = float(sp)
+            self.setpoint_C = float(sp)
+
+    # -- bench ------------------------------------------------------------------------
+    def _draw_bench_errors(self):
+        n = self.truth.noise
+        return (self.rng.normal(0.0, n.sigma_position_arcsec * ARCSEC),
+                self.rng.normal(0.0, n.sigma_position_arcsec * ARCSEC),
+                self.rng.normal(0.0, n.sigma_wobble_arcsec * ARCSEC))
+
+    def move(self, t: float, a1: float, a2: float) -> None:
+        with self.lock:
+            start = self._angles(t)
+            start = (float(start[0]), float(start[1]))
+            dist = max(abs(a1 - start[0]), abs(a2 - start[1]))
+            arrive = t + dist / self.timing.bench_rate_deg_s
+            self._move = (t, start, (float(a1), float(a2)), arrive, arrive + self.timing.bench_settle_s)
+            self._errors = self._draw_bench_errors()
+
+    def _angles(self, t):
+        t0, a0, a1, arrive, _ = self._move
+        frac = np.clip((np.asarray(t, float) - t0) / max(arrive - t0, 1e-12), 0.0, 1.0)
+        return a0[0] + (a1[0] - a0[0]) * frac, a0[1] + (a1[1] - a0[1]) * frac
+
+    def bench_state(self, t: float):
+        """(present angles, target angles, in position) at instrument time ``t``."""
+        with self.lock:
+            a = self._angles(t)
+            return (float(a[0]), float(a[1])), self._move[2], t >= self._move[4]
+
+    # -- outputs ----------------------------------------------------------------------
+    def sample(self, t: np.ndarray):
+        """Outputs (n, 3) in V and temperature readings (n, 3) in degC at times ``t``."""
+        tm = self.timing
+        t = np.asarray(t, float)
+        n = len(t)
+        with self.lock:
+            _, unit, rate = self._thermal(t)
+            a1, a2 = self._angles(t)
+            e1, e2, wob = self._errors
+            branch = {"none": 0.0, "heating": -1.0, "cooling": 1.0}[self.direction]
+        heat = np.asarray(tm.self_heating_C, float)[None, :]
+        if tm.self_heating_time_constant_s > 0:
+            heat = heat * (1.0 - np.exp(-t / tm.self_heating_time_constant_s))[:, None]
+        sensor = unit[:, None] + heat
+        cov = Covariates(axis1=np.radians(a1), axis2=np.radians(a2),
+                         temp=tuple(sensor[:, i] for i in range(3)), temp_rate=(rate, rate, rate),
+                         branch=np.full(n, branch), time_s=t, axis1_error=e1, axis2_error=e2, wobble=wob)
+        w = np.stack(np.broadcast_arrays(*self.model.predict(self.p, cov, self.gravity_g)), axis=1)
+        noise = self.truth.noise
+        w = w + self.rng.normal(0.0, math.sqrt(noise.Q_V2s * tm.rate_hz), (n, 3))
+        temps = sensor + self.rng.normal(0.0, noise.temp_noise_C, (n, 3))
+        return w, temps
+
+
+class _Pty:
+    """A pseudo-terminal with a stable symlink to its slave; the emulator holds the master."""
+
+    def __init__(self, link: Path):
+        self.link = link
+        self.master = -1
+        self.open()
+
+    def open(self) -> None:
+        m, s = pty.openpty()
+        tty.setraw(s)                       # no echo, no line editing, before anyone opens it
+        name = os.ttyname(s)
+        os.close(s)
+        os.set_blocking(m, False)
+        tmp = self.link.with_name(self.link.name + ".new")
+        if tmp.is_symlink() or tmp.exists():
+            tmp.unlink()
+        os.symlink(name, tmp)
+        os.replace(tmp, self.link)
+        self.master = m
+        self._poll = select.poll()
+        self._poll.register(m, select.POLLIN | select.POLLHUP)
+
+    def close(self) -> None:
+        if self.master >= 0:
+            os.close(self.master)
+            self.master = -1
+
+    def attached(self) -> bool:
+        """True while a reader holds the slave open (the master reports no hang-up)."""
+        if self.master < 0:
+            return False
+        ev = self._poll.poll(0)
+        return not any(e & select.POLLHUP for _, e in ev)
+
+    def wait_readable(self, timeout_s: float) -> bool:
+        ev = self._poll.poll(timeout_s * 1000)
+        if any(e & select.POLLHUP for _, e in ev):
+            time.sleep(timeout_s)
+            return False
+        return bool(ev)
+
+
+class Emulator:
+    """IMU readout, SCPI bench and Modbus chamber on pseudo-terminals under ``directory``.
+
+    Use as a context manager or call :meth:`start` / :meth:`stop`. ``ports`` maps
+    'imu', 'bench', 'chamber' to the symlinks; :meth:`now_s` is the instrument clock.
+    """
+
+    def __init__(self, directory, truth: Optional[Truth] = None, protocol: str = "nmea",
+                 timing: Optional[EmulatorTiming] = None, faults: Optional[FaultPlan] = None,
+                 seed: int = 0, keep_log: bool = False, chamber_slave: int = 1):
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.truth = truth or preset_truth()
+        self.protocol = protocol
+        self.codec = get_protocol(protocol)
+        self.timing = timing or EmulatorTiming()
+        self.faults = faults or FaultPlan()
+        self.physics = UnitPhysics(self.truth, self.timing, seed)
+        self.rng = np.random.default_rng(seed + 1)
+        self.keep_log = keep_log
+        self.chamber_slave = chamber_slave
+        self.log: list[tuple[int, str, Frame]] = []
+        self.fates = {f: 0 for f in FATES}
+        self.garbage_bytes_sent = 0
+        self.bench_ignored = 0
+        self.modbus_requests = 0
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._mono0 = None
+        self.ports = {k: str(self.directory / k) for k in ("imu", "bench", "chamber")}
+
+    # -- clock -------------------------------------------------------------------------
+    def now_s(self) -> float:
+        """Instrument time, s since start."""
+        return (time.monotonic() - self._mono0) * self.timing.time_scale
+
+    def wall_s(self, instrument_s: float) -> float:
+        return instrument_s / self.timing.time_scale
+
+    # -- lifecycle ---------------------------------------------------------------------
+    def start(self) -> "Emulator":
+        self._ptys = {k: _Pty(Path(v)) for k, v in self.ports.items()}
+        self._mono0 = time.monotonic()
+        for name, target in (("imu", self._run_imu), ("bench", self._run_bench), ("chamber", self._run_chamber)):
+            th = threading.Thread(target=target, daemon=True, name=f"emulator-{name}")
+            th.start()
+            self._threads.append(th)
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        for th in self._threads:
+            th.join(timeout=2.0)
+        for p in self._ptys.values():
+            p.close()
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    def write_config(self, path=None) -> Path:
+        """A capture config file (TOML) naming the emulator's ports."""
+        path = Path(path) if path else self.directory / "ports.toml"
+        path.write_text(
+            f'# written by triadcal emulate\n[imu]\nport = "{self.ports["imu"]}"\nprotocol = "{self.protocol}"\n\n'
+            f'[bench]\nport = "{self.ports["bench"]}"\n\n'
+            f'[chamber]\nport = "{self.ports["chamber"]}"\nslave = {self.chamber_slave}\n', encoding="utf-8")
+        return path
+
+    def summary(self) -> dict:
+        return {"fates": dict(self.fates), "garbage_bytes_sent": self.garbage_bytes_sent,
+                "bench_commands_ignored": self.bench_ignored, "modbus_requests": self.modbus_requests,
+                "instrument_time_s": self.now_s()}
+
+    # -- IMU stream ----------------------------------------------------------------------
+    def _in_window(self, windows, t):
+        return any(a <= t < a + d for a, d in windows)
+
+    def _run_imu(self) -> None:
+        port = self._ptys["imu"]
+        f = self.timing.rate_hz
+        k_next = 0                # index of the next frame time k / f
+        seq = 0
+        attached_at = None        # wall time the reader was seen attached
+        state = "up"              # up / draining / down
+        state_until = 0.0
+        done_disconnects = set()
+        forbidden = _SYNC_BYTES[self.protocol]
+        fl = self.faults
+        tick = 0.005
+        while not self._stop.is_set():
+            time.sleep(tick)
+            now_i = self.now_s()
+            wall = time.monotonic()
+            # disconnect / reconnect of the line
+            if state == "up":
+                for i, (a, d) in enumerate(fl.disconnects):
+                    if i not in done_disconnects and now_i >= a:
+                        done_disconnects.add(i)
+                        state, state_until = "draining", wall + 0.1   # let the reader drain the line
+                        reconnect_at = a + d
+            elif state == "draining" and wall >= state_until:
+                port.close()
+                state = "down"
+            elif state == "down" and now_i >= reconnect_at:
+                port.open()
+                state, attached_at = "up", None
+            k_end = int(math.floor(now_i * f)) + 1
+            if k_end <= k_next:
+                continue
+            times = np.arange(k_next, k_end) / f
+            k_next = k_end
+            stalled = np.array([self._in_window(fl.stalls, t) for t in times]) if fl.stalls else None
+            if stalled is not None:
+                times = times[~stalled]
+            if not len(times):
+                continue
+            w, temps = self.physics.sample(times)
+            if state == "up" and port.attached():
+                if attached_at is None:
+                    attached_at = wall
+                can_write = wall - attached_at >= 0.05
+            else:
+                attached_at = None
+                can_write = False
+            chunks, fates, frames = [], [], []
+            for j in range(len(times)):
+                fr = Frame(seq, float(times[j]), tuple(w[j].tolist()), tuple(temps[j].tolist()))
+                seq += 1
+                if not can_write:
+                    fates.append("unattached" if state == "up" else "disconnected")
+                    chunks.append(b"")
+                    frames.append(fr)
+                    continue
+                if fl.drop_prob and self.rng.random() < fl.drop_prob:
+                    fates.append("dropped")
+                    chunks.append(b"")
+                    frames.append(fr)
+                    continue
+                data = self.codec.encode(fr)
+                fate = "sent"
+                if fl.bitflip_prob and self.rng.random() < fl.bitflip_prob:
+                    data = self._flip(data, forbidden)
+                    fate = "flipped"
+                if fl.garbage_prob and self.rng.random() < fl.garbage_prob:
+                    g = bytes(b for b in self.rng.integers(0, 256, int(self.rng.integers(1, 17))).tolist()
+                              if b not in forbidden)
+                    self.garbage_bytes_sent += len(g)
+                    data = g + data
+                chunks.append(data)
+                fates.append(fate)
+                frames.append(fr)
+            blob = b"".join(chunks)
+            written = 0
+            if blob:
+                try:
+                    written = os.write(port.master, blob)
+                except (BlockingIOError, OSError):
+                    written = 0
+            pos = 0
+            for data, fate, fr in zip(chunks, fates, frames):
+                if data:
+                    if pos + len(data) <= written:
+                        pass
+                    elif pos < written:
+                        fate = "truncated"
+                    else:
+                        fate = "overrun"
+                    pos += len(data)
+                self.fates[fate] += 1
+                if self.keep_log:
+                    self.log.append((fr.seq, fate, self.codec.quantise(fr)))
+
+    def _flip(self, data: bytes, forbidden) -> bytes:
+        """One bit flipped inside the frame (past its sync word), never creating a sync byte."""
+        b = bytearray(data)
+        lo = 1 if self.protocol == "nmea" else 2
+        hi = len(b) - (2 if self.protocol == "nmea" else 0)
+        while True:
+            i = int(self.rng.integers(lo, hi))
+            v = b[i] ^ (1 << int(self.rng.integers(0, 8)))
+            if v not in forbidden:
+                b[i] = v
+                return bytes(b)
+
+    # -- bench (SCPI-style text) -----------------------------------------------------
+    def _run_bench(self) -> None:
+        port = self._ptys["bench"]
+        buf = b""
+        while not self._stop.is_set():
+            if not port.wait_readable(0.02):
+                continue
+            try:
+                buf += os.read(port.master, 4096)
+            except (BlockingIOError, OSError):
+                continue
+            while b"\n" in buf:
+                line, buf = buf.split(b"\n", 1)
+                if self.faults.bench_ignore_prob and self.rng.random() < self.faults.bench_ignore_prob:
+                    self.bench_ignored += 1
+                    continue
+                reply = self._bench_command(line.decode("ascii", "replace").strip())
+                if reply is not None:
+                    try:
+                        os.write(port.master, (reply + "\n").encode("ascii"))
+                    except OSError:
+                        pass
+
+    def _bench_command(self, cmd: str) -> Optional[str]:
+        t = self.now_s()
+        head, _, arg = cmd.partition(" ")
+        head = head.upper()
+        if head == "*IDN?":
+            return "TRIADCAL,EMU-BENCH,0,1.0"
+        if head == "POS":
+            try:
+                a1, a2 = (float(v) for v in arg.split(","))
+            except ValueError:
+                self._bench_error = '-102,"Syntax error"'
+                return None
+            self.physics.move(t, a1, a2)
+            return None
+        pos, target, ready = self.physics.bench_state(t)
+        if head == "POS?":
+            return f"{pos[0]:.6f},{pos[1]:.6f}"
+        if head == "POS:TARG?":
+            return f"{target[0]:.6f},{target[1]:.6f}"
+        if head == "STAT?":
+            return "1" if ready else "0"
+        if head == "SYST:ERR?":
+            err, self._bench_error = getattr(self, "_bench_error", None) or '0,"No error"', None
+            return err
+        self._bench_error = '-113,"Undefined header"'
+        return None
+
+    # -- chamber (Modbus RTU slave) ----------------------------------------------------
+    def _run_chamber(self) -> None:
+        port = self._ptys["chamber"]
+        buf = b""
+        while not self._stop.is_set():
+            if not port.wait_readable(0.01):
+                buf = b""          # 3.5 character times of silence end a Modbus frame
+                continue
+            try:
+                buf += os.read(port.master, 4096)
+            except (BlockingIOError, OSError):
+                continue
+            req = self._modbus_frame(buf)
+            if req is None:
+                continue
+            buf = b""
+            reply = self._modbus_reply(req)
+            if reply is not None:
+                try:
+                    os.write(port.master, reply + crc16_modbus(reply).to_bytes(2, "little"))
+                except OSError:
+                    pass
+
+    @staticmethod
+    def _modbus_frame(buf: bytes) -> Optional[bytes]:
+        if len(buf) < 8:
+            return None
+        fc = buf[1]
+        n = 9 + buf[6] if fc == 16 and len(buf) >= 7 else 8
+        if len(buf) < n:
+            return None
+        frame = buf[:n]
+        if crc16_modbus(frame[:-2]) != int.from_bytes(frame[-2:], "little"):
+            return b""
+        return frame[:-2]
+
+    def _modbus_reply(self, req: bytes) -> Optional[bytes]:
+        if not req or req[0] != self.chamber_slave:
+            return None                       # damaged, or for another slave: stay silent
+        self.modbus_requests += 1
+        fc = req[1]
+        addr = int.from_bytes(req[2:4], "big")
+        t = self.now_s()
+
+        def to_reg(v):
+            return int(round(v * 10)) & 0xFFFF
+
+        if fc in (3, 4):
+            count = int.from_bytes(req[4:6], "big")
+            regs = []
+            for a in range(addr, addr + count):
+                if a == REG_PV:
+                    regs.append(to_reg(self.physics.chamber_C(t)))
+                elif a == REG_SP:
+                    regs.append(to_reg(self.physics.setpoint_C))
+                elif a == REG_STATUS:
+                    regs.append(1)
+                else:
+                    return bytes((req[0], fc | 0x80, 2))
+            return bytes((req[0], fc, 2 * count)) + b"".join(r.to_bytes(2, "big") for r in regs)
+        if fc in (6, 16):
+            if addr != REG_SP:
+                return bytes((req[0], fc | 0x80, 2))
+            raw = req[4:6] if fc == 6 else req[7:9]
+            value = int.from_bytes(raw, "big", signed=True) / 10.0
+            self.physics.set_setpoint(t, value)
+            return req[:6]
+        return bytes((req[0], fc | 0x80, 1))
+
+
+def emulate(directory, *, preset: str = "ak18-quartz", effects: Optional[Sequence[str]] = None,
+            Q_V2s: float = 3e-9, sigma_position_arcsec: float = 0.0, sigma_wobble_arcsec: float = 0.0,
+            unit: str = "SN-EMU-0001", protocol: str = "nmea", timing: Optional[EmulatorTiming] = None,
+            faults: Optional[FaultPlan] = None, seed: int = 0, keep_log: bool = False) -> Emulator:
+    """An :class:`Emulator` of a preset unit (``triadcal emulate``), not yet started; its
+    truth is saved as ``truth.json`` and the capture config as ``ports.toml`` in ``directory``."""
+    from ..models.effects import DEFAULT_EFFECTS
+
+    noise = NoiseModel(Q_V2s=Q_V2s, sigma_position_arcsec=sigma_position_arcsec,
+                       sigma_wobble_arcsec=sigma_wobble_arcsec,
+                       sample_rate_hz=(timing or EmulatorTiming()).rate_hz)
+    truth = preset_truth(preset, DEFAULT_EFFECTS if effects is None else effects, noise=noise, unit=unit)
+    em = Emulator(directory, truth=truth, protocol=protocol, timing=timing, faults=faults, seed=seed,
+                  keep_log=keep_log)
+    truth.save(em.directory / "truth.json")
+    em.write_config()
+    return em
