@@ -1,0 +1,346 @@
+"""fit-raw: raw recordings, static intervals, known-pose and gravity-norm calibration.
+
+Simulated recordings come from :meth:`Model.predict` (the model's own physics) with a
+random hand-placement tilt per pose, white noise, quantisation to counts and moving
+transitions between the poses. Real recordings: ../shared/data/real (see its README).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.linalg import rq
+
+from triadcal.cli import main as cli_main
+from triadcal.estimation.raw import (NORM_NAMES, UNIT_NAMES, fit_raw, result_matrices)
+from triadcal.estimation.result import CalibrationResult
+from triadcal.estimation.static import (StaticIntervalError, detect_static_intervals, intervals_from_labels,
+                                        moving_sd)
+from triadcal.io.bench_csv import read_bench_csv
+from triadcal.io.raw import RawRecording, RawRecordingError, read_intervals, read_raw_csv
+from triadcal.models.campaign import DEFAULT_PLAN
+from triadcal.models.model import Covariates, Model
+from triadcal.models.sensor import ANGLE_NAMES, dcm
+from triadcal.models.units import ARCSEC, STANDARD_GRAVITY_M_S2
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+if not REAL.exists():
+    REAL = Path("/work/shared/data/real")
+needs_real = pytest.mark.skipif(not REAL.exists(), reason="real recordings not available")
+POSITIONS = {"y_p": "P01", "y_a": "P03", "x_p": "P05", "x_a": "P07", "z_p": "P09", "z_a": "P11"}
+LOCAL_G = 9.81
+
+
+# --------------------------------------------------------------------------------------
+# a raw-sample simulator of hand-placed recordings (the model's physics)
+# --------------------------------------------------------------------------------------
+def random_unit(rng, counts_per_g=2048.0):
+    """A MEMS-like triad in counts: scale +-2 %, bias ~30 mg, angles ~0.5 deg (reporting units)."""
+    p = {}
+    for a in "xyz":
+        p[f"K_{a}"] = (1.0 + 0.02 * rng.standard_normal()) / counts_per_g
+        p[f"S_{a}"] = 0.03 * rng.standard_normal()
+    for ab in ANGLE_NAMES:
+        p[f"Ca_{ab}"] = 1800.0 * rng.standard_normal()
+    return p
+
+
+def simulate_recording(params, poses, *, seed, rate_hz=102.4, static_s=6.0, move_s=2.0,
+                       noise_counts=6.0, placement_sd_deg=1.0, orientations=None):
+    """Raw samples (counts) of a hand-placed recording.
+
+    ``poses`` labels of known faces (bench angles of DEFAULT_PLAN) or, with
+    ``orientations`` (k, 2) bench angles in degrees, free poses. Each pose gets a random
+    tilt of its gravity direction (placement SD per component); between poses the
+    reading swings along a path with a large excursion (the unit being moved).
+    Returns (RawRecording with labels, true tilts in arcsec (k, 2)).
+    """
+    rng = np.random.default_rng(seed)
+    model = Model(("bench_tilt",))
+    k = len(poses)
+    if orientations is None:
+        a1 = np.array([DEFAULT_PLAN[POSITIONS[p]][0] for p in poses])
+        a2 = np.array([DEFAULT_PLAN[POSITIONS[p]][1] for p in poses])
+    else:
+        a1, a2 = orientations[:, 0], orientations[:, 1]
+    tilts = rng.normal(0.0, placement_sd_deg * 3600.0, (k, 2))
+    p = model.to_internal({n: params[n] for n in UNIT_NAMES})
+    p["tilt_x"], p["tilt_y"] = tilts[:, 0] * ARCSEC, tilts[:, 1] * ARCSEC
+    z = np.zeros(k)
+    cov = Covariates(axis1=np.radians(a1), axis2=np.radians(a2), temp=(z + 20, z + 20, z + 20),
+                     temp_rate=(z, z, z), branch=z, time_s=z)
+    W = np.stack(model.predict(p, cov, LOCAL_G / STANDARD_GRAVITY_M_S2), axis=1)   # (k, 3)
+    n_static, n_move = int(static_s * rate_hz), int(move_s * rate_hz)
+    chunks, labels = [], []
+    scale = 1.0 / np.mean([params[f"K_{a}"] for a in "xyz"])
+    for j in range(k):
+        chunks.append(np.repeat(W[j][None, :], n_static, axis=0))
+        labels += [poses[j]] * n_static
+        nxt = W[(j + 1) % k]
+        s = np.linspace(0.0, 1.0, n_move)[:, None]
+        swing = 0.4 * scale * np.sin(np.pi * s) * rng.standard_normal(3)[None, :]
+        chunks.append((1 - s) * W[j] + s * nxt + swing)
+        labels += ["move"] * n_move
+    acc = np.vstack(chunks)
+    acc = np.round(acc + rng.normal(0.0, noise_counts, acc.shape))
+    rec = RawRecording(acc, rate_hz, "counts", ("acc_x", "acc_y", "acc_z"), np.array(labels), "part",
+                       source=f"<simulated seed {seed}>")
+    return rec, tilts
+
+
+def triangular_truth(params):
+    """The true parameters in the gravity-norm model's frame (imu_tk's: Ca upper triangular).
+
+    Ca = U Q (RQ decomposition): norms cannot see Q, the estimable angles are U's."""
+    Ca = np.array(dcm({ab: params[f"Ca_{ab}"] * ARCSEC for ab in ANGLE_NAMES}))
+    U, Q = rq(Ca)
+    U = U * np.sign(np.diag(U))[None, :]
+    out = {n: params[n] for n in NORM_NAMES if not n.startswith("Ca")}
+    out.update({"Ca_xy": U[0, 1] / ARCSEC, "Ca_xz": U[0, 2] / ARCSEC, "Ca_yz": U[1, 2] / ARCSEC})
+    return out
+
+
+def random_orientations(rng, k):
+    """Bench angles (deg) of k poses spread over the sphere of up directions."""
+    a2 = np.degrees(np.arccos(rng.uniform(-1, 1, k)))
+    a1 = rng.uniform(0, 360, k)
+    return np.column_stack([a1, a2])
+
+
+def z_scores(result, truth):
+    return np.array([(result[n].value - truth[n]) / result[n].u for n in truth])
+
+
+FACES = ["x_p", "x_a", "y_p", "y_a", "z_p", "z_a"]
+
+
+# --------------------------------------------------------------------------------------
+# reading
+# --------------------------------------------------------------------------------------
+@needs_real
+def test_read_mpu6050_file_with_header_lines():
+    rec = read_raw_csv(REAL / "tomisuarez2_example_data_calibration.csv", 100.0)
+    assert rec.columns == ("ax", "ay", "az")
+    assert rec.n == 10245 and rec.metadata["Fs"] == "100"
+    assert rec.scale_unit == "g/count"
+    with pytest.raises(RawRecordingError, match="disagrees with the file's header"):
+        read_raw_csv(REAL / "tomisuarez2_example_data_calibration.csv", 204.8)
+
+
+def test_bad_field_is_refused_with_line_and_column(tmp_path):
+    f = tmp_path / "r.csv"
+    f.write_text("acc_x,acc_y,acc_z\n1,2,3\n1,nan,3\n")
+    with pytest.raises(RawRecordingError, match=r"r.csv:3: column 'acc_y': not a finite number"):
+        read_raw_csv(f, 100.0)
+    f.write_text("acc_x,acc_y,acc_z\n1,2,3\n1,x,3\n")
+    with pytest.raises(RawRecordingError, match=r":3: column 'acc_y': not a number"):
+        read_raw_csv(f, 100.0)
+    with pytest.raises(RawRecordingError, match="no header line"):
+        read_raw_csv(f, 100.0, columns=("ax", "ay", "az"))
+
+
+@needs_real
+def test_interval_files():
+    s = read_intervals(REAL / "tomisuarez2_static_intervals.csv")
+    assert len(s.start) == 10 and s.start[0] == 150 and s.end[0] == 3613 and s.labels is None
+    j = read_intervals(REAL / "imucal_example_ferraris_session_list.json")
+    assert j.labels[:2] == ["x_p", "x_a"] and j.start[0] == 540 and j.end[0] == 1271
+
+
+# --------------------------------------------------------------------------------------
+# static intervals
+# --------------------------------------------------------------------------------------
+def test_detector_finds_every_simulated_pose_and_its_face():
+    rng = np.random.default_rng(3)
+    rec, _ = simulate_recording(random_unit(rng), FACES * 2, seed=3)
+    det = detect_static_intervals(rec.acc, rec.rate_hz)
+    assert len(det.intervals) == 12
+    truth = intervals_from_labels(rec.labels, "part")
+    for found, true in zip(det.intervals, truth.intervals):
+        assert true.start <= found.start and found.end <= true.end      # never a moving sample
+        assert found.n >= true.n - 1.5 * rec.rate_hz                   # loses at most the window edges
+    # the estimated noise is the simulated one (6 counts, quantised: sqrt(36 + 1/12))
+    assert np.all(np.abs(det.noise_sd / math.sqrt(36 + 1 / 12) - 1) < 0.15)
+    out = fit_raw(rec, poses="known", local_g_m_s2=LOCAL_G)
+    assert [iv.label for iv in out.detection.intervals] == FACES * 2
+
+
+def test_detector_never_nan_and_says_why_it_found_too_few():
+    still = np.round(np.tile([0.0, 0.0, 2048.0], (3000, 1)))          # a perfectly quantised still unit
+    det = detect_static_intervals(still, 100.0)
+    assert len(det.intervals) == 1 and np.all(np.isfinite(det.noise_sd)) and np.all(det.noise_sd > 0)
+    rng = np.random.default_rng(0)
+    t = np.arange(3000) / 100.0                                        # turning all the time, |a| = g
+    moving = np.column_stack([2048 * np.cos(0.5 * t), 2048 * np.sin(0.5 * t), np.zeros_like(t)])
+    moving = np.round(moving + rng.normal(0, 6, moving.shape))
+    with pytest.raises(StaticIntervalError, match=r"found 0 static intervals .* --intervals FILE"):
+        detect_static_intervals(moving, 100.0, min_intervals=6)
+    with pytest.raises(ValueError, match="NaN"):
+        detect_static_intervals(np.full((100, 3), np.nan), 100.0)
+    assert np.allclose(moving_sd(np.ones((50, 3)), 10), 0.0)
+
+
+# --------------------------------------------------------------------------------------
+# known poses
+# --------------------------------------------------------------------------------------
+def test_known_poses_recover_truth_and_write_bench_csv(tmp_path):
+    rng = np.random.default_rng(11)
+    truth = random_unit(rng)
+    rec, _ = simulate_recording(truth, FACES, seed=11)
+    out = fit_raw(rec, poses="known", labels="part", local_g_m_s2=LOCAL_G,
+                  bench_csv_path=tmp_path / "b.csv", json_path=tmp_path / "r.json")
+    r = out.result
+    assert r.status == "ok"
+    assert np.all(np.abs(z_scores(r, {n: truth[n] for n in UNIT_NAMES})) < 3)
+    # K and S from the data (noise), the angles from the placement prior: u ~ 1 deg / sqrt(2)
+    assert all(abs(r[f"Ca_{ab}"].u / (3600 / math.sqrt(2)) - 1) < 0.05 for ab in ANGLE_NAMES)
+    assert r["K_x"].u / r["K_x"].value < 1e-3 and r["K_x"].unit == "g/count"
+    rms = r.fit["rms_norm_residual_m_s2"]
+    assert rms["after"] < rms["before"]
+    c = read_bench_csv(tmp_path / "b.csv")
+    assert list(c.up_axis()) == ["+X", "-X", "+Y", "-Y", "+Z", "-Z"]
+    assert c.metadata["input_unit"] == "counts" and "not measured" in c.metadata["temperature"]
+    assert np.allclose(c.w, out.averages.w)
+    loaded = CalibrationResult.load(tmp_path / "r.json")
+    assert loaded["S_y"].value == pytest.approx(r["S_y"].value)
+
+
+def test_known_poses_need_all_six_faces():
+    rng = np.random.default_rng(1)
+    rec, _ = simulate_recording(random_unit(rng), FACES[:5], seed=1)
+    with pytest.raises(StaticIntervalError, match="missing: z_a"):
+        fit_raw(rec, poses="known", labels="part")
+
+
+@pytest.mark.slow
+def test_known_pose_coverage_over_100_seeds():
+    """Within 3u of the truth for >= 99 % of the parameters (normal theory: 99.73 %)."""
+    t0 = time.perf_counter()
+    z = []
+    for seed in range(100):
+        rng = np.random.default_rng(1000 + seed)
+        truth = random_unit(rng)
+        rec, _ = simulate_recording(truth, FACES, seed=1000 + seed, static_s=4.0)
+        r = fit_raw(rec, poses="known", labels="part", local_g_m_s2=LOCAL_G).result
+        z.append(z_scores(r, {n: truth[n] for n in UNIT_NAMES}))
+    z = np.array(z)
+    inside = np.mean(np.abs(z) <= 3)
+    assert inside >= 0.99, f"only {100 * inside:.2f} % within 3u"
+    assert 0.7 < np.std(z) < 1.3          # the uncertainties are the right size, not inflated
+    assert time.perf_counter() - t0 < 90
+
+
+# --------------------------------------------------------------------------------------
+# unknown poses (gravity norm)
+# --------------------------------------------------------------------------------------
+def test_unknown_poses_recover_the_identifiable_terms():
+    rng = np.random.default_rng(5)
+    truth = random_unit(rng)
+    k = 30
+    rec, _ = simulate_recording(truth, [f"p{i}" for i in range(k)], seed=5, static_s=3.0, move_s=1.5,
+                                orientations=random_orientations(rng, k))
+    out = fit_raw(rec, poses="unknown", local_g_m_s2=LOCAL_G)
+    r = out.result
+    assert len(out.detection.intervals) == k
+    assert set(r.parameters) == set(NORM_NAMES)       # Ca_yx, Ca_zx, Ca_zy are not identifiable
+    assert np.all(np.abs(z_scores(r, triangular_truth(truth))) < 3.5)
+    assert r.intervals["K_x"]["dof"] == k - 9
+    rms = r.fit["rms_norm_residual_of_means_m_s2"]
+    assert rms["after"] < 0.01 * rms["before"]
+
+
+def test_unknown_poses_refuse_too_few_intervals():
+    rng = np.random.default_rng(2)
+    rec, _ = simulate_recording(random_unit(rng), FACES, seed=2)
+    with pytest.raises(StaticIntervalError, match="9 parameters .* found 6 static intervals"):
+        fit_raw(rec, poses="unknown")
+
+
+@pytest.mark.slow
+def test_unknown_pose_coverage_over_100_seeds():
+    """Student-t with 51 dof: P(|t| > 3) = 0.42 %, so >= 99 % of estimates within 3u."""
+    z = []
+    for seed in range(100):
+        rng = np.random.default_rng(5000 + seed)
+        truth = random_unit(rng)
+        k = 60
+        rec, _ = simulate_recording(truth, [f"p{i}" for i in range(k)], seed=5000 + seed, static_s=2.5,
+                                    move_s=1.0, orientations=random_orientations(rng, k))
+        r = fit_raw(rec, poses="unknown", labels="part", local_g_m_s2=LOCAL_G).result
+        z.append(z_scores(r, triangular_truth(truth)))
+    z = np.array(z)
+    inside = np.mean(np.abs(z) <= 3)
+    assert inside >= 0.99, f"only {100 * inside:.2f} % within 3u"
+    assert 0.7 < np.std(z) < 1.3
+
+
+# --------------------------------------------------------------------------------------
+# real recordings beside their projects' own answers
+# --------------------------------------------------------------------------------------
+@needs_real
+def test_imucal_session_beside_imucal(tmp_path):
+    """imucal: W = K_i R a + b with a in m/s2 (|a| = 9.81), rows of R unit vectors. Ours:
+    W = (Ca G + S)/K with G in g, so K = 1/(9.80665 K_i), S = K b, Ca = R."""
+    out = fit_raw(REAL / "imucal_annotated_session.csv", 102.4, labels="part", local_g_m_s2=9.81)
+    r = out.result
+    ref = json.loads((REAL / "imucal_tests_snapshot_example_cal.json").read_text())
+    Ki = np.diag(ref["K_a"])
+    K_ref = 1.0 / (STANDARD_GRAVITY_M_S2 * Ki)
+    S_ref = K_ref * np.array(ref["b_a"])
+    R = np.array(ref["R_a"])
+    for i, a in enumerate("xyz"):
+        assert abs(r[f"K_{a}"].value - K_ref[i]) < 3 * r[f"K_{a}"].u, a
+        assert abs(r[f"S_{a}"].value - S_ref[i]) < 3 * r[f"S_{a}"].u, a
+    for ab in ANGLE_NAMES:
+        i, j = "xyz".index(ab[0]), "xyz".index(ab[1])
+        assert abs(r[f"Ca_{ab}"].value * ARCSEC - R[i, j]) < 3 * r[f"Ca_{ab}"].u * ARCSEC
+    rms = r.fit["rms_norm_residual_m_s2"]
+    # before: one isotropic scale (2064 counts/g), 0.21 m/s2; after: the sample noise, 0.033 m/s2
+    assert rms["before"] == pytest.approx(0.213, abs=0.005)
+    assert rms["after"] == pytest.approx(0.0325, abs=0.002)
+    # of the interval means: 0.21 -> 0.003 m/s2 (the posterior mean of K carries the placement
+    # tilts' second-order term, so it does not interpolate the six norms exactly)
+    assert r.fit["rms_norm_residual_of_means_m_s2"]["after"] < 0.005
+
+
+@needs_real
+def test_mpu6050_beside_tomisuarez2():
+    """tomisuarez2 (Tedaldi): a = T K (w + b), K in m/s2 per count with g = 9.80665,
+    T upper triangular. Ours: K = K_t / 9.80665 g/count, S = -K b."""
+    out = fit_raw(REAL / "tomisuarez2_example_data_calibration.csv", 100.0, poses="unknown",
+                  local_g_m_s2=STANDARD_GRAVITY_M_S2)
+    r = out.result
+    assert len(out.detection.intervals) == 10
+    ref = np.loadtxt(REAL / "tomisuarez2_params_acc.csv")
+    K_ref = ref[3:6] / STANDARD_GRAVITY_M_S2
+    S_ref = -K_ref * ref[6:9]
+    for i, a in enumerate("xyz"):
+        assert abs(r[f"K_{a}"].value - K_ref[i]) < 3 * r[f"K_{a}"].u, a
+        assert abs(r[f"S_{a}"].value - S_ref[i]) < 3 * r[f"S_{a}"].u, a
+    rms = r.fit["rms_norm_residual_m_s2"]
+    # before: one isotropic scale (14.9k counts/g); after: the sample noise of an MPU-6050
+    assert rms["before"] == pytest.approx(0.658, abs=0.01)
+    assert rms["after"] == pytest.approx(0.0452, abs=0.002)
+    assert r.fit["rms_norm_residual_of_means_m_s2"]["after"] < 1e-3
+    # 10 poses for 9 parameters: one residual dof, said so; the variance is the noise floor
+    assert r.fit["dof"] == 1 and any("only 1 residual" in n for n in r.notes)
+
+
+@needs_real
+def test_cli_fit_raw(tmp_path, capsys):
+    out = tmp_path / "r.json"
+    rc = cli_main(["fit-raw", str(REAL / "imucal_annotated_session.csv"), "--rate", "102.4", "--labels", "part",
+                   "--json", str(out), "--bench-csv", str(tmp_path / "b.csv")])
+    text = capsys.readouterr().out
+    assert rc == 0 and "6 static intervals from labels column 'part'" in text and "RMS of |a| - g" in text
+    d = json.loads(out.read_text())
+    assert d["parameters"]["K_x"]["unit"] == "g/count" and d["input_unit"] == "counts"
+    assert set(d["fit"]["rms_norm_residual_m_s2"]) == {"before", "after"}
+    rc = cli_main(["fit-raw", str(REAL / "imucal_annotated_session.csv"), "--rate", "102.4", "--poses", "unknown",
+                   "--json", str(out)])
+    assert rc == 1 and "needs at least as many static poses" in capsys.readouterr().err

@@ -1,0 +1,68 @@
+"""``triadcal fit-raw``: calibrate from a raw recording of hand-placed static poses."""
+
+from __future__ import annotations
+
+import sys
+
+from ._common import name_list
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "fit-raw", help="calibrate from a raw recording (hand-placed faces or free static poses)",
+        description="Calibrate an accelerometer triad from a raw recording: finds (or reads) the static "
+                    "intervals, then fits K, S and the angles with uncertainties. --poses known: imucal's six "
+                    "faces (x_p = +X up, x_a = X down, ...) with a random placement tilt per pose; "
+                    "--poses unknown: the gravity-norm model of Tedaldi et al. 2014 (imu_tk).")
+    p.add_argument("data", help="raw recording (CSV with named columns; header lines before them are allowed)")
+    p.add_argument("--rate", type=float, required=True, metavar="HZ",
+                   help="sample rate in Hz (required: a wrong rate is the bug of imucal issue #25)")
+    p.add_argument("--columns", default=None, help="accelerometer columns, e.g. acc_x,acc_y,acc_z "
+                   "(default: the first of acc_x,acc_y,acc_z / ax,ay,az / x,y,z in the header)")
+    p.add_argument("--unit", choices=("m/s2", "g", "counts"), default="counts", help="unit of the readings")
+    p.add_argument("--poses", choices=("known", "unknown"), default="known")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--labels", metavar="COLUMN", help="label column naming the poses (imucal's 'part')")
+    src.add_argument("--intervals", metavar="FILE",
+                     help="static intervals: imucal session-list JSON, or start/end sample indices (CSV)")
+    p.add_argument("--local-g", type=float, default=9.81, metavar="M_S2", help="local gravity, m/s2 (default 9.81)")
+    p.add_argument("--placement-sd-deg", type=float, default=1.0,
+                   help="prior SD of the hand-placement tilt per pose and component, deg (known poses; default 1)")
+    p.add_argument("--counts-per-g", type=float, default=None,
+                   help="datasheet scale for the 'before' figure of count data (default: one isotropic scale)")
+    p.add_argument("--serial", default=None, help="serial number for the result (default: the file name)")
+    p.add_argument("--static-window-s", type=float, default=1.0, help="detector window, s (default 1)")
+    p.add_argument("--static-threshold", type=float, default=4.0,
+                   help="detector threshold, multiples of the robust noise SD (default 4)")
+    p.add_argument("--min-static-s", type=float, default=2.0, help="shortest static interval kept, s (default 2)")
+    p.add_argument("--json", metavar="OUT", required=True, help="write the result (results-json v1)")
+    p.add_argument("--bench-csv", metavar="OUT.csv", help="write the pose averages as bench CSV v1 (known poses)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..estimation.raw import fit_raw
+    from ..reports.summary import summary_text
+
+    out = fit_raw(args.data, args.rate, columns=name_list(args.columns) if args.columns else None,
+                  unit=args.unit, poses=args.poses, labels=args.labels, intervals=args.intervals,
+                  local_g_m_s2=args.local_g, placement_sd_deg=args.placement_sd_deg,
+                  counts_per_g=args.counts_per_g, serial=args.serial, window_s=args.static_window_s,
+                  threshold=args.static_threshold, min_duration_s=args.min_static_s,
+                  json_path=args.json, bench_csv_path=args.bench_csv)
+    r = out.result
+    print(out.detection.summary(out.recording.rate_hz))
+    for iv in out.detection.intervals:
+        print(f"  samples {iv.start:>7d} .. {iv.end:<7d} {iv.n / out.recording.rate_hz:6.1f} s  {iv.label}")
+    print(summary_text(r))
+    rms = r.fit["rms_norm_residual_m_s2"]
+    rmsm = r.fit["rms_norm_residual_of_means_m_s2"]
+    print(f"RMS of |a| - g over the static samples: {rms['before']:.4g} m/s2 before "
+          f"({r.fit['before_scaling']}), {rms['after']:.4g} m/s2 after; of the interval means: "
+          f"{rmsm['before']:.4g} -> {rmsm['after']:.4g} m/s2")
+    print(f"result written to {args.json}")
+    if args.bench_csv:
+        print(f"position averages written to {args.bench_csv} (bench CSV v1)")
+    for note in r.notes:
+        print(f"note: {note}", file=sys.stderr)
+    return 0 if r.status == "ok" else 3

@@ -1,0 +1,593 @@
+"""Calibration from a raw recording of hand-placed static poses (``triadcal fit-raw``).
+
+Two models, both least squares with CasADi exact Jacobians and the Levenberg-Marquardt
+iteration of :mod:`triadcal.estimation.joint`:
+
+**Known poses** (imucal's Ferraris labels ``x_p`` = +X up, ``x_a`` = X down, ...): eq. 1
+through :meth:`Model.predict`, each pose put on the bench position of the default plan
+that has the same axis up (``y_p`` P01, ``y_a`` P03, ``x_p`` P05, ``x_a`` P07, ``z_p`` P09,
+``z_a`` P11). A hand placement is not a bench: the gravity direction of each pose is off
+by a small unknown rotation, modelled as a per-pose tilt of the apparent gravity (the
+``bench_tilt`` effect's two horizontal components, one pair per pose).
+
+*Identifiability.* To first order the tilt of the +X pose toward Y adds to W_y exactly
+as ``Ca_yx`` does, and the -X pose's with the opposite sign: the data determine
+``Ca_yx + (t_y(+X) - t_y(-X))/2`` and ``S_y`` plus the sum of the two tilts, never the
+angle alone. With 6 poses the 12 tilt components add 6 directions that no recording
+can separate from the 6 angles. The tilts are therefore a **random effect** with a
+stated prior, independent N(0, sigma_h^2) per component (default sigma_h = 1 deg, a
+careful hand placement on a flat table; ``placement_sd_deg``), fitted as penalised
+least squares (prior pseudo-observations ``t / sigma_h``); the Gaussian posterior
+covariance is the inverse of the augmented normal matrix. Consequence, stated in every
+result: K and S are determined by the data, while the angles' uncertainty is about
+``sigma_h / sqrt(2)`` (2500" at 1 deg): a hand-placed cube cannot measure
+orientation angles better than it is placed. Fixing the mean placement error instead
+would not help: the confounded directions are the *differences* between opposite
+poses, not the mean.
+
+**Unknown poses** (free orientation, Tedaldi et al. 2014 / imu_tk): the cost is the sum
+over static intervals of ``(|A| - g)^2`` with ``A = Ca^-1 (K W - S)`` (the paper's
+``A_IMU``, :func:`triadcal.models.sensor.calibrated_acceleration`). Norms are invariant
+under a rotation of the IMU frame, which removes 3 of the 6 angles: the frame is fixed
+as imu_tk fixes it (its upper-triangular misalignment matrix): IMU Z along the Z
+sensing axis, the Y sensing axis in the IMU Y-Z plane, so ``Ca_zx = Ca_zy = Ca_yx = 0``
+and ``Ca_xy, Ca_xz, Ca_yz`` are estimated with K and S (9 parameters). Uncertainties are
+``s^2 (J^T J)^-1`` with ``s^2`` the residual variance (not below the noise of the
+interval means), with Student-t intervals on the residual degrees of freedom.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import casadi as ca
+import numpy as np
+from scipy import stats
+
+from ..io.raw import RawRecording, read_intervals, read_raw_csv
+from ..models.campaign import DEFAULT_PLAN, Campaign
+from ..models.model import Covariates, Model
+from ..models.sensor import ANGLE_NAMES, AXES, calibrated_acceleration, dcm
+from ..models.units import ARCSEC, DEG, STANDARD_GRAVITY_M_S2
+from .joint import Solution, levenberg_marquardt, start_values
+from .result import CalibrationResult, ParameterValue
+from .static import (POSE_LABELS, StaticDetection, StaticIntervalError, detect_static_intervals,
+                     intervals_from_labels, intervals_from_spec, pose_label_of)
+
+#: imucal pose label -> bench position of DEFAULT_PLAN with the same axis up
+POSE_POSITIONS = {"y_p": "P01", "y_a": "P03", "x_p": "P05", "x_a": "P07", "z_p": "P09", "z_a": "P11"}
+#: the angles the gravity-norm model can determine (imu_tk's upper-triangular frame)
+NORM_ANGLES = ("xy", "xz", "yz")
+UNIT_NAMES = tuple(f"K_{a}" for a in AXES) + tuple(f"S_{a}" for a in AXES) + tuple(f"Ca_{ab}" for ab in ANGLE_NAMES)
+NORM_NAMES = tuple(f"K_{a}" for a in AXES) + tuple(f"S_{a}" for a in AXES) + tuple(f"Ca_{ab}" for ab in NORM_ANGLES)
+
+
+# --------------------------------------------------------------------------------------
+# position averages
+# --------------------------------------------------------------------------------------
+@dataclass
+class PoseAverages:
+    """Mean reading of each static interval and its standard uncertainty.
+
+    ``se`` is the larger of the white-noise ``sd / sqrt(n)`` and a batch-means estimate
+    (10 consecutive batches), so slowly correlated noise does not shrink it.
+    """
+
+    label: list
+    start: np.ndarray
+    end: np.ndarray
+    w: np.ndarray
+    sd: np.ndarray
+    n: np.ndarray
+    se: np.ndarray
+    time_s: np.ndarray
+    tau_s: np.ndarray
+
+
+def pose_averages(rec: RawRecording, detection: StaticDetection, batches: int = 10) -> PoseAverages:
+    w, sd, n, se, t, tau, lab, s0, e0 = [], [], [], [], [], [], [], [], []
+    for iv in detection.intervals:
+        x = rec.acc[iv.start:iv.end]
+        if len(x) < 2:
+            continue
+        m = x.mean(axis=0)
+        s = x.std(axis=0, ddof=1)
+        white = s / math.sqrt(len(x))
+        if len(x) >= 5 * batches:
+            bm = np.array([b.mean(axis=0) for b in np.array_split(x, batches)])
+            white = np.maximum(white, bm.std(axis=0, ddof=1) / math.sqrt(batches))
+        w.append(m), sd.append(s), n.append(len(x)), se.append(white)
+        t.append((iv.start + iv.end - 1) / 2 / rec.rate_hz), tau.append(len(x) / rec.rate_hz)
+        lab.append(iv.label), s0.append(iv.start), e0.append(iv.end)
+    if not w:
+        raise StaticIntervalError(f"{rec.source}: no static interval with at least 2 samples")
+    se = np.array(se)
+    se = np.maximum(se, 1e-12 * np.maximum(np.abs(np.array(w)), 1.0))   # an exactly constant input
+    return PoseAverages(lab, np.array(s0), np.array(e0), np.array(w), np.array(sd), np.array(n), se,
+                        np.array(t), np.array(tau))
+
+
+def bench_campaign(avg: PoseAverages, rec: RawRecording, serial: str, local_g_m_s2: float,
+                   temperature_C: float = 20.0) -> Campaign:
+    """The known-pose averages as bench CSV v1 visits (positions of DEFAULT_PLAN with the same
+    axis up). There is no temperature channel: ``t_*`` hold ``temperature_C`` and the
+    metadata says so."""
+    pos = [POSE_POSITIONS[lab] for lab in avg.label]
+    a1 = np.array([DEFAULT_PLAN[p][0] for p in pos])
+    a2 = np.array([DEFAULT_PLAN[p][1] for p in pos])
+    k = len(pos)
+    meta = {"generator": "triadcal fit-raw (position averages of a raw recording)",
+            "source": rec.source, "rate_hz": repr(rec.rate_hz), "output_unit": rec.unit,
+            "input_unit": rec.unit, "local_g_m_s2": repr(float(local_g_m_s2)),
+            "bench": "none: hand-placed poses (imucal labels " + ",".join(avg.label) + ")",
+            "temperature": f"not measured; t_x t_y t_z hold a constant {temperature_C:g} degC placeholder"}
+    return Campaign(
+        unit=np.full(k, serial), setpoint_C=np.full(k, temperature_C), direction=np.full(k, "none"),
+        time_s=avg.time_s.astype(float), position=np.array(pos), axis1_deg=a1, axis2_deg=a2,
+        tau_s=avg.tau_s.astype(float), w=avg.w.copy(), t=np.full((k, 3), float(temperature_C)),
+        cycle=np.zeros(k, int), state=np.full(k, "initial"), sd=avg.sd.copy(), n_samples=avg.n.astype(int),
+        metadata=meta, source=rec.source)
+
+
+# --------------------------------------------------------------------------------------
+# known poses: eq. 1 with a random placement tilt per pose
+# --------------------------------------------------------------------------------------
+class KnownPoseProblem:
+    """Residuals of the known-pose model (module docstring), compiled once with CasADi.
+
+    ``x`` = the 12 unit parameters in reporting units (K in g per input unit, S in g,
+    angles in arcsec) followed by ``tilt_x, tilt_y`` of each pose (arcsec). Residuals:
+    ``(W_obs - W_model) / se`` for each pose and axis, then the prior rows
+    ``tilt / sigma_h``. Duck-types :class:`~triadcal.estimation.joint.JointProblem` for
+    :func:`~triadcal.estimation.joint.levenberg_marquardt`.
+    """
+
+    def __init__(self, w: np.ndarray, se: np.ndarray, axis1_deg, axis2_deg, gravity_g: float,
+                 placement_sd_arcsec: float):
+        self.model = Model(("bench_tilt",))
+        self.w, self.se = np.asarray(w, float), np.asarray(se, float)
+        self.n = len(self.w)
+        self.sigma_h = float(placement_sd_arcsec)
+        self.names = UNIT_NAMES + tuple(f"tilt_{c}[{k}]" for k in range(self.n) for c in "xy")
+        t0 = time.perf_counter()
+        x = ca.SX.sym("x", len(UNIT_NAMES))
+        t = ca.SX.sym("t", 2)
+        c = ca.SX.sym("c", 2)
+        g = ca.SX.sym("g")
+        p = {n: x[i] * self.model.spec[n].to_internal for i, n in enumerate(UNIT_NAMES)}
+        p["tilt_x"], p["tilt_y"] = t[0] * ARCSEC, t[1] * ARCSEC
+        cov = Covariates(axis1=c[0], axis2=c[1], temp=(20.0, 20.0, 20.0), temp_rate=(0.0, 0.0, 0.0),
+                         branch=0.0, time_s=0.0)
+        wm = ca.vertcat(*self.model.predict(p, cov, g))
+        f = ca.Function("pose", [x, t, c, g], [wm, ca.jacobian(wm, x), ca.jacobian(wm, t)])
+        self._mapped = f.map(self.n, "serial")
+        self.cov_matrix = np.vstack([np.radians(axis1_deg), np.radians(axis2_deg)])
+        self.gravity_g = float(gravity_g)
+        self.build_seconds = time.perf_counter() - t0
+
+    def residuals_and_jacobian(self, x: np.ndarray):
+        nu = len(UNIT_NAMES)
+        xu, tilts = x[:nu], x[nu:].reshape(self.n, 2)
+        wm, Jx, Jt = self._mapped(xu, tilts.T, self.cov_matrix, self.gravity_g)
+        wm = np.asarray(wm).T                                             # (n, 3)
+        Jx = np.asarray(Jx).reshape(3, self.n, nu).transpose(1, 0, 2)      # (n, 3, 12)
+        Jt = np.asarray(Jt).reshape(3, self.n, 2).transpose(1, 0, 2)       # (n, 3, 2)
+        r_data = ((self.w - wm) / self.se).reshape(-1)
+        J = np.zeros((3 * self.n + 2 * self.n, len(x)))
+        J[:3 * self.n, :nu] = (-Jx / self.se[:, :, None]).reshape(-1, nu)
+        for k in range(self.n):
+            J[3 * k:3 * k + 3, nu + 2 * k:nu + 2 * k + 2] = -Jt[k] / self.se[k][:, None]
+        J[3 * self.n:, nu:] = np.eye(2 * self.n) / self.sigma_h
+        r = np.concatenate([r_data, x[nu:] / self.sigma_h])
+        return r, J
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self.residuals_and_jacobian(x)[0]
+
+
+    def data_residuals(self, X: np.ndarray) -> np.ndarray:
+        """Normalised data residuals ``(W_obs - W_model) / se``, shape (m, 3 n), for an (m, d) array
+        of parameter vectors, with :meth:`Model.predict` on numpy arrays (vectorised over m)."""
+        X = np.atleast_2d(X)
+        nu, m = len(UNIT_NAMES), len(X)
+        p = {n: X[:, i:i + 1] * self.model.spec[n].to_internal for i, n in enumerate(UNIT_NAMES)}
+        tilts = X[:, nu:].reshape(m, self.n, 2)
+        p["tilt_x"], p["tilt_y"] = tilts[:, :, 0] * ARCSEC, tilts[:, :, 1] * ARCSEC
+        cov = Covariates(axis1=self.cov_matrix[0][None, :], axis2=self.cov_matrix[1][None, :],
+                         temp=(20.0, 20.0, 20.0), temp_rate=(0.0, 0.0, 0.0), branch=0.0, time_s=0.0)
+        W = np.stack(np.broadcast_arrays(*self.model.predict(p, cov, self.gravity_g)), axis=-1)  # (m, n, 3)
+        return ((self.w[None] - W) / self.se[None]).reshape(m, -1)
+
+
+def marginal_posterior(problem: KnownPoseProblem, x_map: np.ndarray, cov_laplace: np.ndarray,
+                       J_map: np.ndarray, n_draws: int = 2000, seed: int = 0, dof: float = 6.0):
+    """Posterior mean and covariance with the placement tilts integrated out.
+
+    Why not the Laplace approximation alone: the tilts enter eq. 1 at second order too (the
+    sensed gravity of a pose is ``g cos t``); the part of each tilt the data cannot see is
+    uncertain by ~sigma_h, which biases K by ~sigma_h^2 (3e-4 at 1 deg), more than the
+    noise: the posterior is a banana the optimum's curvature cannot describe.
+
+    Rao-Blackwellised importance sampling: tilts are drawn from a Student-t around their
+    Laplace marginal; given the tilts the model is nearly linear in the 12 unit
+    parameters, so two Gauss-Newton steps from the optimum give their conditional mean and
+    ``(J_u^T J_u)^-1`` their conditional covariance; the weights are the conditional
+    maximum of the posterior over the proposal density. The marginal is the weighted
+    mixture. Returns ``(mean, cov, ess)``."""
+    rng = np.random.default_rng(seed)
+    nu = len(UNIT_NAMES)
+    nd = 3 * problem.n
+    t_map, Ct = x_map[nu:], cov_laplace[nu:, nu:]
+    L = np.linalg.cholesky(Ct + 1e-12 * np.max(np.diag(Ct)) * np.eye(len(t_map)))
+    z = rng.standard_normal((n_draws, len(t_map)))
+    chi = rng.chisquare(dof, n_draws) / dof
+    T = t_map + (z / np.sqrt(chi)[:, None]) @ L.T
+    q = np.sum(np.square(np.linalg.solve(L, (T - t_map).T)), axis=0)
+    log_q = -0.5 * (dof + len(t_map)) * np.log1p(q / dof)
+    Ju = J_map[:nd, :nu]
+    H_inv = _covariance(Ju)          # (J_u^T J_u)^-1, column-scaled (K and the angles differ by 1e10)
+    Xu = np.repeat(x_map[None, :nu], n_draws, axis=0)
+    for _ in range(2):
+        r = problem.data_residuals(np.hstack([Xu, T]))
+        Xu = Xu - (r @ Ju) @ H_inv
+    r = problem.data_residuals(np.hstack([Xu, T]))
+    lw = -0.5 * (np.sum(r * r, axis=1) + np.sum((T / problem.sigma_h) ** 2, axis=1)) - log_q
+    lw = np.where(np.isfinite(lw), lw, -np.inf)
+    w = np.exp(lw - np.max(lw))
+    w /= w.sum()
+    X = np.hstack([Xu, T])
+    mean = w @ X
+    dX = X - mean
+    cov = (dX * w[:, None]).T @ dX
+    cov[:nu, :nu] += H_inv
+    return mean, cov, float(1.0 / np.sum(w * w))
+
+
+def _covariance(J: np.ndarray) -> np.ndarray:
+    d = np.linalg.norm(J, axis=0)
+    d[d == 0] = 1.0
+    return np.linalg.pinv((J / d).T @ (J / d)) / np.outer(d, d)
+
+
+def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, serial: str,
+                    placement_sd_deg: float = 1.0, n_draws: int = 2000, seed: int = 0):
+    """Known-pose fit; returns ``(CalibrationResult, KnownPoseProblem, Solution)``."""
+    labels = [lab if lab in POSE_POSITIONS else "" for lab in avg.label]
+    if "" in labels:
+        raise StaticIntervalError("known poses need a pose label (x_p, x_a, y_p, y_a, z_p, z_a) on every interval")
+    missing = [p for p in POSE_LABELS if p not in labels]
+    if missing:
+        raise StaticIntervalError(f"known poses need all six faces; missing: {', '.join(missing)} "
+                                  f"(found {', '.join(labels)})")
+    if not placement_sd_deg > 0:
+        raise ValueError("the placement SD must be positive: with no placement error the model is the "
+                         "bench model (use triadcal fit on the bench CSV)")
+    pos = [POSE_POSITIONS[lab] for lab in labels]
+    a1 = np.array([DEFAULT_PLAN[p][0] for p in pos])
+    a2 = np.array([DEFAULT_PLAN[p][1] for p in pos])
+    problem = KnownPoseProblem(avg.w, avg.se, a1, a2, gravity_g, placement_sd_deg * 3600.0)
+    # start: per-axis linear fit on the nominal gravity (the joint fit's start), tilts 0
+    k = len(pos)
+    c = Campaign(unit=np.full(k, serial), setpoint_C=np.zeros(k), direction=np.full(k, "none"),
+                 time_s=np.arange(k, dtype=float), position=np.array(pos), axis1_deg=a1, axis2_deg=a2,
+                 tau_s=np.ones(k), w=avg.w, t=np.zeros((k, 3)), cycle=np.zeros(k, int),
+                 state=np.full(k, "initial"),
+                 metadata={"local_g_m_s2": repr(gravity_g * STANDARD_GRAVITY_M_S2)})
+    s0 = start_values(c, Model(()))
+    x0 = np.concatenate([[s0[n] for n in UNIT_NAMES], np.zeros(2 * k)])
+    t0 = time.perf_counter()
+    sol = levenberg_marquardt(problem, x0)
+    solve_seconds = time.perf_counter() - t0
+    cov_laplace = _covariance(sol.J)
+    mean, cov, ess = marginal_posterior(problem, sol.x, cov_laplace, sol.J, n_draws=n_draws, seed=seed)
+    estimator = ("posterior mean and SD, placement tilts integrated out (Rao-Blackwellised importance "
+                 "sampling around the Laplace approximation)")
+    if not ess >= 200:
+        mean, cov = sol.x, cov_laplace
+        estimator = f"Laplace approximation at the optimum (importance sampling ESS {ess:.0f} < 200)"
+    u = np.sqrt(np.diag(cov))
+    nu = len(UNIT_NAMES)
+    units = {"K": scale_unit, "S": "g", "Ca": "arcsec"}
+    params = {n: ParameterValue(float(mean[i]), float(u[i]), units[n.split("_")[0]])
+              for i, n in enumerate(UNIT_NAMES)}
+    corr = cov[:nu, :nu] / np.outer(u[:nu], u[:nu])
+    tilts = mean[nu:].reshape(k, 2)
+    tilts_u = u[nu:].reshape(k, 2)
+    n_data = 3 * k
+    chi2 = float(sol.r @ sol.r)
+    dof = n_data + 2 * k - len(sol.x)
+    fit = {"model": "known poses: eq. 1 with a random placement tilt per pose",
+           "placement_sd_deg": placement_sd_deg, "n_obs": n_data, "n_params": nu,
+           "n_nuisance": 2 * k, "chi2_dof": chi2 / dof if dof > 0 else None,
+           "placement_rms_estimate_deg": float(np.sqrt(np.mean(tilts ** 2))) / 3600.0,
+           "iterations": sol.iterations, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds,
+           "noise": "standard error of each pose mean: max(sd/sqrt(n), batch means)",
+           "estimator": estimator, "importance_ess": ess, "n_draws": n_draws}
+    notes = [f"hand placement: each pose's gravity direction has a random tilt, prior SD {placement_sd_deg:g} deg "
+             "per component; the angles Ca_* are confounded with the difference of the tilts of opposite poses, "
+             f"so their uncertainty (~{placement_sd_deg / math.sqrt(2):.2g} deg) comes from that prior, not from the "
+             "data; K and S are determined by the data"]
+    if fit["chi2_dof"] is not None and fit["chi2_dof"] > 3.0:
+        notes.append(f"chi2/dof = {fit['chi2_dof']:.3g}: the poses are further from their faces than the "
+                     f"{placement_sd_deg:g} deg prior allows (or the unit is not linear); raise --placement-sd-deg")
+    status = "ok" if sol.converged else "not_converged"
+    result = CalibrationResult(
+        unit=serial, method="joint", parameters=params, status=status, effects=(),
+        reference_temperature_C=20.0, temperature_range_C=None, fit=fit, correlation_names=UNIT_NAMES,
+        correlation=corr, notes=notes,
+        extra={"placement_tilts": [{"pose": lab, "tilt_x_deg": float(tx) / 3600.0, "tilt_y_deg": float(ty) / 3600.0,
+                                    "u_deg": [float(ux) / 3600.0, float(uy) / 3600.0]}
+                                   for lab, (tx, ty), (ux, uy) in zip(labels, tilts, tilts_u)]})
+    return result, problem, sol
+
+
+# --------------------------------------------------------------------------------------
+# unknown poses: the gravity-norm model
+# --------------------------------------------------------------------------------------
+def _calibrated_symbolic(x, w):
+    """``A = Ca^-1 (K W - S)`` (sensor.calibrated_acceleration) for CasADi symbols, with the
+    norm model's free angles ``Ca_xy, Ca_xz, Ca_yz`` (arcsec) and the other three zero."""
+    angles = {ab: 0.0 for ab in ANGLE_NAMES}
+    for i, ab in enumerate(NORM_ANGLES):
+        angles[ab] = x[6 + i] * ARCSEC
+    Ca = ca.vertcat(*[ca.horzcat(*row) for row in dcm(angles)])
+    sensed = x[0:3] * w - x[3:6]
+    return ca.solve(Ca, sensed)
+
+
+class NormProblem:
+    """Gravity-norm residuals ``|A_k| - g`` (g) of each static interval mean, CasADi-compiled."""
+
+    def __init__(self, w: np.ndarray, gravity_g: float):
+        self.w = np.asarray(w, float)
+        self.n = len(self.w)
+        self.names = NORM_NAMES
+        self.gravity_g = float(gravity_g)
+        t0 = time.perf_counter()
+        x = ca.SX.sym("x", len(NORM_NAMES))
+        wk = ca.SX.sym("w", 3)
+        g = ca.SX.sym("g")
+        r = ca.norm_2(_calibrated_symbolic(x, wk)) - g
+        f = ca.Function("interval", [x, wk, g], [r, ca.jacobian(r, x)])
+        self._mapped = f.map(self.n, "serial")
+        self.build_seconds = time.perf_counter() - t0
+
+    #: residuals are returned in micro-g: the LM stop rule compares steps with the uncertainty
+    #: of unit-variance residuals, so the scale must not exceed the noise (1 ug is below any MEMS)
+    RESIDUAL_UNIT_G = 1e-6
+
+    def residuals_and_jacobian(self, x: np.ndarray):
+        r, J = self._mapped(x, self.w.T, self.gravity_g)
+        return (np.asarray(r).reshape(-1) / self.RESIDUAL_UNIT_G,
+                np.asarray(J).reshape(self.n, len(self.names)) / self.RESIDUAL_UNIT_G)
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self.residuals_and_jacobian(x)[0]
+
+
+def norm_start(w: np.ndarray, gravity_g: float) -> np.ndarray:
+    """Start of the norm fit: an axis-aligned ellipsoid through the interval means (linear least
+    squares ``a wx^2 + b wy^2 + c wz^2 + d wx + e wy + f wz = 1``), or an isotropic scale when
+    fewer than 6 intervals or a degenerate fit."""
+    w = np.asarray(w, float)
+    iso = gravity_g / np.median(np.linalg.norm(w, axis=1))
+    x0 = np.array([iso, iso, iso, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    if len(w) >= 6:
+        A = np.column_stack([w ** 2, w])
+        coef, *_ = np.linalg.lstsq(A, np.ones(len(w)), rcond=None)
+        q, l = coef[:3], coef[3:]
+        if np.all(q > 0):
+            centre = -l / (2 * q)
+            rhs = 1.0 + np.sum(l ** 2 / (4 * q))
+            radius = np.sqrt(rhs / q)
+            if np.all(np.isfinite(radius)) and rhs > 0:
+                K = gravity_g / radius
+                x0[:3], x0[3:6] = K, K * centre
+    return x0
+
+
+def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float, serial: str):
+    """Gravity-norm fit; returns ``(CalibrationResult, NormProblem, Solution)``."""
+    n = len(avg.w)
+    if n < len(NORM_NAMES):
+        raise StaticIntervalError(
+            f"the gravity-norm model has {len(NORM_NAMES)} parameters and needs at least as many static poses; "
+            f"found {n} static intervals (record more poses, or check the detector's report)")
+    problem = NormProblem(avg.w, gravity_g)
+    t0 = time.perf_counter()
+    sol = levenberg_marquardt(problem, norm_start(avg.w, gravity_g))
+    solve_seconds = time.perf_counter() - t0
+    dof = n - len(NORM_NAMES)
+    sol.r, sol.J = sol.r * problem.RESIDUAL_UNIT_G, sol.J * problem.RESIDUAL_UNIT_G   # back to g
+    rss = float(sol.r @ sol.r)
+    # noise floor: variance of the mean of |A| within each interval, from the samples
+    K, S, Ca = norm_matrices(sol.x)
+    var_means = []
+    for s, e, m in zip(avg.start, avg.end, avg.n):
+        a = np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[s:e]), axis=1)
+        var_means.append(np.var(a, ddof=1) / m if m > 1 else 0.0)
+    s2_noise = float(np.mean(var_means))
+    s2_resid = rss / dof if dof > 0 else None
+    s2 = max(s2_resid if s2_resid is not None else 0.0, s2_noise)
+    cov = _covariance(sol.J) * s2
+    u = np.sqrt(np.diag(cov))
+    units = {"K": rec.scale_unit, "S": "g", "Ca": "arcsec"}
+    params = {nm: ParameterValue(float(v), float(s), units[nm.split("_")[0]])
+              for nm, v, s in zip(NORM_NAMES, sol.x, u)}
+    intervals = {}
+    if dof > 0:
+        q = float(stats.t.ppf(0.975, dof))
+        intervals = {nm: {"level": 0.95, "low": float(v - q * s), "high": float(v + q * s), "dof": dof}
+                     for nm, v, s in zip(NORM_NAMES, sol.x, u)}
+    notes = ["gravity-norm model: a rotation of the IMU frame is unobservable from norms, so the frame is imu_tk's "
+             "(Z along the Z sensing axis, the Y sensing axis in the Y-Z plane): Ca_zx = Ca_zy = Ca_yx = 0 by "
+             "definition and only Ca_xy, Ca_xz, Ca_yz are estimated"]
+    if dof <= 0:
+        notes.append(f"{n} static intervals for {len(NORM_NAMES)} parameters: no residual degrees of freedom, so "
+                     "the misfit of the model cannot be judged; the uncertainties carry the sample noise only "
+                     "(a lower bound): record more poses")
+    elif dof < 10:
+        notes.append(f"only {dof} residual degrees of freedom: the residual variance is itself uncertain; "
+                     "the 95 % intervals use Student's t")
+    fit = {"model": "unknown poses: gravity norm (Tedaldi et al. 2014)", "n_obs": n, "n_params": len(NORM_NAMES),
+           "dof": dof, "residual_variance_g2": s2_resid, "noise_variance_g2": s2_noise,
+           "variance_used": "residual" if s2_resid is not None and s2_resid >= s2_noise else "noise floor",
+           "iterations": sol.iterations, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds}
+    corr = cov / np.outer(u, u)
+    result = CalibrationResult(unit=serial, method="joint", parameters=params,
+                               status="ok" if sol.converged else "not_converged", effects=(),
+                               fit=fit, intervals=intervals, correlation_names=NORM_NAMES, correlation=corr,
+                               notes=notes, extra={"fixed": {f"Ca_{ab}": {"value": 0.0, "unit": "arcsec"}
+                                                             for ab in ("yx", "zx", "zy")}})
+    return result, problem, sol
+
+
+def norm_matrices(x: np.ndarray):
+    """K, S, Ca (numpy) from the norm model's parameter vector (reporting units)."""
+    angles = {ab: 0.0 for ab in ANGLE_NAMES}
+    for i, ab in enumerate(NORM_ANGLES):
+        angles[ab] = x[6 + i] * ARCSEC
+    return np.asarray(x[:3], float), np.asarray(x[3:6], float), np.array(dcm(angles), float)
+
+
+def result_matrices(result: CalibrationResult):
+    """K, S, Ca (numpy, internal units) of a fit-raw result."""
+    K = np.array([result[f"K_{a}"].value for a in AXES])
+    S = np.array([result[f"S_{a}"].value for a in AXES])
+    angles = {ab: (result[f"Ca_{ab}"].value * ARCSEC if f"Ca_{ab}" in result.parameters else 0.0)
+              for ab in ANGLE_NAMES}
+    return K, S, np.array(dcm(angles), float)
+
+
+# --------------------------------------------------------------------------------------
+# the figure imu_tk users compare: RMS of |A| - g over the static intervals
+# --------------------------------------------------------------------------------------
+def norm_residual_rms_m_s2(rec: RawRecording, detection: StaticDetection, K, S, Ca, gravity_g: float) -> dict:
+    """RMS of ``|A| - g`` in m/s^2 over every sample of the static intervals, and over the
+    interval means (the systematic part, without the sample noise)."""
+    per_sample, per_mean = [], []
+    for iv in detection.intervals:
+        a = calibrated_acceleration(K, S, Ca, rec.acc[iv.start:iv.end])
+        nrm = np.linalg.norm(a, axis=1) - gravity_g
+        per_sample.append(nrm)
+        per_mean.append(np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[iv.start:iv.end].mean(axis=0)))
+                        - gravity_g)
+    ps = np.concatenate(per_sample)
+    return {"samples": float(np.sqrt(np.mean(ps ** 2))) * STANDARD_GRAVITY_M_S2,
+            "means": float(np.sqrt(np.mean(np.square(per_mean)))) * STANDARD_GRAVITY_M_S2}
+
+
+def nominal_scale(rec: RawRecording, detection: StaticDetection, gravity_g: float,
+                  counts_per_g: Optional[float] = None) -> tuple[float, str]:
+    """Scale factor of the 'before' figure (g per input unit) and how it was chosen."""
+    if rec.unit == "m/s2":
+        return 1.0 / STANDARD_GRAVITY_M_S2, "nominal: 1 g = 9.80665 m/s2"
+    if rec.unit == "g":
+        return 1.0, "nominal: readings in g"
+    if counts_per_g:
+        return 1.0 / counts_per_g, f"nominal: {counts_per_g:g} counts/g (datasheet)"
+    norms = np.concatenate([np.linalg.norm(rec.acc[iv.start:iv.end], axis=1) for iv in detection.intervals])
+    k = gravity_g / float(np.median(norms))
+    return k, f"no datasheet scale given: one isotropic scale, {1 / k:.6g} counts/g (median |W| over the static samples = g)"
+
+
+# --------------------------------------------------------------------------------------
+# the library function behind `triadcal fit-raw`
+# --------------------------------------------------------------------------------------
+@dataclass
+class RawFit:
+    """Everything ``fit-raw`` produced: the result, what the static step found, the averages,
+    and (known poses) the bench campaign of the averages."""
+
+    result: CalibrationResult
+    detection: StaticDetection
+    averages: PoseAverages
+    recording: RawRecording
+    campaign: Optional[Campaign] = None
+    solution: Optional[Solution] = None
+
+
+def static_intervals_of(rec: RawRecording, *, labels: Optional[str] = None, intervals=None,
+                        poses: str = "known", window_s: float = 1.0, threshold: float = 4.0,
+                        min_duration_s: float = 2.0) -> StaticDetection:
+    """The static intervals from the label column, an interval file, or the detector. In known-pose
+    mode detected intervals are labelled by the up axis of their mean reading."""
+    if labels is not None and intervals is not None:
+        raise ValueError("give either a label column or an interval file, not both")
+    if labels is not None:
+        if rec.labels is None:
+            raise ValueError(f"{rec.source}: the recording was read without its label column '{labels}'")
+        det = intervals_from_labels(rec.labels, labels, POSE_LABELS if poses == "known" else None)
+    elif intervals is not None:
+        spec = read_intervals(intervals)
+        det = intervals_from_spec(spec.start, spec.end, spec.labels, rec.n, spec.source,
+                                  POSE_LABELS if poses == "known" else None)
+    else:
+        det = detect_static_intervals(rec.acc, rec.rate_hz, window_s=window_s, threshold=threshold,
+                                      min_duration_s=min_duration_s)
+    if poses == "known":
+        for iv in det.intervals:
+            if not iv.label:
+                iv.label = pose_label_of(rec.acc[iv.start:iv.end].mean(axis=0))
+    if not det.intervals:
+        raise StaticIntervalError(f"{rec.source}: no static intervals ({det.summary(rec.rate_hz)})")
+    return det
+
+
+def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence[str]] = None,
+            unit: str = "counts", poses: str = "known", labels: Optional[str] = None, intervals=None,
+            local_g_m_s2: float = 9.81, placement_sd_deg: float = 1.0, counts_per_g: Optional[float] = None,
+            serial: Optional[str] = None, window_s: float = 1.0, threshold: float = 4.0,
+            min_duration_s: float = 2.0, json_path=None, bench_csv_path=None) -> RawFit:
+    """Calibrate from a raw recording (``triadcal fit-raw``).
+
+    ``data`` is a CSV path (read with :func:`triadcal.io.raw.read_raw_csv` at the stated
+    ``rate_hz``) or a :class:`RawRecording`. ``poses``: ``known`` (imucal's six faces) or
+    ``unknown`` (free orientations, gravity norm). The result's ``fit`` block carries
+    ``rms_norm_residual_m_s2`` (RMS of |A| - g over the static samples) before (nominal
+    scaling) and after the calibration.
+    """
+    if poses not in ("known", "unknown"):
+        raise ValueError(f"poses must be 'known' or 'unknown', got {poses!r}")
+    if not (local_g_m_s2 > 0 and math.isfinite(local_g_m_s2)):
+        raise ValueError(f"local g must be a positive number of m/s2, got {local_g_m_s2}")
+    if isinstance(data, RawRecording):
+        rec = data
+    else:
+        if rate_hz is None:
+            raise ValueError("state the sample rate (--rate HZ): it cannot be guessed safely (imucal issue #25)")
+        rec = read_raw_csv(data, rate_hz, columns, unit, labels)
+    gravity_g = local_g_m_s2 / STANDARD_GRAVITY_M_S2
+    serial = serial or (str(rec.source).rsplit("/", 1)[-1].rsplit(".", 1)[0])
+    det = static_intervals_of(rec, labels=labels, intervals=intervals, poses=poses, window_s=window_s,
+                              threshold=threshold, min_duration_s=min_duration_s)
+    avg = pose_averages(rec, det)
+    campaign = None
+    if poses == "known":
+        result, problem, sol = fit_known_poses(avg, gravity_g=gravity_g, scale_unit=rec.scale_unit,
+                                               serial=serial, placement_sd_deg=placement_sd_deg)
+        campaign = bench_campaign(avg, rec, serial, local_g_m_s2)
+    else:
+        result, problem, sol = fit_unknown_poses(rec, avg, gravity_g=gravity_g, serial=serial)
+    k0, how = nominal_scale(rec, det, gravity_g, counts_per_g)
+    before = norm_residual_rms_m_s2(rec, det, np.full(3, k0), np.zeros(3), np.eye(3), gravity_g)
+    after = norm_residual_rms_m_s2(rec, det, *result_matrices(result), gravity_g)
+    result.fit.update({
+        "rms_norm_residual_m_s2": {"before": before["samples"], "after": after["samples"]},
+        "rms_norm_residual_of_means_m_s2": {"before": before["means"], "after": after["means"]},
+        "before_scaling": how, "local_g_m_s2": local_g_m_s2})
+    result.extra.update({"input_unit": rec.unit, "output_unit": rec.unit, "local_g_m_s2": local_g_m_s2,
+                         "source": rec.source, "rate_hz": rec.rate_hz,
+                         "static_intervals": det.to_dict(rec.rate_hz)})
+    if json_path is not None:
+        result.save(json_path)
+    if bench_csv_path is not None:
+        if campaign is None:
+            raise ValueError("--bench-csv needs known poses: free orientations have no bench angles")
+        from ..io.bench_csv import write_bench_csv
+
+        write_bench_csv(campaign, bench_csv_path)
+    return RawFit(result, det, avg, rec, campaign, sol)

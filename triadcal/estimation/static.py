@@ -1,0 +1,204 @@
+"""Static intervals of a raw recording: detected, or taken from labels or an interval file.
+
+Detector (documented, with no hidden failure modes):
+
+1. Noise of each axis: the 10th percentile of its moving standard deviation (a
+   calibration recording is static most of the time, so the quiet windows show the
+   noise whatever its colour), capped at twice the difference-based estimate
+   ``1.4826 MAD(diff(a)) / sqrt(2)`` (which sees the white noise even while the unit
+   moves slowly, and so protects a recording that is mostly motion), and floored at
+   ``step / sqrt(12)`` for a quantised signal (integer counts with less than one
+   count of noise), so it is never zero or NaN.
+2. Moving standard deviation of **each axis** over a centred window (default 1 s).
+   Each axis and not only the norm |a|: a slow rotation keeps |a| = g while the
+   components change (imucal's rotation parts), so a norm-only detector calls it static.
+3. A sample is static when every axis's moving SD is below ``threshold`` times its
+   noise (default 3: for a 100-sample window of white noise the SD scatters by ~7 %,
+   so a static window is never missed, while a 1 deg change of pose moves a component
+   by 0.017 g, tens of noise SDs for a MEMS triad).
+4. A run of quiet window centres is extended by half a window on each side (every
+   sample of a quiet window is static), ``trim_s`` is cut from each end (the settling
+   after a placement), and runs shorter than ``min_duration_s`` are dropped.
+
+It reports what it found (:class:`StaticDetection`) and raises
+:class:`StaticIntervalError` with the numbers a user needs when too few intervals are
+found; nothing in it can produce NaN (all quantities are floored, empty sets refused).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+#: imucal's labels of the six Ferraris poses: x_p = +X up, x_a = X down (a for "anti")
+POSE_LABELS = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")
+
+
+class StaticIntervalError(ValueError):
+    """Too few (or no usable) static intervals for the requested calibration."""
+
+
+@dataclass
+class StaticInterval:
+    """Samples ``[start, end)`` of one static interval and their pose label ('' if unknown)."""
+
+    start: int
+    end: int
+    label: str = ""
+
+    @property
+    def n(self) -> int:
+        return self.end - self.start
+
+
+@dataclass
+class StaticDetection:
+    """What the static-interval step found, and how."""
+
+    intervals: list
+    method: str                       # "detector", "labels COLUMN", "intervals FILE"
+    noise_sd: Optional[np.ndarray] = None   # per axis, input unit (detector only)
+    threshold: Optional[float] = None
+    window_s: Optional[float] = None
+    min_duration_s: Optional[float] = None
+    static_fraction: Optional[float] = None
+    ignored: list = field(default_factory=list)   # e.g. labels that are not static poses
+
+    def summary(self, rate_hz: float) -> str:
+        d = [iv.n / rate_hz for iv in self.intervals]
+        text = (f"{len(self.intervals)} static intervals from {self.method}"
+                + (f", {min(d):.1f} .. {max(d):.1f} s long" if d else ""))
+        if self.noise_sd is not None:
+            text += (f"; noise SD per axis {', '.join(f'{s:.3g}' for s in self.noise_sd)}, "
+                     f"threshold {self.threshold:g} x noise over {self.window_s:g} s windows, "
+                     f"minimum {self.min_duration_s:g} s; {100 * self.static_fraction:.0f} % of samples static")
+        if self.ignored:
+            text += f"; ignored: {', '.join(self.ignored)}"
+        return text
+
+    def to_dict(self, rate_hz: float) -> dict:
+        return {"method": self.method, "n_intervals": len(self.intervals),
+                "intervals": [{"start": iv.start, "end": iv.end, "label": iv.label,
+                               "duration_s": iv.n / rate_hz} for iv in self.intervals],
+                "noise_sd": None if self.noise_sd is None else [float(s) for s in self.noise_sd],
+                "threshold": self.threshold, "window_s": self.window_s,
+                "min_duration_s": self.min_duration_s, "static_fraction": self.static_fraction,
+                "ignored": list(self.ignored)}
+
+
+def moving_sd(x: np.ndarray, window: int) -> np.ndarray:
+    """Centred moving standard deviation of each column (edges use the nearest full window)."""
+    x = np.asarray(x, float)
+    n = len(x)
+    window = max(2, min(window, n))
+    mu = x.mean(axis=0)
+    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x - mu, axis=0)])
+    c2 = np.vstack([np.zeros((1, x.shape[1])), np.cumsum((x - mu) ** 2, axis=0)])
+    lo = np.clip(np.arange(n) - window // 2, 0, n - window)
+    hi = lo + window
+    m = (c[hi] - c[lo]) / window
+    var = (c2[hi] - c2[lo]) / window - m * m
+    return np.sqrt(np.maximum(var, 0.0) * window / (window - 1))
+
+
+def robust_noise_sd(acc: np.ndarray, window: int) -> np.ndarray:
+    """Per-axis white-noise SD (step 1 of the module docstring), never zero or NaN."""
+    acc = np.asarray(acc, float)
+    d = np.diff(acc, axis=0)
+    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    sd_diff = 1.4826 * mad / np.sqrt(2.0)
+    sd_low = np.percentile(moving_sd(acc, window), 10, axis=0)
+    out = np.minimum(sd_low, 2.0 * sd_diff)
+    for i in range(3):
+        nz = np.abs(d[:, i])[np.abs(d[:, i]) > 0]
+        step = float(nz.min()) if len(nz) else 1.0
+        out[i] = max(out[i], step / np.sqrt(12.0))
+    return out
+
+
+def detect_static_intervals(acc: np.ndarray, rate_hz: float, *, window_s: float = 1.0,
+                            threshold: float = 3.0, min_duration_s: float = 2.0,
+                            trim_s: float = 0.25, min_intervals: int = 1) -> StaticDetection:
+    """Find the static intervals of a recording (module docstring, steps 1-4)."""
+    acc = np.asarray(acc, float)
+    if not np.all(np.isfinite(acc)):
+        raise ValueError("the recording holds NaN or infinite samples; clean them before detecting static intervals")
+    n = len(acc)
+    window = max(3, int(round(window_s * rate_hz)))
+    min_len = int(round(min_duration_s * rate_hz))
+    trim = int(round(trim_s * rate_hz))
+    if n < max(window, min_len + 2 * trim):
+        raise StaticIntervalError(f"the recording has {n} samples ({n / rate_hz:.1f} s at {rate_hz:g} Hz): "
+                                  f"too short for a {window_s:g} s window and {min_duration_s:g} s intervals")
+    sigma = robust_noise_sd(acc, window)
+    sd = moving_sd(acc, window)
+    static = np.all(sd <= threshold * sigma, axis=1)
+    edges = np.diff(np.concatenate([[0], static.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    intervals = []
+    half = window // 2
+    for s, e in zip(starts, ends):
+        # every sample of a quiet window is static: extend the run of quiet centres by half a
+        # window on each side, then cut the settling time
+        s2, e2 = max(0, s - half) + trim, min(n, e + window - half - 1) - trim
+        if e2 - s2 >= max(min_len, 2):
+            intervals.append(StaticInterval(int(s2), int(e2)))
+    det = StaticDetection(intervals, "detector", sigma, float(threshold), float(window_s), float(min_duration_s),
+                          float(static.mean()))
+    if len(intervals) < min_intervals:
+        longest = max(((e - s) / rate_hz for s, e in zip(starts, ends)), default=0.0)
+        raise StaticIntervalError(
+            f"found {len(intervals)} static intervals of at least {min_duration_s:g} s, {min_intervals} needed "
+            f"({100 * static.mean():.0f} % of samples look static, longest run {longest:.1f} s; noise SD per axis "
+            f"{', '.join(f'{s:.3g}' for s in sigma)}). Check the stated rate, lower --min-static-s, raise "
+            "--static-threshold, or give the intervals with --intervals FILE / --labels COLUMN")
+    return det
+
+
+#: labels that never mark a static pose (imucal's rotation parts, a simulator's moves, blanks)
+MOTION_LABELS = ("x_rot", "y_rot", "z_rot", "move", "moving", "")
+
+
+def intervals_from_labels(labels: Sequence[str], column: str = "labels",
+                          keep: Optional[Sequence[str]] = POSE_LABELS) -> StaticDetection:
+    """One interval per contiguous run of a label in ``keep`` (``None``: every label except
+    :data:`MOTION_LABELS`); other labels are listed as ignored."""
+    labels = np.asarray(labels).astype(str)
+    if len(labels) == 0:
+        raise StaticIntervalError("the label column is empty")
+    change = np.flatnonzero(labels[1:] != labels[:-1]) + 1
+    starts = np.concatenate([[0], change])
+    ends = np.concatenate([change, [len(labels)]])
+    intervals, ignored = [], []
+    for s, e in zip(starts, ends):
+        lab = labels[s]
+        if (lab in keep) if keep is not None else (lab not in MOTION_LABELS):
+            intervals.append(StaticInterval(int(s), int(e), lab))
+        elif lab not in ignored:
+            ignored.append(lab)
+    return StaticDetection(intervals, f"labels column '{column}'", ignored=ignored)
+
+
+def intervals_from_spec(start, end, labels: Optional[Sequence[str]], n_samples: int, source: str,
+                        keep: Optional[Sequence[str]] = POSE_LABELS) -> StaticDetection:
+    """Intervals from an interval file; labelled entries not in ``keep`` are ignored (e.g. imucal's
+    ``x_rot``), limits beyond the recording are refused."""
+    intervals, ignored = [], []
+    for k, (s, e) in enumerate(zip(start, end)):
+        lab = labels[k] if labels else ""
+        if labels and ((lab not in keep) if keep is not None else (lab in MOTION_LABELS)):
+            ignored.append(lab)
+            continue
+        if s < 0 or e > n_samples:
+            raise StaticIntervalError(f"{source}: interval {k + 1} ({lab or ''} {s}..{e}) lies outside the "
+                                      f"recording's {n_samples} samples")
+        intervals.append(StaticInterval(int(s), int(e), lab))
+    return StaticDetection(intervals, f"intervals file {source}", ignored=ignored)
+
+
+def pose_label_of(mean_acc: np.ndarray) -> str:
+    """imucal label of the pose whose up axis is the largest component of the mean reading."""
+    i = int(np.argmax(np.abs(mean_acc)))
+    return "xyz"[i] + ("_p" if mean_acc[i] > 0 else "_a")

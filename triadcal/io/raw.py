@@ -1,0 +1,224 @@
+"""Raw recordings: accelerometer samples at a stated rate, as CSV with named columns.
+
+The files people calibrate from when they have no bench (imucal's Ferraris sessions,
+imu_tk / Tedaldi et al. 2014 free-orientation recordings): one row per sample, named
+columns (``acc_x,acc_y,acc_z``, ``ax,ay,az``, ...), optionally preceded by free header
+lines (the MPU-6050 logger of tomisuarez2 writes ``Fs,100`` and three more lines before
+the header) and optionally with a label column (imucal's ``part``).
+
+The sample rate is always stated by the user (imucal issue #25: a wrong rate silently
+rescales every rate-dependent quantity); a rate written in the file's header lines is
+kept in ``metadata`` and a disagreement is refused.
+
+Interval files (:func:`read_intervals`): the two-row start/end CSV of tomisuarez2
+(sample indices), a two-column ``start,end`` CSV, or imucal's session-list JSON
+(``{"x_p": {"start": 540, "end": 1271}, ...}``, sample ranges with labels).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+#: accepted input units and the unit string of K (g per output unit) for each
+INPUT_UNITS = {"m/s2": "g/(m/s2)", "g": "g/g", "counts": "g/count"}
+DEFAULT_COLUMN_SETS = (("acc_x", "acc_y", "acc_z"), ("ax", "ay", "az"), ("x", "y", "z"))
+
+
+class RawRecordingError(ValueError):
+    """Bad raw-recording input, located by file, line (1-based) and column where known."""
+
+    def __init__(self, path: str, line: Optional[int], column: Optional[str], problem: str):
+        self.path, self.line, self.column, self.problem = path, line, column, problem
+        where = path + (f":{line}" if line else "") + (f": column '{column}'" if column else "")
+        super().__init__(f"{where}: {problem}")
+
+
+@dataclass
+class RawRecording:
+    """Accelerometer samples of one recording.
+
+    ``acc`` (n, 3) in ``unit`` (``m/s2``, ``g`` or ``counts``), ``rate_hz`` as stated by the
+    user, ``labels`` the label column (strings) when one was read, ``metadata`` the
+    ``key,value`` header lines, ``first_line`` the file line of sample 0.
+    """
+
+    acc: np.ndarray
+    rate_hz: float
+    unit: str
+    columns: tuple
+    labels: Optional[np.ndarray] = None
+    label_column: Optional[str] = None
+    metadata: dict = field(default_factory=dict)
+    source: str = "<memory>"
+    first_line: int = 1
+
+    def __post_init__(self):
+        self.acc = np.asarray(self.acc, float)
+        if self.acc.ndim != 2 or self.acc.shape[1] != 3:
+            raise ValueError(f"{self.source}: samples must have shape (n, 3), got {self.acc.shape}")
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError(f"{self.source}: the sample rate must be a positive number of Hz, got {self.rate_hz}")
+        if self.unit not in INPUT_UNITS:
+            raise ValueError(f"{self.source}: unknown input unit {self.unit!r}; use one of {', '.join(INPUT_UNITS)}")
+
+    @property
+    def n(self) -> int:
+        return len(self.acc)
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Time of each sample since the first one, from the stated rate."""
+        return np.arange(self.n) / self.rate_hz
+
+    @property
+    def scale_unit(self) -> str:
+        """Unit of the scale factor K (eq. 1: K W = Ca G + S, g per output unit)."""
+        return INPUT_UNITS[self.unit]
+
+
+def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, unit: str = "counts",
+                 label_column: Optional[str] = None) -> RawRecording:
+    """Read a raw recording (``triadcal fit-raw``).
+
+    The header row is the first line that names all of ``columns`` (default: the first
+    of ``acc_x,acc_y,acc_z`` / ``ax,ay,az`` / ``x,y,z`` found); lines before it are kept as
+    metadata when they read ``key,value``. Every sample must be a finite number: a bad
+    field is refused with its line and column, nothing is dropped.
+    """
+    path = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise RawRecordingError(path, None, None, "not UTF-8 text") from None
+    lines = text.splitlines()
+    wanted = [tuple(columns)] if columns else list(DEFAULT_COLUMN_SETS)
+    header_at, header, cols = None, None, None
+    for k, line in enumerate(lines[:200]):
+        fields = [f.strip() for f in next(csv.reader([line]), [])]
+        for cand in wanted:
+            if all(c in fields for c in cand):
+                header_at, header, cols = k, fields, tuple(cand)
+                break
+        if header_at is not None:
+            break
+    if header_at is None:
+        raise RawRecordingError(path, None, None,
+                                "no header line naming the columns " + " or ".join(",".join(c) for c in wanted)
+                                + " in the first 200 lines (give --columns)")
+    if label_column is not None and label_column not in header:
+        raise RawRecordingError(path, header_at + 1, label_column,
+                                f"label column not in the header (columns: {', '.join(header)})")
+    metadata = {}
+    for line in lines[:header_at]:
+        parts = [p.strip() for p in line.split(",")]
+        if len(parts) >= 2 and parts[0]:
+            metadata[parts[0]] = parts[1]
+    file_rate = metadata.get("Fs") or metadata.get("rate_hz") or metadata.get("sample_rate_hz")
+    if file_rate is not None:
+        try:
+            fr = float(file_rate)
+        except ValueError:
+            fr = None
+        if fr is not None and abs(fr - rate_hz) > 1e-6 * rate_hz:
+            raise RawRecordingError(path, None, None,
+                                    f"the stated rate {rate_hz:g} Hz disagrees with the file's header ({fr:g} Hz); "
+                                    "check which one is right (imucal issue #25)")
+    idx = [header.index(c) for c in cols]
+    li = header.index(label_column) if label_column else None
+    acc, labels = [], []
+    for k in range(header_at + 1, len(lines)):
+        line = lines[k]
+        if not line.strip():
+            continue
+        row = next(csv.reader([line]))
+        if len(row) < len(header):
+            raise RawRecordingError(path, k + 1, header[len(row)] if len(row) < len(header) else None,
+                                    f"{len(row)} fields, the header has {len(header)}")
+        vals = []
+        for c, i in zip(cols, idx):
+            try:
+                v = float(row[i])
+            except ValueError:
+                raise RawRecordingError(path, k + 1, c, f"not a number: {row[i]!r}") from None
+            if not math.isfinite(v):
+                raise RawRecordingError(path, k + 1, c, f"not a finite number: {row[i]!r}")
+            vals.append(v)
+        acc.append(vals)
+        if li is not None:
+            labels.append(row[li].strip())
+    if not acc:
+        raise RawRecordingError(path, header_at + 1, None, "no samples after the header")
+    return RawRecording(np.array(acc), float(rate_hz), unit, cols,
+                        np.array(labels) if li is not None else None, label_column, metadata, path,
+                        header_at + 2)
+
+
+@dataclass
+class IntervalSpec:
+    """Sample ranges ``[start, end)`` (row indices of the samples), with labels where known."""
+
+    start: np.ndarray
+    end: np.ndarray
+    labels: Optional[list] = None
+    source: str = "<memory>"
+
+
+def read_intervals(path) -> IntervalSpec:
+    """Static intervals from a file: imucal's session-list JSON (labelled sample ranges), a
+    two-row CSV of starts and ends (tomisuarez2), or a two-column ``start,end`` CSV."""
+    path = str(path)
+    text = Path(path).read_text(encoding="utf-8")
+    if text.lstrip().startswith("{"):
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise RawRecordingError(path, exc.lineno, None, f"not valid JSON: {exc.msg}") from None
+        labels, s, e = [], [], []
+        for k, v in d.items():
+            if not (isinstance(v, dict) and "start" in v and "end" in v):
+                raise RawRecordingError(path, None, k, "each entry must be {\"start\": ..., \"end\": ...}")
+            labels.append(k)
+            s.append(int(v["start"]))
+            e.append(int(v["end"]))
+        return _checked(IntervalSpec(np.array(s), np.array(e), labels, path))
+    rows = []
+    for k, line in enumerate(text.splitlines()):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        fields = [f.strip() for f in line.split(",")]
+        try:
+            rows.append([float(f) for f in fields])
+        except ValueError:
+            if not rows and k == 0:
+                continue  # a header row such as "start,end"
+            raise RawRecordingError(path, k + 1, None, f"not numbers: {line!r}") from None
+    if len(rows) == 2 and len(rows[0]) == len(rows[1]) and len(rows[0]) != 2:
+        s, e = np.array(rows[0]), np.array(rows[1])
+    elif rows and all(len(r) == 2 for r in rows):
+        arr = np.array(rows)
+        if len(rows) == 2 and arr[0, 1] > arr[1, 0]:
+            # ambiguous 2x2: two rows (starts; ends) as tomisuarez2 writes them
+            s, e = arr[0], arr[1]
+        else:
+            s, e = arr[:, 0], arr[:, 1]
+    else:
+        raise RawRecordingError(path, None, None,
+                                "expected two rows (starts; ends) or two columns (start,end) of sample indices")
+    if np.any(s != np.round(s)) or np.any(e != np.round(e)):
+        raise RawRecordingError(path, None, None, "interval limits must be whole sample indices")
+    return _checked(IntervalSpec(s.astype(int), e.astype(int), None, path))
+
+
+def _checked(spec: IntervalSpec) -> IntervalSpec:
+    bad = np.flatnonzero(spec.end <= spec.start)
+    if len(bad):
+        raise RawRecordingError(spec.source, None, None,
+                                f"interval {int(bad[0]) + 1} ends ({spec.end[bad[0]]}) before it starts ({spec.start[bad[0]]})")
+    return spec
