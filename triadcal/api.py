@@ -92,3 +92,35 @@ def emulate(*args, **kwargs):
     from .hardware.emulator import emulate as _emulate
 
     return _emulate(*args, **kwargs)
+
+
+def certificate(*args, **kwargs):
+    """Write a calibration certificate or the refusal report (``triadcal certificate``);
+    see :func:`triadcal.reports.certificate.certificate`."""
+    from .reports.certificate import certificate as _certificate
+
+    return _certificate(*args, **kwargs)
+
+
+def compare(*args, **kwargs):
+    """Judge the drift between two calibrations (``triadcal compare``);
+    see :func:`triadcal.estimation.compare.compare`."""
+    from .estimation.compare import compare as _compare
+
+    return _compare(*args, **kwargs)
+
+
+def budget(*args, **kwargs):
+    """The paper's error budget, eq. 4-7 (``triadcal budget``); see
+    :func:`triadcal.estimation.budget.budget`."""
+    from .estimation.budget import budget as _budget
+
+    return _budget(*args, **kwargs)
+
+
+def fit_raw(*args, **kwargs):
+    """Calibrate from a raw recording without a bench (``triadcal fit-raw``); see
+    :func:`triadcal.estimation.raw.fit_raw`."""
+    from .estimation.raw import fit_raw as _fit_raw
+
+    return _fit_raw(*args, **kwargs)

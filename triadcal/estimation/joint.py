@@ -337,6 +337,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         temperature_range_C=(float(T.min()), float(T.max())), fit=fit,
         correlation_names=problem.names, correlation=corr, notes=notes,
         extra={"fixed": {k: {"value": v, "unit": model.spec[k].unit} for k, v in fixed.items()},
+               "unidentifiable": dict(problems),
                "output_unit": campaign.output_unit, "local_g_m_s2": campaign.local_g_m_s2,
                "source": campaign.source})
     if return_problem:

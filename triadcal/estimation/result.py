@@ -187,6 +187,8 @@ def round_to_uncertainty(value: float, u: float, digits: int = 2) -> tuple[str, 
     if not (u > 0 and math.isfinite(u)):
         return f"{value:.6g}", f"{u:g}"
     exponent = math.floor(math.log10(u)) - (digits - 1)
+    if round(u / 10.0 ** exponent) >= 10 ** digits:   # u rounds up to a power of ten: 0.0996 -> 0.10
+        exponent += 1
     decimals = max(0, -exponent)
     q = 10.0 ** exponent
     u_r = round(u / q) * q

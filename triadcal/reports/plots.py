@@ -15,7 +15,6 @@ each plot it cannot draw, why (``skipped``).
 from __future__ import annotations
 
 import io
-import math
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -125,7 +124,7 @@ def per_setpoint_angles(campaign) -> list[dict]:
     rows = raw if isinstance(raw, list) else [dict(v, key=k) for k, v in raw.items()]
     out = []
     for r in rows:
-        T = next((r[k] for k in ("temperature_C", "t_mean_C", "T_C", "temperature", "setpoint_C") if k in r), None)
+        T = next((r[k] for k in ("temperature_C", "mean_temperature_C", "t_mean_C", "T_C", "temperature", "setpoint_C") if k in r), None)
         if T is None:
             raise LookupError(f"per-setpoint estimate without a temperature: keys {sorted(r)}")
         rec = {"temperature_C": float(T), "direction": str(r.get("direction", "none"))}
@@ -153,7 +152,7 @@ def residuals_figure(result, campaign):
     rng = np.random.default_rng(0)  # horizontal jitter only, for legibility
     jitter = rng.uniform(-0.25, 0.25, size=len(x))
     unit = campaign.output_unit
-    fig, axes = plt.subplots(3, 1, figsize=(9, 6.6), sharex=True)
+    fig, axes = plt.subplots(3, 1, figsize=(9, 5.8), sharex=True)
     for i, (ax, a) in enumerate(zip(axes, AXES)):
         for d, colour in BRANCH_COLOURS.items():
             m = campaign.direction == d
@@ -184,7 +183,7 @@ def angles_temperature_figure(result, campaign=None, per_setpoint: Optional[list
     T = np.linspace(lo, hi, 101)
     has_hyst = "hysteresis" in result.effects
     curves = {b: model_angles(result, T, v) for b, v in BRANCH_VALUE.items()}
-    fig, axes = plt.subplots(2, 3, figsize=(10, 5.8))
+    fig, axes = plt.subplots(2, 3, figsize=(10, 5.6))
     for ax, ab in zip(axes.ravel(), ANGLE_NAMES):
         if has_hyst:
             ax.plot(T, curves["heating"][ab], color=BRANCH_COLOURS["heating"], lw=1.4, label="model, heating")
@@ -206,10 +205,10 @@ def angles_temperature_figure(result, campaign=None, per_setpoint: Optional[list
         ax.set_ylabel("angle (arcsec)")
         ax.grid(True, alpha=0.3)
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 5), frameon=False)
+    fig.legend(handles, labels, loc="lower center", ncol=3, frameon=False)
     fig.suptitle(f"{result.unit}: orientation angles against temperature "
                  f"(reference {result.reference_temperature_C:g} °C, dotted)", fontsize=10)
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.tight_layout(rect=(0, 0.09, 1, 1))
     return fig
 
 
@@ -231,7 +230,7 @@ def pair_figure(idata, names=tuple(f"Ca_{ab}" for ab in ANGLE_NAMES), max_points
     n_all = len(next(iter(flat.values())))
     idx = np.random.default_rng(0).choice(n_all, size=min(max_points, n_all), replace=False)
     k = len(names)
-    fig, axes = plt.subplots(k, k, figsize=(1.55 * k + 0.8, 1.55 * k + 0.8))
+    fig, axes = plt.subplots(k, k, figsize=(1.2 * k + 0.8, 1.2 * k + 0.8))
     axes = np.atleast_2d(axes)
     for i, a in enumerate(names):
         for j, b in enumerate(names):
@@ -266,7 +265,7 @@ def trace_rank_figure(idata, names=tuple(f"Ca_{ab}" for ab in ANGLE_NAMES), bins
     plt = _mpl()
     draws = posterior_draws(idata, names)
     k = len(names)
-    fig, axes = plt.subplots(k, 2, figsize=(10, 1.45 * k + 0.6), squeeze=False)
+    fig, axes = plt.subplots(k, 2, figsize=(8, 1.3 * k + 0.6), squeeze=False)
     for i, n in enumerate(names):
         d = draws[n]
         n_chain, n_draw = d.shape
@@ -276,11 +275,11 @@ def trace_rank_figure(idata, names=tuple(f"Ca_{ab}" for ab in ANGLE_NAMES), bins
         axes[i, 0].set_ylabel(f"{n} (arcsec)", fontsize=7)
         ranks = np.argsort(np.argsort(d.reshape(-1), kind="stable"), kind="stable").reshape(d.shape)
         edges = np.linspace(0, d.size, bins + 1)
-        width = (edges[1] - edges[0]) / (n_chain + 1)
         for c in range(n_chain):
             h, _ = np.histogram(ranks[c], bins=edges)
-            axes[i, 1].bar(edges[:-1] + c * width, h, width=width, color=colours[c], align="edge")
+            axes[i, 1].stairs(h, edges, color=colours[c], lw=1.2, baseline=None)
         axes[i, 1].axhline(n_draw / bins, color="0.2", lw=0.8, ls="--")
+        axes[i, 1].set_ylim(0, 2.0 * n_draw / bins)
         axes[i, 1].set_yticks([])
         for ax in axes[i]:
             ax.tick_params(labelsize=7)
@@ -333,5 +332,29 @@ def report_plots(result, campaign=None, idata=None) -> PlotSet:
     return out
 
 
-def finite(x) -> bool:
-    return isinstance(x, (int, float)) and math.isfinite(x)
+VERDICT_COLOURS = {"pass": "#1e8449", "fail": "#c0392b", "inconclusive": "#b9770e"}
+
+
+def drift_figure(rows):
+    """Drift of each parameter with its expanded uncertainty (k = 2), one panel per unit,
+    coloured by the verdict; ``rows`` are :class:`triadcal.reports.certificate.DriftRow`."""
+    plt = _mpl()
+    units = list(dict.fromkeys(r.unit for r in rows))
+    heights = [max(1.2, 0.28 * sum(r.unit == u for r in rows) + 0.6) for u in units]
+    fig, axes = plt.subplots(len(units), 1, figsize=(8, sum(heights) + 0.6), squeeze=False,
+                             gridspec_kw={"height_ratios": heights})
+    for ax, unit in zip(axes[:, 0], units):
+        sub = [r for r in rows if r.unit == unit]
+        y = np.arange(len(sub))[::-1]
+        for yi, r in zip(y, sub):
+            colour = VERDICT_COLOURS.get(r.verdict, "0.3")
+            ax.errorbar(r.drift_value, yi, xerr=r.U_value, fmt="o", color=colour, capsize=3, ms=4)
+        ax.axvline(0, color="0.3", lw=0.8)
+        ax.set_yticks(y)
+        ax.set_yticklabels([r.name for r in sub], fontsize=8)
+        ax.set_xlabel(f"drift, after − before ({unit}); bars: U (k = 2)")
+        ax.grid(True, axis="x", alpha=0.3)
+    handles = [plt.Line2D([], [], color=c, marker="o", ls="", label=v) for v, c in VERDICT_COLOURS.items()]
+    axes[0, 0].legend(handles=handles, loc="best", fontsize=8, frameon=False)
+    fig.tight_layout()
+    return fig

@@ -19,8 +19,15 @@ def summary_text(result: CalibrationResult) -> str:
             lo, hi = result.temperature_range_C
             bits.append(f"{lo:.1f} .. {hi:.1f} degC, reference {result.reference_temperature_C:g} degC")
         lines.append("  " + "; ".join(bits))
-    lines.append(f"  {'parameter':<20} {'value':>16} {'u (k=1)':>12}  unit")
+    lines.append(f"  {'parameter':<20} {'value':>16} {'U (k=2)':>12}  unit")
     for name, p in result.parameters.items():
-        v, u = round_to_uncertainty(p.value, p.u)
-        lines.append(f"  {name:<20} {v:>16} {u:>12}  {p.unit}")
+        v, U = round_to_uncertainty(p.value, 2.0 * p.u)
+        lines.append(f"  {name:<20} {v:>16} {U:>12}  {p.unit}")
+    lines.append("  U = 2u, coverage about 95 %; u (k = 1) in the JSON")
+    try:
+        from .certificate import refusal_reasons
+    except ImportError:  # pragma: no cover - reportlab missing
+        return "\n".join(lines)
+    for reason in refusal_reasons(result):
+        lines.append(f"  no certificate would be issued: {reason}")
     return "\n".join(lines)

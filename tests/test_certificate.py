@@ -1,0 +1,346 @@
+"""Calibration certificate and refusal report (HTML, PDF), budget table and plots.
+
+The golden test fits a simulated campaign and checks that every parameter of the JSON
+appears, with the same rounded value and U = 2u, in the HTML and in the text that pypdf
+extracts from the PDF. Real files, real matplotlib renders, real PDFs.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import os
+import re
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("XDG_CACHE_HOME", "/tmp/xdg")
+
+from triadcal.api import simulate  # noqa: E402
+from triadcal.estimation.result import CalibrationResult, ParameterValue, round_to_uncertainty  # noqa: E402
+from triadcal.io.bench_csv import write_bench_csv  # noqa: E402
+from triadcal.models.effects import DEFAULT_EFFECTS  # noqa: E402
+from triadcal.models.model import Model  # noqa: E402
+from triadcal.reports import certificate as C  # noqa: E402
+
+pypdf = pytest.importorskip("pypdf")
+pytest.importorskip("reportlab")
+
+ISSUE_DATE = "2026-11-22"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+# -- inputs -------------------------------------------------------------------------------------
+def fitted_result(campaign) -> CalibrationResult:
+    """The joint fit of the campaign; a hand-made result with the default-effect names while
+    the joint fit is not installed."""
+    try:
+        from triadcal.estimation.joint import fit_joint
+    except ImportError:
+        return hand_result(campaign.units[0])
+    return fit_joint(campaign, DEFAULT_EFFECTS)
+
+
+def hand_result(unit: str = "SN-HAND-0001", status: str = "ok") -> CalibrationResult:
+    """A plausible result by hand: the default-effect parameters in their reporting units."""
+    model = Model(DEFAULT_EFFECTS)
+    rng = np.random.default_rng(5)
+    u_of = {"g/V": 1.3e-6, "g": 7.6e-7, "arcsec": 0.27, "arcsec/degC": 0.0087, "ppm/degC": 0.041,
+            "ug/degC": 0.024}
+    params = {}
+    for n in model.names:
+        s = model.spec[n]
+        params[n] = ParameterValue(s.nominal + s.typical * rng.normal(), u_of[s.unit], s.unit)
+    return CalibrationResult(unit=unit, method="joint", parameters=params, status=status,
+                             effects=tuple(DEFAULT_EFFECTS), temperature_range_C=(-39.7, 70.3),
+                             fit={"chi2_dof": 1.01, "n_obs": 540, "n_params": len(params), "gap_p_value": 0.4,
+                                  "noise_known": True},
+                             extra={"local_g_m_s2": 9.80665, "output_unit": "V"})
+
+
+def fake_posterior(result, chains=4, draws=400, seed=1, shift_chain=None):
+    """Independent normal draws with the result's covariance, as an arviz InferenceData whose
+    variables are named like the parameters (what the sampler writes)."""
+    az = C._arviz()
+    names = [n for n in result.parameters if not n.startswith("tilt_")]
+    mu = np.array([result[n].value for n in names])
+    cov = result.covariance(names)
+    x = np.random.default_rng(seed).multivariate_normal(mu, cov, size=(chains, draws))
+    if shift_chain is not None:
+        x[shift_chain] += 5.0 * np.sqrt(np.diag(cov))
+    return az.from_dict(posterior={n: x[..., i] for i, n in enumerate(names)})
+
+
+@pytest.fixture(scope="module")
+def issued(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cert")
+    _, campaign = simulate(d / "campaign.csv", seed=11, unit="SN-GOLD-0001")
+    result = fitted_result(campaign)
+    result.save(d / "result.json")
+    (d / "lab.toml").write_text(C.EXAMPLE_LAB_TOML)
+    fake_posterior(result).to_netcdf(d / "post.nc")
+    cert = C.certificate(d / "result.json", posterior=d / "post.nc", lab=d / "lab.toml", data=d / "campaign.csv",
+                         html=d / "c.html", pdf=d / "c.pdf", plots_dir=d / "plots", issue_date=ISSUE_DATE)
+    return {"dir": d, "cert": cert, "json": json.loads((d / "result.json").read_text()),
+            "html": (d / "c.html").read_text(encoding="utf-8"), "pdf": pypdf.PdfReader(d / "c.pdf")}
+
+
+def pdf_text(reader, layout=True) -> str:
+    return "\n".join(p.extract_text(extraction_mode="layout" if layout else "plain") for p in reader.pages)
+
+
+def significant_digits(s: str) -> int:
+    return len(s.replace("-", "").replace(".", "").lstrip("0"))
+
+
+# -- the golden test -------------------------------------------------------------------------------
+def test_every_parameter_in_html_and_pdf_with_the_same_rounded_value_and_U(issued):
+    assert issued["cert"].issued
+    params = issued["json"]["parameters"]
+    assert len(params) >= 30  # the default-effect model and the bench tilt
+    html = issued["html"]
+    lines = pdf_text(issued["pdf"]).splitlines()
+    for name, p in params.items():
+        value, U = round_to_uncertainty(p["value"], 2.0 * p["u"])
+        assert significant_digits(U) <= 2, (name, U)
+        assert abs(float(value) - p["value"]) <= float(U) / 2 + 1e-15, name   # rounded, not moved
+        # HTML: the parameter's own row holds exactly this value and U
+        m = re.search(rf"<tr data-param='{re.escape(name)}'>(.*?)</tr>", html)
+        assert m, f"{name} has no row in the HTML"
+        cells = re.findall(r"<td class='num'>(.*?)</td>", m.group(1))
+        assert cells == [value, U], (name, cells, value, U)
+        # PDF: the line of the parameter's row carries the same strings
+        row = [ln.split() for ln in lines if ln.split()[:1] == [name]]
+        assert row, f"{name} not found in the PDF text"
+        assert value in row[0] and U in row[0], (name, row[0], value, U)
+
+
+def test_pdf_text_states_the_certificate(issued):
+    cert, reader = issued["cert"], issued["pdf"]
+    text = pdf_text(reader, layout=False)
+    n = len(reader.pages)
+    assert re.fullmatch(r"ISCL-20261122-[0-9A-F]{8}", cert.number)
+    for i, page in enumerate(reader.pages, 1):
+        t = page.extract_text()
+        assert cert.number in t and f"page {i} of {n}" in t      # every page identifies the certificate
+    for needed in ("Calibration certificate", "SN-GOLD-0001", "triadcal 0.1.0", "U (k = 2)",
+                   "least squares", "Uncertainty budget", "Inverse matrix", "Reference temperature",
+                   "Local gravity", "Inertial Sensors Calibration Laboratory", "A. N. Engineer",
+                   "shall not be reproduced except in full"):
+        assert needed in text, needed
+
+
+def test_html_is_self_contained_with_every_plot_embedded(issued):
+    html, cert = issued["html"], issued["cert"]
+    assert not re.search(r"(src|href)\s*=\s*['\"]?(https?:|//)", html), "the HTML refers to the network"
+    assert "@import" not in html and "url(" not in html
+    images = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", html)
+    assert len(images) == len(cert.plots) == 4 and not cert.skipped_plots
+    for b64 in images:
+        assert base64.b64decode(b64).startswith(PNG_MAGIC)
+    names = sorted(p.name for p in cert.plots)
+    assert names == ["angles_temperature", "posterior_pairs", "posterior_trace_rank", "residuals"]
+    for name in names:   # also written as PNG files
+        assert (issued["dir"] / "plots" / f"{name}.png").read_bytes().startswith(PNG_MAGIC)
+
+
+def test_inverse_matrix_on_the_certificate_inverts_Ca(issued):
+    cert = issued["cert"]
+    Ca = cert.result.matrix()
+    printed = np.array([[float(C._matrix_str(x)) for x in row] for row in cert.inverse_matrix])
+    assert np.allclose(printed @ Ca, np.eye(3), atol=2e-9)   # 9 printed decimals
+    for row in printed:
+        for x in row:
+            assert f"<td>{x:.9f}</td>" in issued["html"]
+
+
+def test_budget_is_sorted_and_follows_eq_4_and_7(issued):
+    b = issued["cert"].budget
+    sources = [c.source for c in b.components]
+    assert sorted(sources) == sorted(C.BUDGET_SOURCES)
+    contrib = [c.contribution for c in b.components if c.contribution is not None]
+    assert contrib == sorted(contrib, reverse=True)
+    assert all(c.contribution is not None for c in b.components)      # lab file and data give every input
+    by = {c.source: c for c in b.components}
+    lab = C.load_lab(issued["dir"] / "lab.toml")
+    P = issued["cert"].result.parameters
+    k_ca = max(abs(P[f"{n}_tempco"].value) for n in C.ANGLES)
+    assert by["temperature measurement"].contribution == pytest.approx(lab.temperature_uncertainty_C * k_ca)
+    # default plan: the classical angle sees sigma_1 with weight 1/2 (closed form of eq. 2-3)
+    assert by["bench positioning"].contribution == pytest.approx(0.5 * lab.sigma_position_arcsec)
+    assert by["wobble"].contribution == pytest.approx(0.5 * lab.sigma_wobble_arcsec)
+    assert by["hysteresis"].contribution == pytest.approx(max(abs(P[f"{n}_hysteresis"].value) for n in C.ANGLES))
+    assert b.combined_u == pytest.approx(math.sqrt(sum(c ** 2 for c in contrib)))
+    assert b.expanded_U == pytest.approx(2 * b.combined_u)
+
+
+def test_budget_taken_from_the_result_when_the_estimator_wrote_one():
+    r = hand_result()
+    r.extra["budget"] = {"components": [
+        {"source": "bench positioning", "standard_uncertainty": 5.0, "unit": "arcsec", "sensitivity": 2.0,
+         "sensitivity_unit": "1", "contribution": 10.0, "symbol": "sigma_1"},
+        {"source": "output noise", "standard_uncertainty": 1e-5, "unit": "V", "sensitivity": 4.1e5,
+         "sensitivity_unit": "arcsec/V", "contribution": 4.1, "symbol": "noise"}]}
+    b = C.uncertainty_budget(r)
+    assert [c.source for c in b.components] == ["bench positioning", "output noise"]
+    assert b.combined_u == pytest.approx(math.hypot(10.0, 4.1))
+
+
+# -- refusal -----------------------------------------------------------------------------------------
+def test_not_converged_gives_the_refusal_report_not_a_certificate(tmp_path):
+    r = hand_result(status="not_converged")
+    r.notes.append("Levenberg-Marquardt stopped after 100 iterations")
+    r.save(tmp_path / "bad.json")
+    cert = C.certificate(tmp_path / "bad.json", html=tmp_path / "bad.html", pdf=tmp_path / "bad.pdf",
+                         issue_date=ISSUE_DATE)
+    assert not cert.issued and cert.number is None and not cert.rows and cert.budget is None
+    assert any("not_converged" in x for x in cert.reasons)
+    html = (tmp_path / "bad.html").read_text(encoding="utf-8")
+    assert "No certificate issued" in html and "not_converged" in html
+    assert "data-param" not in html and "Calibration certificate</h1>" not in html
+    assert "ISCL-" not in html and "TC-" not in html                 # no certificate number
+    text = pdf_text(pypdf.PdfReader(tmp_path / "bad.pdf"), layout=False)
+    assert "No certificate issued" in text and "not_converged" in text and "Refusal report" in text
+    for name, p in r.parameters.items():                               # no values are certified
+        v, U = round_to_uncertainty(p.value, 2 * p.u)
+        assert f"{v} " not in text and name not in html
+
+
+def test_cli_refuses_with_status_3_and_issues_with_0(tmp_path, capsys):
+    from triadcal.cli import main
+
+    bad = hand_result(status="not_converged")
+    bad.save(tmp_path / "bad.json")
+    assert main(["certificate", str(tmp_path / "bad.json"), "--html", str(tmp_path / "b.html")]) == 3
+    assert "no certificate issued" in capsys.readouterr().err
+    good = hand_result()
+    good.save(tmp_path / "good.json")
+    rc = main(["certificate", str(tmp_path / "good.json"), "--pdf", str(tmp_path / "g.pdf"), "--date", ISSUE_DATE,
+               "--number", "LAB-2026-0042"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "certificate LAB-2026-0042 issued" in out
+    assert (tmp_path / "g.pdf").read_bytes().startswith(b"%PDF")
+    assert "LAB-2026-0042" in pdf_text(pypdf.PdfReader(tmp_path / "g.pdf"), layout=False)
+    assert main(["certificate", str(tmp_path / "good.json")]) == 1       # no output asked for
+
+
+@pytest.mark.parametrize("case, expect", [
+    ("gap", "significant gap between the model and the data"),
+    ("unidentified", "could not determine Ca_xy_hysteresis"),
+    ("no_u", "no finite value or uncertainty for S_x"),
+    ("diagnosis", "the diagnosis finds a significant model-data gap"),
+])
+def test_other_failed_diagnostics_refuse(case, expect):
+    r = hand_result()
+    diagnosis = None
+    if case == "gap":
+        r.fit["gap_p_value"] = 1e-9
+        r.fit["chi2_dof"] = 3.4
+    elif case == "unidentified":
+        r.notes.append("Ca_xy_hysteresis not estimated, held at 0 arcsec: hysteresis needs visits on both a "
+                       "heating and a cooling branch; the data has only heating")
+    elif case == "no_u":
+        r.parameters["S_x"] = ParameterValue(1e-3, float("nan"), "g")
+    else:
+        diagnosis = {"format": "triadcal.diagnosis", "version": 1, "gap": {"chi2_dof": 3.4, "significant": True},
+                     "verdict": {"effect": "hysteresis"}}
+    cert = C.build_certificate(r, diagnosis=diagnosis, issue_date=ISSUE_DATE, plots=False)
+    assert not cert.issued
+    assert any(expect in x for x in cert.reasons), cert.reasons
+    assert "No certificate issued" in C.render_html(cert)
+
+
+def test_a_posterior_that_did_not_mix_refuses():
+    r = hand_result()
+    cert = C.build_certificate(r, idata=fake_posterior(r, shift_chain=2), issue_date=ISSUE_DATE, plots=False)
+    assert not cert.issued and any("R-hat" in x for x in cert.reasons)
+    ok = C.build_certificate(r, idata=fake_posterior(r), issue_date=ISSUE_DATE, plots=False)
+    assert ok.issued, ok.reasons
+
+
+# -- pieces ---------------------------------------------------------------------------------------------
+def test_plots_that_cannot_be_drawn_are_skipped_with_the_reason():
+    from triadcal.reports.plots import report_plots
+
+    ps = report_plots(hand_result())
+    assert [p.name for p in ps.plots] == ["angles_temperature"] and ps.plots[0].png.startswith(PNG_MAGIC)
+    assert set(ps.skipped) == {"residuals", "posterior_pairs", "posterior_trace_rank"}
+    assert "--data" in ps.skipped["residuals"] and "--posterior" in ps.skipped["posterior_pairs"]
+
+
+def test_model_curves_come_from_the_model(issued):
+    """The plotted branches are the model's own: mid-line +- hysteresis, slope = tempco."""
+    from triadcal.reports.plots import model_angles
+
+    r = issued["cert"].result
+    T = np.array([r.reference_temperature_C, r.reference_temperature_C + 10.0])
+    mid, cool, heat = (model_angles(r, T, b) for b in (0.0, 1.0, -1.0))
+    for ab in ("xy", "zx"):
+        assert mid[ab][0] == pytest.approx(r[f"Ca_{ab}"].value, abs=1e-9)
+        assert mid[ab][1] - mid[ab][0] == pytest.approx(10 * r[f"Ca_{ab}_tempco"].value, rel=1e-9)
+        assert cool[ab][0] - heat[ab][0] == pytest.approx(2 * r[f"Ca_{ab}_hysteresis"].value, rel=1e-9)
+
+
+def test_certificate_numbers_differ_between_results_and_repeat_for_the_same():
+    a, b = hand_result("SN-A"), hand_result("SN-B")
+    assert C.certificate_number(a, "TC", ISSUE_DATE) == C.certificate_number(a, "TC", ISSUE_DATE)
+    assert C.certificate_number(a, "TC", ISSUE_DATE) != C.certificate_number(b, "TC", ISSUE_DATE)
+    assert C.certificate_number(a, "TC", ISSUE_DATE) != C.certificate_number(a, "TC", "2026-11-23")
+
+
+def test_lab_file_errors_name_the_file_and_key(tmp_path):
+    p = tmp_path / "lab.toml"
+    p.write_text(C.EXAMPLE_LAB_TOML)
+    lab = C.load_lab(p)
+    assert lab.sigma_position_arcsec == 5.0 and lab.certificate_prefix == "ISCL"
+    p.write_text("[bench]\nsigma_positon_arcsec = 5\n")
+    with pytest.raises(ValueError, match=r"lab.toml: unknown key 'sigma_positon_arcsec' in \[bench\]"):
+        C.load_lab(p)
+    p.write_text("[chamber]\ntemperature_uncertainty_C = \"0.2\"\n")
+    with pytest.raises(ValueError, match=r"temperature_uncertainty_C must be a non-negative number"):
+        C.load_lab(p)
+    p.write_text("[lab\n")
+    with pytest.raises(ValueError, match="not valid TOML"):
+        C.load_lab(p)
+
+
+def test_data_of_another_unit_is_refused(tmp_path):
+    _, campaign = simulate(None, seed=2, unit="SN-OTHER")
+    write_bench_csv(campaign, tmp_path / "other.csv")
+    with pytest.raises(ValueError, match="SN-OTHER"):
+        C.certificate(hand_result("SN-HAND-0001"), data=tmp_path / "other.csv", html=tmp_path / "x.html")
+
+
+# -- drift report ---------------------------------------------------------------------------------------
+COMPARISON = {
+    "format": "triadcal.comparison", "version": 1, "unit": "SN-GOLD-0001",
+    "rule": "fail when the drift exceeds 30 arcsec with probability > 95 %",
+    "parameters": {"Ca_xy": {"drift": 13.83, "u": 4.1, "unit": "arcsec", "En": 1.69, "p_exceeds": 1e-4,
+                             "verdict": "pass"},
+                   "Ca_yz": {"drift": -51.34, "u": 4.1, "unit": "arcsec", "En": 6.3, "p_exceeds": 0.9999,
+                             "verdict": "fail"},
+                   "K_x": {"drift": 3.1e-6, "u": 1.9e-6, "unit": "g/V", "En": 0.82, "p_exceeds": 0.01,
+                           "verdict": "pass"}},
+    "overall": "fail"}
+
+
+def test_drift_report_states_every_drift_with_its_U_and_verdict(tmp_path):
+    from triadcal.cli import main
+
+    (tmp_path / "comp.json").write_text(json.dumps(COMPARISON))
+    assert main(["certificate", str(tmp_path / "comp.json"), "--html", str(tmp_path / "d.html"),
+                 "--pdf", str(tmp_path / "d.pdf"), "--date", ISSUE_DATE]) == 0
+    html = (tmp_path / "d.html").read_text(encoding="utf-8")
+    lines = pdf_text(pypdf.PdfReader(tmp_path / "d.pdf")).splitlines()
+    for name, p in COMPARISON["parameters"].items():
+        d, U = round_to_uncertainty(p["drift"], 2 * p["u"])
+        row = re.search(rf"<tr data-param='{name}'>(.*?)</tr>", html).group(1)
+        assert re.findall(r"<td class='num'>(.*?)</td>", row)[:2] == [d, U] and p["verdict"] in row
+        tokens = next(ln.split() for ln in lines if ln.split()[:1] == [name])
+        assert d in tokens and U in tokens and p["verdict"] in tokens
+    assert "FAIL" in html and "data:image/png;base64," in html
+    bad = dict(COMPARISON, version=2)
+    with pytest.raises(ValueError, match="comparison version 2 is not known"):
+        C.render_drift_html(bad)

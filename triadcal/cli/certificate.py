@@ -1,0 +1,89 @@
+"""``triadcal certificate``: a calibration certificate (HTML, PDF) from a result, or a refusal report."""
+
+from __future__ import annotations
+
+import sys
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "certificate", help="write the calibration certificate of a result (HTML and/or PDF)",
+        description="Write a calibration certificate (ISO/IEC 17025 7.8) from a results-json file: "
+                    "identification, method, conditions, every parameter with its expanded uncertainty "
+                    "(k = 2), the thermal model, the inverse matrix, an uncertainty budget (eq. 4-7) and "
+                    "plots. When a diagnostic failed (status not ok, undetermined terms, a significant "
+                    "model-data gap, a posterior that did not mix) no certificate is issued: the same "
+                    "files hold a report that says why, and the command exits with status 3. Given a "
+                    "comparison file instead, it writes the drift report.")
+    p.add_argument("result", nargs="?", help="calibration result (results-json v1, from `triadcal fit` or `sample`); "
+                                              "given a comparison (`triadcal compare --json`), writes its drift report")
+    p.add_argument("--posterior", metavar="P.nc", help="posterior draws (arviz netCDF): pair and trace/rank plots, "
+                                                       "R-hat and ESS checks")
+    p.add_argument("--lab", metavar="LAB.toml", help="the laboratory's fields (see docs/certificate.md; "
+                                                    "`--lab-example` prints one)")
+    p.add_argument("--data", metavar="DATA.csv", help="the campaign (bench CSV v1): plan, setpoints, residual "
+                                                      "and angle-temperature plots, thermal-model residual")
+    p.add_argument("--diagnosis", metavar="D.json", help="a diagnosis (triadcal.diagnosis JSON); a significant "
+                                                         "gap refuses the certificate")
+    p.add_argument("--html", metavar="OUT.html", help="write the self-contained HTML here")
+    p.add_argument("--pdf", metavar="OUT.pdf", help="write the PDF here")
+    p.add_argument("--plots", metavar="DIR", help="also write the plots as PNG files into DIR")
+    p.add_argument("--number", help="certificate number from the lab's register (default: PREFIX-DATE-HASH)")
+    p.add_argument("--date", metavar="YYYY-MM-DD", help="date of issue (default: today)")
+    p.add_argument("--lab-example", action="store_true", help="print an example lab file and exit")
+    p.set_defaults(func=run)
+
+
+def _format_of(path) -> str:
+    import json
+
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return str(json.load(fh).get("format", ""))
+    except (json.JSONDecodeError, AttributeError):
+        return ""
+
+
+def run(args) -> int:
+    from ..reports.certificate import EXAMPLE_LAB_TOML, certificate
+
+    if args.lab_example:
+        print(EXAMPLE_LAB_TOML, end="")
+        return 0
+    if not args.result:
+        raise ValueError("give a result file (results-json v1)")
+    if not (args.html or args.pdf):
+        raise ValueError("give --html OUT.html and/or --pdf OUT.pdf")
+    if args.date:
+        import datetime
+
+        try:
+            datetime.date.fromisoformat(args.date)
+        except ValueError:
+            raise ValueError(f"--date: expected YYYY-MM-DD, got {args.date!r}") from None
+    if _format_of(args.result) == "triadcal.comparison":
+        from ..reports.certificate import drift_report
+
+        comp = drift_report(args.result, lab=args.lab, html=args.html, pdf=args.pdf, issue_date=args.date)
+        print(f"drift report written ({', '.join(x for x in (args.html, args.pdf) if x)}): overall "
+              f"{comp.get('overall')}, {len(comp.get('parameters', {}))} parameters")
+        return 0
+    cert = certificate(args.result, posterior=args.posterior, lab=args.lab, data=args.data,
+                       diagnosis=args.diagnosis, html=args.html, pdf=args.pdf, plots_dir=args.plots,
+                       number=args.number, issue_date=args.date)
+    written = ", ".join(x for x in (args.html, args.pdf) if x)
+    if cert.issued:
+        print(f"certificate {cert.number} issued for {cert.result.unit}: {written}")
+        b = cert.budget
+        print(f"  {len(cert.rows)} parameters, U (k = 2) from the {cert.source_of_u}; budget of an angle over the "
+              f"range: u_c = {b.combined_u:.2g} arcsec, U = {b.expanded_U:.2g} arcsec "
+              f"(largest: {b.components[0].source})")
+        for name, why in cert.skipped_plots.items():
+            print(f"  plot {name} not drawn: {why}")
+        if args.plots:
+            print(f"  plots written to {args.plots}/")
+        return 0
+    print(f"no certificate issued for {cert.result.unit}; the report says why: {written}", file=sys.stderr)
+    for reason in cert.reasons:
+        print(f"  - {reason}", file=sys.stderr)
+    return 3
