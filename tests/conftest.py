@@ -3,3 +3,6 @@ import tempfile
 
 os.environ.setdefault("XDG_CACHE_HOME", os.path.join(tempfile.gettempdir(), "triadcal-xdg-cache"))
 os.environ.setdefault("MPLBACKEND", "Agg")
+# small matrices: one BLAS thread is much faster (see triadcal/cli/__init__.py)
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")

@@ -124,3 +124,19 @@ def fit_raw(*args, **kwargs):
     from .estimation.raw import fit_raw as _fit_raw
 
     return _fit_raw(*args, **kwargs)
+
+
+def diagnose(*args, **kwargs):
+    """Diagnose the gap between the model and the data (``triadcal diagnose``); see
+    :func:`triadcal.estimation.diagnose.diagnose`."""
+    from .estimation.diagnose import diagnose as _diagnose
+
+    return _diagnose(*args, **kwargs)
+
+
+def validate_diagnosis(*args, **kwargs):
+    """Validate the diagnosis on simulated campaigns with each effect withheld
+    (``triadcal validate-diagnosis``); see :func:`triadcal.estimation.diagnosis_validation.validate`."""
+    from .estimation.diagnosis_validation import validate as _validate
+
+    return _validate(*args, **kwargs)

@@ -7,9 +7,15 @@ the work (every command has a library function of the same name).
 
 from __future__ import annotations
 
+import os
+
+# The matrices here are small (hundreds x tens): a threaded BLAS is far slower on them
+# than one thread (an 810 x 35 SVD: 86 ms threaded, 1.2 ms single). Set before numpy loads.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import argparse
 import importlib
-import os
 import pkgutil
 import sys
 

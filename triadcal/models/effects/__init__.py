@@ -2,7 +2,9 @@
 
 ``EFFECTS`` lists them in the canonical order in which their hooks are applied.
 ``position_error`` and ``heavy_tails`` act on the noise, not the mean: the simulator
-draws them (:class:`triadcal.models.simulate.NoiseModel`).
+draws them (:class:`triadcal.models.simulate.NoiseModel`), and their likelihood terms
+(output variance from bench positioning errors; Student-t log-density) are in
+:mod:`.position_error` and :mod:`.heavy_tails`, used by the diagnosis.
 """
 
 from .asymmetry import ScaleAsymmetry

@@ -1,0 +1,223 @@
+"""Tests of the diagnosis (triadcal diagnose / validate-diagnosis).
+
+Statistical claims are checked by simulation with fixed seeds; the thresholds are the
+issue's requirements (>= 90 % named first, <= 5 % false alarms, chi2/dof after in
+[0.8, 1.2]), not tuned values.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from triadcal.estimation.diagnose import diagnose
+from triadcal.estimation.diagnosis_validation import (CONDITIONS, VALIDATION_PLAN, VALIDATION_SOAK_S,
+                                                      scenario, validate)
+from triadcal.models.campaign import Campaign, up_axis_label
+from triadcal.models.effects import VOCABULARY
+from triadcal.models.effects import heavy_tails as ht
+from triadcal.models.effects import position_error as pe
+from triadcal.models.model import Model
+from triadcal.models.simulate import Schedule, preset_truth, simulate_campaign
+
+REAL = Path("/work/shared/data/real")
+REAL_CSV = REAL / "imucal_example_ferraris_session.csv"
+REAL_LIST = REAL / "imucal_example_ferraris_session_list.json"
+#: hand-placed poses of the Ferraris session -> bench angles giving that axis up (bench-csv.md)
+FERRARIS_POSES = {"x_p": (90.0, 90.0), "x_a": (270.0, 90.0), "y_p": (0.0, 0.0), "y_a": (0.0, 180.0),
+                  "z_p": (180.0, 90.0), "z_a": (0.0, 90.0)}
+FERRARIS_RATE_HZ = 102.4   # README: the imucal session is sampled at 102.4 Hz
+
+
+def ferraris_campaign(csv_path=REAL_CSV, list_path=REAL_LIST) -> Campaign:
+    """A Campaign of the 6 static hand-placed poses of the imucal Ferraris session.
+
+    Stand-in for `triadcal fit-raw` (not written yet): each pose's mean, sd and sample
+    count; no temperature channel (a constant 20 degC), one 'none' setpoint, outputs in
+    m/s^2. The pose is nominal (hand-placed: its true orientation is off by an unknown
+    angle, which the diagnosis should find).
+    """
+    data = np.genfromtxt(csv_path, delimiter=",", names=True)
+    poses = json.loads(Path(list_path).read_text())
+    rows = []
+    for name, (a1, a2) in FERRARIS_POSES.items():
+        s, e = poses[name]["start"], poses[name]["end"]
+        acc = np.column_stack([data["acc_x"][s:e], data["acc_y"][s:e], data["acc_z"][s:e]])
+        rows.append((name, a1, a2, acc.mean(axis=0), acc.std(axis=0, ddof=1), len(acc),
+                     0.5 * (s + e) / FERRARIS_RATE_HZ))
+    n = len(rows)
+    return Campaign(
+        unit=np.full(n, "NilsPod-imucal"), setpoint_C=np.full(n, 20.0), direction=np.full(n, "none"),
+        time_s=np.array([r[6] for r in rows]), position=np.array([r[0] for r in rows]),
+        axis1_deg=np.array([r[1] for r in rows]), axis2_deg=np.array([r[2] for r in rows]),
+        tau_s=np.array([r[5] / FERRARIS_RATE_HZ for r in rows]), w=np.array([r[3] for r in rows]),
+        t=np.full((n, 3), 20.0), cycle=np.zeros(n, int), state=np.full(n, "initial"),
+        sd=np.array([r[4] for r in rows]), n_samples=np.array([r[5] for r in rows]),
+        metadata={"output_unit": "m/s2", "local_g_m_s2": "9.80665"}, source=str(csv_path))
+
+
+def validation_campaign(effect: str, seed: int):
+    truth, model = scenario(effect)
+    return simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S),
+                             seed=seed), model
+
+
+# -- quick tests ----------------------------------------------------------------------------
+def test_ferraris_poses_point_the_named_axis_up():
+    labels = up_axis_label([v[0] for v in FERRARIS_POSES.values()], [v[1] for v in FERRARIS_POSES.values()])
+    assert labels.tolist() == ["+X", "-X", "+Y", "-Y", "+Z", "-Z"]
+
+
+def test_withheld_hysteresis_is_named_localised_and_the_gap_closes():
+    c, model = validation_campaign("hysteresis", 7)
+    d = diagnose(c, model, n_draws=200, seed=1)
+    assert d.gap["significant"]
+    assert d.verdict_effect == "hysteresis"
+    top = [c_ for c_ in d.candidates if c_.effect == "hysteresis"][0]
+    assert top.rank == 1 and top.refit["lr_p_value"] < 1e-6
+    # localised: offsets per pose and branch explain the misfit best
+    assert d.families[0]["family"] == "up_x_direction"
+    assert any(s.family in ("up_x_direction", "direction") for s in d.where)
+    after = top.refit["gap_after"]
+    assert 0.8 <= after["chi2_dof"] <= 1.2 < d.gap["chi2_dof"]
+    assert after["residual_rms_ug"] < top.refit["gap_before"]["residual_rms_ug"]
+    assert after["significant_slices"] < top.refit["gap_before"]["significant_slices"]
+    # the refit recovers the withheld half-widths (truth: ak18-quartz preset) within 4 u
+    truth = preset_truth("ak18-quartz").parameters
+    for n, p in top.refit["new_parameters"].items():
+        assert abs(p["value"] - truth[n]) < 4 * p["u"], n
+    # cross-branch prediction: hysteresis cannot be fitted on one branch -> nothing gained
+    assert top.refit["cross_branch_delta_lpd"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_clean_data_gives_a_null_verdict_and_a_valid_json(tmp_path):
+    c, model = validation_campaign("clean", 3)
+    d = diagnose(c, model, n_draws=200, seed=0)
+    assert d.verdict_effect is None and not d.gap["significant"]
+    path = tmp_path / "d.json"
+    d.save(path)
+    doc = json.loads(path.read_text())
+    assert doc["format"] == "triadcal.diagnosis" and doc["version"] == 1
+    assert doc["verdict"]["effect"] is None
+    assert set(doc["model"]) == set(model)
+    assert {"chi2_dof", "significant"} <= set(doc["gap"])
+    for cand in doc["candidates"]:
+        assert cand["effect"] in VOCABULARY and cand["effect"] not in model
+    assert sorted(c_["rank"] for c_ in doc["candidates"]) == list(range(1, len(doc["candidates"]) + 1))
+
+
+def test_thermal_lag_untestable_without_tempcos_and_invisible_without_rates():
+    truth = preset_truth("ak18-quartz", ("bench_tilt", "bias_drift"))
+    c = simulate_campaign(truth, schedule=Schedule(soak_s=1800), seed=2)
+    d = diagnose(c, ("bench_tilt",), candidates=("thermal_lag", "bias_drift"), n_draws=100, cross_group=False)
+    lag = [x for x in d.candidates if x.effect == "thermal_lag"][0]
+    assert not lag.testable and "tempco" in lag.reason
+    assert d.verdict_effect == "bias_drift"
+    # a campaign at one temperature: tempcos and lag are invisible, said so, not faked
+    one_T = simulate_campaign(preset_truth("ak18-quartz", ("bench_tilt",)),
+                              schedule=Schedule(setpoints_C=(20.0, 20.0)), seed=1)
+    d2 = diagnose(one_T, ("bench_tilt",), n_draws=100, cross_group=False)
+    reasons = {x.effect: x.reason for x in d2.candidates if not x.testable}
+    for e in ("angle_tempco", "scale_tempco", "bias_tempco", "hysteresis"):
+        assert "invisible on this design" in reasons[e]
+
+
+def test_position_error_variance_matches_a_monte_carlo_of_the_model():
+    """The linearised variance of position_error.py against the model with drawn bench errors."""
+    model = Model(("bench_tilt",))
+    p = model.to_internal(preset_truth("ak18-quartz", ("bench_tilt",)).parameters)
+    c = simulate_campaign(preset_truth("ak18-quartz", ("bench_tilt",)), plan=VALIDATION_PLAN,
+                          schedule=Schedule(setpoints_C=(20.0,)), seed=0)
+    cov = c.covariates()
+    var = pe.output_variance(model, p, cov, 5.0, weights=(1.0, 1.0, 1.0))
+    rng = np.random.default_rng(0)
+    from dataclasses import replace
+    from triadcal.models.units import ARCSEC
+    draws = []
+    for _ in range(400):
+        e = rng.normal(0, 5.0 * ARCSEC, (3, c.n_visits))
+        draws.append(np.stack(model.predict(p, replace(cov, axis1_error=e[0], axis2_error=e[1], wobble=e[2])), 1))
+    mc = np.var(np.array(draws), axis=0, ddof=1)
+    big = var > 0.1 * var.max()
+    # 400 draws: relative sd of a variance sqrt(2/399) = 7 %; 5 sd
+    assert np.all(np.abs(mc[big] / var[big] - 1) < 5 * math.sqrt(2 / 399))
+
+
+def test_heavy_tails_density_is_normalised_with_unit_variance():
+    z = np.linspace(-60, 60, 200001)
+    for nu in (3.0, 5.0, math.inf):
+        f = np.exp(ht.logpdf(z, nu))
+        assert np.trapezoid(f, z) == pytest.approx(1.0, abs=2e-3)
+        if nu > 4:
+            assert np.trapezoid(z * z * f, z) == pytest.approx(1.0, abs=5e-3)
+
+
+def test_real_ferraris_poses_diagnosis():
+    c = ferraris_campaign()
+    d = diagnose(c, (), n_draws=400, seed=0)
+    assert d.gap["significant"]   # hand-placed poses: chi2/dof in the thousands
+    status = {x.effect: x for x in d.candidates}
+    for e in ("angle_tempco", "scale_tempco", "bias_tempco", "hysteresis", "thermal_lag"):
+        assert not status[e].testable
+    assert d.verdict_effect == "position_error"
+    pe_sigma = status["position_error"].refit["new_parameters"]["position_error_sigma"]["value"]
+    assert pe_sigma > 60.0   # hand placement: arc-minutes, not the bench's arcseconds
+
+
+def _run_cli(*args, cwd):
+    env = dict(os.environ, OMP_NUM_THREADS="1", XDG_CACHE_HOME=str(cwd / "xdg"))
+    return subprocess.run([sys.executable, "-m", "triadcal", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_cli_diagnose_writes_json_and_html(tmp_path):
+    from triadcal.io.bench_csv import write_bench_csv
+
+    c, model = validation_campaign("bias_drift", 5)
+    write_bench_csv(c, tmp_path / "camp.csv")
+    out = _run_cli("diagnose", "camp.csv", "--model", ",".join(model), "--json", "d.json", "--html", "d.html",
+                   "--draws", "200", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert "verdict: bias_drift" in out.stdout
+    doc = json.loads((tmp_path / "d.json").read_text())
+    assert doc["verdict"]["effect"] == "bias_drift"
+    page = (tmp_path / "d.html").read_text()
+    assert page.count("data:image/png;base64,") >= 3 and "bias_drift" in page
+    bad = _run_cli("diagnose", "camp.csv", "--model", "warp_drive", "--json", "x.json", cwd=tmp_path)
+    assert bad.returncode == 1 and "unknown model effect" in bad.stderr
+
+
+def test_cli_validate_diagnosis_writes_table_and_plot(tmp_path):
+    out = _run_cli("validate-diagnosis", "--seeds", "1", "--effects", "clean,scale_asymmetry", "--out", "v",
+                   "--quiet", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    table = (tmp_path / "v" / "confusion.txt").read_text()
+    assert "scale_asymmetry" in table and "clean" in table
+    png = (tmp_path / "v" / "confusion.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    doc = json.loads((tmp_path / "v" / "validation.json").read_text())
+    assert np.array(doc["confusion"]).sum() == 2
+
+
+# -- slow: the validation of the issue ---------------------------------------------------------
+@pytest.mark.slow
+def test_validation_names_the_withheld_effect(tmp_path):
+    res = validate(seeds=20, processes=2)
+    from triadcal.reports.diagnosis import write_validation
+    write_validation(res, tmp_path)
+    print("\n" + res.table())
+    s = res.summary
+    assert set(s) == set(CONDITIONS)
+    assert s["clean"]["false_alarm_rate"] <= 0.05
+    for e in VOCABULARY:
+        assert s[e]["ranked_first_rate"] >= 0.90, (e, s[e])
+        assert s[e]["correct_rate"] >= 0.90, (e, s[e])
+        lo, hi = s[e]["chi2_dof_after_range"]
+        assert 0.8 <= lo and hi <= 1.2, (e, s[e])

@@ -1,0 +1,61 @@
+"""Random bench positioning and wobble errors as an output variance (seed paper, eq. 4).
+
+The paper's eq. 4 adds the r.m.s. positioning error of the bench axes (sigma_1) and the
+wobble of the rotation axis (sigma_2) to the error budget. At the level of one visit
+these are random rotations of the IMU by a few arcseconds; they do not change the mean
+of the outputs (to first order) but add a variance that depends on the pose: an
+output whose sensing axis is perpendicular to gravity moves by ``g * angle``, one
+along gravity hardly moves. This module gives that variance by linearising
+:meth:`triadcal.models.model.Model.predict` in the three per-visit bench errors of
+:class:`~triadcal.models.model.Covariates` (``axis1_error``, ``axis2_error``,
+``wobble``): the physics stays in the model, this only differentiates it.
+
+Not a switchable effect of the mean (it has no hook): the diagnosis and the noise
+model of a fit use it as ``var(W) = sigma_meas^2 + sigma_p^2 * sensitivity``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..units import ARCSEC
+
+name = "position_error"
+unit = "arcsec"
+description = ("random bench positioning and wobble errors per visit (r.m.s. angle, arcsec), "
+               "an output variance from the kinematics' sensitivity (eq. 4's sigma_1, sigma_2)")
+#: the paper's eq. 4 example: sigma_1 = 5", sigma_2 = 2"
+TYPICAL_SIGMA_ARCSEC = 5.0
+
+ERROR_TERMS = ("axis1_error", "axis2_error", "wobble")
+
+
+def sensitivity_arcsec2(model, p, cov, gravity_g=1.0, weights=(1.0, 1.0, 1.0),
+                        step_arcsec: float = 10.0) -> np.ndarray:
+    """Variance added to each output per arcsec^2 of positioning error, (output unit / arcsec)^2.
+
+    ``sum_k w_k (dW/de_k)^2`` over the three per-visit bench errors ``e_k`` (axis 1,
+    axis 2, wobble of axis 1), each derivative by a central difference of
+    ``model.predict`` (``p`` internal units, ``cov`` numpy covariates of n visits).
+    ``weights`` are the relative variances of the three errors (1, 1, 1: one r.m.s.
+    error for all; the paper's example 5", 5", 2" is ``(1, 1, 0.16)``). Shape (n, 3).
+    """
+    h = step_arcsec * ARCSEC
+    n = len(np.atleast_1d(cov.axis1))
+    total = np.zeros((n, 3))
+    for term, w in zip(ERROR_TERMS, weights):
+        if w == 0:
+            continue
+        base = getattr(cov, term)
+        plus = np.stack(model.predict(p, replace(cov, **{term: base + h}), gravity_g), axis=1)
+        minus = np.stack(model.predict(p, replace(cov, **{term: base - h}), gravity_g), axis=1)
+        d = (plus - minus) / (2.0 * step_arcsec)
+        total += w * d * d
+    return total
+
+
+def output_variance(model, p, cov, sigma_arcsec: float, gravity_g=1.0, weights=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """Variance of each output (output unit^2) from positioning errors of r.m.s. ``sigma_arcsec``."""
+    return sigma_arcsec ** 2 * sensitivity_arcsec2(model, p, cov, gravity_g, weights)

@@ -1,0 +1,255 @@
+"""Report of a diagnosis (HTML with embedded plots) and the plots of its validation.
+
+Nothing here estimates anything: the numbers come from
+:class:`triadcal.estimation.diagnose.Diagnosis` and
+:class:`triadcal.estimation.diagnosis_validation.ValidationResult`.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+
+import numpy as np
+
+from .plots import BRANCH_COLOURS, _mpl, figure_png
+
+FAMILY_COLOURS = {"axis": "#34495e", "up": "#8e44ad", "setpoint": "#d35400", "direction": "#c0392b",
+                  "time": "#16a085", "since_change": "#2980b9"}
+
+
+def residuals_figure(diagnosis, campaign):
+    """Normalised residuals of the base fit against time, per output, coloured by branch."""
+    plt = _mpl()
+    r = diagnosis.residuals
+    fig, axes = plt.subplots(3, 1, figsize=(8.0, 6.0), sharex=True)
+    t_h = (campaign.time_s - campaign.time_s.min()) / 3600.0
+    for i, ax in enumerate(axes):
+        for d, col in BRANCH_COLOURS.items():
+            m = campaign.direction == d
+            if m.any():
+                ax.plot(t_h[m], r[m, i], ".", ms=3, color=col, label=d)
+        ax.axhline(0, color="k", lw=0.6)
+        for y in (-3, 3):
+            ax.axhline(y, color="k", lw=0.4, ls=":")
+        ax.set_ylabel(f"r_{'xyz'[i]} / sigma")
+    axes[0].legend(loc="upper right", ncol=3)
+    axes[0].set_title(f"normalised residuals of the model {', '.join(diagnosis.model) or '(core)'}")
+    axes[-1].set_xlabel("time in campaign (h)")
+    return fig
+
+
+def slices_figure(diagnosis, n: int = 15):
+    """The most significant slices: -log10 of the Holm-adjusted p-value, coloured by family."""
+    plt = _mpl()
+    sl = diagnosis.slices[:n]
+    fig, ax = plt.subplots(figsize=(8.0, 0.3 * max(len(sl), 3) + 1.0))
+    vals = [-s.log10_p for s in sl]
+    labels = [f"{s.slice} [{s.axis}] {s.test}" for s in sl]
+    ax.barh(range(len(sl)), vals, color=[FAMILY_COLOURS.get(s.family, "grey") for s in sl])
+    ax.axvline(-math.log10(diagnosis.alpha), color="k", ls="--", lw=0.8, label=f"alpha = {diagnosis.alpha:g}")
+    ax.set_yticks(range(len(sl)))
+    ax.set_yticklabels(labels)
+    ax.invert_yaxis()
+    ax.set_xscale("symlog")
+    ax.set_xlabel("-log10 p (unadjusted; the line is alpha)")
+    ax.set_title("where: residual slices ranked")
+    ax.legend(loc="lower right")
+    return fig
+
+
+def candidates_figure(diagnosis):
+    """Score test (-log10 p) of every testable candidate and delta elpd of the refitted ones."""
+    plt = _mpl()
+    cs = [c for c in sorted(diagnosis.candidates, key=lambda c: c.rank) if c.testable]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9.0, 0.35 * max(len(cs), 3) + 1.2), sharey=True)
+    y = np.arange(len(cs))
+    a1.barh(y, [min(-c.score_logp / math.log(10), 1e4) for c in cs], color="#2471a3")
+    a1.set_xscale("symlog")
+    a1.set_yticks(y)
+    a1.set_yticklabels([c.effect for c in cs])
+    a1.invert_yaxis()
+    a1.set_xlabel("score test -log10 p")
+    a1.axvline(-math.log10(diagnosis.alpha), color="k", ls="--", lw=0.8)
+    d = [c.refit["delta_elpd"] if c.refit else np.nan for c in cs]
+    e = [c.refit["delta_elpd_se"] if c.refit else 0.0 for c in cs]
+    a2.barh(y, d, xerr=e, color="#27ae60")
+    a2.set_xscale("symlog")
+    a2.set_xlabel("delta elpd (PSIS-LOO) +- SE")
+    a2.axvline(0, color="k", lw=0.6)
+    fig.suptitle("which: candidate effects")
+    return fig
+
+
+def confusion_figure(validation):
+    """Confusion matrix of a validation (rows: withheld effect, columns: verdict), as rates."""
+    plt = _mpl()
+    M = validation.confusion().astype(float)
+    R = M / np.maximum(M.sum(axis=1, keepdims=True), 1)
+    fig, ax = plt.subplots(figsize=(9.0, 6.5))
+    im = ax.imshow(R, cmap="Blues", vmin=0, vmax=1)
+    ax.set_xticks(range(len(validation.labels)))
+    ax.set_xticklabels(validation.labels, rotation=45, ha="right")
+    ax.set_yticks(range(len(validation.conditions)))
+    ax.set_yticklabels(validation.conditions)
+    for i in range(M.shape[0]):
+        for j in range(M.shape[1]):
+            if M[i, j]:
+                ax.text(j, i, f"{int(M[i, j])}", ha="center", va="center",
+                        color="white" if R[i, j] > 0.5 else "black", fontsize=8)
+    ax.set_xlabel("verdict of the diagnosis")
+    ax.set_ylabel("effect withheld from the fit")
+    ax.set_title(f"diagnosis validation: {validation.seeds} seeds per row")
+    fig.colorbar(im, ax=ax, fraction=0.04, label="rate")
+    return fig
+
+
+def _img(png: bytes, alt: str) -> str:
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode()}"/>'
+
+
+def _num(v, fmt="{:.3g}") -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float) and not math.isfinite(v):
+        return "-"
+    return fmt.format(v)
+
+
+def html_report(diagnosis, campaign=None) -> str:
+    """A self-contained HTML report of a diagnosis (plots embedded as PNG)."""
+    d = diagnosis
+    e = html.escape
+    g = d.gap
+    v = d.verdict
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>triadcal diagnosis</title>",
+        "<style>body{font-family:sans-serif;max-width:1000px;margin:auto}table{border-collapse:collapse}"
+        "td,th{border:1px solid #ccc;padding:2px 6px;font-size:90%}th{background:#eee}</style></head><body>",
+        f"<h1>Diagnosis of the model-data gap</h1><p>data: {e(str(d.source))}; model: "
+        f"{e(', '.join(d.model) or '(core only)')}; noise: {e(d.noise)}</p>",
+        "<h2>Gap</h2>",
+        f"<p>chi2/dof = {_num(g['chi2_dof'])} ({g['dof']} dof), residual RMS {_num(g['residual_rms_ug'])} ug "
+        f"against a noise floor of {_num(g['noise_floor_ug'])} ug; significant: <b>{g['significant']}</b> "
+        f"(Holm at alpha = {d.alpha:g}). {e(g['testable'])}.</p>",
+        "<h2>Verdict</h2>",
+        f"<p><b>{e(str(v.get('effect')))}</b> &mdash; {e(v.get('evidence') or v.get('reason') or '')}</p>",
+    ]
+    if campaign is not None and d.residuals is not None:
+        parts.append(_img(figure_png(residuals_figure(d, campaign)), "residuals"))
+    parts.append("<h2>Where</h2>")
+    if d.slices:
+        parts.append(_img(figure_png(slices_figure(d)), "slices"))
+    rows = d.where[:25] or d.slices[:10]
+    parts.append("<table><tr><th>slice</th><th>output</th><th>test</th><th>n</th><th>size</th>"
+                 "<th>p</th><th>p (Holm)</th><th>PPC p</th></tr>")
+    for s in rows:
+        parts.append(f"<tr><td>{e(s.slice)}</td><td>{s.axis}</td><td>{s.test}</td><td>{s.n}</td>"
+                     f"<td>{_num(s.size)} {e(s.unit)}</td><td>{_num(s.p_value)}</td><td>{_num(s.p_adjusted)}</td>"
+                     f"<td>{_num(s.ppc_p)}</td></tr>")
+    parts.append("</table>")
+    if not d.where:
+        parts.append("<p>No slice disagrees significantly; the most extreme are listed.</p>")
+    if d.families:
+        parts.append("<p>Families of slices, by how much of the misfit their offsets explain "
+                     "(chi2 of the projection, after the fitted model):</p><table><tr><th>family</th>"
+                     "<th>slices</th><th>dof</th><th>chi2/dof</th><th>log10 p</th></tr>")
+        for f in d.families:
+            parts.append(f"<tr><td>{e(f['family'])}</td><td>{f['slices']}</td><td>{f['dof']}</td>"
+                         f"<td>{_num(f['chi2_per_dof'])}</td><td>{_num(f['log10_p'], '{:.1f}')}</td></tr>")
+        parts.append("</table>")
+    parts.append("<h2>Which</h2>")
+    if any(c.testable for c in d.candidates):
+        parts.append(_img(figure_png(candidates_figure(d)), "candidates"))
+    parts.append("<table><tr><th>rank</th><th>effect</th><th>score (dof)</th><th>log10 p</th><th>delta loglik</th>"
+                 "<th>LR p</th><th>delta elpd +- SE</th><th>cross-branch delta lpd</th><th>chi2/dof after</th>"
+                 "<th>RMS after (ug)</th><th>largest shift</th></tr>")
+    for c in sorted(d.candidates, key=lambda c: c.rank):
+        if not c.testable:
+            parts.append(f"<tr><td>{c.rank}</td><td>{e(c.effect)}</td><td colspan='9'>not testable: "
+                         f"{e(c.reason)}</td></tr>")
+            continue
+        r = c.refit or {}
+        ls = r.get("largest_shift") or {}
+        parts.append(
+            f"<tr><td>{c.rank}</td><td>{e(c.effect)}</td><td>{_num(c.score)} ({c.k})</td>"
+            f"<td>{_num(c.score_logp / math.log(10), '{:.1f}')}</td><td>{_num(r.get('delta_loglik'), '{:.1f}')}</td>"
+            f"<td>{_num(r.get('lr_p_value'))}</td>"
+            f"<td>{_num(r.get('delta_elpd'), '{:.1f}')} +- {_num(r.get('delta_elpd_se'), '{:.1f}')}</td>"
+            f"<td>{_num(r.get('cross_branch_delta_lpd'), '{:.1f}')}</td>"
+            f"<td>{_num((r.get('gap_after') or {}).get('chi2_dof'))}</td>"
+            f"<td>{_num((r.get('gap_after') or {}).get('residual_rms_ug'))}</td>"
+            f"<td>{e(str(ls.get('parameter', '-')))} {_num(ls.get('in_u'), '{:.1f}')} u</td></tr>")
+    parts.append("</table>")
+    parts.append("<h2>How far it shrinks</h2>")
+    for c in sorted(d.candidates, key=lambda c: c.rank):
+        if not c.refit:
+            continue
+        r = c.refit
+        b, a = r["gap_before"], r["gap_after"]
+        moved = sorted(((n, s) for n, s in r["parameter_shifts"].items() if s.get("in_u") is not None),
+                       key=lambda t: -abs(t[1]["in_u"]))[:6]
+        parts.append(
+            f"<h3>{e(c.effect)}</h3><p>chi2/dof {_num(b['chi2_dof'])} &rarr; {_num(a['chi2_dof'])}; residual RMS "
+            f"{_num(b['residual_rms_ug'])} &rarr; {_num(a['residual_rms_ug'])} ug (noise floor "
+            f"{_num(a['noise_floor_ug'])} ug); elpd {_num(b['elpd_loo'], '{:.1f}')} &rarr; "
+            f"{_num(a['elpd_loo'], '{:.1f}')}; significant slices {b['significant_slices']} &rarr; "
+            f"{a['significant_slices'] if a['significant_slices'] is not None else '-'}.</p>"
+            "<p>New parameters: " + e(", ".join(
+                f"{n} = {_num(p['value'])}" + (f" +- {_num(p['u'])}" if 'u' in p else "") + f" {p['unit']}"
+                for n, p in r["new_parameters"].items())) + "</p>"
+            "<p>Calibration parameters that move most (shift in units of their u before): " + e(", ".join(
+                f"{n} {_num(s['shift'])} {s['unit']} ({_num(s['in_u'], '{:+.1f}')} u)" for n, s in moved)) + "</p>")
+    if d.notes:
+        parts.append("<h2>Notes</h2><ul>" + "".join(f"<li>{e(n)}</li>" for n in d.notes) + "</ul>")
+    parts.append("<h2>Methods</h2><ul>" + "".join(
+        f"<li><b>{k}</b>: {e(t)}</li>" for k, t in d.to_dict()["methods"].items()) + "</ul>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def write_html_report(diagnosis, path, campaign=None) -> None:
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(html_report(diagnosis, campaign))
+
+
+def write_validation(validation, out_dir) -> dict:
+    """Write the validation's table (text), confusion matrix (PNG) and rows (JSON) into ``out_dir``."""
+    import json
+    import os
+
+    os.makedirs(out_dir, exist_ok=True)
+    paths = {"table": os.path.join(out_dir, "confusion.txt"), "plot": os.path.join(out_dir, "confusion.png"),
+             "json": os.path.join(out_dir, "validation.json")}
+    with open(paths["table"], "w", encoding="utf-8") as fh:
+        fh.write(validation.table() + "\n")
+    with open(paths["plot"], "wb") as fh:
+        fh.write(figure_png(confusion_figure(validation)))
+    with open(paths["json"], "w", encoding="utf-8") as fh:
+        json.dump(validation.to_dict(), fh, indent=2, default=float)
+    return paths
+
+
+def summary_text(diagnosis) -> str:
+    """A few lines for the terminal: gap, verdict, top slices and candidates."""
+    d = diagnosis
+    g = d.gap
+    lines = [f"model: {', '.join(d.model) or '(core only)'}",
+             f"gap: chi2/dof = {_num(g['chi2_dof'])} ({g['dof']} dof), RMS {_num(g['residual_rms_ug'])} ug vs noise "
+             f"{_num(g['noise_floor_ug'])} ug; significant: {g['significant']}",
+             f"verdict: {d.verdict.get('effect')}  ({d.verdict.get('evidence') or d.verdict.get('reason') or ''})"]
+    if d.families and d.families[0]["log10_p"] < math.log10(d.alpha):
+        f = d.families[0]
+        lines.append(f"  localised in: {f['family']} (chi2/dof {f['chi2_per_dof']:.3g}, log10 p {f['log10_p']:.1f})")
+    for s in d.where[:5]:
+        lines.append(f"  where: {s.slice} [{s.axis}] {s.test}: {_num(s.size)} {s.unit}, p(Holm) = {_num(s.p_adjusted)}")
+    for c in sorted(d.candidates, key=lambda c: c.rank)[:5]:
+        if not c.testable:
+            continue
+        r = c.refit or {}
+        after = (r.get("gap_after") or {}).get("chi2_dof")
+        lines.append(f"  {c.rank}. {c.effect}: score log10 p = {c.score_logp / math.log(10):.1f}"
+                     + (f", delta elpd = {r['delta_elpd']:.1f} +- {r['delta_elpd_se']:.1f}, chi2/dof after "
+                        f"{_num(after)}" if r else ""))
+    return "\n".join(lines)
