@@ -140,3 +140,19 @@ def validate_diagnosis(*args, **kwargs):
     from .estimation.diagnosis_validation import validate as _validate
 
     return _validate(*args, **kwargs)
+
+
+def sample(*args, **kwargs):
+    """Posterior of the joint model by emcee (``triadcal sample``); see
+    :func:`triadcal.estimation.posterior.sample`."""
+    from .estimation.posterior import sample as _sample
+
+    return _sample(*args, **kwargs)
+
+
+def validate(*args, **kwargs):
+    """Simulation-based calibration of the least-squares and posterior intervals
+    (``triadcal validate``); see :func:`triadcal.estimation.validation.validate`."""
+    from .estimation.validation import validate as _validate
+
+    return _validate(*args, **kwargs)

@@ -170,7 +170,7 @@ def null_space_problems(J: np.ndarray, names: Sequence[str], rtol: float = 1e-8)
         out[names[i]] = "the data carry no information on it (zero sensitivity)"
     ok = norms > 0
     Js = J[:, ok] / norms[ok]
-    _, s, vt = np.linalg.svd(Js, full_matrices=True)
+    _, s, vt = np.linalg.svd(Js, full_matrices=Js.shape[0] < Js.shape[1])
     s = np.concatenate([s, np.zeros(vt.shape[0] - len(s))])   # fewer observations than parameters
     sub = [n for n, k in zip(names, ok) if k]
     for k in np.flatnonzero(s < rtol * s[0]):

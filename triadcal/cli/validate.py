@@ -1,0 +1,69 @@
+"""``triadcal validate``: simulation-based calibration of the least-squares and posterior intervals."""
+
+from __future__ import annotations
+
+import sys
+
+from ..models.effects import DEFAULT_EFFECTS, EFFECTS
+from ._common import name_list
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "validate", help="simulation-based calibration: do the intervals cover? (rank histograms, coverage)",
+        description="Draw N campaigns from the prior, simulate them, fit each by least squares and by the "
+                    "posterior, and check that the ranks of the true values are uniform and that the 68%% and "
+                    "95%% intervals cover at their nominal rates (Talts et al. 2018).")
+    p.add_argument("--campaigns", type=int, default=200, help="number of simulated campaigns (default 200)")
+    p.add_argument("--ranks", type=int, default=99, help="posterior draws per campaign, L (ranks 0..L; default 99)")
+    p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS),
+                   help=f"effects of the model, from: {', '.join(EFFECTS)}; default: {','.join(DEFAULT_EFFECTS)}")
+    p.add_argument("--processes", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("--ess", type=float, default=400, help="ESS each posterior run requests (default 400)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", metavar="OUT", help="write the summary (format triadcal.sbc v1)")
+    p.add_argument("--plot", metavar="OUT.png", help="write the rank histograms")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..estimation.validation import LEVELS, METHODS, validate
+
+    bar = None
+    progress = None
+    if not args.no_progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=args.campaigns, desc="campaigns", unit="campaign", file=sys.stderr)
+
+        def progress(done, total):
+            bar.update(done - bar.n)
+    try:
+        result = validate(args.campaigns, name_list(args.effects), n_ranks=args.ranks, seed=args.seed,
+                          processes=args.processes, ess=args.ess, json_path=args.json, plot_path=args.plot,
+                          progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    s = result.summary()
+    print(f"SBC: {s['n_campaigns']} campaigns, {s['n_ranks']} ranks each, {len(s['parameters'])} parameters, "
+          f"{s['failed']} failed, {s['seconds']:.0f} s")
+    ok = s["failed"] == 0
+    for m in METHODS:
+        d = s["methods"][m]
+        pmin = "n/a" if d["rank_min_p"] is None else f"{d['rank_min_p']:.3g}"
+        line = (f"  {m:<14} ranks: min chi2 p = {pmin} "
+                f"({d['rank_n_below_alpha']} of {len(s['parameters'])} below {s['alpha']}, "
+                f"{d['rank_expected_below_alpha']:.2f} expected)")
+        for lv in LEVELS:
+            key = f"{round(lv * 100)}"
+            lo, hi = d[f"coverage_{key}_range"]
+            line += f"; {key}% coverage pooled {d[f'coverage_{key}_pooled']:.3f} (per parameter {lo:.3f}..{hi:.3f})"
+        print(line)
+        ok = ok and d["rank_uniform_bonferroni"]
+    if args.json:
+        print(f"summary written to {args.json}")
+    if args.plot:
+        print(f"rank histograms written to {args.plot}")
+    return 0 if ok else 3
