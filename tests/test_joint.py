@@ -194,3 +194,11 @@ def test_joint_model_brings_thermal_residuals_to_the_noise_where_the_linear_corr
     assert chi2_lin > 100
     for ab, h in (("xy", 35.0), ("yx", 40.0), ("zy", 33.0)):
         assert 0.6 * h < rms_lin[f"Ca_{ab}"] < 1.2 * h
+
+
+def test_a_fit_that_did_not_converge_says_so():
+    c = simulate_campaign(preset_truth(), seed=1)
+    result = fit_joint(c, max_iter=1)
+    assert result.status == "not_converged"
+    assert any("stopped after 1 iterations" in n for n in result.notes)
+    assert fit_joint(c).status == "ok"

@@ -251,7 +251,7 @@ def levenberg_marquardt(problem: JointProblem, x0: np.ndarray, loss: str = "l2",
 
 def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
               reference_temperature_C: float = 20.0, loss: str = "l2", nu: float = 4.0,
-              fix: Optional[dict] = None, unidentifiable: str = "fix",
+              fix: Optional[dict] = None, unidentifiable: str = "fix", max_iter: int = 100,
               return_problem: bool = False):
     """Fit the joint model to a campaign (``triadcal fit --method joint``).
 
@@ -292,7 +292,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     problem = JointProblem(campaign, model, noise.sigma, fixed)
     x0 = np.array([start[n] for n in problem.names])
     t0 = time.perf_counter()
-    sol = levenberg_marquardt(problem, x0, loss=loss, nu=nu)
+    sol = levenberg_marquardt(problem, x0, loss=loss, nu=nu, max_iter=max_iter)
     solve_seconds = time.perf_counter() - t0
 
     n_obs, n_par = sol.r.size, len(problem.names)
@@ -318,6 +318,9 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     if "tilt_x" in problem.index and "tilt_y" in problem.index:
         params.update(tilt_polar_values(sol.x, cov, problem.index))
     status = "ok" if sol.converged else "not_converged"
+    if not sol.converged:
+        notes.append(f"Levenberg-Marquardt stopped after {sol.iterations} iterations without meeting its "
+                     "convergence test (cost still falling or a non-vanishing gradient); the values are not an optimum")
     p_gap = float(stats.chi2.sf(chi2, dof)) if noise.known and dof > 0 else None
     if p_gap is not None and p_gap < 0.001:
         notes.append(f"chi2/dof = {chi2_dof:.3g} with known noise (p = {p_gap:.2g}): the model misses "
