@@ -243,3 +243,21 @@ def test_noiseless_campaign_is_the_model(noise_pair):
     w = np.stack(model.predict(model.to_internal(truth.parameters), cov, c.gravity_g), axis=1)
     # the simulator uses the true rate, the campaign a finite-difference one; no thermal_lag: no matter
     np.testing.assert_allclose(c.w, w, rtol=0, atol=1e-15)
+
+
+def test_two_lag_step_solves_its_differential_equations():
+    from triadcal.models.thermal_environment import step_sequence, two_lag_step
+
+    tau_c, tau_u = 600.0, 1200.0
+    x = np.linspace(0.0, 5000.0, 2001)
+    c, u, rate = two_lag_step(x, 70.0, 20.0, 19.0, tau_c, tau_u)
+    h = x[1] - x[0]
+    assert np.allclose(np.gradient(c, h)[1:-1], ((70.0 - c) / tau_c)[1:-1], atol=1e-5)
+    assert np.allclose(np.gradient(u, h)[1:-1], ((c - u) / tau_u)[1:-1], atol=1e-5)
+    assert np.allclose(rate, (c - u) / tau_u)
+    assert c[0] == 20.0 and u[0] == 19.0
+    # a sequence of steps is continuous at each step
+    starts, sps = [0.0, 3000.0], [70.0, -40.0]
+    t = np.array([2999.999, 3000.0, 3000.001])
+    cc, uu, _ = step_sequence(t, starts, sps, 20.0, tau_c, tau_u)
+    assert np.ptp(cc) < 1e-3 and np.ptp(uu) < 1e-3

@@ -43,6 +43,7 @@ import numpy as np
 
 from ..models.model import Covariates
 from ..models.simulate import NoiseModel, Schedule, Truth, preset_truth
+from ..models.thermal_environment import two_lag_step
 from ..models.units import ARCSEC, STANDARD_GRAVITY_M_S2
 from .drivers.chamber import REG_PV, REG_SP, REG_STATUS
 from .protocols import Frame, get_protocol
@@ -127,16 +128,8 @@ class UnitPhysics:
     # -- thermal ----------------------------------------------------------------------
     def _thermal(self, t):
         t0, sp, c0, u0 = self._seg
-        tc, tu = self.timing.chamber_time_constant_s, self.timing.unit_time_constant_s
-        if abs(tc - tu) < 1e-9 * tu:
-            tu = tu * (1 + 1e-6)
-        x = np.maximum(np.asarray(t, float) - t0, 0.0)
-        A = c0 - sp
-        B = A * tc / (tc - tu)
-        ec, eu = np.exp(-x / tc), np.exp(-x / tu)
-        chamber = sp + A * ec
-        unit = sp + B * ec + (u0 - sp - B) * eu
-        return chamber, unit, (chamber - unit) / tu
+        return two_lag_step(np.asarray(t, float) - t0, sp, c0, u0,
+                            self.timing.chamber_time_constant_s, self.timing.unit_time_constant_s)
 
     def chamber_C(self, t: float) -> float:
         with self.lock:

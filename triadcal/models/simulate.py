@@ -22,6 +22,7 @@ from .. import __version__
 from .campaign import DEFAULT_PLAN, Campaign
 from .effects import DEFAULT_EFFECTS, EFFECTS, NOISE_EFFECTS
 from .model import Covariates, Model
+from .thermal_environment import step_sequence
 from .units import ARCSEC, DEG, STANDARD_GRAVITY_M_S2
 
 #: 12 positions x 15 setpoints: soaked at ambient, heated to +70, cooled to -40, heated back
@@ -195,30 +196,15 @@ def preset_truth(name: str = "ak18-quartz", effects: Sequence[str] = DEFAULT_EFF
 
 
 def thermal_history(schedule: Schedule, times: np.ndarray, setpoint_start: np.ndarray,
-                    setpoint_values: np.ndarray, dt: float = 5.0):
+                    setpoint_values: np.ndarray):
     """Chamber and unit temperatures (degC) and the unit's rate (degC/s) at ``times``.
 
     The chamber follows its setpoint with time constant tau_c, the unit follows the
-    chamber with tau_u (two first-order lags in series, integrated exactly for a
-    piecewise-constant input on a ``dt`` grid and interpolated).
+    chamber with tau_u: two first-order lags in series, in closed form
+    (:func:`triadcal.models.thermal_environment.step_sequence`).
     """
-    t_end = float(np.max(times)) + dt
-    grid = np.arange(0.0, t_end + dt, dt)
-    idx = np.searchsorted(setpoint_start, grid, side="left") - 1
-    sp = setpoint_values[np.clip(idx, 0, None)]
-    a_c = np.exp(-dt / schedule.chamber_time_constant_s)
-    a_u = np.exp(-dt / schedule.unit_time_constant_s)
-    chamber = np.empty_like(grid)
-    unit = np.empty_like(grid)
-    chamber[0] = unit[0] = schedule.start_C
-    for k in range(1, len(grid)):
-        chamber[k] = sp[k] + (chamber[k - 1] - sp[k]) * a_c
-        mid = 0.5 * (chamber[k] + chamber[k - 1])
-        unit[k] = mid + (unit[k - 1] - mid) * a_u
-    ch = np.interp(times, grid, chamber)
-    un = np.interp(times, grid, unit)
-    rate = (ch - un) / schedule.unit_time_constant_s
-    return ch, un, rate
+    return step_sequence(times, setpoint_start, setpoint_values, schedule.start_C,
+                         schedule.chamber_time_constant_s, schedule.unit_time_constant_s)
 
 
 def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
