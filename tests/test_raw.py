@@ -344,3 +344,68 @@ def test_cli_fit_raw(tmp_path, capsys):
     rc = cli_main(["fit-raw", str(REAL / "imucal_annotated_session.csv"), "--rate", "102.4", "--poses", "unknown",
                    "--json", str(out)])
     assert rc == 1 and "needs at least as many static poses" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------
+# posterior sampling through the bench's path (--sample)
+# --------------------------------------------------------------------------------------
+def test_unknown_pose_posterior_agrees_with_least_squares(tmp_path):
+    """30 free poses, 21 residual dof: a near-Gaussian posterior, so the sampled mean and SD equal
+    the least-squares value and u up to Monte Carlo error (ESS >= 2000: SE of the mean 0.022 u,
+    relative SE of the SD ~1.6 %) and the prior's negligible pull; tolerances 0.15 u and 10 %
+    are > 6 standard errors."""
+    import arviz as az
+
+    rng = np.random.default_rng(5)
+    truth = random_unit(rng)
+    k = 30
+    rec, _ = simulate_recording(truth, [f"p{i}" for i in range(k)], seed=5, static_s=3.0, move_s=1.5,
+                                orientations=random_orientations(rng, k))
+    ls = fit_raw(rec, poses="unknown", local_g_m_s2=LOCAL_G).result
+    nc = tmp_path / "post.nc"
+    out = fit_raw(rec, poses="unknown", local_g_m_s2=LOCAL_G, sample=True, posterior_path=nc)
+    r = out.result
+    smp = r.extra["sampler"]
+    assert r.method == "posterior" and r.status == "ok"
+    assert smp["rhat_max"] < 1.01 and min(smp["ess_bulk_min"], smp["ess_tail_min"]) >= 2000
+    assert smp["steps"] - smp["burn"] >= 50 * smp["tau_max"]
+    for n in NORM_NAMES:
+        assert abs(r[n].value - ls[n].value) < 0.15 * ls[n].u, n
+        assert r[n].u == pytest.approx(ls[n].u, rel=0.10), n
+        assert not r.intervals[n]["non_gaussian"] and not r.intervals[n]["prior_dominated"], n
+    assert not r.extra["flags"]["prior_influenced"]
+    assert r.fit["least_squares"]["parameters"]["K_x"]["value"] == ls["K_x"].value
+    assert r.fit["rms_norm_residual_of_means_m_s2"]["after"] < 0.01 * r.fit["rms_norm_residual_of_means_m_s2"]["before"]
+    d = az.from_netcdf(str(nc))
+    assert set(d.posterior.data_vars) == set(NORM_NAMES) and d.posterior["Ca_xy"].attrs["units"] == "arcsec"
+    assert d.log_likelihood["norm_residual"].shape[-1] == k and d.observed_data["w"].shape == (k, 3)
+
+
+@needs_real
+def test_mpu6050_posterior_says_ca_xy_is_prior_influenced():
+    """10 poses for 9 parameters: Ca_xy's least-squares SD (~14000") is of the prior's size
+    (18000"), so the posterior of Ca_xy is the prior's as much as the data's, and says so; the
+    posterior is far from Gaussian (a curved ridge), the sampler's tau is in the hundreds of
+    steps, and a capped run says not_converged rather than report intervals it cannot vouch for."""
+    out = fit_raw(REAL / "tomisuarez2_example_data_calibration.csv", 100.0, poses="unknown",
+                  local_g_m_s2=STANDARD_GRAVITY_M_S2, sample=True, max_steps=3000)
+    r = out.result
+    flags = r.extra["flags"]
+    assert "Ca_xy" in flags["prior_influenced"] or "Ca_xy" in flags["prior_dominated"]
+    assert r.intervals["Ca_xy"]["ls_prior_sd_ratio"] > 0.5
+    assert any(n.startswith("Ca_xy: prior-") for n in r.notes)
+    assert r["Ca_xy"].u > 10 * max(r["Ca_xz"].u, r["Ca_yz"].u)          # the poorly determined angle
+    assert "Ca_xz" not in flags["prior_influenced"] and "K_z" not in flags["prior_influenced"]
+    if r.status != "ok":
+        assert r.notes[0].startswith("not converged")
+
+
+@needs_real
+def test_cli_fit_raw_sample(tmp_path, capsys):
+    out, nc = tmp_path / "r.json", tmp_path / "r.nc"
+    rc = cli_main(["fit-raw", str(REAL / "tomisuarez2_example_data_calibration.csv"), "--rate", "100",
+                   "--poses", "unknown", "--sample", "--max-steps", "400", "--posterior", str(nc), "--json", str(out)])
+    text = capsys.readouterr().out
+    d = json.loads(out.read_text())
+    assert d["method"] == "posterior" and "posterior:" in text and nc.exists()
+    assert rc == (0 if d["status"] == "ok" else 3)

@@ -35,6 +35,14 @@ def register(sub) -> None:
     p.add_argument("--static-threshold", type=float, default=4.0,
                    help="detector threshold, multiples of the robust noise SD (default 4)")
     p.add_argument("--min-static-s", type=float, default=2.0, help="shortest static interval kept, s (default 2)")
+    p.add_argument("--sample", action="store_true",
+                   help="posterior by MCMC through the bench's path (triadcal sample: same moves, stop rule, "
+                        "diagnostics); the result is the posterior's, the least-squares values are in fit.least_squares")
+    p.add_argument("--posterior", metavar="OUT.nc", help="with --sample: write the arviz InferenceData (netCDF)")
+    p.add_argument("--ess", type=float, default=2000, help="with --sample: requested bulk and tail ESS (default 2000)")
+    p.add_argument("--max-steps", type=int, default=20000,
+                   help="with --sample: steps after which the result says not_converged (default 20000)")
+    p.add_argument("--seed", type=int, default=0, help="with --sample: random seed (default 0)")
     p.add_argument("--json", metavar="OUT", required=True, help="write the result (results-json v1)")
     p.add_argument("--bench-csv", metavar="OUT.csv", help="write the pose averages as bench CSV v1 (known poses)")
     p.set_defaults(func=run)
@@ -49,7 +57,8 @@ def run(args) -> int:
                   local_g_m_s2=args.local_g, placement_sd_deg=args.placement_sd_deg,
                   counts_per_g=args.counts_per_g, serial=args.serial, window_s=args.static_window_s,
                   threshold=args.static_threshold, min_duration_s=args.min_static_s,
-                  json_path=args.json, bench_csv_path=args.bench_csv)
+                  json_path=args.json, bench_csv_path=args.bench_csv, sample=args.sample,
+                  posterior_path=args.posterior, ess=args.ess, max_steps=args.max_steps, seed=args.seed)
     r = out.result
     print(out.detection.summary(out.recording.rate_hz))
     for iv in out.detection.intervals:
@@ -60,7 +69,13 @@ def run(args) -> int:
     print(f"RMS of |a| - g over the static samples: {rms['before']:.4g} m/s2 before "
           f"({r.fit['before_scaling']}), {rms['after']:.4g} m/s2 after; of the interval means: "
           f"{rmsm['before']:.4g} -> {rmsm['after']:.4g} m/s2")
+    if args.sample:
+        smp = r.extra["sampler"]
+        print(f"posterior: {r.status}, {smp['steps']} steps x {smp['walkers']} walkers, tau_max {smp['tau_max']:.3g}, "
+              f"ESS min {min(smp['ess_bulk_min'], smp['ess_tail_min']):.0f}, R-hat max {smp['rhat_max']:.4f}")
     print(f"result written to {args.json}")
+    if args.posterior:
+        print(f"posterior draws written to {args.posterior} (arviz InferenceData)")
     if args.bench_csv:
         print(f"position averages written to {args.bench_csv} (bench CSV v1)")
     for note in r.notes:

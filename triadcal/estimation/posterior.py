@@ -503,7 +503,9 @@ def run_sampler(target: LogPosterior, n_walkers: int, *, ess: float = 2000, rhat
             target_steps = int(min(target_steps, steps + max(25, left / per_step)))
     if bar is not None:
         bar.close()
-    return PosteriorRun(names=target.names, units=tuple(target.model.spec[n].unit for n in target.names),
+    units = (tuple(target.units) if getattr(target, "units", None) is not None
+             else tuple(target.model.spec[n].unit for n in target.names))
+    return PosteriorRun(names=target.names, units=units,
                         chain_z=sampler.get_chain(), log_prob=sampler.get_log_prob(), burn=burn,
                         converged=converged, diagnostics=diag, target=target,
                         seconds=time.perf_counter() - t0,
@@ -579,30 +581,30 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     return (result, run) if return_run else result
 
 
-def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_seconds, ess, rhat_max, tau_factor,
-            max_steps) -> CalibrationResult:
+def posterior_summary(names: Sequence[str], units: Sequence[str], run: PosteriorRun, pri: Mapping[str, Prior],
+                      ls_intervals: Mapping[str, tuple]):
+    """Value (posterior mean), ``u`` (posterior SD), the 95 % central and HDI intervals beside the
+    least-squares ones (``ls_intervals``: name -> (low, high)), and the flags of every parameter.
+    Returns ``(params, intervals, non_gaussian, prior_dominated)``. Shared by the bench and the
+    generic residual target."""
     az = _arviz()
-    names = list(model.names)
     draws = run.flat()
     mean = draws.mean(axis=0)
     sd = draws.std(axis=0, ddof=1)
     lo, hi = np.quantile(draws, [(1 - LEVEL) / 2, (1 + LEVEL) / 2], axis=0)
     params, intervals = {}, {}
     non_gaussian, prior_dominated = [], []
-    z = 1.959963984540054
     kept = run.draws()
     for i, n in enumerate(names):
-        unit = model.spec[n].unit
-        params[n] = ParameterValue(float(mean[i]), float(sd[i]), unit)
+        params[n] = ParameterValue(float(mean[i]), float(sd[i]), units[i])
         h = az.hdi(kept[:, :, i].ravel(), hdi_prob=LEVEL)
         iv = {"level": LEVEL, "low": float(lo[i]), "high": float(hi[i]),
               "hdi_low": float(h[0]), "hdi_high": float(h[1]), "ls_low": None, "ls_high": None}
         ratio = float(sd[i] / pri[n].sd)
         iv["prior_sd_ratio"] = ratio
-        if n in ls.parameters:
-            p = ls.parameters[n]
-            iv["ls_low"], iv["ls_high"] = float(p.value - z * p.u), float(p.value + z * p.u)
-            half = z * p.u
+        if n in ls_intervals:
+            iv["ls_low"], iv["ls_high"] = (float(v) for v in ls_intervals[n])
+            half = 0.5 * (iv["ls_high"] - iv["ls_low"])
             dev = max(abs(iv["low"] - iv["ls_low"]), abs(iv["high"] - iv["ls_high"]))
             iv["non_gaussian"] = bool(half > 0 and dev > NON_GAUSSIAN_TOLERANCE * half) or not half > 0
         else:
@@ -613,21 +615,20 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
         if iv["prior_dominated"]:
             prior_dominated.append(n)
         intervals[n] = iv
-    if "tilt_x" in names and "tilt_y" in names:
-        i, j = names.index("tilt_x"), names.index("tilt_y")
-        delta, beta = tilt_polar(draws[:, i] * ARCSEC, draws[:, j] * ARCSEC)
-        delta = np.asarray(delta) / ARCSEC
-        beta_mean = math.atan2(np.mean(np.sin(beta)), np.mean(np.cos(beta)))
-        dev = np.angle(np.exp(1j * (np.asarray(beta) - beta_mean)))
-        params["tilt_delta"] = ParameterValue(float(delta.mean()), float(delta.std(ddof=1)), "arcsec")
-        params["tilt_beta"] = ParameterValue(beta_mean / DEG, float(dev.std(ddof=1)) / DEG, "deg")
+    return params, intervals, non_gaussian, prior_dominated
+
+
+def posterior_notes(intervals: Mapping[str, dict], non_gaussian, prior_dominated, ls_names, run: PosteriorRun,
+                    ess, rhat_max, tau_factor, max_steps, notes: Optional[list] = None) -> list:
+    """The notes of the flags and of a run that did not converge (appended to ``notes``)."""
+    notes = [] if notes is None else notes
     for n in prior_dominated:
         notes.append(f"{n}: prior-dominated (posterior SD / prior SD = {intervals[n]['prior_sd_ratio']:.2f} > "
                      f"{PRIOR_DOMINATED_RATIO}): the data do not measure it; its value is the prior's, not a measurement")
     for n in non_gaussian:
         if n in prior_dominated:
             continue
-        if n in ls.parameters:
+        if n in ls_names:
             notes.append(f"{n}: the 95% posterior interval differs from the least-squares one by more than "
                          f"{NON_GAUSSIAN_TOLERANCE:.0%} of its half-width: the least-squares interval does not hold "
                          "(a non-Gaussian posterior, or parameters the least-squares fit held fixed); "
@@ -637,13 +638,14 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
     if not run.converged:
         notes.insert(0, f"not converged within {max_steps} steps: the stop rule (chain >= {tau_factor:g} tau, "
                         f"ESS >= {ess:g}, R-hat < {rhat_max}) did not hold; do not use these intervals")
-    corr = np.corrcoef(draws, rowvar=False)
-    x_mean = mean
-    chi2 = float(np.sum(problem.residuals(x_mean) ** 2))
-    n_obs = 3 * campaign.n_visits
+    return notes
+
+
+def sampler_info(run: PosteriorRun, names: Sequence[str], total_seconds, ess, rhat_max, tau_factor,
+                 max_steps) -> dict:
+    """The ``sampler`` block of a posterior result (moves, stop rule, diagnostics per parameter)."""
     diag = run.diagnostics
-    T = campaign.t
-    sampler_info = {
+    return {
         "library": "emcee", "moves": run.moves, "walkers": int(run.chain_z.shape[1]),
         "steps": int(run.chain_z.shape[0]), "burn": int(run.burn), "acceptance": run.acceptance,
         "tau_max": float(diag["tau"].max()), "ess_bulk_min": float(diag["ess_bulk"].min()),
@@ -655,6 +657,39 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
                               "ess_tail": float(diag["ess_tail"][k]), "rhat": float(diag["rhat"][k])}
                           for k, n in enumerate(names)},
     }
+
+
+def _flags_block(non_gaussian, prior_dominated) -> dict:
+    return {"non_gaussian": non_gaussian, "prior_dominated": prior_dominated,
+            "criteria": {"non_gaussian": f"an end of the 95% central interval differs from the "
+                                         f"least-squares interval by > {NON_GAUSSIAN_TOLERANCE} x its "
+                                         "half-width, or no least-squares interval exists",
+                         "prior_dominated": f"posterior SD / prior SD > {PRIOR_DOMINATED_RATIO}"}}
+
+
+def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_seconds, ess, rhat_max, tau_factor,
+            max_steps) -> CalibrationResult:
+    names = list(model.names)
+    z = 1.959963984540054
+    ls_intervals = {n: (p.value - z * p.u, p.value + z * p.u) for n, p in ls.parameters.items()}
+    params, intervals, non_gaussian, prior_dominated = posterior_summary(
+        names, [model.spec[n].unit for n in names], run, pri, ls_intervals)
+    draws = run.flat()
+    if "tilt_x" in names and "tilt_y" in names:
+        i, j = names.index("tilt_x"), names.index("tilt_y")
+        delta, beta = tilt_polar(draws[:, i] * ARCSEC, draws[:, j] * ARCSEC)
+        delta = np.asarray(delta) / ARCSEC
+        beta_mean = math.atan2(np.mean(np.sin(beta)), np.mean(np.cos(beta)))
+        dev = np.angle(np.exp(1j * (np.asarray(beta) - beta_mean)))
+        params["tilt_delta"] = ParameterValue(float(delta.mean()), float(delta.std(ddof=1)), "arcsec")
+        params["tilt_beta"] = ParameterValue(beta_mean / DEG, float(dev.std(ddof=1)) / DEG, "deg")
+    posterior_notes(intervals, non_gaussian, prior_dominated, ls.parameters, run, ess, rhat_max, tau_factor,
+                    max_steps, notes)
+    corr = np.corrcoef(draws, rowvar=False)
+    x_mean = draws.mean(axis=0)
+    chi2 = float(np.sum(problem.residuals(x_mean) ** 2))
+    n_obs = 3 * campaign.n_visits
+    T = campaign.t
     fit = {"chi2_dof": chi2 / (n_obs - len(names)) if n_obs > len(names) else None, "n_obs": n_obs,
            "n_params": len(names), "value": "posterior mean", "u": "posterior standard deviation",
            "least_squares": {"status": ls.status, "chi2_dof": ls.fit.get("chi2_dof")}}
@@ -665,16 +700,41 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
         temperature_range_C=(float(T.min()), float(T.max())), intervals=intervals, fit=fit,
         correlation_names=tuple(names), correlation=corr, notes=notes + list(ls.notes),
         extra={"priors": {n: p.to_dict() for n, p in pri.items()},
-               "flags": {"non_gaussian": non_gaussian, "prior_dominated": prior_dominated,
-                         "criteria": {"non_gaussian": f"an end of the 95% central interval differs from the "
-                                                      f"least-squares interval by > {NON_GAUSSIAN_TOLERANCE} x its "
-                                                      "half-width, or no least-squares interval exists",
-                                      "prior_dominated": f"posterior SD / prior SD > {PRIOR_DOMINATED_RATIO}"}},
-               "sampler": sampler_info, "output_unit": campaign.output_unit,
+               "flags": _flags_block(non_gaussian, prior_dominated),
+               "sampler": sampler_info(run, names, total_seconds, ess, rhat_max, tau_factor, max_steps),
+               "output_unit": campaign.output_unit,
                "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source})
 
 
 # -- arviz InferenceData ----------------------------------------------------------------------
+
+def _thinned(run: PosteriorRun, max_saved_draws: int):
+    """Kept draws thinned to at most ``max_saved_draws``: ``(idx, z, x, thin)``, ``z`` and ``x``
+    (draw, chain, d) in whitened and reporting units."""
+    kept_z = run.kept_z
+    steps, W, _ = kept_z.shape
+    thin = max(1, math.ceil(steps * W / max_saved_draws))
+    idx = np.arange(steps - 1, -1, -thin)[::-1]
+    z = kept_z[idx]                                   # (draw, chain, d)
+    return idx, z, run.target.to_x(z), thin
+
+
+def _posterior_variables(run: PosteriorRun, x: np.ndarray) -> dict:
+    """One (chain, draw) variable per parameter, named as the parameter, with its unit."""
+    return {name: (("chain", "draw"), x[:, :, i].T, {"units": unit})
+            for i, (name, unit) in enumerate(zip(run.names, run.units))}
+
+
+def _posterior_datasets(run: PosteriorRun, post: dict, idx: np.ndarray, attrs: dict):
+    """The ``posterior`` and ``sample_stats`` (``lp``) groups, walkers as ``chain``."""
+    import xarray as xr
+
+    W = run.chain_z.shape[1]
+    coords = {"chain": np.arange(W), "draw": np.arange(len(idx))}
+    posterior = xr.Dataset(post, coords=coords, attrs=attrs)
+    lp = run.log_prob[run.burn:][idx]
+    sample_stats = xr.Dataset({"lp": (("chain", "draw"), lp.T)}, coords=coords)
+    return posterior, sample_stats
 
 def inference_data(campaign: Campaign, run: PosteriorRun, result: Optional[CalibrationResult] = None,
                    max_saved_draws: int = 4000):
@@ -685,17 +745,12 @@ def inference_data(campaign: Campaign, run: PosteriorRun, result: Optional[Calib
     az = _arviz()
     import xarray as xr
 
-    kept_z = run.kept_z
-    steps, W, d = kept_z.shape
-    thin = max(1, math.ceil(steps * W / max_saved_draws))
-    idx = np.arange(steps - 1, -1, -thin)[::-1]
-    z = kept_z[idx]                                   # (draw, chain, d)
-    x = run.target.to_x(z)
+    idx, z, x, thin = _thinned(run, max_saved_draws)
+    W, d = z.shape[1], z.shape[2]
     n = campaign.n_visits
     draws = np.arange(len(idx))
     chains = np.arange(W)
-    post = {name: (("chain", "draw"), x[:, :, i].T, {"units": unit})
-            for i, (name, unit) in enumerate(zip(run.names, run.units))}
+    post = _posterior_variables(run, x)
     if "tilt_x" in run.names and "tilt_y" in run.names:
         i, j = run.names.index("tilt_x"), run.names.index("tilt_y")
         delta, beta = tilt_polar(x[:, :, i].T * ARCSEC, x[:, :, j].T * ARCSEC)
@@ -705,9 +760,7 @@ def inference_data(campaign: Campaign, run: PosteriorRun, result: Optional[Calib
              "thinning": int(thin), "burn": int(run.burn), "chains": "emcee walkers"}
     if result is not None:
         attrs.update({"unit": result.unit, "status": result.status, "effects": ",".join(result.effects)})
-    posterior = xr.Dataset(post, coords={"chain": chains, "draw": draws}, attrs=attrs)
-    lp = run.log_prob[run.burn:][idx]
-    sample_stats = xr.Dataset({"lp": (("chain", "draw"), lp.T)}, coords={"chain": chains, "draw": draws})
+    posterior, sample_stats = _posterior_datasets(run, post, idx, attrs)
     visit_coords = {"visit": np.arange(n), "axis": ["x", "y", "z"],
                     "position": ("visit", campaign.position.astype(str)),
                     "setpoint_C": ("visit", campaign.setpoint_C.astype(float), {"units": "degC"}),
@@ -724,6 +777,231 @@ def inference_data(campaign: Campaign, run: PosteriorRun, result: Optional[Calib
 def write_inference_data(path, campaign: Campaign, run: PosteriorRun, result: Optional[CalibrationResult] = None,
                          max_saved_draws: int = 4000) -> None:
     idata = inference_data(campaign, run, result, max_saved_draws)
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    idata.to_netcdf(str(tmp), engine="h5netcdf")
+    os.replace(tmp, path)
+
+
+# -- a generic target: any CasADi residual function of the parameter vector ---------------------
+
+@dataclass
+class ResidualTarget:
+    """A posterior target defined by normalised residuals, for models other than the bench's eq. 1
+    (e.g. the gravity-norm model of :mod:`triadcal.estimation.raw`).
+
+    ``residual``: a CasADi function ``r = f(x, *data)`` of the parameter vector ``x`` (reporting
+    units, order of ``names``) and numeric ``data`` arguments, giving the column of residuals
+    divided by their standard deviations (``sigma``, in the observations' unit), so that the
+    log-likelihood is ``-1/2 r^T r`` (Gaussian noise, known ``sigma``). ``priors``: a
+    :class:`Prior` per name. ``x_ls``, ``cov_ls``: the least-squares optimum (start of the MAP
+    search, then of the walkers through the Laplace approximation) and its covariance (the
+    least-squares intervals, unless ``ls_intervals`` gives them, e.g. Student-t ones).
+    ``obs_dim``/``obs_name``: names of the observation axis and of the log-likelihood variable in
+    the InferenceData; ``observed``: optional ``{name: (dims, array, attrs)}`` for its
+    ``observed_data`` group, with ``obs_coords``.
+    """
+
+    name: str
+    residual: ca.Function
+    data: tuple
+    names: tuple
+    units: tuple
+    priors: Mapping[str, Prior]
+    x_ls: np.ndarray
+    cov_ls: np.ndarray
+    sigma: np.ndarray
+    ls_intervals: Optional[Mapping[str, tuple]] = None
+    obs_dim: str = "obs"
+    obs_name: str = "r"
+    observed: Optional[dict] = None
+    obs_coords: Optional[dict] = None
+    unit_serial: str = ""
+
+    def __post_init__(self):
+        self.names = tuple(self.names)
+        self.units = tuple(self.units)
+        self.x_ls = np.asarray(self.x_ls, float)
+        self.cov_ls = np.asarray(self.cov_ls, float)
+        self.sigma = np.asarray(self.sigma, float).reshape(-1)
+        missing = [n for n in self.names if n not in self.priors]
+        if missing:
+            raise KeyError(f"no prior for {', '.join(missing)}")
+        if self.ls_intervals is None:
+            z = 1.959963984540054
+            u = np.sqrt(np.maximum(np.diag(self.cov_ls), 0.0))
+            self.ls_intervals = {n: (v - z * s, v + z * s) for n, v, s in zip(self.names, self.x_ls, u)}
+
+    @property
+    def n_obs(self) -> int:
+        return len(self.sigma)
+
+
+class ResidualProblem:
+    """``residuals_and_jacobian`` of a :class:`ResidualTarget` (CasADi exact Jacobian), the
+    interface :func:`laplace_approximation` uses."""
+
+    def __init__(self, target: ResidualTarget):
+        self.names = target.names
+        x = ca.MX.sym("x", len(target.names))
+        r = target.residual(x, *[ca.DM(np.asarray(a, float)) if not np.isscalar(a) else a for a in target.data])
+        self._f = ca.Function("residual_jac", [x], [r, ca.jacobian(r, x)])
+
+    def residuals_and_jacobian(self, x: np.ndarray):
+        r, J = self._f(np.asarray(x, float))
+        return np.asarray(r).reshape(-1), np.asarray(J)
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self.residuals_and_jacobian(x)[0]
+
+
+class ResidualLogPosterior(LogPosterior):
+    """``log p(z | data)`` of a :class:`ResidualTarget` in whitened coordinates ``x = x0 + L z``:
+    ``-1/2 r^T r`` plus the Gaussian log-prior, mapped over a block of walkers and compiled like
+    :class:`LogPosterior` (same ``__call__``, ``pointwise``, ``to_x``, bounds in numpy)."""
+
+    def __init__(self, target: ResidualTarget, x0: np.ndarray, L: np.ndarray, block: int):
+        import hashlib
+
+        self.spec = target
+        self.names = target.names
+        self.units = target.units
+        self.d = len(self.names)
+        self.n = target.n_obs
+        self.block = int(block)
+        self.x0 = np.asarray(x0, float)
+        self.L = np.asarray(L, float)
+        mu, sd, self.low, self.high = prior_arrays(target.priors, self.names)
+        self.sigma = target.sigma
+        self._data = [ca.DM(np.asarray(a, float)) for a in target.data]
+        self.args = [ca.DM(self.x0), ca.DM(self.L), *self._data, ca.DM(mu), ca.DM(1.0 / sd)]
+        self.log_norm = -np.log(self.sigma * math.sqrt(2 * math.pi))    # (n,)
+        code = hashlib.sha256(target.residual.serialize().encode()).hexdigest()[:16]
+        self._key = (target.name, code, tuple(a.shape for a in self._data), self.block)
+        self.f_lp, self.compiled = _compile(("residual-lp",) + self._key, self._build_lp)
+        self._f_pw = None
+        self.evaluations = 0
+
+    def _symbols(self):
+        Z = ca.MX.sym("z", self.d, self.block)
+        data = [ca.MX.sym(f"data{i}", *a.shape) for i, a in enumerate(self._data)]
+        return Z, ca.MX.sym("x0", self.d), ca.MX.sym("L", self.d, self.d), data, \
+            ca.MX.sym("mu", self.d), ca.MX.sym("inv_sd", self.d)
+
+    def _build(self, pointwise: bool) -> ca.Function:
+        Z, x0, L, data, mu, isd = self._symbols()
+        xs = ca.MX.sym("x", self.d)
+        r = self.spec.residual(xs, *data)
+        out = -0.5 * r * r if pointwise else -0.5 * ca.sumsqr(r) - 0.5 * ca.sumsqr((xs - mu) * isd)
+        walker = ca.Function("walker", [xs, *data, mu, isd], [out])
+        X = ca.repmat(x0, 1, self.block) + ca.mtimes(L, Z)
+        res = walker.map(self.block, "serial")(X, *data, mu, isd)
+        name = f"triadcal_{self.spec.name}_{'pointwise' if pointwise else 'logpost'}"
+        return ca.Function(name, [Z, x0, L, *data, mu, isd], [res])
+
+    def _build_lp(self) -> ca.Function:
+        return self._build(False)
+
+    def pointwise(self, z: np.ndarray) -> np.ndarray:
+        """Pointwise log-likelihood ``log N(obs | model, sigma)`` per draw and observation: (m, n)."""
+        if self._f_pw is None:
+            self._f_pw, _ = _compile(("residual-pw",) + self._key, lambda: self._build(True))
+        return self._blocks(self._f_pw, z).T + self.log_norm[None]
+
+
+def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float = 1.01, tau_factor: float = 50.0,
+                  max_steps: int = 20000, n_walkers: Optional[int] = None, seed: int = 0,
+                  moves: str = "de-snooker-laplace", progress: Union[bool, Callable, None] = None,
+                  posterior_path=None, max_saved_draws: int = 4000, notes: Sequence[str] = ()):
+    """Posterior of a :class:`ResidualTarget` through the bench's path: MAP and Laplace
+    approximation from the least-squares optimum (:func:`laplace_approximation`), whitened
+    coordinates, the same emcee moves and stop rule (:func:`run_sampler`), the same value,
+    intervals and flags (:func:`posterior_summary`). Returns ``(CalibrationResult, PosteriorRun)``
+    (method ``posterior``); writes the InferenceData to ``posterior_path`` when given."""
+    if moves not in MOVES:
+        raise ValueError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
+    t_start = time.perf_counter()
+    problem = ResidualProblem(target)
+    x_map, C = laplace_approximation(problem, target.priors, target.x_ls)
+    # Cholesky of the column-scaled covariance (parameters differ by 10 orders of magnitude)
+    D = np.sqrt(np.diag(C))
+    Lc = np.linalg.cholesky(C / np.outer(D, D)) * D[:, None]
+    d = len(target.names)
+    W = int(n_walkers or 2 * d)
+    W += W % 2
+    lp = ResidualLogPosterior(target, x_map, Lc, block=W // 2)
+    run = run_sampler(lp, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
+                      seed=seed, moves=moves, progress=progress)
+    total_seconds = time.perf_counter() - t_start
+    names = list(target.names)
+    params, intervals, non_gaussian, prior_dominated = posterior_summary(names, target.units, run, target.priors,
+                                                                         target.ls_intervals)
+    out_notes = posterior_notes(intervals, non_gaussian, prior_dominated, target.ls_intervals, run, ess, rhat_max,
+                                tau_factor, max_steps, list(notes))
+    # prior-influenced: the least-squares (data-only) uncertainty is comparable to the prior's,
+    # so the prior, not the data, sets the posterior's width (weaker than prior-dominated)
+    prior_influenced = []
+    for n in names:
+        if n in target.ls_intervals:
+            lo_, hi_ = target.ls_intervals[n]
+            ratio = float((hi_ - lo_) / (2 * 1.959963984540054) / target.priors[n].sd)
+            intervals[n]["ls_prior_sd_ratio"] = ratio
+            if ratio > PRIOR_DOMINATED_RATIO and n not in prior_dominated:
+                prior_influenced.append(n)
+                out_notes.append(f"{n}: prior-influenced (least-squares SD / prior SD = {ratio:.2f} > "
+                                 f"{PRIOR_DOMINATED_RATIO}): the data alone determine it poorly; the prior "
+                                 f"narrows its interval (posterior SD / prior SD = {intervals[n]['prior_sd_ratio']:.2f})")
+    draws = run.flat()
+    x_mean = draws.mean(axis=0)
+    chi2 = float(np.sum(problem.residuals(x_mean) ** 2))
+    n_obs = target.n_obs
+    fit = {"chi2_dof": chi2 / (n_obs - d) if n_obs > d else None, "n_obs": n_obs, "n_params": d,
+           "value": "posterior mean", "u": "posterior standard deviation",
+           "map": dict(zip(names, map(float, x_map)))}
+    result = CalibrationResult(
+        unit=target.unit_serial, method="posterior", parameters=params,
+        status="ok" if run.converged else "not_converged", intervals=intervals, fit=fit,
+        correlation_names=tuple(names), correlation=np.corrcoef(draws, rowvar=False), notes=out_notes,
+        extra={"priors": {n: target.priors[n].to_dict() for n in names},
+               "flags": {**_flags_block(non_gaussian, prior_dominated), "prior_influenced": prior_influenced},
+               "sampler": sampler_info(run, names, total_seconds, ess, rhat_max, tau_factor, max_steps)})
+    result.extra["flags"]["criteria"]["prior_influenced"] = (f"least-squares SD / prior SD > {PRIOR_DOMINATED_RATIO} "
+                                                             "(and not prior-dominated)")
+    if posterior_path is not None:
+        write_target_inference_data(posterior_path, target, run, result, max_saved_draws=max_saved_draws)
+    return result, run
+
+
+def target_inference_data(target: ResidualTarget, run: PosteriorRun, result: Optional[CalibrationResult] = None,
+                          max_saved_draws: int = 4000):
+    """arviz ``InferenceData`` of a :class:`ResidualTarget` run: posterior (by name, reporting
+    units), sample_stats (``lp``), observed_data (when the target gives it) and the pointwise
+    log-likelihood ``obs_name`` over ``(chain, draw, obs_dim)``."""
+    az = _arviz()
+    import xarray as xr
+
+    idx, z, x, thin = _thinned(run, max_saved_draws)
+    W, d = z.shape[1], z.shape[2]
+    attrs = {"inference_library": "emcee", "created_by": f"triadcal ({target.name})", "moves": run.moves,
+             "thinning": int(thin), "burn": int(run.burn), "chains": "emcee walkers"}
+    if result is not None:
+        attrs.update({"unit": result.unit, "status": result.status})
+    posterior, sample_stats = _posterior_datasets(run, _posterior_variables(run, x), idx, attrs)
+    n = target.n_obs
+    coords = {target.obs_dim: np.arange(n), **(target.obs_coords or {})}
+    groups = {"posterior": posterior, "sample_stats": sample_stats}
+    if target.observed:
+        groups["observed_data"] = xr.Dataset(target.observed, coords=coords)
+    pw = run.target.pointwise(z.reshape(-1, d)).reshape(len(idx), W, n).transpose(1, 0, 2)
+    loglik_coords = {"chain": np.arange(W), "draw": np.arange(len(idx)), target.obs_dim: np.arange(n)}
+    groups["log_likelihood"] = xr.Dataset({target.obs_name: (("chain", "draw", target.obs_dim), pw)},
+                                          coords=loglik_coords)
+    return az.InferenceData(**groups)
+
+
+def write_target_inference_data(path, target: ResidualTarget, run: PosteriorRun,
+                                result: Optional[CalibrationResult] = None, max_saved_draws: int = 4000) -> None:
+    idata = target_inference_data(target, run, result, max_saved_draws)
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     idata.to_netcdf(str(tmp), engine="h5netcdf")

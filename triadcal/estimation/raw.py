@@ -164,6 +164,7 @@ class KnownPoseProblem:
         wm = ca.vertcat(*self.model.predict(p, cov, g))
         f = ca.Function("pose", [x, t, c, g], [wm, ca.jacobian(wm, x), ca.jacobian(wm, t)])
         self._mapped = f.map(self.n, "serial")
+        self._pose = ca.Function("pose_w", [x, t, c, g], [wm])
         self.cov_matrix = np.vstack([np.radians(axis1_deg), np.radians(axis2_deg)])
         self.gravity_g = float(gravity_g)
         self.build_seconds = time.perf_counter() - t0
@@ -187,6 +188,20 @@ class KnownPoseProblem:
     def residuals(self, x: np.ndarray) -> np.ndarray:
         return self.residuals_and_jacobian(x)[0]
 
+
+    def residual_function(self) -> ca.Function:
+        """``r = f(x, W, inv_se, C, g)``: the normalised data residuals ``(W_obs - W_model) / se``
+        (pose-major, 3 per pose) of the full vector (12 unit parameters, then the tilts); the
+        tilts' N(0, sigma_h^2) is the posterior's prior, not residual rows."""
+        nu = len(UNIT_NAMES)
+        x = ca.MX.sym("x", nu + 2 * self.n)
+        W = ca.MX.sym("W", 3, self.n)
+        ise = ca.MX.sym("inv_se", 3, self.n)
+        C = ca.MX.sym("C", 2, self.n)
+        g = ca.MX.sym("g")
+        T = ca.reshape(x[nu:], 2, self.n)
+        wm = self._pose.map(self.n, "serial")(x[:nu], T, C, g)
+        return ca.Function("pose_residual", [x, W, ise, C, g], [ca.vec((W - wm) * ise)])
 
     def data_residuals(self, X: np.ndarray) -> np.ndarray:
         """Normalised data residuals ``(W_obs - W_model) / se``, shape (m, 3 n), for an (m, d) array
@@ -353,6 +368,7 @@ class NormProblem:
         r = ca.norm_2(_calibrated_symbolic(x, wk)) - g
         f = ca.Function("interval", [x, wk, g], [r, ca.jacobian(r, x)])
         self._mapped = f.map(self.n, "serial")
+        self._interval = ca.Function("norm_interval", [x, wk, g], [r])
         self.build_seconds = time.perf_counter() - t0
 
     #: residuals are returned in micro-g: the LM stop rule compares steps with the uncertainty
@@ -366,6 +382,17 @@ class NormProblem:
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         return self.residuals_and_jacobian(x)[0]
+
+    def residual_function(self) -> ca.Function:
+        """``r = f(x, W, g, inv_sigma)``: the normalised residuals ``(|A_k| - g) / sigma_k`` of
+        every interval (column), ``W`` (3, n) the interval means: the likelihood of the
+        posterior (:class:`~triadcal.estimation.posterior.ResidualTarget`)."""
+        x = ca.MX.sym("x", len(self.names))
+        W = ca.MX.sym("W", 3, self.n)
+        g = ca.MX.sym("g")
+        isg = ca.MX.sym("inv_sigma", self.n)
+        r = ca.transpose(self._interval.map(self.n, "serial")(x, W, g)) * isg
+        return ca.Function("norm_residual", [x, W, g, isg], [r])
 
 
 def norm_start(w: np.ndarray, gravity_g: float) -> np.ndarray:
@@ -495,6 +522,134 @@ def nominal_scale(rec: RawRecording, detection: StaticDetection, gravity_g: floa
 
 
 # --------------------------------------------------------------------------------------
+# posterior sampling through the bench's path (triadcal.estimation.posterior)
+# --------------------------------------------------------------------------------------
+#: priors of the raw models, ten times the spread of MEMS units (as the bench's are ten times
+#: the spread of its units): K ~ N(k0, 0.1 k0) with k0 the isotropic scale of the recording
+#: (10 x a 1 % scale-factor spread), S ~ N(0, 0.5 g) (10 x a 50 mg offset),
+#: Ca ~ N(0, 5 deg) (10 x a 0.5 deg misalignment), |Ca| < 0.5 rad
+RAW_PRIOR_K_REL = 0.1
+RAW_PRIOR_S_G = 0.5
+RAW_PRIOR_CA_ARCSEC = 5 * 3600.0
+
+
+def raw_priors(names: Sequence[str], k0: float, scale_unit: str, placement_sd_arcsec: Optional[float] = None,
+               overrides=None) -> dict:
+    """The documented weakly informative priors of the raw models (reporting units); tilts (known
+    poses) get the placement random effect's N(0, sigma_h^2)."""
+    from .priors import HALF_RADIAN, Prior
+
+    out = {}
+    for n in names:
+        if n.startswith("K_"):
+            out[n] = Prior(n, scale_unit, float(k0), RAW_PRIOR_K_REL * float(k0), 0.0, np.inf,
+                           "a scale factor is positive; 10 x a 1 % spread around the isotropic scale of the recording")
+        elif n.startswith("S_"):
+            out[n] = Prior(n, "g", 0.0, RAW_PRIOR_S_G, reason="10 x a 50 mg MEMS offset")
+        elif n.startswith("Ca_"):
+            b = HALF_RADIAN / ARCSEC
+            out[n] = Prior(n, "arcsec", 0.0, RAW_PRIOR_CA_ARCSEC, -b, b,
+                           "10 x a 0.5 deg MEMS misalignment; each row of Ca stays a unit vector")
+        elif n.startswith("tilt_"):
+            out[n] = Prior(n, "arcsec", 0.0, float(placement_sd_arcsec),
+                           reason="hand placement: the random effect's prior (--placement-sd-deg)")
+        else:
+            raise KeyError(n)
+    for k, v in (overrides or {}).items():
+        if k not in out:
+            raise KeyError(f"prior for {k!r}: not a parameter of this model ({', '.join(names)})")
+        out[k] = v
+    return out
+
+
+def sample_unknown_poses(ls: CalibrationResult, problem: NormProblem, sol: Solution, *, serial: str,
+                         scale_unit: str, priors=None, posterior_path=None, **sampler):
+    """Posterior of the gravity-norm model (:func:`triadcal.estimation.posterior.sample_target`).
+
+    Likelihood: ``|A_k| - g ~ N(0, s^2)`` per interval with ``s^2`` the variance the
+    least-squares fit used (the residual variance, not below the noise of the interval means),
+    held fixed. The least-squares intervals the flags compare with are the Gaussian ones
+    (``value +- 1.96 u``, the same ``s``), so a ``non_gaussian`` flag is about the shape of
+    the posterior, not the Student-t factor. Returns ``(CalibrationResult, PosteriorRun)``."""
+    from .posterior import ResidualTarget, sample_target
+
+    f = ls.fit
+    s2 = max(f["residual_variance_g2"] or 0.0, f["noise_variance_g2"])
+    sigma = np.full(problem.n, math.sqrt(s2))
+    k0 = float(np.mean(sol.x[:3]))
+    names = NORM_NAMES
+    units = tuple(ls[n].unit for n in names)
+    cov = ls.covariance(list(names))
+    target = ResidualTarget(
+        name="norm", residual=problem.residual_function(), data=(problem.w.T, problem.gravity_g, 1.0 / sigma),
+        names=names, units=units, priors=raw_priors(names, k0, scale_unit, overrides=priors), x_ls=sol.x,
+        cov_ls=cov, sigma=sigma, obs_dim="interval", obs_name="norm_residual",
+        observed={"w": (("interval", "axis"), problem.w, {"units": scale_unit.split("/")[-1]})},
+        obs_coords={"axis": ["x", "y", "z"]}, unit_serial=serial)
+    notes = [f"noise of |A| - g held at the least-squares value (s = {math.sqrt(s2):.3g} g, "
+             f"{f['variance_used']}); the posterior does not include its uncertainty"
+             + (f" (with {f['dof']} residual dof the Student-t least-squares intervals are the safer ones)"
+                if 0 < f["dof"] < 10 else "")]
+    result, run = sample_target(target, posterior_path=posterior_path, notes=notes, **sampler)
+    result.notes.extend(ls.notes)
+    result.fit.update({"model": f["model"], "dof": f["dof"], "variance_used": f["variance_used"],
+                       "sigma_g": math.sqrt(s2),
+                       "least_squares": {"status": ls.status, "estimator": "gravity-norm least squares",
+                                         "parameters": {n: ls[n].to_dict() for n in names},
+                                         "intervals": ls.intervals}})
+    result.extra["fixed"] = ls.extra.get("fixed", {})
+    return result, run
+
+
+def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: Solution, labels: Sequence[str], *,
+                       serial: str, scale_unit: str, priors=None, posterior_path=None, **sampler):
+    """Posterior of the known-pose model: the 12 unit parameters and the 12 placement tilts
+    (prior N(0, sigma_h^2), the random effect), sampled jointly, so the tilts are integrated out
+    exactly (no importance sampling). Starts from the penalised least-squares optimum."""
+    from .posterior import ResidualTarget, sample_target
+
+    nu = len(UNIT_NAMES)
+    tilt_names = tuple(f"tilt_{c}_{lab}" for lab in labels for c in "xy")
+    names = UNIT_NAMES + tilt_names
+    units = tuple(ls[n].unit for n in UNIT_NAMES) + ("arcsec",) * len(tilt_names)
+    k0 = float(np.mean(sol.x[:3]))
+    pri = raw_priors(names, k0, scale_unit, problem.sigma_h, overrides=priors)
+    cov_ls = _covariance(sol.J)
+    z = 1.959963984540054
+    ls_intervals = {n: (ls[n].value - z * ls[n].u, ls[n].value + z * ls[n].u) for n in UNIT_NAMES}
+    target = ResidualTarget(
+        name="known_poses", residual=problem.residual_function(),
+        data=(problem.w.T, 1.0 / problem.se.T, problem.cov_matrix, problem.gravity_g),
+        names=names, units=units, priors=pri, x_ls=sol.x, cov_ls=cov_ls, sigma=problem.se.reshape(-1),
+        ls_intervals=ls_intervals, obs_dim="reading", obs_name="w",
+        observed={"w": (("reading",), problem.w.reshape(-1), {"units": scale_unit.split("/")[-1]})},
+        obs_coords={"pose": ("reading", np.repeat(np.asarray(labels, str), 3)),
+                    "axis": ("reading", np.tile(["x", "y", "z"], problem.n))},
+        unit_serial=serial)
+    result, run = sample_target(target, posterior_path=posterior_path, **sampler)
+    tilts = {n: result.parameters.pop(n) for n in tilt_names}
+    for n in tilt_names:
+        result.intervals.pop(n, None)
+    keep = [i for i, n in enumerate(names) if n in UNIT_NAMES]
+    result.correlation = result.correlation[np.ix_(keep, keep)]
+    result.correlation_names = UNIT_NAMES
+    flags = result.extra["flags"]
+    for key in ("non_gaussian", "prior_dominated", "prior_influenced"):
+        flags[key] = [n for n in flags[key] if n in UNIT_NAMES]
+    result.notes = [n for n in result.notes if not n.startswith("tilt_")] + list(ls.notes)
+    result.fit.update({"model": ls.fit["model"], "placement_sd_deg": ls.fit["placement_sd_deg"],
+                       "n_nuisance": len(tilt_names),
+                       "least_squares": {"status": ls.status, "estimator": ls.fit.get("estimator"),
+                                         "parameters": {n: {"value": ls[n].value, "u": ls[n].u}
+                                                        for n in UNIT_NAMES}}})
+    result.extra["placement_tilts"] = [
+        {"pose": lab, "tilt_x_deg": tilts[f"tilt_x_{lab}"].value / 3600.0,
+         "tilt_y_deg": tilts[f"tilt_y_{lab}"].value / 3600.0,
+         "u_deg": [tilts[f"tilt_x_{lab}"].u / 3600.0, tilts[f"tilt_y_{lab}"].u / 3600.0]} for lab in labels]
+    return result, run
+
+
+# --------------------------------------------------------------------------------------
 # the library function behind `triadcal fit-raw`
 # --------------------------------------------------------------------------------------
 @dataclass
@@ -508,6 +663,7 @@ class RawFit:
     recording: RawRecording
     campaign: Optional[Campaign] = None
     solution: Optional[Solution] = None
+    posterior_run: Optional[object] = None     # PosteriorRun when sampled
 
 
 def static_intervals_of(rec: RawRecording, *, labels: Optional[str] = None, intervals=None,
@@ -541,7 +697,9 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
             unit: str = "counts", poses: str = "known", labels: Optional[str] = None, intervals=None,
             local_g_m_s2: float = 9.81, placement_sd_deg: float = 1.0, counts_per_g: Optional[float] = None,
             serial: Optional[str] = None, window_s: float = 1.0, threshold: float = 4.0,
-            min_duration_s: float = 2.0, json_path=None, bench_csv_path=None) -> RawFit:
+            min_duration_s: float = 2.0, json_path=None, bench_csv_path=None, sample: bool = False,
+            posterior_path=None, priors=None, ess: float = 2000, seed: int = 0, max_steps: int = 20000,
+            progress=None, n_walkers: Optional[int] = None) -> RawFit:
     """Calibrate from a raw recording (``triadcal fit-raw``).
 
     ``data`` is a CSV path (read with :func:`triadcal.io.raw.read_raw_csv` at the stated
@@ -549,7 +707,15 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
     ``unknown`` (free orientations, gravity norm). The result's ``fit`` block carries
     ``rms_norm_residual_m_s2`` (RMS of |A| - g over the static samples) before (nominal
     scaling) and after the calibration.
+
+    ``sample``: the posterior through the bench's path (:mod:`triadcal.estimation.posterior`:
+    same moves, stop rule, diagnostics, flags); the result is then the posterior's (method
+    ``posterior``, the least-squares values under ``fit.least_squares``), ``posterior_path``
+    receives the arviz InferenceData, ``priors`` overrides :func:`raw_priors` by name, ``ess``,
+    ``seed``, ``max_steps``, ``progress`` as in :func:`triadcal.estimation.posterior.sample`.
     """
+    if posterior_path is not None and not sample:
+        raise ValueError("a posterior file needs sampling (--sample)")
     if poses not in ("known", "unknown"):
         raise ValueError(f"poses must be 'known' or 'unknown', got {poses!r}")
     if not (local_g_m_s2 > 0 and math.isfinite(local_g_m_s2)):
@@ -572,6 +738,14 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
         campaign = bench_campaign(avg, rec, serial, local_g_m_s2)
     else:
         result, problem, sol = fit_unknown_poses(rec, avg, gravity_g=gravity_g, serial=serial)
+    run = None
+    if sample:
+        opts = dict(serial=serial, scale_unit=rec.scale_unit, priors=priors, posterior_path=posterior_path,
+                    ess=ess, seed=seed, max_steps=max_steps, progress=progress, n_walkers=n_walkers)
+        if poses == "known":
+            result, run = sample_known_poses(result, problem, sol, avg.label, **opts)
+        else:
+            result, run = sample_unknown_poses(result, problem, sol, **opts)
     k0, how = nominal_scale(rec, det, gravity_g, counts_per_g)
     before = norm_residual_rms_m_s2(rec, det, np.full(3, k0), np.zeros(3), np.eye(3), gravity_g)
     after = norm_residual_rms_m_s2(rec, det, *result_matrices(result), gravity_g)
@@ -590,4 +764,4 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
         from ..io.bench_csv import write_bench_csv
 
         write_bench_csv(campaign, bench_csv_path)
-    return RawFit(result, det, avg, rec, campaign, sol)
+    return RawFit(result, det, avg, rec, campaign, sol, run)
