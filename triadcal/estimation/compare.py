@@ -42,6 +42,7 @@ from typing import Mapping, Optional, Sequence, Union
 import numpy as np
 from scipy import stats
 
+from ..io.formats import require_format
 from ..models.sensor import ANGLE_NAMES
 from .result import CalibrationResult
 
@@ -369,11 +370,7 @@ class ComparisonResult:
 
     @classmethod
     def from_dict(cls, d: Mapping, source: str = "<dict>") -> "ComparisonResult":
-        if d.get("format") != FORMAT:
-            raise ValueError(f"{source}: not a comparison (format {d.get('format')!r}, expected {FORMAT!r})")
-        if d.get("version") != VERSION:
-            raise ValueError(f"{source}: comparison version {d.get('version')!r} is not known to this "
-                             f"triadcal (it reads version {VERSION})")
+        require_format(d, FORMAT, VERSION, source, "a comparison", "comparison")
         for k, p in d["parameters"].items():
             if p.get("verdict") not in VERDICTS:
                 raise ValueError(f"{source}: parameter {k} has verdict {p.get('verdict')!r}, not one of {VERDICTS}")
@@ -618,12 +615,7 @@ class SequenceComparison:
 
     @classmethod
     def from_dict(cls, d: Mapping, source: str = "<dict>") -> "SequenceComparison":
-        if d.get("format") != SEQUENCE_FORMAT:
-            raise ValueError(f"{source}: not a comparison sequence (format {d.get('format')!r}, "
-                             f"expected {SEQUENCE_FORMAT!r})")
-        if d.get("version") != VERSION:
-            raise ValueError(f"{source}: sequence version {d.get('version')!r} is not known to this "
-                             f"triadcal (it reads version {VERSION})")
+        require_format(d, SEQUENCE_FORMAT, VERSION, source, "a comparison sequence", "sequence")
         return cls(labels=list(d["labels"]), steps=[ComparisonResult.from_dict(c, source) for c in d["steps"]],
                    cumulative=[ComparisonResult.from_dict(c, source) for c in d["cumulative"]],
                    kind=d.get("kind", "results"), rule=d.get("rule", ""), notes=list(d.get("notes", [])))

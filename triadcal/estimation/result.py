@@ -16,6 +16,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from ..io.formats import require_format
 from ..models.model import Covariates, Model
 from ..models.sensor import AXES, dcm
 from ..models.units import TO_INTERNAL
@@ -97,11 +98,7 @@ class CalibrationResult:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "<dict>") -> "CalibrationResult":
-        if d.get("format") != FORMAT:
-            raise ValueError(f"{source}: not a calibration result (format {d.get('format')!r}, expected {FORMAT!r})")
-        if d.get("version") != VERSION:
-            raise ValueError(f"{source}: result version {d.get('version')!r} is not known to this "
-                             f"triadcal (it reads version {VERSION})")
+        require_format(d, FORMAT, VERSION, source, "a calibration result", "result")
         known = {"format", "version", "unit", "method", "status", "effects", "reference_temperature_C",
                  "temperature_range_C", "parameters", "intervals", "fit", "notes", "correlation"}
         params = {}

@@ -36,6 +36,7 @@ import numpy as np
 
 from .. import __version__
 from ..estimation.result import CalibrationResult, round_to_uncertainty
+from ..io.formats import require_format
 from ..models.effects import EFFECTS
 from ..models.model import Model
 from ..models.sensor import ANGLE_NAMES, AXES
@@ -1133,12 +1134,7 @@ class DriftRow:
 
 
 def check_comparison(comparison: dict, source: str = "<dict>") -> None:
-    if comparison.get("format") != COMPARISON_FORMAT:
-        raise ValueError(f"{source}: not a comparison (format {comparison.get('format')!r}, "
-                         f"expected {COMPARISON_FORMAT!r})")
-    if comparison.get("version") != COMPARISON_VERSION:
-        raise ValueError(f"{source}: comparison version {comparison.get('version')!r} is not known to this "
-                         f"triadcal (it reads version {COMPARISON_VERSION})")
+    require_format(comparison, COMPARISON_FORMAT, COMPARISON_VERSION, source, "a comparison", "comparison")
 
 
 def drift_rows(comparison: dict) -> list:

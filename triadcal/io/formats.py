@@ -1,0 +1,16 @@
+"""The one check every versioned JSON document of triadcal gets when it is read."""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+
+def require_format(d: Mapping, fmt: str, version: int, source: str, what: str, short: str) -> None:
+    """Refuse ``d`` unless it is ``fmt`` at ``version``: e.g. ``what`` "a comparison", ``short``
+    "comparison" give "SOURCE: not a comparison (format ..., expected ...)" and
+    "SOURCE: comparison version ... is not known to this triadcal (it reads version N)"."""
+    if d.get("format") != fmt:
+        raise ValueError(f"{source}: not {what} (format {d.get('format')!r}, expected {fmt!r})")
+    if d.get("version") != version:
+        raise ValueError(f"{source}: {short} version {d.get('version')!r} is not known to this "
+                         f"triadcal (it reads version {version})")
