@@ -28,6 +28,10 @@ def register(sub) -> None:
     p.add_argument("--local-g", type=float, default=9.81, metavar="M_S2", help="local gravity, m/s2 (default 9.81)")
     p.add_argument("--placement-sd-deg", type=float, default=1.0,
                    help="prior SD of the hand-placement tilt per pose and component, deg (known poses; default 1)")
+    p.add_argument("--misalignment-sd-deg", type=float, default=1.0,
+                   help="prior SD of each misalignment angle Ca_*, deg (known poses; default 1, a cross-axis "
+                        "sensitivity of 1.7 %%): the angles are confounded with the placement, and their spread "
+                        "reaches K and S at second order (see fit.misalignment_prior_sensitivity)")
     p.add_argument("--counts-per-g", type=float, default=None,
                    help="datasheet scale for the 'before' figure of count data (default: one isotropic scale)")
     p.add_argument("--serial", default=None, help="serial number for the result (default: the file name)")
@@ -55,6 +59,7 @@ def run(args) -> int:
     out = fit_raw(args.data, args.rate, columns=name_list(args.columns) if args.columns else None,
                   unit=args.unit, poses=args.poses, labels=args.labels, intervals=args.intervals,
                   local_g_m_s2=args.local_g, placement_sd_deg=args.placement_sd_deg,
+                  misalignment_sd_deg=args.misalignment_sd_deg,
                   counts_per_g=args.counts_per_g, serial=args.serial, window_s=args.static_window_s,
                   threshold=args.static_threshold, min_duration_s=args.min_static_s,
                   json_path=args.json, bench_csv_path=args.bench_csv, sample=args.sample,

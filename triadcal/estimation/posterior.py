@@ -51,7 +51,7 @@ import os
 import tempfile
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping, Optional, Sequence, Union
 
@@ -69,6 +69,8 @@ from .result import CalibrationResult, ParameterValue
 
 #: posterior SD / prior SD above which a parameter is reported as prior-dominated
 PRIOR_DOMINATED_RATIO = 0.5
+#: walkers per call of a target's compiled transform (reporting draws in ``to_x``)
+TRANSFORM_BLOCK = 256
 #: an end of the 95 % central interval that differs from the least-squares one by more
 #: than this fraction of the least-squares half-width flags the posterior as non-Gaussian
 NON_GAUSSIAN_TOLERANCE = 0.15
@@ -464,7 +466,8 @@ def run_sampler(target: LogPosterior, n_walkers: int, *, ess: float = 2000, rhat
                 bar.update(n_run)
             if callback is not None and steps < target_steps:
                 callback(steps, max_steps, None)
-        chain = sampler.get_chain()
+        # diagnostics of the reported parameters (x), not of the walkers' coordinates
+        chain = target.to_x(sampler.get_chain())
         # burn-in: 5 tau of the previous look (the start is already near the posterior)
         burn = int(min(math.ceil(5 * tau_last), steps // 2))
         kept = steps - burn
@@ -800,6 +803,14 @@ class ResidualTarget:
     ``obs_dim``/``obs_name``: names of the observation axis and of the log-likelihood variable in
     the InferenceData; ``observed``: optional ``{name: (dims, array, attrs)}`` for its
     ``observed_data`` group, with ``obs_coords``.
+
+    ``transform`` (optional): a CasADi function ``x = T(y)`` from the coordinates the walkers
+    move in to the parameters, with a constant Jacobian determinant (e.g. a shear
+    ``x = (y_1 + m(y_2), y_2)``), and ``inverse`` its inverse. Priors, bounds, residuals and
+    the reported draws are in ``x``; the MAP, the Laplace approximation, the whitening and the
+    moves are in ``y``. A constant determinant leaves the density unchanged up to a constant,
+    so the posterior is exact; a good ``T`` straightens a curved posterior (a "banana") that
+    the Laplace proposal and the differential-evolution moves cannot follow.
     """
 
     name: str
@@ -817,8 +828,12 @@ class ResidualTarget:
     observed: Optional[dict] = None
     obs_coords: Optional[dict] = None
     unit_serial: str = ""
+    transform: Optional[ca.Function] = None
+    inverse: Optional[ca.Function] = None
 
     def __post_init__(self):
+        if (self.transform is None) != (self.inverse is None):
+            raise ValueError("a transform needs its inverse (and the inverse its transform)")
         self.names = tuple(self.names)
         self.units = tuple(self.units)
         self.x_ls = np.asarray(self.x_ls, float)
@@ -839,13 +854,22 @@ class ResidualTarget:
 
 class ResidualProblem:
     """``residuals_and_jacobian`` of a :class:`ResidualTarget` (CasADi exact Jacobian), the
-    interface :func:`laplace_approximation` uses."""
+    interface :func:`laplace_approximation` uses. With a ``transform`` the variables are the
+    walkers' coordinates ``y`` and the priors (Gaussian, on ``x = T(y)``) are residual rows
+    ``(x - mean) / sd`` after the data's, so the MAP and Laplace approximation are in ``y``."""
 
     def __init__(self, target: ResidualTarget):
         self.names = target.names
-        x = ca.MX.sym("x", len(target.names))
-        r = target.residual(x, *[ca.DM(np.asarray(a, float)) if not np.isscalar(a) else a for a in target.data])
-        self._f = ca.Function("residual_jac", [x], [r, ca.jacobian(r, x)])
+        self.n_obs = target.n_obs
+        data = [ca.DM(np.asarray(a, float)) if not np.isscalar(a) else a for a in target.data]
+        v = ca.MX.sym("v", len(target.names))
+        if target.transform is None:
+            r = target.residual(v, *data)
+        else:
+            mu, sd, _, _ = prior_arrays(target.priors, target.names)
+            x = target.transform(v)
+            r = ca.vertcat(target.residual(x, *data), (x - ca.DM(mu)) / ca.DM(sd))
+        self._f = ca.Function("residual_jac", [v], [r, ca.jacobian(r, v)])
 
     def residuals_and_jacobian(self, x: np.ndarray):
         r, J = self._f(np.asarray(x, float))
@@ -853,6 +877,18 @@ class ResidualProblem:
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         return self.residuals_and_jacobian(x)[0]
+
+
+def _transformed_laplace(problem: ResidualProblem, y_start: np.ndarray):
+    """MAP and Laplace covariance in the walkers' coordinates of a transformed target (the priors
+    are rows of ``problem``): Levenberg-Marquardt, then ``(J^T J)^-1`` (column-scaled)."""
+    from .joint import levenberg_marquardt
+
+    sol = levenberg_marquardt(problem, np.asarray(y_start, float))
+    D = np.linalg.norm(sol.J, axis=0)
+    D[D == 0] = 1.0
+    C = np.linalg.inv((sol.J / D).T @ (sol.J / D)) / np.outer(D, D)
+    return sol.x, 0.5 * (C + C.T)
 
 
 class ResidualLogPosterior(LogPosterior):
@@ -876,10 +912,12 @@ class ResidualLogPosterior(LogPosterior):
         self._data = [ca.DM(np.asarray(a, float)) for a in target.data]
         self.args = [ca.DM(self.x0), ca.DM(self.L), *self._data, ca.DM(mu), ca.DM(1.0 / sd)]
         self.log_norm = -np.log(self.sigma * math.sqrt(2 * math.pi))    # (n,)
-        code = hashlib.sha256(target.residual.serialize().encode()).hexdigest()[:16]
+        code = hashlib.sha256((target.residual.serialize() + (target.transform.serialize() if target.transform
+                                                                 is not None else "")).encode()).hexdigest()[:16]
         self._key = (target.name, code, tuple(a.shape for a in self._data), self.block)
         self.f_lp, self.compiled = _compile(("residual-lp",) + self._key, self._build_lp)
         self._f_pw = None
+        self._f_x = None
         self.evaluations = 0
 
     def _symbols(self):
@@ -889,11 +927,16 @@ class ResidualLogPosterior(LogPosterior):
             ca.MX.sym("mu", self.d), ca.MX.sym("inv_sd", self.d)
 
     def _build(self, pointwise: bool) -> ca.Function:
+        """Log-posterior (row 0) and, with a transform, the parameters ``x`` (rows 1..d) of a
+        block of walkers; or the pointwise log-likelihood."""
         Z, x0, L, data, mu, isd = self._symbols()
-        xs = ca.MX.sym("x", self.d)
+        ys = ca.MX.sym("y", self.d)
+        xs = ys if self.spec.transform is None else self.spec.transform(ys)
         r = self.spec.residual(xs, *data)
         out = -0.5 * r * r if pointwise else -0.5 * ca.sumsqr(r) - 0.5 * ca.sumsqr((xs - mu) * isd)
-        walker = ca.Function("walker", [xs, *data, mu, isd], [out])
+        if self.spec.transform is not None and not pointwise:
+            out = ca.vertcat(out, xs)
+        walker = ca.Function("walker", [ys, *data, mu, isd], [out])
         X = ca.repmat(x0, 1, self.block) + ca.mtimes(L, Z)
         res = walker.map(self.block, "serial")(X, *data, mu, isd)
         name = f"triadcal_{self.spec.name}_{'pointwise' if pointwise else 'logpost'}"
@@ -901,6 +944,33 @@ class ResidualLogPosterior(LogPosterior):
 
     def _build_lp(self) -> ca.Function:
         return self._build(False)
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        if self.spec.transform is None:
+            return super().__call__(z)
+        z = np.atleast_2d(z)
+        self.evaluations += len(z)
+        out = self._blocks(self.f_lp, z)
+        lp, x = out[0], out[1:].T
+        inside = np.all((x > self.low) & (x < self.high), axis=1)
+        return np.where(inside & np.isfinite(lp), lp, -np.inf)
+
+    def to_x(self, z: np.ndarray) -> np.ndarray:
+        """Whitened -> reporting units (through the transform, if any); ``z`` (..., d)."""
+        y = self.x0 + np.asarray(z) @ self.L.T
+        if self.spec.transform is None:
+            return y
+        if self._f_x is None:
+            self._f_x = self.spec.transform.map(TRANSFORM_BLOCK, "serial")
+        flat = y.reshape(-1, self.d)
+        out = np.empty_like(flat)
+        for k in range(0, len(flat), TRANSFORM_BLOCK):
+            chunk = flat[k:k + TRANSFORM_BLOCK]
+            pad = TRANSFORM_BLOCK - len(chunk)
+            if pad:
+                chunk = np.vstack([chunk, np.repeat(chunk[-1:], pad, axis=0)])
+            out[k:k + TRANSFORM_BLOCK] = np.asarray(self._f_x(chunk.T)).T[:TRANSFORM_BLOCK - pad]
+        return out.reshape(y.shape)
 
     def pointwise(self, z: np.ndarray) -> np.ndarray:
         """Pointwise log-likelihood ``log N(obs | model, sigma)`` per draw and observation: (m, n)."""
@@ -922,14 +992,19 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
         raise ValueError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
     t_start = time.perf_counter()
     problem = ResidualProblem(target)
-    x_map, C = laplace_approximation(problem, target.priors, target.x_ls)
+    if target.transform is None:
+        x_map, C = laplace_approximation(problem, target.priors, target.x_ls)
+    else:
+        y_map, C = _transformed_laplace(problem, np.asarray(target.inverse(target.x_ls)).reshape(-1))
     # Cholesky of the column-scaled covariance (parameters differ by 10 orders of magnitude)
     D = np.sqrt(np.diag(C))
     Lc = np.linalg.cholesky(C / np.outer(D, D)) * D[:, None]
     d = len(target.names)
     W = int(n_walkers or 2 * d)
     W += W % 2
-    lp = ResidualLogPosterior(target, x_map, Lc, block=W // 2)
+    lp = ResidualLogPosterior(target, x_map if target.transform is None else y_map, Lc, block=W // 2)
+    if target.transform is not None:
+        x_map = np.asarray(target.transform(y_map)).reshape(-1)
     run = run_sampler(lp, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
                       seed=seed, moves=moves, progress=progress)
     total_seconds = time.perf_counter() - t_start
@@ -953,7 +1028,7 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
                                  f"narrows its interval (posterior SD / prior SD = {intervals[n]['prior_sd_ratio']:.2f})")
     draws = run.flat()
     x_mean = draws.mean(axis=0)
-    chi2 = float(np.sum(problem.residuals(x_mean) ** 2))
+    chi2 = float(np.sum(ResidualProblem(replace(target, transform=None, inverse=None)).residuals(x_mean) ** 2))
     n_obs = target.n_obs
     fit = {"chi2_dof": chi2 / (n_obs - d) if n_obs > d else None, "n_obs": n_obs, "n_params": d,
            "value": "posterior mean", "u": "posterior standard deviation",

@@ -17,13 +17,25 @@ angle alone. With 6 poses the 12 tilt components add 6 directions that no record
 can separate from the 6 angles. The tilts are therefore a **random effect** with a
 stated prior, independent N(0, sigma_h^2) per component (default sigma_h = 1 deg, a
 careful hand placement on a flat table; ``placement_sd_deg``), fitted as penalised
-least squares (prior pseudo-observations ``t / sigma_h``); the Gaussian posterior
-covariance is the inverse of the augmented normal matrix. Consequence, stated in every
-result: K and S are determined by the data, while the angles' uncertainty is about
-``sigma_h / sqrt(2)`` (2500" at 1 deg): a hand-placed cube cannot measure
-orientation angles better than it is placed. Fixing the mean placement error instead
-would not help: the confounded directions are the *differences* between opposite
-poses, not the mean.
+least squares (prior pseudo-observations ``t / sigma_h``). Fixing the mean placement
+error instead would not help: the confounded directions are the *differences* between
+opposite poses, not the mean.
+
+*The angles need a proper prior too* (N(0, sigma_a^2), default sigma_a = 1 deg,
+``misalignment_sd_deg``). The data fix ``Ca + (t_1 - t_2)/2`` only, so the angles'
+posterior spread comes from the priors, and it does not stay there: eq. 1's rows of Ca
+are unit vectors and the sensed gravity is ``g cos t``, so K and S depend on the
+*squares* of the unresolved angles and tilts (1 deg^2 = 3e-4). A flat prior on the
+angles lets them spread by sigma_h/sqrt(2) on top of their true size, which biased K by
+-0.45 u over 200 simulated units (angles 1 deg), K's z-scores with SD 0.76-0.86; with the
+prior matching the units their mean is 0.0 and their SD 1.0. The angles' standard
+uncertainty is then ``(1/sigma_a^2 + 2/sigma_h^2)^-1/2`` (0.58 deg at 1 deg / 1 deg). The
+dependence on sigma_a is reported: ``fit.misalignment_prior_sensitivity`` gives each K and
+S's move, in its u, when sigma_a is halved or doubled (typically 0.1-1 u), and a note says
+"prior-sensitive" above 0.5 u. The Gaussian posterior covariance of the penalised fit is
+the inverse of the augmented normal matrix; the reported values integrate the tilts out
+(:func:`marginal_posterior`), and ``--sample`` samples tilts and unit parameters jointly
+in sheared coordinates (:func:`conditional_shear`).
 
 **Unknown poses** (free orientation, Tedaldi et al. 2014 / imu_tk): the cost is the sum
 over static intervals of ``(|A| - g)^2`` with ``A = Ca^-1 (K W - S)`` (the paper's
@@ -141,16 +153,19 @@ class KnownPoseProblem:
     ``x`` = the 12 unit parameters in reporting units (K in g per input unit, S in g,
     angles in arcsec) followed by ``tilt_x, tilt_y`` of each pose (arcsec). Residuals:
     ``(W_obs - W_model) / se`` for each pose and axis, then the prior rows
-    ``tilt / sigma_h``. Duck-types :class:`~triadcal.estimation.joint.JointProblem` for
+    ``tilt / sigma_h`` and ``Ca / sigma_a``. Duck-types :class:`~triadcal.estimation.joint.JointProblem` for
     :func:`~triadcal.estimation.joint.levenberg_marquardt`.
     """
 
     def __init__(self, w: np.ndarray, se: np.ndarray, axis1_deg, axis2_deg, gravity_g: float,
-                 placement_sd_arcsec: float):
+                 placement_sd_arcsec: float, misalignment_sd_arcsec: float):
         self.model = Model(("bench_tilt",))
         self.w, self.se = np.asarray(w, float), np.asarray(se, float)
         self.n = len(self.w)
         self.sigma_h = float(placement_sd_arcsec)
+        self.sigma_a = float(misalignment_sd_arcsec)
+        #: columns of the six angles among the unit parameters
+        self.angle_cols = np.array([UNIT_NAMES.index(f"Ca_{ab}") for ab in ANGLE_NAMES])
         self.names = UNIT_NAMES + tuple(f"tilt_{c}[{k}]" for k in range(self.n) for c in "xy")
         t0 = time.perf_counter()
         x = ca.SX.sym("x", len(UNIT_NAMES))
@@ -177,12 +192,13 @@ class KnownPoseProblem:
         Jx = np.asarray(Jx).reshape(3, self.n, nu).transpose(1, 0, 2)      # (n, 3, 12)
         Jt = np.asarray(Jt).reshape(3, self.n, 2).transpose(1, 0, 2)       # (n, 3, 2)
         r_data = ((self.w - wm) / self.se).reshape(-1)
-        J = np.zeros((3 * self.n + 2 * self.n, len(x)))
+        J = np.zeros((5 * self.n + 6, len(x)))
         J[:3 * self.n, :nu] = (-Jx / self.se[:, :, None]).reshape(-1, nu)
         for k in range(self.n):
             J[3 * k:3 * k + 3, nu + 2 * k:nu + 2 * k + 2] = -Jt[k] / self.se[k][:, None]
-        J[3 * self.n:, nu:] = np.eye(2 * self.n) / self.sigma_h
-        r = np.concatenate([r_data, x[nu:] / self.sigma_h])
+        J[3 * self.n:5 * self.n, nu:] = np.eye(2 * self.n) / self.sigma_h
+        J[5 * self.n + np.arange(6), self.angle_cols] = 1.0 / self.sigma_a
+        r = np.concatenate([r_data, x[nu:] / self.sigma_h, x[self.angle_cols] / self.sigma_a])
         return r, J
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
@@ -228,13 +244,12 @@ def marginal_posterior(problem: KnownPoseProblem, x_map: np.ndarray, cov_laplace
 
     Rao-Blackwellised importance sampling: tilts are drawn from a Student-t around their
     Laplace marginal; given the tilts the model is nearly linear in the 12 unit
-    parameters, so two Gauss-Newton steps from the optimum give their conditional mean and
-    ``(J_u^T J_u)^-1`` their conditional covariance; the weights are the conditional
-    maximum of the posterior over the proposal density. The marginal is the weighted
-    mixture. Returns ``(mean, cov, ess)``."""
+    parameters, so two Gauss-Newton steps from the optimum (data rows and the angles'
+    prior rows) give their conditional mean and ``(J_u^T J_u)^-1`` their conditional
+    covariance; the weights are the conditional maximum of the posterior over the proposal
+    density. The marginal is the weighted mixture. Returns ``(mean, cov, ess)``."""
     rng = np.random.default_rng(seed)
     nu = len(UNIT_NAMES)
-    nd = 3 * problem.n
     t_map, Ct = x_map[nu:], cov_laplace[nu:, nu:]
     L = np.linalg.cholesky(Ct + 1e-12 * np.max(np.diag(Ct)) * np.eye(len(t_map)))
     z = rng.standard_normal((n_draws, len(t_map)))
@@ -242,13 +257,11 @@ def marginal_posterior(problem: KnownPoseProblem, x_map: np.ndarray, cov_laplace
     T = t_map + (z / np.sqrt(chi)[:, None]) @ L.T
     q = np.sum(np.square(np.linalg.solve(L, (T - t_map).T)), axis=0)
     log_q = -0.5 * (dof + len(t_map)) * np.log1p(q / dof)
-    Ju = J_map[:nd, :nu]
-    H_inv = _covariance(Ju)          # (J_u^T J_u)^-1, column-scaled (K and the angles differ by 1e10)
     Xu = np.repeat(x_map[None, :nu], n_draws, axis=0)
+    P = conditional_update(problem, J_map)
     for _ in range(2):
-        r = problem.data_residuals(np.hstack([Xu, T]))
-        Xu = Xu - (r @ Ju) @ H_inv
-    r = problem.data_residuals(np.hstack([Xu, T]))
+        Xu = Xu - conditional_residuals(problem, Xu, T) @ P.T
+    r = conditional_residuals(problem, Xu, T)
     lw = -0.5 * (np.sum(r * r, axis=1) + np.sum((T / problem.sigma_h) ** 2, axis=1)) - log_q
     lw = np.where(np.isfinite(lw), lw, -np.inf)
     w = np.exp(lw - np.max(lw))
@@ -257,8 +270,63 @@ def marginal_posterior(problem: KnownPoseProblem, x_map: np.ndarray, cov_laplace
     mean = w @ X
     dX = X - mean
     cov = (dX * w[:, None]).T @ dX
-    cov[:nu, :nu] += H_inv
+    cov[:nu, :nu] += _covariance(_conditional_jacobian(problem, J_map))
     return mean, cov, float(1.0 / np.sum(w * w))
+
+
+#: a note says "prior-sensitive" when halving or doubling the misalignment prior moves a
+#: parameter by more than this many standard uncertainties
+SENSITIVITY_NOTE_U = 0.5
+
+
+def _known_pose_estimate(problem: KnownPoseProblem, sol: Solution, n_draws: int, seed: int):
+    """``(mean, cov, ess, estimator)``: the importance-sampled marginal, or the Laplace
+    approximation at the optimum if the importance sampling degenerates."""
+    cov_laplace = _covariance(sol.J)
+    mean, cov, ess = marginal_posterior(problem, sol.x, cov_laplace, sol.J, n_draws=n_draws, seed=seed)
+    if ess >= 200:
+        return mean, cov, ess, ("posterior mean and SD, placement tilts integrated out (Rao-Blackwellised "
+                                "importance sampling around the Laplace approximation)")
+    return sol.x, cov_laplace, ess, f"Laplace approximation at the optimum (importance sampling ESS {ess:.0f} < 200)"
+
+
+def misalignment_prior_sensitivity(problem: KnownPoseProblem, sol: Solution, mean: np.ndarray, u: np.ndarray,
+                                   n_draws: int, seed: int, factors=(0.5, 2.0)) -> dict:
+    """How far each unit parameter moves, in its standard uncertainty, when the angles' prior SD
+    is multiplied by each of ``factors`` (refit and importance sampling again). The angles
+    change with their prior by construction; K and S through the second-order terms."""
+    sigma_a = problem.sigma_a
+    shifts = []
+    try:
+        for f in factors:
+            problem.sigma_a = sigma_a * f
+            s2 = levenberg_marquardt(problem, sol.x)
+            m2 = _known_pose_estimate(problem, s2, n_draws, seed)[0]
+            shifts.append((m2[:len(UNIT_NAMES)] - mean[:len(UNIT_NAMES)]) / u[:len(UNIT_NAMES)])
+    finally:
+        problem.sigma_a = sigma_a
+    return {"misalignment_sd_deg": [sigma_a * f / 3600.0 for f in factors],
+            "shift_in_u": {n: [float(v[i]) for v in shifts] for i, n in enumerate(UNIT_NAMES)
+                           if not n.startswith("Ca_")}}
+
+
+def _conditional_jacobian(problem: KnownPoseProblem, J_map: np.ndarray) -> np.ndarray:
+    """Rows of the unit parameters' conditional problem (tilts fixed): data and angle-prior rows."""
+    nu, nd = len(UNIT_NAMES), 3 * problem.n
+    return np.vstack([J_map[:nd, :nu], J_map[5 * problem.n:, :nu]])
+
+
+def conditional_update(problem: KnownPoseProblem, J_map: np.ndarray) -> np.ndarray:
+    """``P = (J_u^T J_u)^-1 J_u^T`` of the unit parameters given the tilts, at the optimum: one
+    Gauss-Newton step of the conditional problem is ``x_u <- x_u - P r(x_u, t)``."""
+    Ju = _conditional_jacobian(problem, J_map)
+    return _covariance(Ju) @ Ju.T
+
+
+def conditional_residuals(problem: KnownPoseProblem, Xu: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Data and angle-prior residuals for (m, 12) unit parameters and (m, 2 n) tilts: (m, 3 n + 6)."""
+    r = problem.data_residuals(np.hstack([Xu, T]))
+    return np.hstack([r, Xu[:, problem.angle_cols] / problem.sigma_a])
 
 
 def _covariance(J: np.ndarray) -> np.ndarray:
@@ -268,8 +336,13 @@ def _covariance(J: np.ndarray) -> np.ndarray:
 
 
 def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, serial: str,
-                    placement_sd_deg: float = 1.0, n_draws: int = 2000, seed: int = 0):
-    """Known-pose fit; returns ``(CalibrationResult, KnownPoseProblem, Solution)``."""
+                    placement_sd_deg: float = 1.0, misalignment_sd_deg: float = 1.0, n_draws: int = 2000,
+                    seed: int = 0):
+    """Known-pose fit; returns ``(CalibrationResult, KnownPoseProblem, Solution)``.
+
+    ``placement_sd_deg``: prior SD of each placement tilt component (the random effect);
+    ``misalignment_sd_deg``: prior SD of each angle Ca_* (module docstring: why the angles need
+    a proper prior here)."""
     labels = [lab if lab in POSE_POSITIONS else "" for lab in avg.label]
     if "" in labels:
         raise StaticIntervalError("known poses need a pose label (x_p, x_a, y_p, y_a, z_p, z_a) on every interval")
@@ -280,10 +353,14 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
     if not placement_sd_deg > 0:
         raise ValueError("the placement SD must be positive: with no placement error the model is the "
                          "bench model (use triadcal fit on the bench CSV)")
+    if not (misalignment_sd_deg > 0 and math.isfinite(misalignment_sd_deg)):
+        raise ValueError("the misalignment prior SD must be a positive number of degrees: the angles are "
+                         "confounded with the placement and a flat prior biases K (see docs/raw.md)")
     pos = [POSE_POSITIONS[lab] for lab in labels]
     a1 = np.array([DEFAULT_PLAN[p][0] for p in pos])
     a2 = np.array([DEFAULT_PLAN[p][1] for p in pos])
-    problem = KnownPoseProblem(avg.w, avg.se, a1, a2, gravity_g, placement_sd_deg * 3600.0)
+    problem = KnownPoseProblem(avg.w, avg.se, a1, a2, gravity_g, placement_sd_deg * 3600.0,
+                               misalignment_sd_deg * 3600.0)
     # start: per-axis linear fit on the nominal gravity (the joint fit's start), tilts 0
     k = len(pos)
     c = Campaign(unit=np.full(k, serial), setpoint_C=np.zeros(k), direction=np.full(k, "none"),
@@ -296,15 +373,10 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
     t0 = time.perf_counter()
     sol = levenberg_marquardt(problem, x0)
     solve_seconds = time.perf_counter() - t0
-    cov_laplace = _covariance(sol.J)
-    mean, cov, ess = marginal_posterior(problem, sol.x, cov_laplace, sol.J, n_draws=n_draws, seed=seed)
-    estimator = ("posterior mean and SD, placement tilts integrated out (Rao-Blackwellised importance "
-                 "sampling around the Laplace approximation)")
-    if not ess >= 200:
-        mean, cov = sol.x, cov_laplace
-        estimator = f"Laplace approximation at the optimum (importance sampling ESS {ess:.0f} < 200)"
+    mean, cov, ess, estimator = _known_pose_estimate(problem, sol, n_draws, seed)
     u = np.sqrt(np.diag(cov))
     nu = len(UNIT_NAMES)
+    sensitivity = misalignment_prior_sensitivity(problem, sol, mean, u, n_draws, seed)
     units = {"K": scale_unit, "S": "g", "Ca": "arcsec"}
     params = {n: ParameterValue(float(mean[i]), float(u[i]), units[n.split("_")[0]])
               for i, n in enumerate(UNIT_NAMES)}
@@ -313,18 +385,27 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
     tilts_u = u[nu:].reshape(k, 2)
     n_data = 3 * k
     chi2 = float(sol.r @ sol.r)
-    dof = n_data + 2 * k - len(sol.x)
+    dof = len(sol.r) - len(sol.x)         # data, tilt-prior and angle-prior rows
     fit = {"model": "known poses: eq. 1 with a random placement tilt per pose",
-           "placement_sd_deg": placement_sd_deg, "n_obs": n_data, "n_params": nu,
+           "placement_sd_deg": placement_sd_deg, "misalignment_sd_deg": misalignment_sd_deg,
+           "n_obs": n_data, "n_params": nu,
            "n_nuisance": 2 * k, "chi2_dof": chi2 / dof if dof > 0 else None,
            "placement_rms_estimate_deg": float(np.sqrt(np.mean(tilts ** 2))) / 3600.0,
            "iterations": sol.iterations, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds,
            "noise": "standard error of each pose mean: max(sd/sqrt(n), batch means)",
-           "estimator": estimator, "importance_ess": ess, "n_draws": n_draws}
+           "estimator": estimator, "importance_ess": ess, "n_draws": n_draws,
+           "misalignment_prior_sensitivity": sensitivity}
+    u_angle = 1.0 / math.sqrt(1.0 / misalignment_sd_deg ** 2 + 2.0 / placement_sd_deg ** 2)
     notes = [f"hand placement: each pose's gravity direction has a random tilt, prior SD {placement_sd_deg:g} deg "
              "per component; the angles Ca_* are confounded with the difference of the tilts of opposite poses, "
-             f"so their uncertainty (~{placement_sd_deg / math.sqrt(2):.2g} deg) comes from that prior, not from the "
-             "data; K and S are determined by the data"]
+             f"so their uncertainty (~{u_angle:.2g} deg) comes from that prior and the angles' prior "
+             f"(SD {misalignment_sd_deg:g} deg), not from the data; K and S are determined by the data, "
+             "but at second order (tilt^2) they depend on both priors"]
+    worst = max(sensitivity["shift_in_u"].items(), key=lambda kv: max(abs(v) for v in kv[1]))
+    if max(abs(v) for v in worst[1]) > SENSITIVITY_NOTE_U:
+        notes.append(f"prior-sensitive: {worst[0]} moves by {worst[1][0]:+.2f} u / {worst[1][1]:+.2f} u when the "
+                     f"misalignment prior SD is halved / doubled ({misalignment_sd_deg:g} deg used); state the "
+                     "prior with the result")
     if fit["chi2_dof"] is not None and fit["chi2_dof"] > 3.0:
         notes.append(f"chi2/dof = {fit['chi2_dof']:.3g}: the poses are further from their faces than the "
                      f"{placement_sd_deg:g} deg prior allows (or the unit is not linear); raise --placement-sd-deg")
@@ -534,9 +615,10 @@ RAW_PRIOR_CA_ARCSEC = 5 * 3600.0
 
 
 def raw_priors(names: Sequence[str], k0: float, scale_unit: str, placement_sd_arcsec: Optional[float] = None,
-               overrides=None) -> dict:
+               overrides=None, misalignment_sd_arcsec: Optional[float] = None) -> dict:
     """The documented weakly informative priors of the raw models (reporting units); tilts (known
-    poses) get the placement random effect's N(0, sigma_h^2)."""
+    poses) get the placement random effect's N(0, sigma_h^2), and there the angles get the
+    known-pose model's misalignment prior N(0, sigma_a^2) (module docstring)."""
     from .priors import HALF_RADIAN, Prior
 
     out = {}
@@ -548,8 +630,13 @@ def raw_priors(names: Sequence[str], k0: float, scale_unit: str, placement_sd_ar
             out[n] = Prior(n, "g", 0.0, RAW_PRIOR_S_G, reason="10 x a 50 mg MEMS offset")
         elif n.startswith("Ca_"):
             b = HALF_RADIAN / ARCSEC
-            out[n] = Prior(n, "arcsec", 0.0, RAW_PRIOR_CA_ARCSEC, -b, b,
-                           "10 x a 0.5 deg MEMS misalignment; each row of Ca stays a unit vector")
+            if misalignment_sd_arcsec is None:
+                out[n] = Prior(n, "arcsec", 0.0, RAW_PRIOR_CA_ARCSEC, -b, b,
+                               "10 x a 0.5 deg MEMS misalignment; each row of Ca stays a unit vector")
+            else:
+                out[n] = Prior(n, "arcsec", 0.0, float(misalignment_sd_arcsec), -b, b,
+                               "known poses: the misalignment prior of the least-squares fit "
+                               "(--misalignment-sd-deg); the angles are confounded with the placement")
         elif n.startswith("tilt_"):
             out[n] = Prior(n, "arcsec", 0.0, float(placement_sd_arcsec),
                            reason="hand placement: the random effect's prior (--placement-sd-deg)")
@@ -601,11 +688,42 @@ def sample_unknown_poses(ls: CalibrationResult, problem: NormProblem, sol: Solut
     return result, run
 
 
+def conditional_shear(problem: KnownPoseProblem, sol: Solution, steps: int = 2):
+    """The sampler's coordinates for the known-pose posterior: ``y = (u, t)`` with
+    ``x_u = m(t) + u``, ``m(t)`` the conditional optimum of the 12 unit parameters given the
+    tilts ``t`` (``steps`` Gauss-Newton steps from the optimum with the optimum's matrix, as in
+    :func:`marginal_posterior`). Returns ``(transform, inverse)`` CasADi functions.
+
+    Why: along the directions the data cannot see (a tilt difference of opposite poses against
+    an angle) K and S move with the square of the tilts, so the posterior in ``x`` is a curved
+    ridge; in ``y`` the unit parameters' part is the residual about the ridge, nearly Gaussian
+    and independent of ``t``. The map is a shear (Jacobian determinant 1), so the density is
+    unchanged."""
+    nu = len(UNIT_NAMES)
+    d = nu + 2 * problem.n
+    P = ca.DM(conditional_update(problem, sol.J))
+    f = problem.residual_function()
+    data = (ca.DM(problem.w.T), ca.DM(1.0 / problem.se.T), ca.DM(problem.cov_matrix), problem.gravity_g)
+    angle_cols = [int(i) for i in problem.angle_cols]
+    t = ca.MX.sym("t", 2 * problem.n)
+    m = ca.DM(sol.x[:nu])
+    for _ in range(steps):
+        r = ca.vertcat(f(ca.vertcat(m, t), *data), m[angle_cols] / problem.sigma_a)
+        m = m - ca.mtimes(P, r)
+    m_of_t = ca.Function("conditional_optimum", [t], [m])
+    y = ca.MX.sym("y", d)
+    x = ca.MX.sym("x", d)
+    transform = ca.Function("shear", [y], [ca.vertcat(y[:nu] + m_of_t(y[nu:]), y[nu:])])
+    inverse = ca.Function("shear_inverse", [x], [ca.vertcat(x[:nu] - m_of_t(x[nu:]), x[nu:])])
+    return transform, inverse
+
+
 def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: Solution, labels: Sequence[str], *,
                        serial: str, scale_unit: str, priors=None, posterior_path=None, **sampler):
     """Posterior of the known-pose model: the 12 unit parameters and the 12 placement tilts
     (prior N(0, sigma_h^2), the random effect), sampled jointly, so the tilts are integrated out
-    exactly (no importance sampling). Starts from the penalised least-squares optimum."""
+    exactly (no importance sampling); the angles' prior N(0, sigma_a^2) is the least-squares
+    fit's. The walkers move in the sheared coordinates of :func:`conditional_shear`."""
     from .posterior import ResidualTarget, sample_target
 
     nu = len(UNIT_NAMES)
@@ -613,10 +731,12 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
     names = UNIT_NAMES + tilt_names
     units = tuple(ls[n].unit for n in UNIT_NAMES) + ("arcsec",) * len(tilt_names)
     k0 = float(np.mean(sol.x[:3]))
-    pri = raw_priors(names, k0, scale_unit, problem.sigma_h, overrides=priors)
+    pri = raw_priors(names, k0, scale_unit, problem.sigma_h, overrides=priors,
+                     misalignment_sd_arcsec=problem.sigma_a)
     cov_ls = _covariance(sol.J)
     z = 1.959963984540054
     ls_intervals = {n: (ls[n].value - z * ls[n].u, ls[n].value + z * ls[n].u) for n in UNIT_NAMES}
+    transform, inverse = conditional_shear(problem, sol)
     target = ResidualTarget(
         name="known_poses", residual=problem.residual_function(),
         data=(problem.w.T, 1.0 / problem.se.T, problem.cov_matrix, problem.gravity_g),
@@ -625,7 +745,7 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
         observed={"w": (("reading",), problem.w.reshape(-1), {"units": scale_unit.split("/")[-1]})},
         obs_coords={"pose": ("reading", np.repeat(np.asarray(labels, str), 3)),
                     "axis": ("reading", np.tile(["x", "y", "z"], problem.n))},
-        unit_serial=serial)
+        unit_serial=serial, transform=transform, inverse=inverse)
     result, run = sample_target(target, posterior_path=posterior_path, **sampler)
     tilts = {n: result.parameters.pop(n) for n in tilt_names}
     for n in tilt_names:
@@ -695,7 +815,8 @@ def static_intervals_of(rec: RawRecording, *, labels: Optional[str] = None, inte
 
 def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence[str]] = None,
             unit: str = "counts", poses: str = "known", labels: Optional[str] = None, intervals=None,
-            local_g_m_s2: float = 9.81, placement_sd_deg: float = 1.0, counts_per_g: Optional[float] = None,
+            local_g_m_s2: float = 9.81, placement_sd_deg: float = 1.0, misalignment_sd_deg: float = 1.0,
+            counts_per_g: Optional[float] = None,
             serial: Optional[str] = None, window_s: float = 1.0, threshold: float = 4.0,
             min_duration_s: float = 2.0, json_path=None, bench_csv_path=None, sample: bool = False,
             posterior_path=None, priors=None, ess: float = 2000, seed: int = 0, max_steps: int = 20000,
@@ -734,7 +855,8 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
     campaign = None
     if poses == "known":
         result, problem, sol = fit_known_poses(avg, gravity_g=gravity_g, scale_unit=rec.scale_unit,
-                                               serial=serial, placement_sd_deg=placement_sd_deg)
+                                               serial=serial, placement_sd_deg=placement_sd_deg,
+                                               misalignment_sd_deg=misalignment_sd_deg)
         campaign = bench_campaign(avg, rec, serial, local_g_m_s2)
     else:
         result, problem, sol = fit_unknown_poses(rec, avg, gravity_g=gravity_g, serial=serial)
