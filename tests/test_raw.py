@@ -430,20 +430,21 @@ def test_unknown_pose_posterior_agrees_with_least_squares(tmp_path):
 @needs_real
 def test_mpu6050_posterior_says_ca_xy_is_prior_influenced():
     """10 poses for 9 parameters: Ca_xy's least-squares SD (~14000") is of the prior's size
-    (18000"), so the posterior of Ca_xy is the prior's as much as the data's, and says so; the
-    posterior is far from Gaussian (a curved ridge), the sampler's tau is in the hundreds of
-    steps, and a capped run says not_converged rather than report intervals it cannot vouch for."""
+    (18000"), so the posterior of Ca_xy is the prior's as much as the data's, and says so. The
+    posterior is a curved ridge along Ca_xy (tau ~1000 steps in plain whitened coordinates);
+    the walkers move along Ca_xy with the other parameters sheared to their conditional optimum,
+    which mixes (tau < 10) and converges."""
     out = fit_raw(REAL / "tomisuarez2_example_data_calibration.csv", 100.0, poses="unknown",
                   local_g_m_s2=STANDARD_GRAVITY_M_S2, sample=True, max_steps=3000)
-    r = out.result
+    r, run = out.result, out.posterior_run
+    assert r.status == "ok" and run.checks[-1]["tau_max"] < 10
     flags = r.extra["flags"]
     assert "Ca_xy" in flags["prior_influenced"] or "Ca_xy" in flags["prior_dominated"]
     assert r.intervals["Ca_xy"]["ls_prior_sd_ratio"] > 0.5
     assert any(n.startswith("Ca_xy: prior-") for n in r.notes)
     assert r["Ca_xy"].u > 10 * max(r["Ca_xz"].u, r["Ca_yz"].u)          # the poorly determined angle
-    assert "Ca_xz" not in flags["prior_influenced"] and "K_z" not in flags["prior_influenced"]
-    if r.status != "ok":
-        assert r.notes[0].startswith("not converged")
+    assert "Ca_xz" not in flags["prior_influenced"] + flags["prior_dominated"]
+    assert "K_z" not in flags["prior_influenced"] + flags["prior_dominated"]
 
 
 @needs_real

@@ -35,7 +35,7 @@ S's move, in its u, when sigma_a is halved or doubled (typically 0.1-1 u), and a
 "prior-sensitive" above 0.5 u. The Gaussian posterior covariance of the penalised fit is
 the inverse of the augmented normal matrix; the reported values integrate the tilts out
 (:func:`marginal_posterior`), and ``--sample`` samples tilts and unit parameters jointly
-in sheared coordinates (:func:`conditional_shear`).
+in sheared coordinates (:func:`sample_known_poses`).
 
 **Unknown poses** (free orientation, Tedaldi et al. 2014 / imu_tk): the cost is the sum
 over static intervals of ``(|A| - g)^2`` with ``A = Ca^-1 (K W - S)`` (the paper's
@@ -650,15 +650,18 @@ def raw_priors(names: Sequence[str], k0: float, scale_unit: str, placement_sd_ar
 
 
 def sample_unknown_poses(ls: CalibrationResult, problem: NormProblem, sol: Solution, *, serial: str,
-                         scale_unit: str, priors=None, posterior_path=None, **sampler):
+                         scale_unit: str, priors=None, posterior_path=None, shear: bool = True, **sampler):
     """Posterior of the gravity-norm model (:func:`triadcal.estimation.posterior.sample_target`).
 
     Likelihood: ``|A_k| - g ~ N(0, s^2)`` per interval with ``s^2`` the variance the
     least-squares fit used (the residual variance, not below the noise of the interval means),
     held fixed. The least-squares intervals the flags compare with are the Gaussian ones
     (``value +- 1.96 u``, the same ``s``), so a ``non_gaussian`` flag is about the shape of
-    the posterior, not the Student-t factor. Returns ``(CalibrationResult, PosteriorRun)``."""
-    from .posterior import ResidualTarget, sample_target
+    the posterior, not the Student-t factor. Parameters whose least-squares SD exceeds half
+    their prior SD (a nearly singular design: the MPU-6050's Ca_xy) are the slow coordinates of
+    a :func:`~triadcal.estimation.posterior.conditional_shear` (``shear=False``: plain whitened
+    coordinates, for comparison). Returns ``(CalibrationResult, PosteriorRun)``."""
+    from .posterior import PRIOR_DOMINATED_RATIO, ResidualTarget, conditional_shear, sample_target
 
     f = ls.fit
     s2 = max(f["residual_variance_g2"] or 0.0, f["noise_variance_g2"])
@@ -667,9 +670,17 @@ def sample_unknown_poses(ls: CalibrationResult, problem: NormProblem, sol: Solut
     names = NORM_NAMES
     units = tuple(ls[n].unit for n in names)
     cov = ls.covariance(list(names))
+    pri = raw_priors(names, k0, scale_unit, overrides=priors)
+    data = (problem.w.T, problem.gravity_g, 1.0 / sigma)
+    # parameters the data determine no better than the prior: the walkers move along them and
+    # the others follow through the conditional shear (the ridge of a nearly singular design)
+    slow = [i for i, n in enumerate(names) if ls[n].u > PRIOR_DOMINATED_RATIO * pri[n].sd]
+    transform = inverse = None
+    if slow and shear:
+        transform, inverse = conditional_shear(problem.residual_function(), data, pri, names, sol.x, slow)
     target = ResidualTarget(
-        name="norm", residual=problem.residual_function(), data=(problem.w.T, problem.gravity_g, 1.0 / sigma),
-        names=names, units=units, priors=raw_priors(names, k0, scale_unit, overrides=priors), x_ls=sol.x,
+        name="norm", residual=problem.residual_function(), data=data,
+        names=names, units=units, priors=pri, x_ls=sol.x, transform=transform, inverse=inverse,
         cov_ls=cov, sigma=sigma, obs_dim="interval", obs_name="norm_residual",
         observed={"w": (("interval", "axis"), problem.w, {"units": scale_unit.split("/")[-1]})},
         obs_coords={"axis": ["x", "y", "z"]}, unit_serial=serial)
@@ -685,46 +696,23 @@ def sample_unknown_poses(ls: CalibrationResult, problem: NormProblem, sol: Solut
                                          "parameters": {n: ls[n].to_dict() for n in names},
                                          "intervals": ls.intervals}})
     result.extra["fixed"] = ls.extra.get("fixed", {})
+    result.extra["sampler"]["coordinates"] = (
+        "sheared: the walkers move along " + ", ".join(names[i] for i in slow) + "; the other parameters about "
+        "their conditional optimum" if transform is not None else "whitened (Laplace approximation)")
     return result, run
 
 
-def conditional_shear(problem: KnownPoseProblem, sol: Solution, steps: int = 2):
-    """The sampler's coordinates for the known-pose posterior: ``y = (u, t)`` with
-    ``x_u = m(t) + u``, ``m(t)`` the conditional optimum of the 12 unit parameters given the
-    tilts ``t`` (``steps`` Gauss-Newton steps from the optimum with the optimum's matrix, as in
-    :func:`marginal_posterior`). Returns ``(transform, inverse)`` CasADi functions.
-
-    Why: along the directions the data cannot see (a tilt difference of opposite poses against
-    an angle) K and S move with the square of the tilts, so the posterior in ``x`` is a curved
-    ridge; in ``y`` the unit parameters' part is the residual about the ridge, nearly Gaussian
-    and independent of ``t``. The map is a shear (Jacobian determinant 1), so the density is
-    unchanged."""
-    nu = len(UNIT_NAMES)
-    d = nu + 2 * problem.n
-    P = ca.DM(conditional_update(problem, sol.J))
-    f = problem.residual_function()
-    data = (ca.DM(problem.w.T), ca.DM(1.0 / problem.se.T), ca.DM(problem.cov_matrix), problem.gravity_g)
-    angle_cols = [int(i) for i in problem.angle_cols]
-    t = ca.MX.sym("t", 2 * problem.n)
-    m = ca.DM(sol.x[:nu])
-    for _ in range(steps):
-        r = ca.vertcat(f(ca.vertcat(m, t), *data), m[angle_cols] / problem.sigma_a)
-        m = m - ca.mtimes(P, r)
-    m_of_t = ca.Function("conditional_optimum", [t], [m])
-    y = ca.MX.sym("y", d)
-    x = ca.MX.sym("x", d)
-    transform = ca.Function("shear", [y], [ca.vertcat(y[:nu] + m_of_t(y[nu:]), y[nu:])])
-    inverse = ca.Function("shear_inverse", [x], [ca.vertcat(x[:nu] - m_of_t(x[nu:]), x[nu:])])
-    return transform, inverse
-
-
 def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: Solution, labels: Sequence[str], *,
-                       serial: str, scale_unit: str, priors=None, posterior_path=None, **sampler):
+                       serial: str, scale_unit: str, priors=None, posterior_path=None, shear: bool = True,
+                       **sampler):
     """Posterior of the known-pose model: the 12 unit parameters and the 12 placement tilts
     (prior N(0, sigma_h^2), the random effect), sampled jointly, so the tilts are integrated out
     exactly (no importance sampling); the angles' prior N(0, sigma_a^2) is the least-squares
-    fit's. The walkers move in the sheared coordinates of :func:`conditional_shear`."""
-    from .posterior import ResidualTarget, sample_target
+    fit's. The walkers move in sheared coordinates
+    (:func:`~triadcal.estimation.posterior.conditional_shear`): the tilts, and the unit
+    parameters about their conditional optimum given the tilts; along the unresolved directions
+    K and S move with the squares of the tilts, a curved ridge the shear straightens."""
+    from .posterior import ResidualTarget, conditional_shear, sample_target
 
     nu = len(UNIT_NAMES)
     tilt_names = tuple(f"tilt_{c}_{lab}" for lab in labels for c in "xy")
@@ -736,7 +724,11 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
     cov_ls = _covariance(sol.J)
     z = 1.959963984540054
     ls_intervals = {n: (ls[n].value - z * ls[n].u, ls[n].value + z * ls[n].u) for n in UNIT_NAMES}
-    transform, inverse = conditional_shear(problem, sol)
+    data = (problem.w.T, 1.0 / problem.se.T, problem.cov_matrix, problem.gravity_g)
+    transform = inverse = None
+    if shear:
+        transform, inverse = conditional_shear(problem.residual_function(), data, pri, names, sol.x,
+                                               slow=range(nu, len(names)))
     target = ResidualTarget(
         name="known_poses", residual=problem.residual_function(),
         data=(problem.w.T, 1.0 / problem.se.T, problem.cov_matrix, problem.gravity_g),
@@ -757,6 +749,9 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
     for key in ("non_gaussian", "prior_dominated", "prior_influenced"):
         flags[key] = [n for n in flags[key] if n in UNIT_NAMES]
     result.notes = [n for n in result.notes if not n.startswith("tilt_")] + list(ls.notes)
+    result.extra["sampler"]["coordinates"] = (
+        "sheared: the walkers move along the placement tilts; the unit parameters about their conditional "
+        "optimum given the tilts" if transform is not None else "whitened (Laplace approximation)")
     result.fit.update({"model": ls.fit["model"], "placement_sd_deg": ls.fit["placement_sd_deg"],
                        "n_nuisance": len(tilt_names),
                        "least_squares": {"status": ls.status, "estimator": ls.fit.get("estimator"),
