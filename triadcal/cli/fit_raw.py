@@ -26,8 +26,10 @@ def register(sub) -> None:
     src.add_argument("--intervals", metavar="FILE",
                      help="static intervals: imucal session-list JSON, or start/end sample indices (CSV)")
     p.add_argument("--local-g", type=float, default=9.81, metavar="M_S2", help="local gravity, m/s2 (default 9.81)")
-    p.add_argument("--placement-sd-deg", type=float, default=1.0,
-                   help="prior SD of the hand-placement tilt per pose and component, deg (known poses; default 1)")
+    p.add_argument("--placement-sd-deg", default="auto", metavar="DEG|auto",
+                   help="SD of the hand-placement tilt per pose and component, deg (a stated prior), or 'auto' "
+                        "(default): integrated over a log-uniform hyperprior on 0.02-20 deg, weighted by what the "
+                        "data say (fit.placement_sd_from_data) (known poses)")
     p.add_argument("--misalignment-sd-deg", type=float, default=1.0,
                    help="prior SD of each misalignment angle Ca_*, deg (known poses; default 1, a cross-axis "
                         "sensitivity of 1.7 %%): the angles are confounded with the placement, and their spread "

@@ -14,12 +14,14 @@ by a small unknown rotation, modelled as a per-pose tilt of the apparent gravity
 as ``Ca_yx`` does, and the -X pose's with the opposite sign: the data determine
 ``Ca_yx + (t_y(+X) - t_y(-X))/2`` and ``S_y`` plus the sum of the two tilts, never the
 angle alone. With 6 poses the 12 tilt components add 6 directions that no recording
-can separate from the 6 angles. The tilts are therefore a **random effect** with a
-stated prior, independent N(0, sigma_h^2) per component (default sigma_h = 1 deg, a
-careful hand placement on a flat table; ``placement_sd_deg``), fitted as penalised
-least squares (prior pseudo-observations ``t / sigma_h``). Fixing the mean placement
-error instead would not help: the confounded directions are the *differences* between
-opposite poses, not the mean.
+can separate from the 6 angles. The tilts are therefore a **random effect**,
+independent N(0, sigma_h^2) per component, fitted as penalised least squares (prior
+pseudo-observations ``t / sigma_h``). sigma_h is either stated (``placement_sd_deg``) or,
+by default (``"auto"``), integrated over a log-uniform hyperprior on 0.02-20 deg with the
+weights of its marginal likelihood (:func:`placement_sd_evidence`; the data inform it
+through the tilt *sums* of opposite poses). Fixing the mean placement error instead would
+not help: the confounded directions are the *differences* between opposite poses, not the
+mean.
 
 *The angles need a proper prior too* (N(0, sigma_a^2), default sigma_a = 1 deg,
 ``misalignment_sd_deg``). The data fix ``Ca + (t_1 - t_2)/2`` only, so the angles'
@@ -30,9 +32,9 @@ angles lets them spread by sigma_h/sqrt(2) on top of their true size, which bias
 -0.45 u over 200 simulated units (angles 1 deg), K's z-scores with SD 0.76-0.86; with the
 prior matching the units their mean is 0.0 and their SD 1.0. The angles' standard
 uncertainty is then ``(1/sigma_a^2 + 2/sigma_h^2)^-1/2`` (0.58 deg at 1 deg / 1 deg). The
-dependence on sigma_a is reported: ``fit.misalignment_prior_sensitivity`` gives each K and
-S's move, in its u, when sigma_a is halved or doubled (typically 0.1-1 u), and a note says
-"prior-sensitive" above 0.5 u. The Gaussian posterior covariance of the penalised fit is
+dependence on the priors is reported: ``fit.prior_sensitivity`` gives each K and S's move,
+in its u, when sigma_a or sigma_h is halved or doubled (typically 0.1-1 u), and a note
+says "prior-sensitive" above 0.5 u. The Gaussian posterior covariance of the penalised fit is
 the inverse of the augmented normal matrix; the reported values integrate the tilts out
 (:func:`marginal_posterior`), and ``--sample`` samples tilts and unit parameters jointly
 in sheared coordinates (:func:`sample_known_poses`).
@@ -53,7 +55,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Optional, Sequence, Union
 
 import casadi as ca
 import numpy as np
@@ -290,24 +292,126 @@ def _known_pose_estimate(problem: KnownPoseProblem, sol: Solution, n_draws: int,
     return sol.x, cov_laplace, ess, f"Laplace approximation at the optimum (importance sampling ESS {ess:.0f} < 200)"
 
 
-def misalignment_prior_sensitivity(problem: KnownPoseProblem, sol: Solution, mean: np.ndarray, u: np.ndarray,
-                                   n_draws: int, seed: int, factors=(0.5, 2.0)) -> dict:
-    """How far each unit parameter moves, in its standard uncertainty, when the angles' prior SD
-    is multiplied by each of ``factors`` (refit and importance sampling again). The angles
-    change with their prior by construction; K and S through the second-order terms."""
-    sigma_a = problem.sigma_a
-    shifts = []
+#: the placement prior SD when none is stated (and the start of ``auto``), deg
+DEFAULT_PLACEMENT_SD_DEG = 1.0
+#: the grid of placement SDs (deg) of the evidence and of ``auto``'s integral: log-spaced, so
+#: equal weights per point are the scale-invariant (log-uniform) hyperprior on 0.02-20 deg
+PLACEMENT_GRID_DEG = np.geomspace(0.02, 20.0, 61)
+
+#: the priors of the known-pose model whose SD the sensitivity study varies: result key -> attribute
+SENSITIVITY_PRIORS = {"misalignment_sd_deg": "sigma_a", "placement_sd_deg": "sigma_h"}
+
+
+def _integrate_placement_sd(problem: KnownPoseProblem, evidence: dict, solutions: list, n_draws: int, seed: int):
+    """``placement_sd_deg="auto"``: the posterior mean and covariance with the placement SD
+    integrated over its grid (log-uniform hyperprior, weights from the marginal likelihood of
+    :func:`placement_sd_evidence`), each grid point's own importance-sampled marginal mixed by
+    the law of total variance. Grid points below 1e-4 of the largest weight are skipped.
+    Leaves ``problem.sigma_h`` at the most probable SD and returns
+    ``(mean, cov, ess, estimator, solution at that SD, that SD in deg)``."""
+    grid = np.asarray(evidence["grid_deg"])
+    ll = np.asarray(evidence["log_likelihood"])
+    w = np.exp(ll - ll.max())
+    keep = np.nonzero(w >= 1e-4)[0]
+    w = w[keep] / w[keep].sum()
+    means, covs, esss = [], [], []
     try:
-        for f in factors:
-            problem.sigma_a = sigma_a * f
-            s2 = levenberg_marquardt(problem, sol.x)
-            m2 = _known_pose_estimate(problem, s2, n_draws, seed)[0]
-            shifts.append((m2[:len(UNIT_NAMES)] - mean[:len(UNIT_NAMES)]) / u[:len(UNIT_NAMES)])
+        for j in keep:
+            problem.sigma_h = grid[j] * 3600.0
+            m, c, e, _ = _known_pose_estimate(problem, solutions[j], n_draws, seed)
+            means.append(m), covs.append(c), esss.append(e)
     finally:
-        problem.sigma_a = sigma_a
-    return {"misalignment_sd_deg": [sigma_a * f / 3600.0 for f in factors],
-            "shift_in_u": {n: [float(v[i]) for v in shifts] for i, n in enumerate(UNIT_NAMES)
-                           if not n.startswith("Ca_")}}
+        best = int(np.argmax(ll))
+        problem.sigma_h = grid[best] * 3600.0
+    means = np.array(means)
+    mean = w @ means
+    d = means - mean
+    cov = np.einsum("j,jab->ab", w, np.array(covs)) + (d * w[:, None]).T @ d
+    estimator = (f"posterior mean and SD, placement tilts and their SD integrated out ({len(keep)} grid points of "
+                 "the SD, each by Rao-Blackwellised importance sampling)")
+    return mean, cov, float(min(esss)), estimator, solutions[best], float(grid[best])
+
+
+def prior_sensitivity(problem: KnownPoseProblem, sol: Solution, mean: np.ndarray, u: np.ndarray,
+                      n_draws: int, seed: int, factors=(0.5, 2.0), priors=tuple(SENSITIVITY_PRIORS)) -> dict:
+    """How far each K and S moves, in its standard uncertainty, when the SD of the angles' prior
+    (``misalignment_sd_deg``) or of the placement prior (``placement_sd_deg``) is multiplied by
+    each of ``factors``, the other held (refit and importance sampling again, same random
+    numbers). K and S depend on both through the second-order terms (module docstring); the
+    angles follow their priors by construction and are not listed."""
+    nu = len(UNIT_NAMES)
+    out = {}
+    for key in priors:
+        attr = SENSITIVITY_PRIORS[key]
+        sd = getattr(problem, attr)
+        shifts = []
+        try:
+            for f in factors:
+                setattr(problem, attr, sd * f)
+                s2 = levenberg_marquardt(problem, sol.x)
+                m2 = _known_pose_estimate(problem, s2, n_draws, seed)[0]
+                shifts.append((m2[:nu] - mean[:nu]) / u[:nu])
+        finally:
+            setattr(problem, attr, sd)
+        out[key] = {"sd_deg": [sd * f / 3600.0 for f in factors], "factors": list(factors),
+                    "shift_in_u": {n: [float(v[i]) for v in shifts] for i, n in enumerate(UNIT_NAMES)
+                                   if not n.startswith("Ca_")}}
+    return out
+
+
+def sensitivity_note(sensitivity: dict) -> Optional[str]:
+    """The "prior-sensitive" note: the largest move of :func:`prior_sensitivity` above
+    :data:`SENSITIVITY_NOTE_U`, or None."""
+    worst = max(((abs(v), n, key, shifts) for key, block in sensitivity.items()
+                 for n, shifts in block["shift_in_u"].items() for v in shifts), default=None)
+    if worst is None or worst[0] <= SENSITIVITY_NOTE_U:
+        return None
+    _, n, key, shifts = worst
+    what = {"misalignment_sd_deg": "misalignment (angle) prior SD", "placement_sd_deg": "placement prior SD"}[key]
+    return (f"prior-sensitive: {n} moves by {shifts[0]:+.2f} u / {shifts[1]:+.2f} u when the {what} is halved / "
+            f"doubled (fit.prior_sensitivity); state the priors with the result")
+
+
+def placement_sd_evidence(problem: KnownPoseProblem, sol: Solution, grid_deg=None, solutions: Optional[list] = None) -> dict:
+    """What the data say about the placement SD sigma_h: the Laplace approximation of the
+    marginal likelihood ``log p(data | sigma_h)`` (tilts, angles and unit parameters integrated
+    out: ``-chi2_min/2 - log det(J^T J)/2 - 2 n log sigma_h``, the angles' prior held) on a
+    log grid, its maximum (type-II maximum likelihood) and the likelihood-ratio intervals
+    (``2 Delta log L`` below 1 and 3.84). The information comes from the tilt *sums* of
+    opposite poses (six numbers), so the estimate is rough (relative SE ~ 30 %); it checks the
+    stated prior, or is integrated over (``placement_sd_deg="auto"``); ``solutions``, when a
+    list, receives the optimum at each grid point."""
+    grid = PLACEMENT_GRID_DEG if grid_deg is None else np.asarray(grid_deg, float)
+    sigma_h = problem.sigma_h
+    ll = []
+    x = sol.x
+    try:
+        for sd in grid:
+            problem.sigma_h = sd * 3600.0
+            s2 = levenberg_marquardt(problem, x)
+            if solutions is not None:
+                solutions.append(s2)
+            d = np.linalg.norm(s2.J, axis=0)
+            d[d == 0] = 1.0
+            _, logdet = np.linalg.slogdet((s2.J / d).T @ (s2.J / d))
+            logdet += 2.0 * np.sum(np.log(d))
+            ll.append(-0.5 * float(s2.r @ s2.r) - 0.5 * logdet - 2 * problem.n * math.log(problem.sigma_h))
+    finally:
+        problem.sigma_h = sigma_h
+    ll = np.array(ll)
+    i = int(np.argmax(ll))
+    dev = 2.0 * (ll[i] - ll)
+
+    def interval(level):
+        inside = np.nonzero(dev <= level)[0]
+        lo, hi = grid[inside.min()], grid[inside.max()]
+        return [float(lo) if inside.min() > 0 else 0.0, float(hi) if inside.max() < len(grid) - 1 else None]
+
+    return {"estimate_deg": float(grid[i]) if 0 < i < len(grid) - 1 else (0.0 if i == 0 else None),
+            "interval68_deg": interval(1.0), "interval95_deg": interval(3.841),
+            "grid_deg": [float(g) for g in grid], "log_likelihood": [float(v) for v in ll - ll[i]],
+            "method": "Laplace marginal likelihood on a log grid 0.02-20 deg (type-II maximum likelihood); "
+                      "intervals where 2 Delta log L < 1 and < 3.84; 0 or null: at the grid's end"}
 
 
 def _conditional_jacobian(problem: KnownPoseProblem, J_map: np.ndarray) -> np.ndarray:
@@ -336,13 +440,22 @@ def _covariance(J: np.ndarray) -> np.ndarray:
 
 
 def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, serial: str,
-                    placement_sd_deg: float = 1.0, misalignment_sd_deg: float = 1.0, n_draws: int = 2000,
+                    placement_sd_deg: Union[float, str] = "auto", misalignment_sd_deg: float = 1.0, n_draws: int = 2000,
                     seed: int = 0):
     """Known-pose fit; returns ``(CalibrationResult, KnownPoseProblem, Solution)``.
 
-    ``placement_sd_deg``: prior SD of each placement tilt component (the random effect);
-    ``misalignment_sd_deg``: prior SD of each angle Ca_* (module docstring: why the angles need
-    a proper prior here)."""
+    ``placement_sd_deg``: prior SD of each placement tilt component (the random effect), or
+    ``"auto"``: the data's type-II maximum-likelihood value (:func:`placement_sd_evidence`;
+    empirical Bayes: its own uncertainty is not propagated, ``fit.prior_sensitivity`` shows
+    what it is worth). ``misalignment_sd_deg``: prior SD of each angle Ca_* (module docstring:
+    why the angles need a proper prior here)."""
+    auto = isinstance(placement_sd_deg, str) and placement_sd_deg.strip().lower() == "auto"
+    if not auto:
+        try:
+            placement_sd_deg = float(placement_sd_deg)
+        except ValueError:
+            raise ValueError(f"the placement SD must be a number of degrees or 'auto', got {placement_sd_deg!r}")
+    start_sd = DEFAULT_PLACEMENT_SD_DEG if auto else placement_sd_deg
     labels = [lab if lab in POSE_POSITIONS else "" for lab in avg.label]
     if "" in labels:
         raise StaticIntervalError("known poses need a pose label (x_p, x_a, y_p, y_a, z_p, z_a) on every interval")
@@ -350,7 +463,7 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
     if missing:
         raise StaticIntervalError(f"known poses need all six faces; missing: {', '.join(missing)} "
                                   f"(found {', '.join(labels)})")
-    if not placement_sd_deg > 0:
+    if not (start_sd > 0 and math.isfinite(start_sd)):
         raise ValueError("the placement SD must be positive: with no placement error the model is the "
                          "bench model (use triadcal fit on the bench CSV)")
     if not (misalignment_sd_deg > 0 and math.isfinite(misalignment_sd_deg)):
@@ -359,7 +472,7 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
     pos = [POSE_POSITIONS[lab] for lab in labels]
     a1 = np.array([DEFAULT_PLAN[p][0] for p in pos])
     a2 = np.array([DEFAULT_PLAN[p][1] for p in pos])
-    problem = KnownPoseProblem(avg.w, avg.se, a1, a2, gravity_g, placement_sd_deg * 3600.0,
+    problem = KnownPoseProblem(avg.w, avg.se, a1, a2, gravity_g, start_sd * 3600.0,
                                misalignment_sd_deg * 3600.0)
     # start: per-axis linear fit on the nominal gravity (the joint fit's start), tilts 0
     k = len(pos)
@@ -373,10 +486,21 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
     t0 = time.perf_counter()
     sol = levenberg_marquardt(problem, x0)
     solve_seconds = time.perf_counter() - t0
-    mean, cov, ess, estimator = _known_pose_estimate(problem, sol, n_draws, seed)
+    solutions = []
+    evidence = placement_sd_evidence(problem, sol, solutions=solutions)
+    source = "stated (--placement-sd-deg)"
+    if auto:
+        mean, cov, ess, estimator, sol, placement_sd_deg = _integrate_placement_sd(problem, evidence, solutions,
+                                                                                  n_draws, seed)
+        source = ("integrated: hyperprior log-uniform on 0.02-20 deg, posterior from the marginal likelihood "
+                  "(fit.placement_sd_from_data); the value here is its maximum")
+    else:
+        mean, cov, ess, estimator = _known_pose_estimate(problem, sol, n_draws, seed)
     u = np.sqrt(np.diag(cov))
     nu = len(UNIT_NAMES)
-    sensitivity = misalignment_prior_sensitivity(problem, sol, mean, u, n_draws, seed)
+    # with auto the placement SD is integrated over: only the angles' prior is varied (at its maximum)
+    sensitivity = prior_sensitivity(problem, sol, mean, u, n_draws, seed,
+                                    priors=("misalignment_sd_deg",) if auto else tuple(SENSITIVITY_PRIORS))
     units = {"K": scale_unit, "S": "g", "Ca": "arcsec"}
     params = {n: ParameterValue(float(mean[i]), float(u[i]), units[n.split("_")[0]])
               for i, n in enumerate(UNIT_NAMES)}
@@ -387,25 +511,32 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
     chi2 = float(sol.r @ sol.r)
     dof = len(sol.r) - len(sol.x)         # data, tilt-prior and angle-prior rows
     fit = {"model": "known poses: eq. 1 with a random placement tilt per pose",
-           "placement_sd_deg": placement_sd_deg, "misalignment_sd_deg": misalignment_sd_deg,
+           "placement_sd_deg": placement_sd_deg, "placement_sd_source": source,
+           "misalignment_sd_deg": misalignment_sd_deg,
            "n_obs": n_data, "n_params": nu,
            "n_nuisance": 2 * k, "chi2_dof": chi2 / dof if dof > 0 else None,
            "placement_rms_estimate_deg": float(np.sqrt(np.mean(tilts ** 2))) / 3600.0,
            "iterations": sol.iterations, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds,
            "noise": "standard error of each pose mean: max(sd/sqrt(n), batch means)",
            "estimator": estimator, "importance_ess": ess, "n_draws": n_draws,
-           "misalignment_prior_sensitivity": sensitivity}
+           "prior_sensitivity": sensitivity, "placement_sd_from_data": evidence}
     u_angle = 1.0 / math.sqrt(1.0 / misalignment_sd_deg ** 2 + 2.0 / placement_sd_deg ** 2)
-    notes = [f"hand placement: each pose's gravity direction has a random tilt, prior SD {placement_sd_deg:g} deg "
-             "per component; the angles Ca_* are confounded with the difference of the tilts of opposite poses, "
-             f"so their uncertainty (~{u_angle:.2g} deg) comes from that prior and the angles' prior "
-             f"(SD {misalignment_sd_deg:g} deg), not from the data; K and S are determined by the data, "
-             "but at second order (tilt^2) they depend on both priors"]
-    worst = max(sensitivity["shift_in_u"].items(), key=lambda kv: max(abs(v) for v in kv[1]))
-    if max(abs(v) for v in worst[1]) > SENSITIVITY_NOTE_U:
-        notes.append(f"prior-sensitive: {worst[0]} moves by {worst[1][0]:+.2f} u / {worst[1][1]:+.2f} u when the "
-                     f"misalignment prior SD is halved / doubled ({misalignment_sd_deg:g} deg used); state the "
-                     "prior with the result")
+    placement = (f"SD integrated over a log-uniform hyperprior, most probable {placement_sd_deg:.2g} deg" if auto
+                 else f"prior SD {placement_sd_deg:g} deg")
+    notes = [f"hand placement: each pose's gravity direction has a random tilt ({placement}, per component); the "
+             "angles Ca_* are confounded with the difference of the tilts of opposite poses, so their uncertainty "
+             f"(~{u_angle:.2g} deg) comes from the placement and the angles' prior (SD {misalignment_sd_deg:g} deg), "
+             "not from the data; K and S are determined by the data, but at second order (tilt^2) they depend "
+             "on both"]
+    note = sensitivity_note(sensitivity)
+    if note:
+        notes.append(note)
+    lo, hi = evidence["interval95_deg"]
+    if not auto and (placement_sd_deg < lo or (hi is not None and placement_sd_deg > hi)):
+        notes.append(f"the data put the placement SD at {evidence['estimate_deg']:.2g} deg (95 %: "
+                     f"{lo:.2g}-{'' if hi is None else f'{hi:.2g}'} deg), outside the {placement_sd_deg:g} deg "
+                     "prior used: K and S depend on it at second order (fit.prior_sensitivity); consider "
+                     "--placement-sd-deg " + f"{evidence['estimate_deg']:.2g} (or auto)")
     if fit["chi2_dof"] is not None and fit["chi2_dof"] > 3.0:
         notes.append(f"chi2/dof = {fit['chi2_dof']:.3g}: the poses are further from their faces than the "
                      f"{placement_sd_deg:g} deg prior allows (or the unit is not linear); raise --placement-sd-deg")
@@ -738,7 +869,12 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
         obs_coords={"pose": ("reading", np.repeat(np.asarray(labels, str), 3)),
                     "axis": ("reading", np.tile(["x", "y", "z"], problem.n))},
         unit_serial=serial, transform=transform, inverse=inverse)
-    result, run = sample_target(target, posterior_path=posterior_path, **sampler)
+    notes = []
+    if str(ls.fit.get("placement_sd_source", "")).startswith("integrated"):
+        notes.append(f"the sampler holds the placement SD at the data's most probable value "
+                     f"({problem.sigma_h / 3600.0:.2g} deg); the least-squares result (fit.least_squares) integrates "
+                     "it, so its intervals are the slightly wider, safer ones")
+    result, run = sample_target(target, posterior_path=posterior_path, notes=notes, **sampler)
     tilts = {n: result.parameters.pop(n) for n in tilt_names}
     for n in tilt_names:
         result.intervals.pop(n, None)
@@ -753,6 +889,8 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
         "sheared: the walkers move along the placement tilts; the unit parameters about their conditional "
         "optimum given the tilts" if transform is not None else "whitened (Laplace approximation)")
     result.fit.update({"model": ls.fit["model"], "placement_sd_deg": ls.fit["placement_sd_deg"],
+                       "placement_sd_source": ls.fit.get("placement_sd_source"),
+                       "misalignment_sd_deg": ls.fit.get("misalignment_sd_deg"),
                        "n_nuisance": len(tilt_names),
                        "least_squares": {"status": ls.status, "estimator": ls.fit.get("estimator"),
                                          "parameters": {n: {"value": ls[n].value, "u": ls[n].u}
@@ -810,7 +948,7 @@ def static_intervals_of(rec: RawRecording, *, labels: Optional[str] = None, inte
 
 def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence[str]] = None,
             unit: str = "counts", poses: str = "known", labels: Optional[str] = None, intervals=None,
-            local_g_m_s2: float = 9.81, placement_sd_deg: float = 1.0, misalignment_sd_deg: float = 1.0,
+            local_g_m_s2: float = 9.81, placement_sd_deg: Union[float, str] = "auto", misalignment_sd_deg: float = 1.0,
             counts_per_g: Optional[float] = None,
             serial: Optional[str] = None, window_s: float = 1.0, threshold: float = 4.0,
             min_duration_s: float = 2.0, json_path=None, bench_csv_path=None, sample: bool = False,

@@ -345,7 +345,8 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
     per-setpoint estimates with :mod:`triadcal.estimation.budget` and
     :mod:`triadcal.estimation.classical` (seed paper, eq. 4-7):
 
-    - output noise: the estimator's standard uncertainty of the angles (largest of six);
+    - output noise: the estimator's standard uncertainty of the angles (largest of six); for a
+      hand-placed recording (``fit-raw``, known poses) "hand placement", which sets it;
     - bench positioning and wobble: sigma_1, sigma_2 of eq. 4 through the classical estimate
       of one setpoint on ``plan`` (sensitivity 1/2 on the default plan); an upper bound for
       a joint fit, which averages them over the setpoints;
@@ -366,7 +367,14 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
     P = result.parameters
     angles = [n for n in ANGLES if n in P]
     comps = []
-    if angles:
+    if angles and "placement_sd_deg" in result.fit:
+        # fit-raw, known poses: the angles' u is the hand placement's, through the priors
+        worst = max(angles, key=lambda n: P[n].u)
+        comps.append(BudgetComponent("hand placement (with output noise)", P[worst].u, P[worst].u, basis=(
+            f"standard uncertainty of the angles from the known-pose fit (largest: {worst}): the placement tilts "
+            "are confounded with the angles, so the placement SD and the angles' prior set it; Type B"),
+            equation="eq. 1"))
+    elif angles:
         worst = max(angles, key=lambda n: P[n].u)
         comps.append(BudgetComponent("output noise", P[worst].u, P[worst].u, basis=(
             f"standard uncertainty of the angles from the {source_of_u or result.method} (largest: {worst}); "
