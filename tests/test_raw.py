@@ -275,6 +275,9 @@ def test_certificate_budget_of_a_hand_placed_result_names_the_placement():
     assert top.source.startswith("hand placement")
     assert top.contribution == pytest.approx(max(r[f"Ca_{ab}"].u for ab in ANGLE_NAMES))
     assert "output noise" not in [c.source for c in b.components]
+    from triadcal.reports.certificate import build_certificate
+    cert = build_certificate(r, plots=False)
+    assert cert.source_of_u.startswith("known-pose fit") and "integrated out" in cert.source_of_u
 
 
 def test_known_poses_need_all_six_faces():

@@ -561,6 +561,8 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     issued = not reasons
     if result.method == "posterior":
         source_of_u = "posterior (standard deviation of the draws)"
+    elif result.method == "joint" and "placement_sd_deg" in result.fit:
+        source_of_u = f"known-pose fit of a hand-placed recording: {result.fit.get('estimator', 'least squares')}"
     elif result.method == "joint":
         source_of_u = "least squares (covariance of the joint fit)"
     else:
