@@ -33,7 +33,7 @@ def register(sub) -> None:
     p.add_argument("--misalignment-sd-deg", type=float, default=1.0,
                    help="prior SD of each misalignment angle Ca_*, deg (known poses; default 1, a cross-axis "
                         "sensitivity of 1.7 %%): the angles are confounded with the placement, and their spread "
-                        "reaches K and S at second order (see fit.misalignment_prior_sensitivity)")
+                        "reaches K and S at second order (see fit.prior_sensitivity)")
     p.add_argument("--counts-per-g", type=float, default=None,
                    help="datasheet scale for the 'before' figure of count data (default: one isotropic scale)")
     p.add_argument("--serial", default=None, help="serial number for the result (default: the file name)")

@@ -205,6 +205,14 @@ class Solution:
     weights: np.ndarray = field(default=None)
 
 
+def scaled_covariance(J: np.ndarray) -> np.ndarray:
+    """``(J^T J)^-1`` computed on unit-norm columns (parameters differ by 10 orders of
+    magnitude), pseudo-inverse for a rank-deficient ``J``."""
+    d = np.linalg.norm(J, axis=0)
+    d[d == 0] = 1.0
+    return np.linalg.pinv((J / d).T @ (J / d)) / np.outer(d, d)
+
+
 def levenberg_marquardt(problem: JointProblem, x0: np.ndarray, loss: str = "l2", max_iter: int = 100,
                         nu: float = 4.0) -> Solution:
     """Minimise the (robust) sum of squared normalised residuals with exact Jacobians."""
@@ -300,10 +308,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     chi2 = float(np.sum(sol.r ** 2))
     chi2_dof = chi2 / dof if dof > 0 else float("nan")
     sw = np.sqrt(sol.weights)
-    Jw = sol.J * sw[:, None]
-    d = np.linalg.norm(Jw, axis=0)
-    d[d == 0] = 1.0
-    cov = np.linalg.pinv((Jw / d).T @ (Jw / d)) / np.outer(d, d)
+    cov = scaled_covariance(sol.J * sw[:, None])
     if loss != "l2":
         # robust loss: residual variance of the weighted residuals (Huber's proposal 2 style)
         s2 = float(np.sum(sol.weights * sol.r ** 2)) / max(dof, 1)

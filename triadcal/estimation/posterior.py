@@ -63,14 +63,12 @@ from ..models.effects import DEFAULT_EFFECTS
 from ..models.kinematics import tilt_polar
 from ..models.model import Covariates, Model
 from ..models.units import ARCSEC, DEG
-from .joint import COVARIATES, JointProblem, fit_joint, noise_of
+from .joint import COVARIATES, JointProblem, fit_joint, levenberg_marquardt, noise_of, scaled_covariance
 from .priors import Prior, default_priors, prior_arrays
 from .result import CalibrationResult, ParameterValue
 
 #: posterior SD / prior SD above which a parameter is reported as prior-dominated
 PRIOR_DOMINATED_RATIO = 0.5
-#: walkers per call of a target's compiled transform (reporting draws in ``to_x``)
-TRANSFORM_BLOCK = 256
 #: an end of the 95 % central interval that differs from the least-squares one by more
 #: than this fraction of the least-squares half-width flags the posterior as non-Gaussian
 NON_GAUSSIAN_TOLERANCE = 0.15
@@ -205,7 +203,10 @@ class LogPosterior:
         """Whitened -> reporting units; ``z`` (..., d)."""
         return self.x0 + np.asarray(z) @ self.L.T
 
-    def _blocks(self, f, z: np.ndarray) -> np.ndarray:
+    def _blocks(self, f, z: np.ndarray, args: Optional[Sequence] = None) -> np.ndarray:
+        """``f`` (mapped over ``block`` columns) on the rows of ``z`` in blocks, the last one
+        padded; ``args`` after the block (default: the target's data)."""
+        args = self.args if args is None else args
         z = np.atleast_2d(np.asarray(z, float))
         m = len(z)
         out = []
@@ -214,7 +215,7 @@ class LogPosterior:
             pad = self.block - len(chunk)
             if pad:
                 chunk = np.vstack([chunk, np.repeat(chunk[-1:], pad, axis=0)])
-            v = np.asarray(f(chunk.T, *self.args))
+            v = np.asarray(f(chunk.T, *args))
             out.append(v[:, :self.block - pad] if pad else v)
         return np.hstack(out)
 
@@ -934,12 +935,8 @@ def conditional_shear(residual: ca.Function, data: Sequence, priors: Mapping[str
 def _transformed_laplace(problem: ResidualProblem, y_start: np.ndarray):
     """MAP and Laplace covariance in the walkers' coordinates of a transformed target (the priors
     are rows of ``problem``): Levenberg-Marquardt, then ``(J^T J)^-1`` (column-scaled)."""
-    from .joint import levenberg_marquardt
-
     sol = levenberg_marquardt(problem, np.asarray(y_start, float))
-    D = np.linalg.norm(sol.J, axis=0)
-    D[D == 0] = 1.0
-    C = np.linalg.inv((sol.J / D).T @ (sol.J / D)) / np.outer(D, D)
+    C = scaled_covariance(sol.J)
     return sol.x, 0.5 * (C + C.T)
 
 
@@ -1013,16 +1010,8 @@ class ResidualLogPosterior(LogPosterior):
         if self.spec.transform is None:
             return y
         if self._f_x is None:
-            self._f_x = self.spec.transform.map(TRANSFORM_BLOCK, "serial")
-        flat = y.reshape(-1, self.d)
-        out = np.empty_like(flat)
-        for k in range(0, len(flat), TRANSFORM_BLOCK):
-            chunk = flat[k:k + TRANSFORM_BLOCK]
-            pad = TRANSFORM_BLOCK - len(chunk)
-            if pad:
-                chunk = np.vstack([chunk, np.repeat(chunk[-1:], pad, axis=0)])
-            out[k:k + TRANSFORM_BLOCK] = np.asarray(self._f_x(chunk.T)).T[:TRANSFORM_BLOCK - pad]
-        return out.reshape(y.shape)
+            self._f_x = self.spec.transform.map(self.block, "serial")
+        return self._blocks(self._f_x, y.reshape(-1, self.d), args=()).T.reshape(y.shape)
 
     def pointwise(self, z: np.ndarray) -> np.ndarray:
         """Pointwise log-likelihood ``log N(obs | model, sigma)`` per draw and observation: (m, n)."""

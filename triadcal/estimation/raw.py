@@ -66,7 +66,7 @@ from ..models.campaign import DEFAULT_PLAN, Campaign
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES, calibrated_acceleration, dcm
 from ..models.units import ARCSEC, DEG, STANDARD_GRAVITY_M_S2
-from .joint import Solution, levenberg_marquardt, start_values
+from .joint import Solution, levenberg_marquardt, scaled_covariance, start_values
 from .result import CalibrationResult, ParameterValue
 from .static import (POSE_LABELS, StaticDetection, StaticIntervalError, detect_static_intervals,
                      intervals_from_labels, intervals_from_spec, pose_label_of)
@@ -260,7 +260,9 @@ def marginal_posterior(problem: KnownPoseProblem, x_map: np.ndarray, cov_laplace
     q = np.sum(np.square(np.linalg.solve(L, (T - t_map).T)), axis=0)
     log_q = -0.5 * (dof + len(t_map)) * np.log1p(q / dof)
     Xu = np.repeat(x_map[None, :nu], n_draws, axis=0)
-    P = conditional_update(problem, J_map)
+    Ju = _conditional_jacobian(problem, J_map)
+    H_inv = scaled_covariance(Ju)
+    P = H_inv @ Ju.T                 # one Gauss-Newton step given the tilts: x_u <- x_u - P r
     for _ in range(2):
         Xu = Xu - conditional_residuals(problem, Xu, T) @ P.T
     r = conditional_residuals(problem, Xu, T)
@@ -272,7 +274,7 @@ def marginal_posterior(problem: KnownPoseProblem, x_map: np.ndarray, cov_laplace
     mean = w @ X
     dX = X - mean
     cov = (dX * w[:, None]).T @ dX
-    cov[:nu, :nu] += _covariance(_conditional_jacobian(problem, J_map))
+    cov[:nu, :nu] += H_inv
     return mean, cov, float(1.0 / np.sum(w * w))
 
 
@@ -284,12 +286,14 @@ SENSITIVITY_NOTE_U = 0.5
 def _known_pose_estimate(problem: KnownPoseProblem, sol: Solution, n_draws: int, seed: int):
     """``(mean, cov, ess, estimator)``: the importance-sampled marginal, or the Laplace
     approximation at the optimum if the importance sampling degenerates."""
-    cov_laplace = _covariance(sol.J)
+    cov_laplace = scaled_covariance(sol.J)
     mean, cov, ess = marginal_posterior(problem, sol.x, cov_laplace, sol.J, n_draws=n_draws, seed=seed)
     if ess >= 200:
-        return mean, cov, ess, ("posterior mean and SD, placement tilts integrated out (Rao-Blackwellised "
-                                "importance sampling around the Laplace approximation)")
-    return sol.x, cov_laplace, ess, f"Laplace approximation at the optimum (importance sampling ESS {ess:.0f} < 200)"
+        return mean, cov, ess, ("known-pose fit of a hand-placed recording: posterior mean and SD, placement "
+                                "tilts integrated out (Rao-Blackwellised importance sampling around the Laplace "
+                                "approximation)")
+    return sol.x, cov_laplace, ess, ("known-pose fit of a hand-placed recording: Laplace approximation at the "
+                                     f"optimum (importance sampling ESS {ess:.0f} < 200)")
 
 
 #: the placement prior SD when none is stated (and the start of ``auto``), deg
@@ -327,8 +331,8 @@ def _integrate_placement_sd(problem: KnownPoseProblem, evidence: dict, solutions
     mean = w @ means
     d = means - mean
     cov = np.einsum("j,jab->ab", w, np.array(covs)) + (d * w[:, None]).T @ d
-    estimator = (f"posterior mean and SD, placement tilts and their SD integrated out ({len(keep)} grid points of "
-                 "the SD, each by Rao-Blackwellised importance sampling)")
+    estimator = (f"known-pose fit of a hand-placed recording: posterior mean and SD, placement tilts and their SD "
+                 f"integrated out ({len(keep)} grid points of the SD, each by Rao-Blackwellised importance sampling)")
     return mean, cov, float(min(esss)), estimator, solutions[best], float(grid[best])
 
 
@@ -420,23 +424,10 @@ def _conditional_jacobian(problem: KnownPoseProblem, J_map: np.ndarray) -> np.nd
     return np.vstack([J_map[:nd, :nu], J_map[5 * problem.n:, :nu]])
 
 
-def conditional_update(problem: KnownPoseProblem, J_map: np.ndarray) -> np.ndarray:
-    """``P = (J_u^T J_u)^-1 J_u^T`` of the unit parameters given the tilts, at the optimum: one
-    Gauss-Newton step of the conditional problem is ``x_u <- x_u - P r(x_u, t)``."""
-    Ju = _conditional_jacobian(problem, J_map)
-    return _covariance(Ju) @ Ju.T
-
-
 def conditional_residuals(problem: KnownPoseProblem, Xu: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Data and angle-prior residuals for (m, 12) unit parameters and (m, 2 n) tilts: (m, 3 n + 6)."""
     r = problem.data_residuals(np.hstack([Xu, T]))
     return np.hstack([r, Xu[:, problem.angle_cols] / problem.sigma_a])
-
-
-def _covariance(J: np.ndarray) -> np.ndarray:
-    d = np.linalg.norm(J, axis=0)
-    d[d == 0] = 1.0
-    return np.linalg.pinv((J / d).T @ (J / d)) / np.outer(d, d)
 
 
 def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, serial: str,
@@ -519,7 +510,11 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
            "iterations": sol.iterations, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds,
            "noise": "standard error of each pose mean: max(sd/sqrt(n), batch means)",
            "estimator": estimator, "importance_ess": ess, "n_draws": n_draws,
-           "prior_sensitivity": sensitivity, "placement_sd_from_data": evidence}
+           "prior_sensitivity": sensitivity, "placement_sd_from_data": evidence,
+           "angle_uncertainty": {"source": "hand placement (with output noise)", "equation": "eq. 1",
+                                 "basis": "standard uncertainty of the angles from the known-pose fit: the placement "
+                                          "tilts are confounded with the angles, so the placement SD and the "
+                                          "angles' prior set it; Type B"}}
     u_angle = 1.0 / math.sqrt(1.0 / misalignment_sd_deg ** 2 + 2.0 / placement_sd_deg ** 2)
     placement = (f"SD integrated over a log-uniform hyperprior, most probable {placement_sd_deg:.2g} deg" if auto
                  else f"prior SD {placement_sd_deg:g} deg")
@@ -651,7 +646,7 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
     s2_noise = float(np.mean(var_means))
     s2_resid = rss / dof if dof > 0 else None
     s2 = max(s2_resid if s2_resid is not None else 0.0, s2_noise)
-    cov = _covariance(sol.J) * s2
+    cov = scaled_covariance(sol.J) * s2
     u = np.sqrt(np.diag(cov))
     units = {"K": rec.scale_unit, "S": "g", "Ca": "arcsec"}
     params = {nm: ParameterValue(float(v), float(s), units[nm.split("_")[0]])
@@ -852,7 +847,7 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
     k0 = float(np.mean(sol.x[:3]))
     pri = raw_priors(names, k0, scale_unit, problem.sigma_h, overrides=priors,
                      misalignment_sd_arcsec=problem.sigma_a)
-    cov_ls = _covariance(sol.J)
+    cov_ls = scaled_covariance(sol.J)
     z = 1.959963984540054
     ls_intervals = {n: (ls[n].value - z * ls[n].u, ls[n].value + z * ls[n].u) for n in UNIT_NAMES}
     data = (problem.w.T, 1.0 / problem.se.T, problem.cov_matrix, problem.gravity_g)
@@ -861,8 +856,7 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
         transform, inverse = conditional_shear(problem.residual_function(), data, pri, names, sol.x,
                                                slow=range(nu, len(names)))
     target = ResidualTarget(
-        name="known_poses", residual=problem.residual_function(),
-        data=(problem.w.T, 1.0 / problem.se.T, problem.cov_matrix, problem.gravity_g),
+        name="known_poses", residual=problem.residual_function(), data=data,
         names=names, units=units, priors=pri, x_ls=sol.x, cov_ls=cov_ls, sigma=problem.se.reshape(-1),
         ls_intervals=ls_intervals, obs_dim="reading", obs_name="w",
         observed={"w": (("reading",), problem.w.reshape(-1), {"units": scale_unit.split("/")[-1]})},

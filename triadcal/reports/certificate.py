@@ -345,8 +345,9 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
     per-setpoint estimates with :mod:`triadcal.estimation.budget` and
     :mod:`triadcal.estimation.classical` (seed paper, eq. 4-7):
 
-    - output noise: the estimator's standard uncertainty of the angles (largest of six); for a
-      hand-placed recording (``fit-raw``, known poses) "hand placement", which sets it;
+    - output noise: the estimator's standard uncertainty of the angles (largest of six), under
+      the name and basis the estimator gives in ``fit.angle_uncertainty`` when it gives one
+      (``fit-raw``, known poses: "hand placement");
     - bench positioning and wobble: sigma_1, sigma_2 of eq. 4 through the classical estimate
       of one setpoint on ``plan`` (sensitivity 1/2 on the default plan); an upper bound for
       a joint fit, which averages them over the setpoints;
@@ -367,13 +368,13 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
     P = result.parameters
     angles = [n for n in ANGLES if n in P]
     comps = []
-    if angles and "placement_sd_deg" in result.fit:
-        # fit-raw, known poses: the angles' u is the hand placement's, through the priors
+    declared = result.fit.get("angle_uncertainty")
+    if angles and declared:
+        # the estimator says what sets its angles' u (fit-raw, known poses: the hand placement)
         worst = max(angles, key=lambda n: P[n].u)
-        comps.append(BudgetComponent("hand placement (with output noise)", P[worst].u, P[worst].u, basis=(
-            f"standard uncertainty of the angles from the known-pose fit (largest: {worst}): the placement tilts "
-            "are confounded with the angles, so the placement SD and the angles' prior set it; Type B"),
-            equation="eq. 1"))
+        comps.append(BudgetComponent(declared["source"], P[worst].u, P[worst].u,
+                                     basis=f"{declared['basis']} (largest: {worst})",
+                                     equation=declared.get("equation", "")))
     elif angles:
         worst = max(angles, key=lambda n: P[n].u)
         comps.append(BudgetComponent("output noise", P[worst].u, P[worst].u, basis=(
@@ -561,8 +562,8 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     issued = not reasons
     if result.method == "posterior":
         source_of_u = "posterior (standard deviation of the draws)"
-    elif result.method == "joint" and "placement_sd_deg" in result.fit:
-        source_of_u = f"known-pose fit of a hand-placed recording: {result.fit.get('estimator', 'least squares')}"
+    elif result.method == "joint" and result.fit.get("estimator"):
+        source_of_u = result.fit["estimator"]           # an estimator that says what it is
     elif result.method == "joint":
         source_of_u = "least squares (covariance of the joint fit)"
     else:
