@@ -1,0 +1,59 @@
+"""One number parser for every boundary: finite, inside a stated range, or refused.
+
+A reader hands each field to :func:`parse_number` with the range its instrument allows
+(docs/bench-csv.md and docs/raw.md list them); a value outside is refused with the file,
+the line and the field, never clipped or dropped. ``1e300`` is not a reading.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+
+class NumberError(ValueError):
+    """A field that is not a finite number inside its range. ``problem`` is the text without the place."""
+
+    def __init__(self, problem: str):
+        super().__init__(problem)
+        self.problem = problem
+
+
+#: the largest magnitude accepted from any instrument reading (output units): a 32-bit ADC
+#: in counts is 2.1e9; anything beyond is a corrupted field, not a reading
+MAX_READING = 1e10
+
+
+def parse_number(text, *, low: float = -math.inf, high: float = math.inf, what: str = "value",
+                 integer: bool = False, low_open: bool = False) -> float:
+    """``text`` as a finite float (or int) within ``[low, high]`` (``(low, high]`` when
+    ``low_open``); raise :class:`NumberError` saying what is wrong and what is accepted."""
+    if isinstance(text, bool):
+        raise NumberError(f"not a number: {text!r}")
+    if isinstance(text, (int, float)):
+        v = float(text)
+        s = repr(text)
+    else:
+        s = str(text).strip()
+        if s == "":
+            raise NumberError("empty field")
+        try:
+            v = float(s)
+        except ValueError:
+            raise NumberError(f"not a number: {s!r}") from None
+    if not math.isfinite(v):
+        raise NumberError(f"not a finite number: {s!r}")
+    if integer:
+        if v != math.floor(v):
+            raise NumberError(f"not an integer: {s!r}")
+    if (v <= low if low_open else v < low) or v > high:
+        lo = "(" if low_open else "["
+        raise NumberError(f"{what} {s} outside the accepted range {lo}{low:g}, {high:g}]")
+    return int(v) if integer else v
+
+
+def optional_number(text, **kw) -> Optional[float]:
+    """As :func:`parse_number`, but an empty field or None gives None."""
+    if text is None or (isinstance(text, str) and text.strip() == ""):
+        return None
+    return parse_number(text, **kw)
