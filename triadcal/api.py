@@ -49,12 +49,17 @@ def example_path():
 
 def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS,
         reference_temperature_C: float = 20.0, loss: str = "l2", strict: bool = False,
-        json_path=None, netcdf_path=None):
+        json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0):
     """Calibrate from a campaign (``triadcal fit``): ``data`` is a bench CSV path, a
     :class:`~triadcal.models.campaign.Campaign`, or None for the built-in example.
-    Returns a :class:`~triadcal.estimation.result.CalibrationResult`."""
+    ``angle_bound_arcsec``: the answer gates' bound on an orientation angle (arcsec).
+    Returns a :class:`~triadcal.estimation.result.CalibrationResult` whose ``status`` is
+    ``ok`` only when every answer gate passed (docs/statuses.md)."""
+    from .estimation.gates import GateConfig
     from .io.bench_csv import read_bench_csv
     from .models.campaign import Campaign
+
+    gates = GateConfig(angle_bound_arcsec=angle_bound_arcsec)
 
     campaign = data if isinstance(data, Campaign) else read_bench_csv(example_path() if data is None else data)
     if method == "classical":
@@ -66,7 +71,7 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
 
         result, problem, solution = fit_joint(
             campaign, effects, reference_temperature_C=reference_temperature_C, loss=loss,
-            unidentifiable="refuse" if strict else "fix", return_problem=True)
+            unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates)
         if netcdf_path is not None:
             from .io.netcdf import write_fit_netcdf
 

@@ -27,6 +27,9 @@ def register(sub) -> None:
                    help="robust loss for the joint fit (default l2)")
     p.add_argument("--strict", action="store_true",
                    help="refuse when a parameter cannot be determined (default: hold it at 0 and say so)")
+    p.add_argument("--angle-bound-arcsec", type=float, default=3600.0, metavar="ARCSEC",
+                   help="largest orientation angle an answer may have before it is refused as "
+                        "angle_out_of_range (default 3600 = 1 deg; raise only for a unit known to be that skewed)")
     p.add_argument("--json", metavar="OUT", help="write the result (results-json v1)")
     p.add_argument("--netcdf", metavar="OUT.nc", help="write residuals per visit and axis (joint)")
     p.set_defaults(func=run)
@@ -40,7 +43,8 @@ def run(args) -> int:
         raise ValueError("give a bench CSV file or --example")
     result = fit(args.data, method=args.method, effects=name_list(args.effects),
                  reference_temperature_C=args.reference_temperature, loss=args.loss,
-                 strict=args.strict, json_path=args.json, netcdf_path=args.netcdf)
+                 strict=args.strict, json_path=args.json, netcdf_path=args.netcdf,
+                 angle_bound_arcsec=args.angle_bound_arcsec)
     print(summary_text(result))
     if args.json:
         print(f"result written to {args.json}")

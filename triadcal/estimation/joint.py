@@ -27,6 +27,7 @@ from ..models.kinematics import tilt_polar
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, DEG
+from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates, orientation_hints
 from .result import CalibrationResult, ParameterValue
 
 #: covariates of one visit, in the order of the mapped function's second input
@@ -260,13 +261,16 @@ def levenberg_marquardt(problem: JointProblem, x0: np.ndarray, loss: str = "l2",
 def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
               reference_temperature_C: float = 20.0, loss: str = "l2", nu: float = 4.0,
               fix: Optional[dict] = None, unidentifiable: str = "fix", max_iter: int = 100,
-              return_problem: bool = False):
+              return_problem: bool = False, gates: GateConfig = DEFAULT_CONFIG):
     """Fit the joint model to a campaign (``triadcal fit --method joint``).
 
     ``unidentifiable``: ``"fix"`` holds parameters the data cannot determine at their
     nominal value (0) and says so in the notes (they are then absent from the result),
     ``"refuse"`` raises :class:`IdentifiabilityError`. ``fix`` holds chosen parameters at
     given values. ``loss``: ``l2``, ``huber`` (c = 1.345) or ``student_t`` (``nu`` dof).
+    The answer gates (:mod:`triadcal.estimation.gates`, thresholds in ``gates``) set the
+    status: ``ok`` only when every gate passes. A campaign with no more observations than
+    free parameters is refused (:class:`IdentifiabilityError`).
     """
     if loss not in LOSSES:
         raise ValueError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
@@ -281,14 +285,15 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     problems = identifiability_problems(campaign, model)
     fixed = dict(fix or {})
     start = start_values(campaign, model)
-    if not problems:
-        probe = JointProblem(campaign, model, noise.sigma, fixed)
-        # probe at a generic point: effect terms at their typical size, so that terms whose
-        # sensitivity is a product (e.g. thermal lag x tempco) are not judged at zero
-        x0 = np.array([start[n] if model.spec[n].effect == "core" else model.spec[n].typical
-                       for n in probe.names])
-        _, J0 = probe.residuals_and_jacobian(x0)
-        problems = null_space_problems(J0, probe.names)
+    # the null space is probed always, with the terms the design cannot determine held
+    probe = JointProblem(campaign, model, noise.sigma, {**fixed, **{k: model.spec[k].nominal for k in problems}})
+    # probe at a generic point: effect terms at their typical size, so that terms whose
+    # sensitivity is a product (e.g. thermal lag x tempco) are not judged at zero
+    x0 = np.array([start[n] if model.spec[n].effect == "core" else model.spec[n].typical
+                   for n in probe.names])
+    _, J0 = probe.residuals_and_jacobian(x0)
+    if np.all(np.isfinite(J0)):
+        problems.update(null_space_problems(J0, probe.names))
     if problems:
         if unidentifiable == "refuse":
             raise IdentifiabilityError(
@@ -297,9 +302,17 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         for k, v in problems.items():
             fixed.setdefault(k, model.spec[k].nominal)
             notes.append(f"{k} not estimated, held at {model.spec[k].nominal:g} {model.spec[k].unit}: {v}")
+    n_free = len(model.names) - len(set(fixed) | set(problems))
+    if 3 * campaign.n_visits <= n_free:
+        raise IdentifiabilityError(
+            f"{campaign.source or 'campaign'}: {3 * campaign.n_visits} observations ({campaign.n_visits} visits x 3 axes) "
+            f"for {n_free} free parameters of the model {', '.join(model.effect_names) or '(core only)'}: "
+            "a fit needs more observations than parameters (use a full campaign, or fewer --effects)")
     problem = JointProblem(campaign, model, noise.sigma, fixed)
     x0 = np.array([start[n] for n in problem.names])
     t0 = time.perf_counter()
+    r0 = problem.residuals(x0)
+    cost_start = float(np.sum(robust_weights(r0, loss, nu) * r0 * r0))
     sol = levenberg_marquardt(problem, x0, loss=loss, nu=nu, max_iter=max_iter)
     solve_seconds = time.perf_counter() - t0
 
@@ -318,18 +331,14 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     u = np.sqrt(np.diag(cov))
     corr = cov / np.outer(u, u)
 
-    params = {n: ParameterValue(float(v), float(s), model.spec[n].unit)
+    params = {n: ParameterValue(float(v), float(s), parameter_unit(model, n, campaign.output_unit))
               for n, v, s in zip(problem.names, sol.x, u)}
     if "tilt_x" in problem.index and "tilt_y" in problem.index:
         params.update(tilt_polar_values(sol.x, cov, problem.index))
-    status = "ok" if sol.converged else "not_converged"
     if not sol.converged:
         notes.append(f"Levenberg-Marquardt stopped after {sol.iterations} iterations without meeting its "
                      "convergence test (cost still falling or a non-vanishing gradient); the values are not an optimum")
     p_gap = float(stats.chi2.sf(chi2, dof)) if noise.known and dof > 0 else None
-    if p_gap is not None and p_gap < 0.001:
-        notes.append(f"chi2/dof = {chi2_dof:.3g} with known noise (p = {p_gap:.2g}): the model misses "
-                     "something in the data; run `triadcal diagnose` before trusting the uncertainties")
     fit = {"chi2_dof": chi2_dof, "n_obs": n_obs, "n_params": n_par, "iterations": sol.iterations,
            "loss": loss if loss != "student_t" else f"student_t(nu={nu:g})",
            "noise": noise.description, "noise_known": noise.known,
@@ -340,7 +349,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         fit["Q_unit"] = f"{campaign.output_unit}^2 s"
     T = campaign.t
     result = CalibrationResult(
-        unit=units[0], method="joint", parameters=params, status=status,
+        unit=units[0], method="joint", parameters=params,
         effects=tuple(model.effect_names), reference_temperature_C=reference_temperature_C,
         temperature_range_C=(float(T.min()), float(T.max())), fit=fit,
         correlation_names=problem.names, correlation=corr, notes=notes,
@@ -348,9 +357,26 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                "unidentifiable": dict(problems),
                "output_unit": campaign.output_unit, "local_g_m_s2": campaign.local_g_m_s2,
                "source": campaign.source})
+    resid = (sol.r.reshape(-1, 3) * noise.sigma)
+    evidence = FitEvidence(
+        converged=sol.converged, cost_start=cost_start, cost_final=sol.cost, jacobian=sol.J * sw[:, None],
+        free_names=problem.names, residual_rms=float(np.sqrt(np.mean(resid ** 2))),
+        data_rms=float(np.sqrt(np.mean(campaign.w ** 2))), chi2=chi2, dof=dof, noise_known=noise.known,
+        gof_what="")
+    apply_gates(result, evidence, config=gates)
+    if result.status in ("unphysical_scale", "angle_out_of_range", "model_mismatch"):
+        G = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg) * campaign.gravity_g
+        result.notes.extend(f"hint: {h}" for h in orientation_hints(campaign.w, G))
     if return_problem:
         return result, problem, sol
     return result
+
+
+def parameter_unit(model: Model, name: str, output_unit: str) -> str:
+    """Reporting unit of ``name``: a scale factor is in g per output unit (``g/mV`` for a file in
+    mV), every other unit as the model's parameter table says."""
+    unit = model.spec[name].unit
+    return f"g/{output_unit}" if unit == "g/V" else unit
 
 
 def tilt_polar_values(x: np.ndarray, cov: np.ndarray, index: dict) -> dict:

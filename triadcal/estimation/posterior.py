@@ -63,7 +63,9 @@ from ..models.effects import DEFAULT_EFFECTS
 from ..models.kinematics import tilt_polar
 from ..models.model import Covariates, Model
 from ..models.units import ARCSEC, DEG
-from .joint import COVARIATES, JointProblem, fit_joint, levenberg_marquardt, noise_of, scaled_covariance
+from .gates import FitEvidence, GateOutcome, apply_gates
+from .joint import (COVARIATES, JointProblem, fit_joint, levenberg_marquardt, noise_of, parameter_unit,
+                    scaled_covariance)
 from .priors import Prior, default_priors, prior_arrays
 from .result import CalibrationResult, ParameterValue
 
@@ -677,7 +679,7 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
     z = 1.959963984540054
     ls_intervals = {n: (p.value - z * p.u, p.value + z * p.u) for n, p in ls.parameters.items()}
     params, intervals, non_gaussian, prior_dominated = posterior_summary(
-        names, [model.spec[n].unit for n in names], run, pri, ls_intervals)
+        names, [parameter_unit(model, n, campaign.output_unit) for n in names], run, pri, ls_intervals)
     draws = run.flat()
     if "tilt_x" in names and "tilt_y" in names:
         i, j = names.index("tilt_x"), names.index("tilt_y")
@@ -697,9 +699,8 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
     fit = {"chi2_dof": chi2 / (n_obs - len(names)) if n_obs > len(names) else None, "n_obs": n_obs,
            "n_params": len(names), "value": "posterior mean", "u": "posterior standard deviation",
            "least_squares": {"status": ls.status, "chi2_dof": ls.fit.get("chi2_dof")}}
-    return CalibrationResult(
-        unit=ls.unit, method="posterior", parameters=params,
-        status="ok" if run.converged else "not_converged", effects=tuple(model.effect_names),
+    result = CalibrationResult(
+        unit=ls.unit, method="posterior", parameters=params, effects=tuple(model.effect_names),
         reference_temperature_C=model.reference_temperature_C,
         temperature_range_C=(float(T.min()), float(T.max())), intervals=intervals, fit=fit,
         correlation_names=tuple(names), correlation=corr, notes=notes + list(ls.notes),
@@ -708,6 +709,15 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
                "sampler": sampler_info(run, names, total_seconds, ess, rhat_max, tau_factor, max_steps),
                "output_unit": campaign.output_unit,
                "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source})
+    # the least-squares answer's own gates (fit, rank, physics) carry over: a posterior of a
+    # model that does not fit the data is no better an answer than its least-squares fit
+    ls_gate = GateOutcome("least_squares", ls.status in ("ok", "not_converged"),
+                          ls.status if ls.status != "ok" else "model_mismatch",
+                          f"the least-squares fit under the same model has status {ls.status!r}")
+    noise_known = noise_of(campaign).known
+    apply_gates(result, FitEvidence(converged=run.converged, n_obs=n_obs, n_free=len(names), chi2=chi2,
+                                    dof=n_obs - len(names), noise_known=noise_known, extra=[ls_gate]))
+    return result
 
 
 # -- arviz InferenceData ----------------------------------------------------------------------

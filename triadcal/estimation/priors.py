@@ -8,8 +8,10 @@ exist:
 
 - scale factors ``K_a > 0`` (a sensor with a negative or zero scale factor is not an
   accelerometer of this kind);
-- orientation angles ``|Ca_ab| < 0.5 rad`` (so each row of Ca in eq. 1 stays a unit
-  vector: ``sqrt(1 - Ca_ab^2 - Ca_ac^2)`` is real);
+- orientation angles ``|Ca_ab| <= 3600 arcsec``, the bound of the answer gates
+  (:mod:`triadcal.estimation.gates`; it also keeps each row of Ca in eq. 1 a unit vector).
+  The least-squares fit has no such bound, and its gate carries over to the posterior, so a
+  unit beyond the bound is refused rather than pulled inside it;
 - bench tilt components ``|tilt_x|, |tilt_y| < 0.5 rad`` (the same reason for the
   gravity direction of the bench, bench-csv.md);
 - thermal lag ``>= 0`` (a first-order time constant: the element lags its sensor).
@@ -29,7 +31,8 @@ from typing import Mapping, Optional
 import numpy as np
 
 from ..models.model import Model
-from ..models.units import TO_INTERNAL
+from ..models.units import ARCSEC, TO_INTERNAL
+from .gates import DEFAULT_CONFIG
 
 #: prior standard deviation in units of the parameter's typical spread among units
 PRIOR_WIDTH = 10.0
@@ -83,8 +86,9 @@ def default_priors(model: Model, width: float = PRIOR_WIDTH,
         if s.name.startswith("K_") and s.unit == "g/V" and s.name.count("_") == 1:
             low, reason = 0.0, "a scale factor is positive"
         elif s.name.startswith("Ca_") and s.name.count("_") == 1:
-            b = HALF_RADIAN / TO_INTERNAL[s.unit]
-            low, high, reason = -b, b, "each row of Ca stays a unit vector (|angle| < 0.5 rad)"
+            b = DEFAULT_CONFIG.angle_bound_arcsec * ARCSEC / TO_INTERNAL[s.unit]
+            low, high, reason = -b, b, ("the answer gates' bound on an orientation angle "
+                                        f"(|angle| <= {DEFAULT_CONFIG.angle_bound_arcsec:g} arcsec)")
         elif s.name == "thermal_lag":
             low, reason = 0.0, "a time constant is not negative (the element lags its sensor)"
         elif s.name in ("tilt_x", "tilt_y"):
