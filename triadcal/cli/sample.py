@@ -26,6 +26,8 @@ def register(sub) -> None:
                    help="stop after this many steps even if not converged (default 20000)")
     p.add_argument("--walkers", type=int, default=None, help="number of walkers (default 2 x parameters)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--angle-bound-arcsec", type=float, default=3600.0, metavar="ARCSEC",
+                   help="answer gate: largest orientation angle accepted as 'ok', arcsec (default 3600 = 1 deg)")
     p.add_argument("--json", metavar="OUT", help="write the result (results-json v1, method posterior)")
     p.add_argument("--posterior", metavar="OUT.nc", help="write the arviz InferenceData (netCDF)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -34,6 +36,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..api import example_path
+    from ..estimation.gates import GateConfig
     from ..estimation.posterior import sample
     from ..reports.summary import summary_text
 
@@ -55,7 +58,8 @@ def run(args) -> int:
     try:
         result = sample(data, name_list(args.effects), reference_temperature_C=args.reference_temperature,
                         ess=args.ess, max_steps=args.max_steps, n_walkers=args.walkers, seed=args.seed,
-                        progress=progress, json_path=args.json, posterior_path=args.posterior)
+                        progress=progress, json_path=args.json, posterior_path=args.posterior,
+                        gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec))
     finally:
         if bar is not None:
             bar.close()

@@ -63,7 +63,7 @@ from ..models.effects import DEFAULT_EFFECTS
 from ..models.kinematics import tilt_polar
 from ..models.model import Covariates, Model
 from ..models.units import ARCSEC, DEG
-from .gates import FitEvidence, GateOutcome, apply_gates
+from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates
 from .joint import (COVARIATES, JointProblem, fit_joint, levenberg_marquardt, noise_of, parameter_unit,
                     scaled_covariance)
 from .priors import Prior, default_priors, prior_arrays
@@ -532,7 +532,8 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
            n_walkers: Optional[int] = None, seed: int = 0, priors: Optional[Mapping[str, Prior]] = None,
            moves: str = "de-snooker-laplace", progress: Union[bool, Callable, None] = None,
            json_path=None, posterior_path=None, max_saved_draws: int = 4000,
-           return_run: bool = False, least_squares: Optional[tuple] = None):
+           return_run: bool = False, least_squares: Optional[tuple] = None,
+           gates: Optional[GateConfig] = None):
     """Posterior of every parameter of the joint model (``triadcal sample``).
 
     ``data``: a bench CSV v1 path or a :class:`Campaign`. ``ess``: requested bulk and
@@ -545,14 +546,16 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     :class:`CalibrationResult` (method ``posterior``), or ``(result, run)`` with
     ``return_run``. ``least_squares``: the output of ``fit_joint(campaign, effects,
     return_problem=True)`` when the caller already has it (it is computed otherwise).
+    ``gates``: the answer gates' thresholds (:class:`~triadcal.estimation.gates.GateConfig`).
     """
+    gates = gates or DEFAULT_CONFIG
     if moves not in MOVES:
         raise ValueError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
     campaign = _load(data)
     t_start = time.perf_counter()
     if least_squares is None:
         least_squares = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
-                                  return_problem=True)
+                                  return_problem=True, gates=gates)
     ls, ls_problem, ls_sol = least_squares
     model = Model(effects, reference_temperature_C)
     pri = default_priors(model, overrides=priors)
@@ -579,7 +582,8 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     run = run_sampler(target, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
                       seed=seed, moves=moves, progress=progress)
     total_seconds = time.perf_counter() - t_start
-    result = _result(campaign, model, problem, pri, ls, run, notes, total_seconds, ess, rhat_max, tau_factor, max_steps)
+    result = _result(campaign, model, problem, pri, ls, run, notes, total_seconds, ess, rhat_max, tau_factor, max_steps,
+                     gates)
     if json_path is not None:
         result.save(json_path)
     if posterior_path is not None:
@@ -674,7 +678,7 @@ def _flags_block(non_gaussian, prior_dominated) -> dict:
 
 
 def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_seconds, ess, rhat_max, tau_factor,
-            max_steps) -> CalibrationResult:
+            max_steps, gates: GateConfig = DEFAULT_CONFIG) -> CalibrationResult:
     names = list(model.names)
     z = 1.959963984540054
     ls_intervals = {n: (p.value - z * p.u, p.value + z * p.u) for n, p in ls.parameters.items()}
@@ -716,7 +720,8 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
                           f"the least-squares fit under the same model has status {ls.status!r}")
     noise_known = noise_of(campaign).known
     apply_gates(result, FitEvidence(converged=run.converged, n_obs=n_obs, n_free=len(names), chi2=chi2,
-                                    dof=n_obs - len(names), noise_known=noise_known, extra=[ls_gate]))
+                                    dof=n_obs - len(names), noise_known=noise_known, extra=[ls_gate]),
+                config=gates)
     return result
 
 
