@@ -35,13 +35,14 @@ def register(sub) -> None:
 
 
 def _format_of(path) -> str:
-    import json
+    """The document's ``format``; "" when it cannot be read (the result reader then says why)."""
+    from ..estimation.result import read_json
 
     try:
-        with open(path, encoding="utf-8") as fh:
-            return str(json.load(fh).get("format", ""))
-    except (json.JSONDecodeError, AttributeError):
+        d = read_json(path)
+    except ValueError:
         return ""
+    return str(d.get("format", "")) if isinstance(d, dict) else ""
 
 
 def run(args) -> int:

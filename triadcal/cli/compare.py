@@ -80,7 +80,7 @@ def run(args) -> int:
             raise ValueError("--sequence needs at least two results (the initial state and one exposure)")
         if args.posterior_before or args.posterior_after:
             raise ValueError("with --sequence give --posteriors A.nc,B.nc,... (one per result)")
-        results = [CalibrationResult.load(f) for f in args.results]
+        results = [_load_checked(f) for f in args.results]
         labels = name_list(args.labels) if args.labels else [_stem(f) for f in args.results]
         posteriors = name_list(args.posteriors) if args.posteriors else None
         out = compare_sequence(results, labels, tolerance_arcsec=tolerance, tolerances=tolerances,
@@ -98,7 +98,7 @@ def run(args) -> int:
                              "for more use --sequence")
         if args.posteriors:
             raise ValueError("--posteriors is for --sequence; use --posterior-before/--posterior-after")
-        before, after = (CalibrationResult.load(f) for f in args.results)
+        before, after = (_load_checked(f) for f in args.results)
         out = compare(before, after, tolerance_arcsec=tolerance, tolerances=tolerances,
                       posterior_before=args.posterior_before, posterior_after=args.posterior_after,
                       correlation=correlation, level=args.level, label=f"{_stem(args.results[0])} -> "
@@ -151,6 +151,16 @@ def _print_footer(c, joint: bool = True) -> None:
               f"({'significant' if j.significant else 'not significant'} at {100 * j.level:g}%)")
     print(f"correlation between calibrations: {c.correlation.get('reason', '')}")
     print(f"rule: {c.rule}")
+
+
+def _load_checked(path: str):
+    """A result file, validated and refused (one line naming the file) unless it is an answer."""
+    from ..estimation.gates import check_result_for_use
+    from ..estimation.result import CalibrationResult
+
+    result = CalibrationResult.load(path)
+    check_result_for_use(result, path)
+    return result
 
 
 def _stem(path: str) -> str:

@@ -43,8 +43,10 @@ import numpy as np
 from scipy import stats
 
 from ..io.formats import require_format
+from ..io.numbers import parse_number
 from ..models.sensor import ANGLE_NAMES
-from .result import CalibrationResult
+from .gates import check_result_for_use
+from .result import CalibrationResult, read_json
 
 FORMAT = "triadcal.comparison"
 SEQUENCE_FORMAT = "triadcal.comparison_sequence"
@@ -296,14 +298,48 @@ class ParameterDrift:
         return {k: _finite(v) for k, v in d.items()}
 
     @classmethod
-    def from_dict(cls, name: str, d: Mapping) -> "ParameterDrift":
-        return cls(name=name, unit=d["unit"], drift=float(d["drift"]), u=float(d["u"]),
-                   before=d.get("before"), after=d.get("after"), u_before=d.get("u_before"),
-                   u_after=d.get("u_after"), rho=float(d.get("rho", 0.0)), tolerance=d.get("tolerance"),
-                   En=_num(d.get("En")), z=_num(d.get("z")), p_value=_num(d.get("p_value")),
-                   significant=bool(d.get("significant", False)), p_exceeds=d.get("p_exceeds"),
-                   verdict=d["verdict"], basis=d.get("basis", "normal"), n_draws=d.get("n_draws"),
+    def from_dict(cls, name: str, d: Mapping, source: str = "<dict>") -> "ParameterDrift":
+        where = f"{source}: parameters.{name}"
+        if not isinstance(d, Mapping):
+            raise ValueError(f"{where} is not an object")
+        num = _Fields(where, d)
+        if d.get("verdict") not in VERDICTS:
+            raise ValueError(f"{where}.verdict {d.get('verdict')!r} is not one of {VERDICTS}")
+        if not isinstance(d.get("unit"), str):
+            raise ValueError(f"{where}.unit is missing or not a string")
+        return cls(name=name, unit=d["unit"], drift=num.req("drift"), u=num.req("u", low=0.0),
+                   before=num.opt("before"), after=num.opt("after"), u_before=num.opt("u_before", low=0.0),
+                   u_after=num.opt("u_after", low=0.0), rho=num.opt("rho", -1.0, 1.0, default=0.0),
+                   tolerance=num.opt("tolerance", low=0.0), En=num.nan("En"), z=num.nan("z"),
+                   p_value=num.nan("p_value"), significant=bool(d.get("significant", False)),
+                   p_exceeds=num.opt("p_exceeds", 0.0, 1.0), verdict=d["verdict"], basis=str(d.get("basis", "normal")),
+                   n_draws=None if d.get("n_draws") is None else int(num.req("n_draws", low=0.0)),
                    judged=bool(d.get("judged", True)))
+
+
+class _Fields:
+    """Numbers of a JSON object with one-line errors naming the field (``null`` is "not finite")."""
+
+    def __init__(self, where: str, d: Mapping):
+        self.where, self.d = where, d
+
+    def _check(self, key, v, low, high):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"{self.where}.{key} = {v!r:.40} is not a finite number")
+        if not low <= v <= high:
+            raise ValueError(f"{self.where}.{key} = {v!r} is outside [{low:g}, {high:g}]")
+        return float(v)
+
+    def req(self, key, low=-math.inf, high=math.inf) -> float:
+        return self._check(key, self.d.get(key), low, high)
+
+    def opt(self, key, low=-math.inf, high=math.inf, default=None):
+        v = self.d.get(key)
+        return default if v is None else self._check(key, v, low, high)
+
+    def nan(self, key) -> float:
+        v = self.d.get(key)
+        return float("nan") if v is None else self._check(key, v, -math.inf, math.inf)
 
 
 @dataclass
@@ -323,9 +359,13 @@ class JointTest:
                 "critical": float(stats.chi2.ppf(self.level, self.dof))}
 
     @classmethod
-    def from_dict(cls, d: Mapping) -> "JointTest":
-        return cls(tuple(d["names"]), float(d["D2"]), int(d["dof"]), float(d["p_value"]),
-                   bool(d["significant"]), float(d["level"]))
+    def from_dict(cls, d: Mapping, source: str = "<dict>") -> "JointTest":
+        num = _Fields(f"{source}: joint", d)
+        names = d.get("names")
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise ValueError(f"{source}: joint.names is not a list of names")
+        return cls(tuple(names), num.req("D2", low=0.0), int(num.req("dof", low=1.0)), num.req("p_value", 0.0, 1.0),
+                   bool(d.get("significant")), num.req("level", 0.0, 1.0))
 
 
 @dataclass
@@ -371,17 +411,27 @@ class ComparisonResult:
     @classmethod
     def from_dict(cls, d: Mapping, source: str = "<dict>") -> "ComparisonResult":
         require_format(d, FORMAT, VERSION, source, "a comparison", "comparison")
-        for k, p in d["parameters"].items():
-            if p.get("verdict") not in VERDICTS:
-                raise ValueError(f"{source}: parameter {k} has verdict {p.get('verdict')!r}, not one of {VERDICTS}")
+        if not isinstance(d.get("parameters"), Mapping) or not d["parameters"]:
+            raise ValueError(f"{source}: parameters is missing or empty")
+        if not isinstance(d.get("rule"), str):
+            raise ValueError(f"{source}: rule is missing or not a string")
+        for key in ("tolerance", "correlation", "bench_check", "before", "after"):
+            if d.get(key) is not None and not isinstance(d[key], Mapping):
+                raise ValueError(f"{source}: {key} is not an object")
+        if d.get("notes") is not None and not isinstance(d["notes"], list):
+            raise ValueError(f"{source}: notes is not a list")
+        level = _Fields(source + ":", d).opt("level", 0.0, 1.0, default=0.95)
         if d.get("overall") not in VERDICTS:
             raise ValueError(f"{source}: overall verdict {d.get('overall')!r} is not one of {VERDICTS}")
         tol = dict(d.get("tolerance") or {})
         angles_tol = tol.pop("angles_arcsec", None)
-        return cls(parameters={k: ParameterDrift.from_dict(k, p) for k, p in d["parameters"].items()},
-                   overall=d["overall"], rule=d["rule"], level=float(d.get("level", 0.95)),
+        params = {k: ParameterDrift.from_dict(k, p, source) for k, p in d["parameters"].items()}
+        if d["overall"] == "pass" and any(p.verdict == "fail" and p.judged for p in params.values()):
+            raise ValueError(f"{source}: overall verdict 'pass' contradicts a judged parameter whose verdict is 'fail'")
+        return cls(parameters=params,
+                   overall=d["overall"], rule=d["rule"], level=level,
                    tolerance_arcsec=angles_tol, tolerances=tol, correlation=d.get("correlation", {}),
-                   joint=None if not d.get("joint") else JointTest.from_dict(d["joint"]),
+                   joint=None if not d.get("joint") else JointTest.from_dict(d["joint"], source),
                    bench_check=d.get("bench_check", {}), before=d.get("before", {}),
                    after=d.get("after", {}), label=d.get("label"), notes=list(d.get("notes", [])))
 
@@ -414,6 +464,10 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     if tolerance_arcsec is not None and tolerance_arcsec < 0:
         raise ValueError(f"tolerance must be >= 0, got {tolerance_arcsec} arcsec")
     notes = []
+    # a drift between calibrations one of which is not an answer is not a drift: refuse, naming
+    # the side (status not ok, a value or u not finite, u < 0, a failing answer gate)
+    for tag, r in (("before", before), ("after", after)):
+        check_result_for_use(r, f"the {tag} calibration ({r.unit}, {r.method})")
     if before.unit != after.unit:
         raise ValueError(f"before is unit {before.unit!r} and after is unit {after.unit!r}: a drift compares "
                          "two calibrations of the same unit")
@@ -421,9 +475,6 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         raise ValueError(f"reference temperatures differ ({before.reference_temperature_C:g} vs "
                          f"{after.reference_temperature_C:g} degC): refit one of them at the other's "
                          "reference temperature so the angles are comparable")
-    for tag, r in (("before", before), ("after", after)):
-        if r.status != "ok":
-            notes.append(f"the {tag} calibration has status {r.status!r}: its uncertainties may not hold")
     if before.method != after.method:
         notes.append(f"methods differ ({before.method} vs {after.method}): a drift also contains the "
                      "difference between the estimators")
@@ -616,6 +667,9 @@ class SequenceComparison:
     @classmethod
     def from_dict(cls, d: Mapping, source: str = "<dict>") -> "SequenceComparison":
         require_format(d, SEQUENCE_FORMAT, VERSION, source, "a comparison sequence", "sequence")
+        for key in ("labels", "steps", "cumulative"):
+            if not isinstance(d.get(key), list):
+                raise ValueError(f"{source}: {key} is missing or not a list")
         return cls(labels=list(d["labels"]), steps=[ComparisonResult.from_dict(c, source) for c in d["steps"]],
                    cumulative=[ComparisonResult.from_dict(c, source) for c in d["cumulative"]],
                    kind=d.get("kind", "results"), rule=d.get("rule", ""), notes=list(d.get("notes", [])))
@@ -713,22 +767,26 @@ def read_published_table(path) -> list[PublishedDrift]:
     """Published drifts from CSV (header ``exposure,sensor,angle,drift_arcsec[,u_arcsec|u_drift_arcsec]``,
     ``#`` comments) or JSON (``{"drifts": [{...same keys...}]}`` or a list)."""
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
     if path.suffix.lower() == ".json":
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
-        rows = data["drifts"] if isinstance(data, dict) else data
+        data = read_json(path)
+        rows = data.get("drifts") if isinstance(data, dict) else data
+        if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+            raise ValueError(f"{path}: expected a list of drift objects (or {{\"drifts\": [...]}})")
         start = None
     else:
+        try:
+            text = path.read_bytes().decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{path}: not UTF-8 text (byte {exc.start})") from None
         lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
         rows = list(csv.DictReader(lines))
         start = 2
     out = []
     for i, row in enumerate(rows):
         where = f"{path}:row {i + 1}" if start is None else f"{path}: data row {i + 1}"
-        row = {k.strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items() if k}
+        if None in row:
+            raise ValueError(f"{where}: more fields than the header names")
+        row = {str(k).strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items() if k}
         missing = [k for k in ("exposure", "angle", "drift_arcsec") if row.get(k) in (None, "")]
         if missing:
             raise ValueError(f"{where}: missing {', '.join(missing)} (columns: exposure, sensor, angle, "
@@ -736,9 +794,10 @@ def read_published_table(path) -> list[PublishedDrift]:
         try:
             out.append(PublishedDrift(
                 exposure=str(row["exposure"]), sensor=str(row.get("sensor") or ""), angle=angle_name(str(row["angle"])),
-                drift_arcsec=float(row["drift_arcsec"]),
-                u_measurement_arcsec=_opt_float(row.get("u_arcsec")),
-                u_drift_arcsec=_opt_float(row.get("u_drift_arcsec"))))
+                drift_arcsec=parse_number(row["drift_arcsec"], low=-MAX_ANGLE_ARCSEC, high=MAX_ANGLE_ARCSEC,
+                                          what="drift_arcsec"),
+                u_measurement_arcsec=_opt_float(row.get("u_arcsec"), "u_arcsec"),
+                u_drift_arcsec=_opt_float(row.get("u_drift_arcsec"), "u_drift_arcsec")))
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from None
     if not out:
@@ -818,10 +877,15 @@ def _num(v) -> float:
     return float("nan") if v is None else float(v)
 
 
-def _opt_float(v) -> Optional[float]:
+MAX_ANGLE_ARCSEC = 1_296_000.0   # 360 deg: no drift of an angle is larger
+
+
+def _opt_float(v, what: str = "value") -> Optional[float]:
+    """An optional uncertainty of a published row: empty or absent is None; otherwise a finite
+    number in (0, 360 deg] (arcsec)."""
     if v is None or v == "":
         return None
-    return float(v)
+    return parse_number(v, low=0.0, high=MAX_ANGLE_ARCSEC, low_open=True, what=what)
 
 
 def _save_json(d: dict, path) -> None:
@@ -836,8 +900,4 @@ def _save_json(d: dict, path) -> None:
 
 
 def _load_json(path) -> dict:
-    with open(path, encoding="utf-8") as fh:
-        try:
-            return json.load(fh)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
+    return read_json(path)

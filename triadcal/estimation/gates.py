@@ -91,6 +91,24 @@ class GateConfig:
 DEFAULT_CONFIG = GateConfig()
 
 
+def config_of(result) -> GateConfig:
+    """The gate thresholds a result was judged with (its ``gates.config`` block), so a consumer
+    checks it against the bound its fit stated (e.g. a raised ``--angle-bound-arcsec``); the
+    defaults when the block is absent or not a set of finite positive numbers. A raised bound is
+    never silent: the result's notes and its ``gates`` block carry it into every report."""
+    block = (getattr(result, "extra", {}) or {}).get("gates")
+    cfg = block.get("config") if isinstance(block, Mapping) else None
+    if not isinstance(cfg, Mapping):
+        return DEFAULT_CONFIG
+    kw = {}
+    for k, default in DEFAULT_CONFIG.to_dict().items():
+        v = cfg.get(k, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            return DEFAULT_CONFIG
+        kw[k] = float(v)
+    return GateConfig(**kw)
+
+
 @dataclass
 class FitEvidence:
     """What an estimator knows about its own fit, for the gates that need more than the result.
@@ -415,17 +433,19 @@ class RefusedResult(ValueError):
 
 
 def check_result_for_use(result, source: str = "result", *, need_ok: bool = True,
-                         config: GateConfig = DEFAULT_CONFIG) -> None:
+                         config: Optional[GateConfig] = None) -> None:
     """Refuse (raise :class:`RefusedResult`, one line naming ``source``) a result a consumer must not
     use: status other than ok, no parameters, missing scale factors, values or u that are not
     finite, negative u, a gate that fails on the result alone."""
-    why = result_problems(result, need_ok=need_ok, config=config)
+    why = result_problems(result, need_ok=need_ok, config=config_of(result) if config is None else config)
     if why:
         raise RefusedResult(f"{source}: refused: " + "; ".join(why))
 
 
-def result_problems(result, *, need_ok: bool = True, config: GateConfig = DEFAULT_CONFIG) -> list[str]:
-    """Reasons why ``result`` cannot be used (empty list: it can)."""
+def result_problems(result, *, need_ok: bool = True, config: Optional[GateConfig] = None) -> list[str]:
+    """Reasons why ``result`` cannot be used (empty list: it can); ``config`` defaults to the
+    result's own (:func:`config_of`)."""
+    config = config_of(result) if config is None else config
     why = []
     if need_ok and result.status != "ok":
         why.append(f"status is {result.status!r}, not 'ok'")

@@ -98,24 +98,55 @@ class CalibrationResult:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "<dict>") -> "CalibrationResult":
+        """Read a results-json v1 document, validating every field it uses: a
+        :class:`ResultFormatError` (one line, naming ``source`` and the JSON path of the field)
+        for a wrong type, a missing key or an unknown unit. ``null`` where a number is expected
+        means "not finite" (the writer turns NaN and infinities into null) and is read as NaN:
+        the answer gates of a consumer (:func:`~triadcal.estimation.gates.check_result_for_use`)
+        then refuse it by name."""
         require_format(d, FORMAT, VERSION, source, "a calibration result", "result")
         known = {"format", "version", "unit", "method", "status", "effects", "reference_temperature_C",
                  "temperature_range_C", "parameters", "intervals", "fit", "notes", "correlation"}
+        r = _Reader(source)
         params = {}
-        for k, v in d["parameters"].items():
-            if v.get("unit") not in TO_INTERNAL and not str(v.get("unit", "")).startswith("g/"):
-                raise ValueError(f"{source}: parameter {k} has unknown unit {v.get('unit')!r}")
-            params[k] = ParameterValue(float(v["value"]), float(v["u"]), v["unit"])
+        for k, v in r.mapping(d, "parameters", required=True).items():
+            where = f"parameters.{k}"
+            if not isinstance(v, dict):
+                raise r.error(where, f"is a {_kind(v)}, expected an object with value, u and unit")
+            unit = r.string(v, "unit", where)
+            if unit not in TO_INTERNAL and not unit.startswith("g/"):
+                raise r.error(f"{where}.unit", f"{unit!r} is not a unit this triadcal knows")
+            params[k] = ParameterValue(r.number(v, "value", where), r.number(v, "u", where), unit)
+        status = r.string(d, "status")
+        from .gates import STATUSES
+        if status not in STATUSES:
+            raise r.error("status", f"{status!r} is not one of {', '.join(STATUSES)}")
         corr = d.get("correlation")
+        names, matrix = (), None
+        if corr is not None:
+            if not isinstance(corr, dict):
+                raise r.error("correlation", f"is a {_kind(corr)}, expected an object with names and matrix")
+            names = tuple(r.string_list(corr, "names", "correlation"))
+            rows = corr.get("matrix")
+            if not (isinstance(rows, list) and len(rows) == len(names)
+                    and all(isinstance(row, list) and len(row) == len(names) for row in rows)):
+                raise r.error("correlation.matrix", f"is not a {len(names)} x {len(names)} list of lists")
+            matrix = np.array([[r.number_value(x, f"correlation.matrix[{i}][{j}]") for j, x in enumerate(row)]
+                               for i, row in enumerate(rows)], float)
+        trange = d.get("temperature_range_C")
+        if trange is not None:
+            if not (isinstance(trange, list) and len(trange) == 2):
+                raise r.error("temperature_range_C", "is not a list [low, high]")
+            trange = tuple(r.number_value(x, f"temperature_range_C[{i}]") for i, x in enumerate(trange))
+        ref = d.get("reference_temperature_C", 20.0)
         return cls(
-            unit=d["unit"], method=d["method"], parameters=params, status=d.get("status", "ok"),
-            effects=tuple(d.get("effects", ())),
-            reference_temperature_C=float(d.get("reference_temperature_C", 20.0)),
-            temperature_range_C=None if d.get("temperature_range_C") is None else tuple(d["temperature_range_C"]),
-            intervals=d.get("intervals", {}), fit=d.get("fit", {}),
-            correlation_names=tuple(corr["names"]) if corr else (),
-            correlation=np.array(corr["matrix"], float) if corr else None,
-            notes=list(d.get("notes", [])), extra={k: v for k, v in d.items() if k not in known})
+            unit=r.string(d, "unit"), method=r.string(d, "method"), parameters=params, status=status,
+            effects=tuple(r.string_list(d, "effects", required=False)),
+            reference_temperature_C=r.number_value(ref, "reference_temperature_C"),
+            temperature_range_C=trange,
+            intervals=r.mapping(d, "intervals"), fit=r.mapping(d, "fit"),
+            correlation_names=names, correlation=matrix,
+            notes=r.string_list(d, "notes", required=False), extra={k: v for k, v in d.items() if k not in known})
 
     def save(self, path) -> None:
         path = Path(path)
@@ -129,12 +160,8 @@ class CalibrationResult:
 
     @classmethod
     def load(cls, path) -> "CalibrationResult":
-        with open(path, encoding="utf-8") as fh:
-            try:
-                d = json.load(fh)
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"{path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
-        return cls.from_dict(d, str(path))
+        """Read and validate a results-json v1 file (:meth:`from_dict`); one-line errors."""
+        return cls.from_dict(read_json(path), str(path))
 
     # -- applying the calibration -------------------------------------------------
     def model(self) -> Model:
@@ -177,6 +204,86 @@ class CalibrationResult:
         angles = {k[3:]: self.parameters[k].value * ARCSEC for k in self.parameters
                   if k.startswith("Ca_") and len(k) == 5}
         return np.array(dcm(angles), float)
+
+
+def _no_constant(name):
+    raise ValueError(f"{name} is not JSON (a non-finite number must be written as null)")
+
+
+def read_json(path):
+    """A JSON document from ``path`` with one-line errors naming the file and line: not UTF-8,
+    not JSON, NaN or Infinity tokens (not JSON), nesting too deep, a file that is not there."""
+    try:
+        text = Path(path).read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        return json.loads(text, parse_constant=_no_constant)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    except RecursionError:
+        raise ValueError(f"{path}: JSON nested too deeply") from None
+
+
+class ResultFormatError(ValueError):
+    """A results-json document with a field of the wrong type, missing or unknown (one line)."""
+
+
+def _kind(v) -> str:
+    return {type(None): "null", bool: "boolean", str: "string", list: "list", dict: "object"}.get(
+        type(v), "number" if isinstance(v, (int, float)) else type(v).__name__)
+
+
+class _Reader:
+    """Typed access to a JSON tree with errors naming the source and the field's JSON path."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def error(self, where: str, what: str) -> ResultFormatError:
+        return ResultFormatError(f"{self.source}: {where} {what}")
+
+    def number_value(self, v, where: str) -> float:
+        if v is None:
+            return math.nan                  # the writer's null: "not finite"
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.error(where, f"is a {_kind(v)} ({v!r:.40}), expected a number")
+        return float(v)
+
+    def number(self, d: dict, key: str, where: str) -> float:
+        if key not in d:
+            raise self.error(f"{where}.{key}", "is missing")
+        return self.number_value(d[key], f"{where}.{key}")
+
+    def string(self, d: dict, key: str, where: str = "") -> str:
+        path = f"{where}.{key}" if where else key
+        if key not in d:
+            raise self.error(path, "is missing")
+        v = d[key]
+        if not isinstance(v, str):
+            raise self.error(path, f"is a {_kind(v)}, expected a string")
+        return v
+
+    def string_list(self, d: dict, key: str, where: str = "", required: bool = True) -> list:
+        path = f"{where}.{key}" if where else key
+        v = d.get(key)
+        if v is None and not required:
+            return []
+        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+            raise self.error(path, f"is a {_kind(v)}, expected a list of strings")
+        return list(v)
+
+    def mapping(self, d: dict, key: str, required: bool = False) -> dict:
+        v = d.get(key)
+        if v is None and not required:
+            return {}
+        if not isinstance(v, dict):
+            raise self.error(key, "is missing" if v is None else f"is a {_kind(v)}, expected an object")
+        return v
 
 
 def round_to_uncertainty(value: float, u: float, digits: int = 2) -> tuple[str, str]:

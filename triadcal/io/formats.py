@@ -9,6 +9,9 @@ def require_format(d: Mapping, fmt: str, version: int, source: str, what: str, s
     """Refuse ``d`` unless it is ``fmt`` at ``version``: e.g. ``what`` "a comparison", ``short``
     "comparison" give "SOURCE: not a comparison (format ..., expected ...)" and
     "SOURCE: comparison version ... is not known to this triadcal (it reads version N)"."""
+    if not isinstance(d, Mapping):
+        raise ValueError(f"{source}: not {what} (a JSON {type(d).__name__}, expected an object with "
+                         f"format {fmt!r})")
     if d.get("format") != fmt:
         raise ValueError(f"{source}: not {what} (format {d.get('format')!r}, expected {fmt!r})")
     if d.get("version") != version:

@@ -35,7 +35,8 @@ from typing import Optional
 import numpy as np
 
 from .. import __version__
-from ..estimation.result import CalibrationResult, round_to_uncertainty
+from ..estimation.gates import check_result_for_use, result_problems
+from ..estimation.result import CalibrationResult, read_json, round_to_uncertainty
 from ..io.formats import require_format
 from ..models.effects import EFFECTS
 from ..models.model import Model
@@ -226,6 +227,7 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
     if result.status != "ok":
         reasons.append(f"the estimator reports status '{result.status}' (a certificate needs 'ok')"
                        + (": " + "; ".join(result.notes) if result.notes else ""))
+    reasons += [f"the result fails an answer gate: {why}" for why in result_problems(result, need_ok=False)]
     unid = unidentified_parameters(result)
     if unid:
         reasons.append("the data could not determine " + "; ".join(f"{k} ({v})" for k, v in unid.items())
@@ -1146,6 +1148,9 @@ class DriftRow:
 
 def check_comparison(comparison: dict, source: str = "<dict>") -> None:
     require_format(comparison, COMPARISON_FORMAT, COMPARISON_VERSION, source, "a comparison", "comparison")
+    from ..estimation.compare import ComparisonResult
+
+    ComparisonResult.from_dict(comparison, source)      # every field it uses, validated
 
 
 def drift_rows(comparison: dict) -> list:
@@ -1294,8 +1299,7 @@ def drift_report(comparison, *, lab=None, html=None, pdf=None, issue_date: Optio
     source = "<dict>"
     if not isinstance(comparison, dict):
         source = str(comparison)
-        with open(comparison, encoding="utf-8") as fh:
-            comparison = json.load(fh)
+        comparison = read_json(comparison)
     check_comparison(comparison, source)
     if lab is not None and not isinstance(lab, LabConfig):
         lab = load_lab(lab)
@@ -1335,6 +1339,11 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
     if not isinstance(result, CalibrationResult):
         result_path = result
         result = CalibrationResult.load(result)
+    # a result that is not a calibration at all (no parameters, values or u not finite, K <= 0
+    # or outside its unit's band, an angle beyond the gate, no reference temperature) is
+    # refused outright, one line, before any file is written; a result whose estimator said
+    # "not ok" gets the refusal report below
+    check_result_for_use(result, str(result_path or f"result of {result.unit}"), need_ok=False)
     if lab is not None and not isinstance(lab, LabConfig):
         lab = load_lab(lab)
     if posterior is not None and not hasattr(posterior, "posterior"):
@@ -1346,8 +1355,12 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
     if data is not None and data.units != [result.unit]:
         raise ValueError(f"the campaign data is of unit(s) {data.units}, the result of {result.unit!r}")
     if diagnosis is not None and not isinstance(diagnosis, dict):
-        with open(diagnosis, encoding="utf-8") as fh:
-            diagnosis = json.load(fh)
+        source = str(diagnosis)
+        diagnosis = read_json(diagnosis)
+        if not isinstance(diagnosis, dict) or diagnosis.get("format") != "triadcal.diagnosis":
+            raise ValueError(f"{source}: not a diagnosis (format "
+                             f"{diagnosis.get('format') if isinstance(diagnosis, dict) else None!r}, "
+                             "expected 'triadcal.diagnosis')")
     cert = build_certificate(result, lab=lab, campaign=data, idata=posterior, diagnosis=diagnosis, number=number,
                              issue_date=issue_date, result_path=result_path)
     if html is not None:

@@ -8,11 +8,20 @@ from ..estimation.result import CalibrationResult, round_to_uncertainty
 def summary_text(result: CalibrationResult) -> str:
     """A concise table: parameter, value(u) with u to two significant digits, unit."""
     lines = [f"{result.unit}: {result.method} calibration, status {result.status}"]
+    gates = (result.extra.get("gates") or {}).get("outcomes") or []
+    for o in gates:
+        if isinstance(o, dict) and o.get("passed") is False:
+            lines.append(f"  FAILED gate {o.get('gate')} ({o.get('status')}): {o.get('reason')}")
     fit = result.fit
     if fit:
         bits = []
-        if fit.get("chi2_dof") is not None:
-            bits.append(f"chi2/dof = {fit['chi2_dof']:.3f}")
+        c = fit.get("chi2_dof")
+        if isinstance(c, (int, float)) and c == c:
+            known = fit.get("noise_known")
+            bits.append(f"chi2/dof = {c:.3f}" + ("" if known is not False else
+                        " (no noise level in the data: the scatter itself set it, so no goodness-of-fit test)"))
+        else:
+            bits.append("chi2/dof not computed (no degrees of freedom or no residuals)")
         if "n_obs" in fit:
             bits.append(f"{fit['n_obs']} observations, {fit.get('n_params', '?')} parameters")
         if result.temperature_range_C:

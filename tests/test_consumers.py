@@ -1,0 +1,177 @@
+"""Consumers check what they read: `certificate` and `compare` refuse a result that is not an
+answer, in one line naming the file and the field, never with a traceback; `compare` never
+says pass when a side is not ok. Each case mutates a real result of the built-in example
+(fitted once here by the joint fit) the way a hand-edited or corrupted file would be."""
+
+import copy
+import json
+import math
+
+import pytest
+
+from triadcal.cli import main
+from triadcal.estimation.compare import ComparisonResult, read_published_table
+from triadcal.estimation.result import CalibrationResult
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory):
+    d = tmp_path_factory.mktemp("consumers")
+    path = d / "good.json"
+    assert main(["fit", "--example", "--json", str(path)]) == 0
+    return json.loads(path.read_text())
+
+
+def _write(tmp_path, doc, name="r.json"):
+    p = tmp_path / name
+    p.write_text(json.dumps(doc) if not isinstance(doc, str) else doc)
+    return p
+
+
+def _run(capsys, argv):
+    code = main(argv)
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    return code, out, err
+
+
+def _mut(doc, fn):
+    d = copy.deepcopy(doc)
+    fn(d)
+    return d
+
+
+def _set_param(name, key, value):
+    def f(d):
+        d["parameters"][name][key] = value
+    return f
+
+
+CASES = {
+    # name: (mutation, text the one-line refusal must contain)
+    "angle 1e7 arcsec": (_set_param("Ca_xy", "value", 1e7), "Ca_xy"),
+    "empty parameters": (lambda d: d.__setitem__("parameters", {}), "no parameters"),
+    "no status": (lambda d: d.pop("status"), "status is missing"),
+    "NaN reference temperature": (lambda d: d.__setitem__("reference_temperature_C", None), "reference_temperature_C"),
+    "negative K": (_set_param("K_x", "value", -1.0), "K_x"),
+    "value null": (_set_param("K_y", "value", None), "K_y"),
+    "u null": (_set_param("S_x", "u", None), "S_x"),
+    "negative u": (_set_param("S_y", "u", -1.0), "S_y"),
+    "value is a string": (_set_param("K_z", "value", "1.0"), "parameters.K_z.value"),
+    "value is a bool": (_set_param("K_z", "value", True), "parameters.K_z.value"),
+    "unknown unit": (_set_param("K_z", "unit", "furlong"), "parameters.K_z.unit"),
+    "parameter not an object": (lambda d: d["parameters"].__setitem__("K_x", 1.0), "parameters.K_x"),
+    "unknown version": (lambda d: d.__setitem__("version", 99), "version 99"),
+    "unknown format": (lambda d: d.__setitem__("format", "x"), "not a calibration result"),
+    "unknown status": (lambda d: d.__setitem__("status", "fine"), "'fine'"),
+    "correlation not square": (lambda d: d["correlation"].__setitem__("matrix", [[1.0]]), "correlation.matrix"),
+    "not converged": (lambda d: d.__setitem__("status", "not_converged"), "not_converged"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_certificate_refuses_in_one_line(tmp_path, capsys, good, case):
+    mutate, needle = CASES[case]
+    p = _write(tmp_path, _mut(good, mutate))
+    code, out, err = _run(capsys, ["certificate", str(p), "--html", str(tmp_path / "c.html")])
+    assert code != 0
+    assert needle in err, err
+    assert "certificate" not in out or "issued" not in out
+    if case != "not converged":      # a status the estimator gave gets a refusal report; the rest no file
+        assert str(p) in err
+        assert not (tmp_path / "c.html").exists()
+        assert len([ln for ln in err.splitlines() if ln.strip()]) == 1, err
+    else:
+        assert "No certificate issued" in (tmp_path / "c.html").read_text()
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.parametrize("side", [0, 1])
+def test_compare_never_passes_a_side_that_is_not_an_answer(tmp_path, capsys, good, case, side):
+    mutate, needle = CASES[case]
+    files = [_write(tmp_path, good, "a.json"), _write(tmp_path, good, "b.json")]
+    files[side] = _write(tmp_path, _mut(good, mutate), "bad.json")
+    code, out, err = _run(capsys, ["compare", str(files[0]), str(files[1]), "--json", str(tmp_path / "c.json")])
+    assert code != 0
+    assert "overall: pass" not in out
+    assert "bad.json" in err and needle in err, err
+    assert not (tmp_path / "c.json").exists()
+
+
+def test_the_unmutated_result_certifies_and_compares(tmp_path, capsys, good):
+    a, b = _write(tmp_path, good, "a.json"), _write(tmp_path, good, "b.json")
+    code, out, err = _run(capsys, ["compare", str(a), str(b), "--json", str(tmp_path / "c.json")])
+    assert code == 0 and "overall: pass" in out
+    code, out, err = _run(capsys, ["certificate", str(a), "--html", str(tmp_path / "c.html")])
+    assert code == 0 and "issued" in out
+
+
+def test_not_json_and_nan_tokens_are_refused_naming_the_line(tmp_path, capsys, good):
+    text = json.dumps(good, indent=1).replace('"value": ' + json.dumps(good["parameters"]["K_x"]["value"]),
+                                                '"value": NaN', 1)
+    p = _write(tmp_path, text)
+    code, out, err = _run(capsys, ["certificate", str(p), "--html", str(tmp_path / "c.html")])
+    assert code != 0 and "NaN is not JSON" in err
+    p = _write(tmp_path, json.dumps(good)[:-40])
+    code, out, err = _run(capsys, ["compare", str(p), str(p)])
+    assert code != 0 and f"{p}:1: not valid JSON" in err
+    p = tmp_path / "bin.json"
+    p.write_bytes(b"\xff\xfe{")
+    code, out, err = _run(capsys, ["certificate", str(p), "--html", str(tmp_path / "c.html")])
+    assert code != 0 and "not UTF-8" in err
+    p = _write(tmp_path, "[" * 100000 + "]" * 100000)
+    code, out, err = _run(capsys, ["certificate", str(p), "--html", str(tmp_path / "c.html")])
+    assert code != 0 and str(p) in err
+
+
+def test_null_means_not_finite_when_read_by_the_library(good):
+    d = _mut(good, _set_param("K_x", "value", None))
+    r = CalibrationResult.from_dict(d, "x.json")
+    assert math.isnan(r["K_x"].value)
+
+
+def test_summary_states_the_failing_gates_and_no_dash(good):
+    from triadcal.reports.summary import summary_text
+
+    d = _mut(good, lambda d: d.__setitem__("status", "model_mismatch"))
+    d["gates"]["outcomes"][0].update(passed=False, status="model_mismatch", reason="chi2/dof = 9 with p = 1e-9")
+    text = summary_text(CalibrationResult.from_dict(d))
+    assert "FAILED gate" in text and "chi2/dof = 9 with p = 1e-9" in text
+    assert "chi2/dof = -" not in text
+
+
+def test_comparison_files_are_validated(tmp_path, capsys, good):
+    a, b = _write(tmp_path, good, "a.json"), _write(tmp_path, good, "b.json")
+    assert main(["compare", str(a), str(b), "--json", str(tmp_path / "c.json")]) == 0
+    capsys.readouterr()
+    comp = json.loads((tmp_path / "c.json").read_text())
+    ComparisonResult.from_dict(comp)                       # the real one reads
+    name = next(iter(comp["parameters"]))
+    for key, value, needle in [("u", None, f"parameters.{name}.u"), ("drift", "x", f"parameters.{name}.drift"),
+                               ("u", -1.0, "outside"), ("verdict", "great", "verdict")]:
+        bad = copy.deepcopy(comp)
+        bad["parameters"][name][key] = value
+        p = _write(tmp_path, bad, "bad_comp.json")
+        with pytest.raises(ValueError, match=needle):
+            ComparisonResult.load(p)
+        code, out, err = _run(capsys, ["certificate", str(p), "--html", str(tmp_path / "d.html")])
+        assert code != 0 and "bad_comp.json" in err, err
+    bad = copy.deepcopy(comp)
+    bad["overall"] = "pass"
+    for p_ in bad["parameters"].values():
+        if p_["judged"]:
+            p_["verdict"] = "fail"
+    with pytest.raises(ValueError, match="contradicts"):
+        ComparisonResult.from_dict(bad, "x.json")
+
+
+@pytest.mark.parametrize("row, needle", [
+    ("e1,s,xy,1e300,2", "outside"), ("e1,s,xy,nan,2", "not a finite number"), ("e1,s,xy,3,-1", "outside"),
+    ("e1,s,xy,abc,2", "not a number"), ("e1,s,xy,3,2,9", "more fields"), ("e1,s,qq,3,2", "unknown angle"),
+])
+def test_published_tables_are_validated(tmp_path, row, needle):
+    p = tmp_path / "pub.csv"
+    p.write_text("exposure,sensor,angle,drift_arcsec,u_arcsec\n" + row + "\n")
+    with pytest.raises(ValueError, match=needle) as e:
+        read_published_table(p)
+    assert str(p) in str(e.value) and "row 1" in str(e.value)
