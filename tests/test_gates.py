@@ -12,13 +12,11 @@ import math
 import numpy as np
 import pytest
 
-from triadcal.api import example_path
 from triadcal.estimation.gates import (
     PRECEDENCE, STATUSES, FitEvidence, GateOutcome, RefusedResult, answer_gates, check_result_for_use,
     orientation_hints, rank_deficiency, scale_band, status_of)
 from triadcal.estimation.joint import fit_joint
 from triadcal.estimation.result import CalibrationResult, ParameterValue
-from triadcal.io.bench_csv import read_bench_csv
 from triadcal.models.campaign import nominal_gravity
 
 
@@ -127,11 +125,6 @@ def test_consumer_check_refuses_with_one_line():
 
 
 # -- the joint fit on mutated copies of the example ------------------------------------------
-@pytest.fixture(scope="module")
-def example():
-    return read_bench_csv(example_path())
-
-
 def _gate_notes(r):
     return " | ".join(n for n in r.notes if n.startswith(("gate", "hint")))
 

@@ -65,7 +65,7 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     if method == "classical":
         from .estimation.classical import fit_classical
 
-        result = fit_classical(campaign, reference_temperature_C=reference_temperature_C)
+        result = fit_classical(campaign, reference_temperature_C=reference_temperature_C, gates=gates)
     elif method == "joint":
         from .estimation.joint import fit_joint
 

@@ -55,7 +55,6 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..estimation.compare import (compare, compare_sequence, judge_published, parse_tolerance,
                                       read_published_table)
-    from ..estimation.result import CalibrationResult
 
     tolerance = parse_tolerance(args.tolerance)
     tolerances = assignments(args.param_tolerance)

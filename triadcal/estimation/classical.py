@@ -39,6 +39,7 @@ from ..models.campaign import DEFAULT_PLAN, Campaign, nominal_gravity, up_axis_l
 from ..models.kinematics import gravity_in_imu
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, PPM, UG
+from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates, orientation_hints
 from .result import CalibrationResult, ParameterValue
 
 IMU_AXES = "XYZ"
@@ -96,20 +97,33 @@ def pairing(up_labels, where: str = "campaign") -> Pairing:
     return Pairing(D, bal, groups, np.flatnonzero(up == ""))
 
 
-def row_estimate(w: np.ndarray, pair: Pairing, gravity_g: float):
+def row_estimate(w: np.ndarray, pair: Pairing, gravity_g: float, axis: Optional[int] = None,
+                 where: str = "campaign"):
     """Eq. 2 for one accelerometer: values and Jacobian w.r.t. its readings ``w`` (n,).
 
     Returns ``(values, jacobian)`` for the five quantities ``(Ca_a,b1, Ca_a,b2, ... )``
     in the order: the three elements of row ``a`` of Ca (dimensionless, direction
     cosines), ``K_a`` (g per output unit), ``S_a`` (g).
+
+    ``axis`` (0, 1, 2): the accelerometer's own IMU axis. Eq. 1 with a small-angle Ca has
+    a diagonal element ``cos`` > 0, so the sign of ``W_a^a`` is the sign of the output: an
+    inverted output gives ``K_a < 0`` (which the answer gates refuse), never a row of Ca and
+    a bias silently flipped. A row whose norm ``N_a`` is zero (the output does not change
+    between up and down: a constant or stuck channel) is refused.
     """
     Wb = pair.difference @ w
     N = float(np.linalg.norm(Wb))
-    row = Wb / N
-    dN = row @ pair.difference                      # dN/dw
-    dRow = (pair.difference - np.outer(row, dN)) / N
-    K = gravity_g / N
-    dK = -gravity_g / N ** 2 * dN
+    if not (math.isfinite(N) and N > 0):
+        raise ClassicalPlanError(
+            f"{where}: output w_{AXES[axis] if axis is not None else '?'} does not change between the up and down "
+            f"positions (|W_a| = {N:g}): a constant or stuck channel; eq. 2 cannot form its scale factor")
+    sign = -1.0 if axis is not None and Wb[axis] < 0 else 1.0
+    N_signed = sign * N
+    row = Wb / N_signed
+    dN = row @ pair.difference                      # d(N_signed)/dw
+    dRow = (pair.difference - np.outer(row, dN)) / N_signed
+    K = gravity_g / N_signed
+    dK = -gravity_g / N_signed ** 2 * dN
     m = float(pair.balanced @ w)
     S = K * m
     dS = m * dK + K * pair.balanced
@@ -193,7 +207,8 @@ def _quantity_names():
 
 
 def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
-                  noise: str = "residuals", temperature: str = "mean") -> CalibrationResult:
+                  noise: str = "residuals", temperature: str = "mean",
+                  gates: GateConfig = DEFAULT_CONFIG) -> CalibrationResult:
     """The paper's classical calibration (``triadcal fit --method classical``).
 
     Eq. 2-3 at every setpoint block with the up/down pairing of the bench kinematics,
@@ -235,6 +250,14 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     per_block = []
     rss = np.zeros(3)
     dof = np.zeros(3, int)
+    red_chi2 = np.zeros(3)
+    resid: list = [[], [], []]
+    from .joint import noise_of
+
+    known = noise_of(campaign)
+    if campaign.n_visits < 6 or not np.all(np.isfinite(campaign.w)):
+        raise ClassicalPlanError(f"{src}: {campaign.n_visits} visits; the classical method needs every IMU axis up "
+                                 "and down (at least 6 visits) with finite readings")
     for b in block_ids:
         idx = np.flatnonzero(blocks == b)
         idx = idx[np.argsort(campaign.time_s[idx], kind="stable")]
@@ -256,14 +279,26 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                                  f"enters Ca_{a}{bb.lower()} with factor {np.max(np.abs(leak[k, ai])):.3g}")
         sqrt_tau = np.sqrt(campaign.tau_s[idx])
         for ai in range(3):
-            row = row_estimate(campaign.w[idx, ai], pair, G)[0][:3]
+            row = row_estimate(campaign.w[idx, ai], pair, G, ai, where)[0][:3]
             X = residual_design(campaign.axis1_deg[idx], campaign.axis2_deg[idx], row) * sqrt_tau[:, None]
             y = campaign.w[idx, ai] * sqrt_tau
             coef, *_ = np.linalg.lstsq(X, y, rcond=None)
             rank = np.linalg.matrix_rank(X)
-            rss[ai] += float(np.sum((y - X @ coef) ** 2))
+            e = y - X @ coef
+            rss[ai] += float(np.sum(e ** 2))
             dof[ai] += len(idx) - rank
-        per_block.append(dict(idx=idx, pair=pair, setpoint_C=sp, direction=direction, cycle=cycle))
+            # leverages of the per-setpoint model, for the studentised residuals
+            U_, sv, _ = np.linalg.svd(X, full_matrices=False)
+            Ur = U_[:, sv > sv[0] * 1e-10] if len(sv) and sv[0] > 0 else U_[:, :0]
+            resid[ai].append((e, np.sum(Ur ** 2, axis=1), idx))
+            if known.known and len(idx) > rank:
+                # the same model weighted by the known noise of each mean output: its chi^2
+                # is the disagreement of the redundant positions against that noise
+                Xk = X / sqrt_tau[:, None] / known.sigma[idx, ai][:, None]
+                yk = campaign.w[idx, ai] / known.sigma[idx, ai]
+                ck, *_ = np.linalg.lstsq(Xk, yk, rcond=None)
+                red_chi2[ai] += float(np.sum((yk - Xk @ ck) ** 2))
+        per_block.append(dict(idx=idx, pair=pair, setpoint_C=sp, direction=direction, cycle=cycle, where=where))
 
     # -- output noise ------------------------------------------------------------------
     sd_sigma = campaign.output_sigma()
@@ -309,7 +344,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         idx, pair = blk["idx"], blk["pair"]
         vals, us = {}, {}
         for ai, a in enumerate(AXES):
-            v, J = row_estimate(campaign.w[idx, ai], pair, G)
+            v, J = row_estimate(campaign.w[idx, ai], pair, G, ai, blk["where"])
             V = np.sum(J * J * (sigma[idx, ai] ** 2)[None, :], axis=1)
             for bi, b in enumerate(AXES):
                 if b != a:
@@ -376,13 +411,102 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
            if slope else "none (single setpoint temperature)",
            "noise_source": use, "noise": noise_desc, **fit_noise}
     T = campaign.t
-    return CalibrationResult(
+    worst = _worst_studentised(resid, rss, dof, campaign)
+    redundancy = redundancy_gate(red_chi2, dof, known.known, known.description, gates, use, worst)
+    fit["redundancy"] = redundancy.to_dict()
+    result = CalibrationResult(
         unit=units[0], method="classical", parameters=ordered, status="ok",
         effects=THERMAL_EFFECTS if slope else (), reference_temperature_C=T_ref,
         temperature_range_C=(float(T.min()), float(T.max())), fit=fit,
         correlation_names=tuple(corr_names), correlation=corr, notes=notes,
         extra={"per_setpoint": per_setpoint, "output_unit": unit_out,
                "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source})
+    apply_gates(result, FitEvidence(converged=True, n_obs=3 * campaign.n_visits, n_free=15 * len(per_block),
+                                    extra=[redundancy]), config=gates)
+    if result.status != "ok":
+        g = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3)
+        for hint in orientation_hints(campaign.w, g):
+            result.notes.append(f"hint: {hint}")
+    return result
+
+
+def _worst_studentised(resid, rss, dof, campaign: Campaign):
+    """The largest internally studentised residual of the per-setpoint models,
+    ``|e_i| / (s_a sqrt(1 - h_ii))`` with ``s_a^2 = RSS_a / dof_a``: ``(t, n, where)``."""
+    best, n, where = 0.0, 0, ""
+    for ai, parts in enumerate(resid):
+        if dof[ai] <= 0 or rss[ai] <= 0:
+            continue
+        s_a = math.sqrt(rss[ai] / dof[ai])
+        for e, h, idx in parts:
+            keep = h < 1 - 1e-9
+            n += int(np.sum(keep))
+            if not np.any(keep):
+                continue
+            t = np.abs(e[keep]) / (s_a * np.sqrt(1 - h[keep]))
+            k = int(np.argmax(t))
+            if t[k] > best:
+                i = idx[keep][k]
+                line = f", line {int(campaign.lines[i])}" if campaign.lines is not None else ""
+                best, where = float(t[k]), f"w_{AXES[ai]} at position {campaign.position[i]}{line}"
+    return best, n, where
+
+
+def redundancy_gate(chi2: np.ndarray, dof: np.ndarray, noise_known: bool, noise_what: str,
+                    config: GateConfig = DEFAULT_CONFIG, noise_source: str = "sd",
+                    worst: tuple = (0.0, 0, "")) -> GateOutcome:
+    """The classical method's own check of its redundancy: the positions beyond the five
+    quantities per output and setpoint (eq. 2-3 use the up/down differences and the balanced
+    mean; the per-setpoint linear model of :func:`residual_design` leaves ``dof`` residual
+    degrees of freedom) must agree.
+
+    Two tests, both reported, and the gate fails (status ``inconsistent_redundancy``) on either:
+
+    - *an outlier*: the largest internally studentised residual ``t`` over the ``n`` residuals,
+      Bonferroni p-value ``min(1, 2 n Phi(-t))`` < ``gof_p_min`` (one mislabelled or mis-read
+      position; ``worst`` is ``(t, n, where)``).
+    - *the scatter against the known noise* (``chi2`` per output, chi^2 with ``sum(dof)``
+      dof under the model), when the uncertainties come from that noise (``noise_source``
+      "sd"): significant (p < ``gof_p_min``) and material (chi2/dof > ``gof_ratio_max``), as the
+      goodness-of-fit gate. With the default ``noise_source`` "residuals" the scatter itself
+      sets the uncertainties, bench positioning errors included, so its ratio to the output
+      noise is reported (how much the bench adds) but does not fail the gate.
+    """
+    from scipy import stats
+
+    n = int(np.sum(dof))
+    if n <= 0:
+        return GateOutcome("redundancy", None, "inconsistent_redundancy",
+                           "not testable: the plan has no redundant positions (no residual degrees of freedom)")
+    t, n_res, where = worst
+    p_out = min(1.0, 2 * max(n_res, 1) * float(stats.norm.sf(t))) if n_res else 1.0
+    out_fails = p_out < config.gof_p_min
+    parts = [f"largest studentised residual {t:.3g} ({where}; Bonferroni p = {p_out:.2g} over {n_res})"]
+    scatter_fails = False
+    ratio = None
+    if noise_known:
+        total = float(np.sum(chi2))
+        p = float(stats.chi2.sf(total, n))
+        ratio = total / n
+        per = ", ".join(f"w_{a}: {c / max(d, 1):.3g}" for a, c, d in zip(AXES, chi2, dof))
+        scatter_fails = noise_source == "sd" and p < config.gof_p_min and ratio > config.gof_ratio_max
+        parts.append(f"scatter chi2/dof = {ratio:.4g} against the known noise ({noise_what}; {n} dof, p = {p:.2g}; "
+                     f"{per})" + ("" if noise_source == "sd" else
+                                  ": informative only, the uncertainties come from the residuals themselves"))
+    else:
+        parts.append("scatter not testable against a known noise (no sd_* columns or Q_V2s)")
+    reason = "; ".join(parts)
+    if out_fails:
+        reason += (f"; p < {config.gof_p_min:g}: one position disagrees with the others (a mislabelled position, "
+                   "a mis-read visit, or a swapped or inverted column)")
+    if scatter_fails:
+        reason += (f"; p < {config.gof_p_min:g} and ratio > {config.gof_ratio_max:g}: the positions scatter beyond "
+                   "the noise the uncertainties assume")
+    return GateOutcome("redundancy", not (out_fails or scatter_fails), "inconsistent_redundancy", reason,
+                       ratio if ratio is not None else t,
+                       f"Bonferroni p >= {config.gof_p_min:g}" + (
+                           f"; chi2/dof <= {config.gof_ratio_max:g} or p >= {config.gof_p_min:g}"
+                           if noise_source == "sd" else ""))
 
 
 def _scale_unit(output_unit: str) -> str:

@@ -1,0 +1,143 @@
+"""The classical method (eq. 2-3) behind the same answer gates as the joint fit, and its own
+redundancy check. Mutations are made by hand from the built-in example; the redundancy
+statistic's distribution is checked on readings generated here from eq. 1 directly (not by
+triadcal's simulator), where theory says it is chi^2 with the plan's residual dof."""
+
+import copy
+import re
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from triadcal.cli import main
+from triadcal.estimation.classical import ClassicalPlanError, fit_classical
+from triadcal.models.campaign import nominal_gravity
+
+
+def _notes(r):
+    return " | ".join(r.notes)
+
+
+def test_example_is_ok_with_a_passing_redundancy_check(example):
+    r = fit_classical(example)
+    assert r.status == "ok", _notes(r)
+    red = r.fit["redundancy"]
+    assert red["passed"] is True and 0.7 < red["value"] < 1.3
+    assert {o["gate"] for o in r.extra["gates"]["outcomes"]} >= {"finite", "scale", "angles", "redundancy"}
+
+
+def test_swapped_columns_are_refused_with_a_hint(example):
+    c = copy.deepcopy(example)
+    c.w[:, [0, 1]] = c.w[:, [1, 0]]
+    r = fit_classical(c)
+    assert r.status == "angle_out_of_range", _notes(r)
+    assert abs(r["Ca_xy"].value) > 1e5          # ~ 1 rad = 206264 arcsec: the gate, not the value, decides
+    assert "follows gravity along y, not x" in _notes(r)
+
+
+def test_an_inverted_output_gives_a_negative_scale_not_a_flipped_row(example):
+    """Hand-derived: w_z -> -w_z makes W_z^b -> -W_z^b; with the sign of the diagonal
+    element carried into K (eq. 1, cos > 0), K_z -> -K_z exactly while S_z = K_z m and the
+    row of Ca are unchanged."""
+    ref = fit_classical(example)
+    c = copy.deepcopy(example)
+    c.w[:, 2] *= -1
+    r = fit_classical(c)
+    assert r.status == "unphysical_scale", _notes(r)
+    assert r["K_z"].value == pytest.approx(-ref["K_z"].value, rel=1e-12)
+    assert r["S_z"].value == pytest.approx(ref["S_z"].value, rel=1e-9)
+    for n in ("Ca_zx", "Ca_zy"):
+        assert r[n].value == pytest.approx(ref[n].value, rel=1e-9)
+    assert "w_z falls when its axis points up" in _notes(r)
+
+
+@pytest.mark.parametrize("how", ["stuck", "constant", "nan"])
+def test_stuck_or_constant_readings_are_refused_in_one_line(example, tmp_path, capsys, how):
+    from triadcal.io.bench_csv import write_bench_csv
+
+    c = copy.deepcopy(example)
+    if how == "stuck":
+        c.w[:, 1] = 0.25
+    elif how == "constant":
+        c.w[:] = 0.25
+    else:
+        c.w[3, 0] = np.nan
+    if how != "nan":
+        with pytest.raises(ClassicalPlanError, match="stuck channel"):
+            fit_classical(c)
+        path = tmp_path / "stuck.csv"
+        write_bench_csv(c, path)
+        code = main(["fit", str(path), "--method", "classical"])
+        out, err = capsys.readouterr()
+        assert code != 0 and "Traceback" not in out + err and "stuck channel" in err
+        assert len(err.strip().splitlines()) == 1
+    else:
+        with pytest.raises(ClassicalPlanError, match="finite"):
+            fit_classical(c)
+
+
+def _eq1_campaign(example, rng, sigma):
+    """Readings from eq. 1 (W = K^-1 (Ca g + S)) at the example's bench angles, plus Gaussian
+    noise of the standard deviation the sd columns declare."""
+    c = copy.deepcopy(example)
+    g = nominal_gravity(c.axis1_deg, c.axis2_deg).reshape(-1, 3) * c.gravity_g
+    a = 1e-3
+    Ca = np.array([[1.0, a, -2 * a], [0.5 * a, 1.0, a], [-a, 1.5 * a, 1.0]])
+    K, S = np.array([0.9, 1.1, 1.05]), np.array([1e-3, -2e-3, 5e-4])
+    c.w = (g @ Ca.T + S) / K + rng.normal(0, sigma, size=g.shape)
+    c.n_samples = np.full(len(g), 100)
+    c.sd = np.full(g.shape, sigma * 10.0)      # sd of a sample; the mean's sd = sd / sqrt(100) = sigma
+    return c
+
+
+def test_redundancy_statistic_is_chi2_under_the_model(example):
+    """Under eq. 1 with known Gaussian noise the redundancy chi^2 is chi^2(dof) exactly
+    (weighted linear least squares): its p-values over 60 seeds are uniform (KS p > 0.001) and
+    chi2/dof averages 1 within 4 standard errors (sd of chi2/dof is sqrt(2/dof))."""
+    rng = np.random.default_rng(20261124)
+    ratios, ps = [], []
+    for _ in range(60):
+        r = fit_classical(_eq1_campaign(example, rng, 2e-5), noise="sd")
+        red = r.fit["redundancy"]
+        dof, p = re.search(r"; (\d+) dof, p = ([0-9.e+-]+)", red["reason"]).groups()
+        ratios.append(red["value"])
+        ps.append(float(p))
+    dof = int(dof)
+    assert stats.kstest(ps, "uniform").pvalue > 1e-3
+    assert abs(np.mean(ratios) - 1) < 4 * np.sqrt(2 / dof) / np.sqrt(len(ratios))
+
+
+def test_a_mislabelled_position_fails_the_redundancy_check(example):
+    """One visit whose readings belong to the opposite position (a mislabelled plan row):
+    eq. 2 still forms every quantity, but the redundant positions disagree far beyond the noise."""
+    rng = np.random.default_rng(7)
+    c = _eq1_campaign(example, rng, 2e-5)
+    c.w[0] = -c.w[0]
+    r = fit_classical(c)
+    assert r.status == "inconsistent_redundancy", _notes(r)
+    assert "position P" in r.fit["redundancy"]["reason"]
+
+
+def test_scatter_is_tested_against_the_noise_the_uncertainties_assume(example):
+    """Bench positioning errors (here: extra Gaussian scatter 3x the output noise, made by hand)
+    inflate the scatter over the sd columns' noise by ~10. With u from the residuals (default)
+    that is reported, not refused; with u from the sd columns (noise='sd') the u would be
+    ~3x too small, so the gate refuses."""
+    rng = np.random.default_rng(3)
+    c = _eq1_campaign(example, rng, 2e-5)
+    c.w = c.w + rng.normal(0, 6e-5, size=c.w.shape)
+    r = fit_classical(c)
+    assert r.status == "ok" and "informative only" in r.fit["redundancy"]["reason"]
+    assert 7 < r.fit["redundancy"]["value"] < 13
+    r = fit_classical(c, noise="sd")
+    assert r.status == "inconsistent_redundancy", _notes(r)
+
+
+def test_without_known_noise_only_the_outlier_test_runs(example):
+    c = copy.deepcopy(example)
+    c.sd, c.n_samples = None, None
+    c.metadata.pop("Q_V2s", None)
+    r = fit_classical(c)
+    assert r.status == "ok"
+    assert "scatter not testable" in r.fit["redundancy"]["reason"]
