@@ -17,6 +17,7 @@ from typing import Optional, Union
 import numpy as np
 
 from ..models.campaign import DIRECTIONS, Campaign
+from .numbers import MAX_READING, NumberError, parse_number
 
 REQUIRED = ("unit", "setpoint_C", "direction", "time_s", "position", "axis1_deg", "axis2_deg",
             "tau_s", "w_x", "w_y", "w_z", "t_x", "t_y", "t_z")
@@ -24,8 +25,6 @@ OPTIONAL = ("cycle", "sd_x", "sd_y", "sd_z", "n_samples", "state")
 COLUMNS = REQUIRED + OPTIONAL
 FLOATS = ("setpoint_C", "time_s", "axis1_deg", "axis2_deg", "tau_s",
           "w_x", "w_y", "w_z", "t_x", "t_y", "t_z", "sd_x", "sd_y", "sd_z")
-#: metadata keys whose values must be numbers
-NUMERIC_METADATA = ("local_g_m_s2",)
 
 
 class BenchCSVError(ValueError):
@@ -52,21 +51,84 @@ def text_line_of_offset(data: bytes, offset: int) -> int:
     return data[:offset].count(b"\n") + 1
 
 
-def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
-    """Parse bench CSV v1 text; ``path`` names the source in error messages."""
-    lines = text.splitlines()
+#: accepted range of each numeric column (docs/bench-csv.md): (low, high, low_open)
+RANGES = {
+    "setpoint_C": (-273.15, 300.0, False), "t_x": (-273.15, 300.0, False), "t_y": (-273.15, 300.0, False),
+    "t_z": (-273.15, 300.0, False),
+    "axis1_deg": (-360.0, 360.0, False), "axis2_deg": (-360.0, 360.0, False),
+    "tau_s": (0.0, 86400.0, True),
+    "time_s": (-MAX_READING, MAX_READING, False),
+    "w_x": (-MAX_READING, MAX_READING, False), "w_y": (-MAX_READING, MAX_READING, False),
+    "w_z": (-MAX_READING, MAX_READING, False),
+    "sd_x": (0.0, MAX_READING, False), "sd_y": (0.0, MAX_READING, False), "sd_z": (0.0, MAX_READING, False),
+}
+#: local gravity accepted without ``# local_g_override = true`` (m/s^2): the range on Earth's
+#: surface is 9.78 (equator) to 9.83 (poles), with a margin for altitude and anomalies
+LOCAL_G_RANGE_M_S2 = (9.76, 9.84)
+#: a temperature column whose median is at or above this (degC) is kelvin, not degC: no IMU
+#: calibration runs at 200 degC, while 200 K is -73 degC
+KELVIN_MEDIAN_C = 200.0
+#: factor by which the median |w| may differ from 1 g in a physical output unit
+UNIT_MAGNITUDE_FACTOR = 1.5
+
+
+def _metadata(lines, path):
     metadata: dict[str, str] = {}
+    where: dict[str, int] = {}
     k = 0
     while k < len(lines) and (lines[k].startswith("#") or not lines[k].strip()):
         body = lines[k][1:].strip() if lines[k].startswith("#") else ""
         if "=" in body:
             key, value = (s.strip() for s in body.split("=", 1))
-            if key in NUMERIC_METADATA:
-                v = to_float(value)
-                if v is None or not math.isfinite(v) or v <= 0:
-                    raise BenchCSVError(path, k + 1, None, f"metadata '{key}' must be a positive number, got {value!r}")
+            if key in where:
+                raise BenchCSVError(path, k + 1, None, f"metadata '{key}' given twice (first on line {where[key]})")
+            where[key] = k + 1
             metadata[key] = value
         k += 1
+    override = metadata.get("local_g_override", "false").lower()
+    if override not in ("true", "false"):
+        raise BenchCSVError(path, where["local_g_override"], None,
+                            f"metadata 'local_g_override' must be true or false, got {metadata['local_g_override']!r}")
+    for key, low, high, low_open in (("local_g_m_s2", 0.0, 100.0, True), ("Q_V2s", 0.0, MAX_READING, True)):
+        if key in metadata:
+            try:
+                v = parse_number(metadata[key], low=low, high=high, low_open=low_open, what=key)
+            except NumberError as exc:
+                raise BenchCSVError(path, where[key], None, f"metadata '{key}' = {metadata[key]!r}: {exc.problem}") from None
+            if key == "local_g_m_s2" and override != "true" and not (
+                    LOCAL_G_RANGE_M_S2[0] <= v <= LOCAL_G_RANGE_M_S2[1]):
+                raise BenchCSVError(
+                    path, where[key], None,
+                    f"metadata 'local_g_m_s2' = {v:g} m/s^2 is outside {LOCAL_G_RANGE_M_S2[0]}-{LOCAL_G_RANGE_M_S2[1]} "
+                    "m/s^2, the local gravity anywhere on Earth's surface; if it is right (a centrifuge, another "
+                    "planet, a deliberate test), add the line '# local_g_override = true'")
+    return metadata, where, k
+
+
+def _float_column(path, name, strings, line_numbers):
+    """One numeric column, converted at once; on a bad field the slow path names its line."""
+    try:
+        v = np.array(strings, dtype=float)
+    except ValueError:
+        for s_, ln in zip(strings, line_numbers):
+            check_field(path, int(ln), name, s_)
+        raise AssertionError("unreachable: a field failed as a column but passed alone")  # pragma: no cover
+    low, high, low_open = RANGES[name]
+    bad = ~np.isfinite(v) | (v > high) | ((v <= low) if low_open else (v < low))
+    if bad.any():
+        i = int(np.argmax(bad))
+        check_field(path, int(line_numbers[i]), name, strings[i])
+    return v
+
+
+def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
+    """Parse bench CSV v1 text; ``path`` names the source in error messages.
+
+    Every field is checked against its column's range (:data:`RANGES`), the metadata against
+    theirs, and the file as a whole: temperatures that look like kelvin and readings whose
+    magnitude contradicts the declared ``output_unit`` are refused (docs/bench-csv.md)."""
+    lines = text.splitlines()
+    metadata, meta_line, k = _metadata(lines, path)
     if k == len(lines):
         raise BenchCSVError(path, max(k, 1), None, "no header row: the file holds no bench data")
     header_line = k + 1
@@ -91,52 +153,48 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
         raise BenchCSVError(path, header_line, "n_samples" if "sd_x" in seen else "sd_x",
                             "sd_* and n_samples come together (their ratio is the uncertainty of the mean)")
 
-    cols: dict[str, list] = {h: [] for h in header}
+    raw: list = []
     line_numbers: list[int] = []
-    keys: dict[tuple, int] = {}
-    times: dict[tuple, int] = {}
-    reader = csv.reader(lines[k + 1:])
-    for offset, row in enumerate(reader):
-        lineno = header_line + 1 + offset
+    width = len(header)
+    for offset, row in enumerate(csv.reader(lines[k + 1:])):
         if not row or (len(row) == 1 and not row[0].strip()):
             continue  # a blank line carries no data
-        if len(row) != len(header):
-            col = header[len(row)] if len(row) < len(header) else None
+        if len(row) != width:
+            lineno = header_line + 1 + offset
+            col = header[len(row)] if len(row) < width else None
             raise BenchCSVError(path, lineno, col,
-                                f"{len(row)} fields, the header has {len(header)}"
+                                f"{len(row)} fields, the header has {width}"
                                 + (" (this column and those after it have no field)" if col else ""))
-        values = dict(zip(header, (v.strip() for v in row)))
-        if all(values.get(c, "") == "" for c in ("w_x", "w_y", "w_z")):
-            raise BenchCSVError(path, lineno, "w_x",
-                                f"position {values.get('position', '?')!r} visited with no readings")
-        for h, v in values.items():
-            cols[h].append(check_field(path, lineno, h, v))
-        key = tuple(values.get(c, "") for c in ("unit", "state", "cycle", "setpoint_C", "direction",
-                                                 "position", "time_s"))
-        key = key[:3] + (cols["setpoint_C"][-1], key[4], key[5], cols["time_s"][-1])
-        if key in keys:
-            raise BenchCSVError(path, lineno, "time_s",
-                                f"duplicated row: position {values['position']!r} at the same time "
-                                f"and setpoint as line {keys[key]}")
-        keys[key] = lineno
-        when = (values["unit"], values.get("state", ""), cols["time_s"][-1])
-        if when in times:
-            raise BenchCSVError(path, lineno, "time_s",
-                                f"a second visit of unit {values['unit']!r} at the same time as line {times[when]} "
-                                "(a unit is in one position at a time)")
-        times[when] = lineno
-        line_numbers.append(lineno)
+        raw.append(row)
+        line_numbers.append(header_line + 1 + offset)
     n = len(line_numbers)
     if n == 0:
         raise BenchCSVError(path, header_line, None, "no data rows after the header")
+    lnum = np.array(line_numbers)
+    strings = {h: [r[j].strip() for r in raw] for j, h in enumerate(header)}
+    del raw
+    for i in range(n):
+        if strings["w_x"][i] == "" and strings["w_y"][i] == "" and strings["w_z"][i] == "":
+            raise BenchCSVError(path, int(lnum[i]), "w_x",
+                                f"position {strings['position'][i]!r} visited with no readings")
+    _check_kelvin(path, strings, lnum)
+    cols: dict = {}
+    for h in header:
+        if h in RANGES:
+            cols[h] = _float_column(path, h, strings[h], lnum)
+        elif h in COLUMNS:
+            cols[h] = [check_field(path, int(ln), h, v) for v, ln in zip(strings[h], lnum)]
+        else:
+            cols[h] = strings[h]
+    _check_rows(path, strings, cols, lnum)
 
     def arr(name, dtype=float):
-        return np.array(cols[name], dtype=dtype)
+        return np.asarray(cols[name], dtype=dtype)
 
     opt_cycle = arr("cycle", int) if "cycle" in cols else np.zeros(n, int)
     state = np.array(cols["state"], dtype=object).astype(str) if "state" in cols else np.full(n, "initial")
     sd = np.stack([arr(c) for c in ("sd_x", "sd_y", "sd_z")], axis=1) if "sd_x" in cols else None
-    return Campaign(
+    campaign = Campaign(
         unit=np.array(cols["unit"]).astype(str), setpoint_C=arr("setpoint_C"),
         direction=np.array(cols["direction"]).astype(str), time_s=arr("time_s"),
         position=np.array(cols["position"]).astype(str), axis1_deg=arr("axis1_deg"),
@@ -145,8 +203,70 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
         t=np.stack([arr(c) for c in ("t_x", "t_y", "t_z")], axis=1),
         cycle=opt_cycle, state=state, sd=sd,
         n_samples=arr("n_samples", int) if "n_samples" in cols else None,
-        metadata=metadata, source=path, lines=np.array(line_numbers),
+        metadata=metadata, source=path, lines=lnum,
         extra={h: np.array(cols[h]).astype(str) for h in header if h not in COLUMNS})
+    check_output_unit(campaign, meta_line.get("output_unit", header_line))
+    return campaign
+
+
+def _check_rows(path, strings, cols, lnum):
+    """A unit is in one position at a time: no two rows of a unit (and state) at one time."""
+    units, states = strings["unit"], strings.get("state", [""] * len(lnum))
+    first: dict = {}
+    for i, key in enumerate(zip(units, states, cols["time_s"].tolist())):
+        j = first.setdefault(key, i)
+        if j != i:
+            same = all(strings[c][i] == strings[c][j] for c in ("position", "setpoint_C", "direction")
+                       if c in strings)
+            what = (f"duplicated row: position {strings['position'][i]!r} at the same time and setpoint as line "
+                    f"{int(lnum[j])}" if same else
+                    f"a second visit of unit {units[i]!r} at the same time as line {int(lnum[j])} "
+                    "(a unit is in one position at a time)")
+            raise BenchCSVError(path, int(lnum[i]), "time_s", what)
+
+
+def _check_kelvin(path, strings, lnum):
+    """Before the range checks, so that kelvin is named as such rather than as a range error."""
+    try:
+        T = np.array(strings["t_x"] + strings["t_y"] + strings["t_z"], dtype=float)
+    except ValueError:
+        return                                  # a field that is not a number: its own check names it
+    T = T[np.isfinite(T)]
+    if not len(T):
+        return
+    med = float(np.median(T))
+    if med >= KELVIN_MEDIAN_C:
+        raise BenchCSVError(path, int(lnum[0]), "t_x",
+                            f"temperatures look like kelvin (median {med:g}): the t_* columns are degC "
+                            f"(subtract 273.15; no IMU calibration runs at a median of {KELVIN_MEDIAN_C:g} degC)")
+
+
+def check_output_unit(c: Campaign, line: int) -> None:
+    """Refuse readings whose magnitude contradicts the declared ``output_unit``: for a
+    physical acceleration unit the median |w| of the visits must lie within a factor
+    :data:`UNIT_MAGNITUDE_FACTOR` of the local gravity in that unit; for an electrical or
+    digital unit the implied K = g / median |w| must lie in the unit's plausible band
+    (:data:`triadcal.estimation.gates.SCALE_BAND_G_PER_UNIT`)."""
+    from ..estimation.gates import NOMINAL_SCALE_G_PER_UNIT, SCALE_BAND_G_PER_UNIT
+
+    unit = c.output_unit.strip()
+    med = float(np.median(np.linalg.norm(c.w, axis=1)))
+    src = c.source or "<string>"
+    if unit in NOMINAL_SCALE_G_PER_UNIT:
+        expected = c.gravity_g / NOMINAL_SCALE_G_PER_UNIT[unit]
+        ratio = med / expected if expected > 0 else math.inf
+        if not 1 / UNIT_MAGNITUDE_FACTOR <= ratio <= UNIT_MAGNITUDE_FACTOR:
+            raise BenchCSVError(src, line, None,
+                                f"the readings contradict output_unit = {unit}: median |w| = {med:.6g} {unit}, "
+                                f"while gravity is {expected:.6g} {unit} (ratio {ratio:.3g}); declare the unit the "
+                                "readings are in")
+    elif unit in SCALE_BAND_G_PER_UNIT:
+        lo, hi = SCALE_BAND_G_PER_UNIT[unit]
+        K = c.gravity_g / med if med > 0 else math.inf
+        if not lo <= K <= hi:
+            raise BenchCSVError(src, line, None,
+                                f"the readings contradict output_unit = {unit}: median |w| = {med:.6g} {unit} "
+                                f"implies K = {K:.3g} g/{unit}, outside the plausible {lo:g}-{hi:g} g/{unit}")
 
 
 def to_float(s: str) -> Optional[float]:
@@ -157,7 +277,7 @@ def to_float(s: str) -> Optional[float]:
 
 
 def check_field(path: str, line: int, column: str, value: str):
-    """Validate and convert one field; raise :class:`BenchCSVError` naming it."""
+    """Validate and convert one field; raise :class:`BenchCSVError` naming it and its range."""
     if column not in COLUMNS:
         return value
     if value == "":
@@ -166,26 +286,21 @@ def check_field(path: str, line: int, column: str, value: str):
         if column == "cycle":
             return 0
         raise BenchCSVError(path, line, column, "empty field")
-    if column in FLOATS:
-        v = to_float(value)
-        if v is None:
-            raise BenchCSVError(path, line, column, f"not a number: {value!r}")
-        if not math.isfinite(v):
-            raise BenchCSVError(path, line, column, f"not a finite number: {value!r}")
-        if column == "tau_s" and v <= 0:
-            raise BenchCSVError(path, line, column, f"averaging time must be positive, got {value}")
-        if column.startswith("sd_") and v < 0:
-            raise BenchCSVError(path, line, column, f"a standard deviation cannot be negative, got {value}")
-        return v
+    if column in RANGES:
+        low, high, low_open = RANGES[column]
+        try:
+            return parse_number(value, low=low, high=high, low_open=low_open, what=column)
+        except NumberError as exc:
+            raise BenchCSVError(path, line, column, exc.problem) from None
     if column in ("cycle", "n_samples"):
         try:
             v = int(value)
         except ValueError:
             raise BenchCSVError(path, line, column, f"not an integer: {value!r}") from None
-        if column == "n_samples" and v < 1:
-            raise BenchCSVError(path, line, column, f"must be at least 1, got {value}")
-        if column == "cycle" and v < 0:
-            raise BenchCSVError(path, line, column, f"must be 0 or more, got {value}")
+        if column == "n_samples" and not 1 <= v <= MAX_READING:
+            raise BenchCSVError(path, line, column, f"must be at least 1 (and at most {MAX_READING:g}), got {value}")
+        if column == "cycle" and not 0 <= v <= MAX_READING:
+            raise BenchCSVError(path, line, column, f"must be 0 or more (and at most {MAX_READING:g}), got {value}")
         return v
     if column == "direction" and value not in DIRECTIONS:
         raise BenchCSVError(path, line, column,
