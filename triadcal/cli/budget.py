@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import os
 from pathlib import Path
 
 
@@ -73,9 +71,8 @@ def run(args) -> int:
         print("\n\n".join(_table(b) for b in tables))
     if args.json:
         doc = {"format": "triadcal.budget", "version": 1, "tables": [b.to_dict() for b in tables]}
-        path = Path(args.json)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
+        from ..io.atomic import atomic_write_json
+
+        atomic_write_json(Path(args.json), doc)
         print(f"budget written to {args.json}")
     return 0

@@ -73,7 +73,7 @@ def _progress_bar(disabled: bool):
 
 
 def run(args) -> int:
-    from ..hardware.capture import (CaptureSettings, Stabilisation, capture, load_port_config,
+    from ..hardware.capture import (CaptureError, CaptureSettings, Stabilisation, capture, load_port_config,
                                     open_instruments, plan_from_csv)
     from ..models.campaign import DEFAULT_PLAN
     from ..models.units import STANDARD_GRAVITY_M_S2
@@ -109,6 +109,8 @@ def run(args) -> int:
             report = capture(args.out, plan=plan, setpoints_C=float_list(args.setpoints), imu=imu, bench=bench,
                              chamber=chamber, settings=settings, progress=_progress_bar(args.no_progress),
                              extra_metadata=extra)
+        except CaptureError as exc:
+            raise ValueError(str(exc)) from None      # one line, exit 1: the campaign cannot go on
         finally:
             bench.close()
             chamber.close()

@@ -31,7 +31,6 @@ Library code: no printing; the CLI (``triadcal compare``) prints.
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 import re
@@ -42,6 +41,7 @@ from typing import Mapping, Optional, Sequence, Union
 import numpy as np
 from scipy import stats
 
+from ..io.atomic import atomic_write_json
 from ..io.formats import require_format
 from ..io.numbers import parse_number
 from ..models.sensor import ANGLE_NAMES
@@ -889,14 +889,7 @@ def _opt_float(v, what: str = "value") -> Optional[float]:
 
 
 def _save_json(d: dict, path) -> None:
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(d, fh, indent=2, allow_nan=False)
-        fh.write("\n")
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    atomic_write_json(path, d)
 
 
 def _load_json(path) -> dict:

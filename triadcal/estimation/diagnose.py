@@ -288,9 +288,9 @@ class Diagnosis:
         }
 
     def save(self, path) -> None:
-        import json
-        with open(path, "w", encoding="utf-8") as fh:
-            json.dump(self.to_dict(), fh, indent=2, allow_nan=False, default=_json_default)
+        from ..io.atomic import atomic_write_json
+
+        atomic_write_json(path, self.to_dict())     # non-finite (e.g. a Pareto k) -> null, never a torn file
 
 
 METHODS_TEXT = {
@@ -312,14 +312,6 @@ def _f(v):
         return None
     v = float(v)
     return v if math.isfinite(v) else None
-
-
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return _f(o) if isinstance(o, np.floating) else int(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o))
 
 
 # ----------------------------------------------------------------------------------

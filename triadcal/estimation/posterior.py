@@ -796,10 +796,10 @@ def inference_data(campaign: Campaign, run: PosteriorRun, result: Optional[Calib
 def write_inference_data(path, campaign: Campaign, run: PosteriorRun, result: Optional[CalibrationResult] = None,
                          max_saved_draws: int = 4000) -> None:
     idata = inference_data(campaign, run, result, max_saved_draws)
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    idata.to_netcdf(str(tmp), engine="h5netcdf")
-    os.replace(tmp, path)
+    from ..io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        idata.to_netcdf(str(tmp), engine="h5netcdf")
 
 
 # -- a generic target: any CasADi residual function of the parameter vector ---------------------
@@ -1133,7 +1133,7 @@ def target_inference_data(target: ResidualTarget, run: PosteriorRun, result: Opt
 def write_target_inference_data(path, target: ResidualTarget, run: PosteriorRun,
                                 result: Optional[CalibrationResult] = None, max_saved_draws: int = 4000) -> None:
     idata = target_inference_data(target, run, result, max_saved_draws)
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    idata.to_netcdf(str(tmp), engine="h5netcdf")
-    os.replace(tmp, path)
+    from ..io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        idata.to_netcdf(str(tmp), engine="h5netcdf")

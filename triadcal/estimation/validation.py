@@ -29,7 +29,6 @@ Statistics (see docs/posterior.md for the reasoning):
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence
@@ -237,13 +236,9 @@ def validate(n_campaigns: int = 200, effects: Sequence[str] = DEFAULT_EFFECTS, *
     result = sbc(n_campaigns, effects, n_ranks=n_ranks, seed=seed, processes=processes, ess=ess,
                  progress=progress)
     if json_path is not None:
-        import json
+        from ..io.atomic import atomic_write_json
 
-        tmp = f"{json_path}.tmp"
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(result.summary(), fh, indent=2)
-            fh.write("\n")
-        os.replace(tmp, json_path)
+        atomic_write_json(json_path, result.summary())
     if plot_path is not None:
         from ..reports.sbc import plot_rank_histograms
 

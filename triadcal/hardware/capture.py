@@ -41,7 +41,8 @@ from .drivers.chamber import Chamber
 from .drivers.imu import ImuReadout, StreamThread
 from .noise import NoiseEstimate, allan_noise
 from .protocols import Frame
-from .storage import EventLog, RawStore, atomic_write_text, read_raw
+from ..io.atomic import atomic_write_text
+from .storage import EventLog, FolderLocked, RawStore, folder_lock, read_raw
 
 CSV_NAME = "campaign.csv"
 STATE_NAME = "capture.json"
@@ -237,7 +238,18 @@ def capture(out_dir, *, plan: Mapping[str, tuple], setpoints_C: Sequence[float],
 
     ``progress`` is called with a dict (``event``: 'start', 'soak', 'move', 'record',
     'visit', 'done'; plus ``done``, ``total``, ``setpoint_C``, ``position``, ``chamber_C``).
+    The folder is locked for the whole run (:func:`~triadcal.hardware.storage.folder_lock`):
+    a second capture into it is refused at once, naming the holder.
     """
+    try:
+        with folder_lock(out_dir, "capture"):
+            return _capture(out_dir, plan=plan, setpoints_C=setpoints_C, imu=imu, bench=bench, chamber=chamber,
+                            settings=settings, progress=progress, extra_metadata=extra_metadata)
+    except FolderLocked as exc:
+        raise CaptureError(str(exc)) from None
+
+
+def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progress, extra_metadata) -> CaptureReport:
     wall0 = time.monotonic()
     settings = settings or CaptureSettings()
     out = Path(out_dir)

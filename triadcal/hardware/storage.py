@@ -11,6 +11,7 @@ skipped by the reader, and the writer starts a fresh line after it.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -128,24 +129,46 @@ def read_events(path) -> list[dict]:
     return out
 
 
-def atomic_write_text(path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file, fsync'd and renamed into place."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-    dir_fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
-
-
 def optional_float(v) -> Optional[float]:
     try:
         return float(v)
     except (TypeError, ValueError):
         return None
+
+
+class FolderLocked(RuntimeError):
+    """Another process holds the folder's lock (the message names it)."""
+
+
+@contextlib.contextmanager
+def folder_lock(folder, what: str = "capture"):
+    """An exclusive lock on ``folder`` for the time of the block: ``fcntl.flock`` on
+    ``folder/.lock``, which records the holder (pid, host, start time). A second holder is
+    refused at once with :class:`FolderLocked` naming the first; the kernel releases the lock
+    when its process ends, however it ends, so a lock file left by a dead process does not
+    block (its recorded holder is simply overwritten)."""
+    import fcntl
+    import socket
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / ".lock"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 4096, 0).decode("utf-8", "replace").strip() or "an unknown process"
+            raise FolderLocked(f"{folder} is in use by another {what}: {holder}; wait for it to finish or "
+                               "choose another folder") from None
+        stamp = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{what} pid {os.getpid()} on host {socket.gethostname()} since {stamp}\n".encode(), 0)
+        os.fsync(fd)
+        try:
+            yield path
+        finally:
+            os.ftruncate(fd, 0)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)

@@ -339,10 +339,6 @@ def csv_value(c: Campaign, col: str, i: int) -> str:
 
 def write_bench_csv(c: Campaign, path: Union[str, os.PathLike]) -> None:
     """Write a campaign as bench CSV v1 (atomically: a temporary file renamed into place)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8", newline="") as fh:
-        fh.write(format_bench_csv(c))
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    from .atomic import atomic_write_text
+
+    atomic_write_text(path, format_bench_csv(c))

@@ -37,4 +37,8 @@ def fit_dataset(campaign, problem, solution, result):
 
 
 def write_fit_netcdf(path, campaign, problem, solution, result) -> None:
-    fit_dataset(campaign, problem, solution, result).to_netcdf(path, engine="h5netcdf")
+    from .atomic import atomic_path
+
+    ds = fit_dataset(campaign, problem, solution, result)
+    with atomic_path(path) as tmp:
+        ds.to_netcdf(tmp, engine="h5netcdf")

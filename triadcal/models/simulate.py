@@ -122,8 +122,9 @@ class Truth:
                    local_g_m_s2=d["local_g_m_s2"])
 
     def save(self, path) -> None:
-        with open(path, "w", encoding="utf-8") as fh:
-            json.dump(self.to_dict(), fh, indent=2)
+        from ..io.atomic import atomic_write_json
+
+        atomic_write_json(path, self.to_dict())
 
     @classmethod
     def load(cls, path) -> "Truth":

@@ -37,6 +37,7 @@ import numpy as np
 from .. import __version__
 from ..estimation.gates import check_result_for_use, result_problems
 from ..estimation.result import CalibrationResult, read_json, round_to_uncertainty
+from ..io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ..io.formats import require_format
 from ..models.effects import EFFECTS
 from ..models.model import Model
@@ -1117,6 +1118,11 @@ def _write_pdf(path, story, footer: str, font: str, title: str, author: str) -> 
                 super().showPage()
             super().save()
 
+    with atomic_path(path) as tmp:
+        _build_pdf(SimpleDocTemplate, tmp, story, NumberedCanvas, A4, mm, title, author)
+
+
+def _build_pdf(SimpleDocTemplate, path, story, NumberedCanvas, A4, mm, title, author) -> None:
     doc = SimpleDocTemplate(str(path), pagesize=A4, leftMargin=14 * mm, rightMargin=14 * mm, topMargin=13 * mm,
                             bottomMargin=16 * mm, title=title, author=author, creator=f"triadcal {__version__}")
     doc.build(story, canvasmaker=NumberedCanvas)
@@ -1304,7 +1310,7 @@ def drift_report(comparison, *, lab=None, html=None, pdf=None, issue_date: Optio
     if lab is not None and not isinstance(lab, LabConfig):
         lab = load_lab(lab)
     if html is not None:
-        Path(html).write_text(render_drift_html(comparison, lab=lab, issue_date=issue_date), encoding="utf-8")
+        atomic_write_text(html, render_drift_html(comparison, lab=lab, issue_date=issue_date))
     if pdf is not None:
         render_drift_pdf(comparison, pdf, lab=lab, issue_date=issue_date)
     return comparison
@@ -1364,11 +1370,11 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
     cert = build_certificate(result, lab=lab, campaign=data, idata=posterior, diagnosis=diagnosis, number=number,
                              issue_date=issue_date, result_path=result_path)
     if html is not None:
-        Path(html).write_text(render_html(cert), encoding="utf-8")
+        atomic_write_text(html, render_html(cert))
     if pdf is not None:
         render_pdf(cert, pdf)
     if plots_dir is not None and cert.plots:
         Path(plots_dir).mkdir(parents=True, exist_ok=True)
         for p in cert.plots:
-            (Path(plots_dir) / f"{p.name}.png").write_bytes(p.png)
+            atomic_write_bytes(Path(plots_dir) / f"{p.name}.png", p.png)
     return cert

@@ -216,18 +216,16 @@ def write_html_report(diagnosis, path, campaign=None) -> None:
 
 def write_validation(validation, out_dir) -> dict:
     """Write the validation's table (text), confusion matrix (PNG) and rows (JSON) into ``out_dir``."""
-    import json
     import os
 
     os.makedirs(out_dir, exist_ok=True)
     paths = {"table": os.path.join(out_dir, "confusion.txt"), "plot": os.path.join(out_dir, "confusion.png"),
              "json": os.path.join(out_dir, "validation.json")}
-    with open(paths["table"], "w", encoding="utf-8") as fh:
-        fh.write(validation.table() + "\n")
-    with open(paths["plot"], "wb") as fh:
-        fh.write(figure_png(confusion_figure(validation)))
-    with open(paths["json"], "w", encoding="utf-8") as fh:
-        json.dump(validation.to_dict(), fh, indent=2, default=float)
+    from ..io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
+
+    atomic_write_text(paths["table"], validation.table() + "\n")
+    atomic_write_bytes(paths["plot"], figure_png(confusion_figure(validation)))
+    atomic_write_json(paths["json"], validation.to_dict())
     return paths
 
 

@@ -88,7 +88,10 @@ def plot_drifts(comparison: Union[ComparisonResult, SequenceComparison], path, *
                  fontsize=10)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=dpi, format="png")
+    from ..io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
     return path
 
 

@@ -8,7 +8,6 @@ the band that 99 % of the bins of a uniform histogram fall in (binomial quantile
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -58,8 +57,10 @@ def plot_rank_histograms(result, path, bins=None) -> None:
     import matplotlib.pyplot as plt
 
     fig = rank_histogram_figure(result, bins)
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    from ..io.atomic import atomic_path
+
+    try:
+        with atomic_path(Path(path)) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)

@@ -1,0 +1,107 @@
+"""One atomic writer: nothing torn, nothing left behind, no NaN in JSON; the capture folder lock."""
+
+import json
+import math
+import subprocess
+import sys
+import threading
+
+import numpy as np
+import pytest
+
+from triadcal.hardware.storage import FolderLocked, folder_lock
+from triadcal.io.atomic import atomic_path, atomic_write, atomic_write_json, atomic_write_text
+
+
+def _listing(d):
+    return sorted(p.name for p in d.iterdir())
+
+
+@pytest.mark.parametrize("exc", [RuntimeError("disk on fire"), KeyboardInterrupt()])
+def test_an_error_mid_write_leaves_the_old_file_and_no_temporary(tmp_path, exc):
+    target = tmp_path / "r.json"
+    target.write_text("old")
+    with pytest.raises(type(exc)):
+        with atomic_write(target) as fh:
+            fh.write("half of the new conte")
+            raise exc
+    assert target.read_text() == "old"
+    assert _listing(tmp_path) == ["r.json"]
+
+
+def test_an_error_in_a_library_writing_by_path_leaves_nothing(tmp_path):
+    with pytest.raises(ValueError):
+        with atomic_path(tmp_path / "p.nc") as tmp:
+            tmp.write_bytes(b"partial")
+            raise ValueError("h5 failed")
+    assert _listing(tmp_path) == []
+
+
+def test_json_never_holds_nan_or_infinity(tmp_path):
+    p = tmp_path / "d.json"
+    atomic_write_json(p, {"k": float("nan"), "a": np.array([1.0, np.inf]), "n": np.float32(2.5), "i": np.int64(3),
+                          "b": np.bool_(True), "nested": [{"x": -math.inf}]})
+    text = p.read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    d = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
+    assert d == {"k": None, "a": [1.0, None], "n": 2.5, "i": 3, "b": True, "nested": [{"x": None}]}
+
+
+def test_an_object_that_cannot_be_written_leaves_nothing(tmp_path):
+    with pytest.raises(TypeError):
+        atomic_write_json(tmp_path / "x.json", {"f": object()})
+    assert _listing(tmp_path) == []
+
+
+def test_concurrent_writers_leave_one_whole_file(tmp_path):
+    p = tmp_path / "c.txt"
+    texts = [str(i) * 100_000 for i in range(8)]
+    threads = [threading.Thread(target=atomic_write_text, args=(p, t)) for t in texts]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert p.read_text() in texts
+    assert _listing(tmp_path) == ["c.txt"]
+
+
+def test_fit_leaves_no_temporary_files(tmp_path, capsys):
+    from triadcal.cli import main
+
+    assert main(["fit", "--example", "--json", str(tmp_path / "r.json"), "--netcdf", str(tmp_path / "r.nc")]) == 0
+    assert _listing(tmp_path) == ["r.json", "r.nc"]
+
+
+def test_a_second_holder_is_refused_naming_the_first(tmp_path):
+    with folder_lock(tmp_path / "out", "capture"):
+        with pytest.raises(FolderLocked, match=r"capture pid \d+ on host"):
+            with folder_lock(tmp_path / "out", "capture"):
+                pass
+    with folder_lock(tmp_path / "out", "capture"):    # released: free again
+        pass
+
+
+def test_capture_into_a_locked_folder_is_refused_at_once(tmp_path):
+    from triadcal.hardware.capture import CaptureError, CaptureSettings, capture
+
+    with folder_lock(tmp_path, "capture"):
+        with pytest.raises(CaptureError, match="in use by another capture"):
+            capture(tmp_path, plan={"P01": (0.0, 0.0)}, setpoints_C=[20.0], imu=None, bench=None, chamber=None,
+                    settings=CaptureSettings(unit="X"))
+
+
+def test_the_lock_of_a_killed_process_does_not_block(tmp_path):
+    code = ("import sys; from triadcal.hardware.storage import folder_lock\n"
+            f"with folder_lock({str(tmp_path)!r}, 'capture'):\n"
+            "    print('locked', flush=True); sys.stdin.read()\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "locked"
+        with pytest.raises(FolderLocked, match=f"pid {proc.pid}"):
+            with folder_lock(tmp_path, "capture"):
+                pass
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    with folder_lock(tmp_path, "capture"):        # the kernel released it with the process
+        pass

@@ -1,0 +1,126 @@
+"""One way to write a file: atomically, or not at all.
+
+Every file triadcal writes (results JSON, comparisons, diagnoses, bench CSV, netCDF,
+HTML/PDF reports, plots, capture state) goes through this module: the bytes go to a
+temporary file in the same folder (a unique name from :func:`tempfile.mkstemp`, so two
+writers never share one), are flushed and fsync'd, and the temporary file is renamed over
+the target with :func:`os.replace` (atomic on POSIX within one file system); the folder is
+then fsync'd so the rename itself survives a power cut. On any exception, including
+``KeyboardInterrupt``, the temporary file is removed and the target is left as it was.
+
+JSON is written by :func:`atomic_write_json`, which never writes NaN or Infinity (they
+are not JSON): a non-finite float becomes ``null`` — in triadcal's documents ``null``
+where a number is expected means "not finite" — and numpy scalars and arrays become
+numbers and lists.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Iterator, Union
+
+import numpy as np
+
+PathLike = Union[str, os.PathLike]
+
+
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:          # pragma: no cover - a folder that cannot be opened (some file systems)
+        return
+    try:
+        os.fsync(fd)
+    except OSError:          # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_path(path: PathLike, suffix: str = "") -> Iterator[Path]:
+    """A temporary path in the target's folder for a library that writes by path (netCDF,
+    matplotlib, reportlab); renamed onto ``path`` when the block ends without error, removed
+    otherwise. ``suffix`` (e.g. ``".png"``) for libraries that pick the format by extension."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=(suffix or "") + ".part")
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        yield tmp
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    _fsync_dir(path.parent)
+
+
+@contextlib.contextmanager
+def atomic_write(path: PathLike, mode: str = "w", encoding: str = "utf-8", newline=None):
+    """Open a temporary file for writing (``mode`` "w" or "wb"); on success it replaces
+    ``path`` (flushed, fsync'd, renamed, folder fsync'd); on error it is removed."""
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_write writes whole files: mode 'w' or 'wb', not {mode!r}")
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    tmp = Path(tmp)
+    try:
+        kw = {} if mode == "wb" else {"encoding": encoding, "newline": newline}
+        with os.fdopen(fd, mode, **kw) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    _fsync_dir(path.parent)
+
+
+def atomic_write_text(path: PathLike, text: str, encoding: str = "utf-8") -> None:
+    with atomic_write(path, "w", encoding=encoding, newline="") as fh:
+        fh.write(text)
+
+
+def atomic_write_bytes(path: PathLike, data: bytes) -> None:
+    with atomic_write(path, "wb") as fh:
+        fh.write(data)
+
+
+def json_safe(obj):
+    """``obj`` with numpy types converted and every non-finite float replaced by None."""
+    if isinstance(obj, dict):
+        return {str(k) if not isinstance(k, str) else k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    return obj
+
+
+def json_text(obj, indent: int = 2) -> str:
+    """JSON text of ``obj`` (:func:`json_safe`), strict: NaN and Infinity cannot appear."""
+    return json.dumps(json_safe(obj), indent=indent, allow_nan=False) + "\n"
+
+
+def atomic_write_json(path: PathLike, obj, indent: int = 2) -> None:
+    """Write ``obj`` as JSON atomically; non-finite numbers become null (never NaN/Infinity).
+    The text is made before the file is opened, so an object that cannot be serialised
+    leaves nothing behind."""
+    atomic_write_text(path, json_text(obj, indent))
