@@ -115,8 +115,10 @@ def test_a_mislabelled_position_fails_the_redundancy_check(example):
     c = _eq1_campaign(example, rng, 2e-5)
     c.w[0] = -c.w[0]
     r = fit_classical(c)
-    assert r.status == "inconsistent_redundancy", _notes(r)
-    assert "position P" in r.fit["redundancy"]["reason"]
+    # the redundancy gate fails, naming the position; the outlier also inflates the residual noise
+    # so much that an angle is no longer determined, which (by precedence) may set the status
+    assert r.status in ("inconsistent_redundancy", "unidentifiable"), _notes(r)
+    assert r.fit["redundancy"]["passed"] is False and "position P" in r.fit["redundancy"]["reason"]
 
 
 def test_scatter_is_tested_against_the_noise_the_uncertainties_assume(example):

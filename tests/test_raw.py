@@ -22,6 +22,7 @@ from triadcal.estimation.result import CalibrationResult
 from triadcal.estimation.static import (StaticIntervalError, detect_static_intervals, intervals_from_labels,
                                         moving_sd)
 from triadcal.io.bench_csv import read_bench_csv
+from triadcal.estimation.gates import GateConfig
 from triadcal.io.raw import RawRecording, RawRecordingError, read_intervals, read_raw_csv
 from triadcal.models.campaign import DEFAULT_PLAN
 from triadcal.models.model import Covariates, Model
@@ -363,8 +364,10 @@ def test_known_pose_posterior_agrees_with_importance_sampling():
     rng = np.random.default_rng(3)
     truth = random_unit(rng)
     rec, _ = simulate_recording(truth, FACES, seed=3, static_s=4.0)
+    # the simulated unit's angles are drawn with SD 1 deg, beyond the default 1 deg gate: raised, as the
+    # user of such a unit would (--angle-bound-arcsec)
     out = fit_raw(rec, poses="known", labels="part", local_g_m_s2=LOCAL_G, placement_sd_deg=1.0, sample=True,
-                  max_steps=3000)
+                  max_steps=3000, gates=GateConfig(angle_bound_arcsec=4 * CA_SD_ARCSEC))
     r, run = out.result, out.posterior_run
     assert r.status == "ok" and r.method == "posterior"
     assert run.acceptance > 0.3 and run.checks[-1]["tau_max"] < 10
@@ -534,7 +537,9 @@ def test_mpu6050_posterior_says_ca_xy_is_prior_influenced():
     out = fit_raw(REAL / "tomisuarez2_example_data_calibration.csv", 100.0, poses="unknown",
                   local_g_m_s2=STANDARD_GRAVITY_M_S2, sample=True, max_steps=3000)
     r, run = out.result, out.posterior_run
-    assert r.status == "ok" and run.checks[-1]["tau_max"] < 10
+    # the sampler converged, and the answer is refused: Ca_xy is not measured (its u is beyond 1 deg)
+    assert run.converged and run.checks[-1]["tau_max"] < 10
+    assert r.status == "unidentifiable" and any("Ca_xy" in n and "not determined" in n for n in r.notes)
     flags = r.extra["flags"]
     assert "Ca_xy" in flags["prior_influenced"] or "Ca_xy" in flags["prior_dominated"]
     assert r.intervals["Ca_xy"]["ls_prior_sd_ratio"] > 0.5

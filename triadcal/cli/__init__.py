@@ -33,19 +33,57 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _warning_line(message, category, filename, lineno, file=None, line=None):
+    """Warnings as one line without the library's absolute paths: ``warning: <message>``."""
+    print(f"triadcal: warning: {message}", file=file or sys.stderr)
+
+
 def main(argv=None) -> int:
+    """Run one command. Exit codes: 0 done, 1 refused input or a failed precondition (one line on
+    stderr naming the file and the place), 2 usage, 3 a result whose status is not ok (or no
+    certificate issued), 70 an internal error (a bug: one line, and the traceback with
+    ``TRIADCAL_DEBUG=1``)."""
+    import warnings
+
     os.environ.setdefault("XDG_CACHE_HOME", os.path.join(os.path.expanduser("~"), ".cache"))
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    debug = os.environ.get("TRIADCAL_DEBUG") == "1"
+    previous = warnings.showwarning
+    if not debug:
+        warnings.showwarning = _warning_line
     try:
         return int(args.func(args) or 0)
-    except (ValueError, OSError, KeyError) as exc:
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"triadcal {args.command}: error: {msg}", file=sys.stderr)
+    except (ValueError, OSError) as exc:
+        if isinstance(exc, BrokenPipeError):
+            return _broken_pipe()
+        print(f"triadcal {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print(f"triadcal {args.command}: interrupted (files written so far are whole; nothing half-written "
+              "was left)", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - the last line of defence: a bug, said as one
+        if debug:
+            raise
+        print(f"triadcal {args.command}: internal error: {type(exc).__name__}: {exc} (a bug: please report it "
+              "with the command and its input; TRIADCAL_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 70
+    finally:
+        warnings.showwarning = previous
+
+
+def _broken_pipe() -> int:
+    """stdout closed by the reader (``triadcal ... | head``): stop quietly."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+    return 0
 
 
 if __name__ == "__main__":

@@ -49,12 +49,15 @@ def register(sub) -> None:
     p.add_argument("--max-steps", type=int, default=20000,
                    help="with --sample: steps after which the result says not_converged (default 20000)")
     p.add_argument("--seed", type=int, default=0, help="with --sample: random seed (default 0)")
+    p.add_argument("--angle-bound-arcsec", type=float, default=3600.0, metavar="ARCSEC",
+                   help="answer gate: largest orientation angle accepted as 'ok', arcsec (default 3600 = 1 deg)")
     p.add_argument("--json", metavar="OUT", required=True, help="write the result (results-json v1)")
     p.add_argument("--bench-csv", metavar="OUT.csv", help="write the pose averages as bench CSV v1 (known poses)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from ..estimation.gates import GateConfig
     from ..estimation.raw import fit_raw
     from ..reports.summary import summary_text
 
@@ -65,7 +68,8 @@ def run(args) -> int:
                   counts_per_g=args.counts_per_g, serial=args.serial, window_s=args.static_window_s,
                   threshold=args.static_threshold, min_duration_s=args.min_static_s,
                   json_path=args.json, bench_csv_path=args.bench_csv, sample=args.sample,
-                  posterior_path=args.posterior, ess=args.ess, max_steps=args.max_steps, seed=args.seed)
+                  posterior_path=args.posterior, ess=args.ess, max_steps=args.max_steps, seed=args.seed,
+                  gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec))
     r = out.result
     print(out.detection.summary(out.recording.rate_hz))
     for iv in out.detection.intervals:

@@ -248,25 +248,54 @@ def _gate_scale(params: Mapping, output_unit: Optional[str], local_g: Optional[f
 
 
 def _gate_angles(params: Mapping, cfg: GateConfig) -> GateOutcome:
-    angles = {n: _value(p) for n, p in params.items() if n.startswith("Ca_") and len(n) == 5}
+    """Every angle within the bound: ``|value| - 2 u <= bound`` (an angle beyond the bound by
+    less than its expanded uncertainty is not known to be beyond it; an angle so uncertain that
+    it is not measured at all is the ``determined`` gate's business). A swapped column gives
+    ~206265 arcsec (1 rad) with a small u, far beyond any bound."""
+    angles = {n: (_value(p), _u(p)) for n, p in params.items() if n.startswith("Ca_") and len(n) == 5}
     if not angles:
         return GateOutcome("angles", None, "angle_out_of_range", "no orientation angle in the result")
-    worst = max(angles, key=lambda n: abs(angles[n]) if angles[n] is not None and math.isfinite(angles[n]) else math.inf)
-    v = angles[worst]
-    ok = v is not None and math.isfinite(v) and abs(v) <= cfg.angle_bound_arcsec
+
+    def excess(n):
+        v, u = angles[n]
+        if v is None or not math.isfinite(v):
+            return math.inf
+        return abs(v) - 2 * (u if u is not None and math.isfinite(u) and u >= 0 else 0.0)
+
+    worst = max(angles, key=excess)
+    v, u = angles[worst]
+    ok = excess(worst) <= cfg.angle_bound_arcsec
+    u_txt = f" +- {u:.3g}" if u is not None and math.isfinite(u) else ""
     return GateOutcome("angles", ok, "angle_out_of_range",
-                       f"largest angle {worst} = {v:.6g} arcsec" + ("" if ok else
-                       f" beyond the bound of {cfg.angle_bound_arcsec:g} arcsec (raise it with --angle-bound-arcsec "
-                       "only if the unit really is that far from orthogonal; more often a column is swapped, a "
-                       "sign flipped or a position mislabelled)"),
-                       abs(v) if v is not None else None, f"<= {cfg.angle_bound_arcsec:g} arcsec")
+                       f"largest angle {worst} = {v:.6g}{u_txt} arcsec" + ("" if ok else
+                       f", beyond the bound of {cfg.angle_bound_arcsec:g} arcsec by more than 2u (raise it with "
+                       "--angle-bound-arcsec only if the unit really is that far from orthogonal; more often a column "
+                       "is swapped, a sign flipped or a position mislabelled)"),
+                       abs(v) if v is not None else None, f"|value| - 2u <= {cfg.angle_bound_arcsec:g} arcsec")
+
+
+def _gate_determined(params: Mapping, cfg: GateConfig) -> GateOutcome:
+    """An angle whose standard uncertainty exceeds the angle bound is not measured: whatever its
+    value, the data (and prior) leave it anywhere within a degree or more."""
+    loose = {n: (_value(p), _u(p)) for n, p in params.items() if n.startswith("Ca_") and len(n) == 5
+             and _u(p) is not None and math.isfinite(_u(p)) and _u(p) > cfg.angle_bound_arcsec}
+    if not loose:
+        return GateOutcome("determined", True, "unidentifiable",
+                           f"every angle's u is within the bound of {cfg.angle_bound_arcsec:g} arcsec")
+    worst = max(loose, key=lambda n: loose[n][1])
+    v, u = loose[worst]
+    return GateOutcome("determined", False, "unidentifiable",
+                       f"{', '.join(sorted(loose))} not determined by the data: {worst} = {v:.5g} +- {u:.3g} arcsec, "
+                       f"u beyond the angle bound of {cfg.angle_bound_arcsec:g} arcsec (more poses, or poses that "
+                       "turn the axes involved, determine it)", u, f"u <= {cfg.angle_bound_arcsec:g} arcsec")
 
 
 def result_gates(parameters: Mapping, *, output_unit: Optional[str] = None, local_g_m_s2: Optional[float] = None,
                  config: GateConfig = DEFAULT_CONFIG) -> list[GateOutcome]:
-    """The gates that a result can be checked on by itself: finite values, K, angles."""
+    """The gates that a result can be checked on by itself: finite values, K, angles, and
+    angles so uncertain that they are not measured."""
     return [_gate_finite(parameters), _gate_scale(parameters, output_unit, local_g_m_s2, config),
-            _gate_angles(parameters, config)]
+            _gate_angles(parameters, config), _gate_determined(parameters, config)]
 
 
 # ------------------------------------------------------------------------------------------
@@ -389,7 +418,7 @@ def answer_gates(parameters: Mapping, evidence: FitEvidence, *, output_unit: Opt
                  local_g_m_s2: Optional[float] = None, config: GateConfig = DEFAULT_CONFIG) -> list[GateOutcome]:
     """Every gate, in order of precedence of their statuses."""
     out = [_gate_finite(parameters), _gate_converged(evidence), _gate_degenerate(evidence, config),
-           _gate_identifiable(evidence, config), _gate_improved(evidence),
+           _gate_identifiable(evidence, config), _gate_determined(parameters, config), _gate_improved(evidence),
            _gate_scale(parameters, output_unit, local_g_m_s2, config), _gate_angles(parameters, config),
            _gate_gof(evidence, config)]
     out.extend(evidence.extra)

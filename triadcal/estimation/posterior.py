@@ -46,6 +46,8 @@ estimate and its standard uncertainty), with the 95 % central and HDI intervals.
 
 from __future__ import annotations
 
+from ..errors import UnknownName
+
 import math
 import os
 import tempfile
@@ -857,7 +859,7 @@ class ResidualTarget:
         self.sigma = np.asarray(self.sigma, float).reshape(-1)
         missing = [n for n in self.names if n not in self.priors]
         if missing:
-            raise KeyError(f"no prior for {', '.join(missing)}")
+            raise UnknownName(f"no prior for {', '.join(missing)}")
         if self.ls_intervals is None:
             z = 1.959963984540054
             u = np.sqrt(np.maximum(np.diag(self.cov_ls), 0.0))

@@ -25,6 +25,8 @@ sweep alone) keeps its prior, and is reported as prior-dominated.
 
 from __future__ import annotations
 
+from ..errors import UnknownName
+
 from dataclasses import dataclass
 from typing import Mapping, Optional
 
@@ -97,7 +99,7 @@ def default_priors(model: Model, width: float = PRIOR_WIDTH,
         priors[s.name] = Prior(s.name, s.unit, float(s.nominal), float(width * s.typical), low, high, reason)
     for k, v in (overrides or {}).items():
         if k not in priors:
-            raise KeyError(f"prior for {k!r}: not a parameter of {model!r}")
+            raise UnknownName(f"prior for {k!r}: not a parameter of {model!r}")
         priors[k] = v
     return priors
 

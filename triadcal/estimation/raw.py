@@ -52,9 +52,11 @@ interval means), with Student-t intervals on the residual degrees of freedom.
 
 from __future__ import annotations
 
+from ..errors import UnknownName
+
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Optional, Sequence, Union
 
 import casadi as ca
@@ -65,8 +67,9 @@ from ..io.raw import RawRecording, read_intervals, read_raw_csv
 from ..models.campaign import DEFAULT_PLAN, Campaign
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES, calibrated_acceleration, dcm
-from ..models.units import ARCSEC, DEG, STANDARD_GRAVITY_M_S2
+from ..models.units import ARCSEC, STANDARD_GRAVITY_M_S2
 from .joint import Solution, levenberg_marquardt, scaled_covariance, start_values
+from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates, orientation_hints
 from .result import CalibrationResult, ParameterValue
 from .static import (POSE_LABELS, StaticDetection, StaticIntervalError, detect_static_intervals,
                      intervals_from_labels, intervals_from_spec, pose_label_of)
@@ -432,7 +435,7 @@ def conditional_residuals(problem: KnownPoseProblem, Xu: np.ndarray, T: np.ndarr
 
 def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, serial: str,
                     placement_sd_deg: Union[float, str] = "auto", misalignment_sd_deg: float = 1.0, n_draws: int = 2000,
-                    seed: int = 0):
+                    seed: int = 0, gates: GateConfig = DEFAULT_CONFIG):
     """Known-pose fit; returns ``(CalibrationResult, KnownPoseProblem, Solution)``.
 
     ``placement_sd_deg``: prior SD of each placement tilt component (the random effect), or
@@ -542,7 +545,19 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
         correlation=corr, notes=notes,
         extra={"placement_tilts": [{"pose": lab, "tilt_x_deg": float(tx) / 3600.0, "tilt_y_deg": float(ty) / 3600.0,
                                     "u_deg": [float(ux) / 3600.0, float(uy) / 3600.0]}
-                                   for lab, (tx, ty), (ux, uy) in zip(labels, tilts, tilts_u)]})
+                                   for lab, (tx, ty), (ux, uy) in zip(labels, tilts, tilts_u)],
+               "output_unit": scale_unit.split("/", 1)[-1],
+               "local_g_m_s2": gravity_g * STANDARD_GRAVITY_M_S2})
+    r0 = problem.residuals(x0)
+    apply_gates(result, FitEvidence(
+        converged=sol.converged, cost_start=0.5 * float(r0 @ r0), cost_final=0.5 * chi2, n_obs=n_data, n_free=nu,
+        residual_rms=float(np.sqrt(np.mean(np.square(sol.r[:n_data])))) if len(sol.r) >= n_data else None,
+        data_rms=1.0, chi2=chi2, dof=dof, noise_known=True), config=gates)
+    if result.status != "ok":
+        from ..models.campaign import nominal_gravity
+
+        for hint in orientation_hints(avg.w, nominal_gravity(a1, a2).reshape(-1, 3)):
+            result.notes.append(f"hint: {hint}")
     return result, problem, sol
 
 
@@ -603,27 +618,52 @@ class NormProblem:
 
 
 def norm_start(w: np.ndarray, gravity_g: float) -> np.ndarray:
-    """Start of the norm fit: an axis-aligned ellipsoid through the interval means (linear least
-    squares ``a wx^2 + b wy^2 + c wz^2 + d wx + e wy + f wz = 1``), or an isotropic scale when
-    fewer than 6 intervals or a degenerate fit."""
+    """Start of the norm fit, solved from the data for any offset and scale (offset-binary
+    counts centred at 32768, signed counts, mV, g, m/s^2).
+
+    The interval means are first centred on their mean and scaled by their median distance
+    from it (so the algebraic fit is well conditioned however far the zero lies from the
+    origin: offset-binary means sit at 32768 +- 2048), then an axis-aligned ellipsoid
+    ``a u_x^2 + b u_y^2 + c u_z^2 + d u_x + e u_y + f u_z = 1`` is fitted by linear least
+    squares (Tedaldi et al. 2014 start, a linear ellipsoid fit) and mapped back: centre ``c``
+    and semi-axes ``r`` in the input unit give ``K = g / r`` and ``S = K c`` (eq. 1 with
+    Ca = I: ``|K (w - c)| = g``). A fit that is not an ellipsoid (fewer than 6 intervals, or a
+    non-positive coefficient) falls back to a sphere ``|w - c| = r`` (linear in ``c`` and
+    ``r^2 - |c|^2``), and that to the centroid and the median radius."""
     w = np.asarray(w, float)
-    iso = gravity_g / np.median(np.linalg.norm(w, axis=1))
-    x0 = np.array([iso, iso, iso, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
-    if len(w) >= 6:
-        A = np.column_stack([w ** 2, w])
-        coef, *_ = np.linalg.lstsq(A, np.ones(len(w)), rcond=None)
-        q, l = coef[:3], coef[3:]
+    m = w.mean(axis=0)
+    d = w - m
+    s = float(np.median(np.linalg.norm(d, axis=1)))
+    if not (s > 0 and math.isfinite(s)):
+        s = 1.0
+    u = d / s
+    centre_u, radius_u = np.zeros(3), np.ones(3) * float(np.median(np.linalg.norm(u, axis=1)) or 1.0)
+    fitted = False
+    if len(u) >= 6:
+        A = np.column_stack([u ** 2, u])
+        coef, *_ = np.linalg.lstsq(A, np.ones(len(u)), rcond=None)
+        q, l_ = coef[:3], coef[3:]
         if np.all(q > 0):
-            centre = -l / (2 * q)
-            rhs = 1.0 + np.sum(l ** 2 / (4 * q))
-            radius = np.sqrt(rhs / q)
-            if np.all(np.isfinite(radius)) and rhs > 0:
-                K = gravity_g / radius
-                x0[:3], x0[3:6] = K, K * centre
-    return x0
+            c = -l_ / (2 * q)
+            rhs = 1.0 + np.sum(l_ ** 2 / (4 * q))
+            r = np.sqrt(rhs / q) if rhs > 0 else np.full(3, np.nan)
+            if np.all(np.isfinite(r)) and np.all(r > 0):
+                centre_u, radius_u, fitted = c, r, True
+    if not fitted and len(u) >= 4:
+        # sphere: |u|^2 = 2 c.u + (r^2 - |c|^2)
+        A = np.column_stack([2 * u, np.ones(len(u))])
+        coef, *_ = np.linalg.lstsq(A, np.sum(u ** 2, axis=1), rcond=None)
+        c, k = coef[:3], coef[3]
+        r2 = k + c @ c
+        if r2 > 0 and np.all(np.isfinite(c)):
+            centre_u, radius_u = c, np.full(3, math.sqrt(r2))
+    centre, radius = m + s * centre_u, s * radius_u
+    K = gravity_g / radius
+    return np.concatenate([K, K * centre, np.zeros(3)])
 
 
-def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float, serial: str):
+def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float, serial: str,
+                      gates: GateConfig = DEFAULT_CONFIG):
     """Gravity-norm fit; returns ``(CalibrationResult, NormProblem, Solution)``."""
     n = len(avg.w)
     if n < len(NORM_NAMES):
@@ -632,17 +672,27 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
             f"found {n} static intervals (record more poses, or check the detector's report)")
     problem = NormProblem(avg.w, gravity_g)
     t0 = time.perf_counter()
-    sol = levenberg_marquardt(problem, norm_start(avg.w, gravity_g))
+    x0 = norm_start(avg.w, gravity_g)
+    r0 = problem.residuals(x0) * problem.RESIDUAL_UNIT_G
+    sol = levenberg_marquardt(problem, x0)
     solve_seconds = time.perf_counter() - t0
     dof = n - len(NORM_NAMES)
     sol.r, sol.J = sol.r * problem.RESIDUAL_UNIT_G, sol.J * problem.RESIDUAL_UNIT_G   # back to g
     rss = float(sol.r @ sol.r)
-    # noise floor: variance of the mean of |A| within each interval, from the samples
+    # noise floor: variance of the mean of |A| within each interval, from the samples of |A|
+    # themselves: the larger of the white-noise sd^2/m and a batch-means estimate (10 batches),
+    # so slowly correlated noise does not shrink it. |A| does not change when the unit turns,
+    # so motion inside an interval does not inflate this floor; it shortens the mean vector
+    # instead, which the residual sees (the slow-motion case of issue 14)
     K, S, Ca = norm_matrices(sol.x)
     var_means = []
-    for s, e, m in zip(avg.start, avg.end, avg.n):
-        a = np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[s:e]), axis=1)
-        var_means.append(np.var(a, ddof=1) / m if m > 1 else 0.0)
+    for s_, e_, m in zip(avg.start, avg.end, avg.n):
+        a = np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[s_:e_]), axis=1)
+        v = np.var(a, ddof=1) / m if m > 1 else 0.0
+        if m >= 50:
+            bm = np.array([b.mean() for b in np.array_split(a, 10)])
+            v = max(v, float(np.var(bm, ddof=1)) / 10)
+        var_means.append(v)
     s2_noise = float(np.mean(var_means))
     s2_resid = rss / dof if dof > 0 else None
     s2 = max(s2_resid if s2_resid is not None else 0.0, s2_noise)
@@ -670,12 +720,23 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
            "dof": dof, "residual_variance_g2": s2_resid, "noise_variance_g2": s2_noise,
            "variance_used": "residual" if s2_resid is not None and s2_resid >= s2_noise else "noise floor",
            "iterations": sol.iterations, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds}
-    corr = cov / np.outer(u, u)
+    corr = cov / np.outer(np.where(u > 0, u, 1.0), np.where(u > 0, u, 1.0))
     result = CalibrationResult(unit=serial, method="joint", parameters=params,
                                status="ok" if sol.converged else "not_converged", effects=(),
                                fit=fit, intervals=intervals, correlation_names=NORM_NAMES, correlation=corr,
                                notes=notes, extra={"fixed": {f"Ca_{ab}": {"value": 0.0, "unit": "arcsec"}
-                                                             for ab in ("yx", "zx", "zy")}})
+                                                             for ab in ("yx", "zx", "zy")},
+                                                   "output_unit": rec.unit,
+                                                   "local_g_m_s2": gravity_g * STANDARD_GRAVITY_M_S2})
+    gof_p = float(stats.chi2.sf(rss / s2_noise, dof)) if dof > 0 and s2_noise > 0 else None
+    gof_ratio = (s2_resid / s2_noise) if s2_resid is not None and s2_noise > 0 else None
+    fit["noise_floor_ratio"] = gof_ratio
+    apply_gates(result, FitEvidence(
+        converged=sol.converged, cost_start=0.5 * float(r0 @ r0), cost_final=0.5 * rss, n_obs=n,
+        n_free=len(NORM_NAMES), jacobian=sol.J, free_names=NORM_NAMES,
+        residual_rms=math.sqrt(rss / n), data_rms=gravity_g, gof_p_value=gof_p, gof_ratio=gof_ratio,
+        gof_what=f"residual variance of |A| - g over the recording's own noise floor of the interval means "
+                 f"({dof} dof)"), config=gates)
     return result, problem, sol
 
 
@@ -767,10 +828,10 @@ def raw_priors(names: Sequence[str], k0: float, scale_unit: str, placement_sd_ar
             out[n] = Prior(n, "arcsec", 0.0, float(placement_sd_arcsec),
                            reason="hand placement: the random effect's prior (--placement-sd-deg)")
         else:
-            raise KeyError(n)
+            raise UnknownName(n)
     for k, v in (overrides or {}).items():
         if k not in out:
-            raise KeyError(f"prior for {k!r}: not a parameter of this model ({', '.join(names)})")
+            raise UnknownName(f"prior for {k!r}: not a parameter of this model ({', '.join(names)})")
         out[k] = v
     return out
 
@@ -947,7 +1008,7 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
             serial: Optional[str] = None, window_s: float = 1.0, threshold: float = 4.0,
             min_duration_s: float = 2.0, json_path=None, bench_csv_path=None, sample: bool = False,
             posterior_path=None, priors=None, ess: float = 2000, seed: int = 0, max_steps: int = 20000,
-            progress=None, n_walkers: Optional[int] = None) -> RawFit:
+            progress=None, n_walkers: Optional[int] = None, gates: GateConfig = DEFAULT_CONFIG) -> RawFit:
     """Calibrate from a raw recording (``triadcal fit-raw``).
 
     ``data`` is a CSV path (read with :func:`triadcal.io.raw.read_raw_csv` at the stated
@@ -983,18 +1044,25 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
     if poses == "known":
         result, problem, sol = fit_known_poses(avg, gravity_g=gravity_g, scale_unit=rec.scale_unit,
                                                serial=serial, placement_sd_deg=placement_sd_deg,
-                                               misalignment_sd_deg=misalignment_sd_deg)
+                                               misalignment_sd_deg=misalignment_sd_deg, gates=gates)
         campaign = bench_campaign(avg, rec, serial, local_g_m_s2)
     else:
-        result, problem, sol = fit_unknown_poses(rec, avg, gravity_g=gravity_g, serial=serial)
+        result, problem, sol = fit_unknown_poses(rec, avg, gravity_g=gravity_g, serial=serial, gates=gates)
     run = None
     if sample:
         opts = dict(serial=serial, scale_unit=rec.scale_unit, priors=priors, posterior_path=posterior_path,
                     ess=ess, seed=seed, max_steps=max_steps, progress=progress, n_walkers=n_walkers)
+        ls = result
         if poses == "known":
             result, run = sample_known_poses(result, problem, sol, avg.label, **opts)
         else:
             result, run = sample_unknown_poses(result, problem, sol, **opts)
+        # the posterior is no better an answer than its least-squares fit: that fit's gates carry over
+        result.extra.update({"output_unit": rec.unit, "local_g_m_s2": local_g_m_s2})
+        ls_gate = GateOutcome("least_squares", ls.status in ("ok", "not_converged"),
+                              ls.status if ls.status != "ok" else "model_mismatch",
+                              f"the least-squares fit of the same model has status {ls.status!r}")
+        apply_gates(result, FitEvidence(converged=run.converged, extra=[ls_gate]), config=gates)
     k0, how = nominal_scale(rec, det, gravity_g, counts_per_g)
     before = norm_residual_rms_m_s2(rec, det, np.full(3, k0), np.zeros(3), np.eye(3), gravity_g)
     after = norm_residual_rms_m_s2(rec, det, *result_matrices(result), gravity_g)

@@ -7,6 +7,8 @@ and the estimators (CasADi symbols): :meth:`Model.predict` only uses
 
 from __future__ import annotations
 
+from ..errors import UnknownName
+
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
@@ -80,7 +82,7 @@ class Model:
         """
         unknown = set(values) - set(self.names)
         if unknown:
-            raise KeyError(f"parameters not in {self!r}: {sorted(unknown)}")
+            raise UnknownName(f"parameters not in {self!r}: {sorted(unknown)}")
         return {s.name: values.get(s.name, s.nominal) * s.to_internal for s in self.parameters}
 
     def vector(self, values: Mapping[str, float]) -> np.ndarray:
