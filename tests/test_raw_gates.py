@@ -47,7 +47,7 @@ def test_offset_binary_counts_give_the_signed_answer(signed):
 def test_any_scale_gives_the_same_geometry(signed, scale, unit):
     a = np.loadtxt(DATA / "mikoff_imu0.log")[:, :3]
     counts = np.round(a * 2048 / 9.81)
-    rec = RawRecording(acc=counts * scale + 5.0 * scale * 2048, rate_hz=100.0, unit=unit, columns=("x", "y", "z"))
+    rec = RawRecording(acc=counts * scale + 0.05 * scale * 2048, rate_hz=100.0, unit=unit, columns=("x", "y", "z"))
     r = fit_raw(rec, poses="unknown", local_g_m_s2=9.81).result
     assert r.status == "ok", r.notes
     for a_ in "xyz":

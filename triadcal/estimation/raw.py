@@ -63,7 +63,7 @@ import casadi as ca
 import numpy as np
 from scipy import stats
 
-from ..io.raw import RawRecording, read_intervals, read_raw_csv
+from ..io.raw import RawRecording, check_declared_unit, read_intervals, read_raw_csv
 from ..models.campaign import DEFAULT_PLAN, Campaign
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES, calibrated_acceleration, dcm
@@ -1037,9 +1037,26 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
         rec = read_raw_csv(data, rate_hz, columns, unit, labels)
     gravity_g = local_g_m_s2 / STANDARD_GRAVITY_M_S2
     serial = serial or (str(rec.source).rsplit("/", 1)[-1].rsplit(".", 1)[0])
-    det = static_intervals_of(rec, labels=labels, intervals=intervals, poses=poses, window_s=window_s,
-                              threshold=threshold, min_duration_s=min_duration_s)
-    avg = pose_averages(rec, det)
+    try:
+        det = static_intervals_of(rec, labels=labels, intervals=intervals, poses=poses, window_s=window_s,
+                                  threshold=threshold, min_duration_s=min_duration_s)
+        avg = pose_averages(rec, det)
+        check_declared_unit(rec, avg.w, local_g_m_s2)
+        return _fit_raw_detected(rec, det, avg, poses=poses, gravity_g=gravity_g, serial=serial,
+                                 local_g_m_s2=local_g_m_s2, placement_sd_deg=placement_sd_deg,
+                                 misalignment_sd_deg=misalignment_sd_deg, counts_per_g=counts_per_g,
+                                 json_path=json_path, bench_csv_path=bench_csv_path, sample=sample,
+                                 posterior_path=posterior_path, priors=priors, ess=ess, seed=seed,
+                                 max_steps=max_steps, progress=progress, n_walkers=n_walkers, gates=gates)
+    except StaticIntervalError as exc:
+        if str(rec.source) in str(exc):
+            raise
+        raise StaticIntervalError(f"{rec.source}: {exc}") from None
+
+
+def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, placement_sd_deg,
+                      misalignment_sd_deg, counts_per_g, json_path, bench_csv_path, sample, posterior_path, priors,
+                      ess, seed, max_steps, progress, n_walkers, gates) -> RawFit:
     campaign = None
     if poses == "known":
         result, problem, sol = fit_known_poses(avg, gravity_g=gravity_g, scale_unit=rec.scale_unit,

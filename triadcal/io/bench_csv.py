@@ -107,7 +107,10 @@ def _metadata(lines, path):
 
 def _float_column(path, name, strings, line_numbers):
     """One numeric column, converted at once; on a bad field the slow path names its line."""
+    joined = "".join(strings)
     try:
+        if "_" in joined or not joined.isascii():
+            raise ValueError("digit separators or non-ASCII digits")   # float() would read them
         v = np.array(strings, dtype=float)
     except ValueError:
         for s_, ln in zip(strings, line_numbers):

@@ -1,5 +1,8 @@
 """One number parser for every boundary: finite, inside a stated range, or refused.
 
+Accepted: an optional sign, ASCII digits, a decimal point and an exponent, as C's strtod
+reads them, finite; not accepted: NaN, infinities, digit separators (``1_000``, which
+Python's ``float`` takes), non-ASCII digits, hexadecimal, empty fields.
 A reader hands each field to :func:`parse_number` with the range its instrument allows
 (docs/bench-csv.md and docs/raw.md list them); a value outside is refused with the file,
 the line and the field, never clipped or dropped. ``1e300`` is not a reading.
@@ -37,6 +40,9 @@ def parse_number(text, *, low: float = -math.inf, high: float = math.inf, what: 
         s = str(text).strip()
         if s == "":
             raise NumberError("empty field")
+        if "_" in s or not s.isascii():
+            # Python's float() reads '1_000' and Arabic-Indic digits; no instrument writes them
+            raise NumberError(f"not a number: {s!r}")
         try:
             v = float(s)
         except ValueError:

@@ -26,6 +26,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from .numbers import MAX_READING, NumberError, parse_number
+
 #: accepted input units and the unit string of K (g per output unit) for each
 INPUT_UNITS = {"m/s2": "g/(m/s2)", "g": "g/g", "counts": "g/count"}
 DEFAULT_COLUMN_SETS = (("acc_x", "acc_y", "acc_z"), ("ax", "ay", "az"), ("x", "y", "z"))
@@ -130,6 +132,43 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
             raise RawRecordingError(path, None, None,
                                     f"the stated rate {rate_hz:g} Hz disagrees with the file's header ({fr:g} Hz); "
                                     "check which one is right (imucal issue #25)")
+    acc, labels = _read_samples_fast(path, lines, header_at, header, cols, label_column)
+    return RawRecording(acc, float(rate_hz), unit, cols, labels, label_column, metadata, path, header_at + 2)
+
+
+def _read_samples_fast(path, lines, header_at, header, cols, label_column):
+    """The samples with pyarrow's multi-threaded CSV reader (typed float64 columns, only the
+    columns needed); any problem (a field that is not a number, a wrong field count, a value
+    not finite or beyond :data:`~triadcal.io.numbers.MAX_READING`) sends the file through
+    :func:`_read_samples_slow`, which names the line and the column."""
+    import pyarrow as pa
+    from pyarrow import csv as pacsv
+
+    data = "\n".join(lines[header_at:]).encode("utf-8")
+    want = list(cols) + ([label_column] if label_column else [])
+    try:
+        table = pacsv.read_csv(
+            pa.py_buffer(data),
+            read_options=pacsv.ReadOptions(use_threads=True),
+            parse_options=pacsv.ParseOptions(newlines_in_values=False),
+            convert_options=pacsv.ConvertOptions(
+                include_columns=want, column_types={c: pa.float64() for c in cols},
+                strings_can_be_null=False, quoted_strings_can_be_null=False))
+    except (pa.ArrowInvalid, pa.ArrowKeyError, KeyError):
+        return _read_samples_slow(path, lines, header_at, header, cols, label_column)
+    acc = np.column_stack([table.column(c).to_numpy(zero_copy_only=False) for c in cols]) if table.num_rows else \
+        np.empty((0, len(cols)))
+    if not len(acc) or not np.all(np.isfinite(acc)) or np.max(np.abs(acc)) > MAX_READING:
+        return _read_samples_slow(path, lines, header_at, header, cols, label_column)
+    labels = None
+    if label_column:
+        labels = np.array([s.strip() for s in table.column(label_column).to_pylist()])
+    return acc, labels
+
+
+def _read_samples_slow(path, lines, header_at, header, cols, label_column):
+    """Line by line with one number parser (:func:`~triadcal.io.numbers.parse_number`): the
+    first bad field is refused with its line and column."""
     idx = [header.index(c) for c in cols]
     li = header.index(label_column) if label_column else None
     acc, labels = [], []
@@ -138,26 +177,37 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
         if not line.strip():
             continue
         row = next(csv.reader([line]))
-        if len(row) < len(header):
+        if len(row) != len(header):
             raise RawRecordingError(path, k + 1, header[len(row)] if len(row) < len(header) else None,
                                     f"{len(row)} fields, the header has {len(header)}")
         vals = []
         for c, i in zip(cols, idx):
             try:
-                v = float(row[i])
-            except ValueError:
-                raise RawRecordingError(path, k + 1, c, f"not a number: {row[i]!r}") from None
-            if not math.isfinite(v):
-                raise RawRecordingError(path, k + 1, c, f"not a finite number: {row[i]!r}")
-            vals.append(v)
+                vals.append(parse_number(row[i], low=-MAX_READING, high=MAX_READING, what=c))
+            except NumberError as exc:
+                raise RawRecordingError(path, k + 1, c, exc.problem) from None
         acc.append(vals)
         if li is not None:
             labels.append(row[li].strip())
     if not acc:
         raise RawRecordingError(path, header_at + 1, None, "no samples after the header")
-    return RawRecording(np.array(acc), float(rate_hz), unit, cols,
-                        np.array(labels) if li is not None else None, label_column, metadata, path,
-                        header_at + 2)
+    return np.array(acc), (np.array(labels) if li is not None else None)
+
+
+def check_declared_unit(rec: "RawRecording", w_means: np.ndarray, local_g_m_s2: float) -> None:
+    """Refuse readings whose magnitude contradicts the declared unit: for ``g`` and ``m/s2`` the
+    median norm of the static means must lie within a factor 1.5 of the local gravity in that
+    unit (counts are the instrument's own; the answer gates check their K band)."""
+    if rec.unit not in ("g", "m/s2") or not len(w_means):
+        return
+    expected = local_g_m_s2 / 9.80665 if rec.unit == "g" else local_g_m_s2
+    med = float(np.median(np.linalg.norm(w_means, axis=1)))
+    ratio = med / expected
+    if not 1 / 1.5 <= ratio <= 1.5:
+        raise RawRecordingError(rec.source, None, None,
+                                f"the readings contradict --unit {rec.unit}: the median |a| of the static "
+                                f"intervals is {med:.6g} {rec.unit}, gravity is {expected:.6g} {rec.unit} "
+                                f"(ratio {ratio:.3g}); state the unit the readings are in (counts, g, m/s2)")
 
 
 @dataclass
