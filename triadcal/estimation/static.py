@@ -89,32 +89,56 @@ class StaticDetection:
 
 
 def moving_sd(x: np.ndarray, window: int) -> np.ndarray:
-    """Centred moving standard deviation of each column (edges use the nearest full window)."""
+    """Centred moving standard deviation of each column (edges use the nearest full window).
+
+    Running sums of the centred samples and their squares (float64), differenced by slices
+    (no index arrays), one column at a time: memory ~4 n floats whatever the length."""
     x = np.asarray(x, float)
     n = len(x)
     window = max(2, min(window, n))
-    mu = x.mean(axis=0)
-    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x - mu, axis=0)])
-    c2 = np.vstack([np.zeros((1, x.shape[1])), np.cumsum((x - mu) ** 2, axis=0)])
-    lo = np.clip(np.arange(n) - window // 2, 0, n - window)
-    hi = lo + window
-    m = (c[hi] - c[lo]) / window
-    var = (c2[hi] - c2[lo]) / window - m * m
-    return np.sqrt(np.maximum(var, 0.0) * window / (window - 1))
+    out = np.empty_like(x)
+    half = window // 2
+    for j in range(x.shape[1]):
+        col = x[:, j] - x[:, j].mean()
+        c = np.empty(n + 1)
+        c[0] = 0.0
+        np.cumsum(col, out=c[1:])
+        m = c[window:] - c[:-window]                                # windows starting at 0 .. n - window
+        m /= window
+        np.square(col, out=col)
+        np.cumsum(col, out=c[1:])
+        del col
+        sd = c[window:] - c[:-window]
+        sd /= window
+        m *= m
+        sd -= m
+        del m
+        np.maximum(sd, 0.0, out=sd)
+        sd *= window / (window - 1)
+        np.sqrt(sd, out=sd)
+        out[half:half + len(sd), j] = sd
+        out[:half, j] = sd[0]
+        out[half + len(sd):, j] = sd[-1]
+    return out
 
 
-def robust_noise_sd(acc: np.ndarray, window: int) -> np.ndarray:
-    """Per-axis white-noise SD (step 1 of the module docstring), never zero or NaN."""
+def robust_noise_sd(acc: np.ndarray, window: int, sd: Optional[np.ndarray] = None) -> np.ndarray:
+    """Per-axis white-noise SD (step 1 of the module docstring), never zero or NaN; ``sd`` the
+    :func:`moving_sd` of ``acc`` when the caller has it already. One axis at a time, so the
+    temporaries are one column long (a 10^7-sample recording stays within its memory budget)."""
     acc = np.asarray(acc, float)
-    d = np.diff(acc, axis=0)
-    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    sd_diff = 1.4826 * mad / np.sqrt(2.0)
-    sd_low = np.percentile(moving_sd(acc, window), 10, axis=0)
-    out = np.minimum(sd_low, 2.0 * sd_diff)
-    for i in range(3):
-        nz = np.abs(d[:, i])[np.abs(d[:, i]) > 0]
+    sd = moving_sd(acc, window) if sd is None else sd
+    out = np.empty(acc.shape[1])
+    for i in range(acc.shape[1]):
+        d = np.diff(acc[:, i])
+        med = np.median(d)
+        a = np.abs(d - med)
+        sd_diff = 1.4826 * float(np.median(a)) / np.sqrt(2.0)
+        sd_low = float(np.percentile(sd[:, i], 10))
+        np.abs(d, out=d)
+        nz = d[d > 0]
         step = float(nz.min()) if len(nz) else 1.0
-        out[i] = max(out[i], step / np.sqrt(12.0))
+        out[i] = max(min(sd_low, 2.0 * sd_diff), step / np.sqrt(12.0))
     return out
 
 
@@ -132,8 +156,8 @@ def detect_static_intervals(acc: np.ndarray, rate_hz: float, *, window_s: float 
     if n < max(window, min_len + 2 * trim):
         raise StaticIntervalError(f"the recording has {n} samples ({n / rate_hz:.1f} s at {rate_hz:g} Hz): "
                                   f"too short for a {window_s:g} s window and {min_duration_s:g} s intervals")
-    sigma = robust_noise_sd(acc, window)
     sd = moving_sd(acc, window)
+    sigma = robust_noise_sd(acc, window, sd)
     static = np.all(sd <= threshold * sigma, axis=1)
     edges = np.diff(np.concatenate([[0], static.astype(np.int8), [0]]))
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)

@@ -96,10 +96,14 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
     """
     path = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise RawRecordingError(path, None, None, "not UTF-8 text") from None
-    lines = text.splitlines()
+        with open(path, "rb") as fh:
+            head = fh.read(1 << 16)                 # the header is within the first 200 lines
+    except OSError as exc:
+        raise RawRecordingError(path, None, None, f"cannot be read ({exc.strerror or exc})") from None
+    bom = 3 if head.startswith(b"\xef\xbb\xbf") else 0
+    lines = head[bom:].decode("utf-8", errors="replace").splitlines()
+    if len(head) == 1 << 16:
+        lines = lines[:-1]                          # the last line of the chunk may be cut
     wanted = [tuple(columns)] if columns else list(DEFAULT_COLUMN_SETS)
     header_at, header, cols = None, None, None
     for k, line in enumerate(lines[:200]):
@@ -132,11 +136,28 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
             raise RawRecordingError(path, None, None,
                                     f"the stated rate {rate_hz:g} Hz disagrees with the file's header ({fr:g} Hz); "
                                     "check which one is right (imucal issue #25)")
-    acc, labels = _read_samples_fast(path, lines, header_at, header, cols, label_column)
+    offset = _line_start(path, header_at, bom)
+    acc, labels = _read_samples_fast(path, offset, header_at, header, cols, label_column)
     return RawRecording(acc, float(rate_hz), unit, cols, labels, label_column, metadata, path, header_at + 2)
 
 
-def _read_samples_fast(path, lines, header_at, header, cols, label_column):
+def _line_start(path, k: int, bom: int) -> int:
+    """Byte offset of line ``k`` (0-based) of the file (after a BOM)."""
+    with open(path, "rb") as fh:
+        fh.seek(bom)
+        for _ in range(k):
+            fh.readline()
+        return fh.tell()
+
+
+def _all_lines(path) -> list:
+    try:
+        return Path(path).read_text(encoding="utf-8-sig").splitlines()
+    except UnicodeDecodeError as exc:
+        raise RawRecordingError(path, None, None, f"not UTF-8 text (byte {exc.start})") from None
+
+
+def _read_samples_fast(path, offset, header_at, header, cols, label_column):
     """The samples with pyarrow's multi-threaded CSV reader (typed float64 columns, only the
     columns needed); any problem (a field that is not a number, a wrong field count, a value
     not finite or beyond :data:`~triadcal.io.numbers.MAX_READING`) sends the file through
@@ -144,25 +165,42 @@ def _read_samples_fast(path, lines, header_at, header, cols, label_column):
     import pyarrow as pa
     from pyarrow import csv as pacsv
 
-    data = "\n".join(lines[header_at:]).encode("utf-8")
     want = list(cols) + ([label_column] if label_column else [])
+    slow = lambda: _read_samples_slow(path, _all_lines(path), header_at, header, cols, label_column)  # noqa: E731
+    cols_out = {c: [] for c in want}
     try:
-        table = pacsv.read_csv(
-            pa.py_buffer(data),
-            read_options=pacsv.ReadOptions(use_threads=True),
-            parse_options=pacsv.ParseOptions(newlines_in_values=False),
-            convert_options=pacsv.ConvertOptions(
-                include_columns=want, column_types={c: pa.float64() for c in cols},
-                strings_can_be_null=False, quoted_strings_can_be_null=False))
+        with open(path, "rb") as source:
+            source.seek(offset)
+            reader = pacsv.open_csv(
+                source,
+                read_options=pacsv.ReadOptions(use_threads=True, block_size=1 << 22),
+                parse_options=pacsv.ParseOptions(newlines_in_values=False),
+                convert_options=pacsv.ConvertOptions(
+                    include_columns=want, column_types={c: pa.float64() for c in cols},
+                    strings_can_be_null=False, quoted_strings_can_be_null=False),
+                memory_pool=pa.system_memory_pool())   # freed buffers go back to the system at once
+            # streamed batch by batch, each copied out as one (n, 3) block and released: peak
+            # memory is the samples about twice, not the parser's buffers too
+            for batch in reader:
+                cols_out[cols[0]].append(np.column_stack([batch.column(c).to_numpy(zero_copy_only=False)
+                                                          for c in cols]))
+                if label_column:
+                    cols_out[label_column].append(batch.column(label_column).to_pylist())
+                del batch
     except (pa.ArrowInvalid, pa.ArrowKeyError, KeyError):
-        return _read_samples_slow(path, lines, header_at, header, cols, label_column)
-    acc = np.column_stack([table.column(c).to_numpy(zero_copy_only=False) for c in cols]) if table.num_rows else \
-        np.empty((0, len(cols)))
+        return slow()
+    blocks = cols_out[cols[0]]
+    acc = np.empty((sum(len(b) for b in blocks), len(cols)))
+    k = 0
+    while blocks:
+        b = blocks.pop(0)
+        acc[k:k + len(b)] = b
+        k += len(b)
     if not len(acc) or not np.all(np.isfinite(acc)) or np.max(np.abs(acc)) > MAX_READING:
-        return _read_samples_slow(path, lines, header_at, header, cols, label_column)
+        return slow()
     labels = None
     if label_column:
-        labels = np.array([s.strip() for s in table.column(label_column).to_pylist()])
+        labels = np.array([str(v).strip() for b in cols_out[label_column] for v in b])
     return acc, labels
 
 

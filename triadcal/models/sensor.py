@@ -53,4 +53,6 @@ def calibrated_acceleration(K, S, Ca, w):
     import numpy as np
 
     a_sensor = np.asarray(w, float) * np.asarray(K, float) - np.asarray(S, float)
-    return np.linalg.solve(np.asarray(Ca, float), a_sensor[..., None])[..., 0]
+    # one Ca for every reading: one solve for all of them (a_sensor @ Ca^-T), not one per row
+    flat = a_sensor.reshape(-1, 3)
+    return np.linalg.solve(np.asarray(Ca, float), flat.T).T.reshape(a_sensor.shape)
