@@ -110,10 +110,11 @@ def _img(png: bytes, alt: str) -> str:
 
 
 def _num(v, fmt="{:.3g}") -> str:
+    """A number, or why there is none (never a bare dash that reads like a value)."""
     if v is None:
-        return "-"
+        return "not computed"
     if isinstance(v, float) and not math.isfinite(v):
-        return "-"
+        return "not finite"
     return fmt.format(v)
 
 
