@@ -69,21 +69,9 @@ def atomic_write(path: PathLike, mode: str = "w", encoding: str = "utf-8", newli
     ``path`` (flushed, fsync'd, renamed, folder fsync'd); on error it is removed."""
     if mode not in ("w", "wb"):
         raise ValueError(f"atomic_write writes whole files: mode 'w' or 'wb', not {mode!r}")
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
-    tmp = Path(tmp)
-    try:
-        kw = {} if mode == "wb" else {"encoding": encoding, "newline": newline}
-        with os.fdopen(fd, mode, **kw) as fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
-    _fsync_dir(path.parent)
+    kw = {} if mode == "wb" else {"encoding": encoding, "newline": newline}
+    with atomic_path(path) as tmp, open(tmp, mode, **kw) as fh:
+        yield fh
 
 
 def atomic_write_text(path: PathLike, text: str, encoding: str = "utf-8") -> None:
