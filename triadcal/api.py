@@ -155,9 +155,22 @@ def sample(*args, **kwargs):
     return _sample(*args, **kwargs)
 
 
-def validate(*args, **kwargs):
+def validate(n_campaigns: int = 200, effects: Sequence[str] = DEFAULT_EFFECTS, *, n_ranks: int = 99,
+             seed: int = 0, processes: int = 2, ess: float = 400, json_path=None, plot_path=None,
+             progress=None):
     """Simulation-based calibration of the least-squares and posterior intervals
-    (``triadcal validate``); see :func:`triadcal.estimation.validation.validate`."""
-    from .estimation.validation import validate as _validate
+    (``triadcal validate``): :func:`triadcal.estimation.validation.sbc`, then its summary as
+    JSON (``json_path``) and the rank histograms as PNG (``plot_path``). Returns the
+    :class:`~triadcal.estimation.validation.SBCResult`."""
+    from .estimation.validation import sbc
+    from .io.atomic import atomic_write_json
 
-    return _validate(*args, **kwargs)
+    result = sbc(n_campaigns, effects, n_ranks=n_ranks, seed=seed, processes=processes, ess=ess,
+                 progress=progress)
+    if json_path is not None:
+        atomic_write_json(json_path, result.summary())
+    if plot_path is not None:
+        from .reports.sbc import plot_rank_histograms
+
+        plot_rank_histograms(result, plot_path)
+    return result

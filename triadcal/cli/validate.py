@@ -28,7 +28,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..estimation.validation import LEVELS, METHODS, validate
+    from ..api import validate
+    from ..estimation.validation import LEVELS, METHODS
 
     bar = None
     progress = None

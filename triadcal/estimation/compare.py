@@ -226,7 +226,6 @@ def load_posterior(source) -> dict:
         path = Path(source)
         if not path.exists():
             raise ValueError(f"{path}: no such posterior file")
-        os.environ.setdefault("XDG_CACHE_HOME", os.path.join(os.path.expanduser("~"), ".cache"))
         import arviz as az
 
         try:

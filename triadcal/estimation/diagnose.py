@@ -41,7 +41,6 @@ to every parameter of every candidate effect without a refit.
 from __future__ import annotations
 
 import math
-import os
 import warnings
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
@@ -577,8 +576,7 @@ def _loo(state: FitState, n_draws: int, rng, var_scale=None, nu=math.inf):
     """PSIS-LOO elpd with Laplace draws from the LS covariance, linearised residuals.
 
     The left-out unit is a visit (its three outputs together): pointwise values per visit."""
-    os.environ.setdefault("XDG_CACHE_HOME", "/tmp/xdg")
-    import arviz as az
+    import arviz as az     # (its cache folder is the entry point's business: XDG_CACHE_HOME)
 
     p = len(state.names)
     L = _chol(state.cov)

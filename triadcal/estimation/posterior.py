@@ -69,7 +69,7 @@ from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_g
 from .joint import (COVARIATES, JointProblem, fit_joint, levenberg_marquardt, noise_of, parameter_unit,
                     scaled_covariance)
 from .priors import Prior, default_priors, prior_arrays
-from .result import CalibrationResult, ParameterValue
+from .result import Z95, CalibrationResult, ParameterValue
 
 #: posterior SD / prior SD above which a parameter is reported as prior-dominated
 PRIOR_DOMINATED_RATIO = 0.5
@@ -332,7 +332,8 @@ def laplace_approximation(problem: JointProblem, priors: Mapping[str, Prior], x_
 # -- diagnostics ----------------------------------------------------------------------------
 
 def _arviz():
-    os.environ.setdefault("XDG_CACHE_HOME", os.path.join(tempfile.gettempdir(), "triadcal-xdg-cache"))
+    """arviz, imported on first use (it is slow to import). Where arviz keeps its cache is
+    the entry point's choice (``XDG_CACHE_HOME``), never the library's."""
     import arviz as az
     return az
 
@@ -682,7 +683,7 @@ def _flags_block(non_gaussian, prior_dominated) -> dict:
 def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_seconds, ess, rhat_max, tau_factor,
             max_steps, gates: GateConfig = DEFAULT_CONFIG) -> CalibrationResult:
     names = list(model.names)
-    z = 1.959963984540054
+    z = Z95
     ls_intervals = {n: (p.value - z * p.u, p.value + z * p.u) for n, p in ls.parameters.items()}
     params, intervals, non_gaussian, prior_dominated = posterior_summary(
         names, [parameter_unit(model, n, campaign.output_unit) for n in names], run, pri, ls_intervals)
@@ -861,7 +862,7 @@ class ResidualTarget:
         if missing:
             raise UnknownName(f"no prior for {', '.join(missing)}")
         if self.ls_intervals is None:
-            z = 1.959963984540054
+            z = Z95
             u = np.sqrt(np.maximum(np.diag(self.cov_ls), 0.0))
             self.ls_intervals = {n: (v - z * s, v + z * s) for n, v, s in zip(self.names, self.x_ls, u)}
 
@@ -1077,7 +1078,7 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
     for n in names:
         if n in target.ls_intervals:
             lo_, hi_ = target.ls_intervals[n]
-            ratio = float((hi_ - lo_) / (2 * 1.959963984540054) / target.priors[n].sd)
+            ratio = float((hi_ - lo_) / (2 * Z95) / target.priors[n].sd)
             intervals[n]["ls_prior_sd_ratio"] = ratio
             if ratio > PRIOR_DOMINATED_RATIO and n not in prior_dominated:
                 prior_influenced.append(n)

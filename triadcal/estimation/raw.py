@@ -70,7 +70,7 @@ from ..models.sensor import ANGLE_NAMES, AXES, calibrated_acceleration, dcm
 from ..models.units import ARCSEC, STANDARD_GRAVITY_M_S2
 from .joint import Solution, levenberg_marquardt, scaled_covariance, start_values
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates, orientation_hints
-from .result import CalibrationResult, ParameterValue
+from .result import Z95, CalibrationResult, ParameterValue
 from .static import (POSE_LABELS, StaticDetection, StaticIntervalError, detect_static_intervals,
                      intervals_from_labels, intervals_from_spec, pose_label_of)
 
@@ -909,7 +909,7 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
     pri = raw_priors(names, k0, scale_unit, problem.sigma_h, overrides=priors,
                      misalignment_sd_arcsec=problem.sigma_a)
     cov_ls = scaled_covariance(sol.J)
-    z = 1.959963984540054
+    z = Z95
     ls_intervals = {n: (ls[n].value - z * ls[n].u, ls[n].value + z * ls[n].u) for n in UNIT_NAMES}
     data = (problem.w.T, 1.0 / problem.se.T, problem.cov_matrix, problem.gravity_g)
     transform = inverse = None

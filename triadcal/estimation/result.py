@@ -20,6 +20,9 @@ from ..models.model import Covariates, Model
 from ..models.sensor import AXES, dcm
 from ..models.units import TO_INTERNAL
 
+#: the 97.5 % point of the standard normal: a 95 % two-sided interval is value +- Z95 u
+Z95 = 1.959963984540054
+
 FORMAT = "triadcal.result"
 VERSION = 1
 METHODS = ("classical", "joint", "posterior")

@@ -227,20 +227,3 @@ def sbc(n_campaigns: int = 200, effects: Sequence[str] = DEFAULT_EFFECTS, *, n_r
         settings={"effects": list(effects), "setpoints_C": list(schedule.setpoints_C), "positions": len(plan),
                   "ess": ess, "max_steps": max_steps, "seed": seed, "processes": processes,
                   "noise": "white output noise Q = 3e-9 V^2 s, no temperature-reading noise, no bench errors"})
-
-
-def validate(n_campaigns: int = 200, effects: Sequence[str] = DEFAULT_EFFECTS, *, n_ranks: int = 99,
-             seed: int = 0, processes: int = 2, ess: float = 400, json_path=None, plot_path=None,
-             progress: Optional[Callable[[int, int], None]] = None) -> SBCResult:
-    """``triadcal validate``: :func:`sbc`, then the summary as JSON and the rank histograms as PNG."""
-    result = sbc(n_campaigns, effects, n_ranks=n_ranks, seed=seed, processes=processes, ess=ess,
-                 progress=progress)
-    if json_path is not None:
-        from ..io.atomic import atomic_write_json
-
-        atomic_write_json(json_path, result.summary())
-    if plot_path is not None:
-        from ..reports.sbc import plot_rank_histograms
-
-        plot_rank_histograms(result, plot_path)
-    return result
