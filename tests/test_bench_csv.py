@@ -1,4 +1,4 @@
-"""Bench CSV v1 reader and writer (../shared/docs/bench-csv.md, docs/bench-csv.md).
+"""Bench CSV v1 reader and writer (docs/spec/bench-csv-v1.md, docs/bench-csv.md).
 
 Every bad-input rule is exercised through a real file in ``tmp_path``; each refusal must
 name the file path, the 1-based line number (comment lines counted) and the column.

@@ -1,4 +1,4 @@
-"""Bench CSV v1: read and write the interchange format of ../shared/docs/bench-csv.md.
+"""Bench CSV v1: read and write the interchange format of docs/spec/bench-csv-v1.md.
 
 Every refusal names the file, the line and the column (:class:`BenchCSVError`);
 nothing is silently dropped: columns the format does not define are kept as text in

@@ -1,7 +1,7 @@
 """Campaign data: the position-averaged visits of a multi-position thermal test.
 
 The data object every estimator takes, whether it came from bench CSV v1
-(../shared/docs/bench-csv.md), the simulator or the capture layer.
+(docs/spec/bench-csv-v1.md), the simulator or the capture layer.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Bench kinematics: the apparent gravity in the IMU frame for a bench position.
 
-Conventions of ../shared/docs/bench-csv.md (seed paper Fig. 1): base frame with
+Conventions of docs/spec/bench-csv-v1.md (seed paper Fig. 1): base frame with
 ``e_z`` up along the local vertical when the bench is level, ``e_x`` along bench
 axis 2 (outer, horizontal), ``e_y = e_z x e_x``; axis 1 is the platform normal,
 carried by axis 2. At zero angles the IMU's Y axis lies along axis 1 (up) and its X
