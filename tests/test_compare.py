@@ -320,10 +320,18 @@ def test_false_alarm_and_detection_rates_on_simulated_campaigns():
     fa_xy = fa_angles = fa_joint = fa_overall = det_xy = det_overall = 0
     z, power = [], []
     crit = stats.chi2.ppf(0.95, 6)
-    for i in range(n):
+    refused = 0
+    for i in range(n + 20):
+        if i - refused >= n:
+            break
         before = simulated_result(3 * i)
         same = simulated_result(3 * i + 1)
         moved = simulated_result(3 * i + 2, Ca_xy=312.0 + shift)
+        if any(r.status != "ok" for r in (before, same, moved)):
+            # the goodness-of-fit gate refuses a true model at p < 0.001 (and ratio > 1.2) by
+            # design; compare refuses such a side, so the triple is counted and replaced
+            refused += 1
+            continue
         c0 = compare(before, same, tolerance_arcsec=None)
         c1 = compare(before, moved, tolerance_arcsec=None)
         fa_xy += c0["Ca_xy"].verdict == "fail"
@@ -341,6 +349,8 @@ def test_false_alarm_and_detection_rates_on_simulated_campaigns():
               f"joint {fa_joint}/{n}, overall {fa_overall}/{n}; detection of 4u(d) in Ca_xy: "
               f"per-parameter {det_xy}/{n}, overall {det_overall}/{n}; sd(z) = {np.std(z):.3f}")
     print(report)
+    # false refusals: at most the gates' 0.1 % per fit (3 fits per triple), 0.1 % risk
+    assert refused <= stats.binom.ppf(0.999, 3 * n, 0.001), (refused, report)
     assert lo <= fa_xy <= hi, report
     assert lo6 <= fa_angles <= hi6, report      # pooled angles (nearly independent estimates)
     assert lo <= fa_joint <= hi, report
