@@ -129,11 +129,18 @@ def plan_from_csv(path) -> dict:
         rows = [r for r in csv.reader(line for line in fh if not line.startswith("#")) if r]
     if not rows or [h.strip() for h in rows[0]] != ["position", "axis1_deg", "axis2_deg"]:
         raise ValueError(f"{path}: a plan file starts with the header 'position,axis1_deg,axis2_deg'")
+    from ..io.numbers import NumberError, parse_number
+
     for k, r in enumerate(rows[1:], start=2):
+        if len(r) != 3 or not r[0].strip():
+            raise ValueError(f"{path}:{k}: expected a label and two angles in degrees, got {r}")
+        if r[0].strip() in plan:
+            raise ValueError(f"{path}:{k}: position {r[0].strip()!r} appears twice")
         try:
-            plan[r[0].strip()] = (float(r[1]), float(r[2]))
-        except (ValueError, IndexError):
-            raise ValueError(f"{path}:{k}: expected a label and two angles in degrees, got {r}") from None
+            plan[r[0].strip()] = tuple(parse_number(v, low=-360.0, high=360.0, what=name)
+                                       for v, name in zip(r[1:], ("axis1_deg", "axis2_deg")))
+        except NumberError as exc:
+            raise ValueError(f"{path}:{k}: {exc.problem}") from None
     if not plan:
         raise ValueError(f"{path}: the plan has no positions")
     return plan

@@ -305,11 +305,14 @@ class Emulator:
 
     def write_config(self, path=None) -> Path:
         """A capture config file (TOML) naming the emulator's ports."""
+        from ..io.atomic import atomic_write_text
+
         path = Path(path) if path else self.directory / "ports.toml"
-        path.write_text(
+        atomic_write_text(
+            path,
             f'# written by triadcal emulate\n[imu]\nport = "{self.ports["imu"]}"\nprotocol = "{self.protocol}"\n\n'
             f'[bench]\nport = "{self.ports["bench"]}"\n\n'
-            f'[chamber]\nport = "{self.ports["chamber"]}"\nslave = {self.chamber_slave}\n', encoding="utf-8")
+            f'[chamber]\nport = "{self.ports["chamber"]}"\nslave = {self.chamber_slave}\n')
         return path
 
     def summary(self) -> dict:

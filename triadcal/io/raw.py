@@ -262,7 +262,10 @@ def read_intervals(path) -> IntervalSpec:
     """Static intervals from a file: imucal's session-list JSON (labelled sample ranges), a
     two-row CSV of starts and ends (tomisuarez2), or a two-column ``start,end`` CSV."""
     path = str(path)
-    text = Path(path).read_text(encoding="utf-8")
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise RawRecordingError(path, None, None, f"not UTF-8 text (byte {exc.start})") from None
     if text.lstrip().startswith("{"):
         try:
             d = json.loads(text)
@@ -273,8 +276,11 @@ def read_intervals(path) -> IntervalSpec:
             if not (isinstance(v, dict) and "start" in v and "end" in v):
                 raise RawRecordingError(path, None, k, "each entry must be {\"start\": ..., \"end\": ...}")
             labels.append(k)
-            s.append(int(v["start"]))
-            e.append(int(v["end"]))
+            for key, out in (("start", s), ("end", e)):
+                try:
+                    out.append(parse_number(v[key], low=0, high=MAX_READING, integer=True, what=key))
+                except NumberError as exc:
+                    raise RawRecordingError(path, None, f"{k}.{key}", exc.problem) from None
         return _checked(IntervalSpec(np.array(s), np.array(e), labels, path))
     rows = []
     for k, line in enumerate(text.splitlines()):
@@ -282,11 +288,11 @@ def read_intervals(path) -> IntervalSpec:
             continue
         fields = [f.strip() for f in line.split(",")]
         try:
-            rows.append([float(f) for f in fields])
-        except ValueError:
-            if not rows and k == 0:
+            rows.append([parse_number(f, low=0, high=MAX_READING, what="sample index") for f in fields])
+        except NumberError as exc:
+            if not rows and k == 0 and not any(c.isdigit() for c in line):
                 continue  # a header row such as "start,end"
-            raise RawRecordingError(path, k + 1, None, f"not numbers: {line!r}") from None
+            raise RawRecordingError(path, k + 1, None, f"{exc.problem} in {line!r}") from None
     if len(rows) == 2 and len(rows[0]) == len(rows[1]) and len(rows[0]) != 2:
         s, e = np.array(rows[0]), np.array(rows[1])
     elif rows and all(len(r) == 2 for r in rows):
