@@ -119,7 +119,7 @@ def run(args) -> int:
             emulator.stop()
     r = report
     print(f"wrote {r.csv_path}: {r.visits_done}/{r.visits_total} visits "
-          f"({r.visits_done - r.visits_done_before} in this session {r.session}) in {r.wall_seconds:.1f} s")
+          f"({r.visits_done - r.visits_done_before} of them in session {r.session}) in {r.wall_seconds:.1f} s")
     print(f"samples accepted {r.accepted_samples}, corrupted frames {r.corrupted_frames}, missing {r.missing_frames}, "
           f"duplicates {r.duplicate_frames}, garbage bytes {r.garbage_bytes}, reconnects {r.reconnects}, "
           f"stalls {r.stalls}, visits redone {r.redone_visits}")

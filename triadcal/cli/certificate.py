@@ -82,7 +82,7 @@ def run(args) -> int:
         for name, why in cert.skipped_plots.items():
             print(f"  plot {name} not drawn: {why}")
         if args.plots:
-            print(f"  plots written to {args.plots}/")
+            print(f"  plots written to {args.plots.rstrip('/')}/")
         return 0
     print(f"no certificate issued for {cert.result.unit}; the report says why: {written}", file=sys.stderr)
     for reason in cert.reasons:

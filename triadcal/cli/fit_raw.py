@@ -49,6 +49,8 @@ def register(sub) -> None:
     p.add_argument("--max-steps", type=int, default=20000,
                    help="with --sample: steps after which the result says not_converged (default 20000)")
     p.add_argument("--seed", type=int, default=0, help="with --sample: random seed (default 0)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (accepted by every long command; fit-raw prints none by default)")
     p.add_argument("--angle-bound-arcsec", type=float, default=3600.0, metavar="ARCSEC",
                    help="answer gate: largest orientation angle accepted as 'ok', arcsec (default 3600 = 1 deg)")
     p.add_argument("--json", metavar="OUT", required=True, help="write the result (results-json v1)")
