@@ -38,15 +38,12 @@ def test_emulator_capture_fit_recovers_truth_within_4u(tmp_path):
     joint = pytest.importorskip("triadcal.estimation.joint", reason="needs the joint fit (fit_joint)")
     assert hasattr(joint, "fit_joint")
     out = tmp_path / "campaign"
-    t0 = time.monotonic()
     r = subprocess.run(CLI + ["capture", "--emulate", "--out", str(out), "--setpoints", "20",
                               "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2", "--stab-window-s", "30",
                               "--stab-hold-s", "30", "--emulate-effects", "bench_tilt", "--emulate-self-heating-tau-s", "60",
                               "--emulate-seed", "3", "--no-progress"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    capture_s = time.monotonic() - t0
-    assert capture_s < 40, capture_s
     c = read_bench_csv(out / CSV_NAME)
     assert list(c.position) == list(DEFAULT_PLAN)          # one row per position, in order
     assert float(c.metadata["Q_V2s"]) == pytest.approx(3e-9, rel=0.2)
@@ -66,7 +63,8 @@ def test_emulator_capture_fit_recovers_truth_within_4u(tmp_path):
 @pytest.mark.parametrize("protocol", ["nmea", "binary"])
 def test_faults_lose_no_accepted_sample_and_are_counted(tmp_path, protocol):
     faults = FaultPlan(garbage_prob=0.02, bitflip_prob=0.02, drop_prob=0.01,
-                       disconnects=((150.0, 60.0),), stalls=((330.0, 300.0),), bench_ignore_prob=0.03)
+                       disconnects=((150.0, 60.0),), stalls=((330.0, 300.0),), bench_ignore_prob=0.03,
+                       bench_ignore_lines=(2,))   # one ignored command for certain (the rate alone may give none)
     timing = EmulatorTiming(time_scale=120.0, rate_hz=10.0, self_heating_time_constant_s=0.0)
     em = emulate(tmp_path / "emu", effects=["bench_tilt"], protocol=protocol, timing=timing, faults=faults,
                  seed=7, keep_log=True).start()
@@ -140,7 +138,10 @@ def test_sigkill_mid_campaign_then_resume_gives_the_visits_of_an_uninterrupted_r
             if (out / CSV_NAME).exists():
                 n_rows = read_bench_csv(out / CSV_NAME).n_visits   # valid bench CSV at every moment
         assert n_rows >= 3, proc.communicate(timeout=5)
-        time.sleep(0.2)                                           # into the next visit
+        # into the next visit: wait until the raw store has grown past the rows written
+        size = (out / RAW_NAME).stat().st_size
+        while time.monotonic() < deadline and (out / RAW_NAME).stat().st_size <= size:
+            time.sleep(0.01)
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=10)
         assert proc.returncode == -signal.SIGKILL

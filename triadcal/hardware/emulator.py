@@ -64,7 +64,10 @@ class FaultPlan:
     number is used, so the receiver sees a gap). ``disconnects``: ``(at_s, for_s)`` pairs,
     the IMU line goes away and comes back on a new pty behind the same name.
     ``stalls``: ``(at_s, for_s)`` pairs, the IMU sends nothing (and uses no sequence numbers).
-    ``bench_ignore_prob``: the bench drops a command line without a word.
+    ``bench_ignore_prob``: the bench drops a command line without a word (drawn from the
+    bench's own random stream, so the IMU thread's draws do not change which lines);
+    ``bench_ignore_lines``: 1-based numbers of the command lines the bench drops, always (a
+    deterministic fault for tests).
     """
 
     garbage_prob: float = 0.0
@@ -73,6 +76,7 @@ class FaultPlan:
     disconnects: Sequence[tuple] = ()
     stalls: Sequence[tuple] = ()
     bench_ignore_prob: float = 0.0
+    bench_ignore_lines: Sequence[int] = ()
 
     @classmethod
     def all_faults(cls, start_s: float = 60.0) -> "FaultPlan":
@@ -260,6 +264,7 @@ class Emulator:
         self.faults = faults or FaultPlan()
         self.physics = UnitPhysics(self.truth, self.timing, seed)
         self.rng = np.random.default_rng(seed + 1)
+        self.bench_seed = seed + 2
         self.keep_log = keep_log
         self.chamber_slave = chamber_slave
         self.log: list[tuple[int, str, Frame]] = []
@@ -435,6 +440,9 @@ class Emulator:
     def _run_bench(self) -> None:
         port = self._ptys["bench"]
         buf = b""
+        n_lines = 0
+        rng = np.random.default_rng(self.bench_seed)     # the bench thread's own stream
+        ignore = set(self.faults.bench_ignore_lines)
         while not self._stop.is_set():
             if not port.wait_readable(0.02):
                 continue
@@ -444,7 +452,9 @@ class Emulator:
                 continue
             while b"\n" in buf:
                 line, buf = buf.split(b"\n", 1)
-                if self.faults.bench_ignore_prob and self.rng.random() < self.faults.bench_ignore_prob:
+                n_lines += 1
+                if n_lines in ignore or (self.faults.bench_ignore_prob and
+                                         rng.random() < self.faults.bench_ignore_prob):
                     self.bench_ignored += 1
                     continue
                 reply = self._bench_command(line.decode("ascii", "replace").strip())
