@@ -17,7 +17,7 @@ import numpy as np
 
 from ..io.formats import require_format
 from ..models.model import Covariates, Model
-from ..models.sensor import AXES, dcm
+from ..models.sensor import dcm
 from ..models.units import TO_INTERNAL
 
 #: the 97.5 % point of the standard normal: a 95 % two-sided interval is value +- Z95 u
@@ -172,7 +172,7 @@ class CalibrationResult:
         ``w`` (n, 3) raw outputs, ``temperature_C`` (n, 3) or (n,) the accelerometers'
         temperatures. Thermal terms are evaluated at the reading's temperature, on the
         mid-line of the hysteresis loop (the branch of a reading is not known); a
-        second-order or asymmetric transfer is inverted to first order.
+        second-order or asymmetric transfer is inverted by its effect (Effect.inverse_transfer).
         """
         w = np.atleast_2d(np.asarray(w, float))
         T = np.asarray(temperature_C, float)
@@ -186,12 +186,8 @@ class CalibrationResult:
         cov = Covariates(axis1=zeros, axis2=zeros, temp=tuple(T[:, i] for i in range(3)),
                          temp_rate=(zeros, zeros, zeros), branch=zeros, time_s=zeros)
         K, S, angles = model.terms(p, cov)
-        sensed = np.stack([w[:, i] * K[i] - S[i] for i in range(3)], axis=1)
-        for i, a in enumerate(AXES):
-            if f"K2_{a}" in p:
-                sensed[:, i] -= p[f"K2_{a}"] * sensed[:, i] ** 2
-            if f"K_{a}_asymmetry" in p:
-                sensed[:, i] -= p[f"K_{a}_asymmetry"] * np.abs(sensed[:, i])
+        responded = tuple(w[:, i] * K[i] - S[i] for i in range(3))
+        sensed = np.stack(model.inverse_transfer(p, cov, responded), axis=1)   # each effect's own inverse
         Ca = np.array([[np.broadcast_to(np.asarray(x, float), (len(w),)) for x in row]
                        for row in dcm(angles)])  # (3, 3, n)
         return np.linalg.solve(np.moveaxis(Ca, -1, 0), sensed[..., None])[..., 0]

@@ -22,7 +22,6 @@ written into the CSV header (``# Q_V2s = ...``), where the joint fit finds them.
 from __future__ import annotations
 
 import json
-import math
 import time
 from collections import deque
 from dataclasses import asdict, dataclass, field

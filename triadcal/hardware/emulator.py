@@ -35,12 +35,13 @@ import select
 import threading
 import time
 import tty
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
 
+from ..models.effects.hysteresis import BRANCH
 from ..models.model import Covariates
 from ..models.simulate import NoiseModel, Schedule, Truth, preset_truth
 from ..models.thermal_environment import two_lag_step
@@ -187,7 +188,7 @@ class UnitPhysics:
             _, unit, rate = self._thermal(t)
             a1, a2 = self._angles(t)
             e1, e2, wob = self._errors
-            branch = {"none": 0.0, "heating": -1.0, "cooling": 1.0}[self.direction]
+            branch = BRANCH[self.direction]
         heat = np.asarray(tm.self_heating_C, float)[None, :]
         if tm.self_heating_time_constant_s > 0:
             heat = heat * (1.0 - np.exp(-t / tm.self_heating_time_constant_s))[:, None]

@@ -109,6 +109,14 @@ class Model:
             S = e.bias(p, cov, dT, S)
         return K, S, angles
 
+    def inverse_transfer(self, p: Mapping[str, Any], cov: Covariates, responded):
+        """The acceleration along each sensing axis from the sensor's response (3-tuple, g):
+        every effect's :meth:`~triadcal.models.effects.base.Effect.inverse_transfer`, in the
+        reverse order of :meth:`predict`."""
+        for e in reversed(self.effects):
+            responded = e.inverse_transfer(p, cov, responded)
+        return responded
+
     def predict(self, p: Mapping[str, Any], cov: Covariates, gravity_g: Any = 1.0):
         """Outputs ``(W_x, W_y, W_z)`` of every visit (eq. 1 solved for W).
 

@@ -34,6 +34,10 @@ def fabs(x):
     return ca.fabs(x) if is_symbolic(x) else np.abs(x)
 
 
+def sign(x):
+    return ca.sign(x) if is_symbolic(x) else np.sign(x)
+
+
 def asin(x):
     return ca.asin(x) if is_symbolic(x) else np.arcsin(x)
 

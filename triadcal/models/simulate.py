@@ -20,7 +20,8 @@ import numpy as np
 
 from .. import __version__
 from .campaign import DEFAULT_PLAN, Campaign
-from .effects import DEFAULT_EFFECTS, EFFECTS, NOISE_EFFECTS
+from .effects.hysteresis import BRANCH
+from .effects import DEFAULT_EFFECTS, NOISE_EFFECTS
 from .model import Covariates, Model
 from .thermal_environment import step_sequence
 from .units import ARCSEC, DEG, STANDARD_GRAVITY_M_S2
@@ -238,7 +239,7 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
     _, unit_T, unit_rate = thermal_history(schedule, times, np.array(starts),
                                            np.array(schedule.setpoints_C, float))
     sensor_T = unit_T[:, None] + np.asarray(schedule.self_heating_C)[None, :]
-    branch = np.array([{"none": 0.0, "heating": -1.0, "cooling": 1.0}[d] for d in dirs])
+    branch = np.array([BRANCH[d] for d in dirs])
 
     cov = Covariates(
         axis1=np.radians(a1), axis2=np.radians(a2),

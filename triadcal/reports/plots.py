@@ -20,13 +20,14 @@ from typing import Optional
 
 import numpy as np
 
+from ..models.effects.hysteresis import BRANCH
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC
 
 #: colours of the hysteresis branches (heating red, cooling blue, none grey)
 BRANCH_COLOURS = {"heating": "#c0392b", "cooling": "#2471a3", "none": "#7f8c8d"}
-BRANCH_VALUE = {"heating": -1.0, "cooling": 1.0, "none": 0.0}
+BRANCH_VALUE = BRANCH      # the hysteresis effect's map (models/effects/hysteresis.py), not a copy
 DPI = 120
 
 

@@ -25,3 +25,8 @@ class ScaleAsymmetry(Effect):
 
     def transfer(self, p, cov, sensed):
         return tuple(asymmetric(sensed[i], p[f"K_{a}_asymmetry"]) for i, a in enumerate("xyz"))
+
+    def inverse_transfer(self, p, cov, responded):
+        """``a = m / (1 + e sign(m))``, exact (the sign of ``a`` is the sign of ``m`` for |e| < 1)."""
+        return tuple(responded[i] / (1.0 + p[f"K_{a}_asymmetry"] * ops.sign(responded[i]))
+                     for i, a in enumerate("xyz"))

@@ -45,5 +45,12 @@ class Effect:
         """Acceleration along each sensing axis as the sensor responds to it (3-tuple, g)."""
         return sensed
 
+    def inverse_transfer(self, p, cov, responded):
+        """The inverse of :meth:`transfer`: the acceleration along each sensing axis from what
+        the sensor responded (3-tuple, g), used when a calibration is applied to readings.
+        An effect that overrides :meth:`transfer` overrides this too (to first order in its
+        small parameters where no closed form exists, and says so)."""
+        return responded
+
     def __repr__(self) -> str:
         return f"<effect {self.name}>"

@@ -24,3 +24,7 @@ class ScaleNonlinearity(Effect):
 
     def transfer(self, p, cov, sensed):
         return tuple(second_order(sensed[i], p[f"K2_{a}"]) for i, a in enumerate("xyz"))
+
+    def inverse_transfer(self, p, cov, responded):
+        """``a = m - K2 m^2`` to first order in K2 (the error is 2 K2^2 m^3: 1e-9 g for K2 = 20 ug/g^2)."""
+        return tuple(responded[i] - p[f"K2_{a}"] * responded[i] * responded[i] for i, a in enumerate("xyz"))
