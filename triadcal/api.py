@@ -83,76 +83,35 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     return result
 
 
-def capture(*args, **kwargs):
-    """Run a bench campaign on hardware or the emulator (``triadcal capture``);
-    see :func:`triadcal.hardware.capture.capture`."""
-    from .hardware.capture import capture as _capture
-
-    return _capture(*args, **kwargs)
-
-
-def emulate(*args, **kwargs):
-    """Start the instrument emulator on pseudo-terminals (``triadcal emulate``);
-    see :func:`triadcal.hardware.emulator.emulate`."""
-    from .hardware.emulator import emulate as _emulate
-
-    return _emulate(*args, **kwargs)
-
-
-def certificate(*args, **kwargs):
-    """Write a calibration certificate or the refusal report (``triadcal certificate``);
-    see :func:`triadcal.reports.certificate.certificate`."""
-    from .reports.certificate import certificate as _certificate
-
-    return _certificate(*args, **kwargs)
+#: commands whose library function lives in a module that is slow to import (CasADi, arviz,
+#: reportlab, pyserial): ``triadcal.api.NAME`` is that very function (its own signature, units
+#: and docstring), imported on first use (PEP 562)
+_LAZY = {
+    "capture": ("triadcal.hardware.capture", "capture"),
+    "emulate": ("triadcal.hardware.emulator", "emulate"),
+    "certificate": ("triadcal.reports.certificate", "certificate"),
+    "compare": ("triadcal.estimation.compare", "compare"),
+    "budget": ("triadcal.estimation.budget", "budget"),
+    "fit_raw": ("triadcal.estimation.raw", "fit_raw"),
+    "diagnose": ("triadcal.estimation.diagnose", "diagnose"),
+    "validate_diagnosis": ("triadcal.estimation.diagnosis_validation", "validate"),
+    "sample": ("triadcal.estimation.posterior", "sample"),
+}
 
 
-def compare(*args, **kwargs):
-    """Judge the drift between two calibrations (``triadcal compare``);
-    see :func:`triadcal.estimation.compare.compare`."""
-    from .estimation.compare import compare as _compare
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
 
-    return _compare(*args, **kwargs)
-
-
-def budget(*args, **kwargs):
-    """The paper's error budget, eq. 4-7 (``triadcal budget``); see
-    :func:`triadcal.estimation.budget.budget`."""
-    from .estimation.budget import budget as _budget
-
-    return _budget(*args, **kwargs)
+        module, attr = _LAZY[name]
+        fn = getattr(importlib.import_module(module), attr)
+        globals()[name] = fn
+        return fn
+    raise AttributeError(f"module 'triadcal.api' has no attribute {name!r}")
 
 
-def fit_raw(*args, **kwargs):
-    """Calibrate from a raw recording without a bench (``triadcal fit-raw``); see
-    :func:`triadcal.estimation.raw.fit_raw`."""
-    from .estimation.raw import fit_raw as _fit_raw
-
-    return _fit_raw(*args, **kwargs)
-
-
-def diagnose(*args, **kwargs):
-    """Diagnose the gap between the model and the data (``triadcal diagnose``); see
-    :func:`triadcal.estimation.diagnose.diagnose`."""
-    from .estimation.diagnose import diagnose as _diagnose
-
-    return _diagnose(*args, **kwargs)
-
-
-def validate_diagnosis(*args, **kwargs):
-    """Validate the diagnosis on simulated campaigns with each effect withheld
-    (``triadcal validate-diagnosis``); see :func:`triadcal.estimation.diagnosis_validation.validate`."""
-    from .estimation.diagnosis_validation import validate as _validate
-
-    return _validate(*args, **kwargs)
-
-
-def sample(*args, **kwargs):
-    """Posterior of the joint model by emcee (``triadcal sample``); see
-    :func:`triadcal.estimation.posterior.sample`."""
-    from .estimation.posterior import sample as _sample
-
-    return _sample(*args, **kwargs)
+def __dir__():
+    return sorted(list(globals()) + list(_LAZY))
 
 
 def validate(n_campaigns: int = 200, effects: Sequence[str] = DEFAULT_EFFECTS, *, n_ranks: int = 99,
