@@ -13,12 +13,13 @@ import math
 
 import numpy as np
 
-from .plots import BRANCH_COLOURS, _mpl, figure_png
+from .plots import BRANCH_COLOURS, _mpl, figure_png, styled
 
 FAMILY_COLOURS = {"axis": "#34495e", "up": "#8e44ad", "setpoint": "#d35400", "direction": "#c0392b",
                   "time": "#16a085", "since_change": "#2980b9"}
 
 
+@styled
 def residuals_figure(diagnosis, campaign):
     """Normalised residuals of the base fit against time, per output, coloured by branch."""
     plt = _mpl()
@@ -40,6 +41,7 @@ def residuals_figure(diagnosis, campaign):
     return fig
 
 
+@styled
 def slices_figure(diagnosis, n: int = 15):
     """The most significant slices: -log10 of the Holm-adjusted p-value, coloured by family."""
     plt = _mpl()
@@ -59,6 +61,7 @@ def slices_figure(diagnosis, n: int = 15):
     return fig
 
 
+@styled
 def candidates_figure(diagnosis):
     """Score test (-log10 p) of every testable candidate and delta elpd of the refitted ones."""
     plt = _mpl()
@@ -82,6 +85,7 @@ def candidates_figure(diagnosis):
     return fig
 
 
+@styled
 def confusion_figure(validation):
     """Confusion matrix of a validation (rows: withheld effect, columns: verdict), as rates."""
     plt = _mpl()

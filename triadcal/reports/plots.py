@@ -48,15 +48,58 @@ class PlotSet:
     skipped: dict = field(default_factory=dict)
 
 
-def _mpl():
-    import matplotlib
+#: the reports' text sizes (points), applied to each figure, never to matplotlib's global rcParams
+STYLE = {"font.size": 9, "axes.titlesize": 10, "axes.labelsize": 9, "legend.fontsize": 8,
+         "xtick.labelsize": 8, "ytick.labelsize": 8}
 
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
 
-    plt.rcParams.update({"font.size": 9, "axes.titlesize": 10, "axes.labelsize": 9,
-                         "legend.fontsize": 8, "xtick.labelsize": 8, "ytick.labelsize": 8})
-    return plt
+class _Figures:
+    """The few pyplot calls the reports use, on bare :class:`matplotlib.figure.Figure` objects:
+    no backend is chosen or forced (a figure renders itself to PNG with Agg when saved) and no
+    global state changes; the style applies while a figure and its axes are made."""
+
+    def __init__(self):
+        import matplotlib
+        from matplotlib import cm, lines
+
+        self._mpl = matplotlib
+        self.cm = cm
+        self.Line2D = lines.Line2D
+
+    def subplots(self, nrows=1, ncols=1, *, figsize=None, **kw):
+        from matplotlib.figure import Figure
+
+        with self._mpl.rc_context(STYLE):
+            fig = Figure(figsize=figsize)
+            axes = fig.subplots(nrows, ncols, **kw)
+        return fig, axes
+
+    def figure(self, figsize=None):
+        from matplotlib.figure import Figure
+
+        with self._mpl.rc_context(STYLE):
+            return Figure(figsize=figsize)
+
+    @staticmethod
+    def close(fig) -> None:
+        """Nothing to do: a bare Figure is not registered with pyplot; dropping it frees it."""
+
+
+def _mpl() -> _Figures:
+    return _Figures()
+
+
+def styled(fn):
+    """Draw ``fn``'s figure with the reports' :data:`STYLE` (a context, not a global change)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        import matplotlib
+
+        with matplotlib.rc_context(STYLE):
+            return fn(*args, **kwargs)
+    return wrapper
 
 
 def figure_png(fig, dpi: int = DPI) -> bytes:
@@ -142,6 +185,7 @@ def per_setpoint_angles(campaign) -> list[dict]:
 
 
 # -- the plots ----------------------------------------------------------------------------------
+@styled
 def residuals_figure(result, campaign):
     """Residuals (observed - model, in micro output units) per bench position and axis,
     coloured by the hysteresis branch of the visit."""
@@ -176,6 +220,7 @@ def residuals_figure(result, campaign):
     return fig
 
 
+@styled
 def angles_temperature_figure(result, campaign=None, per_setpoint: Optional[list] = None):
     """Each orientation angle against temperature: the fitted model on the heating and the
     cooling branch (and the mid-line), with per-setpoint estimates when given."""
@@ -222,6 +267,7 @@ def posterior_draws(idata, names) -> dict:
     return {n: np.asarray(post[n].transpose("chain", "draw").values, float) for n in names}
 
 
+@styled
 def pair_figure(idata, names=tuple(f"Ca_{ab}" for ab in ANGLE_NAMES), max_points: int = 2000):
     """Corner plot of the posterior of ``names`` (default: the six angles), in arcsec,
     as deviations from the posterior mean so that the small spreads are legible."""
@@ -260,6 +306,7 @@ def pair_figure(idata, names=tuple(f"Ca_{ab}" for ab in ANGLE_NAMES), max_points
     return fig
 
 
+@styled
 def trace_rank_figure(idata, names=tuple(f"Ca_{ab}" for ab in ANGLE_NAMES), bins: int = 20):
     """Trace (left) and rank histograms per chain (right) for ``names``; uniform rank
     histograms mean the chains explore the same distribution (Vehtari et al. 2021)."""
@@ -336,6 +383,7 @@ def report_plots(result, campaign=None, idata=None) -> PlotSet:
 VERDICT_COLOURS = {"pass": "#1e8449", "fail": "#c0392b", "inconclusive": "#b9770e"}
 
 
+@styled
 def drift_figure(rows):
     """Drift of each parameter with its expanded uncertainty (k = 2), one panel per unit,
     coloured by the verdict; ``rows`` are :class:`triadcal.reports.certificate.DriftRow`."""

@@ -13,14 +13,15 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from .plots import styled
 
+
+@styled
 def rank_histogram_figure(result, bins=None):
     """A matplotlib figure of every parameter's rank histogram (``result``: SBCResult)."""
-    import matplotlib
+    from .plots import _mpl
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
+    plt = _mpl()
     bins = bins or result.default_bins()
     names = list(result.names)
     P = len(names)
@@ -54,13 +55,8 @@ def rank_histogram_figure(result, bins=None):
 
 def plot_rank_histograms(result, path, bins=None) -> None:
     """Render the rank histograms to a PNG file."""
-    import matplotlib.pyplot as plt
-
-    fig = rank_histogram_figure(result, bins)
     from ..io.atomic import atomic_path
 
-    try:
-        with atomic_path(Path(path)) as tmp:
-            fig.savefig(tmp, dpi=110, format="png")
-    finally:
-        plt.close(fig)
+    fig = rank_histogram_figure(result, bins)
+    with atomic_path(Path(path)) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
