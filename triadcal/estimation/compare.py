@@ -213,7 +213,7 @@ def derive_correlation(before: CalibrationResult, after: CalibrationResult) -> t
 
 # -- posteriors -------------------------------------------------------------------------
 
-def load_posterior(source) -> dict:
+def posterior_draws(source) -> dict:
     """Posterior draws by parameter name from an arviz InferenceData (object or netCDF path).
 
     The ``posterior`` group's variables are named like the parameters (``Ca_xy``), in the
@@ -223,15 +223,9 @@ def load_posterior(source) -> dict:
     if isinstance(source, dict):
         return {k: (np.asarray(v, float).ravel(), None) for k, v in source.items()}
     if isinstance(source, (str, os.PathLike)):
-        path = Path(source)
-        if not path.exists():
-            raise ValueError(f"{path}: no such posterior file")
-        import arviz as az
+        from ..io.netcdf import read_inference_data
 
-        try:
-            idata = az.from_netcdf(str(path))
-        except Exception as exc:  # noqa: BLE001 - reported with the file name
-            raise ValueError(f"{path}: not an arviz InferenceData netCDF file ({exc})") from None
+        idata = read_inference_data(source)
     else:
         idata = source
     if not hasattr(idata, "posterior"):
@@ -502,8 +496,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     if unknown:
         raise ValueError(f"tolerances given for {unknown}, which are not in both results")
 
-    post_b = load_posterior(posterior_before) if posterior_before is not None else None
-    post_a = load_posterior(posterior_after) if posterior_after is not None else None
+    post_b = posterior_draws(posterior_before) if posterior_before is not None else None
+    post_a = posterior_draws(posterior_after) if posterior_after is not None else None
     if (post_b is None) != (post_a is None):
         raise ValueError("give posteriors for both calibrations (before and after), or for neither")
 

@@ -42,3 +42,23 @@ def write_fit_netcdf(path, campaign, problem, solution, result) -> None:
     ds = fit_dataset(campaign, problem, solution, result)
     with atomic_path(path) as tmp:
         ds.to_netcdf(tmp, engine="h5netcdf")
+
+
+def read_inference_data(path):
+    """An arviz ``InferenceData`` from a netCDF file (a posterior written by ``sample`` or
+    ``fit-raw --sample``), refused in one line naming the file when it is missing, is not
+    such a file, or has no ``posterior`` group. The one reader of posterior files."""
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"{path}: no such posterior file")
+    import arviz as az
+
+    try:
+        idata = az.from_netcdf(str(path))
+    except Exception as exc:  # noqa: BLE001 - h5py/netCDF raise many types; reported with the file
+        raise ValueError(f"{path}: not an arviz InferenceData netCDF file ({type(exc).__name__}: {exc})") from None
+    if not hasattr(idata, "posterior"):
+        raise ValueError(f"{path}: has no 'posterior' group (expected arviz InferenceData)")
+    return idata

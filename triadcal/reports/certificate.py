@@ -1319,19 +1319,6 @@ def drift_report(comparison, *, lab=None, html=None, pdf=None, issue_date: Optio
 # =========================================================================================
 # the library function behind `triadcal certificate`
 # =========================================================================================
-def load_posterior(path):
-    """An arviz InferenceData from netCDF, with the file named when it cannot be read."""
-    az = _arviz()
-
-    try:
-        idata = az.from_netcdf(str(path))
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: cannot read the posterior (arviz InferenceData netCDF): {exc}") from None
-    if not hasattr(idata, "posterior"):
-        raise ValueError(f"{path}: has no 'posterior' group")
-    return idata
-
-
 def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, html=None, pdf=None,
                 plots_dir=None, number: Optional[str] = None, issue_date: Optional[str] = None) -> Certificate:
     """Issue a certificate (``triadcal certificate``) or, when a diagnostic failed, a refusal report.
@@ -1353,7 +1340,9 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
     if lab is not None and not isinstance(lab, LabConfig):
         lab = load_lab(lab)
     if posterior is not None and not hasattr(posterior, "posterior"):
-        posterior = load_posterior(posterior)
+        from ..io.netcdf import read_inference_data
+
+        posterior = read_inference_data(posterior)
     if data is not None and not hasattr(data, "n_visits"):
         from ..io.bench_csv import read_bench_csv
 
