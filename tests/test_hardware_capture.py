@@ -166,7 +166,7 @@ def test_sigkill_mid_campaign_then_resume_gives_the_visits_of_an_uninterrupted_r
 
 
 def test_resume_refuses_a_different_plan(tmp_path):
-    from triadcal.hardware.capture import CaptureError, _read_rows  # noqa: F401
+    from triadcal.hardware.capture import CaptureError
 
     (tmp_path / "capture.json").write_text(json.dumps({"plan": {"P01": [0.0, 0.0]}, "setpoints_C": [20.0],
                                                        "tau_s": 30.0, "unit": "X", "sessions": []}))

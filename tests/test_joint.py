@@ -11,7 +11,6 @@ from triadcal.estimation.joint import IdentifiabilityError, fit_joint
 from triadcal.estimation.result import CalibrationResult
 from triadcal.io.bench_csv import write_bench_csv
 from triadcal.models.campaign import DEFAULT_PLAN, nominal_gravity
-from triadcal.models.effects import DEFAULT_EFFECTS
 from triadcal.models.simulate import NoiseModel, Schedule, preset_truth, simulate_campaign
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +16,7 @@ import pytest
 from scipy.linalg import rq
 
 from triadcal.cli import main as cli_main
-from triadcal.estimation.raw import (NORM_NAMES, UNIT_NAMES, fit_raw, result_matrices)
+from triadcal.estimation.raw import NORM_NAMES, UNIT_NAMES, fit_raw
 from triadcal.estimation.result import CalibrationResult
 from triadcal.estimation.static import (StaticIntervalError, detect_static_intervals, intervals_from_labels,
                                         moving_sd)
