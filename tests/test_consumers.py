@@ -175,3 +175,16 @@ def test_published_tables_are_validated(tmp_path, row, needle):
     with pytest.raises(ValueError, match=needle) as e:
         read_published_table(p)
     assert str(p) in str(e.value) and "row 1" in str(e.value)
+
+
+def test_the_printed_coverage_is_the_interval_written(good):
+    """With 1 residual dof the JSON's 95 % interval is value +- t(0.975, 1) u = 12.7 u: the
+    terminal says so, instead of 'U = 2u'."""
+    from triadcal.reports.summary import summary_text
+
+    d = copy.deepcopy(good)
+    d["intervals"] = {n: {"level": 0.95, "low": 0.0, "high": 1.0, "dof": 1} for n in d["parameters"]}
+    text = summary_text(CalibrationResult.from_dict(d))
+    assert "U (k=12.7)" in text and "Student's t with 1 residual degrees of freedom" in text
+    assert "U = 2u" not in text
+    assert "U (k=2)" in summary_text(CalibrationResult.from_dict(good))

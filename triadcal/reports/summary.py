@@ -5,6 +5,22 @@ from __future__ import annotations
 from ..estimation.result import CalibrationResult, round_to_uncertainty
 
 
+def coverage_factor(result: CalibrationResult) -> tuple[float, str]:
+    """The k of the 95 % intervals the result itself states: Student's t on the residual
+    degrees of freedom when its intervals carry ``dof`` (few poses of a raw recording), else 2
+    (GUM, coverage about 95 %); and a sentence saying which."""
+    dofs = {iv.get("dof") for iv in (result.intervals or {}).values() if isinstance(iv, dict)}
+    dofs.discard(None)
+    if len(dofs) == 1:
+        dof = dofs.pop()
+        if isinstance(dof, (int, float)) and dof > 0:
+            from scipy import stats
+
+            return float(stats.t.ppf(0.975, dof)), (f"the 95 % interval of the JSON (Student's t with {dof:g} "
+                                                     "residual degrees of freedom)")
+    return 2.0, "coverage about 95 %"
+
+
 def summary_text(result: CalibrationResult) -> str:
     """A concise table: parameter, value(u) with u to two significant digits, unit."""
     lines = [f"{result.unit}: {result.method} calibration, status {result.status}"]
@@ -28,11 +44,12 @@ def summary_text(result: CalibrationResult) -> str:
             lo, hi = result.temperature_range_C
             bits.append(f"{lo:.1f} .. {hi:.1f} degC, reference {result.reference_temperature_C:g} degC")
         lines.append("  " + "; ".join(bits))
-    lines.append(f"  {'parameter':<20} {'value':>16} {'U (k=2)':>12}  unit")
+    k, how = coverage_factor(result)
+    lines.append(f"  {'parameter':<20} {'value':>16} {f'U (k={k:.3g})':>12}  unit")
     for name, p in result.parameters.items():
-        v, U = round_to_uncertainty(p.value, 2.0 * p.u)
+        v, U = round_to_uncertainty(p.value, k * p.u)
         lines.append(f"  {name:<20} {v:>16} {U:>12}  {p.unit}")
-    lines.append("  U = 2u, coverage about 95 %; u (k = 1) in the JSON")
+    lines.append(f"  U = {k:.3g} u, {how}; u (k = 1) in the JSON")
     try:
         from .certificate import refusal_reasons
     except ImportError:  # pragma: no cover - reportlab missing
