@@ -48,3 +48,10 @@ def test_an_internal_error_is_one_line_with_exit_70(capsys, monkeypatch):
     assert main(["budget"]) == 70
     err = capsys.readouterr().err
     assert "internal error: TypeError: unsupported operand" in err and "Traceback" not in err
+
+
+def test_a_missing_file_is_named_in_a_sentence(tmp_path, capsys):
+    missing = tmp_path / "nope.csv"
+    assert main(["fit", str(missing)]) == 1
+    err = capsys.readouterr().err
+    assert f"{missing}: no such file or directory" in err and "[Errno" not in err

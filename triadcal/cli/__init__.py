@@ -60,7 +60,11 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as exc:
         if isinstance(exc, BrokenPipeError):
             return _broken_pipe()
-        print(f"triadcal {args.command}: error: {exc}", file=sys.stderr)
+        if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+            msg = f"{exc.filename}: {exc.strerror.lower()}"          # not "[Errno 2] No such file ..."
+        else:
+            msg = str(exc)
+        print(f"triadcal {args.command}: error: {msg}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"triadcal {args.command}: interrupted (files written so far are whole; nothing half-written "
