@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from triadcal.estimation.budget import (TABLE_1, budget, calibration_budget, correction_error_arcsec,
+from triadcal.uncertainty.paper import (TABLE_1, budget, calibration_budget, correction_error_arcsec,
                                         mounting_drift_arcsec, noise_term_arcsec, sigma_eff_arcsec,
                                         thermal_budget, thermal_drift_arcsec)
 

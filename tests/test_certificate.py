@@ -24,6 +24,9 @@ from triadcal.io.bench_csv import write_bench_csv  # noqa: E402
 from triadcal.models.effects import DEFAULT_EFFECTS  # noqa: E402
 from triadcal.models.model import Model  # noqa: E402
 from triadcal.reports import certificate as C  # noqa: E402
+from triadcal.reports.certificate.html import _matrix_str  # noqa: E402
+from triadcal.reports.certificate.refusal import _arviz  # noqa: E402
+from triadcal.uncertainty.angles import ANGLES, BUDGET_SOURCES, uncertainty_budget  # noqa: E402
 
 pypdf = pytest.importorskip("pypdf")
 pytest.importorskip("reportlab")
@@ -63,7 +66,7 @@ def hand_result(unit: str = "SN-HAND-0001", status: str = "ok") -> CalibrationRe
 def fake_posterior(result, chains=4, draws=400, seed=1, shift_chain=None):
     """Independent normal draws with the result's covariance, as an arviz InferenceData whose
     variables are named like the parameters (what the sampler writes)."""
-    az = C._arviz()
+    az = _arviz()
     names = [n for n in result.parameters if not n.startswith("tilt_")]
     mu = np.array([result[n].value for n in names])
     cov = result.covariance(names)
@@ -149,7 +152,7 @@ def test_html_is_self_contained_with_every_plot_embedded(issued):
 def test_inverse_matrix_on_the_certificate_inverts_Ca(issued):
     cert = issued["cert"]
     Ca = cert.result.matrix()
-    printed = np.array([[float(C._matrix_str(x)) for x in row] for row in cert.inverse_matrix])
+    printed = np.array([[float(_matrix_str(x)) for x in row] for row in cert.inverse_matrix])
     assert np.allclose(printed @ Ca, np.eye(3), atol=2e-9)   # 9 printed decimals
     for row in printed:
         for x in row:
@@ -159,19 +162,19 @@ def test_inverse_matrix_on_the_certificate_inverts_Ca(issued):
 def test_budget_is_sorted_and_follows_eq_4_and_7(issued):
     b = issued["cert"].budget
     sources = [c.source for c in b.components]
-    assert sorted(sources) == sorted(C.BUDGET_SOURCES)
+    assert sorted(sources) == sorted(BUDGET_SOURCES)
     contrib = [c.contribution for c in b.components if c.contribution is not None]
     assert contrib == sorted(contrib, reverse=True)
     assert all(c.contribution is not None for c in b.components)      # lab file and data give every input
     by = {c.source: c for c in b.components}
     lab = C.load_lab(issued["dir"] / "lab.toml")
     P = issued["cert"].result.parameters
-    k_ca = max(abs(P[f"{n}_tempco"].value) for n in C.ANGLES)
+    k_ca = max(abs(P[f"{n}_tempco"].value) for n in ANGLES)
     assert by["temperature measurement"].contribution == pytest.approx(lab.temperature_uncertainty_C * k_ca)
     # default plan: the classical angle sees sigma_1 with weight 1/2 (closed form of eq. 2-3)
     assert by["bench positioning"].contribution == pytest.approx(0.5 * lab.sigma_position_arcsec)
     assert by["wobble"].contribution == pytest.approx(0.5 * lab.sigma_wobble_arcsec)
-    assert by["hysteresis"].contribution == pytest.approx(max(abs(P[f"{n}_hysteresis"].value) for n in C.ANGLES))
+    assert by["hysteresis"].contribution == pytest.approx(max(abs(P[f"{n}_hysteresis"].value) for n in ANGLES))
     assert b.combined_u == pytest.approx(math.sqrt(sum(c ** 2 for c in contrib)))
     assert b.expanded_U == pytest.approx(2 * b.combined_u)
 
@@ -183,7 +186,7 @@ def test_budget_taken_from_the_result_when_the_estimator_wrote_one():
          "sensitivity_unit": "1", "contribution": 10.0, "symbol": "sigma_1"},
         {"source": "output noise", "standard_uncertainty": 1e-5, "unit": "V", "sensitivity": 4.1e5,
          "sensitivity_unit": "arcsec/V", "contribution": 4.1, "symbol": "noise"}]}
-    b = C.uncertainty_budget(r)
+    b = uncertainty_budget(r)
     assert [c.source for c in b.components] == ["bench positioning", "output noise"]
     assert b.combined_u == pytest.approx(math.hypot(10.0, 4.1))
 
@@ -272,11 +275,10 @@ def test_plots_that_cannot_be_drawn_are_skipped_with_the_reason():
 
 def test_model_curves_come_from_the_model(issued):
     """The plotted branches are the model's own: mid-line +- hysteresis, slope = tempco."""
-    from triadcal.reports.plots import model_angles
 
     r = issued["cert"].result
     T = np.array([r.reference_temperature_C, r.reference_temperature_C + 10.0])
-    mid, cool, heat = (model_angles(r, T, b) for b in (0.0, 1.0, -1.0))
+    mid, cool, heat = (r.angles_at(T, b) for b in (0.0, 1.0, -1.0))
     for ab in ("xy", "zx"):
         assert mid[ab][0] == pytest.approx(r[f"Ca_{ab}"].value, abs=1e-9)
         assert mid[ab][1] - mid[ab][0] == pytest.approx(10 * r[f"Ca_{ab}_tempco"].value, rel=1e-9)

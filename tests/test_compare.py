@@ -1,4 +1,4 @@
-"""Drift verdicts between calibrations (triadcal.estimation.compare, `triadcal compare`)."""
+"""Drift verdicts between calibrations (triadcal.judgement.compare, `triadcal compare`)."""
 
 import json
 import math
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from triadcal.estimation.compare import (
+from triadcal.judgement.compare import (
     ANGLES, ComparisonResult, combined_covariance, SequenceComparison, compare, compare_sequence, decide, drift_uncertainty,
     judge_published, parse_tolerance, probability_exceeds, read_published_table)
 from triadcal.estimation.result import CalibrationResult, ParameterValue

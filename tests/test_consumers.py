@@ -10,7 +10,7 @@ import math
 import pytest
 
 from triadcal.cli import main
-from triadcal.estimation.compare import ComparisonResult, read_published_table
+from triadcal.judgement.compare import ComparisonResult, read_published_table
 from triadcal.estimation.result import CalibrationResult
 
 

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from triadcal.estimation.diagnose import diagnose
-from triadcal.estimation.diagnosis_validation import (CONDITIONS, VALIDATION_PLAN, VALIDATION_SOAK_S,
+from triadcal.judgement.diagnose import diagnose
+from triadcal.judgement.diagnosis_validation import (CONDITIONS, VALIDATION_PLAN, VALIDATION_SOAK_S,
                                                       scenario, validate)
 from triadcal.models.campaign import Campaign, up_axis_label
 from triadcal.models.effects import VOCABULARY

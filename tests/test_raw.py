@@ -18,7 +18,7 @@ from scipy.linalg import rq
 from triadcal.cli import main as cli_main
 from triadcal.estimation.raw import NORM_NAMES, UNIT_NAMES, fit_raw
 from triadcal.estimation.result import CalibrationResult
-from triadcal.estimation.static import (StaticIntervalError, detect_static_intervals, intervals_from_labels,
+from triadcal.estimation.raw.detection import (StaticIntervalError, detect_static_intervals, intervals_from_labels,
                                         moving_sd)
 from triadcal.io.bench_csv import read_bench_csv
 from triadcal.estimation.gates import GateConfig
@@ -264,7 +264,7 @@ def test_placement_sd_from_the_data():
 def test_certificate_budget_of_a_hand_placed_result_names_the_placement():
     """The certificate's budget of an angle: for a hand-placed recording the angles' u is the
     placement's (through the priors), not output noise, and the budget says so."""
-    from triadcal.reports.certificate import uncertainty_budget
+    from triadcal.uncertainty.angles import uncertainty_budget
 
     rng = np.random.default_rng(11)
     truth = random_unit(rng)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from triadcal.estimation.validation import LEVELS, METHODS, SBCResult, sbc
+from triadcal.judgement.validation import LEVELS, METHODS, SBCResult, sbc
 from triadcal.models.model import Model
 from triadcal.reports.sbc import plot_rank_histograms
 

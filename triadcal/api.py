@@ -90,11 +90,11 @@ _LAZY = {
     "capture": ("triadcal.hardware.capture", "capture"),
     "emulate": ("triadcal.hardware.emulator", "emulate"),
     "certificate": ("triadcal.reports.certificate", "certificate"),
-    "compare": ("triadcal.estimation.compare", "compare"),
-    "budget": ("triadcal.estimation.budget", "budget"),
+    "compare": ("triadcal.judgement.compare", "compare"),
+    "budget": ("triadcal.uncertainty.paper", "budget"),
     "fit_raw": ("triadcal.estimation.raw", "fit_raw"),
-    "diagnose": ("triadcal.estimation.diagnose", "diagnose"),
-    "validate_diagnosis": ("triadcal.estimation.diagnosis_validation", "validate"),
+    "diagnose": ("triadcal.judgement.diagnose", "diagnose"),
+    "validate_diagnosis": ("triadcal.judgement.diagnosis_validation", "validate"),
     "sample": ("triadcal.estimation.posterior", "sample"),
 }
 
@@ -118,10 +118,10 @@ def validate(n_campaigns: int = 200, effects: Sequence[str] = DEFAULT_EFFECTS, *
              seed: int = 0, processes: int = 2, ess: float = 400, json_path=None, plot_path=None,
              progress=None):
     """Simulation-based calibration of the least-squares and posterior intervals
-    (``triadcal validate``): :func:`triadcal.estimation.validation.sbc`, then its summary as
+    (``triadcal validate``): :func:`triadcal.judgement.validation.sbc`, then its summary as
     JSON (``json_path``) and the rank histograms as PNG (``plot_path``). Returns the
-    :class:`~triadcal.estimation.validation.SBCResult`."""
-    from .estimation.validation import sbc
+    :class:`~triadcal.judgement.validation.SBCResult`."""
+    from .judgement.validation import sbc
     from .io.atomic import atomic_write_json
 
     result = sbc(n_campaigns, effects, n_ranks=n_ranks, seed=seed, processes=processes, ess=ess,

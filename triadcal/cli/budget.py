@@ -36,11 +36,11 @@ def register(sub) -> None:
 
 
 def _table(b) -> str:
-    lines = [f"{b.title} ({b.equation})",
+    lines = [f"{b.quantity} ({b.equation})",
              f"  {'source':<72} {'u':>11} {'unit':<7} {'sensitivity':>14} {'contribution':>12}"]
     for c in b.components:
         sens = f"{c.sensitivity:.4g} {c.sensitivity_unit}" if c.sensitivity_unit != "1" else f"{c.sensitivity:.4g}"
-        lines.append(f"  {c.source:<72} {c.standard_uncertainty:>11.4g} {c.unit:<7} {sens:>14} "
+        lines.append(f"  {c.source:<72} {c.u:>11.4g} {c.unit:<7} {sens:>14} "
                      f"{c.contribution:>10.2f} {b.unit}")
     lines.append(f"  {'total (' + b.combination + ')':<72} {'':>11} {'':<7} {'':>14} {b.total:>10.2f} {b.unit}")
     if "classical_sd_arcsec" in b.extra:
@@ -53,7 +53,7 @@ def _table(b) -> str:
 
 
 def run(args) -> int:
-    from ..estimation.budget import budget
+    from ..uncertainty.paper import budget
 
     tables = budget(thermal=args.thermal, accelerometer_name=args.accelerometer, K_g_per_V=args.K, Q_V2s=args.Q,
                     tau_s=args.tau, sigma1_arcsec=args.sigma1, sigma2_arcsec=args.sigma2, G_g=args.G,

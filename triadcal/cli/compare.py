@@ -53,7 +53,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..estimation.compare import (compare, compare_sequence, judge_published, parse_tolerance,
+    from ..judgement.compare import (compare, compare_sequence, judge_published, parse_tolerance,
                                       read_published_table)
 
     tolerance = parse_tolerance(args.tolerance)

@@ -36,7 +36,7 @@ def register(sub) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from ..estimation.diagnose import diagnose
+    from ..judgement.diagnose import diagnose
     from ..io.bench_csv import read_bench_csv
     from ..reports.diagnosis import summary_text, write_html_report
 

@@ -29,7 +29,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..api import validate
-    from ..estimation.validation import LEVELS, METHODS
+    from ..judgement.validation import LEVELS, METHODS
 
     bar = None
     progress = None

@@ -24,7 +24,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..estimation.diagnosis_validation import validate
+    from ..judgement.diagnosis_validation import validate
     from ..reports.diagnosis import write_validation
     from ._common import name_list
 

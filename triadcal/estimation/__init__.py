@@ -1,1 +1,3 @@
-"""Estimators and judgements: classical (eq. 2-3), joint least squares, budget (eq. 4-7), ..."""
+"""Estimators: classical (the paper's eq. 2-3), joint least squares (CasADi), posterior
+(emcee), raw recordings without a bench (raw/); the result they write (result), the priors
+and the answer gates every estimator passes before status "ok" (gates)."""

@@ -17,8 +17,8 @@ import numpy as np
 
 from ..io.formats import require_format
 from ..models.model import Covariates, Model
-from ..models.sensor import dcm
-from ..models.units import TO_INTERNAL
+from ..models.sensor import ANGLE_NAMES, dcm
+from ..models.units import ARCSEC, TO_INTERNAL
 
 #: the 97.5 % point of the standard normal: a 95 % two-sided interval is value +- Z95 u
 Z95 = 1.959963984540054
@@ -165,6 +165,35 @@ class CalibrationResult:
     def model(self) -> Model:
         """The model whose parameters this result holds (effects that act on the readings)."""
         return Model([e for e in self.effects if e != "bench_tilt"], self.reference_temperature_C)
+
+    def full_model(self) -> tuple[Model, dict]:
+        """The full model of this result (bench tilt included) and its internal parameter values.
+
+        Parameters held fixed in the fit (``extra["fixed"]``) take their fixed value; the
+        derived ``tilt_delta``/``tilt_beta`` are not model parameters and are left out.
+        """
+        model = Model(self.effects, self.reference_temperature_C)
+        fixed = {k: v.get("value", 0.0) if isinstance(v, dict) else float(v)
+                 for k, v in (self.extra.get("fixed") or {}).items()}
+        values = {}
+        for n in model.names:
+            if n in self.parameters:
+                values[n] = self.parameters[n].value
+            elif n in fixed:
+                values[n] = fixed[n]
+        return model, model.to_internal(values)
+
+    def angles_at(self, temperature_C, branch: float = 0.0) -> dict:
+        """Orientation angles (arcsec) of the fitted model at the given temperatures (all three
+        sensors at ``temperature_C``, °C) on a hysteresis branch (+1 cooling, -1 heating, 0
+        mid-line; :data:`triadcal.models.effects.hysteresis.BRANCH`)."""
+        model, p = self.full_model()
+        T = np.asarray(temperature_C, float)
+        z = np.zeros_like(T)
+        cov = Covariates(axis1=z, axis2=z, temp=(T, T, T), temp_rate=(z, z, z),
+                         branch=np.full_like(T, branch), time_s=z)
+        _, _, angles = model.terms(p, cov)
+        return {ab: np.broadcast_to(np.asarray(angles[ab], float), T.shape) / ARCSEC for ab in ANGLE_NAMES}
 
     def apply(self, w, temperature_C) -> np.ndarray:
         """Calibrated acceleration in the IMU frame (g): ``A_IMU = Ca^-1 (K W - S)``.

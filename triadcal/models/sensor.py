@@ -48,8 +48,17 @@ def output(sensed, scale, bias):
 def calibrated_acceleration(K, S, Ca, w):
     """Apply a calibration to readings: ``A_IMU = Ca^-1 (K W - S)`` (paper, introduction).
 
-    ``K``, ``S`` length-3, ``Ca`` 3x3 (numpy), ``w`` (..., 3) readings; returns (..., 3) in g.
+    numpy: ``K``, ``S`` length-3, ``Ca`` 3x3, ``w`` (..., 3) readings; returns (..., 3) in g.
+    CasADi (any argument symbolic): ``K``, ``S``, ``w`` 3-vectors, ``Ca`` a 3x3 matrix or
+    nested rows (as :func:`dcm` returns); returns the 3-vector.
     """
+    elements = [v for row in Ca for v in row] if isinstance(Ca, (tuple, list)) else [Ca]
+    if ops.is_symbolic(K, S, w, *elements):
+        import casadi as ca
+
+        if isinstance(Ca, (tuple, list)):
+            Ca = ca.vertcat(*[ca.horzcat(*row) for row in Ca])
+        return ca.solve(Ca, K * w - S)
     import numpy as np
 
     a_sensor = np.asarray(w, float) * np.asarray(K, float) - np.asarray(S, float)

@@ -1,8 +1,8 @@
 """Report of a diagnosis (HTML with embedded plots) and the plots of its validation.
 
 Nothing here estimates anything: the numbers come from
-:class:`triadcal.estimation.diagnose.Diagnosis` and
-:class:`triadcal.estimation.diagnosis_validation.ValidationResult`.
+:class:`triadcal.judgement.diagnose.Diagnosis` and
+:class:`triadcal.judgement.diagnosis_validation.ValidationResult`.
 """
 
 from __future__ import annotations

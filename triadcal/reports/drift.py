@@ -4,7 +4,7 @@ The plot follows the paper's Table 3: one column per exposure, one series per pa
 each drift is drawn with its expanded uncertainty ``k2 u(d)`` (the two-sided coverage
 factor of the comparison's level, the band the significance test uses), the tolerance
 as a shaded band, and the verdict as the marker (filled red: fail, hollow: inconclusive,
-filled: pass). No estimation here: it draws :mod:`triadcal.estimation.compare` results.
+filled: pass). No estimation here: it draws :mod:`triadcal.judgement.compare` results.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ..estimation.compare import ComparisonResult, SequenceComparison, coverage_factors
+from ..judgement.compare import ComparisonResult, SequenceComparison, coverage_factors
 
 _COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink",
            "tab:gray", "tab:olive", "tab:cyan")

@@ -21,9 +21,7 @@ from typing import Optional
 import numpy as np
 
 from ..models.effects.hysteresis import BRANCH
-from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES
-from ..models.units import ARCSEC
 
 #: colours of the hysteresis branches (heating red, cooling blue, none grey)
 BRANCH_COLOURS = {"heating": "#c0392b", "cooling": "#2471a3", "none": "#7f8c8d"}
@@ -112,41 +110,11 @@ def figure_png(fig, dpi: int = DPI) -> bytes:
 
 
 # -- the fitted model ----------------------------------------------------------------------
-def result_model(result) -> tuple[Model, dict]:
-    """The full model of a result (bench tilt included) and its internal parameter values.
-
-    Parameters held fixed in the fit (``extra["fixed"]``) take their fixed value; the
-    derived ``tilt_delta``/``tilt_beta`` are not model parameters and are left out.
-    """
-    model = Model(result.effects, result.reference_temperature_C)
-    fixed = {k: v.get("value", 0.0) if isinstance(v, dict) else float(v)
-             for k, v in (result.extra.get("fixed") or {}).items()}
-    values = {}
-    for n in model.names:
-        if n in result.parameters:
-            values[n] = result.parameters[n].value
-        elif n in fixed:
-            values[n] = fixed[n]
-    return model, model.to_internal(values)
-
-
 def model_outputs(result, campaign) -> np.ndarray:
     """Outputs (n, 3) the fitted model predicts for each visit of ``campaign`` (eq. 1)."""
-    model, p = result_model(result)
+    model, p = result.full_model()
     w = model.predict(p, campaign.covariates(), campaign.gravity_g)
     return np.stack([np.broadcast_to(np.asarray(c, float), (campaign.n_visits,)) for c in w], axis=1)
-
-
-def model_angles(result, temperature_C, branch: float) -> dict:
-    """Orientation angles (arcsec) of the fitted model at the given temperatures (all three
-    sensors at ``temperature_C``) on a hysteresis branch (+1 cooling, -1 heating, 0 mid-line)."""
-    model, p = result_model(result)
-    T = np.asarray(temperature_C, float)
-    z = np.zeros_like(T)
-    cov = Covariates(axis1=z, axis2=z, temp=(T, T, T), temp_rate=(z, z, z),
-                     branch=np.full_like(T, branch), time_s=z)
-    _, _, angles = model.terms(p, cov)
-    return {ab: np.broadcast_to(np.asarray(angles[ab], float), T.shape) / ARCSEC for ab in ANGLE_NAMES}
 
 
 # -- per-setpoint estimates (classical, eq. 2-3) ---------------------------------------------
@@ -228,7 +196,7 @@ def angles_temperature_figure(result, campaign=None, per_setpoint: Optional[list
     lo, hi = result.temperature_range_C or (result.reference_temperature_C - 40, result.reference_temperature_C + 50)
     T = np.linspace(lo, hi, 101)
     has_hyst = "hysteresis" in result.effects
-    curves = {b: model_angles(result, T, v) for b, v in BRANCH_VALUE.items()}
+    curves = {b: result.angles_at(T, v) for b, v in BRANCH_VALUE.items()}
     fig, axes = plt.subplots(2, 3, figsize=(10, 5.6))
     for ax, ab in zip(axes.ravel(), ANGLE_NAMES):
         if has_hyst:

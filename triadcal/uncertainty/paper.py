@@ -19,10 +19,11 @@ relates eq. 4 to the standard deviation of the classical estimate
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Optional
 
 from ..models.units import ARCSEC
+from .budget import Budget, BudgetComponent
 
 #: radians -> arcseconds (the paper's 180 * 3600 / pi)
 RAD_TO_ARCSEC = 1.0 / ARCSEC
@@ -96,42 +97,6 @@ def thermal_drift_arcsec(dCa_Ta_arcsec: float, dCa_Tn_arcsec: float, dCa_Tk_arcs
 
 
 # -- budget tables ------------------------------------------------------------------------
-@dataclass
-class BudgetComponent:
-    """One row: ``contribution = |sensitivity| * standard_uncertainty`` in the budget's unit."""
-
-    source: str
-    standard_uncertainty: float
-    unit: str
-    sensitivity: float
-    sensitivity_unit: str
-    contribution: float
-    symbol: str = ""               #: the paper's name of the term (dCa_Ta, sigma_1, ...)
-
-
-@dataclass
-class Budget:
-    """A table of components sorted by contribution (largest first) and their combination."""
-
-    title: str
-    equation: str
-    components: list
-    total: float
-    unit: str = "arcsec"
-    combination: str = "root sum of squares"
-    notes: list = field(default_factory=list)
-    extra: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        return {"title": self.title, "equation": self.equation, "unit": self.unit,
-                "combination": self.combination, "total": self.total,
-                "components": [asdict(c) for c in self.components], "notes": list(self.notes), **self.extra}
-
-
-def _sorted(components):
-    return sorted(components, key=lambda c: -abs(c.contribution))
-
-
 def calibration_budget(K_g_per_V: float = 1.0, Q_V2s: float = 3e-9, tau_s: float = 30.0,
                        sigma1_arcsec: float = 5.0, sigma2_arcsec: float = 2.0, G_g: float = 1.0) -> Budget:
     """Eq. 4 as a budget table (defaults: the paper's example, 11.52").
@@ -140,20 +105,22 @@ def calibration_budget(K_g_per_V: float = 1.0, Q_V2s: float = 3e-9, tau_s: float
     comparison, the standard deviation of the classical estimate of each angle for the
     default 12-position plan (docs/classical.md): eq. 4 is four times the largest of them.
     """
-    from .classical import classical_angle_sd_default_plan
+    from ..estimation.classical import classical_angle_sd_default_plan
 
     sens_noise = 2.0 * K_g_per_V / G_g * RAD_TO_ARCSEC
     comps = [
-        BudgetComponent("output white noise averaged over tau, sqrt(Q/tau)", math.sqrt(Q_V2s / tau_s), "V",
-                        sens_noise, "arcsec/V", sens_noise * math.sqrt(Q_V2s / tau_s), "noise"),
-        BudgetComponent("bench positioning error sigma_1", sigma1_arcsec, "arcsec", 2.0, "1", 2.0 * sigma1_arcsec, "sigma_1"),
-        BudgetComponent("wobble of the bench axes sigma_2", sigma2_arcsec, "arcsec", 2.0, "1", 2.0 * sigma2_arcsec, "sigma_2"),
+        BudgetComponent("output white noise averaged over tau, sqrt(Q/tau)", sens_noise * math.sqrt(Q_V2s / tau_s),
+                        math.sqrt(Q_V2s / tau_s), "V", sens_noise, "arcsec/V", symbol="noise", equation="eq. 4"),
+        BudgetComponent("bench positioning error sigma_1", 2.0 * sigma1_arcsec, sigma1_arcsec, "arcsec", 2.0, "1",
+                        symbol="sigma_1", equation="eq. 4"),
+        BudgetComponent("wobble of the bench axes sigma_2", 2.0 * sigma2_arcsec, sigma2_arcsec, "arcsec", 2.0, "1",
+                        symbol="sigma_2", equation="eq. 4"),
     ]
-    total = sigma_eff_arcsec(K_g_per_V, Q_V2s, tau_s, sigma1_arcsec, sigma2_arcsec, G_g)
+    # the root sum of squares of these contributions is eq. 4's sigma_eff (sigma_eff_arcsec)
     sd = classical_angle_sd_default_plan(Q_V2s=Q_V2s, tau_s=tau_s, sigma_position_arcsec=sigma1_arcsec,
                                          sigma_wobble_arcsec=sigma2_arcsec, K_g_per_V=K_g_per_V, gravity_g=G_g)
     return Budget(
-        "error of an orientation angle from the bench test", "eq. 4", _sorted(comps), total,
+        "error of an orientation angle from the bench test", comps, equation="eq. 4",
         notes=["eq. 4 as printed: 2 sqrt(noise^2 + sigma_1^2 + sigma_2^2); the standard deviation of the "
                "classical estimate (default plan) is sqrt(noise^2 + sigma^2)/2 per angle, with sigma = sigma_2 "
                "for Ca_xy and sigma_1 for the other five (docs/classical.md)"],
@@ -175,15 +142,15 @@ def thermal_budget(accelerometer_name: str = "AK-18", *, k_ca_arcsec_per_C: Opti
     dcte = abs(cte_body_per_C - cte_accelerometer_per_C)
     comps = [
         BudgetComponent(f"reference-plane instability of the {acc.name} (Table 1, dCa_Ta)", acc.dCa_Ta_arcsec,
-                        "arcsec", 1.0, "1", acc.dCa_Ta_arcsec, "dCa_Ta"),
-        BudgetComponent("CTE mismatch of body and accelerometer over T_max - T0 (eq. 6, dCa_Tn)",
-                        dcte * (T_max_C - T0_C), "1", 0.1 * RAD_TO_ARCSEC, "arcsec", tn, "dCa_Tn"),
-        BudgetComponent("temperature error dT of the thermal correction (eq. 7, dCa_Tk)", dT_C, "degC",
-                        k_ca, "arcsec/degC", tk, "dCa_Tk"),
+                        acc.dCa_Ta_arcsec, "arcsec", 1.0, "1", symbol="dCa_Ta", equation="eq. 5"),
+        BudgetComponent("CTE mismatch of body and accelerometer over T_max - T0 (eq. 6, dCa_Tn)", tn,
+                        dcte * (T_max_C - T0_C), "1", 0.1 * RAD_TO_ARCSEC, "arcsec", symbol="dCa_Tn", equation="eq. 6"),
+        BudgetComponent("temperature error dT of the thermal correction (eq. 7, dCa_Tk)", tk, dT_C, "degC",
+                        k_ca, "arcsec/degC", symbol="dCa_Tk", equation="eq. 7"),
     ]
+    # the root sum of squares of these contributions is eq. 5's dCa_T (thermal_drift_arcsec)
     return Budget(
-        f"thermal drift of the axes, {acc.name} ({acc.material})", "eq. 5-7", _sorted(comps),
-        thermal_drift_arcsec(acc.dCa_Ta_arcsec, tn, tk),
+        f"thermal drift of the axes, {acc.name} ({acc.material})", comps, equation="eq. 5-7",
         notes=["the paper combines the three parts as independent (root sum of squares, eq. 5); dCa_Ta and "
                "dCa_Tn are maximum values, not standard uncertainties"],
         extra={"accelerometer": asdict(acc),

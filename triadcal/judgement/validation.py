@@ -40,7 +40,7 @@ from ..models.campaign import DEFAULT_PLAN
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.model import Model
 from ..models.simulate import NoiseModel, Schedule, Truth, simulate_campaign
-from .priors import default_priors, draw_parameters
+from ..estimation.priors import default_priors, draw_parameters
 
 #: compact thermal plan: soak at 20, heat to 60, cool to 20 and -20, heat back to 20
 COMPACT_SETPOINTS_C = (20.0, 60.0, 20.0, -20.0, 20.0)
@@ -141,8 +141,8 @@ def _f(x) -> Optional[float]:
 def _one_campaign(task) -> dict:
     """Everything SBC needs from campaign ``i`` (runs in a worker process)."""
     i, seed, effects, schedule, plan, n_ranks, ess, max_steps = task
-    from .joint import fit_joint
-    from .posterior import integrated_time, sample
+    from ..estimation.joint import fit_joint
+    from ..estimation.posterior import integrated_time, sample
 
     rng = np.random.default_rng([seed, i])
     model = Model(effects)

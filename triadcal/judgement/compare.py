@@ -45,8 +45,8 @@ from ..io.atomic import atomic_write_json
 from ..io.formats import require_format
 from ..io.numbers import parse_number
 from ..models.sensor import ANGLE_NAMES
-from .gates import check_result_for_use
-from .result import CalibrationResult, read_json
+from ..estimation.gates import check_result_for_use
+from ..estimation.result import CalibrationResult, read_json
 
 FORMAT = "triadcal.comparison"
 SEQUENCE_FORMAT = "triadcal.comparison_sequence"

@@ -1,0 +1,176 @@
+"""Entry points: :func:`sample` (``triadcal sample``: the posterior of the joint model over a
+campaign) and :func:`sample_target` (any :class:`ResidualTarget`, used by ``fit-raw --sample``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+from typing import Callable, Mapping, Optional, Sequence, Union
+
+import numpy as np
+
+from ...models.campaign import Campaign
+from ...models.effects import DEFAULT_EFFECTS
+from ...models.model import Model
+from ..gates import DEFAULT_CONFIG, GateConfig
+from ..joint import (
+    JointProblem,
+    fit_joint,
+    noise_of,
+)
+from ..priors import Prior, default_priors
+from ..result import Z95, CalibrationResult
+from .export import write_inference_data, write_target_inference_data
+from .laplace import _transformed_laplace, laplace_approximation
+from .moves import MOVES
+from .run import run_sampler
+from .summary import (
+    PRIOR_DOMINATED_RATIO,
+    _flags_block,
+    _result,
+    posterior_notes,
+    posterior_summary,
+    sampler_info,
+)
+from .targets import LogPosterior, ResidualLogPosterior, ResidualProblem, ResidualTarget
+
+
+def _load(data) -> Campaign:
+    if isinstance(data, Campaign):
+        return data
+    from ...io.bench_csv import read_bench_csv
+    return read_bench_csv(data)
+
+
+def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperature_C: float = 20.0,
+           ess: float = 2000, rhat_max: float = 1.01, tau_factor: float = 50.0, max_steps: int = 20000,
+           n_walkers: Optional[int] = None, seed: int = 0, priors: Optional[Mapping[str, Prior]] = None,
+           moves: str = "de-snooker-laplace", progress: Union[bool, Callable, None] = None,
+           json_path=None, posterior_path=None, max_saved_draws: int = 4000,
+           return_run: bool = False, least_squares: Optional[tuple] = None,
+           gates: Optional[GateConfig] = None):
+    """Posterior of every parameter of the joint model (``triadcal sample``).
+
+    ``data``: a bench CSV v1 path or a :class:`Campaign`. ``ess``: requested bulk and
+    tail ESS of every parameter; ``max_steps``: the cap after which the result says
+    ``status: not_converged``. ``progress``: True for a tqdm bar (stderr), or a callable
+    ``f(steps, max_steps, check)`` called every 50 steps (``check`` is None between
+    convergence checks, else the dict of the check). ``priors``: overrides
+    of :func:`default_priors` by name. Writes results-json v1 to ``json_path`` and an
+    arviz InferenceData netCDF to ``posterior_path`` when given. Returns the
+    :class:`CalibrationResult` (method ``posterior``), or ``(result, run)`` with
+    ``return_run``. ``least_squares``: the output of ``fit_joint(campaign, effects,
+    return_problem=True)`` when the caller already has it (it is computed otherwise).
+    ``gates``: the answer gates' thresholds (:class:`~triadcal.estimation.gates.GateConfig`).
+    """
+    gates = gates or DEFAULT_CONFIG
+    if moves not in MOVES:
+        raise ValueError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
+    campaign = _load(data)
+    t_start = time.perf_counter()
+    if least_squares is None:
+        least_squares = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
+                                  return_problem=True, gates=gates)
+    ls, ls_problem, ls_sol = least_squares
+    model = Model(effects, reference_temperature_C)
+    pri = default_priors(model, overrides=priors)
+    noise = noise_of(campaign)
+    sigma = noise.sigma
+    notes = []
+    if not noise.known:
+        chi2_dof = ls.fit.get("chi2_dof")
+        if not (chi2_dof and np.isfinite(chi2_dof)):
+            raise ValueError(f"{campaign.source or 'campaign'}: the noise of the outputs is not in the data "
+                             "(no sd_* columns, no Q_V2s metadata) and cannot be estimated from the fit")
+        sigma = sigma * math.sqrt(chi2_dof)
+        notes.append(f"output noise not in the data: held at its least-squares estimate ({noise.description}, "
+                     f"chi2/dof = {chi2_dof:.3g}); the posterior does not include the uncertainty of the noise level")
+    problem = JointProblem(campaign, model, sigma)
+    ls_values = dict(zip(ls_problem.names, ls_sol.x))
+    x_start = np.array([ls_values.get(n, pri[n].mean) for n in model.names])
+    x_map, C = laplace_approximation(problem, pri, x_start)
+    Lc = np.linalg.cholesky(C)
+    d = len(model.names)
+    W = int(n_walkers or 2 * d)
+    W += W % 2
+    target = LogPosterior(campaign, model, sigma, pri, x_map, Lc, block=W // 2)
+    run = run_sampler(target, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
+                      seed=seed, moves=moves, progress=progress)
+    total_seconds = time.perf_counter() - t_start
+    result = _result(campaign, model, problem, pri, ls, run, notes, total_seconds, ess, rhat_max, tau_factor, max_steps,
+                     gates)
+    if json_path is not None:
+        result.save(json_path)
+    if posterior_path is not None:
+        write_inference_data(posterior_path, campaign, run, result, max_saved_draws=max_saved_draws)
+    return (result, run) if return_run else result
+
+
+def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float = 1.01, tau_factor: float = 50.0,
+                  max_steps: int = 20000, n_walkers: Optional[int] = None, seed: int = 0,
+                  moves: str = "de-snooker-laplace", progress: Union[bool, Callable, None] = None,
+                  posterior_path=None, max_saved_draws: int = 4000, notes: Sequence[str] = ()):
+    """Posterior of a :class:`ResidualTarget` through the bench's path: MAP and Laplace
+    approximation from the least-squares optimum (:func:`laplace_approximation`), whitened
+    coordinates, the same emcee moves and stop rule (:func:`run_sampler`), the same value,
+    intervals and flags (:func:`posterior_summary`). Returns ``(CalibrationResult, PosteriorRun)``
+    (method ``posterior``); writes the InferenceData to ``posterior_path`` when given."""
+    if moves not in MOVES:
+        raise ValueError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
+    t_start = time.perf_counter()
+    problem = ResidualProblem(target)
+    if target.transform is None:
+        x_map, C = laplace_approximation(problem, target.priors, target.x_ls)
+    else:
+        y_map, C = _transformed_laplace(problem, np.asarray(target.inverse(target.x_ls)).reshape(-1))
+    # Cholesky of the column-scaled covariance (parameters differ by 10 orders of magnitude)
+    D = np.sqrt(np.diag(C))
+    Lc = np.linalg.cholesky(C / np.outer(D, D)) * D[:, None]
+    d = len(target.names)
+    W = int(n_walkers or 2 * d)
+    W += W % 2
+    lp = ResidualLogPosterior(target, x_map if target.transform is None else y_map, Lc, block=W // 2)
+    if target.transform is not None:
+        x_map = np.asarray(target.transform(y_map)).reshape(-1)
+    run = run_sampler(lp, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
+                      seed=seed, moves=moves, progress=progress)
+    total_seconds = time.perf_counter() - t_start
+    names = list(target.names)
+    params, intervals, non_gaussian, prior_dominated = posterior_summary(names, target.units, run, target.priors,
+                                                                         target.ls_intervals)
+    out_notes = posterior_notes(intervals, non_gaussian, prior_dominated, target.ls_intervals, run, ess, rhat_max,
+                                tau_factor, max_steps, list(notes))
+    # prior-influenced: the least-squares (data-only) uncertainty is comparable to the prior's,
+    # so the prior, not the data, sets the posterior's width (weaker than prior-dominated)
+    prior_influenced = []
+    for n in names:
+        if n in target.ls_intervals:
+            lo_, hi_ = target.ls_intervals[n]
+            ratio = float((hi_ - lo_) / (2 * Z95) / target.priors[n].sd)
+            intervals[n]["ls_prior_sd_ratio"] = ratio
+            if ratio > PRIOR_DOMINATED_RATIO and n not in prior_dominated:
+                prior_influenced.append(n)
+                out_notes.append(f"{n}: prior-influenced (least-squares SD / prior SD = {ratio:.2f} > "
+                                 f"{PRIOR_DOMINATED_RATIO}): the data alone determine it poorly; the prior "
+                                 f"narrows its interval (posterior SD / prior SD = {intervals[n]['prior_sd_ratio']:.2f})")
+    draws = run.flat()
+    x_mean = draws.mean(axis=0)
+    chi2 = float(np.sum(ResidualProblem(replace(target, transform=None, inverse=None)).residuals(x_mean) ** 2))
+    n_obs = target.n_obs
+    fit = {"chi2_dof": chi2 / (n_obs - d) if n_obs > d else None, "n_obs": n_obs, "n_params": d,
+           "value": "posterior mean", "u": "posterior standard deviation",
+           "map": dict(zip(names, map(float, x_map)))}
+    result = CalibrationResult(
+        unit=target.unit_serial, method="posterior", parameters=params,
+        status="ok" if run.converged else "not_converged", intervals=intervals, fit=fit,
+        correlation_names=tuple(names), correlation=np.corrcoef(draws, rowvar=False), notes=out_notes,
+        extra={"priors": {n: target.priors[n].to_dict() for n in names},
+               "flags": {**_flags_block(non_gaussian, prior_dominated), "prior_influenced": prior_influenced},
+               "sampler": sampler_info(run, names, total_seconds, ess, rhat_max, tau_factor, max_steps)})
+    result.extra["flags"]["criteria"]["prior_influenced"] = (f"least-squares SD / prior SD > {PRIOR_DOMINATED_RATIO} "
+                                                             "(and not prior-dominated)")
+    if posterior_path is not None:
+        write_target_inference_data(posterior_path, target, run, result, max_saved_draws=max_saved_draws)
+    return result, run

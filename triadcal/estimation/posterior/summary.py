@@ -1,0 +1,167 @@
+"""From draws to a result: posterior mean and SD, 95 % central and HDI intervals, flags of
+prior-dominated and non-Gaussian parameters, the sampler block and the CalibrationResult.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+
+from ...models.kinematics import tilt_polar
+from ...models.units import ARCSEC, DEG
+from ..gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates
+from ..joint import (
+    noise_of,
+    parameter_unit,
+)
+from ..priors import Prior
+from ..result import Z95, CalibrationResult, ParameterValue
+from .diagnostics import _arviz
+from .run import PosteriorRun
+
+#: posterior SD / prior SD above which a parameter is reported as prior-dominated
+PRIOR_DOMINATED_RATIO = 0.5
+
+
+#: an end of the 95 % central interval that differs from the least-squares one by more
+#: than this fraction of the least-squares half-width flags the posterior as non-Gaussian
+NON_GAUSSIAN_TOLERANCE = 0.15
+
+
+LEVEL = 0.95
+
+
+def posterior_summary(names: Sequence[str], units: Sequence[str], run: PosteriorRun, pri: Mapping[str, Prior],
+                      ls_intervals: Mapping[str, tuple]):
+    """Value (posterior mean), ``u`` (posterior SD), the 95 % central and HDI intervals beside the
+    least-squares ones (``ls_intervals``: name -> (low, high)), and the flags of every parameter.
+    Returns ``(params, intervals, non_gaussian, prior_dominated)``. Shared by the bench and the
+    generic residual target."""
+    az = _arviz()
+    draws = run.flat()
+    mean = draws.mean(axis=0)
+    sd = draws.std(axis=0, ddof=1)
+    lo, hi = np.quantile(draws, [(1 - LEVEL) / 2, (1 + LEVEL) / 2], axis=0)
+    params, intervals = {}, {}
+    non_gaussian, prior_dominated = [], []
+    kept = run.draws()
+    for i, n in enumerate(names):
+        params[n] = ParameterValue(float(mean[i]), float(sd[i]), units[i])
+        h = az.hdi(kept[:, :, i].ravel(), hdi_prob=LEVEL)
+        iv = {"level": LEVEL, "low": float(lo[i]), "high": float(hi[i]),
+              "hdi_low": float(h[0]), "hdi_high": float(h[1]), "ls_low": None, "ls_high": None}
+        ratio = float(sd[i] / pri[n].sd)
+        iv["prior_sd_ratio"] = ratio
+        if n in ls_intervals:
+            iv["ls_low"], iv["ls_high"] = (float(v) for v in ls_intervals[n])
+            half = 0.5 * (iv["ls_high"] - iv["ls_low"])
+            dev = max(abs(iv["low"] - iv["ls_low"]), abs(iv["high"] - iv["ls_high"]))
+            iv["non_gaussian"] = bool(half > 0 and dev > NON_GAUSSIAN_TOLERANCE * half) or not half > 0
+        else:
+            iv["non_gaussian"] = True     # the least-squares fit could not determine it: no Gaussian interval
+        iv["prior_dominated"] = ratio > PRIOR_DOMINATED_RATIO
+        if iv["non_gaussian"]:
+            non_gaussian.append(n)
+        if iv["prior_dominated"]:
+            prior_dominated.append(n)
+        intervals[n] = iv
+    return params, intervals, non_gaussian, prior_dominated
+
+
+def posterior_notes(intervals: Mapping[str, dict], non_gaussian, prior_dominated, ls_names, run: PosteriorRun,
+                    ess, rhat_max, tau_factor, max_steps, notes: Optional[list] = None) -> list:
+    """The notes of the flags and of a run that did not converge (appended to ``notes``)."""
+    notes = [] if notes is None else notes
+    for n in prior_dominated:
+        notes.append(f"{n}: prior-dominated (posterior SD / prior SD = {intervals[n]['prior_sd_ratio']:.2f} > "
+                     f"{PRIOR_DOMINATED_RATIO}): the data do not measure it; its value is the prior's, not a measurement")
+    for n in non_gaussian:
+        if n in prior_dominated:
+            continue
+        if n in ls_names:
+            notes.append(f"{n}: the 95% posterior interval differs from the least-squares one by more than "
+                         f"{NON_GAUSSIAN_TOLERANCE:.0%} of its half-width: the least-squares interval does not hold "
+                         "(a non-Gaussian posterior, or parameters the least-squares fit held fixed); "
+                         "use the posterior interval")
+        else:
+            notes.append(f"{n}: the least-squares fit could not determine it; only the posterior interval exists")
+    if not run.converged:
+        notes.insert(0, f"not converged within {max_steps} steps: the stop rule (chain >= {tau_factor:g} tau, "
+                        f"ESS >= {ess:g}, R-hat < {rhat_max}) did not hold; do not use these intervals")
+    return notes
+
+
+def sampler_info(run: PosteriorRun, names: Sequence[str], total_seconds, ess, rhat_max, tau_factor,
+                 max_steps) -> dict:
+    """The ``sampler`` block of a posterior result (moves, stop rule, diagnostics per parameter)."""
+    diag = run.diagnostics
+    return {
+        "library": "emcee", "moves": run.moves, "walkers": int(run.chain_z.shape[1]),
+        "steps": int(run.chain_z.shape[0]), "burn": int(run.burn), "acceptance": run.acceptance,
+        "tau_max": float(diag["tau"].max()), "ess_bulk_min": float(diag["ess_bulk"].min()),
+        "ess_tail_min": float(diag["ess_tail"].min()), "rhat_max": float(diag["rhat"].max()),
+        "stop_rule": {"tau_factor": tau_factor, "ess": ess, "rhat_max": rhat_max, "max_steps": max_steps,
+                      "chains": "walkers as chains (see docs/posterior.md)"},
+        "compiled": bool(run.target.compiled), "sampling_seconds": run.seconds, "total_seconds": total_seconds,
+        "per_parameter": {n: {"tau": float(diag["tau"][k]), "ess_bulk": float(diag["ess_bulk"][k]),
+                              "ess_tail": float(diag["ess_tail"][k]), "rhat": float(diag["rhat"][k])}
+                          for k, n in enumerate(names)},
+    }
+
+
+def _flags_block(non_gaussian, prior_dominated) -> dict:
+    return {"non_gaussian": non_gaussian, "prior_dominated": prior_dominated,
+            "criteria": {"non_gaussian": f"an end of the 95% central interval differs from the "
+                                         f"least-squares interval by > {NON_GAUSSIAN_TOLERANCE} x its "
+                                         "half-width, or no least-squares interval exists",
+                         "prior_dominated": f"posterior SD / prior SD > {PRIOR_DOMINATED_RATIO}"}}
+
+
+def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_seconds, ess, rhat_max, tau_factor,
+            max_steps, gates: GateConfig = DEFAULT_CONFIG) -> CalibrationResult:
+    names = list(model.names)
+    z = Z95
+    ls_intervals = {n: (p.value - z * p.u, p.value + z * p.u) for n, p in ls.parameters.items()}
+    params, intervals, non_gaussian, prior_dominated = posterior_summary(
+        names, [parameter_unit(model, n, campaign.output_unit) for n in names], run, pri, ls_intervals)
+    draws = run.flat()
+    if "tilt_x" in names and "tilt_y" in names:
+        i, j = names.index("tilt_x"), names.index("tilt_y")
+        delta, beta = tilt_polar(draws[:, i] * ARCSEC, draws[:, j] * ARCSEC)
+        delta = np.asarray(delta) / ARCSEC
+        beta_mean = math.atan2(np.mean(np.sin(beta)), np.mean(np.cos(beta)))
+        dev = np.angle(np.exp(1j * (np.asarray(beta) - beta_mean)))
+        params["tilt_delta"] = ParameterValue(float(delta.mean()), float(delta.std(ddof=1)), "arcsec")
+        params["tilt_beta"] = ParameterValue(beta_mean / DEG, float(dev.std(ddof=1)) / DEG, "deg")
+    posterior_notes(intervals, non_gaussian, prior_dominated, ls.parameters, run, ess, rhat_max, tau_factor,
+                    max_steps, notes)
+    corr = np.corrcoef(draws, rowvar=False)
+    x_mean = draws.mean(axis=0)
+    chi2 = float(np.sum(problem.residuals(x_mean) ** 2))
+    n_obs = 3 * campaign.n_visits
+    T = campaign.t
+    fit = {"chi2_dof": chi2 / (n_obs - len(names)) if n_obs > len(names) else None, "n_obs": n_obs,
+           "n_params": len(names), "value": "posterior mean", "u": "posterior standard deviation",
+           "least_squares": {"status": ls.status, "chi2_dof": ls.fit.get("chi2_dof")}}
+    result = CalibrationResult(
+        unit=ls.unit, method="posterior", parameters=params, effects=tuple(model.effect_names),
+        reference_temperature_C=model.reference_temperature_C,
+        temperature_range_C=(float(T.min()), float(T.max())), intervals=intervals, fit=fit,
+        correlation_names=tuple(names), correlation=corr, notes=notes + list(ls.notes),
+        extra={"priors": {n: p.to_dict() for n, p in pri.items()},
+               "flags": _flags_block(non_gaussian, prior_dominated),
+               "sampler": sampler_info(run, names, total_seconds, ess, rhat_max, tau_factor, max_steps),
+               "output_unit": campaign.output_unit,
+               "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source})
+    # the least-squares answer's own gates (fit, rank, physics) carry over: a posterior of a
+    # model that does not fit the data is no better an answer than its least-squares fit
+    ls_gate = GateOutcome("least_squares", ls.status in ("ok", "not_converged"),
+                          ls.status if ls.status != "ok" else "model_mismatch",
+                          f"the least-squares fit under the same model has status {ls.status!r}")
+    noise_known = noise_of(campaign).known
+    apply_gates(result, FitEvidence(converged=run.converged, n_obs=n_obs, n_free=len(names), chi2=chi2,
+                                    dof=n_obs - len(names), noise_known=noise_known, extra=[ls_gate]),
+                config=gates)
+    return result

@@ -1,0 +1,186 @@
+"""``fit_raw``: read a recording, find its static intervals, average them, fit known or
+unknown poses, and pass the result through the answer gates.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional, Sequence, Union
+
+import numpy as np
+
+from ...io.raw import RawRecording, check_declared_unit, read_intervals, read_raw_csv
+from ...models.campaign import Campaign
+from ...models.units import STANDARD_GRAVITY_M_S2
+from ..gates import (
+    DEFAULT_CONFIG,
+    FitEvidence,
+    GateConfig,
+    GateOutcome,
+    apply_gates,
+)
+from ..joint import Solution
+from ..result import CalibrationResult
+from .detection import (
+    POSE_LABELS,
+    StaticDetection,
+    StaticIntervalError,
+    detect_static_intervals,
+    intervals_from_labels,
+    intervals_from_spec,
+    pose_label_of,
+)
+from .known import fit_known_poses
+from .poses import PoseAverages, bench_campaign, pose_averages
+from .sample import sample_known_poses, sample_unknown_poses
+from .unknown import (
+    fit_unknown_poses,
+    nominal_scale,
+    norm_residual_rms_m_s2,
+    result_matrices,
+)
+
+
+# --------------------------------------------------------------------------------------
+# the library function behind `triadcal fit-raw`
+# --------------------------------------------------------------------------------------
+@dataclass
+class RawFit:
+    """Everything ``fit-raw`` produced: the result, what the static step found, the averages,
+    and (known poses) the bench campaign of the averages."""
+
+    result: CalibrationResult
+    detection: StaticDetection
+    averages: PoseAverages
+    recording: RawRecording
+    campaign: Optional[Campaign] = None
+    solution: Optional[Solution] = None
+    posterior_run: Optional[object] = None     # PosteriorRun when sampled
+
+
+def static_intervals_of(rec: RawRecording, *, labels: Optional[str] = None, intervals=None,
+                        poses: str = "known", window_s: float = 1.0, threshold: float = 4.0,
+                        min_duration_s: float = 2.0) -> StaticDetection:
+    """The static intervals from the label column, an interval file, or the detector. In known-pose
+    mode detected intervals are labelled by the up axis of their mean reading."""
+    if labels is not None and intervals is not None:
+        raise ValueError("give either a label column or an interval file, not both")
+    if labels is not None:
+        if rec.labels is None:
+            raise ValueError(f"{rec.source}: the recording was read without its label column '{labels}'")
+        det = intervals_from_labels(rec.labels, labels, POSE_LABELS if poses == "known" else None)
+    elif intervals is not None:
+        spec = read_intervals(intervals)
+        det = intervals_from_spec(spec.start, spec.end, spec.labels, rec.n, spec.source,
+                                  POSE_LABELS if poses == "known" else None)
+    else:
+        det = detect_static_intervals(rec.acc, rec.rate_hz, window_s=window_s, threshold=threshold,
+                                      min_duration_s=min_duration_s)
+    if poses == "known":
+        for iv in det.intervals:
+            if not iv.label:
+                iv.label = pose_label_of(rec.acc[iv.start:iv.end].mean(axis=0))
+    if not det.intervals:
+        raise StaticIntervalError(f"{rec.source}: no static intervals ({det.summary(rec.rate_hz)})")
+    return det
+
+
+def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence[str]] = None,
+            unit: str = "counts", poses: str = "known", labels: Optional[str] = None, intervals=None,
+            local_g_m_s2: float = 9.81, placement_sd_deg: Union[float, str] = "auto", misalignment_sd_deg: float = 1.0,
+            counts_per_g: Optional[float] = None,
+            serial: Optional[str] = None, window_s: float = 1.0, threshold: float = 4.0,
+            min_duration_s: float = 2.0, json_path=None, bench_csv_path=None, sample: bool = False,
+            posterior_path=None, priors=None, ess: float = 2000, seed: int = 0, max_steps: int = 20000,
+            progress=None, n_walkers: Optional[int] = None, gates: GateConfig = DEFAULT_CONFIG) -> RawFit:
+    """Calibrate from a raw recording (``triadcal fit-raw``).
+
+    ``data`` is a CSV path (read with :func:`triadcal.io.raw.read_raw_csv` at the stated
+    ``rate_hz``) or a :class:`RawRecording`. ``poses``: ``known`` (imucal's six faces) or
+    ``unknown`` (free orientations, gravity norm). The result's ``fit`` block carries
+    ``rms_norm_residual_m_s2`` (RMS of |A| - g over the static samples) before (nominal
+    scaling) and after the calibration.
+
+    ``sample``: the posterior through the bench's path (:mod:`triadcal.estimation.posterior`:
+    same moves, stop rule, diagnostics, flags); the result is then the posterior's (method
+    ``posterior``, the least-squares values under ``fit.least_squares``), ``posterior_path``
+    receives the arviz InferenceData, ``priors`` overrides :func:`raw_priors` by name, ``ess``,
+    ``seed``, ``max_steps``, ``progress`` as in :func:`triadcal.estimation.posterior.sample`.
+    """
+    if posterior_path is not None and not sample:
+        raise ValueError("a posterior file needs sampling (--sample)")
+    if poses not in ("known", "unknown"):
+        raise ValueError(f"poses must be 'known' or 'unknown', got {poses!r}")
+    if not (local_g_m_s2 > 0 and math.isfinite(local_g_m_s2)):
+        raise ValueError(f"local g must be a positive number of m/s2, got {local_g_m_s2}")
+    if isinstance(data, RawRecording):
+        rec = data
+    else:
+        if rate_hz is None:
+            raise ValueError("state the sample rate (--rate HZ): it cannot be guessed safely (imucal issue #25)")
+        rec = read_raw_csv(data, rate_hz, columns, unit, labels)
+    gravity_g = local_g_m_s2 / STANDARD_GRAVITY_M_S2
+    serial = serial or (str(rec.source).rsplit("/", 1)[-1].rsplit(".", 1)[0])
+    try:
+        det = static_intervals_of(rec, labels=labels, intervals=intervals, poses=poses, window_s=window_s,
+                                  threshold=threshold, min_duration_s=min_duration_s)
+        avg = pose_averages(rec, det)
+        check_declared_unit(rec, avg.w, local_g_m_s2)
+        return _fit_raw_detected(rec, det, avg, poses=poses, gravity_g=gravity_g, serial=serial,
+                                 local_g_m_s2=local_g_m_s2, placement_sd_deg=placement_sd_deg,
+                                 misalignment_sd_deg=misalignment_sd_deg, counts_per_g=counts_per_g,
+                                 json_path=json_path, bench_csv_path=bench_csv_path, sample=sample,
+                                 posterior_path=posterior_path, priors=priors, ess=ess, seed=seed,
+                                 max_steps=max_steps, progress=progress, n_walkers=n_walkers, gates=gates)
+    except StaticIntervalError as exc:
+        if str(rec.source) in str(exc):
+            raise
+        raise StaticIntervalError(f"{rec.source}: {exc}") from None
+
+
+def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, placement_sd_deg,
+                      misalignment_sd_deg, counts_per_g, json_path, bench_csv_path, sample, posterior_path, priors,
+                      ess, seed, max_steps, progress, n_walkers, gates) -> RawFit:
+    campaign = None
+    if poses == "known":
+        result, problem, sol = fit_known_poses(avg, gravity_g=gravity_g, scale_unit=rec.scale_unit,
+                                               serial=serial, placement_sd_deg=placement_sd_deg,
+                                               misalignment_sd_deg=misalignment_sd_deg, gates=gates)
+        campaign = bench_campaign(avg, rec, serial, local_g_m_s2)
+    else:
+        result, problem, sol = fit_unknown_poses(rec, avg, gravity_g=gravity_g, serial=serial, gates=gates)
+    run = None
+    if sample:
+        opts = dict(serial=serial, scale_unit=rec.scale_unit, priors=priors, posterior_path=posterior_path,
+                    ess=ess, seed=seed, max_steps=max_steps, progress=progress, n_walkers=n_walkers)
+        ls = result
+        if poses == "known":
+            result, run = sample_known_poses(result, problem, sol, avg.label, **opts)
+        else:
+            result, run = sample_unknown_poses(result, problem, sol, **opts)
+        # the posterior is no better an answer than its least-squares fit: that fit's gates carry over
+        result.extra.update({"output_unit": rec.unit, "local_g_m_s2": local_g_m_s2})
+        ls_gate = GateOutcome("least_squares", ls.status in ("ok", "not_converged"),
+                              ls.status if ls.status != "ok" else "model_mismatch",
+                              f"the least-squares fit of the same model has status {ls.status!r}")
+        apply_gates(result, FitEvidence(converged=run.converged, extra=[ls_gate]), config=gates)
+    k0, how = nominal_scale(rec, det, gravity_g, counts_per_g)
+    before = norm_residual_rms_m_s2(rec, det, np.full(3, k0), np.zeros(3), np.eye(3), gravity_g)
+    after = norm_residual_rms_m_s2(rec, det, *result_matrices(result), gravity_g)
+    result.fit.update({
+        "rms_norm_residual_m_s2": {"before": before["samples"], "after": after["samples"]},
+        "rms_norm_residual_of_means_m_s2": {"before": before["means"], "after": after["means"]},
+        "before_scaling": how, "local_g_m_s2": local_g_m_s2})
+    result.extra.update({"input_unit": rec.unit, "output_unit": rec.unit, "local_g_m_s2": local_g_m_s2,
+                         "source": rec.source, "rate_hz": rec.rate_hz,
+                         "static_intervals": det.to_dict(rec.rate_hz)})
+    if json_path is not None:
+        result.save(json_path)
+    if bench_csv_path is not None:
+        if campaign is None:
+            raise ValueError("--bench-csv needs known poses: free orientations have no bench angles")
+        from ...io.bench_csv import write_bench_csv
+
+        write_bench_csv(campaign, bench_csv_path)
+    return RawFit(result, det, avg, rec, campaign, sol, run)

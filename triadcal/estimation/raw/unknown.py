@@ -1,0 +1,259 @@
+"""Unknown poses (Tedaldi et al. 2014 / imu_tk): least squares of ``|A| - g`` over the static
+intervals with ``A = Ca^-1 (K W - S)``; the IMU frame is imu_tk's upper-triangular one, so
+only Ca_xy, Ca_xz, Ca_yz are estimated (docs/raw.md, "Unknown poses").
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Optional
+
+import casadi as ca
+import numpy as np
+from scipy import stats
+
+from ...io.raw import RawRecording
+from ...models.sensor import ANGLE_NAMES, AXES, calibrated_acceleration, dcm
+from ...models.units import ARCSEC, STANDARD_GRAVITY_M_S2
+from ..gates import (
+    DEFAULT_CONFIG,
+    FitEvidence,
+    GateConfig,
+    apply_gates,
+)
+from ..joint import levenberg_marquardt, scaled_covariance
+from ..result import CalibrationResult, ParameterValue
+from .detection import (
+    StaticDetection,
+    StaticIntervalError,
+)
+from .poses import NORM_ANGLES, NORM_NAMES, PoseAverages
+
+
+# --------------------------------------------------------------------------------------
+# unknown poses: the gravity-norm model
+# --------------------------------------------------------------------------------------
+def _calibrated_symbolic(x, w):
+    """``A = Ca^-1 (K W - S)`` (:func:`triadcal.models.sensor.calibrated_acceleration`) on CasADi
+    symbols, with the norm model's free angles ``Ca_xy, Ca_xz, Ca_yz`` (arcsec), the others zero."""
+    return calibrated_acceleration(x[0:3], x[3:6], dcm(_norm_angles(x)), w)
+
+
+def _norm_angles(x) -> dict:
+    """The six angles (rad) of the norm model's parameter vector: ``Ca_xy, Ca_xz, Ca_yz`` free."""
+    angles = {ab: 0.0 for ab in ANGLE_NAMES}
+    for i, ab in enumerate(NORM_ANGLES):
+        angles[ab] = x[6 + i] * ARCSEC
+    return angles
+
+
+class NormProblem:
+    """Gravity-norm residuals ``|A_k| - g`` (g) of each static interval mean, CasADi-compiled."""
+
+    def __init__(self, w: np.ndarray, gravity_g: float):
+        self.w = np.asarray(w, float)
+        self.n = len(self.w)
+        self.names = NORM_NAMES
+        self.gravity_g = float(gravity_g)
+        t0 = time.perf_counter()
+        x = ca.SX.sym("x", len(NORM_NAMES))
+        wk = ca.SX.sym("w", 3)
+        g = ca.SX.sym("g")
+        r = ca.norm_2(_calibrated_symbolic(x, wk)) - g
+        f = ca.Function("interval", [x, wk, g], [r, ca.jacobian(r, x)])
+        self._mapped = f.map(self.n, "serial")
+        self._interval = ca.Function("norm_interval", [x, wk, g], [r])
+        self.build_seconds = time.perf_counter() - t0
+
+    #: residuals are returned in micro-g: the LM stop rule compares steps with the uncertainty
+    #: of unit-variance residuals, so the scale must not exceed the noise (1 ug is below any MEMS)
+    RESIDUAL_UNIT_G = 1e-6
+
+    def residuals_and_jacobian(self, x: np.ndarray):
+        r, J = self._mapped(x, self.w.T, self.gravity_g)
+        return (np.asarray(r).reshape(-1) / self.RESIDUAL_UNIT_G,
+                np.asarray(J).reshape(self.n, len(self.names)) / self.RESIDUAL_UNIT_G)
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self.residuals_and_jacobian(x)[0]
+
+    def residual_function(self) -> ca.Function:
+        """``r = f(x, W, g, inv_sigma)``: the normalised residuals ``(|A_k| - g) / sigma_k`` of
+        every interval (column), ``W`` (3, n) the interval means: the likelihood of the
+        posterior (:class:`~triadcal.estimation.posterior.ResidualTarget`)."""
+        x = ca.MX.sym("x", len(self.names))
+        W = ca.MX.sym("W", 3, self.n)
+        g = ca.MX.sym("g")
+        isg = ca.MX.sym("inv_sigma", self.n)
+        r = ca.transpose(self._interval.map(self.n, "serial")(x, W, g)) * isg
+        return ca.Function("norm_residual", [x, W, g, isg], [r])
+
+
+def norm_start(w: np.ndarray, gravity_g: float) -> np.ndarray:
+    """Start of the norm fit, solved from the data for any offset and scale (offset-binary
+    counts centred at 32768, signed counts, mV, g, m/s^2).
+
+    The interval means are first centred on their mean and scaled by their median distance
+    from it (so the algebraic fit is well conditioned however far the zero lies from the
+    origin: offset-binary means sit at 32768 +- 2048), then an axis-aligned ellipsoid
+    ``a u_x^2 + b u_y^2 + c u_z^2 + d u_x + e u_y + f u_z = 1`` is fitted by linear least
+    squares (Tedaldi et al. 2014 start, a linear ellipsoid fit) and mapped back: centre ``c``
+    and semi-axes ``r`` in the input unit give ``K = g / r`` and ``S = K c`` (eq. 1 with
+    Ca = I: ``|K (w - c)| = g``). A fit that is not an ellipsoid (fewer than 6 intervals, or a
+    non-positive coefficient) falls back to a sphere ``|w - c| = r`` (linear in ``c`` and
+    ``r^2 - |c|^2``), and that to the centroid and the median radius."""
+    w = np.asarray(w, float)
+    m = w.mean(axis=0)
+    d = w - m
+    s = float(np.median(np.linalg.norm(d, axis=1)))
+    if not (s > 0 and math.isfinite(s)):
+        s = 1.0
+    u = d / s
+    centre_u, radius_u = np.zeros(3), np.ones(3) * float(np.median(np.linalg.norm(u, axis=1)) or 1.0)
+    fitted = False
+    if len(u) >= 6:
+        A = np.column_stack([u ** 2, u])
+        coef, *_ = np.linalg.lstsq(A, np.ones(len(u)), rcond=None)
+        q, l_ = coef[:3], coef[3:]
+        if np.all(q > 0):
+            c = -l_ / (2 * q)
+            rhs = 1.0 + np.sum(l_ ** 2 / (4 * q))
+            r = np.sqrt(rhs / q) if rhs > 0 else np.full(3, np.nan)
+            if np.all(np.isfinite(r)) and np.all(r > 0):
+                centre_u, radius_u, fitted = c, r, True
+    if not fitted and len(u) >= 4:
+        # sphere: |u|^2 = 2 c.u + (r^2 - |c|^2)
+        A = np.column_stack([2 * u, np.ones(len(u))])
+        coef, *_ = np.linalg.lstsq(A, np.sum(u ** 2, axis=1), rcond=None)
+        c, k = coef[:3], coef[3]
+        r2 = k + c @ c
+        if r2 > 0 and np.all(np.isfinite(c)):
+            centre_u, radius_u = c, np.full(3, math.sqrt(r2))
+    centre, radius = m + s * centre_u, s * radius_u
+    K = gravity_g / radius
+    return np.concatenate([K, K * centre, np.zeros(3)])
+
+
+def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float, serial: str,
+                      gates: GateConfig = DEFAULT_CONFIG):
+    """Gravity-norm fit; returns ``(CalibrationResult, NormProblem, Solution)``."""
+    n = len(avg.w)
+    if n < len(NORM_NAMES):
+        raise StaticIntervalError(
+            f"the gravity-norm model has {len(NORM_NAMES)} parameters and needs at least as many static poses; "
+            f"found {n} static intervals (record more poses, or check the detector's report)")
+    problem = NormProblem(avg.w, gravity_g)
+    t0 = time.perf_counter()
+    x0 = norm_start(avg.w, gravity_g)
+    r0 = problem.residuals(x0) * problem.RESIDUAL_UNIT_G
+    sol = levenberg_marquardt(problem, x0)
+    solve_seconds = time.perf_counter() - t0
+    dof = n - len(NORM_NAMES)
+    sol.r, sol.J = sol.r * problem.RESIDUAL_UNIT_G, sol.J * problem.RESIDUAL_UNIT_G   # back to g
+    rss = float(sol.r @ sol.r)
+    # noise floor: variance of the mean of |A| within each interval, from the samples of |A|
+    # themselves: the larger of the white-noise sd^2/m and a batch-means estimate (10 batches),
+    # so slowly correlated noise does not shrink it. |A| does not change when the unit turns,
+    # so motion inside an interval does not inflate this floor; it shortens the mean vector
+    # instead, which the residual sees (the slow-motion case of issue 14)
+    K, S, Ca = norm_matrices(sol.x)
+    var_means = []
+    for s_, e_, m in zip(avg.start, avg.end, avg.n):
+        a = np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[s_:e_]), axis=1)
+        v = np.var(a, ddof=1) / m if m > 1 else 0.0
+        if m >= 50:
+            bm = np.array([b.mean() for b in np.array_split(a, 10)])
+            v = max(v, float(np.var(bm, ddof=1)) / 10)
+        var_means.append(v)
+    s2_noise = float(np.mean(var_means))
+    s2_resid = rss / dof if dof > 0 else None
+    s2 = max(s2_resid if s2_resid is not None else 0.0, s2_noise)
+    cov = scaled_covariance(sol.J) * s2
+    u = np.sqrt(np.diag(cov))
+    units = {"K": rec.scale_unit, "S": "g", "Ca": "arcsec"}
+    params = {nm: ParameterValue(float(v), float(s), units[nm.split("_")[0]])
+              for nm, v, s in zip(NORM_NAMES, sol.x, u)}
+    intervals = {}
+    if dof > 0:
+        q = float(stats.t.ppf(0.975, dof))
+        intervals = {nm: {"level": 0.95, "low": float(v - q * s), "high": float(v + q * s), "dof": dof}
+                     for nm, v, s in zip(NORM_NAMES, sol.x, u)}
+    notes = ["gravity-norm model: a rotation of the IMU frame is unobservable from norms, so the frame is imu_tk's "
+             "(Z along the Z sensing axis, the Y sensing axis in the Y-Z plane): Ca_zx = Ca_zy = Ca_yx = 0 by "
+             "definition and only Ca_xy, Ca_xz, Ca_yz are estimated"]
+    if dof <= 0:
+        notes.append(f"{n} static intervals for {len(NORM_NAMES)} parameters: no residual degrees of freedom, so "
+                     "the misfit of the model cannot be judged; the uncertainties carry the sample noise only "
+                     "(a lower bound): record more poses")
+    elif dof < 10:
+        notes.append(f"only {dof} residual degrees of freedom: the residual variance is itself uncertain; "
+                     "the 95 % intervals use Student's t")
+    fit = {"model": "unknown poses: gravity norm (Tedaldi et al. 2014)", "n_obs": n, "n_params": len(NORM_NAMES),
+           "dof": dof, "residual_variance_g2": s2_resid, "noise_variance_g2": s2_noise,
+           "variance_used": "residual" if s2_resid is not None and s2_resid >= s2_noise else "noise floor",
+           "iterations": sol.iterations, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds}
+    corr = cov / np.outer(np.where(u > 0, u, 1.0), np.where(u > 0, u, 1.0))
+    result = CalibrationResult(unit=serial, method="joint", parameters=params,
+                               status="ok" if sol.converged else "not_converged", effects=(),
+                               fit=fit, intervals=intervals, correlation_names=NORM_NAMES, correlation=corr,
+                               notes=notes, extra={"fixed": {f"Ca_{ab}": {"value": 0.0, "unit": "arcsec"}
+                                                             for ab in ("yx", "zx", "zy")},
+                                                   "output_unit": rec.unit,
+                                                   "local_g_m_s2": gravity_g * STANDARD_GRAVITY_M_S2})
+    gof_p = float(stats.chi2.sf(rss / s2_noise, dof)) if dof > 0 and s2_noise > 0 else None
+    gof_ratio = (s2_resid / s2_noise) if s2_resid is not None and s2_noise > 0 else None
+    fit["noise_floor_ratio"] = gof_ratio
+    apply_gates(result, FitEvidence(
+        converged=sol.converged, cost_start=0.5 * float(r0 @ r0), cost_final=0.5 * rss, n_obs=n,
+        n_free=len(NORM_NAMES), jacobian=sol.J, free_names=NORM_NAMES,
+        residual_rms=math.sqrt(rss / n), data_rms=gravity_g, gof_p_value=gof_p, gof_ratio=gof_ratio,
+        gof_what=f"residual variance of |A| - g over the recording's own noise floor of the interval means "
+                 f"({dof} dof)"), config=gates)
+    return result, problem, sol
+
+
+def norm_matrices(x: np.ndarray):
+    """K, S, Ca (numpy) from the norm model's parameter vector (reporting units)."""
+    return np.asarray(x[:3], float), np.asarray(x[3:6], float), np.array(dcm(_norm_angles(x)), float)
+
+
+def result_matrices(result: CalibrationResult):
+    """K, S, Ca (numpy, internal units) of a fit-raw result."""
+    K = np.array([result[f"K_{a}"].value for a in AXES])
+    S = np.array([result[f"S_{a}"].value for a in AXES])
+    angles = {ab: (result[f"Ca_{ab}"].value * ARCSEC if f"Ca_{ab}" in result.parameters else 0.0)
+              for ab in ANGLE_NAMES}
+    return K, S, np.array(dcm(angles), float)
+
+
+# --------------------------------------------------------------------------------------
+# the figure imu_tk users compare: RMS of |A| - g over the static intervals
+# --------------------------------------------------------------------------------------
+def norm_residual_rms_m_s2(rec: RawRecording, detection: StaticDetection, K, S, Ca, gravity_g: float) -> dict:
+    """RMS of ``|A| - g`` in m/s^2 over every sample of the static intervals, and over the
+    interval means (the systematic part, without the sample noise)."""
+    per_sample, per_mean = [], []
+    for iv in detection.intervals:
+        a = calibrated_acceleration(K, S, Ca, rec.acc[iv.start:iv.end])
+        nrm = np.linalg.norm(a, axis=1) - gravity_g
+        per_sample.append(nrm)
+        per_mean.append(np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[iv.start:iv.end].mean(axis=0)))
+                        - gravity_g)
+    ps = np.concatenate(per_sample)
+    return {"samples": float(np.sqrt(np.mean(ps ** 2))) * STANDARD_GRAVITY_M_S2,
+            "means": float(np.sqrt(np.mean(np.square(per_mean)))) * STANDARD_GRAVITY_M_S2}
+
+
+def nominal_scale(rec: RawRecording, detection: StaticDetection, gravity_g: float,
+                  counts_per_g: Optional[float] = None) -> tuple[float, str]:
+    """Scale factor of the 'before' figure (g per input unit) and how it was chosen."""
+    if rec.unit == "m/s2":
+        return 1.0 / STANDARD_GRAVITY_M_S2, "nominal: 1 g = 9.80665 m/s2"
+    if rec.unit == "g":
+        return 1.0, "nominal: readings in g"
+    if counts_per_g:
+        return 1.0 / counts_per_g, f"nominal: {counts_per_g:g} counts/g (datasheet)"
+    norms = np.concatenate([np.linalg.norm(rec.acc[iv.start:iv.end], axis=1) for iv in detection.intervals])
+    k = gravity_g / float(np.median(norms))
+    return k, f"no datasheet scale given: one isotropic scale, {1 / k:.6g} counts/g (median |W| over the static samples = g)"

@@ -1,0 +1,123 @@
+"""The lab file (TOML): the laboratory, its bench and chamber figures and the certificate's
+statements; validated field by field (docs/certificate.md, "The lab file").
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+
+# =========================================================================================
+# the lab's configuration
+# =========================================================================================
+@dataclass
+class LabConfig:
+    """The laboratory's fields for the certificate, read from a TOML file (:func:`load_lab`).
+
+    Numbers the budget uses: ``sigma_position_arcsec`` and ``sigma_wobble_arcsec`` (the
+    bench's positioning error and wobble, sigma_1 and sigma_2 of eq. 4) and
+    ``temperature_uncertainty_C`` (Delta T of eq. 7).
+    """
+
+    name: str = "(laboratory not stated)"
+    address: str = ""
+    accreditation: str = ""
+    certificate_prefix: str = "TC"
+    place: str = ""
+    signatory_name: str = ""
+    signatory_title: str = ""
+    customer_name: str = ""
+    customer_address: str = ""
+    item_description: str = "accelerometer triad"
+    calibration_date: str = ""
+    bench: str = ""
+    sigma_position_arcsec: Optional[float] = None
+    sigma_wobble_arcsec: Optional[float] = None
+    chamber: str = ""
+    temperature_uncertainty_C: Optional[float] = None
+    traceability: str = ""
+    source: Optional[str] = None
+
+
+#: TOML section -> key -> (field, type)
+LAB_SCHEMA = {
+    "lab": {"name": ("name", str), "address": ("address", str), "accreditation": ("accreditation", str),
+            "certificate_prefix": ("certificate_prefix", str), "place": ("place", str)},
+    "signatory": {"name": ("signatory_name", str), "title": ("signatory_title", str)},
+    "customer": {"name": ("customer_name", str), "address": ("customer_address", str)},
+    "item": {"description": ("item_description", str), "calibration_date": ("calibration_date", str)},
+    "bench": {"name": ("bench", str), "sigma_position_arcsec": ("sigma_position_arcsec", float),
+              "sigma_wobble_arcsec": ("sigma_wobble_arcsec", float)},
+    "chamber": {"name": ("chamber", str), "temperature_uncertainty_C": ("temperature_uncertainty_C", float)},
+    "traceability": {"statement": ("traceability", str)},
+}
+
+
+EXAMPLE_LAB_TOML = """\
+[lab]
+name = "Inertial Sensors Calibration Laboratory"
+address = "1 Metrology Road, Springfield"
+accreditation = "Accredited to ISO/IEC 17025:2017, certificate No. 0000.01"
+certificate_prefix = "ISCL"
+place = "Springfield"
+
+[signatory]
+name = "A. N. Engineer"
+title = "Head of the inertial laboratory"
+
+[customer]
+name = "Example Avionics Ltd"
+address = "2 Customer Street, Springfield"
+
+[item]
+description = "accelerometer triad (IMU accelerometer block)"
+calibration_date = "2026-11-20"
+
+[bench]
+name = "two-axis rate-and-position table, thermal chamber"
+sigma_position_arcsec = 5.0     # sigma_1 of eq. 4
+sigma_wobble_arcsec = 2.0       # sigma_2 of eq. 4
+
+[chamber]
+name = "thermal chamber -60..+100 degC"
+temperature_uncertainty_C = 0.2 # Delta T of eq. 7
+
+[traceability]
+statement = "Angles traceable to the national standard of plane angle through the bench's calibration certificate; local gravity from the national gravimetric survey."
+"""
+
+
+def load_lab(path) -> LabConfig:
+    """Read a lab configuration TOML (sections ``[lab] [signatory] [customer] [item] [bench]
+    [chamber] [traceability]``, see ``EXAMPLE_LAB_TOML``). Unknown sections or keys and
+    values of the wrong type are refused with the file, section and key named."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML: {exc}") from None
+    lab = LabConfig(source=str(path))
+    for section, table in data.items():
+        if section not in LAB_SCHEMA:
+            raise ValueError(f"{path}: unknown section [{section}]; known: {', '.join(LAB_SCHEMA)}")
+        if not isinstance(table, dict):
+            raise ValueError(f"{path}: {section} must be a [section] table")
+        for key, value in table.items():
+            if key not in LAB_SCHEMA[section]:
+                raise ValueError(f"{path}: unknown key {key!r} in [{section}]; known: "
+                                 f"{', '.join(LAB_SCHEMA[section])}")
+            name, typ = LAB_SCHEMA[section][key]
+            if typ is float:
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                        or value < 0:
+                    raise ValueError(f"{path}: [{section}] {key} must be a non-negative number, got {value!r}")
+                value = float(value)
+            elif not isinstance(value, str):
+                value = str(value)  # TOML dates etc. are written as they read
+            setattr(lab, name, value)
+    return lab

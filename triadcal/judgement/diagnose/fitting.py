@@ -1,0 +1,112 @@
+"""Least-squares fits of a subset of the full model (every switchable effect compiled once per
+campaign; a model is a subset of its parameters, the others held at 0), and the linear
+algebra the tests share.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+from scipy import stats
+
+from ...estimation.joint import (
+    JointProblem,
+    levenberg_marquardt,
+    scaled_covariance,
+)
+
+
+# ----------------------------------------------------------------------------------
+# fitting a subset of the full model
+# ----------------------------------------------------------------------------------
+class _Subset:
+    """The full problem restricted to ``names`` (others held at ``base``), with row scaling
+    ``scale`` (normalised residuals divided by it, e.g. an added variance)."""
+
+    def __init__(self, full: JointProblem, names: Sequence[str], base: np.ndarray, scale=None):
+        self.full = full
+        self.names = tuple(names)
+        self.cols = np.array([full.index[n] for n in self.names], int)
+        self.base = np.array(base, float)
+        self.scale = None if scale is None else np.asarray(scale, float)
+
+    def embed(self, x):
+        z = self.base.copy()
+        z[self.cols] = x
+        return z
+
+    def residuals_and_jacobian(self, x):
+        r, J = self.full.residuals_and_jacobian(self.embed(x))
+        J = J[:, self.cols]
+        if self.scale is not None:
+            r, J = r / self.scale, J / self.scale[:, None]
+        return r, J
+
+
+@dataclass
+class FitState:
+    """A least-squares fit of a subset of the full model at its optimum."""
+
+    names: tuple
+    x_full: np.ndarray           # full parameter vector, reporting units
+    r: np.ndarray                # normalised residuals (3n,), divided by the noise scale s
+    J: np.ndarray                # dr/dx of the fitted parameters (3n, p), same scaling
+    cov: np.ndarray              # covariance of the fitted parameters, reporting units
+    chi2: float                  # sum of squared normalised residuals (before the scale s)
+    dof: int
+    s: float                     # noise scale: 1 with known noise, sqrt(chi2/dof) otherwise
+    converged: bool
+    var_scale: Optional[np.ndarray] = None   # per-observation variance factor (position_error)
+    nu: float = math.inf                     # Student-t dof (heavy_tails)
+    extra_params: dict = field(default_factory=dict)
+
+    @property
+    def chi2_dof(self) -> float:
+        return self.chi2 / self.dof if self.dof > 0 else float("nan")
+
+    def u(self) -> dict:
+        return {n: float(math.sqrt(max(self.cov[i, i], 0.0))) for i, n in enumerate(self.names)}
+
+    def value(self, full: JointProblem) -> dict:
+        return {n: float(self.x_full[full.index[n]]) for n in self.names}
+
+
+def _fit(full: JointProblem, names, x_start: np.ndarray, noise_known: bool, scale=None) -> FitState:
+    sub = _Subset(full, names, x_start, scale)
+    sol = levenberg_marquardt(sub, x_start[sub.cols], max_iter=60)
+    x_full = sub.embed(sol.x)
+    r, J = sol.r, sol.J
+    n_obs, p = r.size, len(names)
+    dof = n_obs - p
+    chi2 = float(r @ r)
+    s = 1.0 if noise_known else math.sqrt(chi2 / max(dof, 1))
+    cov = scaled_covariance(J) * s * s
+    return FitState(tuple(names), x_full, r / s, J / s, cov, chi2, dof, s, sol.converged,
+                    var_scale=None if scale is None else np.asarray(scale) ** 2)
+
+
+def _chol(C):
+    """A square root of a covariance (eigen-decomposition: tolerant of near-singular ones)."""
+    w, V = np.linalg.eigh((C + C.T) / 2)
+    return V * np.sqrt(np.clip(w, 0.0, None))
+
+
+def _hat_q(J):
+    """Orthonormal basis of the column space of J (the fit's hat matrix is Q Q')."""
+    d = np.linalg.norm(J, axis=0)
+    keep = d > 0
+    Q, R = np.linalg.qr(J[:, keep] / d[keep])
+    diag = np.abs(np.diag(R))
+    return Q[:, diag > 1e-10 * max(diag.max(), 1e-300)]
+
+
+def _chi2_logsf(S, k):
+    """log P(chi2_k > S), with the Wilson-Hilferty normal form where scipy underflows."""
+    v = float(stats.chi2.logsf(S, k))
+    if math.isfinite(v):
+        return v
+    z = ((S / k) ** (1.0 / 3.0) - (1.0 - 2.0 / (9.0 * k))) / math.sqrt(2.0 / (9.0 * k))
+    return float(stats.norm.logsf(z))

@@ -1,0 +1,286 @@
+"""``diagnose``: fit the model, find where it misses, name which effect explains it and how far
+the gap shrinks when it is added.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional, Sequence
+
+import numpy as np
+from scipy import stats
+
+from ...models.campaign import Campaign
+from ...models.effects import DEFAULT_EFFECTS, EFFECTS, NOISE_EFFECTS, VOCABULARY
+from ...models.effects import heavy_tails as ht
+from ...models.model import Model
+from ...models.sensor import AXES
+from ...estimation.joint import (
+    JointProblem,
+    identifiability_problems,
+    noise_of,
+    null_space_problems,
+    start_values,
+)
+from .candidates import (
+    _cross_group,
+    _effect_params,
+    _fit_heavy_tails,
+    _fit_position_error,
+    _kurtosis_logp,
+    _loglik_total,
+    _loo,
+    _pe_sensitivity,
+    _position_score,
+    _score_mean,
+)
+from .fitting import FitState, _chi2_logsf, _fit, _hat_q
+from .results import ALPHA, Candidate, Diagnosis, _f
+from .slices import _family_tests, _holm, _slice_tests
+
+
+# ----------------------------------------------------------------------------------
+# the diagnosis
+# ----------------------------------------------------------------------------------
+def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
+             candidates: Optional[Sequence[str]] = None, top: int = 3, alpha: float = ALPHA,
+             n_draws: int = 400, reference_temperature_C: float = 20.0, cross_group: bool = True,
+             slices_after: bool = True, seed: int = 0) -> Diagnosis:
+    """Diagnose the gap between ``model`` (effect names) fitted to ``campaign`` and the data.
+
+    ``candidates`` default to every effect of the vocabulary not in ``model``. ``top``
+    candidates (by score) are refitted (``cross_group``: also fitted on one hysteresis branch
+    and scored on the other; ``slices_after``: slice tests redone after each refit). Returns a :class:`Diagnosis` (``to_dict`` gives
+    the results-json ``triadcal.diagnosis`` v1 document).
+    """
+    rng = np.random.default_rng(seed)
+    model = tuple(dict.fromkeys(model))
+    unknown = [m for m in model if m not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown model effect(s) {unknown}; choose from {', '.join(EFFECTS)}")
+    if len(campaign.units) != 1 or len(set(campaign.state.tolist())) != 1:
+        raise ValueError("diagnose takes one unit in one mechanical state (select one with Campaign.select)")
+    cands = [c for c in (candidates if candidates is not None else VOCABULARY) if c not in model]
+    bad = [c for c in cands if c not in VOCABULARY]
+    if bad:
+        raise ValueError(f"unknown candidate effect(s) {bad}; the vocabulary is {', '.join(VOCABULARY)}")
+    T0 = reference_temperature_C
+    notes = []
+    noise = noise_of(campaign)
+    sigma = noise.sigma
+    model_all = Model(tuple(EFFECTS), T0)
+    full = JointProblem(campaign, model_all, sigma)
+
+    # -- the base fit -------------------------------------------------------------
+    base_model = Model(model, T0)
+    problems = identifiability_problems(campaign, base_model)
+    start = start_values(campaign, model_all)
+    x0 = np.array([start[n] for n in model_all.names])
+    probe_x = x0.copy()
+    for s in model_all.parameters:
+        if s.effect != "core":
+            probe_x[full.index[s.name]] = s.typical if s.effect in model else 0.0
+    names0 = [n for n in base_model.names if n not in problems]
+    _, Jp = full.residuals_and_jacobian(probe_x)
+    # the null space of J is that of R in J = QR (same column norms and singular values): cheaper
+    R0 = np.linalg.qr(Jp[:, [full.index[n] for n in names0]], mode="r")
+    problems.update(null_space_problems(R0, names0))
+    for k, v in problems.items():
+        notes.append(f"{k} not estimated (held at 0): {v}")
+    names = [n for n in base_model.names if n not in problems]
+    base = _fit(full, names, x0, noise.known)
+    Q = _hat_q(base.J)
+    h = np.sum(Q * Q, axis=1)
+    def unit_of(n):
+        u = model_all.spec[n].unit
+        return u.replace("/V", "/" + campaign.output_unit) if campaign.output_unit != "V" else u
+
+    K = np.abs(np.array([base.x_full[full.index[f"K_{a}"]] for a in AXES]))
+    to_ug = K * 1e6                                     # output unit -> ug
+    sig_ug = sigma * to_ug[None, :]
+    floor_ug = float(np.sqrt(np.mean(sig_ug ** 2))) * base.s     # with estimated noise: s * weights
+
+    # -- which: score tests -----------------------------------------------------------
+    _, Jfull = full.residuals_and_jacobian(base.x_full)
+    Jfull = Jfull / base.s
+    cand_objs = []
+    for c in cands:
+        if c == "position_error":
+            w = _pe_sensitivity(full, campaign, base.x_full, sigma)
+            sc = _position_score(base, w, h, noise.known)
+            if sc is None:
+                cand_objs.append(Candidate(c, False, "no pose makes an output sensitive to positioning errors"))
+            else:
+                cand_objs.append(Candidate(c, True, k=1, score=sc[0] ** 2 * (1 if sc[0] > 0 else -1),
+                                           score_logp=sc[1]))
+            continue
+        if c == "heavy_tails":
+            z = base.r / np.sqrt(np.clip(1.0 - h, 1e-6, None))
+            if z.size < 20:
+                cand_objs.append(Candidate(c, False, "fewer than 20 residuals: the tails cannot be tested"))
+                continue
+            stat, logp = _kurtosis_logp(z)
+            cand_objs.append(Candidate(c, True, k=1, score=stat * abs(stat), score_logp=logp))
+            continue
+        pn = _effect_params(model_all, c)
+        design = identifiability_problems(campaign, Model(model + (c,), T0))
+        usable = [n for n in pn if n not in design]
+        if not usable:
+            cand_objs.append(Candidate(c, False, "invisible on this design: " + design[pn[0]]))
+            continue
+        sc = _score_mean(base, Jfull[:, [full.index[n] for n in usable]], Q)
+        if sc is None:
+            why = ("its sensitivity is zero at the fitted point (thermal lag acts only through temperature "
+                   "coefficients: add a tempco to the model to test it)" if c == "thermal_lag" else
+                   "its sensitivity is zero or already in the fitted model's span on this design")
+            cand_objs.append(Candidate(c, False, why))
+            continue
+        S, k = sc
+        if noise.known:
+            logp = _chi2_logsf(S, k)
+        else:
+            logp = float(stats.f.logsf(S / k, k, max(base.dof - k, 1)))
+        cand_objs.append(Candidate(c, True, k=k, score=S, score_logp=logp, params=usable))
+
+    # -- gap -------------------------------------------------------------------------
+    gap_tests = {}
+    if noise.known and base.dof > 0:
+        gap_tests["chi2"] = float(stats.chi2.sf(base.chi2, base.dof))
+    z = base.r / np.sqrt(np.clip(1.0 - h, 1e-6, None))
+    if z.size >= 20:
+        gap_tests["kurtosis"] = float(math.exp(_kurtosis_logp(z)[1]))
+    for c in cand_objs:
+        if c.testable and c.effect != "heavy_tails":
+            gap_tests[f"score:{c.effect}"] = c.score_p
+    keys = list(gap_tests)
+    adj = _holm([gap_tests[k] for k in keys]) if keys else []
+    gap_adj = dict(zip(keys, (float(a) for a in adj)))
+    significant = bool(keys) and min(gap_adj.values()) < alpha
+    gap = {"chi2_dof": _f(base.chi2_dof) if noise.known else None, "chi2": base.chi2, "dof": base.dof,
+           "p_value": _f(gap_tests.get("chi2")), "significant": significant,
+           "tests": {k: {"p_value": _f(gap_tests[k]), "p_holm": _f(gap_adj[k])} for k in keys},
+           "residual_rms_ug": float(np.sqrt(np.mean((base.r * base.s) ** 2 * sig_ug.reshape(-1) ** 2))),
+           "noise_floor_ug": floor_ug,
+           "testable": ("chi2 against its distribution with the known noise, tails, and candidate scores"
+                        if noise.known else
+                        "noise estimated from the residuals: the chi2 level is not testable (it defines the "
+                        "noise); structure is: candidate scores (F form), tails, slice offsets/trends and "
+                        "the variance pattern of positioning errors")}
+
+    # -- where -------------------------------------------------------------------------
+    slices = _slice_tests(campaign, base, to_ug, sigma, n_draws, rng)
+
+    # -- refit the top candidates ------------------------------------------------------
+    testable = sorted([c for c in cand_objs if c.testable], key=lambda c: c.score_logp)
+    elpd0, se0, pw0, k0 = _loo(base, n_draws, rng)
+    if k0 > 0.7:
+        notes.append(f"base model: Pareto k up to {k0:.2f} > 0.7, the PSIS-LOO elpd is unreliable")
+    base_ll = _loglik_total(base)
+    base_u = base.u()
+    base_val = base.value(full)
+    cross0 = _cross_group(campaign, noise, model, names, T0, base.x_full, noise.known) if cross_group else None
+    n_sig_before = sum(1 for s in slices if s.p_adjusted < alpha)
+    for c in testable[:top]:
+        if c.effect == "position_error":
+            st = _fit_position_error(full, campaign, base, names, sigma, noise.known)
+            var_scale, nu, k_extra, new_names = st.var_scale, math.inf, 1, []
+            ll = _loglik_total(st, var_scale=var_scale)
+            lr_p = 0.5 * float(stats.chi2.sf(max(2 * (ll - base_ll), 0.0), 1))
+        elif c.effect == "heavy_tails":
+            st = _fit_heavy_tails(base)
+            var_scale, nu, new_names = None, st.nu, []
+            ll = _loglik_total(st, nu=nu)
+            lr_p = 0.5 * float(stats.chi2.sf(max(2 * (ll - base_ll), 0.0), 1))
+        else:
+            new_names = list(c.params)
+            st = _fit(full, names + new_names, base.x_full, noise.known)
+            var_scale, nu = None, math.inf
+            if noise.known:
+                ll = _loglik_total(st)
+                lr_p = float(stats.chi2.sf(max(base.chi2 - st.chi2, 0.0), len(new_names)))
+            else:
+                n_obs = st.r.size
+                ll = base_ll + 0.5 * n_obs * math.log(base.chi2 / max(st.chi2, 1e-300))
+                F = (base.chi2 - st.chi2) / len(new_names) / (st.chi2 / max(st.dof, 1))
+                lr_p = float(stats.f.sf(max(F, 0.0), len(new_names), max(st.dof, 1)))
+        elpd, se, pw, kmax = _loo(st, n_draws, rng, var_scale=var_scale, nu=nu)
+        diff = pw - pw0
+        d_elpd, d_se = float(diff.sum()), float(math.sqrt(diff.size) * np.std(diff))
+        # slice statistics after: residuals standardised by the fitted noise model (for a
+        # Student-t, its normal scores Phi^-1(F_t(r)): Gaussian when the noise model holds)
+        r_after = st.r / (np.sqrt(var_scale) if var_scale is not None else 1.0)
+        if math.isfinite(nu):
+            r_after = ht.normal_scores(r_after, nu)
+        st_for_slices = FitState(st.names, st.x_full, r_after, st.J / (np.sqrt(var_scale)[:, None]
+                                 if var_scale is not None else 1.0), st.cov, st.chi2, st.dof, st.s, st.converged)
+        n_sig_after = None
+        if slices_after:
+            sl_after = _slice_tests(campaign, st_for_slices, to_ug, sigma, 0, rng)
+            n_sig_after = sum(1 for s in sl_after if s.p_adjusted < alpha)
+        chi2_after = float(np.sum(r_after ** 2) * st.s ** 2)
+        dof_after = st.r.size - len(st.names) - (1 if c.effect in NOISE_EFFECTS else 0)
+        rms_after = float(np.sqrt(np.mean((st.r * st.s) ** 2 * sig_ug.reshape(-1) ** 2)))
+        # parameter shifts in units of their uncertainty
+        after_val = st.value(full)
+        shifts = {n: {"shift": after_val[n] - base_val[n], "u_before": base_u[n],
+                      "in_u": (after_val[n] - base_val[n]) / base_u[n] if base_u[n] > 0 else None,
+                      "unit": unit_of(n)}
+                  for n in names}
+        worst = max(shifts, key=lambda n: abs(shifts[n]["in_u"] or 0.0)) if shifts else None
+        cross = None
+        if cross_group and c.effect not in NOISE_EFFECTS:
+            cg = _cross_group(campaign, noise, model + (c.effect,), names + new_names, T0, base.x_full,
+                              noise.known)
+            cross = None if cg is None or cross0 is None else cg - cross0
+        refit = {
+            "delta_loglik": ll - base_ll, "lr_p_value": _f(lr_p),
+            "elpd_loo": elpd, "elpd_se": se, "delta_elpd": d_elpd, "delta_elpd_se": d_se,
+            "pareto_k_max": kmax,
+            "cross_branch_delta_lpd": _f(cross) if cross is not None else None,
+            "gap_before": {"chi2_dof": _f(base.chi2_dof), "residual_rms_ug": gap["residual_rms_ug"],
+                           "noise_floor_ug": floor_ug, "elpd_loo": elpd0, "significant_slices": n_sig_before},
+            "gap_after": {"chi2_dof": _f(chi2_after / dof_after if dof_after > 0 else float("nan")),
+                          "residual_rms_ug": rms_after, "noise_floor_ug": floor_ug, "elpd_loo": elpd,
+                          "significant_slices": n_sig_after},
+            "new_parameters": ({n: {"value": after_val.get(n, float(st.x_full[full.index[n]])),
+                                    "u": float(math.sqrt(max(st.cov[st.names.index(n), st.names.index(n)], 0))),
+                                    "unit": unit_of(n)} for n in new_names}
+                               if new_names else dict(st.extra_params)),
+            "parameter_shifts": {n: {k: _f(v) if not isinstance(v, str) else v for k, v in s.items()}
+                                 for n, s in shifts.items()},
+            "largest_shift": ({"parameter": worst, "in_u": _f(shifts[worst]["in_u"])} if worst else None),
+        }
+        c.refit = refit
+        if kmax > 0.7:
+            notes.append(f"{c.effect}: Pareto k up to {kmax:.2f} > 0.7, the PSIS-LOO elpd is unreliable "
+                         "(few visits or influential ones); rely on the likelihood ratio")
+    # -- rank ---------------------------------------------------------------------------
+    refitted = sorted([c for c in testable if c.refit], key=lambda c: -c.refit["delta_elpd"])
+    rest = [c for c in testable if not c.refit]
+    order = refitted + rest + [c for c in cand_objs if not c.testable]
+    for i, c in enumerate(order, 1):
+        c.rank = i
+    # -- verdict ------------------------------------------------------------------------
+    verdict = {"effect": None}
+    if not significant:
+        verdict["reason"] = f"no significant gap (smallest Holm-adjusted p = {min(gap_adj.values(), default=1.0):.3g} >= {alpha:g})"
+    elif not refitted:
+        verdict["reason"] = "significant gap, but no candidate effect is testable on this design"
+    else:
+        best = refitted[0]
+        if best.refit["lr_p_value"] is not None and best.refit["lr_p_value"] < alpha and best.refit["delta_elpd"] > 0:
+            verdict = {"effect": best.effect,
+                       "evidence": f"score p = {best.score_p:.3g}, LR p = {best.refit['lr_p_value']:.3g}, "
+                                   f"delta elpd = {best.refit['delta_elpd']:.1f} +- {best.refit['delta_elpd_se']:.1f}"}
+            if len(refitted) > 1:
+                second = refitted[1]
+                verdict["runner_up"] = second.effect
+                verdict["delta_elpd_to_runner_up"] = best.refit["delta_elpd"] - second.refit["delta_elpd"]
+        else:
+            verdict["reason"] = "significant gap that none of the candidate effects explains"
+    fit = {"chi2_dof": _f(base.chi2_dof), "n_obs": int(base.r.size), "n_params": len(names),
+           "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
+                                                           "unit": unit_of(n)} for n in names}}
+    return Diagnosis(model=model, noise_known=noise.known, noise=noise.description, gap=gap, slices=slices,
+                     candidates=order, verdict=verdict, fit=fit, notes=notes, source=campaign.source, alpha=alpha,
+                     residuals=base.r.reshape(-1, 3).copy(), families=_family_tests(campaign, base, Q))

@@ -1,0 +1,273 @@
+"""What a certificate states, independent of its rendering: identification, method, conditions,
+parameters with U (k = 2, GUM 7.2.6 rounding), the thermal model, Ca^-1, the budget, plots.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from ... import __version__
+from ...estimation.result import CalibrationResult, round_to_uncertainty
+from ...models.effects import EFFECTS
+from ...models.model import Model
+from ...models.sensor import AXES
+from ...uncertainty.angles import ANGLES, uncertainty_budget
+from ...uncertainty.budget import COVERAGE_FACTOR, Budget
+from ...io.lab import LabConfig
+from .refusal import GAP_P_THRESHOLD, posterior_diagnostics, refusal_reasons
+
+DISPLAY_UNIT = {"degC": "°C", "ug": "µg", "arcsec/degC": "arcsec/°C", "ppm/degC": "ppm/°C",
+                "ug/degC": "µg/°C", "ug/g2": "µg/g²", "ug/h": "µg/h"}
+
+
+# =========================================================================================
+# the certificate's content
+# =========================================================================================
+@dataclass
+class ParameterRow:
+    name: str
+    description: str
+    group: str
+    value: str
+    U: str
+    unit: str
+
+
+@dataclass
+class Certificate:
+    """Everything a certificate (or a refusal report) states, ready to render."""
+
+    result: CalibrationResult
+    issued: bool
+    reasons: list
+    number: Optional[str]
+    issue_date: str
+    lab: LabConfig
+    rows: list = field(default_factory=list)
+    source_of_u: str = ""
+    identification: list = field(default_factory=list)   # (label, text)
+    method: list = field(default_factory=list)
+    conditions: list = field(default_factory=list)
+    thermal_model: list = field(default_factory=list)    # lines of text
+    inverse_matrix: Optional[np.ndarray] = None
+    budget: Optional[Budget] = None
+    plots: list = field(default_factory=list)
+    skipped_plots: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    diagnostics: list = field(default_factory=list)       # (label, text)
+
+
+GROUPS = ("Scale factors", "Biases", "Orientation angles", "Thermal coefficients", "Hysteresis",
+          "Other terms", "Bench (not a property of the unit)")
+
+
+def _group(name: str) -> str:
+    if name.startswith("tilt_"):
+        return GROUPS[6]
+    if name.endswith("_tempco"):
+        return GROUPS[3]
+    if name.endswith("_hysteresis"):
+        return GROUPS[4]
+    if name in ANGLES:
+        return GROUPS[2]
+    if name in tuple(f"K_{a}" for a in AXES):
+        return GROUPS[0]
+    if name in tuple(f"S_{a}" for a in AXES):
+        return GROUPS[1]
+    return GROUPS[5]
+
+
+def display_unit(unit: str) -> str:
+    return DISPLAY_UNIT.get(unit, unit)
+
+
+def expanded(value: float, u: float) -> tuple[str, str]:
+    """Value and U = k u (k = 2) as strings: U to two significant digits, the value to match."""
+    return round_to_uncertainty(value, COVERAGE_FACTOR * u)
+
+
+def parameter_rows(result: CalibrationResult) -> list:
+    """One row per parameter of the result, grouped as on the certificate."""
+    try:
+        spec = Model([e for e in result.effects if e in EFFECTS], result.reference_temperature_C).spec
+    except (ValueError, KeyError):
+        spec = {}
+    extra_desc = {"tilt_delta": "tilt of the bench against the local vertical (δ)",
+                  "tilt_beta": "direction of the bench tilt (β)"}
+    rows = []
+    for name, p in result.parameters.items():
+        v, U = expanded(p.value, p.u)
+        desc = spec[name].description if name in spec else extra_desc.get(name, "")
+        rows.append(ParameterRow(name, desc, _group(name), v, U, p.unit))
+    order = {g: i for i, g in enumerate(GROUPS)}
+    return sorted(rows, key=lambda r: order[r.group])  # stable: keeps the file's order in a group
+
+
+def certificate_number(result: CalibrationResult, prefix: str, issue_date: str) -> str:
+    """``PREFIX-YYYYMMDD-XXXXXXXX``: the issue date and the first 8 hex digits of the SHA-256
+    of the result's canonical JSON, so that different results never share a number and the
+    same result issued the same day gets the same one (a lab with a register passes its own)."""
+    blob = json.dumps(result.to_dict(), sort_keys=True, default=str).encode()
+    h = hashlib.sha256(blob + issue_date.encode()).hexdigest()[:8].upper()
+    return f"{prefix}-{issue_date.replace('-', '')}-{h}"
+
+
+def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = None, campaign=None,
+                      idata=None, diagnosis: Optional[dict] = None, number: Optional[str] = None,
+                      issue_date: Optional[str] = None, result_path=None, plots: bool = True) -> Certificate:
+    """Assemble a certificate (or a refusal report when :func:`refusal_reasons` finds any)."""
+    lab = lab or LabConfig()
+    issue_date = issue_date or _dt.date.today().isoformat()
+    post_diag = posterior_diagnostics(idata, list(result.parameters)) if idata is not None else None
+    reasons = refusal_reasons(result, posterior_diag=post_diag, diagnosis=diagnosis)
+    issued = not reasons
+    if result.method == "posterior":
+        source_of_u = "posterior (standard deviation of the draws)"
+    elif result.method == "joint" and result.fit.get("estimator"):
+        source_of_u = result.fit["estimator"]           # an estimator that says what it is
+    elif result.method == "joint":
+        source_of_u = "least squares (covariance of the joint fit)"
+    else:
+        source_of_u = f"{result.method} estimate (eq. 2-3 and its error propagation)"
+    cert = Certificate(result=result, issued=issued, reasons=reasons,
+                       number=(number or certificate_number(result, lab.certificate_prefix, issue_date)) if issued else None,
+                       issue_date=issue_date, lab=lab, source_of_u=source_of_u, notes=list(result.notes))
+    # identification ---------------------------------------------------------------------
+    cal_date = lab.calibration_date or (campaign.metadata.get("date", "") if campaign is not None else "")
+    ident = [("Item", f"{lab.item_description}, serial number {result.unit}")]
+    if lab.customer_name:
+        ident.append(("Customer", lab.customer_name + (f", {lab.customer_address}" if lab.customer_address else "")))
+    ident += [("Date of calibration", cal_date or "not stated"), ("Date of issue", issue_date)]
+    if issued:
+        ident.append(("Certificate number", cert.number))
+    ident.append(("Software", f"triadcal {__version__}"))
+    if result_path is not None:
+        digest = hashlib.sha256(Path(result_path).read_bytes()).hexdigest()
+        ident.append(("Result file", f"{Path(result_path).name} (SHA-256 {digest[:16]}…)"))
+    cert.identification = ident
+    # method -----------------------------------------------------------------------------------
+    fit = result.fit
+    method = []
+    if campaign is not None:
+        from ...models.campaign import up_axis_label
+
+        pos = dict(zip(campaign.position.tolist(), zip(campaign.axis1_deg.tolist(), campaign.axis2_deg.tolist())))
+        ups = {p: up_axis_label([a1], [a2])[0] for p, (a1, a2) in pos.items()}
+        method.append(("Plan", f"{len(pos)} bench positions: " + ", ".join(
+            f"{p} ({ups[p] or 'oblique'})" for p in sorted(pos))))
+        seq, prev = [], None
+        order = np.argsort(campaign.time_s, kind="stable")
+        for i in order:
+            key = (float(campaign.setpoint_C[i]), str(campaign.direction[i]), int(campaign.cycle[i]))
+            if key != prev:
+                seq.append(f"{key[0]:g}" + {"heating": "↑", "cooling": "↓"}.get(key[1], ""))
+                prev = key
+        method.append(("Setpoints (°C, in order; ↑ heating, ↓ cooling)", ", ".join(seq)))
+        method.append(("Visits", f"{campaign.n_visits}"))
+    method.append(("Model terms", "eq. 1 (scale factors, biases, orientation angles)"
+                   + "".join(f"; {e}: {EFFECTS[e].description}" if e in EFFECTS else f"; {e}"
+                             for e in result.effects)))
+    est = {"joint": "joint least squares over all positions and temperatures (Levenberg-Marquardt, exact "
+                    "Jacobians)", "posterior": "Bayesian posterior (MCMC)",
+           "classical": "classical estimate per setpoint (eq. 2-3) with a linear thermal correction"}
+    est_txt = est.get(result.method, result.method)
+    if fit.get("loss"):
+        est_txt += f"; loss {fit['loss']}"
+    if fit.get("noise"):
+        est_txt += f"; output noise: {fit['noise']}"
+    method.append(("Estimator", est_txt))
+    priors = result.extra.get("priors")
+    if priors:
+        ptxt = "; ".join(f"{k}: {v}" for k, v in priors.items()) if isinstance(priors, dict) else str(priors)
+    else:
+        ptxt = "none (least squares)" if result.method != "posterior" else "as stated in the result file"
+    method.append(("Priors", ptxt))
+    method.append(("Uncertainty", f"U = k·u with k = 2 (coverage probability about 95 %), u from the "
+                   f"{source_of_u}; U rounded to two significant digits, the value to match"))
+    cert.method = method
+    # conditions ------------------------------------------------------------------------
+    cond = []
+    if result.temperature_range_C:
+        lo, hi = result.temperature_range_C
+        cond.append(("Temperature range (accelerometer sensors)", f"{lo:.1f} °C to {hi:.1f} °C"))
+    cond.append(("Reference temperature", f"{result.reference_temperature_C:g} °C"))
+    if campaign is not None:
+        taus = sorted(set(np.round(campaign.tau_s, 6).tolist()))
+        cond.append(("Averaging time per position", ", ".join(f"{t:g} s" for t in taus)))
+    g = result.extra.get("local_g_m_s2") or (campaign.local_g_m_s2 if campaign is not None else None)
+    if g:
+        cond.append(("Local gravity", f"{float(g):.5f} m/s²"))
+    bench = lab.bench or (campaign.metadata.get("bench", "") if campaign is not None else "")
+    if bench:
+        cond.append(("Bench", bench))
+    if lab.chamber:
+        cond.append(("Thermal chamber", lab.chamber))
+    if result.extra.get("output_unit"):
+        cond.append(("Output unit of the accelerometers", str(result.extra["output_unit"])))
+    cert.conditions = cond
+    cert.diagnostics = _diagnostic_lines(result, post_diag, diagnosis)
+    if not issued:
+        return cert
+    # results -----------------------------------------------------------------------------
+    cert.rows = parameter_rows(result)
+    T0 = result.reference_temperature_C
+    tm = []
+    if any(n.endswith("_tempco") for n in result.parameters) or "hysteresis" in result.effects:
+        tm.append(f"Each term x of the table is given at the reference temperature T0 = {T0:g} °C; at a "
+                  f"temperature T of the accelerometer's own sensor: x(T) = x + x_tempco · (T − T0)"
+                  + (", and for the orientation angles ± Ca_ab_hysteresis on the cooling (+) and the "
+                     "heating (−) branch; the matrix below is the mid-line" if "hysteresis" in result.effects else "")
+                  + ".")
+    if result.temperature_range_C:
+        lo, hi = result.temperature_range_C
+        tm.append(f"The thermal model applies from {lo:.1f} °C to {hi:.1f} °C (the range of the calibration); "
+                  "it is not valid outside that range.")
+    cert.thermal_model = tm
+    try:
+        cert.inverse_matrix = np.linalg.inv(result.matrix())
+    except (KeyError, ValueError, np.linalg.LinAlgError):
+        cert.inverse_matrix = None
+    per_setpoint = None
+    if campaign is not None:
+        from ..plots import per_setpoint_angles
+
+        try:
+            per_setpoint = per_setpoint_angles(campaign)
+        except (ImportError, LookupError, ValueError):
+            per_setpoint = None
+    plan = None
+    if campaign is not None:
+        plan = dict(zip(campaign.position.tolist(), zip(campaign.axis1_deg.tolist(), campaign.axis2_deg.tolist())))
+    cert.budget = uncertainty_budget(result, lab, per_setpoint, source_of_u, plan)
+    if plots:
+        from ..plots import report_plots
+
+        ps = report_plots(result, campaign, idata)
+        cert.plots, cert.skipped_plots = ps.plots, ps.skipped
+    return cert
+
+
+def _diagnostic_lines(result, post_diag, diagnosis) -> list:
+    fit = result.fit
+    out = [("Status", result.status), ("Method", result.method)]
+    if fit.get("chi2_dof") is not None:
+        out.append(("χ²/dof", f"{fit['chi2_dof']:.3f} ({fit.get('n_obs', '?')} observations, "
+                              f"{fit.get('n_params', '?')} parameters)"))
+    if fit.get("gap_p_value") is not None:
+        out.append(("Model–data gap", f"p = {fit['gap_p_value']:.2g} (significant below {GAP_P_THRESHOLD:g})"))
+    if post_diag:
+        out.append(("Posterior", f"{post_diag['n_chains']} chains × {post_diag['n_draws']} draws; worst R-hat "
+                                 f"{post_diag['rhat_max']:.4f} ({post_diag['rhat_worst']}), lowest bulk ESS "
+                                 f"{post_diag['ess_bulk_min']:.0f} ({post_diag['ess_worst']})"))
+    if diagnosis:
+        gap = diagnosis.get("gap") or {}
+        out.append(("Diagnosis", f"gap chi2/dof {gap.get('chi2_dof')}, significant: {gap.get('significant')}, "
+                                 f"verdict: {(diagnosis.get('verdict') or {}).get('effect')}"))
+    return out

@@ -1,0 +1,204 @@
+"""The certificate as one self-contained HTML page (CSS inline, images as data URIs, nothing
+fetched from a network).
+"""
+
+from __future__ import annotations
+
+import base64
+import html as _html
+from typing import Optional
+
+from ... import __version__
+from ...uncertainty.budget import Budget
+from .content import Certificate, display_unit
+
+# =========================================================================================
+# HTML
+# =========================================================================================
+CSS = """
+@page { size: A4; margin: 16mm 14mm; }
+* { box-sizing: border-box; }
+body { font-family: "DejaVu Sans", "Helvetica Neue", Arial, sans-serif; color: #111; background: #e8e8e8;
+       margin: 0; font-size: 10.5pt; line-height: 1.4; }
+main { max-width: 210mm; margin: 12px auto; background: #fff; padding: 14mm 14mm 10mm;
+       box-shadow: 0 0 6px rgba(0,0,0,.25); }
+header { display: flex; justify-content: space-between; align-items: flex-start;
+         border-bottom: 2.5px solid #1f3a5f; padding-bottom: 8px; margin-bottom: 10px; }
+header .lab { font-size: 13pt; font-weight: bold; color: #1f3a5f; }
+header .small { font-size: 8.5pt; color: #444; }
+header .no { text-align: right; }
+header .no .num { font-family: "DejaVu Sans Mono", monospace; font-size: 11pt; font-weight: bold; }
+h1 { font-size: 17pt; margin: 4px 0 2px; color: #1f3a5f; letter-spacing: .5px; }
+h1.refused { color: #922b21; }
+h2 { font-size: 11.5pt; color: #1f3a5f; border-bottom: 1px solid #b8c4d6; margin: 16px 0 6px; padding-bottom: 2px; }
+h3 { font-size: 10pt; margin: 10px 0 4px; color: #333; }
+table { border-collapse: collapse; width: 100%; margin: 4px 0 8px; }
+th, td { border: 1px solid #c8ccd2; padding: 3px 6px; vertical-align: top; }
+th { background: #eef1f6; text-align: left; font-size: 9pt; }
+table.kv td:first-child { width: 34%; color: #333; background: #f7f8fa; }
+td.num, th.num { text-align: right; font-family: "DejaVu Sans Mono", monospace; white-space: nowrap;
+                 font-variant-numeric: tabular-nums; }
+td.unit { white-space: nowrap; }
+th.num { font-family: inherit; }
+td.name { font-family: "DejaVu Sans Mono", monospace; white-space: nowrap; }
+td.desc { font-size: 8.5pt; color: #333; }
+tr.group td { background: #dfe6f0; font-weight: bold; font-size: 9pt; }
+tr.total td { font-weight: bold; background: #f3f3f3; }
+table.budget { table-layout: fixed; }
+table.budget td, table.budget th { font-size: 8.8pt; }
+table.budget td.num { white-space: normal; font-size: 9pt; }
+table.drift td, table.drift th { font-size: 8.8pt; padding: 3px 4px; }
+table.matrix { width: auto; }
+table.matrix td { font-family: "DejaVu Sans Mono", monospace; text-align: right; padding: 3px 12px; }
+.box { border: 1.5px solid #922b21; background: #fbeeee; padding: 8px 12px; margin: 8px 0; }
+.note { font-size: 9pt; color: #333; }
+figure { margin: 10px 0 14px; page-break-inside: avoid; }
+figure img { width: 100%; height: auto; border: 1px solid #ddd; }
+figcaption { font-size: 8.5pt; color: #333; margin-top: 3px; }
+.sign { display: flex; gap: 30px; margin-top: 18px; }
+.sign div { flex: 1; border-top: 1px solid #555; padding-top: 3px; font-size: 9pt; }
+footer { margin-top: 14px; border-top: 1px solid #aaa; padding-top: 4px; font-size: 8pt; color: #555; }
+@media print { body { background: #fff; } main { box-shadow: none; margin: 0; max-width: none; padding: 0; } }
+"""
+
+
+STATEMENTS = (
+    "The results relate only to the item calibrated, in the conditions stated.",
+    "This certificate shall not be reproduced except in full without the written approval of the laboratory.",
+)
+
+
+def _e(x) -> str:
+    return _html.escape(str(x))
+
+
+def _kv_table(items) -> str:
+    return "<table class='kv'>" + "".join(f"<tr><td>{_e(k)}</td><td>{_e(v)}</td></tr>" for k, v in items) + "</table>"
+
+
+def _matrix_str(x: float) -> str:
+    return f"{x:.9f}"
+
+
+def _g(x: Optional[float], digits: int = 2) -> str:
+    if x is None:
+        return ""
+    if x == 0:
+        return "0"
+    return f"{x:.{digits}g}"
+
+
+def budget_table(b: Budget) -> tuple[list, list, list]:
+    """Header, rows and totals of a budget as display strings (shared by HTML and PDF)."""
+    head = ["Source", "Basis", "Eq.", "u(xᵢ)", "cᵢ", f"uᵢ ({b.unit})", "Share"]
+    body = []
+    for c in b.components:
+        share = b.share(c)
+        ux = "" if c.u is None else f"{_g(c.u)} {display_unit(c.unit)}"
+        ci = "" if c.sensitivity is None or c.contribution is None else (
+            _g(c.sensitivity, 3) + ("" if c.sensitivity_unit in ("1", "") else f" {display_unit(c.sensitivity_unit)}"))
+        body.append([c.source, c.basis, c.equation, ux, ci,
+                     "not evaluated" if c.contribution is None else _g(c.contribution),
+                     "" if share is None else f"{100 * share:.0f} %"])
+    totals = [("Combined standard uncertainty u_c (root sum of squares)", _g(b.combined_u)),
+              ("Expanded uncertainty U = k·u_c (k = 2)", _g(b.expanded_U))]
+    return head, body, totals
+
+
+def render_html(cert: Certificate) -> str:
+    """The certificate (or refusal report) as one self-contained HTML page."""
+    r, lab = cert.result, cert.lab
+    title = (f"Calibration certificate {cert.number}" if cert.issued
+             else f"No certificate issued: {r.unit}")
+    h = ["<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
+         f"<title>{_e(title)}</title><style>{CSS}</style></head><body><main>"]
+    h.append("<header><div><div class='lab'>" + _e(lab.name) + "</div>"
+             + "".join(f"<div class='small'>{_e(x)}</div>" for x in (lab.address, lab.accreditation) if x)
+             + "</div><div class='no'>")
+    if cert.issued:
+        h.append(f"<div class='small'>Certificate number</div><div class='num'>{_e(cert.number)}</div>")
+    h.append(f"<div class='small'>Date of issue {_e(cert.issue_date)}</div></div></header>")
+    if cert.issued:
+        h.append("<h1>Calibration certificate</h1>")
+        h.append(f"<div class='note'>Accelerometer triad {_e(r.unit)}: scale factors, biases, orientation "
+                 f"of the sensing axes and their thermal model.</div>")
+    else:
+        h.append("<h1 class='refused'>No certificate issued</h1>")
+        h.append("<div class='box'><b>A calibration certificate cannot be issued for "
+                 f"{_e(r.unit)}</b> because:<ul>" + "".join(f"<li>{_e(x)}</li>" for x in cert.reasons)
+                 + "</ul>This report states why; it is not a calibration certificate and carries no "
+                 "certificate number. Correct the cause and calibrate (or fit) again.</div>")
+    h.append("<h2>1. Identification</h2>" + _kv_table(cert.identification))
+    h.append("<h2>2. Method</h2>" + _kv_table(cert.method))
+    h.append("<h2>3. Conditions</h2>" + _kv_table(cert.conditions))
+    if not cert.issued:
+        h.append("<h2>4. Diagnostics</h2>" + _kv_table(cert.diagnostics))
+        if cert.notes:
+            h.append("<h3>Notes of the estimator</h3><ul class='note'>"
+                     + "".join(f"<li>{_e(n)}</li>" for n in cert.notes) + "</ul>")
+        h.append(f"<footer>triadcal {_e(__version__)} · refusal report · {_e(r.unit)}</footer></main></body></html>")
+        return "".join(h)
+    h.append("<h2>4. Results</h2>")
+    h.append(f"<p class='note'>Value and expanded uncertainty U (k = 2, coverage probability about 95 %) of "
+             f"every parameter at the reference temperature {r.reference_temperature_C:g} °C. "
+             f"U comes from the <b>{_e(cert.source_of_u)}</b>.</p>")
+    h.append("<table class='results'><tr><th>Parameter</th><th>Meaning</th><th class='num'>Value</th>"
+             "<th class='num'>U (k = 2)</th><th>Unit</th></tr>")
+    group = None
+    for row in cert.rows:
+        if row.group != group:
+            group = row.group
+            h.append(f"<tr class='group'><td colspan='5'>{_e(group)}</td></tr>")
+        h.append(f"<tr data-param='{_e(row.name)}'><td class='name'>{_e(row.name)}</td>"
+                 f"<td class='desc'>{_e(row.description)}</td><td class='num'>{_e(row.value)}</td>"
+                 f"<td class='num'>{_e(row.U)}</td><td class='unit'>{_e(display_unit(row.unit))}</td></tr>")
+    h.append("</table>")
+    h.append("<h2>5. Thermal model</h2>" + "".join(f"<p>{_e(t)}</p>" for t in cert.thermal_model))
+    if cert.inverse_matrix is not None:
+        h.append("<h2>6. Inverse matrix to apply to readings</h2>")
+        h.append(f"<p>A_IMU = Ca⁻¹ · (K·W − S), with K and S of the table at the reading's temperature. "
+                 f"Ca⁻¹ at {r.reference_temperature_C:g} °C (mid-line), rows and columns X, Y, Z; an off-diagonal "
+                 "element is close to minus the corresponding angle in radians and carries its U:</p>")
+        h.append("<table class='matrix'>" + "".join(
+            "<tr>" + "".join(f"<td>{_matrix_str(x)}</td>" for x in row) + "</tr>" for row in cert.inverse_matrix)
+            + "</table>")
+    b = cert.budget
+    h.append("<h2>7. Uncertainty budget</h2>")
+    h.append(f"<p class='note'>Standard uncertainties of an {_e(b.quantity)}, sorted by size (seed paper eq. 4–7). "
+             "This is the uncertainty a user should expect of the corrected axes anywhere in the range; "
+             "the table of section 4 states the parameters at the reference temperature.</p>")
+    head, body, totals = budget_table(b)
+    h.append("<table class='budget'><colgroup>" + "".join(
+        f"<col style='width:{w}%'>" for w in (14, 36, 9, 11, 12, 10, 8)) + "</colgroup><tr>" + "".join(
+        f"<th{' class=num' if i >= 3 else ''}>{_e(x)}</th>" for i, x in enumerate(head)) + "</tr>")
+    for row in body:
+        h.append("<tr>" + "".join(
+            f"<td class='{'num' if i >= 3 else ('desc' if i == 1 else '')}'>{_e(x)}</td>" for i, x in enumerate(row))
+            + "</tr>")
+    for label, value in totals:
+        h.append(f"<tr class='total'><td colspan='5'>{_e(label)}</td><td class='num'>{_e(value)}</td><td></td></tr>")
+    h.append("</table>")
+    missing = [c.source for c in b.components if c.contribution is None]
+    if missing:
+        h.append(f"<p class='note'>Not evaluated (not in u_c): {_e(', '.join(missing))}.</p>")
+    h.append("<h2>8. Diagnostics</h2>" + _kv_table(cert.diagnostics))
+    if cert.notes:
+        h.append("<ul class='note'>" + "".join(f"<li>{_e(n)}</li>" for n in cert.notes) + "</ul>")
+    if cert.plots or cert.skipped_plots:
+        h.append("<h2>9. Plots</h2>")
+        for p in cert.plots:
+            data = base64.b64encode(p.png).decode("ascii")
+            h.append(f"<figure><img alt='{_e(p.title)}' src='data:image/png;base64,{data}'>"
+                     f"<figcaption><b>{_e(p.title)}.</b> {_e(p.caption)}</figcaption></figure>")
+        if cert.skipped_plots:
+            h.append("<p class='note'>Not drawn: " + "; ".join(
+                f"{_e(k)} ({_e(v)})" for k, v in cert.skipped_plots.items()) + ".</p>")
+    h.append("<h2>10. Traceability and statements</h2>")
+    if lab.traceability:
+        h.append(f"<p>{_e(lab.traceability)}</p>")
+    h.append("".join(f"<p class='note'>{_e(s)}</p>" for s in STATEMENTS))
+    h.append("<div class='sign'><div>" + _e(lab.signatory_name or "Authorised signatory") + "<br>"
+             + _e(lab.signatory_title) + "</div><div>Date and signature</div></div>")
+    h.append(f"<footer>Certificate {_e(cert.number)} · {_e(lab.name)} · issued with triadcal "
+             f"{_e(__version__)}</footer></main></body></html>")
+    return "".join(h)

@@ -1,0 +1,69 @@
+"""``certificate``: check the result, build the certificate (or the refusal report) and write
+its HTML and PDF.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+from ...estimation.gates import check_result_for_use
+from ...estimation.result import CalibrationResult, read_json
+from ...io.atomic import atomic_write_bytes, atomic_write_text
+from .content import Certificate, build_certificate
+from .html import render_html
+from ...io.lab import LabConfig, load_lab
+from .pdf import render_pdf
+
+
+# =========================================================================================
+# the library function behind `triadcal certificate`
+# =========================================================================================
+def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, html=None, pdf=None,
+                plots_dir=None, number: Optional[str] = None, issue_date: Optional[str] = None) -> Certificate:
+    """Issue a certificate (``triadcal certificate``) or, when a diagnostic failed, a refusal report.
+
+    ``result``: a results-json path or a CalibrationResult; ``posterior``: netCDF path or
+    InferenceData; ``lab``: TOML path or LabConfig; ``data``: bench CSV path or Campaign;
+    ``diagnosis``: a diagnosis JSON path or dict. Writes ``html``, ``pdf`` and the plots as
+    PNG in ``plots_dir`` when given; returns the :class:`Certificate` (``issued`` says which).
+    """
+    result_path = None
+    if not isinstance(result, CalibrationResult):
+        result_path = result
+        result = CalibrationResult.load(result)
+    # a result that is not a calibration at all (no parameters, values or u not finite, K <= 0
+    # or outside its unit's band, an angle beyond the gate, no reference temperature) is
+    # refused outright, one line, before any file is written; a result whose estimator said
+    # "not ok" gets the refusal report below
+    check_result_for_use(result, str(result_path or f"result of {result.unit}"), need_ok=False)
+    if lab is not None and not isinstance(lab, LabConfig):
+        lab = load_lab(lab)
+    if posterior is not None and not hasattr(posterior, "posterior"):
+        from ...io.netcdf import read_inference_data
+
+        posterior = read_inference_data(posterior)
+    if data is not None and not hasattr(data, "n_visits"):
+        from ...io.bench_csv import read_bench_csv
+
+        data = read_bench_csv(data)
+    if data is not None and data.units != [result.unit]:
+        raise ValueError(f"the campaign data is of unit(s) {data.units}, the result of {result.unit!r}")
+    if diagnosis is not None and not isinstance(diagnosis, dict):
+        source = str(diagnosis)
+        diagnosis = read_json(diagnosis)
+        if not isinstance(diagnosis, dict) or diagnosis.get("format") != "triadcal.diagnosis":
+            raise ValueError(f"{source}: not a diagnosis (format "
+                             f"{diagnosis.get('format') if isinstance(diagnosis, dict) else None!r}, "
+                             "expected 'triadcal.diagnosis')")
+    cert = build_certificate(result, lab=lab, campaign=data, idata=posterior, diagnosis=diagnosis, number=number,
+                             issue_date=issue_date, result_path=result_path)
+    if html is not None:
+        atomic_write_text(html, render_html(cert))
+    if pdf is not None:
+        render_pdf(cert, pdf)
+    if plots_dir is not None and cert.plots:
+        Path(plots_dir).mkdir(parents=True, exist_ok=True)
+        for p in cert.plots:
+            atomic_write_bytes(Path(plots_dir) / f"{p.name}.png", p.png)
+    return cert
