@@ -168,8 +168,25 @@ def test_sigkill_mid_campaign_then_resume_gives_the_visits_of_an_uninterrupted_r
 def test_resume_refuses_a_different_plan(tmp_path):
     from triadcal.hardware.capture import CaptureError
 
-    (tmp_path / "capture.json").write_text(json.dumps({"plan": {"P01": [0.0, 0.0]}, "setpoints_C": [20.0],
-                                                       "tau_s": 30.0, "unit": "X", "sessions": []}))
+    state = {"format": "triadcal.capture", "version": 1, "plan": {"P01": [0.0, 0.0]}, "setpoints_C": [20.0],
+             "tau_s": 30.0, "unit": "X", "sessions": []}
+    (tmp_path / "capture.json").write_text(json.dumps(state))
     with pytest.raises(CaptureError, match="different plan"):
+        capture(tmp_path, plan={"P02": (180.0, 0.0)}, setpoints_C=[20.0], imu=None, bench=None, chamber=None,
+                settings=CaptureSettings(unit="X"))
+
+
+@pytest.mark.parametrize("text, message", [
+    ('{"plan": {}}', "not a capture state file"),
+    ('{"format": "triadcal.capture", "version": 1, "tau_s": NaN}', "NaN is not JSON"),
+    ('{"format": "triadcal.capture", "version": 2}', "version 2 is not known"),
+    ("{not json", "not valid JSON"),
+])
+def test_resume_refuses_a_state_file_that_is_not_ours(tmp_path, text, message):
+    """The capture state is read like every other file: strict JSON, its format and version."""
+    from triadcal.hardware.capture import CaptureError
+
+    (tmp_path / "capture.json").write_text(text)
+    with pytest.raises(CaptureError, match=message):
         capture(tmp_path, plan={"P02": (180.0, 0.0)}, setpoints_C=[20.0], imu=None, bench=None, chamber=None,
                 settings=CaptureSettings(unit="X"))

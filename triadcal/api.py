@@ -5,6 +5,8 @@ A research script calls these exactly as the command line does.
 
 from __future__ import annotations
 
+from .errors import InputError
+
 from typing import Optional, Sequence
 
 from .io.bench_csv import write_bench_csv
@@ -77,7 +79,7 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
 
             write_fit_netcdf(netcdf_path, campaign, problem, solution, result)
     else:
-        raise ValueError(f"unknown method {method!r}: choose classical or joint")
+        raise InputError(f"unknown method {method!r}: choose classical or joint")
     if json_path is not None:
         result.save(json_path)
     return result

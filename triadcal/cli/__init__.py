@@ -20,6 +20,7 @@ import pkgutil
 import sys
 
 from .. import __version__
+from ..errors import TriadcalError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,27 +58,35 @@ def main(argv=None) -> int:
         warnings.showwarning = _warning_line
     try:
         return int(args.func(args) or 0)
-    except (ValueError, OSError) as exc:
-        if isinstance(exc, BrokenPipeError):
-            return _broken_pipe()
-        if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
-            msg = f"{exc.filename}: {exc.strerror.lower()}"          # not "[Errno 2] No such file ..."
-        else:
-            msg = str(exc)
-        print(f"triadcal {args.command}: error: {msg}", file=sys.stderr)
+    except BrokenPipeError:
+        return _broken_pipe()
+    except TriadcalError as exc:
+        print(f"triadcal {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        if exc.filename is None or not exc.strerror:
+            return _internal_error(args.command, exc, debug)
+        # a file the user named that the system cannot open: "PATH: no such file or directory"
+        print(f"triadcal {args.command}: error: {exc.filename}: {exc.strerror.lower()}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"triadcal {args.command}: interrupted (files written so far are whole; nothing half-written "
               "was left)", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - the last line of defence: a bug, said as one
-        if debug:
-            raise
-        print(f"triadcal {args.command}: internal error: {type(exc).__name__}: {exc} (a bug: please report it "
-              "with the command and its input; TRIADCAL_DEBUG=1 shows the traceback)", file=sys.stderr)
-        return 70
+        return _internal_error(args.command, exc, debug)
     finally:
         warnings.showwarning = previous
+
+
+def _internal_error(command: str, exc: BaseException, debug: bool) -> int:
+    """Anything that is not a :class:`TriadcalError` is a bug: one line (exit 70), or the
+    traceback with ``TRIADCAL_DEBUG=1``."""
+    if debug:
+        raise exc
+    print(f"triadcal {command}: internal error: {type(exc).__name__}: {exc} (a bug: please report it "
+          "with the command and its input; TRIADCAL_DEBUG=1 shows the traceback)", file=sys.stderr)
+    return 70
 
 
 def _broken_pipe() -> int:

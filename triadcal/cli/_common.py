@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 
 def name_list(text: str) -> list[str]:
     """'a,b, c' -> ['a', 'b', 'c'] (empty entries dropped; 'none' -> [])."""
@@ -14,7 +16,7 @@ def float_list(text: str) -> list[float]:
     try:
         return [float(s) for s in name_list(text)]
     except ValueError:
-        raise ValueError(f"expected comma-separated numbers, got {text!r}") from None
+        raise InputError(f"expected comma-separated numbers, got {text!r}") from None
 
 
 def assignments(items) -> dict[str, float]:
@@ -22,10 +24,10 @@ def assignments(items) -> dict[str, float]:
     out = {}
     for item in items or ():
         if "=" not in item:
-            raise ValueError(f"expected NAME=VALUE, got {item!r}")
+            raise InputError(f"expected NAME=VALUE, got {item!r}")
         k, v = item.split("=", 1)
         try:
             out[k.strip()] = float(v)
         except ValueError:
-            raise ValueError(f"{k.strip()}: not a number: {v!r}") from None
+            raise InputError(f"{k.strip()}: not a number: {v!r}") from None
     return out

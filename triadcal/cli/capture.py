@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import json
 import sys
 import tempfile
@@ -110,7 +112,7 @@ def run(args) -> int:
                              chamber=chamber, settings=settings, progress=_progress_bar(args.no_progress),
                              extra_metadata=extra)
         except CaptureError as exc:
-            raise ValueError(str(exc)) from None      # one line, exit 1: the campaign cannot go on
+            raise InputError(str(exc)) from None      # one line, exit 1: the campaign cannot go on
         finally:
             bench.close()
             chamber.close()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import sys
 
 
@@ -36,7 +38,7 @@ def register(sub) -> None:
 
 def _format_of(path) -> str:
     """The document's ``format``; "" when it cannot be read (the result reader then says why)."""
-    from ..estimation.result import read_json
+    from ..io.atomic import read_json
 
     try:
         d = read_json(path)
@@ -52,16 +54,16 @@ def run(args) -> int:
         print(EXAMPLE_LAB_TOML, end="")
         return 0
     if not args.result:
-        raise ValueError("give a result file (results-json v1)")
+        raise InputError("give a result file (results-json v1)")
     if not (args.html or args.pdf):
-        raise ValueError("give --html OUT.html and/or --pdf OUT.pdf")
+        raise InputError("give --html OUT.html and/or --pdf OUT.pdf")
     if args.date:
         import datetime
 
         try:
             datetime.date.fromisoformat(args.date)
         except ValueError:
-            raise ValueError(f"--date: expected YYYY-MM-DD, got {args.date!r}") from None
+            raise InputError(f"--date: expected YYYY-MM-DD, got {args.date!r}") from None
     if _format_of(args.result) == "triadcal.comparison":
         from ..reports.certificate import drift_report
 

@@ -9,6 +9,8 @@ Three forms (docs/compare.md):
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import sys
 
 from ._common import assignments, name_list
@@ -62,11 +64,11 @@ def run(args) -> int:
 
     if args.published:
         if args.results:
-            raise ValueError("--published takes a table, not calibration results")
+            raise InputError("--published takes a table, not calibration results")
         if args.posterior_before or args.posterior_after or args.posteriors or args.sequence:
-            raise ValueError("--published judges drift values only: no posteriors, no --sequence")
+            raise InputError("--published judges drift values only: no posteriors, no --sequence")
         if tolerances:
-            raise ValueError("--param-tolerance applies to calibration results, not to a published table")
+            raise InputError("--param-tolerance applies to calibration results, not to a published table")
         rows = read_published_table(args.published)
         out = judge_published(rows, u_measurement_arcsec=args.u_arcsec, tolerance_arcsec=tolerance,
                               correlation=0.0 if correlation == "auto" else correlation, level=args.level)
@@ -76,9 +78,9 @@ def run(args) -> int:
         print(f"overall: {out.overall}")
     elif args.sequence:
         if len(args.results) < 2:
-            raise ValueError("--sequence needs at least two results (the initial state and one exposure)")
+            raise InputError("--sequence needs at least two results (the initial state and one exposure)")
         if args.posterior_before or args.posterior_after:
-            raise ValueError("with --sequence give --posteriors A.nc,B.nc,... (one per result)")
+            raise InputError("with --sequence give --posteriors A.nc,B.nc,... (one per result)")
         results = [_load_checked(f) for f in args.results]
         labels = name_list(args.labels) if args.labels else [_stem(f) for f in args.results]
         posteriors = name_list(args.posteriors) if args.posteriors else None
@@ -93,10 +95,10 @@ def run(args) -> int:
         print(f"overall: {out.overall}")
     else:
         if len(args.results) != 2:
-            raise ValueError(f"give BEFORE.json and AFTER.json (got {len(args.results)} files); "
+            raise InputError(f"give BEFORE.json and AFTER.json (got {len(args.results)} files); "
                              "for more use --sequence")
         if args.posteriors:
-            raise ValueError("--posteriors is for --sequence; use --posterior-before/--posterior-after")
+            raise InputError("--posteriors is for --sequence; use --posterior-before/--posterior-after")
         before, after = (_load_checked(f) for f in args.results)
         out = compare(before, after, tolerance_arcsec=tolerance, tolerances=tolerances,
                       posterior_before=args.posterior_before, posterior_after=args.posterior_after,
@@ -172,4 +174,4 @@ def _float(text: str, what: str) -> float:
     try:
         return float(text)
     except ValueError:
-        raise ValueError(f"{what}: expected a number or 'auto', got {text!r}") from None
+        raise InputError(f"{what}: expected a number or 'auto', got {text!r}") from None

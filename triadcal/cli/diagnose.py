@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import sys
 
 from ..models.effects import DEFAULT_EFFECTS, EFFECTS, VOCABULARY
@@ -47,11 +49,11 @@ def run(args) -> int:
     if args.state:
         mask &= campaign.state == args.state
     if not mask.any():
-        raise ValueError(f"{args.data}: no visit of unit {args.unit!r} state {args.state!r}; units: "
+        raise InputError(f"{args.data}: no visit of unit {args.unit!r} state {args.state!r}; units: "
                          f"{', '.join(campaign.units)}; states: {', '.join(sorted(set(campaign.state.tolist())))}")
     campaign = campaign.select(np.flatnonzero(mask))
     if len(campaign.units) > 1 or len(set(campaign.state.tolist())) > 1:
-        raise ValueError(f"{args.data} holds units {', '.join(campaign.units)} and states "
+        raise InputError(f"{args.data} holds units {', '.join(campaign.units)} and states "
                          f"{', '.join(sorted(set(campaign.state.tolist())))}: choose one with --unit/--state")
     cands = name_list(args.candidates) if args.candidates else None
     d = diagnose(campaign, name_list(args.model), candidates=cands, top=args.top, alpha=args.alpha,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import sys
 import time
 
@@ -16,7 +18,7 @@ def _windows(items):
         try:
             at, dur = (float(v) for v in item.split(":"))
         except ValueError:
-            raise ValueError(f"expected AT_S:FOR_S, got {item!r}") from None
+            raise InputError(f"expected AT_S:FOR_S, got {item!r}") from None
         out.append((at, dur))
     return tuple(out)
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import sys
 
 from ..models.effects import DEFAULT_EFFECTS, EFFECTS
@@ -40,7 +42,7 @@ def run(args) -> int:
     from ..reports.summary import summary_text
 
     if bool(args.data) == bool(args.example):
-        raise ValueError("give a bench CSV file or --example")
+        raise InputError("give a bench CSV file or --example")
     result = fit(args.data, method=args.method, effects=name_list(args.effects),
                  reference_temperature_C=args.reference_temperature, loss=args.loss,
                  strict=args.strict, json_path=args.json, netcdf_path=args.netcdf,

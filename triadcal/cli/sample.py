@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import sys
 
 from ..models.effects import DEFAULT_EFFECTS, EFFECTS
@@ -41,7 +43,7 @@ def run(args) -> int:
     from ..reports.summary import summary_text
 
     if bool(args.data) == bool(args.example):
-        raise ValueError("give a bench CSV file or --example")
+        raise InputError("give a bench CSV file or --example")
     data = str(example_path()) if args.example else args.data
     bar = None
     progress = None

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import sys
 
 
@@ -29,7 +31,7 @@ def run(args) -> int:
     from ._common import name_list
 
     if args.seeds < 1:
-        raise ValueError("--seeds must be at least 1")
+        raise InputError("--seeds must be at least 1")
 
     def progress(row):
         if not args.quiet:

@@ -29,6 +29,8 @@ errors and wobble); docs/classical.md derives it and relates it to eq. 4.
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import math
 from dataclasses import dataclass
 from typing import Mapping, Optional
@@ -47,7 +49,7 @@ NOISE_SOURCES = ("residuals", "sd")
 THERMAL_EFFECTS = ("angle_tempco", "scale_tempco", "bias_tempco")
 
 
-class ClassicalPlanError(ValueError):
+class ClassicalPlanError(InputError):
     """The plan of a setpoint does not let eq. 2 be formed (an IMU axis never up or down)."""
 
 
@@ -232,13 +234,13 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     ``tempco * (offset of t_a from the mean)``.
     """
     if noise not in NOISE_SOURCES:
-        raise ValueError(f"unknown noise source {noise!r}: choose one of {', '.join(NOISE_SOURCES)}")
+        raise InputError(f"unknown noise source {noise!r}: choose one of {', '.join(NOISE_SOURCES)}")
     if temperature not in ("mean", "own"):
-        raise ValueError(f"unknown temperature choice {temperature!r}: choose 'mean' (the paper) or 'own'")
+        raise InputError(f"unknown temperature choice {temperature!r}: choose 'mean' (the paper) or 'own'")
     src = campaign.source or "campaign"
     units = campaign.units
     if len(units) != 1 or len(set(campaign.state.tolist())) != 1:
-        raise ValueError(f"{src}: a fit takes one unit in one mechanical state; found units {units} and "
+        raise InputError(f"{src}: a fit takes one unit in one mechanical state; found units {units} and "
                          f"states {sorted(set(campaign.state.tolist()))} (select one, e.g. with Campaign.select)")
     G = campaign.gravity_g
     notes: list[str] = []
@@ -306,13 +308,13 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     dof_total = int(dof.min())
     if use == "residuals" and dof_total == 0:
         if sd_sigma is None:
-            raise ValueError(f"{src}: cannot estimate the output noise: the per-setpoint linear model leaves no "
+            raise InputError(f"{src}: cannot estimate the output noise: the per-setpoint linear model leaves no "
                              "residual degrees of freedom with this plan, and the file has no sd_*/n_samples "
                              "columns; add positions or those columns")
         use = "sd"
         notes.append("no residual degrees of freedom: output noise from sd_*/sqrt(n_samples) instead")
     if use == "sd" and sd_sigma is None:
-        raise ValueError(f"{src}: noise='sd' needs the sd_x, sd_y, sd_z and n_samples columns, which the file lacks")
+        raise InputError(f"{src}: noise='sd' needs the sd_x, sd_y, sd_z and n_samples columns, which the file lacks")
     fit_noise: dict = {}
     Q_res = rss / dof if dof_total > 0 else None   # output-unit^2 s (variance x tau)
     if Q_res is not None:

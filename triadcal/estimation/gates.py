@@ -11,6 +11,8 @@ in docs/statuses.md.
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import math
 from dataclasses import dataclass, field
 from typing import Mapping, Optional, Sequence
@@ -457,7 +459,7 @@ def apply_gates(result, evidence: FitEvidence, *, config: GateConfig = DEFAULT_C
     return result
 
 
-class RefusedResult(ValueError):
+class RefusedResult(InputError):
     """A result that a consumer (certificate, compare, ...) will not use; the message is one line."""
 
 

@@ -12,6 +12,8 @@ when the noise is estimated rather than known.
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import math
 import time
 from dataclasses import dataclass, field
@@ -35,7 +37,7 @@ COVARIATES = ("axis1", "axis2", "t_x", "t_y", "t_z", "rate_x", "rate_y", "rate_z
 LOSSES = ("l2", "huber", "student_t")
 
 
-class IdentifiabilityError(ValueError):
+class IdentifiabilityError(InputError):
     """The plan or the data cannot determine some parameters of the requested model."""
 
 
@@ -192,7 +194,7 @@ def robust_weights(r: np.ndarray, loss: str, nu: float = 4.0, c: float = 1.345) 
         return np.where(a <= c, 1.0, c / np.maximum(a, 1e-300))
     if loss == "student_t":
         return (nu + 1.0) / (nu + r * r)
-    raise ValueError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    raise InputError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
 
 
 @dataclass
@@ -216,13 +218,19 @@ def scaled_covariance(J: np.ndarray) -> np.ndarray:
 
 def levenberg_marquardt(problem: JointProblem, x0: np.ndarray, loss: str = "l2", max_iter: int = 100,
                         nu: float = 4.0) -> Solution:
-    """Minimise the (robust) sum of squared normalised residuals with exact Jacobians."""
+    """Minimise the (robust) sum of squared normalised residuals with exact Jacobians.
+
+    A trial point where the residuals or the Jacobian are not finite (a model evaluated
+    outside its domain, e.g. a row of Ca that is no longer a unit vector) is rejected like a
+    step that does not descend; a start that is not finite stops at once, not converged."""
     x = np.array(x0, float)
     r, J = problem.residuals_and_jacobian(x)
     wts = robust_weights(r, loss, nu)
     lam = 1e-3
     converged = False
     it = 0
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
+        return Solution(x, float("nan"), 0, False, r, J, wts)
     for it in range(1, max_iter + 1):
         sw = np.sqrt(wts)
         Jw, rw = J * sw[:, None], r * sw
@@ -234,12 +242,16 @@ def levenberg_marquardt(problem: JointProblem, x0: np.ndarray, loss: str = "l2",
         H = A.T @ A
         improved = False
         while lam < 1e12:
-            step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), g) / d
+            try:
+                step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), g) / d
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
             x_new = x + step
             r_new, J_new = problem.residuals_and_jacobian(x_new)
             w_new = robust_weights(r_new, loss, nu)
             cost_new = float(np.sum(w_new * r_new * r_new))
-            if np.isfinite(cost_new) and cost_new <= cost * (1 + 1e-15):
+            if np.isfinite(cost_new) and np.all(np.isfinite(J_new)) and cost_new <= cost * (1 + 1e-15):
                 improved = True
                 break
             lam *= 10.0
@@ -273,10 +285,10 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     free parameters is refused (:class:`IdentifiabilityError`).
     """
     if loss not in LOSSES:
-        raise ValueError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+        raise InputError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
     units = campaign.units
     if len(units) != 1 or len(set(campaign.state.tolist())) != 1:
-        raise ValueError(f"{campaign.source or 'campaign'}: a fit takes one unit in one mechanical state; "
+        raise InputError(f"{campaign.source or 'campaign'}: a fit takes one unit in one mechanical state; "
                          f"found units {units} and states {sorted(set(campaign.state.tolist()))} "
                          "(select one, e.g. with Campaign.select)")
     model = Model(effects, reference_temperature_C)

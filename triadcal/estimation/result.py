@@ -7,21 +7,23 @@ The stable contract is docs/spec/results-json-v1.md (``format: triadcal.result``
 
 from __future__ import annotations
 
-import json
+from ..errors import InputError
+
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
+from scipy.special import ndtri
 
+from ..io.atomic import read_json
 from ..io.formats import require_format
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, dcm
 from ..models.units import ARCSEC, TO_INTERNAL
 
 #: the 97.5 % point of the standard normal: a 95 % two-sided interval is value +- Z95 u
-Z95 = 1.959963984540054
+Z95 = float(ndtri(0.975))
 
 FORMAT = "triadcal.result"
 VERSION = 1
@@ -209,7 +211,7 @@ class CalibrationResult:
         model = self.model()
         missing = [n for n in model.names if n not in self.parameters]
         if missing:
-            raise ValueError(f"result lacks parameters {missing} of its own model {model!r}")
+            raise InputError(f"result lacks parameters {missing} of its own model {model!r}")
         p = model.to_internal({n: self.parameters[n].value for n in model.names})
         zeros = np.zeros(len(w))
         cov = Covariates(axis1=zeros, axis2=zeros, temp=tuple(T[:, i] for i in range(3)),
@@ -229,30 +231,7 @@ class CalibrationResult:
         return np.array(dcm(angles), float)
 
 
-def _no_constant(name):
-    raise ValueError(f"{name} is not JSON (a non-finite number must be written as null)")
-
-
-def read_json(path):
-    """A JSON document from ``path`` with one-line errors naming the file and line: not UTF-8,
-    not JSON, NaN or Infinity tokens (not JSON), nesting too deep, a file that is not there."""
-    try:
-        text = Path(path).read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not UTF-8 text (byte {exc.start})") from None
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    try:
-        return json.loads(text, parse_constant=_no_constant)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
-    except RecursionError:
-        raise ValueError(f"{path}: JSON nested too deeply") from None
-
-
-class ResultFormatError(ValueError):
+class ResultFormatError(InputError):
     """A results-json document with a field of the wrong type, missing or unknown (one line)."""
 
 

@@ -21,7 +21,8 @@ written into the CSV header (``# Q_V2s = ...``), where the joint fit finds them.
 
 from __future__ import annotations
 
-import json
+from ..errors import InputError, TriadcalError
+
 import time
 from collections import deque
 from dataclasses import asdict, dataclass, field
@@ -40,7 +41,8 @@ from .drivers.chamber import Chamber
 from .drivers.imu import ImuReadout, StreamThread
 from .noise import NoiseEstimate, allan_noise
 from .protocols import Frame
-from ..io.atomic import atomic_write_text
+from ..io.atomic import atomic_write_json, atomic_write_text, read_json
+from ..io.formats import require_format
 from .storage import EventLog, FolderLocked, RawStore, folder_lock, read_raw
 
 CSV_NAME = "campaign.csv"
@@ -50,7 +52,7 @@ EVENTS_NAME = "raw/events.jsonl"
 REPORT_NAME = "capture_report.json"
 
 
-class CaptureError(RuntimeError):
+class CaptureError(TriadcalError, RuntimeError):
     """The campaign cannot go on (instrument silent, not stable in time, mismatched resume)."""
 
 
@@ -127,21 +129,21 @@ def plan_from_csv(path) -> dict:
     with open(path, encoding="utf-8") as fh:
         rows = [r for r in csv.reader(line for line in fh if not line.startswith("#")) if r]
     if not rows or [h.strip() for h in rows[0]] != ["position", "axis1_deg", "axis2_deg"]:
-        raise ValueError(f"{path}: a plan file starts with the header 'position,axis1_deg,axis2_deg'")
+        raise InputError(f"{path}: a plan file starts with the header 'position,axis1_deg,axis2_deg'")
     from ..io.numbers import NumberError, parse_number
 
     for k, r in enumerate(rows[1:], start=2):
         if len(r) != 3 or not r[0].strip():
-            raise ValueError(f"{path}:{k}: expected a label and two angles in degrees, got {r}")
+            raise InputError(f"{path}:{k}: expected a label and two angles in degrees, got {r}")
         if r[0].strip() in plan:
-            raise ValueError(f"{path}:{k}: position {r[0].strip()!r} appears twice")
+            raise InputError(f"{path}:{k}: position {r[0].strip()!r} appears twice")
         try:
             plan[r[0].strip()] = tuple(parse_number(v, low=-360.0, high=360.0, what=name)
                                        for v, name in zip(r[1:], ("axis1_deg", "axis2_deg")))
         except NumberError as exc:
-            raise ValueError(f"{path}:{k}: {exc.problem}") from None
+            raise InputError(f"{path}:{k}: {exc.problem}") from None
     if not plan:
-        raise ValueError(f"{path}: the plan has no positions")
+        raise InputError(f"{path}: the plan has no positions")
     return plan
 
 
@@ -263,7 +265,7 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
     plan = {str(k): (float(v[0]), float(v[1])) for k, v in plan.items()}
     setpoints_C = [float(s) for s in setpoints_C]
     if not plan or not setpoints_C:
-        raise ValueError("a campaign needs at least one bench position and one setpoint")
+        raise InputError("a campaign needs at least one bench position and one setpoint")
     directions = Schedule(setpoints_C=setpoints_C).directions()
     labels = list(plan)
     total = len(labels) * len(setpoints_C)
@@ -274,7 +276,11 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
     identity = {"plan": {k: list(v) for k, v in plan.items()}, "setpoints_C": setpoints_C,
                 "tau_s": settings.tau_s, "unit": settings.unit}
     if state_path.exists():
-        state = json.loads(state_path.read_text(encoding="utf-8"))
+        try:
+            state = read_json(state_path)
+            require_format(state, "triadcal.capture", 1, str(state_path), "a capture state file", "capture state")
+        except ValueError as exc:
+            raise CaptureError(str(exc)) from None
         for key, value in identity.items():
             if state.get(key) != value:
                 raise CaptureError(f"{out} holds a campaign with a different {key} ({state.get(key)!r}, "
@@ -285,7 +291,7 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
     done_before = len(rows)
     session = len(state["sessions"]) + 1
     state["sessions"].append({"session": session, "started_wall": time.time(), "visits_before": done_before})
-    atomic_write_text(state_path, json.dumps(state, indent=2))
+    atomic_write_json(state_path, state)
 
     raw = RawStore(out / RAW_NAME)
     events = EventLog(out / EVENTS_NAME)
@@ -316,7 +322,7 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
         if offset is None or run.now + offset < last_end:
             offset = last_end - run.now
             state["time_offset_s"] = offset
-            atomic_write_text(state_path, json.dumps(state, indent=2))
+            atomic_write_json(state_path, state)
         notify({"event": "start", "done": done_before, "total": total})
 
         for k, (sp, direction) in enumerate(zip(setpoints_C, directions)):
@@ -406,7 +412,7 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
             events.write("link", text=text, at_wall=t)
         events.write("session_end", **{k: v for k, v in report.to_dict().items() if k != "noise"})
         events.close()
-        atomic_write_text(out / REPORT_NAME, json.dumps(report.to_dict(), indent=2))
+        atomic_write_json(out / REPORT_NAME, report.to_dict())
     return report
 
 
@@ -536,10 +542,10 @@ def load_port_config(path) -> dict:
         with open(path, "rb") as fh:
             cfg = tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not a valid TOML config file: {exc}") from None
+        raise InputError(f"{path}: not a valid TOML config file: {exc}") from None
     for section in ("imu", "bench", "chamber"):
         if section in cfg and "port" not in cfg[section]:
-            raise ValueError(f"{path}: [{section}] needs a 'port'")
+            raise InputError(f"{path}: [{section}] needs a 'port'")
     return cfg
 
 
@@ -549,7 +555,7 @@ def open_instruments(cfg: Mapping) -> tuple:
 
     missing = [s for s in ("imu", "bench", "chamber") if s not in cfg or not cfg[s].get("port")]
     if missing:
-        raise ValueError(f"no port given for: {', '.join(missing)} (use --config or --{missing[0]}-port)")
+        raise InputError(f"no port given for: {', '.join(missing)} (use --config or --{missing[0]}-port)")
     i, b, c = cfg["imu"], cfg["bench"], cfg["chamber"]
     imu = SerialImu(i["port"], protocol=i.get("protocol", "nmea"), baudrate=int(i.get("baudrate", 921600)))
     bench = ScpiBench(b["port"], baudrate=int(b.get("baudrate", 115200)))

@@ -12,6 +12,8 @@ white noise dominates; the bias instability is the floor of the deviation divide
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -54,7 +56,7 @@ def allan_noise(windows: Sequence[np.ndarray], rate_hz: float) -> NoiseEstimate:
     """Pool the overlapping Allan deviation of stationary windows (each (n_i, 3), output unit)."""
     windows = [np.asarray(w, float) for w in windows if len(w) >= 8]
     if not windows:
-        raise ValueError("no recording window with at least 8 samples: cannot estimate the noise")
+        raise InputError("no recording window with at least 8 samples: cannot estimate the noise")
     shortest = min(len(w) for w in windows)
     ms = 2 ** np.arange(0, int(np.log2(max(shortest // 4, 1))) + 1)
     taus = ms / rate_hz

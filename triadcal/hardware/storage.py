@@ -11,6 +11,8 @@ skipped by the reader, and the writer starts a fresh line after it.
 
 from __future__ import annotations
 
+from ..errors import InputError, TriadcalError
+
 import contextlib
 import json
 import os
@@ -75,7 +77,7 @@ def read_raw(path) -> dict:
     with open(path, encoding="ascii", errors="replace") as fh:
         header = fh.readline().strip().split(",")
         if tuple(header) != RAW_COLUMNS:
-            raise ValueError(f"{path}: not a triadcal raw sample file (header {header})")
+            raise InputError(f"{path}: not a triadcal raw sample file (header {header})")
         for line in fh:
             parts = line.rstrip("\n").split(",")
             if not line.endswith("\n") or len(parts) != len(RAW_COLUMNS):
@@ -136,7 +138,7 @@ def optional_float(v) -> Optional[float]:
         return None
 
 
-class FolderLocked(RuntimeError):
+class FolderLocked(TriadcalError, RuntimeError):
     """Another process holds the folder's lock (the message names it)."""
 
 

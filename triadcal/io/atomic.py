@@ -16,6 +16,8 @@ numbers and lists.
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import contextlib
 import json
 import math
@@ -68,7 +70,7 @@ def atomic_write(path: PathLike, mode: str = "w", encoding: str = "utf-8", newli
     """Open a temporary file for writing (``mode`` "w" or "wb"); on success it replaces
     ``path`` (flushed, fsync'd, renamed, folder fsync'd); on error it is removed."""
     if mode not in ("w", "wb"):
-        raise ValueError(f"atomic_write writes whole files: mode 'w' or 'wb', not {mode!r}")
+        raise InputError(f"atomic_write writes whole files: mode 'w' or 'wb', not {mode!r}")
     kw = {} if mode == "wb" else {"encoding": encoding, "newline": newline}
     with atomic_path(path) as tmp, open(tmp, mode, **kw) as fh:
         yield fh
@@ -112,3 +114,26 @@ def atomic_write_json(path: PathLike, obj, indent: int = 2) -> None:
     The text is made before the file is opened, so an object that cannot be serialised
     leaves nothing behind."""
     atomic_write_text(path, json_text(obj, indent))
+
+
+def _no_constant(name):
+    raise InputError(f"{name} is not JSON (a non-finite number must be written as null)")
+
+
+def read_json(path):
+    """A JSON document from ``path`` with one-line errors naming the file and line: not UTF-8,
+    not JSON, NaN or Infinity tokens (not JSON), nesting too deep, a file that is not there."""
+    try:
+        text = Path(path).read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        return json.loads(text, parse_constant=_no_constant)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    except RecursionError:
+        raise InputError(f"{path}: JSON nested too deeply") from None

@@ -7,6 +7,8 @@ nothing is silently dropped: columns the format does not define are kept as text
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import csv
 import io
 import math
@@ -27,7 +29,7 @@ FLOATS = ("setpoint_C", "time_s", "axis1_deg", "axis2_deg", "tau_s",
           "w_x", "w_y", "w_z", "t_x", "t_y", "t_z", "sd_x", "sd_y", "sd_z")
 
 
-class BenchCSVError(ValueError):
+class BenchCSVError(InputError):
     """Bad bench CSV input, located by file, line (1-based) and column."""
 
     def __init__(self, path: str, line: int, column: Optional[str], problem: str):
@@ -110,7 +112,7 @@ def _float_column(path, name, strings, line_numbers):
     joined = "".join(strings)
     try:
         if "_" in joined or not joined.isascii():
-            raise ValueError("digit separators or non-ASCII digits")   # float() would read them
+            raise InputError("digit separators or non-ASCII digits")   # float() would read them
         v = np.array(strings, dtype=float)
     except ValueError:
         for s_, ln in zip(strings, line_numbers):

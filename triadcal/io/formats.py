@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 from typing import Mapping
 
 
@@ -10,10 +12,10 @@ def require_format(d: Mapping, fmt: str, version: int, source: str, what: str, s
     "comparison" give "SOURCE: not a comparison (format ..., expected ...)" and
     "SOURCE: comparison version ... is not known to this triadcal (it reads version N)"."""
     if not isinstance(d, Mapping):
-        raise ValueError(f"{source}: not {what} (a JSON {type(d).__name__}, expected an object with "
+        raise InputError(f"{source}: not {what} (a JSON {type(d).__name__}, expected an object with "
                          f"format {fmt!r})")
     if d.get("format") != fmt:
-        raise ValueError(f"{source}: not {what} (format {d.get('format')!r}, expected {fmt!r})")
+        raise InputError(f"{source}: not {what} (format {d.get('format')!r}, expected {fmt!r})")
     if d.get("version") != version:
-        raise ValueError(f"{source}: {short} version {d.get('version')!r} is not known to this "
+        raise InputError(f"{source}: {short} version {d.get('version')!r} is not known to this "
                          f"triadcal (it reads version {version})")

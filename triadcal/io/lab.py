@@ -4,6 +4,8 @@ statements; validated field by field (docs/certificate.md, "The lab file").
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import math
 import tomllib
 from dataclasses import dataclass
@@ -100,22 +102,22 @@ def load_lab(path) -> LabConfig:
         with open(path, "rb") as fh:
             data = tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: {exc}") from None
+        raise InputError(f"{path}: not valid TOML: {exc}") from None
     lab = LabConfig(source=str(path))
     for section, table in data.items():
         if section not in LAB_SCHEMA:
-            raise ValueError(f"{path}: unknown section [{section}]; known: {', '.join(LAB_SCHEMA)}")
+            raise InputError(f"{path}: unknown section [{section}]; known: {', '.join(LAB_SCHEMA)}")
         if not isinstance(table, dict):
-            raise ValueError(f"{path}: {section} must be a [section] table")
+            raise InputError(f"{path}: {section} must be a [section] table")
         for key, value in table.items():
             if key not in LAB_SCHEMA[section]:
-                raise ValueError(f"{path}: unknown key {key!r} in [{section}]; known: "
+                raise InputError(f"{path}: unknown key {key!r} in [{section}]; known: "
                                  f"{', '.join(LAB_SCHEMA[section])}")
             name, typ = LAB_SCHEMA[section][key]
             if typ is float:
                 if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
                         or value < 0:
-                    raise ValueError(f"{path}: [{section}] {key} must be a non-negative number, got {value!r}")
+                    raise InputError(f"{path}: [{section}] {key} must be a non-negative number, got {value!r}")
                 value = float(value)
             elif not isinstance(value, str):
                 value = str(value)  # TOML dates etc. are written as they read

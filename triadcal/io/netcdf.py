@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import numpy as np
 
 
@@ -52,13 +54,13 @@ def read_inference_data(path):
 
     path = Path(path)
     if not path.exists():
-        raise ValueError(f"{path}: no such posterior file")
+        raise InputError(f"{path}: no such posterior file")
     import arviz as az
 
     try:
         idata = az.from_netcdf(str(path))
     except Exception as exc:  # noqa: BLE001 - h5py/netCDF raise many types; reported with the file
-        raise ValueError(f"{path}: not an arviz InferenceData netCDF file ({type(exc).__name__}: {exc})") from None
+        raise InputError(f"{path}: not an arviz InferenceData netCDF file ({type(exc).__name__}: {exc})") from None
     if not hasattr(idata, "posterior"):
-        raise ValueError(f"{path}: has no 'posterior' group (expected arviz InferenceData)")
+        raise InputError(f"{path}: has no 'posterior' group (expected arviz InferenceData)")
     return idata

@@ -10,11 +10,13 @@ the line and the field, never clipped or dropped. ``1e300`` is not a reading.
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import math
 from typing import Optional
 
 
-class NumberError(ValueError):
+class NumberError(InputError):
     """A field that is not a finite number inside its range. ``problem`` is the text without the place."""
 
     def __init__(self, problem: str):

@@ -17,6 +17,8 @@ Interval files (:func:`read_intervals`): the two-row start/end CSV of tomisuarez
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import csv
 import json
 import math
@@ -33,7 +35,7 @@ INPUT_UNITS = {"m/s2": "g/(m/s2)", "g": "g/g", "counts": "g/count"}
 DEFAULT_COLUMN_SETS = (("acc_x", "acc_y", "acc_z"), ("ax", "ay", "az"), ("x", "y", "z"))
 
 
-class RawRecordingError(ValueError):
+class RawRecordingError(InputError):
     """Bad raw-recording input, located by file, line (1-based) and column where known."""
 
     def __init__(self, path: str, line: Optional[int], column: Optional[str], problem: str):
@@ -64,11 +66,11 @@ class RawRecording:
     def __post_init__(self):
         self.acc = np.asarray(self.acc, float)
         if self.acc.ndim != 2 or self.acc.shape[1] != 3:
-            raise ValueError(f"{self.source}: samples must have shape (n, 3), got {self.acc.shape}")
+            raise InputError(f"{self.source}: samples must have shape (n, 3), got {self.acc.shape}")
         if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ValueError(f"{self.source}: the sample rate must be a positive number of Hz, got {self.rate_hz}")
+            raise InputError(f"{self.source}: the sample rate must be a positive number of Hz, got {self.rate_hz}")
         if self.unit not in INPUT_UNITS:
-            raise ValueError(f"{self.source}: unknown input unit {self.unit!r}; use one of {', '.join(INPUT_UNITS)}")
+            raise InputError(f"{self.source}: unknown input unit {self.unit!r}; use one of {', '.join(INPUT_UNITS)}")
 
     @property
     def n(self) -> int:

@@ -30,6 +30,8 @@ Library code: no printing; the CLI (``triadcal compare``) prints.
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import csv
 import math
 import os
@@ -46,7 +48,8 @@ from ..io.formats import require_format
 from ..io.numbers import parse_number
 from ..models.sensor import ANGLE_NAMES
 from ..estimation.gates import check_result_for_use
-from ..estimation.result import CalibrationResult, read_json
+from ..estimation.result import CalibrationResult
+from ..io.atomic import read_json
 
 FORMAT = "triadcal.comparison"
 SEQUENCE_FORMAT = "triadcal.comparison_sequence"
@@ -72,7 +75,7 @@ _TOLERANCE_ALIASES = {'"': "arcsec", "''": "arcsec", "as": "arcsec", "'": "arcmi
 def coverage_factors(level: float) -> tuple[float, float]:
     """``(k2, k1)``: two-sided and one-sided normal coverage factors for ``level``."""
     if not 0.5 < level < 1.0:
-        raise ValueError(f"level must be between 0.5 and 1 (e.g. 0.95), got {level!r}")
+        raise InputError(f"level must be between 0.5 and 1 (e.g. 0.95), got {level!r}")
     return float(stats.norm.ppf(0.5 + level / 2)), float(stats.norm.ppf(level))
 
 
@@ -84,19 +87,19 @@ def parse_tolerance(text: Union[str, float, None]) -> Optional[float]:
     if text is None:
         return None
     if isinstance(text, (int, float)):
-        raise ValueError(f"tolerance {text!r} has no unit: write e.g. {text}arcsec, {text}arcmin or {text}deg")
+        raise InputError(f"tolerance {text!r} has no unit: write e.g. {text}arcsec, {text}arcmin or {text}deg")
     s = str(text).strip()
     if s.lower() == "none":
         return None
     m = re.fullmatch(r"([+]?\d+(?:\.\d*)?(?:[eE][+-]?\d+)?|\.\d+)\s*(.*)", s)
     if not m:
-        raise ValueError(f"cannot read tolerance {text!r}: write a number and a unit, e.g. 30arcsec")
+        raise InputError(f"cannot read tolerance {text!r}: write a number and a unit, e.g. 30arcsec")
     value, unit = float(m.group(1)), m.group(2).strip()
     unit = _TOLERANCE_ALIASES.get(unit, unit.lower())
     if not unit:
-        raise ValueError(f"tolerance {text!r} has no unit: write e.g. {s}arcsec, {s}arcmin or {s}deg")
+        raise InputError(f"tolerance {text!r} has no unit: write e.g. {s}arcsec, {s}arcmin or {s}deg")
     if unit not in _TOLERANCE_UNITS:
-        raise ValueError(f"tolerance {text!r}: unknown unit {m.group(2).strip()!r}; "
+        raise InputError(f"tolerance {text!r}: unknown unit {m.group(2).strip()!r}; "
                          f"use one of {', '.join(_TOLERANCE_UNITS)}")
     return value * _TOLERANCE_UNITS[unit]
 
@@ -229,7 +232,7 @@ def posterior_draws(source) -> dict:
     else:
         idata = source
     if not hasattr(idata, "posterior"):
-        raise ValueError(f"{source}: has no 'posterior' group (expected arviz InferenceData)")
+        raise InputError(f"{source}: has no 'posterior' group (expected arviz InferenceData)")
     post = idata.posterior
     out = {}
     for name, var in post.data_vars.items():
@@ -294,12 +297,12 @@ class ParameterDrift:
     def from_dict(cls, name: str, d: Mapping, source: str = "<dict>") -> "ParameterDrift":
         where = f"{source}: parameters.{name}"
         if not isinstance(d, Mapping):
-            raise ValueError(f"{where} is not an object")
+            raise InputError(f"{where} is not an object")
         num = _Fields(where, d)
         if d.get("verdict") not in VERDICTS:
-            raise ValueError(f"{where}.verdict {d.get('verdict')!r} is not one of {VERDICTS}")
+            raise InputError(f"{where}.verdict {d.get('verdict')!r} is not one of {VERDICTS}")
         if not isinstance(d.get("unit"), str):
-            raise ValueError(f"{where}.unit is missing or not a string")
+            raise InputError(f"{where}.unit is missing or not a string")
         return cls(name=name, unit=d["unit"], drift=num.req("drift"), u=num.req("u", low=0.0),
                    before=num.opt("before"), after=num.opt("after"), u_before=num.opt("u_before", low=0.0),
                    u_after=num.opt("u_after", low=0.0), rho=num.opt("rho", -1.0, 1.0, default=0.0),
@@ -318,9 +321,9 @@ class _Fields:
 
     def _check(self, key, v, low, high):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ValueError(f"{self.where}.{key} = {v!r:.40} is not a finite number")
+            raise InputError(f"{self.where}.{key} = {v!r:.40} is not a finite number")
         if not low <= v <= high:
-            raise ValueError(f"{self.where}.{key} = {v!r} is outside [{low:g}, {high:g}]")
+            raise InputError(f"{self.where}.{key} = {v!r} is outside [{low:g}, {high:g}]")
         return float(v)
 
     def req(self, key, low=-math.inf, high=math.inf) -> float:
@@ -356,7 +359,7 @@ class JointTest:
         num = _Fields(f"{source}: joint", d)
         names = d.get("names")
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-            raise ValueError(f"{source}: joint.names is not a list of names")
+            raise InputError(f"{source}: joint.names is not a list of names")
         return cls(tuple(names), num.req("D2", low=0.0), int(num.req("dof", low=1.0)), num.req("p_value", 0.0, 1.0),
                    bool(d.get("significant")), num.req("level", 0.0, 1.0))
 
@@ -405,22 +408,22 @@ class ComparisonResult:
     def from_dict(cls, d: Mapping, source: str = "<dict>") -> "ComparisonResult":
         require_format(d, FORMAT, VERSION, source, "a comparison", "comparison")
         if not isinstance(d.get("parameters"), Mapping) or not d["parameters"]:
-            raise ValueError(f"{source}: parameters is missing or empty")
+            raise InputError(f"{source}: parameters is missing or empty")
         if not isinstance(d.get("rule"), str):
-            raise ValueError(f"{source}: rule is missing or not a string")
+            raise InputError(f"{source}: rule is missing or not a string")
         for key in ("tolerance", "correlation", "bench_check", "before", "after"):
             if d.get(key) is not None and not isinstance(d[key], Mapping):
-                raise ValueError(f"{source}: {key} is not an object")
+                raise InputError(f"{source}: {key} is not an object")
         if d.get("notes") is not None and not isinstance(d["notes"], list):
-            raise ValueError(f"{source}: notes is not a list")
+            raise InputError(f"{source}: notes is not a list")
         level = _Fields(source + ":", d).opt("level", 0.0, 1.0, default=0.95)
         if d.get("overall") not in VERDICTS:
-            raise ValueError(f"{source}: overall verdict {d.get('overall')!r} is not one of {VERDICTS}")
+            raise InputError(f"{source}: overall verdict {d.get('overall')!r} is not one of {VERDICTS}")
         tol = dict(d.get("tolerance") or {})
         angles_tol = tol.pop("angles_arcsec", None)
         params = {k: ParameterDrift.from_dict(k, p, source) for k, p in d["parameters"].items()}
         if d["overall"] == "pass" and any(p.verdict == "fail" and p.judged for p in params.values()):
-            raise ValueError(f"{source}: overall verdict 'pass' contradicts a judged parameter whose verdict is 'fail'")
+            raise InputError(f"{source}: overall verdict 'pass' contradicts a judged parameter whose verdict is 'fail'")
         return cls(parameters=params,
                    overall=d["overall"], rule=d["rule"], level=level,
                    tolerance_arcsec=angles_tol, tolerances=tol, correlation=d.get("correlation", {}),
@@ -455,17 +458,17 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     k2, _ = coverage_factors(level)
     tolerances = dict(tolerances or {})
     if tolerance_arcsec is not None and tolerance_arcsec < 0:
-        raise ValueError(f"tolerance must be >= 0, got {tolerance_arcsec} arcsec")
+        raise InputError(f"tolerance must be >= 0, got {tolerance_arcsec} arcsec")
     notes = []
     # a drift between calibrations one of which is not an answer is not a drift: refuse, naming
     # the side (status not ok, a value or u not finite, u < 0, a failing answer gate)
     for tag, r in (("before", before), ("after", after)):
         check_result_for_use(r, f"the {tag} calibration ({r.unit}, {r.method})")
     if before.unit != after.unit:
-        raise ValueError(f"before is unit {before.unit!r} and after is unit {after.unit!r}: a drift compares "
+        raise InputError(f"before is unit {before.unit!r} and after is unit {after.unit!r}: a drift compares "
                          "two calibrations of the same unit")
     if before.reference_temperature_C != after.reference_temperature_C:
-        raise ValueError(f"reference temperatures differ ({before.reference_temperature_C:g} vs "
+        raise InputError(f"reference temperatures differ ({before.reference_temperature_C:g} vs "
                          f"{after.reference_temperature_C:g} degC): refit one of them at the other's "
                          "reference temperature so the angles are comparable")
     if before.method != after.method:
@@ -477,29 +480,29 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
 
     if isinstance(correlation, str):
         if correlation != "auto":
-            raise ValueError(f"correlation must be 'auto' or a number in [-1, 1], got {correlation!r}")
+            raise InputError(f"correlation must be 'auto' or a number in [-1, 1], got {correlation!r}")
         rho, reason = derive_correlation(before, after)
     else:
         rho = float(correlation)
         if not -1.0 <= rho <= 1.0:
-            raise ValueError(f"correlation must lie in [-1, 1], got {rho}")
+            raise InputError(f"correlation must lie in [-1, 1], got {rho}")
         reason = f"rho = {rho:g} stated by the user for every parameter"
 
     names = [n for n in before.parameters if n in after.parameters and n not in BENCH_PARAMETERS]
     for n in names:
         if before[n].unit != after[n].unit:
-            raise ValueError(f"{n}: unit {before[n].unit!r} before and {after[n].unit!r} after")
+            raise InputError(f"{n}: unit {before[n].unit!r} before and {after[n].unit!r} after")
     only = sorted(set(before.parameters) ^ set(after.parameters))
     if only:
         notes.append("not compared (present in one result only): " + ", ".join(only))
     unknown = [n for n in tolerances if n not in names]
     if unknown:
-        raise ValueError(f"tolerances given for {unknown}, which are not in both results")
+        raise InputError(f"tolerances given for {unknown}, which are not in both results")
 
     post_b = posterior_draws(posterior_before) if posterior_before is not None else None
     post_a = posterior_draws(posterior_after) if posterior_after is not None else None
     if (post_b is None) != (post_a is None):
-        raise ValueError("give posteriors for both calibrations (before and after), or for neither")
+        raise InputError("give posteriors for both calibrations (before and after), or for neither")
 
     params = {}
     for n in names:
@@ -519,7 +522,7 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
             (db, unit_b), (da, unit_a) = post_b[n], post_a[n]
             for tag, unit_p in (("before", unit_b), ("after", unit_a)):
                 if unit_p is not None and unit_p != b.unit:
-                    raise ValueError(f"posterior {tag}: {n} is in {unit_p!r}, the results give {b.unit!r}")
+                    raise InputError(f"posterior {tag}: {n} is in {unit_p!r}, the results give {b.unit!r}")
             draws = posterior_drift(db, da)
             if rho != 0.0:
                 # shared error: shrink the spread of the (independent-posterior) drift about its mean
@@ -587,7 +590,7 @@ def joint_test(drift: np.ndarray, cov: np.ndarray, names: Sequence[str], level: 
     drift = np.asarray(drift, float)
     w, V = np.linalg.eigh(cov)
     if w.min() <= 1e-12 * max(w.max(), 1e-300):
-        raise ValueError("the covariance of the angle drifts is singular or not positive definite "
+        raise InputError("the covariance of the angle drifts is singular or not positive definite "
                          f"(eigenvalues {w.min():.3g} .. {w.max():.3g}); check the correlation coefficient")
     y = V.T @ drift
     D2 = float(np.sum(y * y / w))
@@ -662,7 +665,7 @@ class SequenceComparison:
         require_format(d, SEQUENCE_FORMAT, VERSION, source, "a comparison sequence", "sequence")
         for key in ("labels", "steps", "cumulative"):
             if not isinstance(d.get(key), list):
-                raise ValueError(f"{source}: {key} is missing or not a list")
+                raise InputError(f"{source}: {key} is missing or not a list")
         return cls(labels=list(d["labels"]), steps=[ComparisonResult.from_dict(c, source) for c in d["steps"]],
                    cumulative=[ComparisonResult.from_dict(c, source) for c in d["cumulative"]],
                    kind=d.get("kind", "results"), rule=d.get("rule", ""), notes=list(d.get("notes", [])))
@@ -703,7 +706,7 @@ class SequenceComparison:
 
     def comparisons(self, which: str) -> list:
         if which not in ("step", "cumulative"):
-            raise ValueError(f"which must be 'step' or 'cumulative', got {which!r}")
+            raise InputError(f"which must be 'step' or 'cumulative', got {which!r}")
         return self.steps if which == "step" else self.cumulative
 
 
@@ -713,13 +716,13 @@ def compare_sequence(results: Sequence[CalibrationResult], labels: Optional[Sequ
     against the initial one; ``kwargs`` as :func:`compare` (posteriors: a list per state as
     ``posteriors=[...]``)."""
     if len(results) < 2:
-        raise ValueError("a sequence needs at least two calibrations (the initial state and one exposure)")
+        raise InputError("a sequence needs at least two calibrations (the initial state and one exposure)")
     labels = list(labels) if labels is not None else [f"state {i}" for i in range(len(results))]
     if len(labels) != len(results):
-        raise ValueError(f"{len(labels)} labels for {len(results)} calibrations")
+        raise InputError(f"{len(labels)} labels for {len(results)} calibrations")
     posteriors = kwargs.pop("posteriors", None) or [None] * len(results)
     if len(posteriors) != len(results):
-        raise ValueError(f"{len(posteriors)} posteriors for {len(results)} calibrations")
+        raise InputError(f"{len(posteriors)} posteriors for {len(results)} calibrations")
     steps, cumulative = [], []
     for i in range(1, len(results)):
         steps.append(compare(results[i - 1], results[i], posterior_before=posteriors[i - 1],
@@ -752,7 +755,7 @@ def angle_name(text: str) -> str:
     s = s[3:] if s.lower().startswith("ca_") else s
     name = f"Ca_{s.lower()}"
     if name not in ANGLES:
-        raise ValueError(f"unknown angle {text!r}: expected one of {', '.join(ANGLES)} (or the paper's xY form)")
+        raise InputError(f"unknown angle {text!r}: expected one of {', '.join(ANGLES)} (or the paper's xY form)")
     return name
 
 
@@ -764,13 +767,13 @@ def read_published_table(path) -> list[PublishedDrift]:
         data = read_json(path)
         rows = data.get("drifts") if isinstance(data, dict) else data
         if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
-            raise ValueError(f"{path}: expected a list of drift objects (or {{\"drifts\": [...]}})")
+            raise InputError(f"{path}: expected a list of drift objects (or {{\"drifts\": [...]}})")
         start = None
     else:
         try:
             text = path.read_bytes().decode("utf-8")
         except UnicodeDecodeError as exc:
-            raise ValueError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+            raise InputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
         lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
         rows = list(csv.DictReader(lines))
         start = 2
@@ -778,11 +781,11 @@ def read_published_table(path) -> list[PublishedDrift]:
     for i, row in enumerate(rows):
         where = f"{path}:row {i + 1}" if start is None else f"{path}: data row {i + 1}"
         if None in row:
-            raise ValueError(f"{where}: more fields than the header names")
+            raise InputError(f"{where}: more fields than the header names")
         row = {str(k).strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items() if k}
         missing = [k for k in ("exposure", "angle", "drift_arcsec") if row.get(k) in (None, "")]
         if missing:
-            raise ValueError(f"{where}: missing {', '.join(missing)} (columns: exposure, sensor, angle, "
+            raise InputError(f"{where}: missing {', '.join(missing)} (columns: exposure, sensor, angle, "
                              "drift_arcsec, optional u_arcsec or u_drift_arcsec)")
         try:
             out.append(PublishedDrift(
@@ -792,9 +795,9 @@ def read_published_table(path) -> list[PublishedDrift]:
                 u_measurement_arcsec=_opt_float(row.get("u_arcsec"), "u_arcsec"),
                 u_drift_arcsec=_opt_float(row.get("u_drift_arcsec"), "u_drift_arcsec")))
         except ValueError as exc:
-            raise ValueError(f"{where}: {exc}") from None
+            raise InputError(f"{where}: {exc}") from None
     if not out:
-        raise ValueError(f"{path}: no drifts in the table")
+        raise InputError(f"{path}: no drifts in the table")
     return out
 
 
@@ -812,7 +815,7 @@ def judge_published(rows: Sequence[PublishedDrift], *, u_measurement_arcsec: Opt
     is the publication's business).
     """
     if not -1.0 <= correlation <= 1.0:
-        raise ValueError(f"correlation must lie in [-1, 1], got {correlation}")
+        raise InputError(f"correlation must lie in [-1, 1], got {correlation}")
     exposures = list(dict.fromkeys(r.exposure for r in rows))
     comps = []
     for e in exposures:
@@ -820,7 +823,7 @@ def judge_published(rows: Sequence[PublishedDrift], *, u_measurement_arcsec: Opt
         for r in (r for r in rows if r.exposure == e):
             key = f"{r.sensor}.{r.angle}" if r.sensor else r.angle
             if key in params:
-                raise ValueError(f"exposure {e!r}: {key} appears twice")
+                raise InputError(f"exposure {e!r}: {key} appears twice")
             um = r.u_measurement_arcsec if r.u_measurement_arcsec is not None else u_measurement_arcsec
             if r.u_drift_arcsec is not None:
                 u = r.u_drift_arcsec
@@ -828,7 +831,7 @@ def judge_published(rows: Sequence[PublishedDrift], *, u_measurement_arcsec: Opt
             elif um is not None:
                 u = drift_uncertainty(um, um, correlation)
             else:
-                raise ValueError(f"exposure {e!r}, {key}: no uncertainty; give u_arcsec per angle measurement "
+                raise InputError(f"exposure {e!r}, {key}: no uncertainty; give u_arcsec per angle measurement "
                                  "(--u-arcsec) or u_drift_arcsec in the table")
             d = r.drift_arcsec
             verdict, significant = decide(d, u, tolerance_arcsec, level)

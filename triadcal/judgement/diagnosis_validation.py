@@ -28,7 +28,8 @@ Design (stated, and the same for every effect):
 
 from __future__ import annotations
 
-import os
+from ..errors import InputError
+
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -58,7 +59,7 @@ NONE = "none"
 def scenario(effect: str, preset: str = "ak18-quartz"):
     """(truth, model effects) of the validation campaign that withholds ``effect`` ('clean': none)."""
     if effect != "clean" and effect not in VOCABULARY:
-        raise ValueError(f"unknown effect {effect!r}; choose from clean, {', '.join(VOCABULARY)}")
+        raise InputError(f"unknown effect {effect!r}; choose from clean, {', '.join(VOCABULARY)}")
     noise = NoiseModel(sigma_position_arcsec=5.0 if effect == "position_error" else 0.0,
                        sigma_wobble_arcsec=2.0 if effect == "position_error" else 0.0,
                        heavy_tails_dof=3.0 if effect == "heavy_tails" else None)
@@ -166,6 +167,18 @@ def summarise(rows, conditions) -> dict:
     return out
 
 
+_BLAS_LIMIT = None
+
+
+def _one_blas_thread():
+    """Worker initializer: one BLAS thread in this process (threadpoolctl; the matrices are
+    small and threaded BLAS only adds overhead). The environment is not touched."""
+    global _BLAS_LIMIT
+    from threadpoolctl import threadpool_limits
+
+    _BLAS_LIMIT = threadpool_limits(1)
+
+
 def validate(seeds: int = 20, effects: Optional[Sequence[str]] = None, processes: int = 2,
              preset: str = "ak18-quartz", first_seed: int = 1000, n_draws: int = 200,
              progress=None) -> ValidationResult:
@@ -185,21 +198,11 @@ def validate(seeds: int = 20, effects: Optional[Sequence[str]] = None, processes
             if progress:
                 progress(rows[-1])
     else:
-        saved = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-        try:
-            for k in saved:
-                os.environ[k] = "1"
-            with ProcessPoolExecutor(processes, mp_context=get_context("spawn")) as ex:
-                for row in ex.map(_run_star, jobs, chunksize=4):
-                    rows.append(row)
-                    if progress:
-                        progress(row)
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
+        with ProcessPoolExecutor(processes, mp_context=get_context("spawn"), initializer=_one_blas_thread) as ex:
+            for row in ex.map(_run_star, jobs, chunksize=4):
+                rows.append(row)
+                if progress:
+                    progress(row)
     labels = tuple(VOCABULARY) + (NONE,)
     res = ValidationResult(rows, conditions, labels, seeds, seconds=time.perf_counter() - t0)
     res.summary = summarise(rows, conditions)

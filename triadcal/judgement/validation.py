@@ -28,6 +28,8 @@ Statistics (see docs/posterior.md for the reasoning):
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import math
 import time
 from dataclasses import dataclass, field
@@ -195,7 +197,7 @@ def sbc(n_campaigns: int = 200, effects: Sequence[str] = DEFAULT_EFFECTS, *, n_r
     ``progress(done, total)`` is called as campaigns finish.
     """
     if n_ranks < 1 or n_campaigns < 1:
-        raise ValueError("n_campaigns and n_ranks must be positive")
+        raise InputError("n_campaigns and n_ranks must be positive")
     effects = tuple(effects)
     schedule = schedule or compact_schedule()
     plan = dict(DEFAULT_PLAN if plan is None else plan)

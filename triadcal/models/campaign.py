@@ -6,6 +6,8 @@ The data object every estimator takes, whether it came from bench CSV v1
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 from dataclasses import dataclass, field, replace
 from typing import Optional
 
@@ -77,9 +79,9 @@ class Campaign:
         for name in ("unit", "setpoint_C", "direction", "position", "axis1_deg", "axis2_deg",
                      "tau_s", "cycle", "state"):
             if len(getattr(self, name)) != n:
-                raise ValueError(f"campaign field {name} has {len(getattr(self, name))} entries, expected {n}")
+                raise InputError(f"campaign field {name} has {len(getattr(self, name))} entries, expected {n}")
         if self.w.shape != (n, 3) or self.t.shape != (n, 3):
-            raise ValueError("campaign fields w and t must have shape (n_visits, 3)")
+            raise InputError("campaign fields w and t must have shape (n_visits, 3)")
 
     # -- basic facts ---------------------------------------------------------------
     @property

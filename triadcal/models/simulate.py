@@ -12,6 +12,8 @@ white output noise of intensity Q averaged over tau (variance Q / tau).
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import json
 from dataclasses import asdict, dataclass, field
 from typing import Mapping, Optional, Sequence
@@ -114,7 +116,7 @@ class Truth:
     @classmethod
     def from_dict(cls, d: Mapping) -> "Truth":
         if d.get("format") != "triadcal.truth" or d.get("version") != 1:
-            raise ValueError(f"not a triadcal.truth version 1 document (format={d.get('format')!r}, "
+            raise InputError(f"not a triadcal.truth version 1 document (format={d.get('format')!r}, "
                              f"version={d.get('version')!r})")
         return cls(unit=d["unit"], effects=tuple(d["effects"]),
                    parameters={k: v["value"] for k, v in d["parameters"].items()},
@@ -185,13 +187,13 @@ def preset_truth(name: str = "ak18-quartz", effects: Sequence[str] = DEFAULT_EFF
     ``overrides`` set parameters by name (reporting units).
     """
     if name not in PRESETS:
-        raise ValueError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
+        raise InputError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
     effects = tuple(e for e in effects if e not in NOISE_EFFECTS)
     model = Model(effects)
     params = {n: PRESETS[name][n] for n in model.names}
     for k, v in overrides.items():
         if k not in model.spec:
-            raise ValueError(f"parameter {k!r} is not in the model with effects {list(effects)}")
+            raise InputError(f"parameter {k!r} is not in the model with effects {list(effects)}")
         params[k] = float(v)
     return Truth(unit=unit, effects=tuple(model.effect_names), parameters=params,
                  noise=noise or NoiseModel())
@@ -257,7 +259,7 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
     if noise.heavy_tails_dof is not None:
         nu = float(noise.heavy_tails_dof)
         if nu <= 2:
-            raise ValueError("heavy_tails_dof must exceed 2 for a finite variance")
+            raise InputError("heavy_tails_dof must exceed 2 for a finite variance")
         eps = rng.standard_t(nu, size=(n, 3)) * np.sqrt((nu - 2) / nu)
     else:
         eps = rng.standard_normal((n, 3))

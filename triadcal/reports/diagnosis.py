@@ -56,6 +56,7 @@ def slices_figure(diagnosis, n: int = 15):
     ax.invert_yaxis()
     ax.set_xscale("symlog")
     ax.set_xlabel("-log10 p (unadjusted; the line is alpha)")
+    ax.set_ylabel("slice [output] test")
     ax.set_title("where: residual slices ranked")
     ax.legend(loc="lower right")
     return fig
@@ -122,24 +123,75 @@ def _num(v, fmt="{:.3g}") -> str:
     return fmt.format(v)
 
 
+def _p(p, log10_p=None) -> str:
+    """A p-value as a reader takes it: never a bare "0" when it underflowed (then its order of
+    magnitude from ``log10_p`` when known, else an honest bound)."""
+    if p is None or (isinstance(p, float) and math.isnan(p)):
+        return "not computed"
+    if p > 0:
+        return f"{p:.3g}"
+    if log10_p is not None and math.isfinite(log10_p):
+        exponent = math.floor(log10_p)
+        mantissa = 10.0 ** (log10_p - exponent)
+        return f"{mantissa:.3g}e{exponent:d}"
+    return "< 1e-300"
+
+
+def _ppc_p(p) -> str:
+    """A posterior-predictive p (a share of draws): 0 means no draw was as extreme."""
+    if p is None or (isinstance(p, float) and math.isnan(p)):
+        return "not computed"
+    return "no draw as extreme" if p == 0 else f"{p:.3g}"
+
+
+def _yes_no(flag) -> str:
+    return "not computed" if flag is None else ("yes" if flag else "no")
+
+
+def _count(n) -> str:
+    return "not computed" if n is None else f"{int(n)}"
+
+
+def _verdict_text(d) -> tuple[str, str]:
+    """The verdict's headline and its evidence in words (p-values from the candidate itself, so
+    that an underflowed p never reads "p = 0")."""
+    v = d.verdict
+    effect = v.get("effect")
+    if effect is None:
+        return "no missing effect named", str(v.get("reason") or "")
+    cand = next((c for c in d.candidates if c.effect == effect), None)
+    if cand is None or not cand.refit:
+        return str(effect), str(v.get("evidence") or v.get("reason") or "")
+    r = cand.refit
+    evidence = (f"score p = {_p(cand.score_p, cand.score_logp / math.log(10))}, "
+                f"LR p = {_p(r.get('lr_p_value'))}, delta elpd = {_num(r.get('delta_elpd'), '{:.1f}')} "
+                f"+- {_num(r.get('delta_elpd_se'), '{:.1f}')}")
+    if v.get("runner_up"):
+        evidence += f"; runner-up {v['runner_up']}"
+        if v.get("delta_elpd_to_runner_up") is not None:
+            evidence += f" ({_num(v['delta_elpd_to_runner_up'], '{:.1f}')} elpd behind)"
+    return str(effect), evidence
+
+
 def html_report(diagnosis, campaign=None) -> str:
     """A self-contained HTML report of a diagnosis (plots embedded as PNG)."""
     d = diagnosis
     e = html.escape
     g = d.gap
-    v = d.verdict
+    headline, evidence = _verdict_text(d)
     parts = [
-        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>triadcal diagnosis</title>",
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>triadcal diagnosis</title>",
         "<style>body{font-family:sans-serif;max-width:1000px;margin:auto}table{border-collapse:collapse}"
         "td,th{border:1px solid #ccc;padding:2px 6px;font-size:90%}th{background:#eee}</style></head><body>",
         f"<h1>Diagnosis of the model-data gap</h1><p>data: {e(str(d.source))}; model: "
         f"{e(', '.join(d.model) or '(core only)')}; noise: {e(d.noise)}</p>",
         "<h2>Gap</h2>",
-        f"<p>chi2/dof = {_num(g['chi2_dof'])} ({g['dof']} dof), residual RMS {_num(g['residual_rms_ug'])} ug "
-        f"against a noise floor of {_num(g['noise_floor_ug'])} ug; significant: <b>{g['significant']}</b> "
-        f"(Holm at alpha = {d.alpha:g}). {e(g['testable'])}.</p>",
+        f"<p>chi2/dof = {_num(g['chi2_dof'])} ({_count(g.get('dof'))} dof), residual RMS "
+        f"{_num(g['residual_rms_ug'])} ug against a noise floor of {_num(g['noise_floor_ug'])} ug; "
+        f"significant: <b>{_yes_no(g.get('significant'))}</b> (Holm at alpha = {d.alpha:g}). "
+        f"{e(str(g.get('testable', '')))}.</p>",
         "<h2>Verdict</h2>",
-        f"<p><b>{e(str(v.get('effect')))}</b> &mdash; {e(v.get('evidence') or v.get('reason') or '')}</p>",
+        f"<p><b>{e(headline)}</b>" + (f" &mdash; {e(evidence)}" if evidence else "") + "</p>",
     ]
     if campaign is not None and d.residuals is not None:
         parts.append(_img(figure_png(residuals_figure(d, campaign)), "residuals"))
@@ -150,18 +202,22 @@ def html_report(diagnosis, campaign=None) -> str:
     parts.append("<table><tr><th>slice</th><th>output</th><th>test</th><th>n</th><th>size</th>"
                  "<th>p</th><th>p (Holm)</th><th>PPC p</th></tr>")
     for s in rows:
-        parts.append(f"<tr><td>{e(s.slice)}</td><td>{s.axis}</td><td>{s.test}</td><td>{s.n}</td>"
-                     f"<td>{_num(s.size)} {e(s.unit)}</td><td>{_num(s.p_value)}</td><td>{_num(s.p_adjusted)}</td>"
-                     f"<td>{_num(s.ppc_p)}</td></tr>")
+        parts.append(f"<tr><td>{e(s.slice)}</td><td>{e(s.axis)}</td><td>{e(s.test)}</td><td>{s.n}</td>"
+                     f"<td>{_num(s.size)} {e(s.unit)}</td><td>{_p(s.p_value, s.log10_p)}</td>"
+                     f"<td>{_p(s.p_adjusted)}</td><td>{_ppc_p(s.ppc_p)}</td></tr>")
     parts.append("</table>")
     if not d.where:
         parts.append("<p>No slice disagrees significantly; the most extreme are listed.</p>")
+    elif len(d.where) > len(rows):
+        parts.append(f"<p>{len(d.where)} slices disagree significantly; the {len(rows)} with the smallest p "
+                     "are listed, every one is in the JSON (where).</p>")
     if d.families:
         parts.append("<p>Families of slices, by how much of the misfit their offsets explain "
                      "(chi2 of the projection, after the fitted model):</p><table><tr><th>family</th>"
                      "<th>slices</th><th>dof</th><th>chi2/dof</th><th>log10 p</th></tr>")
         for f in d.families:
-            parts.append(f"<tr><td>{e(f['family'])}</td><td>{f['slices']}</td><td>{f['dof']}</td>"
+            parts.append(f"<tr><td>{e(str(f['family']))}</td><td>{_count(f.get('slices'))}</td>"
+                         f"<td>{_count(f.get('dof'))}</td>"
                          f"<td>{_num(f['chi2_per_dof'])}</td><td>{_num(f['log10_p'], '{:.1f}')}</td></tr>")
         parts.append("</table>")
     parts.append("<h2>Which</h2>")
@@ -180,12 +236,13 @@ def html_report(diagnosis, campaign=None) -> str:
         parts.append(
             f"<tr><td>{c.rank}</td><td>{e(c.effect)}</td><td>{_num(c.score)} ({c.k})</td>"
             f"<td>{_num(c.score_logp / math.log(10), '{:.1f}')}</td><td>{_num(r.get('delta_loglik'), '{:.1f}')}</td>"
-            f"<td>{_num(r.get('lr_p_value'))}</td>"
+            f"<td>{_p(r.get('lr_p_value'))}</td>"
             f"<td>{_num(r.get('delta_elpd'), '{:.1f}')} +- {_num(r.get('delta_elpd_se'), '{:.1f}')}</td>"
             f"<td>{_num(r.get('cross_branch_delta_lpd'), '{:.1f}')}</td>"
             f"<td>{_num((r.get('gap_after') or {}).get('chi2_dof'))}</td>"
             f"<td>{_num((r.get('gap_after') or {}).get('residual_rms_ug'))}</td>"
-            f"<td>{e(str(ls.get('parameter', '-')))} {_num(ls.get('in_u'), '{:.1f}')} u</td></tr>")
+            + (f"<td>{e(str(ls['parameter']))} {_num(ls.get('in_u'), '{:.1f}')} u</td></tr>" if ls.get("parameter")
+               else "<td>not computed</td></tr>"))
     parts.append("</table>")
     parts.append("<h2>How far it shrinks</h2>")
     for c in sorted(d.candidates, key=lambda c: c.rank):
@@ -199,17 +256,18 @@ def html_report(diagnosis, campaign=None) -> str:
             f"<h3>{e(c.effect)}</h3><p>chi2/dof {_num(b['chi2_dof'])} &rarr; {_num(a['chi2_dof'])}; residual RMS "
             f"{_num(b['residual_rms_ug'])} &rarr; {_num(a['residual_rms_ug'])} ug (noise floor "
             f"{_num(a['noise_floor_ug'])} ug); elpd {_num(b['elpd_loo'], '{:.1f}')} &rarr; "
-            f"{_num(a['elpd_loo'], '{:.1f}')}; significant slices {b['significant_slices']} &rarr; "
-            f"{a['significant_slices'] if a['significant_slices'] is not None else '-'}.</p>"
+            f"{_num(a['elpd_loo'], '{:.1f}')}; significant slices {_count(b.get('significant_slices'))} &rarr; "
+            f"{_count(a.get('significant_slices'))}.</p>"
             "<p>New parameters: " + e(", ".join(
-                f"{n} = {_num(p['value'])}" + (f" +- {_num(p['u'])}" if 'u' in p else "") + f" {p['unit']}"
+                f"{n} = {_num(p['value'])}" + (f" +- {_num(p['u'])}" if p.get('u') is not None else "")
+                + f" {p.get('unit', '')}"
                 for n, p in r["new_parameters"].items())) + "</p>"
             "<p>Calibration parameters that move most (shift in units of their u before): " + e(", ".join(
                 f"{n} {_num(s['shift'])} {s['unit']} ({_num(s['in_u'], '{:+.1f}')} u)" for n, s in moved)) + "</p>")
     if d.notes:
         parts.append("<h2>Notes</h2><ul>" + "".join(f"<li>{e(n)}</li>" for n in d.notes) + "</ul>")
     parts.append("<h2>Methods</h2><ul>" + "".join(
-        f"<li><b>{k}</b>: {e(t)}</li>" for k, t in d.to_dict()["methods"].items()) + "</ul>")
+        f"<li><b>{e(str(k))}</b>: {e(str(t))}</li>" for k, t in d.to_dict()["methods"].items()) + "</ul>")
     parts.append("</body></html>")
     return "\n".join(parts)
 
@@ -240,13 +298,13 @@ def summary_text(diagnosis) -> str:
     g = d.gap
     lines = [f"model: {', '.join(d.model) or '(core only)'}",
              f"gap: chi2/dof = {_num(g['chi2_dof'])} ({g['dof']} dof), RMS {_num(g['residual_rms_ug'])} ug vs noise "
-             f"{_num(g['noise_floor_ug'])} ug; significant: {g['significant']}",
-             f"verdict: {d.verdict.get('effect')}  ({d.verdict.get('evidence') or d.verdict.get('reason') or ''})"]
+             f"{_num(g['noise_floor_ug'])} ug; significant: {_yes_no(g.get('significant'))}",
+             "verdict: {}  ({})".format(*_verdict_text(d))]
     if d.families and d.families[0]["log10_p"] < math.log10(d.alpha):
         f = d.families[0]
         lines.append(f"  localised in: {f['family']} (chi2/dof {f['chi2_per_dof']:.3g}, log10 p {f['log10_p']:.1f})")
     for s in d.where[:5]:
-        lines.append(f"  where: {s.slice} [{s.axis}] {s.test}: {_num(s.size)} {s.unit}, p(Holm) = {_num(s.p_adjusted)}")
+        lines.append(f"  where: {s.slice} [{s.axis}] {s.test}: {_num(s.size)} {s.unit}, p(Holm) = {_p(s.p_adjusted)}")
     for c in sorted(d.candidates, key=lambda c: c.rank)[:5]:
         if not c.testable:
             continue

@@ -9,6 +9,8 @@ filled: pass). No estimation here: it draws :mod:`triadcal.judgement.compare` re
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
@@ -32,14 +34,14 @@ def plot_drifts(comparison: Union[ComparisonResult, SequenceComparison], path, *
     """
     comps = [comparison] if isinstance(comparison, ComparisonResult) else comparison.comparisons(which)
     if not comps:
-        raise ValueError("nothing to plot: the sequence has no comparisons of kind " + repr(which))
+        raise InputError("nothing to plot: the sequence has no comparisons of kind " + repr(which))
     if names is None:
         names = [n for n, p in comps[0].parameters.items() if p.judged]
     if not names:
-        raise ValueError("no parameters to plot")
+        raise InputError("no parameters to plot")
     units = {comps[0].parameters[n].unit for n in names if n in comps[0].parameters}
     if len(units) > 1:
-        raise ValueError(f"parameters in different units {sorted(units)}: plot them separately (names=...)")
+        raise InputError(f"parameters in different units {sorted(units)}: plot them separately (names=...)")
     unit = units.pop() if units else ""
     k2, _ = coverage_factors(comps[0].level)
 

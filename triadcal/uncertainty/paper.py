@@ -18,6 +18,8 @@ relates eq. 4 to the standard deviation of the classical estimate
 
 from __future__ import annotations
 
+from ..errors import InputError
+
 import math
 from dataclasses import asdict, dataclass
 from typing import Optional
@@ -62,7 +64,7 @@ def accelerometer(name: str) -> AccelerometerType:
     for a in TABLE_1:
         if a.name.lower() == name.strip().lower():
             return a
-    raise ValueError(f"unknown accelerometer {name!r}; Table 1 lists: {', '.join(a.name for a in TABLE_1)}")
+    raise InputError(f"unknown accelerometer {name!r}; Table 1 lists: {', '.join(a.name for a in TABLE_1)}")
 
 
 # -- eq. 4 --------------------------------------------------------------------------------
@@ -172,7 +174,7 @@ def budget(*, thermal: bool = False, accelerometer_name: Optional[str] = None, K
     Table 1 (``accelerometer_name``) or, without a name, for all of them. Returns budget tables."""
     if not thermal:
         if accelerometer_name is not None:
-            raise ValueError("an accelerometer of Table 1 is for the thermal budget: add --thermal (thermal=True)")
+            raise InputError("an accelerometer of Table 1 is for the thermal budget: add --thermal (thermal=True)")
         return [calibration_budget(K_g_per_V, Q_V2s, tau_s, sigma1_arcsec, sigma2_arcsec, G_g)]
     kw = dict(k_ca_arcsec_per_C=k_ca_arcsec_per_C, dT_C=dT_C, cte_body_per_C=cte_body_per_C,
               cte_accelerometer_per_C=cte_accelerometer_per_C, T_max_C=T_max_C, T0_C=T0_C)

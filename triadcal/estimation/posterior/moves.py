@@ -4,6 +4,8 @@ Laplace approximation (why this mixture: docs/posterior.md, ``benchmarks/sample.
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 import numpy as np
 
 MOVES = ("de-snooker-laplace", "de-snooker", "stretch")
@@ -42,4 +44,4 @@ def make_moves(kind: str = "de-snooker-laplace"):
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
     if kind == "stretch":
         return [(emcee.moves.StretchMove(), 1.0)]
-    raise ValueError(f"unknown moves {kind!r}; choose one of {', '.join(MOVES)}")
+    raise InputError(f"unknown moves {kind!r}; choose one of {', '.join(MOVES)}")

@@ -4,6 +4,8 @@ for every parameter, or ``not_converged`` at ``max_steps``.
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 import math
 import time
 from dataclasses import dataclass, field
@@ -64,7 +66,7 @@ def run_sampler(target: LogPosterior, n_walkers: int, *, ess: float = 2000, rhat
             break
         z0[bad] = rng.standard_normal((int(bad.sum()), d)) * start_scale * 0.5
     else:
-        raise ValueError("cannot place the walkers inside the bounds of the priors around the MAP; "
+        raise InputError("cannot place the walkers inside the bounds of the priors around the MAP; "
                          "check the priors (a bound at the estimate?) or the data")
     sampler = emcee.EnsembleSampler(n_walkers, d, target, vectorize=True, moves=make_moves(moves))
     sampler.random_state = np.random.RandomState(seed).get_state()

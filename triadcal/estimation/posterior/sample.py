@@ -4,6 +4,8 @@ campaign) and :func:`sample_target` (any :class:`ResidualTarget`, used by ``fit-
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 import math
 import time
 from dataclasses import replace
@@ -67,7 +69,7 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     """
     gates = gates or DEFAULT_CONFIG
     if moves not in MOVES:
-        raise ValueError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
+        raise InputError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
     campaign = _load(data)
     t_start = time.perf_counter()
     if least_squares is None:
@@ -82,7 +84,7 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     if not noise.known:
         chi2_dof = ls.fit.get("chi2_dof")
         if not (chi2_dof and np.isfinite(chi2_dof)):
-            raise ValueError(f"{campaign.source or 'campaign'}: the noise of the outputs is not in the data "
+            raise InputError(f"{campaign.source or 'campaign'}: the noise of the outputs is not in the data "
                              "(no sd_* columns, no Q_V2s metadata) and cannot be estimated from the fit")
         sigma = sigma * math.sqrt(chi2_dof)
         notes.append(f"output noise not in the data: held at its least-squares estimate ({noise.description}, "
@@ -118,7 +120,7 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
     intervals and flags (:func:`posterior_summary`). Returns ``(CalibrationResult, PosteriorRun)``
     (method ``posterior``); writes the InferenceData to ``posterior_path`` when given."""
     if moves not in MOVES:
-        raise ValueError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
+        raise InputError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
     t_start = time.perf_counter()
     problem = ResidualProblem(target)
     if target.transform is None:

@@ -13,7 +13,7 @@ from typing import Mapping, Optional, Sequence
 import casadi as ca
 import numpy as np
 
-from ...errors import UnknownName
+from ...errors import InputError, UnknownName
 from ...models.campaign import Campaign
 from ...models.model import Covariates, Model
 from ..joint import (
@@ -183,7 +183,7 @@ class ResidualTarget:
 
     def __post_init__(self):
         if (self.transform is None) != (self.inverse is None):
-            raise ValueError("a transform needs its inverse (and the inverse its transform)")
+            raise InputError("a transform needs its inverse (and the inverse its transform)")
         self.names = tuple(self.names)
         self.units = tuple(self.units)
         self.x_ls = np.asarray(self.x_ls, float)

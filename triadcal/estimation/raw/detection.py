@@ -27,6 +27,8 @@ found; nothing in it can produce NaN (all quantities are floored, empty sets ref
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
@@ -36,7 +38,7 @@ import numpy as np
 POSE_LABELS = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")
 
 
-class StaticIntervalError(ValueError):
+class StaticIntervalError(InputError):
     """Too few (or no usable) static intervals for the requested calibration."""
 
 
@@ -148,7 +150,7 @@ def detect_static_intervals(acc: np.ndarray, rate_hz: float, *, window_s: float 
     """Find the static intervals of a recording (module docstring, steps 1-4)."""
     acc = np.asarray(acc, float)
     if not np.all(np.isfinite(acc)):
-        raise ValueError("the recording holds NaN or infinite samples; clean them before detecting static intervals")
+        raise InputError("the recording holds NaN or infinite samples; clean them before detecting static intervals")
     n = len(acc)
     window = max(3, int(round(window_s * rate_hz)))
     min_len = int(round(min_duration_s * rate_hz))

@@ -4,6 +4,8 @@ unknown poses, and pass the result through the answer gates.
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 import math
 from dataclasses import dataclass
 from typing import Optional, Sequence, Union
@@ -65,10 +67,10 @@ def static_intervals_of(rec: RawRecording, *, labels: Optional[str] = None, inte
     """The static intervals from the label column, an interval file, or the detector. In known-pose
     mode detected intervals are labelled by the up axis of their mean reading."""
     if labels is not None and intervals is not None:
-        raise ValueError("give either a label column or an interval file, not both")
+        raise InputError("give either a label column or an interval file, not both")
     if labels is not None:
         if rec.labels is None:
-            raise ValueError(f"{rec.source}: the recording was read without its label column '{labels}'")
+            raise InputError(f"{rec.source}: the recording was read without its label column '{labels}'")
         det = intervals_from_labels(rec.labels, labels, POSE_LABELS if poses == "known" else None)
     elif intervals is not None:
         spec = read_intervals(intervals)
@@ -109,16 +111,16 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
     ``seed``, ``max_steps``, ``progress`` as in :func:`triadcal.estimation.posterior.sample`.
     """
     if posterior_path is not None and not sample:
-        raise ValueError("a posterior file needs sampling (--sample)")
+        raise InputError("a posterior file needs sampling (--sample)")
     if poses not in ("known", "unknown"):
-        raise ValueError(f"poses must be 'known' or 'unknown', got {poses!r}")
+        raise InputError(f"poses must be 'known' or 'unknown', got {poses!r}")
     if not (local_g_m_s2 > 0 and math.isfinite(local_g_m_s2)):
-        raise ValueError(f"local g must be a positive number of m/s2, got {local_g_m_s2}")
+        raise InputError(f"local g must be a positive number of m/s2, got {local_g_m_s2}")
     if isinstance(data, RawRecording):
         rec = data
     else:
         if rate_hz is None:
-            raise ValueError("state the sample rate (--rate HZ): it cannot be guessed safely (imucal issue #25)")
+            raise InputError("state the sample rate (--rate HZ): it cannot be guessed safely (imucal issue #25)")
         rec = read_raw_csv(data, rate_hz, columns, unit, labels)
     gravity_g = local_g_m_s2 / STANDARD_GRAVITY_M_S2
     serial = serial or (str(rec.source).rsplit("/", 1)[-1].rsplit(".", 1)[0])
@@ -179,7 +181,7 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
         result.save(json_path)
     if bench_csv_path is not None:
         if campaign is None:
-            raise ValueError("--bench-csv needs known poses: free orientations have no bench angles")
+            raise InputError("--bench-csv needs known poses: free orientations have no bench angles")
         from ...io.bench_csv import write_bench_csv
 
         write_bench_csv(campaign, bench_csv_path)

@@ -6,6 +6,8 @@ what they cost, is derived in docs/raw.md ("Known poses").
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 import math
 import time
 from typing import Optional, Union
@@ -335,7 +337,7 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
         try:
             placement_sd_deg = float(placement_sd_deg)
         except ValueError:
-            raise ValueError(f"the placement SD must be a number of degrees or 'auto', got {placement_sd_deg!r}")
+            raise InputError(f"the placement SD must be a number of degrees or 'auto', got {placement_sd_deg!r}")
     start_sd = DEFAULT_PLACEMENT_SD_DEG if auto else placement_sd_deg
     labels = [lab if lab in POSE_POSITIONS else "" for lab in avg.label]
     if "" in labels:
@@ -345,10 +347,10 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
         raise StaticIntervalError(f"known poses need all six faces; missing: {', '.join(missing)} "
                                   f"(found {', '.join(labels)})")
     if not (start_sd > 0 and math.isfinite(start_sd)):
-        raise ValueError("the placement SD must be positive: with no placement error the model is the "
+        raise InputError("the placement SD must be positive: with no placement error the model is the "
                          "bench model (use triadcal fit on the bench CSV)")
     if not (misalignment_sd_deg > 0 and math.isfinite(misalignment_sd_deg)):
-        raise ValueError("the misalignment prior SD must be a positive number of degrees: the angles are "
+        raise InputError("the misalignment prior SD must be a positive number of degrees: the angles are "
                          "confounded with the placement and a flat prior biases K (see docs/raw.md)")
     pos = [POSE_POSITIONS[lab] for lab in labels]
     a1 = np.array([DEFAULT_PLAN[p][0] for p in pos])

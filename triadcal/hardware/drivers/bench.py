@@ -14,13 +14,15 @@ answers are one line)::
 
 from __future__ import annotations
 
+from ...errors import TriadcalError
+
 import time
 from abc import ABC, abstractmethod
 
 import serial
 
 
-class BenchError(OSError):
+class BenchError(TriadcalError, OSError):
     """The bench did not do what it was told (no answer, wrong target, move timeout)."""
 
 

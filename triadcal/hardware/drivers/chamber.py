@@ -14,6 +14,8 @@ register   access  meaning                                 encoding
 
 from __future__ import annotations
 
+from ...errors import TriadcalError
+
 import time
 from abc import ABC, abstractmethod
 
@@ -25,7 +27,7 @@ REG_SP = 300
 REG_STATUS = 301
 
 
-class ChamberError(OSError):
+class ChamberError(TriadcalError, OSError):
     """The chamber did not answer or refused a setpoint."""
 
 

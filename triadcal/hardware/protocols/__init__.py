@@ -7,6 +7,8 @@ counts what it had to throw away (:class:`ParserStats`).
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 from dataclasses import dataclass, field
 
 
@@ -48,7 +50,7 @@ def get_protocol(name: str):
     if name == "binary":
         from . import binary
         return binary
-    raise ValueError(f"unknown IMU protocol {name!r}; choose one of: {', '.join(PROTOCOLS)}")
+    raise InputError(f"unknown IMU protocol {name!r}; choose one of: {', '.join(PROTOCOLS)}")
 
 
 __all__ = ["Frame", "ParserStats", "PROTOCOLS", "get_protocol", "field"]

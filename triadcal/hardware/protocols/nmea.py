@@ -12,6 +12,8 @@ A sentence starts at ``$``; a ``$`` inside a damaged sentence starts a new one.
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 import numpy as np
 
 from . import Frame, ParserStats
@@ -52,7 +54,7 @@ def quantise(frame: Frame) -> Frame:
 def decode_body(body: bytes) -> Frame:
     parts = body.split(b",")
     if len(parts) != N_FIELDS + 1 or parts[0] != TALKER:
-        raise ValueError("not a TCIMU sentence with 8 fields")
+        raise InputError("not a TCIMU sentence with 8 fields")
     return Frame(int(parts[1]), float(parts[2]), (float(parts[3]), float(parts[4]), float(parts[5])),
                  (float(parts[6]), float(parts[7]), float(parts[8])))
 

@@ -4,6 +4,8 @@ the gap shrinks when it is added.
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 import math
 from typing import Optional, Sequence
 
@@ -57,13 +59,13 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     model = tuple(dict.fromkeys(model))
     unknown = [m for m in model if m not in EFFECTS]
     if unknown:
-        raise ValueError(f"unknown model effect(s) {unknown}; choose from {', '.join(EFFECTS)}")
+        raise InputError(f"unknown model effect(s) {unknown}; choose from {', '.join(EFFECTS)}")
     if len(campaign.units) != 1 or len(set(campaign.state.tolist())) != 1:
-        raise ValueError("diagnose takes one unit in one mechanical state (select one with Campaign.select)")
+        raise InputError("diagnose takes one unit in one mechanical state (select one with Campaign.select)")
     cands = [c for c in (candidates if candidates is not None else VOCABULARY) if c not in model]
     bad = [c for c in cands if c not in VOCABULARY]
     if bad:
-        raise ValueError(f"unknown candidate effect(s) {bad}; the vocabulary is {', '.join(VOCABULARY)}")
+        raise InputError(f"unknown candidate effect(s) {bad}; the vocabulary is {', '.join(VOCABULARY)}")
     T0 = reference_temperature_C
     notes = []
     noise = noise_of(campaign)

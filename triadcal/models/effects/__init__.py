@@ -7,6 +7,7 @@ draws them (:class:`triadcal.models.simulate.NoiseModel`), and their likelihood 
 :mod:`.position_error` and :mod:`.heavy_tails`, used by the diagnosis.
 """
 
+from ...errors import InputError
 from .asymmetry import ScaleAsymmetry
 from .base import Effect
 from .bias_drift import BiasDrift
@@ -33,7 +34,7 @@ def get_effects(names) -> tuple[Effect, ...]:
     names = list(dict.fromkeys(names))
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:
-        raise ValueError(
+        raise InputError(
             f"unknown effect(s) {', '.join(unknown)}; the model's effects are: {', '.join(EFFECTS)}"
             + (" (position_error and heavy_tails are noise options of the simulator)"
                if set(unknown) & set(NOISE_EFFECTS) else ""))

@@ -8,6 +8,8 @@ is its log density, for normalised residuals ``z = (W - W_model) / sigma``.
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 import numpy as np
 from scipy import special
 
@@ -20,7 +22,7 @@ TYPICAL_DOF = 3.0
 def unit_variance_scale(nu: float) -> float:
     """Scale of a Student-t with ``nu`` dof whose variance is 1: sqrt((nu - 2) / nu)."""
     if nu <= 2:
-        raise ValueError("a Student-t needs nu > 2 for a finite variance")
+        raise InputError("a Student-t needs nu > 2 for a finite variance")
     return float(np.sqrt((nu - 2.0) / nu))
 
 

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 from typing import Optional
 
 from ... import __version__
-from ...estimation.result import read_json, round_to_uncertainty
+from ...estimation.result import round_to_uncertainty
+from ...io.atomic import read_json
 from ...io.atomic import atomic_write_text
 from ...io.formats import require_format
 from ...uncertainty.budget import COVERAGE_FACTOR

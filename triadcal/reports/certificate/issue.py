@@ -4,11 +4,14 @@ its HTML and PDF.
 
 from __future__ import annotations
 
+from ...errors import InputError
+
 from pathlib import Path
 from typing import Optional
 
 from ...estimation.gates import check_result_for_use
-from ...estimation.result import CalibrationResult, read_json
+from ...estimation.result import CalibrationResult
+from ...io.atomic import read_json
 from ...io.atomic import atomic_write_bytes, atomic_write_text
 from .content import Certificate, build_certificate
 from .html import render_html
@@ -48,12 +51,12 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
 
         data = read_bench_csv(data)
     if data is not None and data.units != [result.unit]:
-        raise ValueError(f"the campaign data is of unit(s) {data.units}, the result of {result.unit!r}")
+        raise InputError(f"the campaign data is of unit(s) {data.units}, the result of {result.unit!r}")
     if diagnosis is not None and not isinstance(diagnosis, dict):
         source = str(diagnosis)
         diagnosis = read_json(diagnosis)
         if not isinstance(diagnosis, dict) or diagnosis.get("format") != "triadcal.diagnosis":
-            raise ValueError(f"{source}: not a diagnosis (format "
+            raise InputError(f"{source}: not a diagnosis (format "
                              f"{diagnosis.get('format') if isinstance(diagnosis, dict) else None!r}, "
                              "expected 'triadcal.diagnosis')")
     cert = build_certificate(result, lab=lab, campaign=data, idata=posterior, diagnosis=diagnosis, number=number,
