@@ -1,6 +1,6 @@
 """The calibration result: values with units, saved and loaded as results-json v1.
 
-The stable contract is docs/spec/results-json-v1.md (``format: triadcal.result``,
+The stable contract is docs/results-json.md (``format: triadcal.result``,
 ``version: 1``). A result can be applied to raw readings:
 ``A_IMU = Ca^-1 (K W - S)`` at the reading's temperature (seed paper, introduction).
 """

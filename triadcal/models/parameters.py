@@ -1,6 +1,6 @@
 """Parameter specifications: names, reporting units and typical sizes.
 
-Names follow docs/spec/bench-csv-v1.md and docs/spec/results-json-v1.md (``K_x``, ``S_x``,
+Names follow docs/spec/bench-csv-v1.md and docs/results-json.md (``K_x``, ``S_x``,
 ``Ca_xy``, ``Ca_xy_tempco``, ...). Values cross the library boundary in their
 reporting unit (the ``unit`` field); the physics works in internal units
 (:mod:`triadcal.models.units`).

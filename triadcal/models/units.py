@@ -2,7 +2,7 @@
 
 Internal units of the physics: angles in radians, scale factors in g per output
 unit, biases and accelerations in g, temperatures in degC, times in seconds.
-Reporting units follow docs/spec/results-json-v1.md.
+Reporting units follow docs/results-json.md.
 """
 
 import math

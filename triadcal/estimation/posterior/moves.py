@@ -36,7 +36,7 @@ def laplace_move(scale: float = 1.0):
 
 
 def make_moves(kind: str = "de-snooker-laplace"):
-    """The emcee move mixture by name (see the module docstring for the measured choice)."""
+    """The emcee move mixture by name (why this mixture: docs/posterior.md)."""
     emcee = _emcee()
     if kind == "de-snooker-laplace":
         return [(emcee.moves.DEMove(), 0.15), (emcee.moves.DESnookerMove(), 0.05), (laplace_move(1.0), 0.8)]

@@ -1,7 +1,7 @@
 """The interface every switchable effect of the model implements.
 
 An effect is a small class with a ``name`` from the vocabulary of
-docs/spec/results-json-v1.md, its parameters, and one or more hooks that modify an
+docs/results-json.md, its parameters, and one or more hooks that modify an
 intermediate quantity of eq. 1. The default hooks leave everything unchanged, so an
 effect overrides only what it touches. Hooks receive ``p`` (parameter name ->
 internal value) and ``cov`` (:class:`triadcal.models.model.Covariates`) and must be
