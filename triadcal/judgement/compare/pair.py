@@ -1,0 +1,190 @@
+"""``compare``: the drift of every parameter of two results, their joint test and the verdict.
+"""
+
+from __future__ import annotations
+from ...errors import InputError
+import math
+from typing import Mapping, Optional, Sequence, Union
+import numpy as np
+from scipy import stats
+from ...estimation.gates import check_result_for_use
+from ...estimation.result import CalibrationResult
+from .rule import combined_covariance, coverage_factors, decide, decide_from_draws, drift_uncertainty, normalised_error, probability_exceeds, rule_text
+from .correlation import CORRELATION_TERMS, derive_correlation, posterior_draws, posterior_drift
+from .results import ANGLES, BENCH_PARAMETERS, ComparisonResult, JointTest, ParameterDrift
+
+
+def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_arcsec: Optional[float] = 30.0,
+            tolerances: Optional[Mapping[str, float]] = None, posterior_before=None, posterior_after=None,
+            correlation: Union[str, float] = "auto", level: float = 0.95,
+            label: Optional[str] = None) -> ComparisonResult:
+    """Drift of every parameter from ``before`` to ``after`` and the verdicts (``triadcal compare``).
+
+    ``tolerance_arcsec``: tolerance on the drift of each angle (None: significance only).
+    ``tolerances``: tolerances of other parameters by name, in their unit (e.g.
+    ``{"K_x": 2e-5}``); those parameters then enter the overall verdict.
+    ``posterior_before``/``posterior_after``: arviz InferenceData or netCDF paths whose
+    ``posterior`` variables are named like the parameters (reporting units).
+    ``correlation``: ``"auto"`` (derived, see :func:`derive_correlation`) or a coefficient
+    rho in [-1, 1] between the two calibrations' errors, applied to every parameter.
+    """
+    k2, _ = coverage_factors(level)
+    tolerances = dict(tolerances or {})
+    if tolerance_arcsec is not None and tolerance_arcsec < 0:
+        raise InputError(f"tolerance must be >= 0, got {tolerance_arcsec} arcsec")
+    notes = []
+    # a drift between calibrations one of which is not an answer is not a drift: refuse, naming
+    # the side (status not ok, a value or u not finite, u < 0, a failing answer gate)
+    for tag, r in (("before", before), ("after", after)):
+        check_result_for_use(r, f"the {tag} calibration ({r.unit}, {r.method})")
+    if before.unit != after.unit:
+        raise InputError(f"before is unit {before.unit!r} and after is unit {after.unit!r}: a drift compares "
+                         "two calibrations of the same unit")
+    if before.reference_temperature_C != after.reference_temperature_C:
+        raise InputError(f"reference temperatures differ ({before.reference_temperature_C:g} vs "
+                         f"{after.reference_temperature_C:g} degC): refit one of them at the other's "
+                         "reference temperature so the angles are comparable")
+    if before.method != after.method:
+        notes.append(f"methods differ ({before.method} vs {after.method}): a drift also contains the "
+                     "difference between the estimators")
+    gb, ga = before.extra.get("local_g_m_s2"), after.extra.get("local_g_m_s2")
+    if gb is not None and ga is not None and gb != ga:
+        notes.append(f"local gravity differs ({gb} vs {ga} m/s^2): the K drift contains that difference")
+
+    if isinstance(correlation, str):
+        if correlation != "auto":
+            raise InputError(f"correlation must be 'auto' or a number in [-1, 1], got {correlation!r}")
+        rho, reason = derive_correlation(before, after)
+    else:
+        rho = float(correlation)
+        if not -1.0 <= rho <= 1.0:
+            raise InputError(f"correlation must lie in [-1, 1], got {rho}")
+        reason = f"rho = {rho:g} stated by the user for every parameter"
+
+    names = [n for n in before.parameters if n in after.parameters and n not in BENCH_PARAMETERS]
+    for n in names:
+        if before[n].unit != after[n].unit:
+            raise InputError(f"{n}: unit {before[n].unit!r} before and {after[n].unit!r} after")
+    only = sorted(set(before.parameters) ^ set(after.parameters))
+    if only:
+        notes.append("not compared (present in one result only): " + ", ".join(only))
+    unknown = [n for n in tolerances if n not in names]
+    if unknown:
+        raise InputError(f"tolerances given for {unknown}, which are not in both results")
+
+    post_b = posterior_draws(posterior_before) if posterior_before is not None else None
+    post_a = posterior_draws(posterior_after) if posterior_after is not None else None
+    if (post_b is None) != (post_a is None):
+        raise InputError("give posteriors for both calibrations (before and after), or for neither")
+
+    params = {}
+    for n in names:
+        b, a = before[n], after[n]
+        T = tolerance_arcsec if n in ANGLES else tolerances.get(n)
+        judged = n in ANGLES or n in tolerances
+        d = a.value - b.value
+        u = drift_uncertainty(b.u, a.u, rho)
+        z = d / u if u > 0 else (math.inf if d else 0.0)
+        verdict, significant = decide(d, u, T, level)
+        pd = ParameterDrift(
+            name=n, unit=b.unit, drift=d, u=u, before=b.value, after=a.value, u_before=b.u, u_after=a.u,
+            rho=rho, tolerance=T, En=normalised_error(d, b.u, a.u, rho), z=z,
+            p_value=float(2 * stats.norm.sf(abs(z))), significant=significant,
+            p_exceeds=probability_exceeds(d, u, T), verdict=verdict, judged=judged)
+        if post_b is not None and n in post_b and n in post_a:
+            (db, unit_b), (da, unit_a) = post_b[n], post_a[n]
+            for tag, unit_p in (("before", unit_b), ("after", unit_a)):
+                if unit_p is not None and unit_p != b.unit:
+                    raise InputError(f"posterior {tag}: {n} is in {unit_p!r}, the results give {b.unit!r}")
+            draws = posterior_drift(db, da)
+            if rho != 0.0:
+                # shared error: shrink the spread of the (independent-posterior) drift about its mean
+                s0 = math.sqrt(np.var(db) + np.var(da))
+                s_rho = drift_uncertainty(float(np.std(db)), float(np.std(da)), rho)
+                draws = draws.mean() + (draws - draws.mean()) * (s_rho / s0 if s0 > 0 else 1.0)
+            verdict, significant, p = decide_from_draws(draws, T, level)
+            pd.verdict, pd.significant, pd.p_exceeds = verdict, significant, p
+            pd.basis, pd.n_draws = "posterior", int(min(len(db), len(da)))
+        params[n] = pd
+    if post_b is not None:
+        missing = [n for n in ANGLES if n in params and params[n].basis != "posterior"]
+        if missing:
+            notes.append("no posterior draws for " + ", ".join(missing) + ": judged on (value, u)")
+        if rho != 0.0:
+            notes.append("posterior drifts assume independent calibrations; their spread was rescaled "
+                         f"about the mean for rho = {rho:g}")
+
+    angles = [n for n in ANGLES if n in params]
+    joint = None
+    if angles:
+        d = np.array([params[n].drift for n in angles])
+        cov = combined_covariance(before.covariance(angles), after.covariance(angles), rho)
+        joint = joint_test(d, cov, angles, level)
+
+    bench = {}
+    for n in ("tilt_x", "tilt_y"):
+        if n in before.parameters and n in after.parameters:
+            dd = after[n].value - before[n].value
+            uu = drift_uncertainty(before[n].u, after[n].u, 0.0)
+            bench[n] = {"drift": dd, "u": uu, "unit": before[n].unit,
+                        "significant": bool(abs(dd) > k2 * uu)}
+    if any(v["significant"] for v in bench.values()):
+        notes.append("the bench tilt changed significantly between the campaigns: was the bench re-levelled "
+                     "or moved? Shared bench errors may then not cancel")
+
+    corr = {"rho": rho, "source": "derived" if correlation == "auto" else "stated", "reason": reason,
+            "terms": [dict(t) for t in CORRELATION_TERMS],
+            "within_calibration": ("each result's correlation matrix enters the covariance of the angle "
+                                   "drifts (joint test); a single parameter's u(d) needs only its variances")
+            if (before.correlation is not None or after.correlation is not None)
+            else "no correlation matrix in the results: angles taken as uncorrelated within each calibration"}
+    return ComparisonResult(
+        parameters=params, overall=overall_verdict(params, joint, tolerance_arcsec), level=level,
+        rule=rule_text(level, tolerance_arcsec, tolerances, posterior=post_b is not None),
+        tolerance_arcsec=tolerance_arcsec, tolerances=tolerances, correlation=corr, joint=joint,
+        bench_check=bench, before=_describe(before), after=_describe(after), label=label, notes=notes)
+
+
+def joint_test(drift: np.ndarray, cov: np.ndarray, names: Sequence[str], level: float = 0.95) -> JointTest:
+    """``D^2 = d^T C^-1 d`` against chi^2 with ``len(d)`` dof (zero drift, Gaussian errors)."""
+    drift = np.asarray(drift, float)
+    w, V = np.linalg.eigh(cov)
+    if w.min() <= 1e-12 * max(w.max(), 1e-300):
+        raise InputError("the covariance of the angle drifts is singular or not positive definite "
+                         f"(eigenvalues {w.min():.3g} .. {w.max():.3g}); check the correlation coefficient")
+    y = V.T @ drift
+    D2 = float(np.sum(y * y / w))
+    p = float(stats.chi2.sf(D2, len(drift)))
+    return JointTest(tuple(names), D2, len(drift), p, bool(p < 1 - level), level)
+
+
+def _is_angle(name: str) -> bool:
+    return name.rsplit(".", 1)[-1] in ANGLES
+
+
+def overall_verdict(params: Mapping[str, ParameterDrift], joint: Optional[JointTest],
+                    tolerance_arcsec: Optional[float]) -> str:
+    """Overall verdict of the judged parameters (rule in :func:`rule_text`): the angles (the
+    joint test guards the family against false alarms) and parameters given a tolerance."""
+    angle_set = [p for p in params.values() if _is_angle(p.name)]
+    others = [p for p in params.values() if p.judged and not _is_angle(p.name)]
+    joint_significant = joint is not None and joint.significant
+    if any(p.verdict == "fail" for p in others):
+        return "fail"
+    if tolerance_arcsec is None:
+        if joint_significant:
+            return "fail"
+    elif joint_significant and any(p.verdict == "fail" for p in angle_set):
+        return "fail"
+    judged = angle_set + others
+    if judged and all(p.verdict == "pass" for p in judged):
+        return "pass"
+    return "inconclusive"
+
+
+def _describe(r: CalibrationResult) -> dict:
+    d = {"unit": r.unit, "method": r.method, "status": r.status,
+         "reference_temperature_C": r.reference_temperature_C}
+    if r.extra.get("source"):
+        d["source"] = r.extra["source"]
+    return d

@@ -1,0 +1,252 @@
+"""A comparison's content (per-parameter drifts, the joint test, the overall verdict) and its
+``triadcal.comparison`` JSON, read back field by field (docs/results-json.md).
+"""
+
+from __future__ import annotations
+from ...errors import InputError
+import math
+from dataclasses import dataclass, field
+from typing import Mapping, Optional
+import numpy as np
+from scipy import stats
+from ...io.atomic import atomic_write_json
+from ...io.formats import require_format
+from ...io.numbers import parse_number
+from ...models.sensor import ANGLE_NAMES
+from ...io.atomic import read_json
+from .rule import EN_COVERAGE_FACTOR, VERDICTS
+
+
+FORMAT = "triadcal.comparison"
+
+
+SEQUENCE_FORMAT = "triadcal.comparison_sequence"
+
+
+VERSION = 1
+
+
+#: the six orientation angles of eq. 1, in the order of results-json
+ANGLES = tuple(f"Ca_{ab}" for ab in ANGLE_NAMES)
+
+
+#: properties of the bench, not of the unit: compared as a check, never judged
+BENCH_PARAMETERS = ("tilt_x", "tilt_y", "tilt_delta", "tilt_beta")
+
+
+@dataclass
+class ParameterDrift:
+    """Drift of one parameter between two calibrations, and its verdict."""
+
+    name: str
+    unit: str
+    drift: float
+    u: float
+    before: Optional[float] = None
+    after: Optional[float] = None
+    u_before: Optional[float] = None
+    u_after: Optional[float] = None
+    rho: float = 0.0
+    tolerance: Optional[float] = None
+    En: float = float("nan")
+    z: float = float("nan")
+    p_value: float = float("nan")
+    significant: bool = False
+    p_exceeds: Optional[float] = None
+    verdict: str = "inconclusive"
+    basis: str = "normal"
+    n_draws: Optional[int] = None
+    judged: bool = True
+
+    @property
+    def U(self) -> float:
+        """Expanded uncertainty of the drift, k = 2."""
+        return EN_COVERAGE_FACTOR * self.u
+
+    def to_dict(self) -> dict:
+        d = {"drift": self.drift, "u": self.u, "unit": self.unit, "U": self.U, "k": EN_COVERAGE_FACTOR,
+             "En": self.En, "z": self.z, "p_value": self.p_value, "significant": self.significant,
+             "tolerance": self.tolerance, "p_exceeds": self.p_exceeds, "verdict": self.verdict,
+             "basis": self.basis, "rho": self.rho, "judged": self.judged}
+        for k in ("before", "after", "u_before", "u_after", "n_draws"):
+            if getattr(self, k) is not None:
+                d[k] = getattr(self, k)
+        return {k: _finite(v) for k, v in d.items()}
+
+    @classmethod
+    def from_dict(cls, name: str, d: Mapping, source: str = "<dict>") -> "ParameterDrift":
+        where = f"{source}: parameters.{name}"
+        if not isinstance(d, Mapping):
+            raise InputError(f"{where} is not an object")
+        num = _Fields(where, d)
+        if d.get("verdict") not in VERDICTS:
+            raise InputError(f"{where}.verdict {d.get('verdict')!r} is not one of {VERDICTS}")
+        if not isinstance(d.get("unit"), str):
+            raise InputError(f"{where}.unit is missing or not a string")
+        return cls(name=name, unit=d["unit"], drift=num.req("drift"), u=num.req("u", low=0.0),
+                   before=num.opt("before"), after=num.opt("after"), u_before=num.opt("u_before", low=0.0),
+                   u_after=num.opt("u_after", low=0.0), rho=num.opt("rho", -1.0, 1.0, default=0.0),
+                   tolerance=num.opt("tolerance", low=0.0), En=num.nan("En"), z=num.nan("z"),
+                   p_value=num.nan("p_value"), significant=bool(d.get("significant", False)),
+                   p_exceeds=num.opt("p_exceeds", 0.0, 1.0), verdict=d["verdict"], basis=str(d.get("basis", "normal")),
+                   n_draws=None if d.get("n_draws") is None else int(num.req("n_draws", low=0.0)),
+                   judged=bool(d.get("judged", True)))
+
+
+class _Fields:
+    """Numbers of a JSON object with one-line errors naming the field (``null`` is "not finite")."""
+
+    def __init__(self, where: str, d: Mapping):
+        self.where, self.d = where, d
+
+    def _check(self, key, v, low, high):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise InputError(f"{self.where}.{key} = {v!r:.40} is not a finite number")
+        if not low <= v <= high:
+            raise InputError(f"{self.where}.{key} = {v!r} is outside [{low:g}, {high:g}]")
+        return float(v)
+
+    def req(self, key, low=-math.inf, high=math.inf) -> float:
+        return self._check(key, self.d.get(key), low, high)
+
+    def opt(self, key, low=-math.inf, high=math.inf, default=None):
+        v = self.d.get(key)
+        return default if v is None else self._check(key, v, low, high)
+
+    def nan(self, key) -> float:
+        v = self.d.get(key)
+        return float("nan") if v is None else self._check(key, v, -math.inf, math.inf)
+
+
+@dataclass
+class JointTest:
+    """Mahalanobis distance of the angle-drift vector against chi^2 with ``dof`` degrees of freedom."""
+
+    names: tuple
+    D2: float
+    dof: int
+    p_value: float
+    significant: bool
+    level: float
+
+    def to_dict(self) -> dict:
+        return {"names": list(self.names), "D2": self.D2, "dof": self.dof, "p_value": self.p_value,
+                "significant": self.significant, "level": self.level,
+                "critical": float(stats.chi2.ppf(self.level, self.dof))}
+
+    @classmethod
+    def from_dict(cls, d: Mapping, source: str = "<dict>") -> "JointTest":
+        num = _Fields(f"{source}: joint", d)
+        names = d.get("names")
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise InputError(f"{source}: joint.names is not a list of names")
+        return cls(tuple(names), num.req("D2", low=0.0), int(num.req("dof", low=1.0)), num.req("p_value", 0.0, 1.0),
+                   bool(d.get("significant")), num.req("level", 0.0, 1.0))
+
+
+@dataclass
+class ComparisonResult:
+    """Drifts of a unit between two calibrations (results-json ``triadcal.comparison`` v1)."""
+
+    parameters: dict
+    overall: str
+    rule: str
+    level: float = 0.95
+    tolerance_arcsec: Optional[float] = 30.0
+    tolerances: dict = field(default_factory=dict)
+    correlation: dict = field(default_factory=dict)
+    joint: Optional[JointTest] = None
+    bench_check: dict = field(default_factory=dict)
+    before: dict = field(default_factory=dict)
+    after: dict = field(default_factory=dict)
+    label: Optional[str] = None
+    notes: list = field(default_factory=list)
+
+    def __getitem__(self, name: str) -> ParameterDrift:
+        return self.parameters[name]
+
+    def verdicts(self) -> dict:
+        return {k: p.verdict for k, p in self.parameters.items()}
+
+    def failing(self, judged_only: bool = True) -> list:
+        """Names whose verdict is fail (by default only the judged ones: angles and parameters
+        given a tolerance; the others' verdict is a significance test only)."""
+        return [k for k, p in self.parameters.items() if p.verdict == "fail" and (p.judged or not judged_only)]
+
+    def to_dict(self) -> dict:
+        d = {"format": FORMAT, "version": VERSION, "rule": self.rule, "level": self.level,
+             "tolerance": {"angles_arcsec": self.tolerance_arcsec, **self.tolerances},
+             "parameters": {k: p.to_dict() for k, p in self.parameters.items()},
+             "joint": None if self.joint is None else self.joint.to_dict(),
+             "correlation": self.correlation, "bench_check": self.bench_check,
+             "before": self.before, "after": self.after, "overall": self.overall, "notes": list(self.notes)}
+        if self.label is not None:
+            d["label"] = self.label
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping, source: str = "<dict>") -> "ComparisonResult":
+        require_format(d, FORMAT, VERSION, source, "a comparison", "comparison")
+        if not isinstance(d.get("parameters"), Mapping) or not d["parameters"]:
+            raise InputError(f"{source}: parameters is missing or empty")
+        if not isinstance(d.get("rule"), str):
+            raise InputError(f"{source}: rule is missing or not a string")
+        for key in ("tolerance", "correlation", "bench_check", "before", "after"):
+            if d.get(key) is not None and not isinstance(d[key], Mapping):
+                raise InputError(f"{source}: {key} is not an object")
+        if d.get("notes") is not None and not isinstance(d["notes"], list):
+            raise InputError(f"{source}: notes is not a list")
+        level = _Fields(source + ":", d).opt("level", 0.0, 1.0, default=0.95)
+        if d.get("overall") not in VERDICTS:
+            raise InputError(f"{source}: overall verdict {d.get('overall')!r} is not one of {VERDICTS}")
+        tol = dict(d.get("tolerance") or {})
+        angles_tol = tol.pop("angles_arcsec", None)
+        params = {k: ParameterDrift.from_dict(k, p, source) for k, p in d["parameters"].items()}
+        if d["overall"] == "pass" and any(p.verdict == "fail" and p.judged for p in params.values()):
+            raise InputError(f"{source}: overall verdict 'pass' contradicts a judged parameter whose verdict is 'fail'")
+        return cls(parameters=params,
+                   overall=d["overall"], rule=d["rule"], level=level,
+                   tolerance_arcsec=angles_tol, tolerances=tol, correlation=d.get("correlation", {}),
+                   joint=None if not d.get("joint") else JointTest.from_dict(d["joint"], source),
+                   bench_check=d.get("bench_check", {}), before=d.get("before", {}),
+                   after=d.get("after", {}), label=d.get("label"), notes=list(d.get("notes", [])))
+
+    def save(self, path) -> None:
+        _save_json(self.to_dict(), path)
+
+    @classmethod
+    def load(cls, path) -> "ComparisonResult":
+        return cls.from_dict(_load_json(path), str(path))
+
+
+def _finite(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, (np.floating,)):
+        return _finite(float(v))
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
+def _num(v) -> float:
+    return float("nan") if v is None else float(v)
+
+
+MAX_ANGLE_ARCSEC = 1_296_000.0   # 360 deg: no drift of an angle is larger
+
+
+def _opt_float(v, what: str = "value") -> Optional[float]:
+    """An optional uncertainty of a published row: empty or absent is None; otherwise a finite
+    number in (0, 360 deg] (arcsec)."""
+    if v is None or v == "":
+        return None
+    return parse_number(v, low=0.0, high=MAX_ANGLE_ARCSEC, low_open=True, what=what)
+
+
+def _save_json(d: dict, path) -> None:
+    atomic_write_json(path, d)
+
+
+def _load_json(path) -> dict:
+    return read_json(path)

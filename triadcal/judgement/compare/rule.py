@@ -1,0 +1,146 @@
+"""The decision rule, stated in every output: significant when ``|d| > k2 u(d)``; with a
+tolerance T, pass when ``|d| + k1 u(d) <= T`` (guard band), fail when significant and
+``|d| > T``, inconclusive otherwise; the same on posterior draws (docs/compare.md).
+"""
+
+from __future__ import annotations
+from ...errors import InputError
+import math
+import re
+from typing import Mapping, Optional, Union
+import numpy as np
+from scipy import stats
+
+
+VERDICTS = ("pass", "fail", "inconclusive")
+
+
+#: coverage factor of ISO 13528's En (expanded uncertainty U = k u)
+EN_COVERAGE_FACTOR = 2.0
+
+
+_TOLERANCE_UNITS = {"arcsec": 1.0, "arcmin": 60.0, "deg": 3600.0}
+
+
+_TOLERANCE_ALIASES = {'"': "arcsec", "''": "arcsec", "as": "arcsec", "'": "arcmin", "amin": "arcmin",
+                      "degree": "deg", "degrees": "deg"}
+
+
+def coverage_factors(level: float) -> tuple[float, float]:
+    """``(k2, k1)``: two-sided and one-sided normal coverage factors for ``level``."""
+    if not 0.5 < level < 1.0:
+        raise InputError(f"level must be between 0.5 and 1 (e.g. 0.95), got {level!r}")
+    return float(stats.norm.ppf(0.5 + level / 2)), float(stats.norm.ppf(level))
+
+
+def parse_tolerance(text: Union[str, float, None]) -> Optional[float]:
+    """A tolerance with its unit (``30arcsec``, ``0.5arcmin``, ``0.01deg``) in arcseconds.
+
+    ``none`` (or None) means no tolerance. A bare number is refused: the unit must be said.
+    """
+    if text is None:
+        return None
+    if isinstance(text, (int, float)):
+        raise InputError(f"tolerance {text!r} has no unit: write e.g. {text}arcsec, {text}arcmin or {text}deg")
+    s = str(text).strip()
+    if s.lower() == "none":
+        return None
+    m = re.fullmatch(r"([+]?\d+(?:\.\d*)?(?:[eE][+-]?\d+)?|\.\d+)\s*(.*)", s)
+    if not m:
+        raise InputError(f"cannot read tolerance {text!r}: write a number and a unit, e.g. 30arcsec")
+    value, unit = float(m.group(1)), m.group(2).strip()
+    unit = _TOLERANCE_ALIASES.get(unit, unit.lower())
+    if not unit:
+        raise InputError(f"tolerance {text!r} has no unit: write e.g. {s}arcsec, {s}arcmin or {s}deg")
+    if unit not in _TOLERANCE_UNITS:
+        raise InputError(f"tolerance {text!r}: unknown unit {m.group(2).strip()!r}; "
+                         f"use one of {', '.join(_TOLERANCE_UNITS)}")
+    return value * _TOLERANCE_UNITS[unit]
+
+
+def drift_uncertainty(u_before: float, u_after: float, rho: float = 0.0) -> float:
+    """``u(d) = sqrt(u_b^2 + u_a^2 - 2 rho u_b u_a)`` for ``d = after - before`` (GUM 5.2.2)."""
+    v = u_before ** 2 + u_after ** 2 - 2.0 * rho * u_before * u_after
+    return math.sqrt(max(v, 0.0))
+
+
+def normalised_error(drift: float, u_before: float, u_after: float, rho: float = 0.0,
+                     k: float = EN_COVERAGE_FACTOR) -> float:
+    """ISO 13528 ``En = |x_a - x_b| / sqrt(U_a^2 + U_b^2 - 2 rho U_a U_b)``, ``U = k u``."""
+    U = k * drift_uncertainty(u_before, u_after, rho)
+    return abs(drift) / U if U > 0 else (0.0 if drift == 0 else math.inf)
+
+
+def probability_exceeds(drift: float, u: float, tolerance: Optional[float]) -> Optional[float]:
+    """``P(|true drift| > T)`` for a normal state of knowledge ``N(drift, u^2)``."""
+    if tolerance is None:
+        return None
+    if u <= 0:
+        return float(abs(drift) > tolerance)
+    return float(stats.norm.sf((tolerance - drift) / u) + stats.norm.cdf((-tolerance - drift) / u))
+
+
+def decide(drift: float, u: float, tolerance: Optional[float], level: float = 0.95) -> tuple[str, bool]:
+    """Verdict and significance of one drift under the module's rule (normal approximation)."""
+    k2, k1 = coverage_factors(level)
+    significant = abs(drift) > k2 * u if u > 0 else drift != 0
+    if tolerance is None:
+        return ("fail" if significant else "pass"), bool(significant)
+    if abs(drift) + k1 * u <= tolerance:
+        return "pass", bool(significant)
+    if significant and abs(drift) > tolerance:
+        return "fail", bool(significant)
+    return "inconclusive", bool(significant)
+
+
+def decide_from_draws(draws: np.ndarray, tolerance: Optional[float], level: float = 0.95):
+    """Verdict, significance and ``P(|drift| > T)`` from draws of the drift (posterior form)."""
+    lo, hi = np.quantile(draws, [0.5 - level / 2, 0.5 + level / 2])
+    significant = bool(lo > 0 or hi < 0)
+    if tolerance is None:
+        return ("fail" if significant else "pass"), significant, None
+    p = float(np.mean(np.abs(draws) > tolerance))
+    if p <= 1 - level:
+        return "pass", significant, p
+    if significant and p > 0.5:
+        return "fail", significant, p
+    return "inconclusive", significant, p
+
+
+def rule_text(level: float, tolerance_arcsec: Optional[float], tolerances: Mapping[str, float] = None,
+              posterior: bool = False) -> str:
+    """The decision rule in words, with its numbers (written into every output)."""
+    k2, k1 = coverage_factors(level)
+    pct = f"{100 * level:g}%"
+    tol = (f"T = {tolerance_arcsec:g} arcsec for the angles" if tolerance_arcsec is not None
+           else "no tolerance for the angles")
+    if tolerances:
+        tol += "; " + ", ".join(f"T = {v:g} for {k}" for k, v in tolerances.items())
+    text = (
+        f"Drift d = after - before with standard uncertainty u(d) = sqrt(u_b^2 + u_a^2 - 2 rho u_b u_a). "
+        f"Significant when |d| > {k2:.3f} u(d) (two-sided {pct}). With a tolerance T: pass when "
+        f"|d| + {k1:.3f} u(d) <= T (conformance shown with {pct} confidence, ISO 14253-1 guard band); "
+        f"fail when d is significant and |d| > T; inconclusive otherwise. Without a tolerance: fail when "
+        f"significant, pass otherwise (no drift detected). {tol}. Overall (angles, and parameters given a "
+        f"tolerance): fail when the joint chi2 test of the angle drifts is significant at {pct} and an angle "
+        f"fails (without a tolerance: when the joint test is significant); pass when every judged parameter "
+        f"passes (without a tolerance: and the joint test is not significant); inconclusive otherwise. "
+        f"En (ISO 13528, U = 2u) is reported, not used in the verdict.")
+    if posterior:
+        text += (f" Where posterior draws are given, the same rule on the draws of the drift: significant "
+                 f"when 0 is outside the central {pct} interval, pass when P(|d| > T) <= {1 - level:.3g}, "
+                 f"fail when significant and P(|d| > T) > 0.5.")
+    return text
+
+
+def combined_covariance(cov_before: np.ndarray, cov_after: np.ndarray, rho: float = 0.0) -> np.ndarray:
+    """Covariance of ``after - before``: ``S_b + S_a - rho (D_b R D_a + D_a R D_b)``, ``R`` the mean
+    correlation matrix of the two calibrations (reduces to ``u_b^2 + u_a^2 - 2 rho u_b u_a``)."""
+    cov_before, cov_after = np.asarray(cov_before, float), np.asarray(cov_after, float)
+    cov = cov_before + cov_after
+    if rho != 0.0:
+        ub, ua = np.sqrt(np.diag(cov_before)), np.sqrt(np.diag(cov_after))
+        R = 0.5 * (cov_before / np.outer(ub, ub) + cov_after / np.outer(ua, ua))
+        cross = rho * (ub[:, None] * R * ua[None, :])
+        cov = cov - cross - cross.T
+    return cov
