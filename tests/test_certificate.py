@@ -25,7 +25,7 @@ from triadcal.models.effects import DEFAULT_EFFECTS  # noqa: E402
 from triadcal.models.model import Model  # noqa: E402
 from triadcal.reports import certificate as C  # noqa: E402
 from triadcal.reports.certificate.html import _matrix_str  # noqa: E402
-from triadcal.reports.certificate.refusal import _arviz  # noqa: E402
+from triadcal.estimation.posterior.diagnostics import _arviz  # noqa: E402
 from triadcal.uncertainty.angles import ANGLES, BUDGET_SOURCES, uncertainty_budget  # noqa: E402
 
 pypdf = pytest.importorskip("pypdf")
@@ -261,6 +261,38 @@ def test_a_posterior_that_did_not_mix_refuses():
     assert not cert.issued and any("R-hat" in x for x in cert.reasons)
     ok = C.build_certificate(r, idata=fake_posterior(r), issue_date=ISSUE_DATE, plots=False)
     assert ok.issued, ok.reasons
+
+
+def _with_verdict(idata, converged, rhat_max=1.004):
+    idata.posterior.attrs.update({"converged": int(converged), "rhat_max": rhat_max, "rhat_worst": "Ca_xy",
+                                  "ess_bulk_min": 2500.0, "ess_bulk_worst": "K_x", "ess_tail_min": 2400.0,
+                                  "stop_rule_ess": 2000.0, "stop_rule_rhat_max": 1.01})
+    return idata
+
+
+def test_the_certificate_reads_the_samplers_verdict_instead_of_recomputing_it():
+    """One verdict per posterior: the one stored with the draws decides, even where a
+    recomputation on the same draws would say otherwise; a refusal names the option."""
+    r = hand_result()
+    good_draws_bad_verdict = _with_verdict(fake_posterior(r), converged=False, rhat_max=1.012)
+    cert = C.build_certificate(r, idata=good_draws_bad_verdict, issue_date=ISSUE_DATE, plots=False)
+    assert not cert.issued
+    why = " ".join(cert.reasons)
+    assert "stored by the sampler" in why and "--max-steps" in why and "1.0120" in why
+    bad_draws_good_verdict = _with_verdict(fake_posterior(r, shift_chain=2), converged=True)
+    assert C.build_certificate(r, idata=bad_draws_good_verdict, issue_date=ISSUE_DATE, plots=False).issued
+
+
+def test_a_posterior_file_of_another_run_is_refused():
+    r = hand_result()
+    r.method = "posterior"
+    r.extra["sampler"] = {"rhat_max": 1.003, "stop_rule": {"ess": 2000, "rhat_max": 1.01}}
+    mine = C.build_certificate(r, idata=_with_verdict(fake_posterior(r), True, rhat_max=1.003),
+                               issue_date=ISSUE_DATE, plots=False)
+    assert mine.issued, mine.reasons
+    other = C.build_certificate(r, idata=_with_verdict(fake_posterior(r), True, rhat_max=1.006),
+                                issue_date=ISSUE_DATE, plots=False)
+    assert not other.issued and "not the one written with this result" in " ".join(other.reasons)
 
 
 # -- pieces ---------------------------------------------------------------------------------------------

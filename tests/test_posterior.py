@@ -82,17 +82,25 @@ def test_inference_data_named_after_the_physics(standard, tmp_path):
     az = _arviz()
     _, campaign, result, run = standard
     path = tmp_path / "post.nc"
-    write_inference_data(path, campaign, run, result, max_saved_draws=2000)
+    write_inference_data(path, campaign, run, result, max_loglik_draws=2000)
     idata = az.from_netcdf(path)
     for g in ("posterior", "sample_stats", "observed_data", "log_likelihood"):
         assert g in idata.groups()
     post = idata.posterior
     assert post["Ca_xy"].dims == ("chain", "draw") and post["Ca_xy"].attrs["units"] == "arcsec"
-    assert post.sizes["chain"] * post.sizes["draw"] <= 2000
-    # the saved draws give the same numbers as the JSON (thinning keeps the distribution)
+    # every saved draw is in the file: the draws the summary and the verdict were computed on
+    sampler = result.extra["sampler"]
+    assert post.sizes["chain"] * post.sizes["draw"] == sampler["saved_draws"]
     m, s = float(post["Ca_xy"].mean()), float(post["Ca_xy"].std())
-    assert abs(m - result["Ca_xy"].value) < 0.15 * result["Ca_xy"].u
-    assert abs(s / result["Ca_xy"].u - 1) < 0.1
+    assert m == pytest.approx(result["Ca_xy"].value, rel=1e-9, abs=1e-9)
+    assert s == pytest.approx(result["Ca_xy"].u, rel=1e-3)
+    # one verdict, stored with the draws and with the result
+    assert bool(post.attrs["converged"]) == (result.status == "ok") == sampler["converged"]
+    assert post.attrs["rhat_max"] == pytest.approx(sampler["rhat_max"], rel=1e-12)
+    assert post.attrs["ess_bulk_min"] == pytest.approx(sampler["ess_bulk_min"], rel=1e-12)
+    # the pointwise log-likelihood: at most 2000 draws, on a subset of the saved draws' indices
+    assert idata.log_likelihood.sizes["chain"] * idata.log_likelihood.sizes["draw"] <= 2000
+    assert set(idata.log_likelihood["draw"].values) <= set(post["draw"].values)
     ll = idata.log_likelihood["w"]
     assert ll.dims == ("chain", "draw", "visit", "axis")
     assert list(ll["axis"].values) == ["x", "y", "z"]

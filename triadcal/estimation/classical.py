@@ -1,30 +1,10 @@
 """The seed paper's classical method: eq. 2-3 at each setpoint, then a linear thermal line.
 
-At each setpoint block (:attr:`Campaign.setpoint_blocks`) the visits are grouped by
-the IMU axis that points up or down, derived from the bench kinematics
-(:meth:`Campaign.up_axis`, never from position labels). For accelerometer ``a`` and
-IMU axis ``b`` (eq. 2-3, generalised to any number of visits per group)::
-
-    W_a^b  = (mean of W_a over visits with +b up - mean over visits with -b up) / 2
-    Ca_ab  = W_a^b / N_a,     N_a = sqrt(sum_b (W_a^b)^2)             (eq. 2)
-    K_a    = G / N_a                      (g per output unit, eq. 1: K W = Ca G + S)
-    S_a    = K_a * (1/3) sum_b (mean_{+b} W_a + mean_{-b} W_a) / 2    (balanced mean)
-
-Every estimate is an explicit function of the readings, so its standard uncertainty
-is propagated exactly to first order (the Jacobian of these formulas) from the
-standard deviation of each mean output: estimated from the residuals of the
-per-setpoint linear model (default), or taken from ``sd_* / sqrt(n_samples)``.
-
-The paper's thermal correction then fits each quantity against the setpoint's mean
-accelerometer temperature (mean of ``t_x t_y t_z`` over the block's visits) with a
-straight line by weighted least squares, reports its value at the reference
-temperature and its slope (``*_tempco``), and scales the line's covariance by the
-Birge ratio ``max(1, chi2/dof)`` so that scatter the per-setpoint uncertainties do not
-explain (hysteresis, unmodelled drift) widens the uncertainty instead of being ignored.
-
-:func:`classical_angle_sd` gives the standard deviation of the classical angle
-estimate for the simulator's noise model (white output noise, bench positioning
-errors and wobble); docs/classical.md derives it and relates it to eq. 4.
+:func:`fit_classical` pairs each setpoint block's visits by the IMU axis pointing up (from
+the bench kinematics), computes Ca, K and S in closed form with first-order uncertainties,
+and fits each against the mean accelerometer temperature (Birge-scaled line).
+:func:`classical_angle_sd` gives the SD of the classical angle for the simulator's noise.
+Derivation/design: docs/classical.md (What it computes; Standard deviation of the classical angle).
 """
 
 from __future__ import annotations

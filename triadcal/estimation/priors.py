@@ -1,26 +1,10 @@
 """Weakly informative priors of the joint model, in physical (reporting) units.
 
-Every parameter gets an independent normal prior centred on its nominal value (1 g/V
-for a scale factor, 0 for everything else) with a standard deviation of
-``PRIOR_WIDTH x typical`` (:class:`~triadcal.models.parameters.ParameterSpec.typical`,
-the spread of the parameter among units), truncated to physical bounds where they
-exist:
-
-- scale factors ``K_a > 0`` (a sensor with a negative or zero scale factor is not an
-  accelerometer of this kind);
-- orientation angles ``|Ca_ab| <= 3600 arcsec``, the bound of the answer gates
-  (:mod:`triadcal.estimation.gates`; it also keeps each row of Ca in eq. 1 a unit vector).
-  The least-squares fit has no such bound, and its gate carries over to the posterior, so a
-  unit beyond the bound is refused rather than pulled inside it;
-- bench tilt components ``|tilt_x|, |tilt_y| < 0.5 rad`` (the same reason for the
-  gravity direction of the bench, bench-csv.md);
-- thermal lag ``>= 0`` (a first-order time constant: the element lags its sensor).
-
-With ``PRIOR_WIDTH = 10`` the priors are ten times wider than the spread of real units
-(seed paper, Tables 1-2: angles up to ~15', tempcos up to ~6"/degC, hysteresis up to
-+-60"), so a campaign that measures a parameter overrules its prior by orders of
-magnitude, while a parameter the campaign cannot see (e.g. hysteresis from a heating
-sweep alone) keeps its prior, and is reported as prior-dominated.
+:func:`default_priors` gives every parameter an independent normal :class:`Prior` centred
+on its nominal value with SD ``PRIOR_WIDTH x typical``, truncated to physical bounds
+(K > 0, the answer gates' angle bound, |tilt| < 0.5 rad, thermal lag >= 0);
+:func:`prior_arrays` and :func:`draw_parameters` serve the sampler and SBC.
+Derivation/design: docs/posterior.md (Decisions and why: Priors).
 """
 
 from __future__ import annotations

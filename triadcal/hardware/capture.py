@@ -1,22 +1,9 @@
 """Run a bench campaign: chamber setpoints, stabilisation, bench positions, averaging.
 
-:func:`capture` is the library function behind ``triadcal capture``. For each chamber
-setpoint it commands the chamber and waits for the stabilisation criterion
-(:class:`Stabilisation`); then for each position of the plan it moves the bench, waits
-for in-position plus ``settle_s``, and records ``tau_s`` seconds of samples (by the
-instrument's clock). Every accepted sample goes to the append-only raw store; each
-completed visit becomes one row of the bench CSV v1 ``campaign.csv``, rewritten
-atomically after every visit, so the file is a valid bench CSV at every moment.
-
-Resume: the completed rows of ``campaign.csv`` are the record of what is done. A new
-run on the same directory checks that the plan and setpoints match ``capture.json``,
-then continues with the next visit; a visit interrupted half-way is recorded again
-(its earlier samples stay in the raw store under their own visit tag, which no row
-points to). So no visit is repeated or lost, whatever moment the process died at.
-
-At the end, the white-noise intensity Q and the bias instability are estimated from
-the recording windows by an Allan deviation (:mod:`triadcal.hardware.noise`) and
-written into the CSV header (``# Q_V2s = ...``), where the joint fit finds them.
+:func:`capture` (behind ``triadcal capture``; :class:`CaptureSettings`, :class:`Stabilisation`,
+:class:`CaptureReport`) records every accepted sample append-only, rewrites the bench CSV
+``campaign.csv`` atomically after each visit, resumes from its completed rows, and writes
+the Allan-deviation noise into its header. Derivation/design: docs/hardware.md (Campaign).
 """
 
 from __future__ import annotations

@@ -1,29 +1,9 @@
 """The three instruments on pseudo-terminals, driven by the model's physics.
 
-:class:`Emulator` opens one pseudo-terminal per instrument (Python's own :mod:`pty`,
-no system package) and keeps a stable symlink to each slave in its directory
-(``imu``, ``bench``, ``chamber``), the way udev names a USB adapter, so a reconnect
-can hand out a new pty behind the same name. ``ports.toml`` in the same directory
-is a capture config file naming them.
-
-Physics (:class:`UnitPhysics`): the outputs are :meth:`triadcal.models.model.Model.predict`
-of a :class:`~triadcal.models.simulate.Truth` (eq. 1 with its effects, the same call the
-simulator makes), at the bench's present angles (moves take time), at the sensors'
-temperatures: the chamber follows its setpoint and the unit follows the chamber as two
-first-order lags in series (the simulator's thermal model, here integrated in closed form
-between setpoint changes), each sensor reading the unit plus a self-heating that rises
-after power-on with its own time constant. White output noise of intensity Q per sample
-(standard deviation sqrt(Q f) at f samples/s, so a mean over tau has variance Q/tau as in
-the simulator), white temperature-reading noise.
-
-Clock: instrument time runs ``time_scale`` times faster than the wall clock, so a
-campaign of hours plays in seconds while every rate, time constant and averaging
-window keeps its meaning in instrument seconds.
-
-Faults (:class:`FaultPlan`): garbage bytes between frames, a flipped bit in a frame,
-dropped frames, disconnect and reconnect of the IMU line, a stalled IMU. Every frame's
-fate is counted (``fates``) and, with ``keep_log``, logged with its content, so a test
-can check what the receiver accepted against what was sent.
+:func:`emulate` / :class:`Emulator` (behind ``triadcal emulate``) play the IMU, bench and
+chamber on ptys with stable symlinks and a ``ports.toml``; :class:`UnitPhysics` gives the
+outputs from ``Model.predict``, :class:`EmulatorTiming` the clock, :class:`FaultPlan` the
+injected faults. Derivation/design: docs/hardware.md (Emulator).
 """
 
 from __future__ import annotations

@@ -1,17 +1,9 @@
 """One way to write a file: atomically, or not at all.
 
-Every file triadcal writes (results JSON, comparisons, diagnoses, bench CSV, netCDF,
-HTML/PDF reports, plots, capture state) goes through this module: the bytes go to a
-temporary file in the same folder (a unique name from :func:`tempfile.mkstemp`, so two
-writers never share one), are flushed and fsync'd, and the temporary file is renamed over
-the target with :func:`os.replace` (atomic on POSIX within one file system); the folder is
-then fsync'd so the rename itself survives a power cut. On any exception, including
-``KeyboardInterrupt``, the temporary file is removed and the target is left as it was.
-
-JSON is written by :func:`atomic_write_json`, which never writes NaN or Infinity (they
-are not JSON): a non-finite float becomes ``null`` — in triadcal's documents ``null``
-where a number is expected means "not finite" — and numpy scalars and arrays become
-numbers and lists.
+Every file triadcal writes goes through :func:`atomic_write`, :func:`atomic_write_text`,
+:func:`atomic_write_bytes`, :func:`atomic_path` (for libraries that write by path) or
+:func:`atomic_write_json` (strict JSON: non-finite numbers become ``null``; :func:`json_text`).
+Derivation/design: docs/results-json.md (conventions: written atomically, ``null``).
 """
 
 from __future__ import annotations

@@ -1,18 +1,9 @@
 """Raw recordings: accelerometer samples at a stated rate, as CSV with named columns.
 
-The files people calibrate from when they have no bench (imucal's Ferraris sessions,
-imu_tk / Tedaldi et al. 2014 free-orientation recordings): one row per sample, named
-columns (``acc_x,acc_y,acc_z``, ``ax,ay,az``, ...), optionally preceded by free header
-lines (the MPU-6050 logger of tomisuarez2 writes ``Fs,100`` and three more lines before
-the header) and optionally with a label column (imucal's ``part``).
-
-The sample rate is always stated by the user (imucal issue #25: a wrong rate silently
-rescales every rate-dependent quantity); a rate written in the file's header lines is
-kept in ``metadata`` and a disagreement is refused.
-
-Interval files (:func:`read_intervals`): the two-row start/end CSV of tomisuarez2
-(sample indices), a two-column ``start,end`` CSV, or imucal's session-list JSON
-(``{"x_p": {"start": 540, "end": 1271}, ...}``, sample ranges with labels).
+:func:`read_raw_csv` reads a recording (named columns, optional free header lines and
+label column; the rate is always the user's, a disagreeing rate in the header is refused)
+into a :class:`RawRecording`; :func:`read_intervals` reads an interval file (two-row or
+two-column start/end CSV, imucal's session-list JSON). Derivation/design: docs/raw.md (Reading).
 """
 
 from __future__ import annotations

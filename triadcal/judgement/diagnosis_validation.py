@@ -1,29 +1,9 @@
 """Validation of the diagnosis on campaigns whose effect is withheld (``triadcal validate-diagnosis``).
 
-For each effect of the vocabulary, campaigns are simulated with the effect present at a
-realistic magnitude, the model is fitted *without* it, and :func:`diagnose` must name
-it; clean campaigns (the fitted model is the truth) give the false-alarm rate.
-
-Design (stated, and the same for every effect):
-
-* unit: the ``ak18-quartz`` preset (seed paper, Tables 1-2: angles, angle tempco
-  0.8"/degC, hysteresis half-widths 6-15"; K2, asymmetry, drift and lag of the size
-  the preset documents), bench tilted 60" toward 30 deg;
-* the model of a thermal campaign, ``DEFAULT_EFFECTS`` (tilt, angle/scale/bias
-  tempcos, hysteresis); an effect of that model is withheld by dropping it from the
-  fit, any other effect by adding it to the truth;
-* plan: the 12 positions of bench-csv.md plus 16 oblique ones (``VALIDATION_PLAN``, 28
-  positions): with only +-1 g and 0 g along each axis a K2 term (a^2) and a scale
-  asymmetry (|a|) are the same function; oblique poses separate them (a = 0.5 g:
-  a^2 = 0.25, |a| = 0.5; a = 0.71 g: 0.5 against 0.71). 8 skew poses put
-  (+-0.5, +-0.71, +-0.5) g on the axes (all sign combinations), 8 more lie at 45 deg in
-  the X-Z and X-Y planes;
-* schedule: the 15 standard setpoints (+20 to +70, to -40, back to +20) with a soak of
-  1800 s (``Schedule(soak_s=1800)``), so that temperatures still change during the
-  visits and a thermal lag is visible (with the default 7200 s soak it is not);
-* noise: Q = 3e-9 V^2 s, tau = 30 s (the paper's eq. 4 example, sigma ~ 10 ug);
-  ``position_error`` with sigma_1 = 5", sigma_2 = 2" (eq. 4's example);
-  ``heavy_tails`` Student-t with 3 dof at the same variance.
+:func:`validate` simulates campaigns with each effect (and a clean condition), fits the model
+without it and checks that :func:`diagnose` names it (:func:`scenario`, :func:`run_case`,
+:class:`ValidationResult`); its design (``DESIGN``, written into every validation file) is
+derived in docs/diagnosis.md, "Validation".
 """
 
 from __future__ import annotations
@@ -54,6 +34,12 @@ VALIDATION_PLAN.update({f"D{k + 1:02d}": pos for k, pos in enumerate(
 VALIDATION_SOAK_S = 1800.0
 CONDITIONS = ("clean",) + VOCABULARY
 NONE = "none"
+
+
+#: the validation's design in one paragraph (docs/diagnosis.md, "Validation" derives it)
+DESIGN = ("ak18-quartz preset, DEFAULT_EFFECTS, VALIDATION_PLAN (28 poses), 15 setpoints with a 1800 s soak, "
+          "Q = 3e-9 V^2 s, tau = 30 s, position error 5\"/2\", Student-t with 3 dof; each effect withheld at a "
+          "realistic magnitude, the diagnosis must name it first")
 
 
 def scenario(effect: str, preset: str = "ak18-quartz"):
@@ -112,7 +98,7 @@ class ValidationResult:
     conditions: tuple
     labels: tuple                     # verdict columns: the vocabulary and 'none'
     seeds: int
-    design: str = __doc__.split("Design", 1)[1] if __doc__ else ""
+    design: str = DESIGN
     seconds: float = 0.0
     summary: dict = field(default_factory=dict)
 

@@ -1,29 +1,9 @@
 """Simulation-based calibration (Talts et al. 2018) of the least-squares and posterior intervals.
 
-For each of N campaigns: draw every parameter from the prior
-(:mod:`triadcal.estimation.priors`), simulate a campaign with those parameters
-(:func:`triadcal.models.simulate.simulate_campaign`), then
-
-- least squares (:func:`fit_joint`): the rank of the true value among ``L`` draws of
-  ``N(value, u^2)``, and whether ``value +- z u`` covers it (68 %, 95 %);
-- posterior (:func:`triadcal.estimation.posterior.sample`): the rank of the true value
-  among ``L`` posterior draws (thinned by the autocorrelation time, from all walkers),
-  and whether the central 68 % / 95 % credible interval covers it.
-
-If the inference is calibrated, every rank is uniform on ``0..L`` and the coverages are
-the nominal levels. The simulated data follow the likelihood exactly (white output
-noise, no temperature-reading noise, no bench errors: SBC checks the inference, not the
-model), and the campaigns are compact (12 positions x 5 setpoints, both hysteresis
-branches) to keep a run of hundreds of campaigns short.
-
-Statistics (see docs/posterior.md for the reasoning):
-
-- uniformity: chi-square of each parameter's rank histogram in ``bins`` bins; with P
-  parameters, P tests: the family-wise check is ``min p > alpha / P`` (Bonferroni),
-  and the number of parameters with ``p < alpha`` is reported against its expectation
-  ``alpha P``;
-- coverage: per parameter a binomial test against the nominal level (Bonferroni again)
-  and the pooled coverage over parameters and campaigns.
+:func:`sbc` draws campaigns from the prior, simulates them, fits each by least squares and
+by the posterior sampler, and returns an :class:`SBCResult` (ranks and coverage, with
+``rank_pvalues``, ``coverage_pvalues``, ``pooled_coverage`` and ``summary``); behind
+``triadcal validate``. Derivation/design: docs/posterior.md (Simulation-based calibration).
 """
 
 from __future__ import annotations

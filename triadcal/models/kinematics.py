@@ -1,18 +1,9 @@
 """Bench kinematics: the apparent gravity in the IMU frame for a bench position.
 
-Conventions of docs/spec/bench-csv-v1.md (seed paper Fig. 1): base frame with
-``e_z`` up along the local vertical when the bench is level, ``e_x`` along bench
-axis 2 (outer, horizontal), ``e_y = e_z x e_x``; axis 1 is the platform normal,
-carried by axis 2. At zero angles the IMU's Y axis lies along axis 1 (up) and its X
-axis along axis 2::
-
-    R_base_from_imu = Rx(axis2) . Ry(wobble) . Rz(axis1) . M,  M = [[1,0,0],[0,0,-1],[0,1,0]]
-
-``Ry(wobble)`` is the per-visit wobble of axis 1 about the base ``e_y`` (zero for a
-perfect bench); random positioning errors are added to the commanded angles.
-
-All functions are elementwise: arguments may be floats, numpy arrays of visits, or
-CasADi symbols, so the simulator and the estimators share them.
+``R_base_from_imu = Rx(axis2) . Ry(wobble) . Rz(axis1) . M`` (frames of docs/spec/bench-csv-v1.md);
+:func:`gravity_in_imu` returns G of eq. 1, :func:`gravity_direction_base` and
+:func:`tilt_polar` handle the bench tilt. Elementwise on floats, numpy arrays or CasADi
+symbols, so the simulator and the estimators share them. Derivation/design: docs/model.md (Frames).
 """
 
 from __future__ import annotations

@@ -21,7 +21,9 @@ from .diagnostics import (  # noqa: F401
 from .export import (  # noqa: F401
     _posterior_datasets,
     _posterior_variables,
-    _thinned,
+    MAX_LOGLIK_DRAWS,
+    _loglik_subset,
+    verdict_attrs,
     inference_data,
     target_inference_data,
     write_inference_data,
@@ -38,6 +40,7 @@ from .moves import (  # noqa: F401
     make_moves,
 )
 from .run import (  # noqa: F401
+    MAX_SAVED_DRAWS,
     PosteriorRun,
     run_sampler,
 )

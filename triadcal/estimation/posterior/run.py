@@ -18,6 +18,10 @@ from .moves import _emcee, make_moves
 from .targets import LogPosterior
 
 
+#: at most this many draws (walkers x steps after the burn-in) are kept; a longer run is thinned
+MAX_SAVED_DRAWS = 200_000
+
+
 @dataclass
 class PosteriorRun:
     """What the sampler produced: the whole chain in whitened coordinates and how it stopped."""
@@ -34,10 +38,24 @@ class PosteriorRun:
     acceptance: float
     moves: str
     checks: list = field(default_factory=list)
+    thin: int = 1                  # every thin-th kept step is a saved draw (1: all of them)
+    stop_rule: dict = field(default_factory=dict)   # ess, rhat_max, tau_factor, max_steps
+
+    @property
+    def kept_index(self) -> np.ndarray:
+        """Steps after the burn-in that are the saved draws: every ``thin``-th, ending at the last."""
+        kept = self.chain_z.shape[0] - self.burn
+        return np.arange(kept - 1, -1, -self.thin)[::-1]
 
     @property
     def kept_z(self) -> np.ndarray:
-        return self.chain_z[self.burn:]
+        """The saved draws in whitened coordinates, (draw, walker, d): the draws the summary,
+        the convergence verdict and the posterior file all use."""
+        return self.chain_z[self.burn:][self.kept_index]
+
+    @property
+    def kept_log_prob(self) -> np.ndarray:
+        return self.log_prob[self.burn:][self.kept_index]
 
     def draws(self) -> np.ndarray:
         """Kept draws in reporting units, (steps, walkers, d)."""
@@ -51,8 +69,13 @@ def run_sampler(target: LogPosterior, n_walkers: int, *, ess: float = 2000, rhat
                 tau_factor: float = 50.0, max_steps: int = 20000, seed: int = 0,
                 moves: str = "de-snooker-laplace", start_scale: float = 1.2,
                 progress: Union[bool, Callable, None] = None, first_check: int = 100,
-                progress_every: int = 50, max_seconds: Optional[float] = None) -> PosteriorRun:
-    """Run emcee until the stop rule holds (module docstring), ``max_steps`` or ``max_seconds``.
+                progress_every: int = 50, max_seconds: Optional[float] = None,
+                max_saved_draws: int = MAX_SAVED_DRAWS) -> PosteriorRun:
+    """Run emcee until the stop rule holds (docs/posterior.md), ``max_steps`` or ``max_seconds``.
+
+    The draws after the burn-in are the saved draws (thinned only beyond ``max_saved_draws``);
+    the convergence verdict (R-hat, bulk and tail ESS, ``converged``) is computed once, on
+    exactly those draws, and every consumer reads it (docs/posterior.md, "One verdict").
 
     ``target`` is a :class:`LogPosterior` (or any object with its ``d``, ``names``, ``model``,
     ``to_x`` and vectorised ``__call__``)."""
@@ -135,10 +158,19 @@ def run_sampler(target: LogPosterior, n_walkers: int, *, ess: float = 2000, rhat
             target_steps = int(min(target_steps, steps + max(25, left / per_step)))
     if bar is not None:
         bar.close()
+    kept = steps - burn
+    thin = max(1, math.ceil(kept * n_walkers / max_saved_draws))
+    if thin > 1:            # the verdict of the draws that are saved, not of the longer chain
+        saved = chain[burn:][np.arange(kept - 1, -1, -thin)[::-1]]
+        diag = diagnostics(saved, target.names, tau=integrated_time(saved))
+        converged = converged and bool(min(diag["ess_bulk"].min(), diag["ess_tail"].min()) >= ess
+                                       and diag["rhat"].max() < rhat_max)
     units = (tuple(target.units) if getattr(target, "units", None) is not None
              else tuple(target.model.spec[n].unit for n in target.names))
     return PosteriorRun(names=target.names, units=units,
                         chain_z=sampler.get_chain(), log_prob=sampler.get_log_prob(), burn=burn,
-                        converged=converged, diagnostics=diag, target=target,
+                        converged=converged, diagnostics=diag, target=target, thin=thin,
+                        stop_rule={"ess": ess, "rhat_max": rhat_max, "tau_factor": tau_factor,
+                                   "max_steps": max_steps},
                         seconds=time.perf_counter() - t0,
                         acceptance=float(np.mean(sampler.acceptance_fraction)), moves=moves, checks=checks)

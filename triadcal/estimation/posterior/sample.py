@@ -27,7 +27,7 @@ from ..result import Z95, CalibrationResult
 from .export import write_inference_data, write_target_inference_data
 from .laplace import _transformed_laplace, laplace_approximation
 from .moves import MOVES
-from .run import run_sampler
+from .run import MAX_SAVED_DRAWS, run_sampler
 from .summary import (
     PRIOR_DOMINATED_RATIO,
     _flags_block,
@@ -50,7 +50,7 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
            ess: float = 2000, rhat_max: float = 1.01, tau_factor: float = 50.0, max_steps: int = 20000,
            n_walkers: Optional[int] = None, seed: int = 0, priors: Optional[Mapping[str, Prior]] = None,
            moves: str = "de-snooker-laplace", progress: Union[bool, Callable, None] = None,
-           json_path=None, posterior_path=None, max_saved_draws: int = 4000,
+           json_path=None, posterior_path=None, max_saved_draws: int = MAX_SAVED_DRAWS,
            return_run: bool = False, least_squares: Optional[tuple] = None,
            gates: Optional[GateConfig] = None):
     """Posterior of every parameter of the joint model (``triadcal sample``).
@@ -99,21 +99,21 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     W += W % 2
     target = LogPosterior(campaign, model, sigma, pri, x_map, Lc, block=W // 2)
     run = run_sampler(target, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
-                      seed=seed, moves=moves, progress=progress)
+                      seed=seed, moves=moves, progress=progress, max_saved_draws=max_saved_draws)
     total_seconds = time.perf_counter() - t_start
     result = _result(campaign, model, problem, pri, ls, run, notes, total_seconds, ess, rhat_max, tau_factor, max_steps,
                      gates)
     if json_path is not None:
         result.save(json_path)
     if posterior_path is not None:
-        write_inference_data(posterior_path, campaign, run, result, max_saved_draws=max_saved_draws)
+        write_inference_data(posterior_path, campaign, run, result)
     return (result, run) if return_run else result
 
 
 def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float = 1.01, tau_factor: float = 50.0,
                   max_steps: int = 20000, n_walkers: Optional[int] = None, seed: int = 0,
                   moves: str = "de-snooker-laplace", progress: Union[bool, Callable, None] = None,
-                  posterior_path=None, max_saved_draws: int = 4000, notes: Sequence[str] = ()):
+                  posterior_path=None, max_saved_draws: int = MAX_SAVED_DRAWS, notes: Sequence[str] = ()):
     """Posterior of a :class:`ResidualTarget` through the bench's path: MAP and Laplace
     approximation from the least-squares optimum (:func:`laplace_approximation`), whitened
     coordinates, the same emcee moves and stop rule (:func:`run_sampler`), the same value,
@@ -137,7 +137,7 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
     if target.transform is not None:
         x_map = np.asarray(target.transform(y_map)).reshape(-1)
     run = run_sampler(lp, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
-                      seed=seed, moves=moves, progress=progress)
+                      seed=seed, moves=moves, progress=progress, max_saved_draws=max_saved_draws)
     total_seconds = time.perf_counter() - t_start
     names = list(target.names)
     params, intervals, non_gaussian, prior_dominated = posterior_summary(names, target.units, run, target.priors,
@@ -174,5 +174,5 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
     result.extra["flags"]["criteria"]["prior_influenced"] = (f"least-squares SD / prior SD > {PRIOR_DOMINATED_RATIO} "
                                                              "(and not prior-dominated)")
     if posterior_path is not None:
-        write_target_inference_data(posterior_path, target, run, result, max_saved_draws=max_saved_draws)
+        write_target_inference_data(posterior_path, target, run, result)
     return result, run

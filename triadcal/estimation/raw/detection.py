@@ -1,28 +1,10 @@
 """Static intervals of a raw recording: detected, or taken from labels or an interval file.
 
-Detector (documented, with no hidden failure modes):
-
-1. Noise of each axis: the 10th percentile of its moving standard deviation (a
-   calibration recording is static most of the time, so the quiet windows show the
-   noise whatever its colour), capped at twice the difference-based estimate
-   ``1.4826 MAD(diff(a)) / sqrt(2)`` (which sees the white noise even while the unit
-   moves slowly, and so protects a recording that is mostly motion), and floored at
-   ``step / sqrt(12)`` for a quantised signal (integer counts with less than one
-   count of noise), so it is never zero or NaN.
-2. Moving standard deviation of **each axis** over a centred window (default 1 s).
-   Each axis and not only the norm |a|: a slow rotation keeps |a| = g while the
-   components change (imucal's rotation parts), so a norm-only detector calls it static.
-3. A sample is static when every axis's moving SD is below ``threshold`` times its
-   noise (default 3: for a 100-sample window of white noise the SD scatters by ~7 %,
-   so a static window is never missed, while a 1 deg change of pose moves a component
-   by 0.017 g, tens of noise SDs for a MEMS triad).
-4. A run of quiet window centres is extended by half a window on each side (every
-   sample of a quiet window is static), ``trim_s`` is cut from each end (the settling
-   after a placement), and runs shorter than ``min_duration_s`` are dropped.
-
-It reports what it found (:class:`StaticDetection`) and raises
-:class:`StaticIntervalError` with the numbers a user needs when too few intervals are
-found; nothing in it can produce NaN (all quantities are floored, empty sets refused).
+:func:`detect_static_intervals` (steps 1-4: noise per axis, moving SD of each axis,
+threshold, runs extended and trimmed) returns a :class:`StaticDetection` or raises
+:class:`StaticIntervalError` with the numbers; :func:`intervals_from_labels` and
+:func:`intervals_from_spec` take them from a label column or an interval file.
+Derivation/design: docs/raw.md (Static intervals: steps 1-4, why these choices).
 """
 
 from __future__ import annotations

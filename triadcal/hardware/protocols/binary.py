@@ -1,23 +1,10 @@
 """Binary frame of the IMU readout with CRC-16, and the CRC-16 of Modbus RTU.
 
-Frame (little-endian, 54 bytes)::
-
-    offset size  field
-    0      2     sync 0xA5 0x5A
-    2      1     type 0x01 (IMU sample)
-    3      1     payload length, 48
-    4      4     seq        uint32
-    8      8     time_s     float64   instrument clock, s
-    16     24    w_x w_y w_z float64  outputs, V
-    40     12    t_x t_y t_z float32  temperatures, degC
-    52     2     CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF) of bytes 2..51, uint16
-
-The parser hunts for the sync word, checks type, length and CRC, and on failure
-resumes the hunt one byte after the failed sync word, so a damaged frame costs at
-most itself. A damaged frame is counted once: a failed frame counts when it follows a
-good one, carries a valid type and length, or starts right where a frame would follow
-the last damaged one; false sync words found inside damaged
-bytes while re-synchronising are counted as discarded bytes, not as more frames.
+54-byte little-endian frame (sync 0xA5 0x5A, type, length, seq, time, w_x w_y w_z,
+t_x t_y t_z, CRC-16/CCITT-FALSE): :func:`encode`, :func:`quantise`, the streaming
+:class:`Parser` (re-synchronises one byte after a failed sync word, counts each damaged
+frame once), :func:`crc16_ccitt`, :func:`crc16_modbus`.
+Frame layout and design: docs/hardware.md (Wire protocols: IMU, binary frame).
 """
 
 from __future__ import annotations

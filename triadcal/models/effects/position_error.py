@@ -1,17 +1,9 @@
 """Random bench positioning and wobble errors as an output variance (seed paper, eq. 4).
 
-The paper's eq. 4 adds the r.m.s. positioning error of the bench axes (sigma_1) and the
-wobble of the rotation axis (sigma_2) to the error budget. At the level of one visit
-these are random rotations of the IMU by a few arcseconds; they do not change the mean
-of the outputs (to first order) but add a variance that depends on the pose: an
-output whose sensing axis is perpendicular to gravity moves by ``g * angle``, one
-along gravity hardly moves. This module gives that variance by linearising
-:meth:`triadcal.models.model.Model.predict` in the three per-visit bench errors of
-:class:`~triadcal.models.model.Covariates` (``axis1_error``, ``axis2_error``,
-``wobble``): the physics stays in the model, this only differentiates it.
-
-Not a switchable effect of the mean (it has no hook): the diagnosis and the noise
-model of a fit use it as ``var(W) = sigma_meas^2 + sigma_p^2 * sensitivity``.
+``var(W) = sigma_meas^2 + sigma_p^2 * sensitivity``: :func:`sensitivity_arcsec2` linearises
+:meth:`~triadcal.models.model.Model.predict` in the per-visit bench errors (axis 1, axis 2,
+wobble); :func:`output_variance` scales it. A noise term, not a switchable mean effect.
+Derivation/design: docs/model.md (Noise: positioning errors as an output variance).
 """
 
 from __future__ import annotations

@@ -125,7 +125,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     """Assemble a certificate (or a refusal report when :func:`refusal_reasons` finds any)."""
     lab = lab or LabConfig()
     issue_date = issue_date or _dt.date.today().isoformat()
-    post_diag = posterior_diagnostics(idata, list(result.parameters)) if idata is not None else None
+    post_diag = posterior_diagnostics(idata, list(result.parameters), result) if idata is not None else None
     reasons = refusal_reasons(result, posterior_diag=post_diag, diagnosis=diagnosis)
     issued = not reasons
     if result.method == "posterior":
@@ -265,7 +265,9 @@ def _diagnostic_lines(result, post_diag, diagnosis) -> list:
     if post_diag:
         out.append(("Posterior", f"{post_diag['n_chains']} chains × {post_diag['n_draws']} draws; worst R-hat "
                                  f"{post_diag['rhat_max']:.4f} ({post_diag['rhat_worst']}), lowest bulk ESS "
-                                 f"{post_diag['ess_bulk_min']:.0f} ({post_diag['ess_worst']})"))
+                                 f"{post_diag['ess_bulk_min']:.0f} ({post_diag['ess_worst']}); "
+                                 f"{'converged' if post_diag['converged'] else 'not converged'} "
+                                 f"({post_diag['source']})"))
     if diagnosis:
         gap = diagnosis.get("gap") or {}
         out.append(("Diagnosis", f"gap chi2/dof {gap.get('chi2_dof')}, significant: {gap.get('significant')}, "

@@ -14,11 +14,10 @@ from ...estimation.result import CalibrationResult
 GAP_P_THRESHOLD = 1e-3
 
 
-#: posterior diagnostics below which no certificate is issued (Vehtari et al. 2021)
-RHAT_MAX = 1.01
-
-
-ESS_MIN = 400.0
+#: the rule for a posterior file that carries no verdict and whose result states no stop rule
+#: (another program's draws): rank-normalised R-hat < 1.01 and bulk and tail ESS >= 400
+#: (Vehtari et al. 2021, Bayesian Analysis 16(2))
+DEFAULT_STOP_RULE = {"rhat_max": 1.01, "ess": 400.0}
 
 
 # =========================================================================================
@@ -41,32 +40,40 @@ def unidentified_parameters(result: CalibrationResult) -> dict:
     return out
 
 
-def _arviz():
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)  # arviz 0.2x announces its 1.0 refactor on import
-        import arviz as az
-    return az
-
-
-def posterior_diagnostics(idata, names) -> dict:
-    """Worst R-hat and bulk ESS over ``names`` present in the posterior (arviz)."""
-    az = _arviz()
-
-    names = [n for n in names if n in idata.posterior.data_vars]
+def posterior_diagnostics(idata, names, result: Optional[CalibrationResult] = None) -> dict:
+    """The posterior file's convergence verdict. ``triadcal sample`` computes it once, on exactly
+    the draws it saves, and stores it in the posterior group's attributes: it is read here, not
+    recomputed. A file without it (another program's) is judged once by the sampler's own
+    function (:func:`triadcal.estimation.posterior.diagnostics`) under the stop rule of
+    ``result`` (or, without one, ``DEFAULT_STOP_RULE``)."""
+    post = idata.posterior
+    base = {"n_chains": int(post.sizes.get("chain", 0)), "n_draws": int(post.sizes.get("draw", 0))}
+    a = post.attrs
+    if all(k in a for k in ("converged", "rhat_max", "rhat_worst", "ess_bulk_min", "ess_tail_min")):
+        return {**base, "source": "stored by the sampler with the draws", "converged": bool(a["converged"]),
+                "rhat_max": float(a["rhat_max"]), "rhat_worst": str(a["rhat_worst"]),
+                "ess_bulk_min": float(a["ess_bulk_min"]), "ess_worst": str(a.get("ess_bulk_worst", "")),
+                "ess_tail_min": float(a["ess_tail_min"]),
+                "stop_rule": {"rhat_max": float(a.get("stop_rule_rhat_max", DEFAULT_STOP_RULE["rhat_max"])),
+                              "ess": float(a.get("stop_rule_ess", DEFAULT_STOP_RULE["ess"]))}}
+    names = [n for n in names if n in post.data_vars]
     if not names:
         return {}
-    sub = idata.posterior[names]
-    rhat = az.rhat(sub)
-    ess = az.ess(sub, method="bulk")
-    r = {n: float(rhat[n].max()) for n in names}
-    e = {n: float(ess[n].min()) for n in names}
-    worst_r = max(r, key=lambda n: r[n] if math.isfinite(r[n]) else math.inf)
-    worst_e = min(e, key=lambda n: e[n] if math.isfinite(e[n]) else -math.inf)
-    return {"rhat_max": r[worst_r], "rhat_worst": worst_r, "ess_bulk_min": e[worst_e], "ess_worst": worst_e,
-            "n_chains": int(idata.posterior.sizes.get("chain", 0)),
-            "n_draws": int(idata.posterior.sizes.get("draw", 0))}
+    import numpy as np
+
+    from ...estimation.posterior.diagnostics import diagnostics
+
+    chain = np.stack([np.asarray(post[n].values, float).T for n in names], axis=-1)   # (draw, chain, d)
+    diag = diagnostics(chain, names)
+    stored = ((result.extra.get("sampler") or {}).get("stop_rule") if result is not None else None) or {}
+    rule = {"rhat_max": float(stored.get("rhat_max", DEFAULT_STOP_RULE["rhat_max"])),
+            "ess": float(stored.get("ess", DEFAULT_STOP_RULE["ess"]))}
+    ir, ib, it = int(np.argmax(diag["rhat"])), int(np.argmin(diag["ess_bulk"])), int(np.argmin(diag["ess_tail"]))
+    converged = bool(diag["rhat"][ir] < rule["rhat_max"]
+                     and min(diag["ess_bulk"][ib], diag["ess_tail"][it]) >= rule["ess"])
+    return {**base, "source": "computed from the draws (the file carries no verdict)", "converged": converged,
+            "rhat_max": float(diag["rhat"][ir]), "rhat_worst": names[ir], "ess_bulk_min": float(diag["ess_bulk"][ib]),
+            "ess_worst": names[ib], "ess_tail_min": float(diag["ess_tail"][it]), "stop_rule": rule}
 
 
 def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict] = None,
@@ -76,7 +83,7 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
     Checked: the estimator's status, parameters it could not determine, a significant
     model-data gap (chi^2 with known noise, p < ``GAP_P_THRESHOLD``; or a diagnosis file
     whose ``gap.significant`` is true), missing or non-finite uncertainties, and the
-    posterior's R-hat and bulk ESS (``RHAT_MAX``, ``ESS_MIN``) when a posterior is given.
+    posterior's convergence verdict (:func:`posterior_diagnostics`) when a posterior is given.
     """
     reasons = []
     if result.status != "ok":
@@ -102,12 +109,18 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
              or not math.isfinite(p.value)]
     if bad_u:
         reasons.append(f"no finite value or uncertainty for {', '.join(bad_u)}")
-    if posterior_diag:
-        r, e = posterior_diag.get("rhat_max"), posterior_diag.get("ess_bulk_min")
-        if r is not None and not r <= RHAT_MAX:
-            reasons.append(f"the sampler did not converge: R-hat of {posterior_diag['rhat_worst']} is "
-                           f"{r:.3f} > {RHAT_MAX} (run more or longer chains)")
-        if e is not None and not e >= ESS_MIN:
-            reasons.append(f"too few effective draws: bulk ESS of {posterior_diag['ess_worst']} is "
-                           f"{e:.0f} < {ESS_MIN:.0f}")
+    if posterior_diag and not posterior_diag.get("converged", True):
+        rule = posterior_diag["stop_rule"]
+        reasons.append(
+            f"the posterior has not converged on its saved draws ({posterior_diag['source']}): worst R-hat "
+            f"{posterior_diag['rhat_max']:.4f} ({posterior_diag['rhat_worst']}) against < {rule['rhat_max']:g}, "
+            f"lowest bulk/tail ESS {posterior_diag['ess_bulk_min']:.0f}/{posterior_diag['ess_tail_min']:.0f} "
+            f"against >= {rule['ess']:.0f}; run `triadcal sample` again with a larger --max-steps "
+            f"(or a larger --ess, e.g. --ess {2 * rule['ess']:.0f}, for longer chains)")
+    if posterior_diag and result.method == "posterior" and posterior_diag["source"].startswith("stored"):
+        mine = (result.extra.get("sampler") or {}).get("rhat_max")
+        if isinstance(mine, (int, float)) and not math.isclose(mine, posterior_diag["rhat_max"], rel_tol=1e-9):
+            reasons.append(f"the posterior file is not the one written with this result (its worst R-hat is "
+                           f"{posterior_diag['rhat_max']:.6f}, the result's {mine:.6f}); give the netCDF that "
+                           "`triadcal sample` wrote together with this JSON")
     return reasons
