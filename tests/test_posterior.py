@@ -40,6 +40,9 @@ def test_standard_campaign_converges_and_recovers_truth(standard):
     # the stop rule really held at the end
     assert s["ess_bulk_min"] >= 2000 and s["ess_tail_min"] >= 2000 and s["rhat_max"] < 1.01
     assert s["steps"] - s["burn"] >= 50 * s["tau_max"]
+    # one recommendation of which intervals to use
+    assert result.extra["intervals_to_use"]["use"] == "posterior"
+    assert sum(n.startswith("intervals to use:") for n in result.notes) == 1
     for n, v in truth.parameters.items():
         p = result.parameters[n]
         assert abs(p.value - v) < 4 * p.u, (n, p, v)

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from triadcal.reports.summary import summary_text
 from scipy.linalg import rq
 
 from triadcal.cli import main as cli_main
@@ -546,6 +548,14 @@ def test_mpu6050_posterior_says_ca_xy_is_prior_influenced():
     assert r["Ca_xy"].u > 10 * max(r["Ca_xz"].u, r["Ca_yz"].u)          # the poorly determined angle
     assert "Ca_xz" not in flags["prior_influenced"] + flags["prior_dominated"]
     assert "K_z" not in flags["prior_influenced"] + flags["prior_dominated"]
+    # one recommendation: with 1 residual dof the posterior holds the noise level fixed, so the
+    # Student-t least-squares intervals are the ones to use, and no note says otherwise
+    assert r.extra["intervals_to_use"]["use"] == "least_squares"
+    assert sum(n.startswith("intervals to use:") for n in r.notes) == 1
+    assert not any("use the posterior interval" in n or "safer" in n for n in r.notes
+                   if not n.startswith("intervals to use:"))
+    text = summary_text(r)
+    assert "intervals to use: the least-squares ones" in text and "quantiles" in text
 
 
 @needs_real

@@ -18,6 +18,9 @@ def coverage_factor(result: CalibrationResult) -> tuple[float, str]:
 
             return float(stats.t.ppf(0.975, dof)), (f"the 95 % interval of the JSON (Student's t with {dof:g} "
                                                      "residual degrees of freedom)")
+    if result.method == "posterior":
+        return 2.0, ("twice the posterior SD; the 95 % intervals of the JSON are the draws' 2.5-97.5 % quantiles, "
+                     "which differ where the posterior is not Gaussian")
     return 2.0, "coverage about 95 %"
 
 
@@ -50,6 +53,10 @@ def summary_text(result: CalibrationResult) -> str:
         v, U = round_to_uncertainty(p.value, k * p.u)
         lines.append(f"  {name:<20} {v:>16} {U:>12}  {p.unit}")
     lines.append(f"  U = {k:.3g} u, {how}; u (k = 1) in the JSON")
+    rec = result.extra.get("intervals_to_use")
+    if isinstance(rec, dict) and rec.get("use"):
+        which = "the least-squares ones (fit.least_squares)" if rec["use"] == "least_squares" else "the posterior's"
+        lines.append(f"  intervals to use: {which}, because {rec.get('why', '')}")
     try:
         from .certificate import refusal_reasons
     except ImportError:  # pragma: no cover - reportlab missing

@@ -32,6 +32,8 @@ from .summary import (
     PRIOR_DOMINATED_RATIO,
     _flags_block,
     _result,
+    intervals_to_use,
+    recommendation_note,
     posterior_notes,
     posterior_summary,
     sampler_info,
@@ -113,12 +115,15 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
 def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float = 1.01, tau_factor: float = 50.0,
                   max_steps: int = 20000, n_walkers: Optional[int] = None, seed: int = 0,
                   moves: str = "de-snooker-laplace", progress: Union[bool, Callable, None] = None,
-                  posterior_path=None, max_saved_draws: int = MAX_SAVED_DRAWS, notes: Sequence[str] = ()):
+                  posterior_path=None, max_saved_draws: int = MAX_SAVED_DRAWS, notes: Sequence[str] = (),
+                  prefer_least_squares: Optional[str] = None):
     """Posterior of a :class:`ResidualTarget` through the bench's path: MAP and Laplace
     approximation from the least-squares optimum (:func:`laplace_approximation`), whitened
     coordinates, the same emcee moves and stop rule (:func:`run_sampler`), the same value,
     intervals and flags (:func:`posterior_summary`). Returns ``(CalibrationResult, PosteriorRun)``
-    (method ``posterior``); writes the InferenceData to ``posterior_path`` when given."""
+    (method ``posterior``); writes the InferenceData to ``posterior_path`` when given.
+    ``prefer_least_squares``: why the least-squares intervals are the ones to use (the posterior
+    holds fixed something the least squares integrate); the result then recommends them."""
     if moves not in MOVES:
         raise InputError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
     t_start = time.perf_counter()
@@ -157,6 +162,8 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
                 out_notes.append(f"{n}: prior-influenced (least-squares SD / prior SD = {ratio:.2f} > "
                                  f"{PRIOR_DOMINATED_RATIO}): the data alone determine it poorly; the prior "
                                  f"narrows its interval (posterior SD / prior SD = {intervals[n]['prior_sd_ratio']:.2f})")
+    rec = intervals_to_use(non_gaussian, target.ls_intervals, prefer_least_squares)
+    out_notes.append(recommendation_note(rec))
     draws = run.flat()
     x_mean = draws.mean(axis=0)
     chi2 = float(np.sum(ResidualProblem(replace(target, transform=None, inverse=None)).residuals(x_mean) ** 2))
@@ -170,6 +177,7 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
         correlation_names=tuple(names), correlation=np.corrcoef(draws, rowvar=False), notes=out_notes,
         extra={"priors": {n: target.priors[n].to_dict() for n in names},
                "flags": {**_flags_block(non_gaussian, prior_dominated), "prior_influenced": prior_influenced},
+               "intervals_to_use": rec,
                "sampler": sampler_info(run, names, total_seconds, ess, rhat_max, tau_factor, max_steps)})
     result.extra["flags"]["criteria"]["prior_influenced"] = (f"least-squares SD / prior SD > {PRIOR_DOMINATED_RATIO} "
                                                              "(and not prior-dominated)")

@@ -82,15 +82,36 @@ def posterior_notes(intervals: Mapping[str, dict], non_gaussian, prior_dominated
             continue
         if n in ls_names:
             notes.append(f"{n}: the 95% posterior interval differs from the least-squares one by more than "
-                         f"{NON_GAUSSIAN_TOLERANCE:.0%} of its half-width: the least-squares interval does not hold "
-                         "(a non-Gaussian posterior, or parameters the least-squares fit held fixed); "
-                         "use the posterior interval")
+                         f"{NON_GAUSSIAN_TOLERANCE:.0%} of its half-width (a non-Gaussian posterior, or parameters "
+                         "the least-squares fit held fixed)")
         else:
             notes.append(f"{n}: the least-squares fit could not determine it; only the posterior interval exists")
     if not run.converged:
         notes.insert(0, f"not converged within {max_steps} steps: the stop rule (chain >= {tau_factor:g} tau, "
                         f"ESS >= {ess:g}, R-hat < {rhat_max}) did not hold; do not use these intervals")
     return notes
+
+
+def intervals_to_use(non_gaussian: Sequence[str], ls_names, prefer_least_squares: Optional[str] = None) -> dict:
+    """The one recommendation of a posterior result: which 95 % intervals to use, and why.
+
+    ``prefer_least_squares``: the reason the least-squares intervals are the safer ones (the
+    posterior holds a quantity fixed that the least squares integrate); otherwise the posterior's,
+    which hold whether or not it is Gaussian."""
+    differ = [n for n in non_gaussian if n in ls_names]
+    if prefer_least_squares:
+        return {"use": "least_squares", "why": prefer_least_squares}
+    if differ:
+        return {"use": "posterior", "why": (f"the posterior is not Gaussian for {', '.join(differ)}: its quantile "
+                                            "intervals hold where the least-squares ones do not")}
+    return {"use": "posterior", "why": (f"the posterior and least-squares intervals agree within "
+                                        f"{NON_GAUSSIAN_TOLERANCE:.0%} of their half-width; the posterior's are "
+                                        "reported")}
+
+
+def recommendation_note(rec: dict) -> str:
+    which = "the least-squares (fit.least_squares)" if rec["use"] == "least_squares" else "the posterior"
+    return f"intervals to use: {which} 95 % intervals, because {rec['why']}"
 
 
 def sampler_info(run: PosteriorRun, names: Sequence[str], total_seconds, ess, rhat_max, tau_factor,
@@ -140,6 +161,8 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
         params["tilt_beta"] = ParameterValue(beta_mean / DEG, float(dev.std(ddof=1)) / DEG, "deg")
     posterior_notes(intervals, non_gaussian, prior_dominated, ls.parameters, run, ess, rhat_max, tau_factor,
                     max_steps, notes)
+    rec = intervals_to_use(non_gaussian, ls.parameters)
+    notes.append(recommendation_note(rec))
     corr = np.corrcoef(draws, rowvar=False)
     x_mean = draws.mean(axis=0)
     chi2 = float(np.sum(problem.residuals(x_mean) ** 2))
@@ -154,7 +177,7 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
         temperature_range_C=(float(T.min()), float(T.max())), intervals=intervals, fit=fit,
         correlation_names=tuple(names), correlation=corr, notes=notes + list(ls.notes),
         extra={"priors": {n: p.to_dict() for n, p in pri.items()},
-               "flags": _flags_block(non_gaussian, prior_dominated),
+               "flags": _flags_block(non_gaussian, prior_dominated), "intervals_to_use": rec,
                "sampler": sampler_info(run, names, total_seconds, ess, rhat_max, tau_factor, max_steps),
                "output_unit": campaign.output_unit,
                "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source})

@@ -110,10 +110,12 @@ def sample_unknown_poses(ls: CalibrationResult, problem: NormProblem, sol: Solut
         observed={"w": (("interval", "axis"), problem.w, {"units": scale_unit.split("/")[-1]})},
         obs_coords={"axis": ["x", "y", "z"]}, unit_serial=serial)
     notes = [f"noise of |A| - g held at the least-squares value (s = {math.sqrt(s2):.3g} g, "
-             f"{f['variance_used']}); the posterior does not include its uncertainty"
-             + (f" (with {f['dof']} residual dof the Student-t least-squares intervals are the safer ones)"
-                if 0 < f["dof"] < 10 else "")]
-    result, run = sample_target(target, posterior_path=posterior_path, notes=notes, **sampler)
+             f"{f['variance_used']}); the posterior does not include its uncertainty"]
+    prefer = (f"the posterior holds the noise of |A| - g at its least-squares value, which {f['dof']} residual "
+              f"degree{'s' if f['dof'] != 1 else ''} of freedom determine poorly; the least-squares intervals (Student's t) include that "
+              "uncertainty" if 0 < f["dof"] < 10 else None)
+    result, run = sample_target(target, posterior_path=posterior_path, notes=notes, prefer_least_squares=prefer,
+                                **sampler)
     result.notes.extend(ls.notes)
     result.fit.update({"model": f["model"], "dof": f["dof"], "variance_used": f["variance_used"],
                        "sigma_g": math.sqrt(s2),
@@ -162,12 +164,12 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
         obs_coords={"pose": ("reading", np.repeat(np.asarray(labels, str), 3)),
                     "axis": ("reading", np.tile(["x", "y", "z"], problem.n))},
         unit_serial=serial, transform=transform, inverse=inverse)
-    notes = []
+    prefer = None
     if str(ls.fit.get("placement_sd_source", "")).startswith("integrated"):
-        notes.append(f"the sampler holds the placement SD at the data's most probable value "
-                     f"({problem.sigma_h / 3600.0:.2g} deg); the least-squares result (fit.least_squares) integrates "
-                     "it, so its intervals are the slightly wider, safer ones")
-    result, run = sample_target(target, posterior_path=posterior_path, notes=notes, **sampler)
+        prefer = (f"the sampler holds the placement SD at the data's most probable value "
+                  f"({problem.sigma_h / 3600.0:.2g} deg) while the least-squares result integrates it, so its "
+                  "intervals are the slightly wider, safer ones")
+    result, run = sample_target(target, posterior_path=posterior_path, prefer_least_squares=prefer, **sampler)
     tilts = {n: result.parameters.pop(n) for n in tilt_names}
     for n in tilt_names:
         result.intervals.pop(n, None)

@@ -187,7 +187,7 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
                      "the misfit of the model cannot be judged; the uncertainties carry the sample noise only "
                      "(a lower bound): record more poses")
     elif dof < 10:
-        notes.append(f"only {dof} residual degrees of freedom: the residual variance is itself uncertain; "
+        notes.append(f"only {dof} residual degree{'s' if dof != 1 else ''} of freedom: the residual variance is itself uncertain; "
                      "the 95 % intervals use Student's t")
     fit = {"model": "unknown poses: gravity norm (Tedaldi et al. 2014)", "n_obs": n, "n_params": len(NORM_NAMES),
            "dof": dof, "residual_variance_g2": s2_resid, "noise_variance_g2": s2_noise,

@@ -87,8 +87,12 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
     """
     reasons = []
     if result.status != "ok":
+        # the failed gates say why (each its own reason below); without them, the notes do
+        failed = [o.get("reason") for o in (result.extra.get("gates") or {}).get("outcomes") or []
+                  if isinstance(o, dict) and o.get("passed") is False and o.get("reason")]
         reasons.append(f"the estimator reports status '{result.status}' (a certificate needs 'ok')"
-                       + (": " + "; ".join(result.notes) if result.notes else ""))
+                       + (": " + "; ".join(failed) if failed else
+                          (": " + "; ".join(result.notes) if result.notes else "")))
     reasons += [f"the result fails an answer gate: {why}" for why in result_problems(result, need_ok=False)]
     unid = unidentified_parameters(result)
     if unid:
