@@ -105,3 +105,20 @@ def test_the_lock_of_a_killed_process_does_not_block(tmp_path):
         proc.wait(timeout=30)
     with folder_lock(tmp_path, "capture"):        # the kernel released it with the process
         pass
+
+
+def test_written_files_get_the_mode_of_an_ordinary_open(tmp_path):
+    """mkstemp creates 0600; what triadcal writes is readable as any file the user writes."""
+    import os
+    import stat
+
+    from triadcal.io.atomic import atomic_write_text
+
+    old = os.umask(0o022)
+    try:
+        atomic_write_text(tmp_path / "a.txt", "x")
+        (tmp_path / "b.txt").write_text("x")
+    finally:
+        os.umask(old)
+    mode = stat.S_IMODE((tmp_path / "a.txt").stat().st_mode)
+    assert mode == stat.S_IMODE((tmp_path / "b.txt").stat().st_mode) == 0o644

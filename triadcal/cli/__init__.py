@@ -57,7 +57,9 @@ def main(argv=None) -> int:
     if not debug:
         warnings.showwarning = _warning_line
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()        # the last block here, where a closed pipe is caught, not at exit
+        return code
     except BrokenPipeError:
         return _broken_pipe()
     except TriadcalError as exc:

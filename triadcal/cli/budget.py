@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ._common import add_output_options, output
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -32,6 +34,7 @@ def register(sub) -> None:
     p.add_argument("--T-max", type=float, default=85.0, metavar="DEGC", help="maximum temperature, degC (default 85)")
     p.add_argument("--T0", type=float, default=20.0, metavar="DEGC", help="normal temperature, degC (default 20)")
     p.add_argument("--json", metavar="OUT", help="write the budget tables (triadcal.budget v1)")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
@@ -55,24 +58,25 @@ def _table(b) -> str:
 def run(args) -> int:
     from ..uncertainty.paper import budget
 
+    out = output(args)
     tables = budget(thermal=args.thermal, accelerometer_name=args.accelerometer, K_g_per_V=args.K, Q_V2s=args.Q,
                     tau_s=args.tau, sigma1_arcsec=args.sigma1, sigma2_arcsec=args.sigma2, G_g=args.G,
                     k_ca_arcsec_per_C=args.k_ca, dT_C=args.dT, cte_body_per_C=args.cte_body,
                     cte_accelerometer_per_C=args.cte_accelerometer, T_max_C=args.T_max, T0_C=args.T0)
     if args.thermal and args.accelerometer is None:
-        print("thermal drift of the axes (eq. 5-7) for the units of Table 1")
-        print(f"  {'unit':<9} {'material':<8} {'dCa_Ta':>8} {'dCa_Tn':>8} {'dCa_Tk':>8} {'dCa_T':>8}  arcsec")
+        out.say("thermal drift of the axes (eq. 5-7) for the units of Table 1")
+        out.say(f"  {'unit':<9} {'material':<8} {'dCa_Ta':>8} {'dCa_Tn':>8} {'dCa_Tk':>8} {'dCa_T':>8}  arcsec")
         for b in tables:
             parts = {c.symbol: c.contribution for c in b.components}
             acc = b.extra["accelerometer"]
-            print(f"  {acc['name']:<9} {acc['material']:<8} {parts['dCa_Ta']:>8.2f} {parts['dCa_Tn']:>8.2f} "
+            out.say(f"  {acc['name']:<9} {acc['material']:<8} {parts['dCa_Ta']:>8.2f} {parts['dCa_Tn']:>8.2f} "
                   f"{parts['dCa_Tk']:>8.2f} {b.total:>8.2f}")
     else:
-        print("\n\n".join(_table(b) for b in tables))
+        out.say("\n\n".join(_table(b) for b in tables))
     if args.json:
         doc = {"format": "triadcal.budget", "version": 1, "tables": [b.to_dict() for b in tables]}
         from ..io.atomic import atomic_write_json
 
         atomic_write_json(Path(args.json), doc)
-        print(f"budget written to {args.json}")
+        out.say(f"budget written to {args.json}")
     return 0

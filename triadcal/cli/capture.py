@@ -4,12 +4,10 @@ from __future__ import annotations
 
 from ..errors import InputError
 
-import json
-import sys
 import tempfile
 
-from ._common import float_list
-from .emulate import add_emulator_options, build_emulator
+from ._common import add_output_options, float_list, output
+from .emulate import add_emulator_options, build_emulator, fates_text
 
 
 def register(sub) -> None:
@@ -41,22 +39,21 @@ def register(sub) -> None:
     p.add_argument("--chamber-slave", type=int)
     p.add_argument("--emulate", action="store_true",
                    help="start the emulator in this process on a compressed clock and capture from it")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_output_options(p)
     add_emulator_options(p, prefix="emulate-")
     p.set_defaults(func=run)
 
 
-def _progress_bar(disabled: bool):
-    from tqdm import tqdm
-
+def _progress_bar(out):
+    """The progress callback of :func:`triadcal.hardware.capture.capture`: a bar of visits on stderr,
+    or None (see :func:`triadcal.cli._common.output`)."""
+    if not out.progress:
+        return None
     state = {"bar": None}
 
     def progress(ev):
-        if disabled:
-            return
         if state["bar"] is None:
-            state["bar"] = tqdm(total=ev["total"], initial=ev["done"], unit="visit", file=sys.stderr,
-                                dynamic_ncols=True)
+            state["bar"] = out.bar(total=ev["total"], initial=ev["done"], unit="visit")
         bar = state["bar"]
         bar.n = ev["done"]
         kind = ev["event"]
@@ -80,6 +77,7 @@ def run(args) -> int:
     from ..models.campaign import DEFAULT_PLAN
     from ..models.units import STANDARD_GRAVITY_M_S2
 
+    out = output(args)
     plan = DEFAULT_PLAN if args.plan == "default" else plan_from_csv(args.plan)
     cfg = load_port_config(args.config) if args.config else {}
     cfg = {k: dict(cfg.get(k, {})) for k in ("imu", "bench", "chamber")}
@@ -109,7 +107,7 @@ def run(args) -> int:
         imu, bench, chamber = open_instruments(cfg)
         try:
             report = capture(args.out, plan=plan, setpoints_C=float_list(args.setpoints), imu=imu, bench=bench,
-                             chamber=chamber, settings=settings, progress=_progress_bar(args.no_progress),
+                             chamber=chamber, settings=settings, progress=_progress_bar(out),
                              extra_metadata=extra)
         except CaptureError as exc:
             raise InputError(str(exc)) from None      # one line, exit 1: the campaign cannot go on
@@ -120,14 +118,16 @@ def run(args) -> int:
         if emulator is not None:
             emulator.stop()
     r = report
-    print(f"wrote {r.csv_path}: {r.visits_done}/{r.visits_total} visits "
-          f"({r.visits_done - r.visits_done_before} of them in session {r.session}) in {r.wall_seconds:.1f} s")
-    print(f"samples accepted {r.accepted_samples}, corrupted frames {r.corrupted_frames}, missing {r.missing_frames}, "
-          f"duplicates {r.duplicate_frames}, garbage bytes {r.garbage_bytes}, reconnects {r.reconnects}, "
-          f"stalls {r.stalls}, visits redone {r.redone_visits}")
+    session_visits = r.visits_done - r.visits_done_before
+    out.say(f"wrote {r.csv_path}: {r.visits_done} of {r.visits_total} visits done, {session_visits} of them in "
+            f"this session (session {r.session}), in {r.wall_seconds:.1f} s")
+    out.say(f"the readout: {r.accepted_samples} samples accepted; {r.corrupted_frames} corrupted, "
+            f"{r.missing_frames} missing and {r.duplicate_frames} duplicated frames; {r.garbage_bytes} garbage "
+            f"bytes; {r.reconnects} reconnections, {r.stalls} stalls and {r.redone_visits} visits redone")
     if r.noise:
         q = r.noise["Q_V2s"]
-        print(f"noise (Allan): Q = {q[0]:.3g}, {q[1]:.3g}, {q[2]:.3g} V^2 s (x, y, z)")
+        out.say(f"white-noise intensity from the Allan variance: Q = {q[0]:.3g}, {q[1]:.3g}, {q[2]:.3g} V^2 s "
+                "(x, y, z)")
     if emulator is not None:
-        print(f"emulator: {json.dumps(emulator.summary()['fates'])}")
+        out.say(f"the emulator's frames: {fates_text(emulator.summary()['fates'])}")
     return 0

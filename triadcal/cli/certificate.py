@@ -6,6 +6,8 @@ from ..errors import InputError
 
 import sys
 
+from ._common import add_output_options, output
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -33,6 +35,7 @@ def register(sub) -> None:
     p.add_argument("--number", help="certificate number from the lab's register (default: PREFIX-DATE-HASH)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="date of issue (default: today)")
     p.add_argument("--lab-example", action="store_true", help="print an example lab file and exit")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
@@ -51,8 +54,9 @@ def run(args) -> int:
     from ..reports.certificate import EXAMPLE_LAB_TOML, certificate
 
     if args.lab_example:
-        print(EXAMPLE_LAB_TOML, end="")
+        print(EXAMPLE_LAB_TOML, end="")            # asked for: printed even with --quiet
         return 0
+    say = output(args).say
     if not args.result:
         raise InputError("give a result file (results-json v1)")
     if not (args.html or args.pdf):
@@ -68,23 +72,23 @@ def run(args) -> int:
         from ..reports.certificate import drift_report
 
         comp = drift_report(args.result, lab=args.lab, html=args.html, pdf=args.pdf, issue_date=args.date)
-        print(f"drift report written ({', '.join(x for x in (args.html, args.pdf) if x)}): overall "
-              f"{comp.get('overall')}, {len(comp.get('parameters', {}))} parameters")
+        say(f"drift report written to {' and '.join(x for x in (args.html, args.pdf) if x)}: overall verdict "
+            f"{comp.get('overall') or 'not given'}, {len(comp.get('parameters', {}))} parameters")
         return 0
     cert = certificate(args.result, posterior=args.posterior, lab=args.lab, data=args.data,
                        diagnosis=args.diagnosis, html=args.html, pdf=args.pdf, plots_dir=args.plots,
                        number=args.number, issue_date=args.date)
     written = ", ".join(x for x in (args.html, args.pdf) if x)
     if cert.issued:
-        print(f"certificate {cert.number} issued for {cert.result.unit}: {written}")
+        say(f"certificate {cert.number} issued for {cert.result.unit}: {written}")
         b = cert.budget
-        print(f"  {len(cert.rows)} parameters, U (k = 2) from the {cert.source_of_u}; budget of an angle over the "
-              f"range: u_c = {b.combined_u:.2g} arcsec, U = {b.expanded_U:.2g} arcsec "
-              f"(largest: {b.components[0].source})")
+        say(f"  {len(cert.rows)} parameters, U (k = 2) from the {cert.source_of_u}; budget of an angle over the "
+            f"range: u_c = {b.combined_u:.2g} arcsec, U = {b.expanded_U:.2g} arcsec "
+            f"(largest: {b.components[0].source})")
         for name, why in cert.skipped_plots.items():
-            print(f"  plot {name} not drawn: {why}")
+            say(f"  plot {name} not drawn: {why}")
         if args.plots:
-            print(f"  plots written to {args.plots.rstrip('/')}/")
+            say(f"  plots written to {args.plots.rstrip('/')}/")
         return 0
     print(f"no certificate issued for {cert.result.unit}; the report says why: {written}", file=sys.stderr)
     for reason in cert.reasons:

@@ -13,7 +13,7 @@ from ..errors import InputError
 
 import sys
 
-from ._common import assignments, name_list
+from ._common import add_output_options, assignments, name_list, output
 
 
 def register(sub) -> None:
@@ -28,7 +28,7 @@ def register(sub) -> None:
     p.add_argument("--sequence", action="store_true",
                    help="the results are a sequence (initial, after exposure 1, ...): compare step by step "
                         "and against the initial state")
-    p.add_argument("--labels", help="comma-separated names of the states (sequence) ")
+    p.add_argument("--labels", help="comma-separated names of the states (sequence)")
     p.add_argument("--published", metavar="TABLE", help="judge a published drift table (CSV or JSON: exposure, "
                    "sensor, angle, drift_arcsec[, u_arcsec | u_drift_arcsec])")
     p.add_argument("--u-arcsec", type=float, metavar="U",
@@ -51,6 +51,7 @@ def register(sub) -> None:
     p.add_argument("--plot", metavar="OUT.png", help="write a PNG of the drifts with their uncertainty bands")
     p.add_argument("--exit-code", action="store_true",
                    help="exit 0 on pass, 4 on fail, 5 on inconclusive (overall)")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
@@ -58,6 +59,7 @@ def run(args) -> int:
     from ..judgement.compare import (compare, compare_sequence, judge_published, parse_tolerance,
                                       read_published_table)
 
+    say = output(args).say
     tolerance = parse_tolerance(args.tolerance)
     tolerances = assignments(args.param_tolerance)
     correlation = "auto" if args.correlation in (None, "auto") else _float(args.correlation, "--correlation")
@@ -72,10 +74,10 @@ def run(args) -> int:
         rows = read_published_table(args.published)
         out = judge_published(rows, u_measurement_arcsec=args.u_arcsec, tolerance_arcsec=tolerance,
                               correlation=0.0 if correlation == "auto" else correlation, level=args.level)
-        print(f"{args.published}: {len(rows)} published drifts, {len(out.labels)} exposures")
-        print(out.table("step"))
-        _print_footer(out.steps[0], joint=False)
-        print(f"overall: {out.overall}")
+        say(f"{args.published}: {len(rows)} published drifts, {len(out.labels)} exposures")
+        say(out.table("step"))
+        _print_footer(out.steps[0], say, joint=False)
+        say(f"overall: {out.overall}")
     elif args.sequence:
         if len(args.results) < 2:
             raise InputError("--sequence needs at least two results (the initial state and one exposure)")
@@ -86,13 +88,13 @@ def run(args) -> int:
         posteriors = name_list(args.posteriors) if args.posteriors else None
         out = compare_sequence(results, labels, tolerance_arcsec=tolerance, tolerances=tolerances,
                                correlation=correlation, level=args.level, posteriors=posteriors)
-        print(f"{results[0].unit}: {len(results)} calibrations")
-        print("step by step:")
-        print(out.table("step"))
-        print("against the initial state:")
-        print(out.table("cumulative"))
-        _print_footer(out.steps[0], joint=False)
-        print(f"overall: {out.overall}")
+        say(f"{results[0].unit}: {len(results)} calibrations")
+        say("step by step:")
+        say(out.table("step"))
+        say("against the initial state:")
+        say(out.table("cumulative"))
+        _print_footer(out.steps[0], say, joint=False)
+        say(f"overall: {out.overall}")
     else:
         if len(args.results) != 2:
             raise InputError(f"give BEFORE.json and AFTER.json (got {len(args.results)} files); "
@@ -104,12 +106,12 @@ def run(args) -> int:
                       posterior_before=args.posterior_before, posterior_after=args.posterior_after,
                       correlation=correlation, level=args.level, label=f"{_stem(args.results[0])} -> "
                                                                         f"{_stem(args.results[1])}")
-        print(_comparison_text(out))
-        _print_footer(out)
-        print(f"overall: {out.overall}")
+        say(_comparison_text(out))
+        _print_footer(out, say)
+        say(f"overall: {out.overall}")
     if args.json:
         out.save(args.json)
-        print(f"comparison written to {args.json}")
+        say(f"comparison written to {args.json}")
     if args.plot:
         from ..reports.drift import plot_drifts
 
@@ -118,7 +120,7 @@ def run(args) -> int:
         if not args.sequence and not args.published:
             names = [n for n, p in out.parameters.items() if p.judged and p.unit == "arcsec"]
         plot_drifts(out, args.plot, which=which, names=names)
-        print(f"plot written to {args.plot}")
+        say(f"plot written to {args.plot}")
     for note in getattr(out, "notes", []):
         print(f"note: {note}", file=sys.stderr)
     if args.exit_code:
@@ -145,13 +147,13 @@ def _comparison_text(c) -> str:
     return "\n".join(lines)
 
 
-def _print_footer(c, joint: bool = True) -> None:
+def _print_footer(c, say=print, joint: bool = True) -> None:
     if joint and c.joint is not None:
         j = c.joint
-        print(f"joint test of {j.dof} angles: D2 = {j.D2:.2f}, p = {j.p_value:.3g} "
+        say(f"joint test of {j.dof} angles: D2 = {j.D2:.2f}, p = {j.p_value:.3g} "
               f"({'significant' if j.significant else 'not significant'} at {100 * j.level:g}%)")
-    print(f"correlation between calibrations: {c.correlation.get('reason', '')}")
-    print(f"rule: {c.rule}")
+    say(f"correlation between calibrations: {c.correlation.get('reason', '')}")
+    say(f"rule: {c.rule}")
 
 
 def _load_checked(path: str):

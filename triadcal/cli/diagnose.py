@@ -7,7 +7,7 @@ from ..errors import InputError
 import sys
 
 from ..models.effects import DEFAULT_EFFECTS, EFFECTS, VOCABULARY
-from ._common import name_list
+from ._common import add_output_options, name_list, output
 
 
 def register(sub) -> None:
@@ -32,6 +32,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the Laplace draws")
     p.add_argument("--json", metavar="OUT", required=True, help="write the diagnosis here (JSON)")
     p.add_argument("--html", metavar="REPORT", help="write an HTML report with plots here")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
@@ -49,20 +50,24 @@ def run(args) -> int:
     if args.state:
         mask &= campaign.state == args.state
     if not mask.any():
-        raise InputError(f"{args.data}: no visit of unit {args.unit!r} state {args.state!r}; units: "
-                         f"{', '.join(campaign.units)}; states: {', '.join(sorted(set(campaign.state.tolist())))}")
+        asked = " and ".join(x for x in (f"unit {args.unit}" if args.unit else "",
+                                          f"state {args.state}" if args.state else "") if x)
+        states = ", ".join(sorted(set(campaign.state.tolist())))
+        raise InputError(f"{args.data} has no visit of {asked}; its units are {', '.join(campaign.units)} and "
+                         f"its states {states}")
     campaign = campaign.select(np.flatnonzero(mask))
     if len(campaign.units) > 1 or len(set(campaign.state.tolist())) > 1:
         raise InputError(f"{args.data} holds units {', '.join(campaign.units)} and states "
-                         f"{', '.join(sorted(set(campaign.state.tolist())))}: choose one with --unit/--state")
+                         f"{', '.join(sorted(set(campaign.state.tolist())))}: choose one with --unit and --state")
     cands = name_list(args.candidates) if args.candidates else None
     d = diagnose(campaign, name_list(args.model), candidates=cands, top=args.top, alpha=args.alpha,
                  n_draws=args.draws, reference_temperature_C=args.reference_temperature, seed=args.seed)
     d.save(args.json)
     if args.html:
         write_html_report(d, args.html, campaign)
-    print(summary_text(d))
-    print(f"diagnosis written to {args.json}" + (f", report to {args.html}" if args.html else ""))
+    out = output(args)
+    out.say(summary_text(d))
+    out.say(f"diagnosis written to {args.json}" + (f", report to {args.html}" if args.html else ""))
     for note in d.notes:
         print(f"note: {note}", file=sys.stderr)
     return 0

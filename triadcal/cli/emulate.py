@@ -9,7 +9,7 @@ import time
 
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.simulate import PRESETS
-from ._common import name_list
+from ._common import add_output_options, name_list, output
 
 
 def _windows(items):
@@ -77,15 +77,32 @@ def register(sub) -> None:
     p.add_argument("dir", help="directory for the port symlinks, ports.toml and truth.json")
     p.add_argument("--duration", type=float, default=None, help="stop after this many wall seconds")
     add_emulator_options(p)
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
+def fates_text(fates: dict) -> str:
+    """The emulator's frame counts in words: '1200 sent, 3 with a flipped bit, 2 dropped'."""
+    words = {"sent": "sent", "flipped": "with a flipped bit", "dropped": "dropped",
+             "unattached": "sent with no reader attached", "disconnected": "lost to a disconnection",
+             "overrun": "overrun", "truncated": "truncated"}
+    parts = [f"{n} {words.get(k, k)}" for k, n in fates.items() if n or k == "sent"]
+    return ", ".join(parts) or "none"
+
+
+def _summary_text(s: dict) -> str:
+    return (f"{s['instrument_time_s']:.0f} instrument seconds emulated; frames: {fates_text(s['fates'])}; "
+            f"{s['garbage_bytes_sent']} garbage bytes sent, {s['bench_commands_ignored']} bench commands ignored, "
+            f"{s['modbus_requests']} Modbus requests received")
+
+
 def run(args) -> int:
+    out = output(args)
     em = build_emulator(args, args.dir)
     em.start()
-    print(f"emulating on {em.ports['imu']} (IMU, {em.protocol}), {em.ports['bench']} (bench, SCPI), "
+    out.say(f"emulating on {em.ports['imu']} (IMU, {em.protocol}), {em.ports['bench']} (bench, SCPI), "
           f"{em.ports['chamber']} (chamber, Modbus RTU slave 1); clock x{em.timing.time_scale:g}")
-    print(f"capture config: {em.directory / 'ports.toml'}; truth: {em.directory / 'truth.json'}")
+    out.say(f"the capture config is {em.directory / 'ports.toml'} and the truth {em.directory / 'truth.json'}")
     sys.stdout.flush()
     t0 = time.monotonic()
     try:
@@ -95,5 +112,5 @@ def run(args) -> int:
         pass
     finally:
         em.stop()
-    print(f"stopped: {em.summary()}")
+    out.say(f"stopped: {_summary_text(em.summary())}")
     return 0

@@ -7,7 +7,7 @@ from ..errors import InputError
 import sys
 
 from ..models.effects import DEFAULT_EFFECTS, EFFECTS
-from ._common import name_list
+from ._common import add_output_options, name_list, output
 
 
 def register(sub) -> None:
@@ -34,6 +34,7 @@ def register(sub) -> None:
                         "angle_out_of_range (default 3600 = 1 deg; raise only for a unit known to be that skewed)")
     p.add_argument("--json", metavar="OUT", help="write the result (results-json v1)")
     p.add_argument("--netcdf", metavar="OUT.nc", help="write residuals per visit and axis (joint)")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
@@ -43,15 +44,16 @@ def run(args) -> int:
 
     if bool(args.data) == bool(args.example):
         raise InputError("give a bench CSV file or --example")
+    out = output(args)
     result = fit(args.data, method=args.method, effects=name_list(args.effects),
                  reference_temperature_C=args.reference_temperature, loss=args.loss,
                  strict=args.strict, json_path=args.json, netcdf_path=args.netcdf,
                  angle_bound_arcsec=args.angle_bound_arcsec)
-    print(summary_text(result))
+    out.say(summary_text(result))
     if args.json:
-        print(f"result written to {args.json}")
+        out.say(f"result written to {args.json}")
     if args.netcdf:
-        print(f"residuals written to {args.netcdf}")
+        out.say(f"residuals written to {args.netcdf}")
     for note in result.notes:
         print(f"note: {note}", file=sys.stderr)
     return 0 if result.status == "ok" else 3

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ._common import name_list
+from ._common import add_output_options, name_list, output
 
 
 def register(sub) -> None:
@@ -49,12 +49,11 @@ def register(sub) -> None:
     p.add_argument("--max-steps", type=int, default=20000,
                    help="with --sample: steps after which the result says not_converged (default 20000)")
     p.add_argument("--seed", type=int, default=0, help="with --sample: random seed (default 0)")
-    p.add_argument("--no-progress", action="store_true",
-                   help="no progress bar (accepted by every long command; fit-raw prints none by default)")
     p.add_argument("--angle-bound-arcsec", type=float, default=3600.0, metavar="ARCSEC",
                    help="answer gate: largest orientation angle accepted as 'ok', arcsec (default 3600 = 1 deg)")
     p.add_argument("--json", metavar="OUT", required=True, help="write the result (results-json v1)")
     p.add_argument("--bench-csv", metavar="OUT.csv", help="write the pose averages as bench CSV v1 (known poses)")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
@@ -63,34 +62,45 @@ def run(args) -> int:
     from ..estimation.raw import fit_raw
     from ..reports.summary import summary_text
 
-    out = fit_raw(args.data, args.rate, columns=name_list(args.columns) if args.columns else None,
-                  unit=args.unit, poses=args.poses, labels=args.labels, intervals=args.intervals,
-                  local_g_m_s2=args.local_g, placement_sd_deg=args.placement_sd_deg,
-                  misalignment_sd_deg=args.misalignment_sd_deg,
-                  counts_per_g=args.counts_per_g, serial=args.serial, window_s=args.static_window_s,
-                  threshold=args.static_threshold, min_duration_s=args.min_static_s,
-                  json_path=args.json, bench_csv_path=args.bench_csv, sample=args.sample,
-                  posterior_path=args.posterior, ess=args.ess, max_steps=args.max_steps, seed=args.seed,
-                  gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec))
+    ui = output(args)
+    bar = ui.bar(total=args.max_steps, desc="sampling", unit="step") if args.sample else None
+    progress = None
+    if bar is not None:
+        def progress(steps, max_steps, check):
+            bar.update(steps - bar.n)
+    try:
+        out = fit_raw(args.data, args.rate, columns=name_list(args.columns) if args.columns else None,
+                      unit=args.unit, poses=args.poses, labels=args.labels, intervals=args.intervals,
+                      local_g_m_s2=args.local_g, placement_sd_deg=args.placement_sd_deg,
+                      misalignment_sd_deg=args.misalignment_sd_deg,
+                      counts_per_g=args.counts_per_g, serial=args.serial, window_s=args.static_window_s,
+                      threshold=args.static_threshold, min_duration_s=args.min_static_s,
+                      json_path=args.json, bench_csv_path=args.bench_csv, sample=args.sample,
+                      posterior_path=args.posterior, ess=args.ess, max_steps=args.max_steps, seed=args.seed,
+                      progress=progress, gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec))
+    finally:
+        if bar is not None:
+            bar.close()
     r = out.result
-    print(out.detection.summary(out.recording.rate_hz))
+    ui.say(out.detection.summary(out.recording.rate_hz))
     for iv in out.detection.intervals:
-        print(f"  samples {iv.start:>7d} .. {iv.end:<7d} {iv.n / out.recording.rate_hz:6.1f} s  {iv.label}")
-    print(summary_text(r))
+        ui.say(f"  samples {iv.start:>7d} .. {iv.end:<7d} {iv.n / out.recording.rate_hz:6.1f} s  {iv.label}")
+    ui.say(summary_text(r))
     rms = r.fit["rms_norm_residual_m_s2"]
     rmsm = r.fit["rms_norm_residual_of_means_m_s2"]
-    print(f"RMS of |a| - g over the static samples: {rms['before']:.4g} m/s2 before "
-          f"({r.fit['before_scaling']}), {rms['after']:.4g} m/s2 after; of the interval means: "
-          f"{rmsm['before']:.4g} -> {rmsm['after']:.4g} m/s2")
+    ui.say(f"RMS of |a| - g over the static samples: {rms['before']:.4g} m/s2 before "
+           f"({r.fit['before_scaling']}), {rms['after']:.4g} m/s2 after; of the interval means: "
+           f"{rmsm['before']:.4g} -> {rmsm['after']:.4g} m/s2")
     if args.sample:
         smp = r.extra["sampler"]
-        print(f"posterior: {r.status}, {smp['steps']} steps x {smp['walkers']} walkers, tau_max {smp['tau_max']:.3g}, "
-              f"ESS min {min(smp['ess_bulk_min'], smp['ess_tail_min']):.0f}, R-hat max {smp['rhat_max']:.4f}")
-    print(f"result written to {args.json}")
+        ui.say(f"posterior: status {r.status} after {smp['steps']} steps of {smp['walkers']} walkers; "
+               f"tau_max = {smp['tau_max']:.3g}, smallest ESS {min(smp['ess_bulk_min'], smp['ess_tail_min']):.0f}, "
+               f"largest R-hat {smp['rhat_max']:.4f}")
+    ui.say(f"result written to {args.json}")
     if args.posterior:
-        print(f"posterior draws written to {args.posterior} (arviz InferenceData)")
+        ui.say(f"posterior draws written to {args.posterior} (arviz InferenceData)")
     if args.bench_csv:
-        print(f"position averages written to {args.bench_csv} (bench CSV v1)")
+        ui.say(f"position averages written to {args.bench_csv} (bench CSV v1)")
     for note in r.notes:
         print(f"note: {note}", file=sys.stderr)
     return 0 if r.status == "ok" else 3

@@ -7,7 +7,7 @@ from ..errors import InputError
 import sys
 
 from ..models.effects import DEFAULT_EFFECTS, EFFECTS
-from ._common import name_list
+from ._common import add_output_options, name_list, output
 
 
 def register(sub) -> None:
@@ -32,7 +32,7 @@ def register(sub) -> None:
                    help="answer gate: largest orientation angle accepted as 'ok', arcsec (default 3600 = 1 deg)")
     p.add_argument("--json", metavar="OUT", help="write the result (results-json v1, method posterior)")
     p.add_argument("--posterior", metavar="OUT.nc", help="write the arviz InferenceData (netCDF)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
@@ -45,13 +45,10 @@ def run(args) -> int:
     if bool(args.data) == bool(args.example):
         raise InputError("give a bench CSV file or --example")
     data = str(example_path()) if args.example else args.data
-    bar = None
+    out = output(args)
+    bar = out.bar(total=args.max_steps, desc="sampling", unit="step")
     progress = None
-    if not args.no_progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=args.max_steps, desc="sampling", unit="step", file=sys.stderr, dynamic_ncols=True)
-
+    if bar is not None:
         def progress(steps, max_steps, check):
             bar.update(steps - bar.n)
             if check is not None:
@@ -65,20 +62,20 @@ def run(args) -> int:
     finally:
         if bar is not None:
             bar.close()
-    print(summary_text(result))
+    out.say(summary_text(result))
     s = result.extra["sampler"]
-    print(f"  sampler: {s['walkers']} walkers x {s['steps']} steps ({s['moves']}), tau_max = {s['tau_max']:.1f}, "
-          f"ESS bulk/tail >= {s['ess_bulk_min']:.0f}/{s['ess_tail_min']:.0f}, R-hat <= {s['rhat_max']:.4f}, "
-          f"{s['total_seconds']:.1f} s")
+    out.say(f"  sampler: {s['walkers']} walkers x {s['steps']} steps ({s['moves']}), tau_max = {s['tau_max']:.1f}, "
+            f"ESS bulk/tail >= {s['ess_bulk_min']:.0f}/{s['ess_tail_min']:.0f}, R-hat <= {s['rhat_max']:.4f}, "
+            f"{s['total_seconds']:.1f} s")
     flags = result.extra["flags"]
     if flags["prior_dominated"]:
-        print("  prior-dominated (not measured): " + ", ".join(flags["prior_dominated"]))
+        out.say("  prior-dominated (not measured): " + ", ".join(flags["prior_dominated"]))
     if flags["non_gaussian"]:
-        print("  least-squares interval does not hold: " + ", ".join(flags["non_gaussian"]))
+        out.say("  least-squares interval does not hold: " + ", ".join(flags["non_gaussian"]))
     if args.json:
-        print(f"result written to {args.json}")
+        out.say(f"result written to {args.json}")
     if args.posterior:
-        print(f"posterior written to {args.posterior}")
+        out.say(f"posterior written to {args.posterior}")
     for note in result.notes:
         print(f"note: {note}", file=sys.stderr)
     return 0 if result.status == "ok" else 3

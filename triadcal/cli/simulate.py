@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import sys
-
 from ..models.effects import DEFAULT_EFFECTS, VOCABULARY
 from ..models.simulate import PRESETS, STANDARD_SETPOINTS_C, Schedule
-from ._common import assignments, float_list, name_list
+from ._common import add_output_options, assignments, float_list, name_list, output
 
 
 def register(sub) -> None:
@@ -36,6 +34,7 @@ def register(sub) -> None:
                    help="Student-t degrees of freedom of the output noise (default 3 with heavy_tails)")
     p.add_argument("--unit", default="SN-SIM-0001", help="serial number written in the file")
     p.add_argument("--seed", type=int, default=0)
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
@@ -49,7 +48,7 @@ def run(args) -> int:
         parameters=assignments(args.set), schedule=schedule, Q_V2s=args.Q,
         sigma_position_arcsec=args.sigma_position_arcsec, sigma_wobble_arcsec=args.sigma_wobble_arcsec,
         heavy_tails_dof=args.heavy_tails_dof, unit=args.unit, seed=args.seed)
-    print(f"wrote {args.output}: {campaign.n_visits} visits of {truth.unit}, "
-          f"{len(schedule.setpoints_C)} setpoints, effects: {', '.join(effects) or 'none'}"
-          + (f"; truth in {args.truth}" if args.truth else ""), file=sys.stdout)
+    output(args).say(f"wrote {args.output}: {campaign.n_visits} visits of {truth.unit} at "
+                     f"{len(schedule.setpoints_C)} setpoints, with effects {', '.join(effects) or 'none'}"
+                     + (f"; the truth is in {args.truth}" if args.truth else ""))
     return 0

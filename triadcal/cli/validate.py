@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import sys
-
 from ..models.effects import DEFAULT_EFFECTS, EFFECTS
-from ._common import name_list
+from ._common import add_output_options, name_list, output
 
 
 def register(sub) -> None:
@@ -23,7 +21,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", metavar="OUT", help="write the summary (format triadcal.sbc v1)")
     p.add_argument("--plot", metavar="OUT.png", help="write the rank histograms")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
@@ -31,13 +29,10 @@ def run(args) -> int:
     from ..api import validate
     from ..judgement.validation import LEVELS, METHODS
 
-    bar = None
+    out = output(args)
+    bar = out.bar(total=args.campaigns, desc="campaigns", unit="campaign")
     progress = None
-    if not args.no_progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=args.campaigns, desc="campaigns", unit="campaign", file=sys.stderr)
-
+    if bar is not None:
         def progress(done, total):
             bar.update(done - bar.n)
     try:
@@ -48,8 +43,8 @@ def run(args) -> int:
         if bar is not None:
             bar.close()
     s = result.summary()
-    print(f"SBC: {s['n_campaigns']} campaigns, {s['n_ranks']} ranks each, {len(s['parameters'])} parameters, "
-          f"{s['failed']} failed, {s['seconds']:.0f} s")
+    out.say(f"SBC: {s['n_campaigns']} campaigns of {s['n_ranks']} ranks each, "
+            f"{len(s['parameters'])} parameters, {s['failed']} campaigns failed, {s['seconds']:.0f} s")
     ok = s["failed"] == 0
     for m in METHODS:
         d = s["methods"][m]
@@ -61,10 +56,10 @@ def run(args) -> int:
             key = f"{round(lv * 100)}"
             lo, hi = d[f"coverage_{key}_range"]
             line += f"; {key}% coverage pooled {d[f'coverage_{key}_pooled']:.3f} (per parameter {lo:.3f}..{hi:.3f})"
-        print(line)
+        out.say(line)
         ok = ok and d["rank_uniform_bonferroni"]
     if args.json:
-        print(f"summary written to {args.json}")
+        out.say(f"summary written to {args.json}")
     if args.plot:
-        print(f"rank histograms written to {args.plot}")
+        out.say(f"rank histograms written to {args.plot}")
     return 0 if ok else 3

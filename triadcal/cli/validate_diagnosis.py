@@ -6,6 +6,8 @@ from ..errors import InputError
 
 import sys
 
+from ._common import add_output_options
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -21,29 +23,32 @@ def register(sub) -> None:
     p.add_argument("--processes", type=int, default=2, help="worker processes (default 2)")
     p.add_argument("--out", default="diagnosis-validation", metavar="DIR",
                    help="output folder (default ./diagnosis-validation)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..judgement.diagnosis_validation import validate
     from ..reports.diagnosis import write_validation
-    from ._common import name_list
+    from ._common import name_list, output
 
     if args.seeds < 1:
         raise InputError("--seeds must be at least 1")
 
+    out = output(args)
+
     def progress(row):
-        if not args.quiet:
-            print(f"{row['effect']:>20} seed {row['seed']}: verdict {row['verdict']}", file=sys.stderr, flush=True)
+        if out.progress:
+            print(f"{row['effect']:>20}, seed {row['seed']}: the diagnosis names {row['verdict']}", file=sys.stderr,
+                  flush=True)
 
     res = validate(seeds=args.seeds, effects=name_list(args.effects) if args.effects else None,
                    processes=args.processes, preset=args.preset, progress=progress)
     paths = write_validation(res, args.out)
-    print(res.table())
+    out.say(res.table())
     fa = res.summary.get("clean", {}).get("false_alarm_rate")
     if fa is not None:
-        print(f"false alarms on clean data: {fa:.0%}")
-    print(f"{len(res.rows)} diagnoses in {res.seconds:.0f} s; table {paths['table']}, plot {paths['plot']}, "
-          f"rows {paths['json']}")
+        out.say(f"false alarms on clean data: {fa:.0%}")
+    out.say(f"{len(res.rows)} diagnoses in {res.seconds:.0f} s; the table is in {paths['table']}, the plot in "
+            f"{paths['plot']} and every row in {paths['json']}")
     return 0

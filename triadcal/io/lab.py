@@ -25,7 +25,7 @@ class LabConfig:
     ``temperature_uncertainty_C`` (Delta T of eq. 7).
     """
 
-    name: str = "(laboratory not stated)"
+    name: str = "Laboratory not stated (no lab file given)"
     address: str = ""
     accreditation: str = ""
     certificate_prefix: str = "TC"

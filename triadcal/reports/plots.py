@@ -354,7 +354,8 @@ VERDICT_COLOURS = {"pass": "#1e8449", "fail": "#c0392b", "inconclusive": "#b9770
 @styled
 def drift_figure(rows):
     """Drift of each parameter with its expanded uncertainty (k = 2), one panel per unit,
-    coloured by the verdict; ``rows`` are :class:`triadcal.reports.certificate.DriftRow`."""
+    coloured by the verdict (grey: not judged); ``rows`` are
+    :class:`triadcal.reports.certificate.DriftRow`."""
     plt = _mpl()
     units = list(dict.fromkeys(r.unit for r in rows))
     heights = [max(1.2, 0.28 * sum(r.unit == u for r in rows) + 0.6) for u in units]
@@ -364,7 +365,7 @@ def drift_figure(rows):
         sub = [r for r in rows if r.unit == unit]
         y = np.arange(len(sub))[::-1]
         for yi, r in zip(y, sub):
-            colour = VERDICT_COLOURS.get(r.verdict, "0.3")
+            colour = VERDICT_COLOURS.get(r.verdict, "0.3") if getattr(r, "judged", True) else "0.55"
             ax.errorbar(r.drift_value, yi, xerr=r.U_value, fmt="o", color=colour, capsize=3, ms=4)
         ax.axvline(0, color="0.3", lw=0.8)
         ax.set_yticks(y)
@@ -372,6 +373,7 @@ def drift_figure(rows):
         ax.set_xlabel(f"drift, after − before ({unit}); bars: U (k = 2)")
         ax.grid(True, axis="x", alpha=0.3)
     handles = [plt.Line2D([], [], color=c, marker="o", ls="", label=v) for v, c in VERDICT_COLOURS.items()]
+    handles.append(plt.Line2D([], [], color="0.55", marker="o", ls="", label="not judged (no tolerance)"))
     axes[0, 0].legend(handles=handles, loc="best", fontsize=8, frameon=False)
     fig.tight_layout()
     return fig

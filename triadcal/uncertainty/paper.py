@@ -1,19 +1,10 @@
 """Error budgets of the seed paper: eq. 4 (calibration) and eq. 5-7 (thermal drift of the axes).
 
-Eq. 4, the paper's error of an orientation angle from the bench test::
-
-    sigma_eff = 2 sqrt( K^2 Q / (G^2 tau) (180 3600 / pi)^2 + sigma_1^2 + sigma_2^2 )   [arcsec]
-
-Eq. 5-7, the thermal drift of the axes::
-
-    dCa_T  = sqrt(dCa_Ta^2 + dCa_Tn^2 + dCa_Tk^2)                  (5)
-    dCa_Tn = 0.1 (KTR_body - KTR_accelerometer) (T_max - T0)        (6)  [rad]
-    dCa_Tk = dT k_ca                                                (7)
-
-Table 1 of the paper (``TABLE_1``) gives dCa_Ta, the instability of the accelerometer's
-reference plane (half-width of its hysteresis loop) for seven units. docs/budget.md
-relates eq. 4 to the standard deviation of the classical estimate
-(:func:`triadcal.estimation.classical.classical_angle_sd`).
+One function per equation (:func:`sigma_eff_arcsec` eq. 4, :func:`thermal_drift_arcsec`,
+:func:`mounting_drift_arcsec`, :func:`correction_error_arcsec` eq. 5-7), Table 1 as
+``TABLE_1``, and the budget tables behind ``triadcal budget`` (:func:`budget`).
+Derivation/design: docs/budget.md (Equations, Numbers); eq. 4 vs the classical SD:
+docs/classical.md (How this relates to the paper's eq. 4).
 """
 
 from __future__ import annotations

@@ -47,7 +47,8 @@ tr.total td { font-weight: bold; background: #f3f3f3; }
 table.budget { table-layout: fixed; }
 table.budget td, table.budget th { font-size: 8.8pt; }
 table.budget td.num { white-space: normal; font-size: 9pt; }
-table.drift td, table.drift th { font-size: 8.8pt; padding: 3px 4px; }
+table.drift td, table.drift th { font-size: 8pt; padding: 2px 3px; }
+table.drift td:last-child { white-space: nowrap; }
 table.matrix { width: auto; }
 table.matrix td { font-family: "DejaVu Sans Mono", monospace; text-align: right; padding: 3px 12px; }
 .box { border: 1.5px solid #922b21; background: #fbeeee; padding: 8px 12px; margin: 8px 0; }
