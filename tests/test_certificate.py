@@ -378,3 +378,59 @@ def test_drift_report_states_every_drift_with_its_U_and_verdict(tmp_path):
     bad = dict(COMPARISON, version=2)
     with pytest.raises(ValueError, match="comparison version 2 is not known"):
         C.render_drift_html(bad)
+
+
+# -- a certificate a metrologist signs as it is (issue 22) ------------------------------------------
+def test_one_angle_uncertainty_for_using_the_matrix_stated_consistently(issued):
+    """The U of an angle when the matrix is used at a temperature is stated once, in the results
+    section, HTML and PDF alike, with u_c and U from the same unrounded budget."""
+    from triadcal.estimation.result import significant
+
+    cert = issued["cert"]
+    b = cert.budget
+    U, uc = significant(b.expanded_U, 2), significant(b.total, 3)
+    assert b.expanded_U == pytest.approx(2 * b.total, rel=1e-12)
+    assert f"U = {U} arcsec (k = 2; u_c = {uc} arcsec)" in cert.angle_statement
+    assert "hysteresis" in cert.angle_statement and "thermal model" in cert.angle_statement
+    pdf = " ".join(pdf_text(issued["pdf"], layout=False).split())
+    html = " ".join(re.sub(r"<[^>]+>", " ", issued["html"]).split())
+    for text in (pdf, html):
+        assert f"U = {U} arcsec (k = 2; u_c = {uc} arcsec)" in text
+        # the budget's totals print the same two numbers
+        assert re.search(rf"u_c \(root sum of squares\)\s+{re.escape(uc)}\b", text)
+        assert re.search(rf"U = k·u_c \(k = 2\)\s+{re.escape(U)}\b", text)
+
+
+def test_significant_rounds_halves_up():
+    from triadcal.estimation.result import significant
+
+    assert [significant(30.5, 2), significant(15.25, 3), significant(0.0996, 2), significant(9.96, 2)] == \
+        ["31", "15.3", "0.10", "10"]
+
+
+def test_no_placeholder_printed_as_fact():
+    """Date of calibration from the data, or the lab file, or said to be missing; standard
+    gravity marked as such."""
+    r = hand_result()
+    cert = C.build_certificate(r, issue_date=ISSUE_DATE, plots=False)
+    ident, cond = dict(cert.identification), dict(cert.conditions)
+    assert ident["Date of calibration"].startswith("not stated")
+    assert "standard gravity, not measured" in cond["Local gravity"]
+    from triadcal.io.lab import LabConfig
+
+    dated = C.build_certificate(r, lab=LabConfig(calibration_date="2026-11-02"), issue_date=ISSUE_DATE, plots=False)
+    assert dict(dated.identification)["Date of calibration"] == "2026-11-02 (lab file)"
+    r.extra["local_g_m_s2"] = 9.8112
+    assert "local value stated in the data" in dict(
+        C.build_certificate(r, issue_date=ISSUE_DATE, plots=False).conditions)["Local gravity"]
+    assert "calibration_date" not in "".join(
+        ln for ln in C.EXAMPLE_LAB_TOML.splitlines() if not ln.lstrip().startswith("#"))
+
+
+def test_one_notation_in_the_certificate(issued):
+    """Ca_xy (not Ca_XY), µg/°C and arcsec/°C (not ug/degC) in the HTML and the PDF."""
+    pdf = pdf_text(issued["pdf"], layout=False)
+    for text in (issued["html"], pdf):
+        assert not re.search(r"Ca_[XYZ]{2}\b", text)
+        assert not re.search(r"\bdegC\b|\bug/", text)
+        assert "Ca_xy_tempco" in text and "µg/°C" in text

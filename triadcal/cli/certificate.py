@@ -82,9 +82,10 @@ def run(args) -> int:
     if cert.issued:
         say(f"certificate {cert.number} issued for {cert.result.unit}: {written}")
         b = cert.budget
-        say(f"  {len(cert.rows)} parameters, U (k = 2) from the {cert.source_of_u}; budget of an angle over the "
-            f"range: u_c = {b.combined_u:.2g} arcsec, U = {b.expanded_U:.2g} arcsec "
-            f"(largest: {b.components[0].source})")
+        say(f"  {len(cert.rows)} parameters, U (k = 2) at {cert.result.reference_temperature_C:g} °C from the "
+            f"{cert.source_of_u}")
+        if cert.angle_statement:
+            say(f"  {cert.angle_statement} Largest component: {b.components[0].source}.")
         for name, why in cert.skipped_plots.items():
             say(f"  plot {name} not drawn: {why}")
         if args.plots:

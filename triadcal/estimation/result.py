@@ -288,6 +288,22 @@ class _Reader:
         return v
 
 
+def significant(x: float, digits: int) -> str:
+    """``x`` to ``digits`` significant digits, halves rounded up (an uncertainty is never
+    understated by its rounding, GUM 7.2.6): 30.5 -> "31", 15.25 -> "15.3"."""
+    if x == 0 or not math.isfinite(x):
+        return f"{x:g}"
+    from decimal import ROUND_HALF_UP, Decimal
+
+    d = Decimal(repr(abs(x)))
+    q = Decimal(1).scaleb(d.adjusted() - digits + 1)
+    r = d.quantize(q, rounding=ROUND_HALF_UP)
+    if r.adjusted() > d.adjusted():                  # 9.96 -> 10.0: one digit fewer after the point
+        r = r.quantize(q.scaleb(1), rounding=ROUND_HALF_UP)
+    text = f"{r:f}"
+    return ("-" if x < 0 else "") + text
+
+
 def round_to_uncertainty(value: float, u: float, digits: int = 2) -> tuple[str, str]:
     """Value and uncertainty as strings, ``u`` to ``digits`` significant digits (GUM 7.2.6)."""
     if not (u > 0 and math.isfinite(u)):

@@ -289,8 +289,11 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
     stream.start()
     run = _Runner(stream, raw, events, session, settings)
     redone = 0
+    first_start = state["sessions"][0]["started_wall"]
     metadata = {
         "generator": f"triadcal {__version__} capture",
+        # the date the data were taken (UTC, first session): the calibration date a certificate states
+        "date": time.strftime("%Y-%m-%d", time.gmtime(first_start)),
         "bench": settings.bench_name,
         "local_g_m_s2": repr(settings.local_g_m_s2),
         "output_unit": settings.output_unit,

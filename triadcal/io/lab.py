@@ -77,7 +77,8 @@ address = "2 Customer Street, Springfield"
 
 [item]
 description = "accelerometer triad (IMU accelerometer block)"
-calibration_date = "2026-11-20"
+# the date the data were taken; needed only when the data carry none (capture writes it)
+# calibration_date = "YYYY-MM-DD"
 
 [bench]
 name = "two-axis rate-and-position table, thermal chamber"
@@ -85,7 +86,7 @@ sigma_position_arcsec = 5.0     # sigma_1 of eq. 4
 sigma_wobble_arcsec = 2.0       # sigma_2 of eq. 4
 
 [chamber]
-name = "thermal chamber -60..+100 degC"
+name = "thermal chamber -60..+100 °C"
 temperature_uncertainty_C = 0.2 # Delta T of eq. 7
 
 [traceability]

@@ -37,18 +37,20 @@ class ParameterSpec:
 
 
 def per_axis(fmt: str, unit: str, typical: float, description: str, effect: str, nominal: float = 0.0):
-    """Specs of one quantity for the X, Y and Z accelerometers."""
+    """Specs of one quantity for the X, Y and Z accelerometers; in ``description``, ``{a}`` is
+    the axis as a word (X) and ``{ax}`` as in parameter names (x: ``K_{ax}`` reads K_x)."""
     return tuple(
-        ParameterSpec(fmt.format(a=a), unit, typical, description.format(a=a.upper()), effect, nominal)
+        ParameterSpec(fmt.format(a=a), unit, typical, description.format(a=a.upper(), ax=a), effect, nominal)
         for a in AXES
     )
 
 
 def per_angle(fmt: str, unit: str, typical: float, description: str, effect: str):
-    """Specs of one quantity for the six orientation angles."""
+    """Specs of one quantity for the six orientation angles; in ``description``, ``{a}``, ``{b}``
+    are the axes as words (X, Y) and ``{ab}`` as in parameter names (``Ca_{ab}`` reads Ca_xy)."""
     return tuple(
         ParameterSpec(fmt.format(ab=ab), unit, typical,
-                      description.format(a=ab[0].upper(), b=ab[1].upper()), effect)
+                      description.format(a=ab[0].upper(), b=ab[1].upper(), ab=ab), effect)
         for ab in ANGLE_NAMES
     )
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..estimation.result import CalibrationResult, round_to_uncertainty
+from .notation import display_unit
 
 
 def coverage_factor(result: CalibrationResult) -> tuple[float, str]:
@@ -45,13 +46,13 @@ def summary_text(result: CalibrationResult) -> str:
             bits.append(f"{fit['n_obs']} observations, {fit.get('n_params', '?')} parameters")
         if result.temperature_range_C:
             lo, hi = result.temperature_range_C
-            bits.append(f"{lo:.1f} .. {hi:.1f} degC, reference {result.reference_temperature_C:g} degC")
+            bits.append(f"{lo:.1f} .. {hi:.1f} °C, reference {result.reference_temperature_C:g} °C")
         lines.append("  " + "; ".join(bits))
     k, how = coverage_factor(result)
     lines.append(f"  {'parameter':<20} {'value':>16} {f'U (k={k:.3g})':>12}  unit")
     for name, p in result.parameters.items():
         v, U = round_to_uncertainty(p.value, k * p.u)
-        lines.append(f"  {name:<20} {v:>16} {U:>12}  {p.unit}")
+        lines.append(f"  {name:<20} {v:>16} {U:>12}  {display_unit(p.unit)}")
     lines.append(f"  U = {k:.3g} u, {how}; u (k = 1) in the JSON")
     rec = result.extra.get("intervals_to_use")
     if isinstance(rec, dict) and rec.get("use"):

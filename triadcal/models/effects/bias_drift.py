@@ -16,7 +16,7 @@ class BiasDrift(Effect):
     description = "linear drift of each bias with time since the start of the campaign (ug/h)"
 
     def parameters(self):
-        return per_axis("S_{a}_drift", "ug/h", 5.0, "drift rate of S_{a}", self.name)
+        return per_axis("S_{a}_drift", "ug/h", 5.0, "drift rate of S_{ax}", self.name)
 
     def bias(self, p, cov, dT, S):
         return tuple(drifting(S[i], p[f"S_{a}_drift"], cov.time_s) for i, a in enumerate("xyz"))

@@ -29,7 +29,7 @@ class Hysteresis(Effect):
 
     def parameters(self):
         return per_angle("Ca_{ab}_hysteresis", "arcsec", 10.0,
-                         "hysteresis of Ca_{a}{b}: (cooling - heating)/2", self.name)
+                         "hysteresis of Ca_{ab}: (cooling - heating)/2", self.name)
 
     def angles(self, p, cov, dT, angles):
         out = dict(angles)

@@ -24,7 +24,7 @@ class AngleTempco(Effect):
 
     def parameters(self):
         return per_angle("Ca_{ab}_tempco", "arcsec/degC", 2.0,
-                         "temperature coefficient of Ca_{a}{b}", self.name)
+                         "temperature coefficient of Ca_{ab}", self.name)
 
     def angles(self, p, cov, dT, angles):
         out = dict(angles)
@@ -38,7 +38,7 @@ class ScaleTempco(Effect):
     description = "linear temperature coefficient of each scale factor (ppm/degC)"
 
     def parameters(self):
-        return per_axis("K_{a}_tempco", "ppm/degC", 50.0, "temperature coefficient of K_{a}", self.name)
+        return per_axis("K_{a}_tempco", "ppm/degC", 50.0, "temperature coefficient of K_{ax}", self.name)
 
     def scale(self, p, cov, dT, K):
         return tuple(K[i] * linear_in_temperature(1.0, p[f"K_{a}_tempco"], dT[i]) for i, a in enumerate(AXES))
@@ -49,7 +49,7 @@ class BiasTempco(Effect):
     description = "linear temperature coefficient of each bias (ug/degC)"
 
     def parameters(self):
-        return per_axis("S_{a}_tempco", "ug/degC", 30.0, "temperature coefficient of S_{a}", self.name)
+        return per_axis("S_{a}_tempco", "ug/degC", 30.0, "temperature coefficient of S_{ax}", self.name)
 
     def bias(self, p, cov, dT, S):
         return tuple(linear_in_temperature(S[i], p[f"S_{a}_tempco"], dT[i]) for i, a in enumerate(AXES))

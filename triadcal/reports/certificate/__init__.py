@@ -8,12 +8,12 @@ uncertainty budget is :mod:`triadcal.uncertainty`.
 """
 
 from ...io.lab import EXAMPLE_LAB_TOML, LabConfig, load_lab  # noqa: F401
+from ..notation import display_text, display_unit  # noqa: F401
 from .content import (  # noqa: F401
     Certificate,
     ParameterRow,
     build_certificate,
     certificate_number,
-    display_unit,
     expanded,
     parameter_rows,
 )

@@ -4,6 +4,8 @@ parameters with U (k = 2, GUM 7.2.6 rounding), the thermal model, Ca^-1, the bud
 
 from __future__ import annotations
 
+from ...models.units import STANDARD_GRAVITY_M_S2
+
 import datetime as _dt
 import hashlib
 import json
@@ -14,18 +16,15 @@ from typing import Optional
 import numpy as np
 
 from ... import __version__
-from ...estimation.result import CalibrationResult, round_to_uncertainty
+from ...estimation.result import significant, CalibrationResult, round_to_uncertainty
 from ...models.effects import EFFECTS
 from ...models.model import Model
 from ...models.sensor import AXES
 from ...uncertainty.angles import ANGLES, uncertainty_budget
 from ...uncertainty.budget import COVERAGE_FACTOR, Budget
 from ...io.lab import LabConfig
+from ..notation import display_text
 from .refusal import GAP_P_THRESHOLD, posterior_diagnostics, refusal_reasons
-
-DISPLAY_UNIT = {"degC": "°C", "ug": "µg", "arcsec/degC": "arcsec/°C", "ppm/degC": "ppm/°C",
-                "ug/degC": "µg/°C", "ug/g2": "µg/g²", "ug/h": "µg/h"}
-
 
 # =========================================================================================
 # the certificate's content
@@ -62,6 +61,41 @@ class Certificate:
     skipped_plots: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
     diagnostics: list = field(default_factory=list)       # (label, text)
+    angle_statement: str = ""                             # the one angle uncertainty for using the matrix
+
+
+#: budget components that are errors of the thermal model (the matrix used away from T0)
+THERMAL_MODEL_SOURCES = ("hysteresis", "thermal-model residual", "temperature measurement")
+
+
+def angle_uncertainty_statement(cert: "Certificate") -> str:
+    """The one angle uncertainty a user of the matrix needs: U of an angle when Ca^-1 and the
+    thermal model are applied at a temperature in the range (the budget's U, k = 2), what it
+    contains, and how it relates to the U at the reference temperature in the results table.
+    u_c and U are both from the unrounded budget (U = 2 u_c, each rounded half up)."""
+    b = cert.budget
+    if b is None or not b.evaluated:
+        return ""
+    angle_U = [float(r.U) for r in cert.rows if r.group == "Orientation angles" and _is_number(r.U)]
+    thermal = [c for c in b.components if c.source in THERMAL_MODEL_SOURCES]
+    parts = ", ".join(f"{c.source} {significant(c.contribution, 2)}" if c.contribution is not None
+                      else f"{c.source} not evaluated" for c in thermal)
+    own = (f" It contains the angles' own uncertainty at the reference temperature (U up to "
+           f"{max(angle_U):g} {b.unit} in the results table, which applies only at "
+           f"{cert.result.reference_temperature_C:g} °C on the mid-line)" if angle_U else " It contains")
+    return (f"Using the matrix: when Ca⁻¹ and the thermal model are applied at a temperature within the "
+            f"calibrated range, the uncertainty of each orientation angle is U = {significant(b.expanded_U, 2)} "
+            f"{b.unit} (k = 2; u_c = {significant(b.total, 3)} {b.unit}).{own}, the bench's errors, and the "
+            f"thermal model's error as its own components ({parts}; {b.unit}, standard uncertainties); "
+            "section 7 lists them all.")
+
+
+def _is_number(text) -> bool:
+    try:
+        float(text)
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 GROUPS = ("Scale factors", "Biases", "Orientation angles", "Thermal coefficients", "Hysteresis",
@@ -84,10 +118,6 @@ def _group(name: str) -> str:
     return GROUPS[5]
 
 
-def display_unit(unit: str) -> str:
-    return DISPLAY_UNIT.get(unit, unit)
-
-
 def expanded(value: float, u: float) -> tuple[str, str]:
     """Value and U = k u (k = 2) as strings: U to two significant digits, the value to match."""
     return round_to_uncertainty(value, COVERAGE_FACTOR * u)
@@ -104,7 +134,7 @@ def parameter_rows(result: CalibrationResult) -> list:
     rows = []
     for name, p in result.parameters.items():
         v, U = expanded(p.value, p.u)
-        desc = spec[name].description if name in spec else extra_desc.get(name, "")
+        desc = display_text(spec[name].description if name in spec else extra_desc.get(name, ""))
         rows.append(ParameterRow(name, desc, _group(name), v, U, p.unit))
     order = {g: i for i, g in enumerate(GROUPS)}
     return sorted(rows, key=lambda r: order[r.group])  # stable: keeps the file's order in a group
@@ -140,11 +170,18 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
                        number=(number or certificate_number(result, lab.certificate_prefix, issue_date)) if issued else None,
                        issue_date=issue_date, lab=lab, source_of_u=source_of_u, notes=list(result.notes))
     # identification ---------------------------------------------------------------------
-    cal_date = lab.calibration_date or (campaign.metadata.get("date", "") if campaign is not None else "")
+    data_date = campaign.metadata.get("date", "") if campaign is not None else ""
+    if data_date:
+        cal_date = f"{data_date} (from the data)"
+    elif lab.calibration_date:
+        cal_date = f"{lab.calibration_date} (lab file)"
+    else:
+        cal_date = ("not stated: the data carry no date (give --data with a captured campaign, or "
+                    "[item] calibration_date in the lab file)")
     ident = [("Item", f"{lab.item_description}, serial number {result.unit}")]
     if lab.customer_name:
         ident.append(("Customer", lab.customer_name + (f", {lab.customer_address}" if lab.customer_address else "")))
-    ident += [("Date of calibration", cal_date or "not stated"), ("Date of issue", issue_date)]
+    ident += [("Date of calibration", cal_date), ("Date of issue", issue_date)]
     if issued:
         ident.append(("Certificate number", cert.number))
     ident.append(("Software", f"triadcal {__version__}"))
@@ -172,7 +209,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         method.append(("Setpoints (°C, in order; ↑ heating, ↓ cooling)", ", ".join(seq)))
         method.append(("Visits", f"{campaign.n_visits}"))
     method.append(("Model terms", "eq. 1 (scale factors, biases, orientation angles)"
-                   + "".join(f"; {e}: {EFFECTS[e].description}" if e in EFFECTS else f"; {e}"
+                   + "".join(f"; {e}: {display_text(EFFECTS[e].description)}" if e in EFFECTS else f"; {e}"
                              for e in result.effects)))
     est = {"joint": "joint least squares over all positions and temperatures (Levenberg-Marquardt, exact "
                     "Jacobians)", "posterior": "Bayesian posterior (MCMC)",
@@ -203,7 +240,10 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         cond.append(("Averaging time per position", ", ".join(f"{t:g} s" for t in taus)))
     g = result.extra.get("local_g_m_s2") or (campaign.local_g_m_s2 if campaign is not None else None)
     if g:
-        cond.append(("Local gravity", f"{float(g):.5f} m/s²"))
+        standard = abs(float(g) - STANDARD_GRAVITY_M_S2) < 5e-7
+        cond.append(("Local gravity", f"{float(g):.5f} m/s²" + (
+            " (standard gravity, not measured: the data state no local value)" if standard else
+            " (local value stated in the data)")))
     bench = lab.bench or (campaign.metadata.get("bench", "") if campaign is not None else "")
     if bench:
         cond.append(("Bench", bench))
@@ -246,6 +286,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     if campaign is not None:
         plan = dict(zip(campaign.position.tolist(), zip(campaign.axis1_deg.tolist(), campaign.axis2_deg.tolist())))
     cert.budget = uncertainty_budget(result, lab, per_setpoint, source_of_u, plan)
+    cert.angle_statement = angle_uncertainty_statement(cert)
     if plots:
         from ..plots import report_plots
 

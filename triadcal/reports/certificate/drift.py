@@ -17,7 +17,7 @@ from ...io.atomic import read_json
 from ...io.atomic import atomic_write_text
 from ...io.formats import require_format
 from ...uncertainty.budget import COVERAGE_FACTOR
-from .content import display_unit
+from ..notation import display_unit
 from .html import CSS, _e, _kv_table
 from ...io.lab import LabConfig, load_lab
 from .pdf import _fonts, _write_pdf

@@ -9,8 +9,10 @@ import html as _html
 from typing import Optional
 
 from ... import __version__
+from ...estimation.result import significant
 from ...uncertainty.budget import Budget
-from .content import Certificate, display_unit
+from ..notation import display_unit
+from .content import Certificate
 
 # =========================================================================================
 # HTML
@@ -101,8 +103,9 @@ def budget_table(b: Budget) -> tuple[list, list, list]:
         body.append([c.source, c.basis, c.equation, ux, ci,
                      "not evaluated" if c.contribution is None else _g(c.contribution),
                      "" if share is None else f"{100 * share:.0f} %"])
-    totals = [("Combined standard uncertainty u_c (root sum of squares)", _g(b.combined_u)),
-              ("Expanded uncertainty U = k·u_c (k = 2)", _g(b.expanded_U))]
+    # both from the unrounded u_c (U = 2 u_c), rounded half up: 15.25 -> 15.3 and 30.5 -> 31
+    totals = [("Combined standard uncertainty u_c (root sum of squares)", significant(b.total, 3)),
+              (f"Expanded uncertainty U = k·u_c (k = {b.coverage_factor:g})", significant(b.expanded_U, 2))]
     return head, body, totals
 
 
@@ -143,6 +146,8 @@ def render_html(cert: Certificate) -> str:
     h.append(f"<p class='note'>Value and expanded uncertainty U (k = 2, coverage probability about 95 %) of "
              f"every parameter at the reference temperature {r.reference_temperature_C:g} °C. "
              f"U comes from the <b>{_e(cert.source_of_u)}</b>.</p>")
+    if cert.angle_statement:
+        h.append(f"<p class='statement'><b>{_e(cert.angle_statement)}</b></p>")
     h.append("<table class='results'><tr><th>Parameter</th><th>Meaning</th><th class='num'>Value</th>"
              "<th class='num'>U (k = 2)</th><th>Unit</th></tr>")
     group = None
@@ -165,9 +170,9 @@ def render_html(cert: Certificate) -> str:
             + "</table>")
     b = cert.budget
     h.append("<h2>7. Uncertainty budget</h2>")
-    h.append(f"<p class='note'>Standard uncertainties of an {_e(b.quantity)}, sorted by size (seed paper eq. 4–7). "
-             "This is the uncertainty a user should expect of the corrected axes anywhere in the range; "
-             "the table of section 4 states the parameters at the reference temperature.</p>")
+    h.append(f"<p class='note'>Standard uncertainties of an {_e(b.quantity)}, sorted by size (seed paper eq. 4–7): "
+             "the U that applies when the matrix is used at a temperature in the range (section 4 states the "
+             "parameters at the reference temperature only).</p>")
     head, body, totals = budget_table(b)
     h.append("<table class='budget'><colgroup>" + "".join(
         f"<col style='width:{w}%'>" for w in (14, 36, 9, 11, 12, 10, 8)) + "</colgroup><tr>" + "".join(

@@ -9,7 +9,8 @@ import os
 
 from ... import __version__
 from ...io.atomic import atomic_path
-from .content import Certificate, display_unit
+from ..notation import display_unit
+from .content import Certificate
 from .html import STATEMENTS, _matrix_str, budget_table
 
 # =========================================================================================
@@ -124,6 +125,8 @@ def render_pdf(cert: Certificate, path) -> None:
         story.append(P(f"Value and expanded uncertainty U (k = 2, coverage probability about 95 %) of every "
                        f"parameter at the reference temperature {r.reference_temperature_C:g} °C. U comes from the "
                        f"{cert.source_of_u}."))
+        if cert.angle_statement:
+            story.append(Paragraph(f"<b>{_html.escape(cert.angle_statement)}</b>", st["body"]))
         story.append(Spacer(1, 3))
         rows = [[P("Parameter", "cellb"), P("Meaning", "cellb"), P("Value", "cellb"), P("U (k = 2)", "cellb"),
                  P("Unit", "cellb")]]
@@ -169,9 +172,9 @@ def render_pdf(cert: Certificate, path) -> None:
                                        ("SPAN", (0, n), (4, n)), ("SPAN", (0, n + 1), (4, n + 1)),
                                        ("BACKGROUND", (0, n), (-1, -1), colors.HexColor("#f3f3f3"))]))
         story += [P("7. Uncertainty budget", "h2"),
-                  P(f"Standard uncertainties of an {b.quantity}, sorted by size (seed paper eq. 4–7). This is the "
-                    "uncertainty a user should expect of the corrected axes anywhere in the range; the table of "
-                    "section 4 states the parameters at the reference temperature."), Spacer(1, 3), bt]
+                  P(f"Standard uncertainties of an {b.quantity}, sorted by size (seed paper eq. 4–7): the U that "
+                    "applies when the matrix is used at a temperature in the range (section 4 states the parameters "
+                    "at the reference temperature only)."), Spacer(1, 3), bt]
         missing = [c.source for c in b.components if c.contribution is None]
         if missing:
             story.append(P(f"Not evaluated (not in u_c): {', '.join(missing)}.", "small"))
