@@ -15,8 +15,8 @@ import sys
 import numpy as np
 import pytest
 
-from triadcal.estimation.classical import (ClassicalPlanError, classical_angle_sd,
-                                           classical_angle_sd_default_plan, fit_classical)
+from triadcal.estimation.classical import ClassicalPlanError, fit_classical
+from triadcal.uncertainty.classical_sd import classical_angle_sd, classical_angle_sd_default_plan
 from triadcal.io.bench_csv import read_bench_csv, write_bench_csv
 from triadcal.models.campaign import DEFAULT_PLAN, Campaign
 from triadcal.models.model import Covariates

@@ -4,6 +4,8 @@
 :class:`CaptureReport`) records every accepted sample append-only, rewrites the bench CSV
 ``campaign.csv`` atomically after each visit, resumes from its completed rows, and writes
 the Allan-deviation noise into its header. Derivation/design: docs/hardware.md (Campaign).
+Over 500 lines because the campaign loop, its resume and its fault handling are one state
+machine; the instruments' protocols and drivers are in protocols/ and drivers/.
 """
 
 from __future__ import annotations

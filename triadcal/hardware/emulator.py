@@ -3,7 +3,9 @@
 :func:`emulate` / :class:`Emulator` (behind ``triadcal emulate``) play the IMU, bench and
 chamber on ptys with stable symlinks and a ``ports.toml``; :class:`UnitPhysics` gives the
 outputs from ``Model.predict``, :class:`EmulatorTiming` the clock, :class:`FaultPlan` the
-injected faults. Derivation/design: docs/hardware.md (Emulator).
+injected faults. Derivation/design: docs/hardware.md (Emulator). Over 500 lines because the
+three instruments share one clock, one physics and one fault plan; the physics itself is
+models/ (Model.predict, the hysteresis branch map).
 """
 
 from __future__ import annotations

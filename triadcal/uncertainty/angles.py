@@ -44,8 +44,8 @@ def _given_budget(given) -> Optional[list]:
 
 def _bench_sd(plan, sigma_position: float, sigma_wobble: float) -> float:
     """Largest standard deviation (arcsec) of a single-setpoint classical angle from the bench
-    errors alone (:func:`triadcal.estimation.classical.classical_angle_sd`, eq. 2-4)."""
-    from ..estimation.classical import classical_angle_sd
+    errors alone (:func:`triadcal.uncertainty.classical_sd.classical_angle_sd`, eq. 2-4)."""
+    from .classical_sd import classical_angle_sd
 
     sd = classical_angle_sd(plan, Q_V2s=0.0, tau_s=1.0, sigma_position_arcsec=sigma_position,
                             sigma_wobble_arcsec=sigma_wobble)

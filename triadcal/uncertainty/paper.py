@@ -98,7 +98,7 @@ def calibration_budget(K_g_per_V: float = 1.0, Q_V2s: float = 3e-9, tau_s: float
     comparison, the standard deviation of the classical estimate of each angle for the
     default 12-position plan (docs/classical.md): eq. 4 is four times the largest of them.
     """
-    from ..estimation.classical import classical_angle_sd_default_plan
+    from .classical_sd import classical_angle_sd_default_plan
 
     sens_noise = 2.0 * K_g_per_V / G_g * RAD_TO_ARCSEC
     comps = [
