@@ -562,3 +562,24 @@ def test_result_refuses_unknown_unit_and_broken_json(tmp_path):
     path.write_text('{"format": "triadcal.result",\n "version": 1,,}')
     with pytest.raises(ValueError, match=f"{path}:2"):
         CalibrationResult.load(path)
+
+
+def test_branch_rule_and_sensor_temperatures_by_hand():
+    """The two pieces of thermal physics the simulator and the emulator share (models/)."""
+    import numpy as np
+
+    from triadcal.models.effects.hysteresis import direction_after
+    from triadcal.models.simulate import Schedule
+    from triadcal.models.thermal_environment import sensor_temperatures
+
+    assert direction_after("none", None, 20.0) == "none"
+    assert direction_after("none", 20.0, 35.0) == "heating"
+    assert direction_after("heating", 35.0, 35.0) == "heating"
+    assert direction_after("heating", 35.0, -40.0) == "cooling"
+    assert Schedule(setpoints_C=(20.0, 20.0, 70.0, 70.0, -40.0)).directions() == \
+        ["none", "none", "heating", "heating", "cooling"]
+    T = sensor_temperatures(np.array([20.0, 25.0]), (0.3, 0.35, 0.25))
+    assert np.allclose(T, [[20.3, 20.35, 20.25], [25.3, 25.35, 25.25]])
+    # from power-on: dT (1 - exp(-t/tau)); at t = tau, 63.2 % of the self-heating
+    T = sensor_temperatures(np.array([20.0, 20.0]), (1.0, 2.0, 0.0), np.array([0.0, 300.0]), 300.0)
+    assert np.allclose(T[0], 20.0) and np.allclose(T[1], [20.0 + (1 - np.exp(-1)), 20.0 + 2 * (1 - np.exp(-1)), 20.0])

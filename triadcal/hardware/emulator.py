@@ -23,10 +23,10 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..models.effects.hysteresis import BRANCH
+from ..models.effects.hysteresis import BRANCH, direction_after
 from ..models.model import Covariates
 from ..models.simulate import NoiseModel, Schedule, Truth, preset_truth
-from ..models.thermal_environment import two_lag_step
+from ..models.thermal_environment import sensor_temperatures, two_lag_step
 from ..models.units import ARCSEC, STANDARD_GRAVITY_M_S2
 from .drivers.chamber import REG_PV, REG_SP, REG_STATUS
 from .protocols import Frame, get_protocol
@@ -128,8 +128,7 @@ class UnitPhysics:
         with self.lock:
             c, u, _ = self._thermal(t)
             self._seg = (t, float(sp), float(c), float(u))
-            if self._last_sp is not None and sp != self._last_sp:
-                self.direction = "heating" if sp > self._last_sp else "cooling"
+            self.direction = direction_after(self.direction, self._last_sp, float(sp))
             self._last_sp = float(sp)
             self.setpoint_C = float(sp)
 
@@ -171,10 +170,7 @@ class UnitPhysics:
             a1, a2 = self._angles(t)
             e1, e2, wob = self._errors
             branch = BRANCH[self.direction]
-        heat = np.asarray(tm.self_heating_C, float)[None, :]
-        if tm.self_heating_time_constant_s > 0:
-            heat = heat * (1.0 - np.exp(-t / tm.self_heating_time_constant_s))[:, None]
-        sensor = unit[:, None] + heat
+        sensor = sensor_temperatures(unit, tm.self_heating_C, t, tm.self_heating_time_constant_s)
         cov = Covariates(axis1=np.radians(a1), axis2=np.radians(a2),
                          temp=tuple(sensor[:, i] for i in range(3)), temp_rate=(rate, rate, rate),
                          branch=np.full(n, branch), time_s=t, axis1_error=e1, axis2_error=e2, wobble=wob)

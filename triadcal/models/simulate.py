@@ -22,10 +22,10 @@ import numpy as np
 
 from .. import __version__
 from .campaign import DEFAULT_PLAN, Campaign
-from .effects.hysteresis import BRANCH
+from .effects.hysteresis import BRANCH, direction_after
 from .effects import DEFAULT_EFFECTS, NOISE_EFFECTS
 from .model import Covariates, Model
-from .thermal_environment import step_sequence
+from .thermal_environment import sensor_temperatures, step_sequence
 from .units import ARCSEC, DEG, STANDARD_GRAVITY_M_S2
 
 #: 12 positions x 15 setpoints: soaked at ambient, heated to +70, cooled to -40, heated back
@@ -52,14 +52,10 @@ class Schedule:
     self_heating_C: tuple = (0.30, 0.35, 0.25)
 
     def directions(self) -> list[str]:
-        out = []
-        for k, sp in enumerate(self.setpoints_C):
-            if k == 0:
-                out.append("none")
-            elif sp == self.setpoints_C[k - 1]:
-                out.append(out[-1])
-            else:
-                out.append("heating" if sp > self.setpoints_C[k - 1] else "cooling")
+        out, previous = [], None
+        for sp in self.setpoints_C:
+            out.append(direction_after(out[-1] if out else "none", previous, sp))
+            previous = sp
         return out
 
 
@@ -240,7 +236,7 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
     times = np.array(times)
     _, unit_T, unit_rate = thermal_history(schedule, times, np.array(starts),
                                            np.array(schedule.setpoints_C, float))
-    sensor_T = unit_T[:, None] + np.asarray(schedule.self_heating_C)[None, :]
+    sensor_T = sensor_temperatures(unit_T, schedule.self_heating_C)
     branch = np.array([BRANCH[d] for d in dirs])
 
     cov = Covariates(

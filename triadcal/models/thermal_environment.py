@@ -51,3 +51,17 @@ def step_sequence(times, step_starts, setpoints, start_C, tau_c, tau_u):
     sp = np.asarray(setpoints, float)[s]
     chamber[on], unit[on], rate[on] = two_lag_step(times[on] - starts[s], sp, c0[s], u0[s], tau_c, tau_u)
     return chamber, unit, rate
+
+
+def sensor_temperatures(unit_C, self_heating_C, time_s=None, time_constant_s: float = 0.0):
+    """Temperatures (n, 3) of the three accelerometers' own sensors: the unit's temperature
+    plus each sensor's self-heating, reached after power-on as a first-order lag::
+
+        T_i(t) = T_unit(t) + dT_i (1 - exp(-t / tau))        (tau = 0: dT_i at once)
+
+    ``unit_C`` (n,), ``self_heating_C`` the three dT_i (degC), ``time_s`` (n,) since power-on.
+    The simulator (steady self-heating) and the emulator (from power-on) both use it."""
+    heat = np.asarray(self_heating_C, float)[None, :]
+    if time_constant_s > 0 and time_s is not None:
+        heat = heat * (1.0 - np.exp(-np.asarray(time_s, float) / time_constant_s))[:, None]
+    return np.asarray(unit_C, float)[:, None] + heat

@@ -18,6 +18,16 @@ from .base import Effect
 BRANCH = {"heating": -1.0, "cooling": 1.0, "none": 0.0}
 
 
+def direction_after(direction: str, previous_setpoint_C, setpoint_C) -> str:
+    """The branch a unit is on after its chamber goes from ``previous_setpoint_C`` to
+    ``setpoint_C``: heating after a rise, cooling after a fall, unchanged when the setpoint
+    stays (or ``none`` before the first change). The simulator's schedule and the emulator's
+    chamber both follow this rule."""
+    if previous_setpoint_C is None or setpoint_C == previous_setpoint_C:
+        return direction
+    return "heating" if setpoint_C > previous_setpoint_C else "cooling"
+
+
 def branch_offset(half_width, branch):
     """Offset of the branch from the mid-line: ``h * b`` (b = +1 cooling, -1 heating, 0 none)."""
     return half_width * branch
