@@ -221,3 +221,32 @@ def test_validation_names_the_withheld_effect(tmp_path):
         assert s[e]["correct_rate"] >= 0.90, (e, s[e])
         lo, hi = s[e]["chi2_dof_after_range"]
         assert 0.8 <= lo and hi <= 1.2, (e, s[e])
+
+
+def test_a_noise_effect_never_absorbs_a_structured_gap(example):
+    """The example campaign diagnosed with no thermal terms (--model none): position_error has
+    the largest elpd (it widens the noise until the misfit looks like scatter), but slices keep
+    structure after its refit, so it is not named; a thermal term is, with the word that the
+    gap stays open after it (more is missing)."""
+    d = diagnose(example, model=())
+    pe = next(c for c in d.candidates if c.effect == "position_error")
+    assert pe.refit and pe.refit["gap_after"]["significant_slices"] > 0
+    assert d.verdict_effect not in ("position_error", "heavy_tails", None)
+    assert d.verdict.get("gap_closed") is False and "more is missing" in d.verdict["remaining"]
+
+
+def test_an_effect_outside_the_vocabulary_is_unexplained_not_noise(example):
+    """Outputs changed with numpy, not the model's code: a quadratic temperature dependence of
+    the y output, signed by the pose (40 ug at 70 degC), which no candidate models. The noise
+    candidates would absorb it (before: heavy_tails named), but slices keep structure after
+    their refit: the verdict is 'unexplained', with where it lies."""
+    import copy
+
+    c = copy.deepcopy(example)
+    T = c.t.mean(axis=1)
+    c.w[:, 1] += 40e-6 * ((T - 20.0) / 50.0) ** 2 * np.sign(np.cos(np.radians(c.axis1_deg)))
+    d = diagnose(c)
+    assert d.gap["significant"]
+    assert d.verdict_effect == "unexplained"
+    assert "keep structure" in d.verdict["reason"] and d.verdict["where"]
+    assert all(w["p_adjusted"] < d.alpha for w in d.verdict["where"])

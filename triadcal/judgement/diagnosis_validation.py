@@ -34,6 +34,7 @@ VALIDATION_PLAN.update({f"D{k + 1:02d}": pos for k, pos in enumerate(
 VALIDATION_SOAK_S = 1800.0
 CONDITIONS = ("clean",) + VOCABULARY
 NONE = "none"
+UNEXPLAINED = "unexplained"   #: a structured gap that no candidate closes
 
 
 #: the validation's design in one paragraph (docs/diagnosis.md, "Validation" derives it)
@@ -189,7 +190,7 @@ def validate(seeds: int = 20, effects: Optional[Sequence[str]] = None, processes
                 rows.append(row)
                 if progress:
                     progress(row)
-    labels = tuple(VOCABULARY) + (NONE,)
+    labels = tuple(VOCABULARY) + (UNEXPLAINED, NONE)
     res = ValidationResult(rows, conditions, labels, seeds, seconds=time.perf_counter() - t0)
     res.summary = summarise(rows, conditions)
     return res

@@ -159,6 +159,11 @@ def _verdict_text(d) -> tuple[str, str]:
     effect = v.get("effect")
     if effect is None:
         return "no missing effect named", str(v.get("reason") or "")
+    if effect == "unexplained":
+        where = "; ".join(f"{w.get('family')} {w.get('slice')} ({w.get('axis')}, {w.get('test')})"
+                          for w in v.get("where") or [])
+        return ("unexplained: a structured gap no candidate effect closes",
+                str(v.get("reason") or "") + (f"; where: {where}" if where else ""))
     cand = next((c for c in d.candidates if c.effect == effect), None)
     if cand is None or not cand.refit:
         return str(effect), str(v.get("evidence") or v.get("reason") or "")
@@ -166,10 +171,16 @@ def _verdict_text(d) -> tuple[str, str]:
     evidence = (f"score p = {_p(cand.score_p, cand.score_logp / math.log(10))}, "
                 f"LR p = {_p(r.get('lr_p_value'))}, delta elpd = {_num(r.get('delta_elpd'), '{:.1f}')} "
                 f"+- {_num(r.get('delta_elpd_se'), '{:.1f}')}")
+    if v.get("remaining"):
+        evidence += f"; {v['remaining']}"
     if v.get("runner_up"):
         evidence += f"; runner-up {v['runner_up']}"
-        if v.get("delta_elpd_to_runner_up") is not None:
-            evidence += f" ({_num(v['delta_elpd_to_runner_up'], '{:.1f}')} elpd behind)"
+        dd = v.get("delta_elpd_to_runner_up")
+        if isinstance(dd, (int, float)) and dd >= 0:
+            evidence += f" ({_num(dd, '{:.1f}')} elpd behind)"
+        elif isinstance(dd, (int, float)):
+            evidence += (f" ({_num(-dd, '{:.1f}')} elpd ahead, but a noise effect cannot be named while slices "
+                         "keep structure after its refit)")
     return str(effect), evidence
 
 

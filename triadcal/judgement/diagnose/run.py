@@ -235,7 +235,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                               noise.known)
             cross = None if cg is None or cross0 is None else cg - cross0
         refit = {
-            "delta_loglik": ll - base_ll, "lr_p_value": _f(lr_p),
+            "delta_loglik": ll - base_ll, "lr_p_value": _f(lr_p), "dof_after": int(dof_after),
             "elpd_loo": elpd, "elpd_se": se, "delta_elpd": d_elpd, "delta_elpd_se": d_se,
             "pareto_k_max": kmax,
             "cross_branch_delta_lpd": _f(cross) if cross is not None else None,
@@ -269,17 +269,51 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     elif not refitted:
         verdict["reason"] = "significant gap, but no candidate effect is testable on this design"
     else:
-        best = refitted[0]
-        if best.refit["lr_p_value"] is not None and best.refit["lr_p_value"] < alpha and best.refit["delta_elpd"] > 0:
+        def improves(c):
+            return (c.refit["lr_p_value"] is not None and c.refit["lr_p_value"] < alpha
+                    and c.refit["delta_elpd"] > 0)
+
+        def structure_left(c):
+            n = c.refit["gap_after"].get("significant_slices")
+            return n is not None and n > 0
+
+        # a noise effect (position_error, heavy_tails) widens the noise until the misfit looks
+        # like noise; it may win only when no slice keeps structure after its refit: elpd alone
+        # never decides it (a missing term then reads as scatter)
+        eligible = [c for c in refitted if improves(c) and not (c.effect in NOISE_EFFECTS and structure_left(c))]
+        absorbed = [c for c in refitted if improves(c) and c.effect in NOISE_EFFECTS and structure_left(c)]
+        if eligible:
+            best = eligible[0]
             verdict = {"effect": best.effect,
                        "evidence": f"score p = {best.score_p:.3g}, LR p = {best.refit['lr_p_value']:.3g}, "
                                    f"delta elpd = {best.refit['delta_elpd']:.1f} +- {best.refit['delta_elpd_se']:.1f}"}
-            if len(refitted) > 1:
-                second = refitted[1]
+            after = best.refit["gap_after"]
+            if noise.known and after.get("chi2_dof") is not None:
+                dof_a = int(best.refit.get("dof_after") or 0)
+                p_after = float(stats.chi2.sf(after["chi2_dof"] * dof_a, dof_a)) if dof_a > 0 else None
+                verdict["gap_closed"] = bool(p_after is not None and p_after >= alpha
+                                             and not (after.get("significant_slices") or 0))
+                if not verdict["gap_closed"]:
+                    verdict["remaining"] = (f"the gap stays significant after adding {best.effect} (chi2/dof "
+                                            f"{after['chi2_dof']:.3g}, {after.get('significant_slices')} slice(s) "
+                                            f"still significant): more is missing; refit with {best.effect} and "
+                                            "diagnose again")
+            others = [c for c in refitted if c is not best]
+            if others:
+                second = others[0]
                 verdict["runner_up"] = second.effect
                 verdict["delta_elpd_to_runner_up"] = best.refit["delta_elpd"] - second.refit["delta_elpd"]
         else:
-            verdict["reason"] = "significant gap that none of the candidate effects explains"
+            where = sorted((x for x in slices if x.p_adjusted < alpha), key=lambda x: x.p_adjusted)[:5]
+            verdict = {"effect": "unexplained",
+                       "reason": ("significant, structured gap that no candidate closes"
+                                  + (f": {', '.join(c.effect for c in absorbed)} would absorb it as noise, but "
+                                     f"{', '.join(str(c.refit['gap_after']['significant_slices']) for c in absorbed)} "
+                                     "slice(s) keep structure after that refit, so a term outside the vocabulary "
+                                     "(or a model without the needed terms) is the likelier cause" if absorbed else
+                                     ": no candidate of the vocabulary improves the fit significantly")),
+                       "where": [{"family": x.family, "slice": x.slice, "axis": x.axis, "test": x.test,
+                                  "p_adjusted": _f(x.p_adjusted)} for x in where]}
     fit = {"chi2_dof": _f(base.chi2_dof), "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
