@@ -188,3 +188,38 @@ def test_the_printed_coverage_is_the_interval_written(good):
     assert "U (k=12.7)" in text and "Student's t with 1 residual degrees of freedom" in text
     assert "U = 2u" not in text
     assert "U (k=2)" in summary_text(CalibrationResult.from_dict(good))
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("method", "guess", "'guess' is not one of classical, joint, posterior"),
+    ("effects", ["bench_tilt", "warp_drive"], "'warp_drive' is not an effect of the model"),
+])
+def test_a_result_with_an_unknown_method_or_effect_is_refused(tmp_path, field, value, message):
+    """Every reader validates what it reads: a method or effect this triadcal does not know is
+    refused when the file is read, naming the field (not later, when the result is applied)."""
+    from triadcal.api import fit
+    from triadcal.estimation.result import CalibrationResult, ResultFormatError
+
+    d = fit(None, method="classical").to_dict()
+    d[field] = value
+    with pytest.raises(ResultFormatError, match=message):
+        CalibrationResult.from_dict(d, "r.json")
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"version": 2}, "diagnosis version 2 is not known"),
+    ({"gap": {"chi2_dof": 1.0}}, "gap.significant is missing"),
+    ({"verdict": "hysteresis"}, "verdict is missing or not an object"),
+])
+def test_certificate_refuses_a_diagnosis_it_cannot_read(tmp_path, change, message):
+    from triadcal.api import fit
+    from triadcal.reports.certificate import certificate
+
+    r = fit(None, method="joint")
+    r.save(tmp_path / "r.json")
+    diag = {"format": "triadcal.diagnosis", "version": 1, "gap": {"significant": False},
+            "verdict": {"effect": None}, **change}
+    (tmp_path / "d.json").write_text(json.dumps(diag))
+    with pytest.raises(ValueError, match=message):
+        certificate(tmp_path / "r.json", diagnosis=tmp_path / "d.json", html=tmp_path / "c.html")
+    assert not (tmp_path / "c.html").exists()

@@ -26,6 +26,8 @@ from ..models.units import ARCSEC, TO_INTERNAL
 Z95 = float(ndtri(0.975))
 
 FORMAT = "triadcal.result"
+#: the estimators that write results (docs/results-json.md)
+METHODS = ("classical", "joint", "posterior")
 VERSION = 1
 METHODS = ("classical", "joint", "posterior")
 
@@ -142,10 +144,19 @@ class CalibrationResult:
             if not (isinstance(trange, list) and len(trange) == 2):
                 raise r.error("temperature_range_C", "is not a list [low, high]")
             trange = tuple(r.number_value(x, f"temperature_range_C[{i}]") for i, x in enumerate(trange))
+        method = r.string(d, "method")
+        if method not in METHODS:
+            raise r.error("method", f"{method!r} is not one of {', '.join(METHODS)}")
+        effects = tuple(r.string_list(d, "effects", required=False))
+        from ..models.effects import EFFECTS
+
+        unknown = [e for e in effects if e not in EFFECTS]
+        if unknown:
+            raise r.error("effects", f"{', '.join(map(repr, unknown))} is not an effect of the model "
+                                     f"({', '.join(EFFECTS)})")
         ref = d.get("reference_temperature_C", 20.0)
         return cls(
-            unit=r.string(d, "unit"), method=r.string(d, "method"), parameters=params, status=status,
-            effects=tuple(r.string_list(d, "effects", required=False)),
+            unit=r.string(d, "unit"), method=method, parameters=params, status=status, effects=effects,
             reference_temperature_C=r.number_value(ref, "reference_temperature_C"),
             temperature_range_C=trange,
             intervals=r.mapping(d, "intervals"), fit=r.mapping(d, "fit"),

@@ -12,6 +12,7 @@ from typing import Optional
 from ...estimation.gates import check_result_for_use
 from ...estimation.result import CalibrationResult
 from ...io.atomic import read_json
+from ...io.formats import require_format
 from ...io.atomic import atomic_write_bytes, atomic_write_text
 from .content import Certificate, build_certificate
 from .html import render_html
@@ -55,10 +56,14 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
     if diagnosis is not None and not isinstance(diagnosis, dict):
         source = str(diagnosis)
         diagnosis = read_json(diagnosis)
-        if not isinstance(diagnosis, dict) or diagnosis.get("format") != "triadcal.diagnosis":
-            raise InputError(f"{source}: not a diagnosis (format "
-                             f"{diagnosis.get('format') if isinstance(diagnosis, dict) else None!r}, "
-                             "expected 'triadcal.diagnosis')")
+        from ...judgement.diagnose import FORMAT, VERSION
+
+        require_format(diagnosis, FORMAT, VERSION, source, "a diagnosis", "diagnosis")
+        gap = diagnosis.get("gap")
+        if not isinstance(gap, dict) or not isinstance(gap.get("significant"), bool):
+            raise InputError(f"{source}: gap.significant is missing or not true/false")
+        if not isinstance(diagnosis.get("verdict"), dict):
+            raise InputError(f"{source}: verdict is missing or not an object")
     cert = build_certificate(result, lab=lab, campaign=data, idata=posterior, diagnosis=diagnosis, number=number,
                              issue_date=issue_date, result_path=result_path)
     if html is not None:
