@@ -201,3 +201,51 @@ def test_a_fit_that_did_not_converge_says_so():
     assert result.status == "not_converged"
     assert any("stopped after 1 iterations" in n for n in result.notes)
     assert fit_joint(c).status == "ok"
+
+
+# -- the lab's own bench errors as variance components (issue 16, item 2) ----------------------
+def test_bench_errors_from_the_lab_file_enter_the_fit(tmp_path):
+    """A campaign whose bench errs by sigma_1 = 5", sigma_2 = 2" per visit (the paper's eq. 4
+    example): the fit with output noise alone misses the data (chi2/dof ~ 4: model_mismatch,
+    no answer); with the lab's figures as variance components chi2/dof is at the noise, the
+    status ok, and the angles' u grows; the result says whether the bench is in its u."""
+    from scipy import stats
+
+    from triadcal.api import fit, simulate
+    from triadcal.io.lab import EXAMPLE_LAB_TOML
+
+    truth, campaign = simulate(sigma_position_arcsec=5.0, sigma_wobble_arcsec=2.0, seed=3)
+    (tmp_path / "lab.toml").write_text(EXAMPLE_LAB_TOML)       # [bench] 5 and 2 arcsec
+    a = fit(campaign, method="joint")
+    b = fit(campaign, method="joint", lab=tmp_path / "lab.toml")
+    assert a.status == "model_mismatch" and a.fit["chi2_dof"] > 2.5
+    assert any(n.startswith("uncertainties are Type A only") for n in a.notes) and a.fit["bench_errors"] is None
+    dof = b.fit["n_obs"] - b.fit["n_params"]
+    lo, hi = stats.chi2.ppf([0.0005, 0.9995], dof) / dof
+    assert b.status == "ok" and lo < b.fit["chi2_dof"] < hi
+    assert b.fit["bench_errors"] == {"sigma_position_arcsec": 5.0, "sigma_wobble_arcsec": 2.0,
+                                     "source": f"lab file {tmp_path / 'lab.toml'}", "in_u": True}
+    assert not any(n.startswith("uncertainties are Type A only") for n in b.notes)
+    for n in ("Ca_xy", "Ca_zx"):
+        assert b[n].u > 1.2 * a[n].u
+        assert abs(b[n].value - truth.parameters[n]) < 4 * b[n].u
+    # the certificate's budget does not count the bench twice
+    from triadcal.uncertainty.angles import uncertainty_budget
+    from triadcal.io.lab import load_lab
+
+    budget = {c.source: c for c in uncertainty_budget(b, load_lab(tmp_path / "lab.toml")).components}
+    assert budget["bench positioning"].contribution == 0.0 and "inside the angles' u" in budget["bench positioning"].basis
+
+
+def test_bench_errors_need_a_known_output_noise():
+    import pytest as _pytest
+
+    from triadcal.api import simulate
+    from triadcal.errors import InputError
+    from triadcal.estimation.joint import BenchErrors, fit_joint
+
+    _, campaign = simulate(seed=1)
+    campaign.metadata.pop("Q_V2s", None)
+    campaign.sd = None
+    with _pytest.raises(InputError, match="add to a known output noise"):
+        fit_joint(campaign, bench_errors=BenchErrors(5.0, 2.0))

@@ -51,10 +51,13 @@ def example_path():
 
 def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS,
         reference_temperature_C: float = 20.0, loss: str = "l2", strict: bool = False,
-        json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0):
+        json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0, lab=None):
     """Calibrate from a campaign (``triadcal fit``): ``data`` is a bench CSV path, a
     :class:`~triadcal.models.campaign.Campaign`, or None for the built-in example.
     ``angle_bound_arcsec``: the answer gates' bound on an orientation angle (arcsec).
+    ``lab``: a lab file (path or :class:`~triadcal.io.lab.LabConfig`) whose bench errors
+    (``[bench] sigma_position_arcsec, sigma_wobble_arcsec``, arcsec) enter the joint fit as
+    variance components; without it the joint fit's uncertainties are Type A only.
     Returns a :class:`~triadcal.estimation.result.CalibrationResult` whose ``status`` is
     ``ok`` only when every answer gate passed (docs/statuses.md)."""
     from .estimation.gates import GateConfig
@@ -71,9 +74,14 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     elif method == "joint":
         from .estimation.joint import fit_joint
 
+        from .io.lab import LabConfig, bench_errors_of, load_lab
+
+        if lab is not None and not isinstance(lab, LabConfig):
+            lab = load_lab(lab)
         result, problem, solution = fit_joint(
             campaign, effects, reference_temperature_C=reference_temperature_C, loss=loss,
-            unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates)
+            unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates,
+            bench_errors=bench_errors_of(lab) if lab is not None else None)
         if netcdf_path is not None:
             from .io.netcdf import write_fit_netcdf
 

@@ -32,6 +32,9 @@ def register(sub) -> None:
     p.add_argument("--angle-bound-arcsec", type=float, default=3600.0, metavar="ARCSEC",
                    help="largest orientation angle an answer may have before it is refused as "
                         "angle_out_of_range (default 3600 = 1 deg; raise only for a unit known to be that skewed)")
+    p.add_argument("--lab", metavar="LAB.toml",
+                   help="lab file: its [bench] positioning and wobble SDs (arcsec) enter the joint fit as "
+                        "variance components (without it, u is Type A only)")
     p.add_argument("--json", metavar="OUT", help="write the result (results-json v1)")
     p.add_argument("--netcdf", metavar="OUT.nc", help="write residuals per visit and axis (joint)")
     add_output_options(p)
@@ -48,7 +51,7 @@ def run(args) -> int:
     result = fit(args.data, method=args.method, effects=name_list(args.effects),
                  reference_temperature_C=args.reference_temperature, loss=args.loss,
                  strict=args.strict, json_path=args.json, netcdf_path=args.netcdf,
-                 angle_bound_arcsec=args.angle_bound_arcsec)
+                 angle_bound_arcsec=args.angle_bound_arcsec, lab=args.lab)
     out.say(summary_text(result))
     if args.json:
         out.say(f"result written to {args.json}")

@@ -50,6 +50,42 @@ class NoiseSource:
     description: str
 
 
+@dataclass(frozen=True)
+class BenchErrors:
+    """The bench's random errors per visit, stated by the lab (r.m.s., arcsec): positioning of
+    each axis (sigma_1 of eq. 4) and wobble of axis 1 (sigma_2)."""
+
+    sigma_position_arcsec: float
+    sigma_wobble_arcsec: float
+    source: str = "lab file"
+
+
+def with_bench_errors(campaign: Campaign, model: Model, noise: "NoiseSource",
+                      bench: Optional[BenchErrors]) -> "NoiseSource":
+    """The noise of each mean output with the bench's random errors added as variance components
+    (:func:`triadcal.models.effects.position_error.bench_variance`, evaluated at the start
+    values: the sensitivities depend on K and the angles only at second order). The output
+    noise must be known (sd_* or Q_V2s): an absolute bench variance cannot be added to relative
+    weights."""
+    if bench is None:
+        return noise
+    if bench.sigma_position_arcsec < 0 or bench.sigma_wobble_arcsec < 0:
+        raise InputError("the bench's positioning and wobble SDs must be >= 0 arcsec")
+    if not noise.known:
+        raise InputError(f"{campaign.source or 'campaign'}: the bench's errors ({bench.source}) add to a known "
+                         "output noise, but the data give none (no sd_*/n_samples columns, no Q_V2s metadata)")
+    from ..models.effects.position_error import bench_variance
+
+    start = start_values(campaign, model)
+    p = model.to_internal({n: start.get(n, model.spec[n].nominal) for n in model.names})
+    var_b = bench_variance(model, p, campaign.covariates(), campaign.gravity_g,
+                           bench.sigma_position_arcsec, bench.sigma_wobble_arcsec)
+    return NoiseSource(np.sqrt(noise.sigma ** 2 + var_b), True,
+                       f"{noise.description}, plus the bench's random errors per visit ({bench.source}: "
+                       f"positioning {bench.sigma_position_arcsec:g} arcsec, wobble {bench.sigma_wobble_arcsec:g} "
+                       "arcsec) as variance components")
+
+
 def noise_of(campaign: Campaign) -> NoiseSource:
     """Weights of the fit: ``sd_*/sqrt(n_samples)`` where present, else ``sqrt(Q/tau)`` from a
     ``Q_V2s`` metadata line, else ``1/sqrt(tau)`` relative weights with the scale estimated."""
@@ -273,8 +309,13 @@ def levenberg_marquardt(problem: JointProblem, x0: np.ndarray, loss: str = "l2",
 def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
               reference_temperature_C: float = 20.0, loss: str = "l2", nu: float = 4.0,
               fix: Optional[dict] = None, unidentifiable: str = "fix", max_iter: int = 100,
-              return_problem: bool = False, gates: GateConfig = DEFAULT_CONFIG):
+              return_problem: bool = False, gates: GateConfig = DEFAULT_CONFIG,
+              bench_errors: Optional[BenchErrors] = None):
     """Fit the joint model to a campaign (``triadcal fit --method joint``).
+
+    ``bench_errors``: the lab's random bench errors, added to the output noise as variance
+    components (:func:`with_bench_errors`); without them the uncertainties are Type A only
+    (output noise) and the result says so.
 
     ``unidentifiable``: ``"fix"`` holds parameters the data cannot determine at their
     nominal value (0) and says so in the notes (they are then absent from the result),
@@ -292,8 +333,11 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                          f"found units {units} and states {sorted(set(campaign.state.tolist()))} "
                          "(select one, e.g. with Campaign.select)")
     model = Model(effects, reference_temperature_C)
-    noise = noise_of(campaign)
+    noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     notes = []
+    if bench_errors is None:
+        notes.append("uncertainties are Type A only: the bench's own errors (positioning, wobble) are not in "
+                     "them; give them with --lab LAB.toml ([bench] sigma_position_arcsec, sigma_wobble_arcsec)")
     problems = identifiability_problems(campaign, model)
     fixed = dict(fix or {})
     start = start_values(campaign, model)
@@ -354,7 +398,11 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     fit = {"chi2_dof": chi2_dof, "n_obs": n_obs, "n_params": n_par, "iterations": sol.iterations,
            "loss": loss if loss != "student_t" else f"student_t(nu={nu:g})",
            "noise": noise.description, "noise_known": noise.known,
-           "gap_p_value": p_gap, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds}
+           "gap_p_value": p_gap, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds,
+           "bench_errors": (None if bench_errors is None else
+                            {"sigma_position_arcsec": bench_errors.sigma_position_arcsec,
+                             "sigma_wobble_arcsec": bench_errors.sigma_wobble_arcsec,
+                             "source": bench_errors.source, "in_u": True})}
     if not noise.known:
         # weights were 1/sqrt(tau): the residual variance estimates the white-noise intensity Q
         fit["Q_estimate"] = chi2_dof if dof > 0 else None

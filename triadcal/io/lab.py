@@ -53,7 +53,9 @@ LAB_SCHEMA = {
     "customer": {"name": ("customer_name", str), "address": ("customer_address", str)},
     "item": {"description": ("item_description", str), "calibration_date": ("calibration_date", str)},
     "bench": {"name": ("bench", str), "sigma_position_arcsec": ("sigma_position_arcsec", float),
-              "sigma_wobble_arcsec": ("sigma_wobble_arcsec", float)},
+              "sigma_wobble_arcsec": ("sigma_wobble_arcsec", float),
+              "positioning_sd_arcsec": ("sigma_position_arcsec", float),
+              "wobble_sd_arcsec": ("sigma_wobble_arcsec", float)},
     "chamber": {"name": ("chamber", str), "temperature_uncertainty_C": ("temperature_uncertainty_C", float)},
     "traceability": {"statement": ("traceability", str)},
 }
@@ -124,3 +126,14 @@ def load_lab(path) -> LabConfig:
                 value = str(value)  # TOML dates etc. are written as they read
             setattr(lab, name, value)
     return lab
+
+
+def bench_errors_of(lab: "LabConfig"):
+    """The lab's random bench errors for the fit (:class:`triadcal.estimation.joint.BenchErrors`),
+    or None when the lab file states neither; a missing one of the two is taken as 0 and said."""
+    if lab.sigma_position_arcsec is None and lab.sigma_wobble_arcsec is None:
+        return None
+    from ..estimation.joint import BenchErrors
+
+    return BenchErrors(lab.sigma_position_arcsec or 0.0, lab.sigma_wobble_arcsec or 0.0,
+                       f"lab file {lab.source}" if lab.source else "lab file")

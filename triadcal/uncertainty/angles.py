@@ -102,8 +102,15 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
     s1 = lab.sigma_position_arcsec if lab is not None else None
     s2 = lab.sigma_wobble_arcsec if lab is not None else None
     upper = " (one setpoint; an upper bound for the joint fit)" if result.method != "classical" else ""
+    in_fit = (result.fit.get("bench_errors") or {}) if isinstance(result.fit.get("bench_errors"), dict) else {}
     for src, s, sym, key, args in (("bench positioning", s1, "σ1", "[bench] sigma_position_arcsec", (1.0, 0.0)),
                                    ("wobble", s2, "σ2", "[bench] sigma_wobble_arcsec", (0.0, 1.0))):
+        stated = in_fit.get("sigma_position_arcsec" if args[0] else "sigma_wobble_arcsec")
+        if in_fit.get("in_u") and stated is not None:
+            comps.append(BudgetComponent(src, 0.0, float(stated), sensitivity=0.0, basis=(
+                f"{sym} = {float(stated):g} arcsec ({in_fit.get('source', 'lab file')}) modelled per visit in the fit: "
+                "already inside the angles' u (output-noise row)"), equation="eq. 4"))
+            continue
         if s is None:
             comps.append(BudgetComponent(src, None, basis=f"{sym} not stated (give {key} in the lab file)",
                                          equation="eq. 4"))

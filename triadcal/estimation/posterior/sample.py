@@ -18,7 +18,9 @@ from ...models.effects import DEFAULT_EFFECTS
 from ...models.model import Model
 from ..gates import DEFAULT_CONFIG, GateConfig
 from ..joint import (
+    BenchErrors,
     JointProblem,
+    with_bench_errors,
     fit_joint,
     noise_of,
 )
@@ -54,7 +56,7 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
            moves: str = "de-snooker-laplace", progress: Union[bool, Callable, None] = None,
            json_path=None, posterior_path=None, max_saved_draws: int = MAX_SAVED_DRAWS,
            return_run: bool = False, least_squares: Optional[tuple] = None,
-           gates: Optional[GateConfig] = None):
+           gates: Optional[GateConfig] = None, bench_errors: Optional[BenchErrors] = None):
     """Posterior of every parameter of the joint model (``triadcal sample``).
 
     ``data``: a bench CSV v1 path or a :class:`Campaign`. ``ess``: requested bulk and
@@ -68,6 +70,8 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     ``return_run``. ``least_squares``: the output of ``fit_joint(campaign, effects,
     return_problem=True)`` when the caller already has it (it is computed otherwise).
     ``gates``: the answer gates' thresholds (:class:`~triadcal.estimation.gates.GateConfig`).
+    ``bench_errors``: the lab's random bench errors, variance components of the noise as in
+    the joint fit (:func:`~triadcal.estimation.joint.with_bench_errors`).
     """
     gates = gates or DEFAULT_CONFIG
     if moves not in MOVES:
@@ -76,11 +80,11 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     t_start = time.perf_counter()
     if least_squares is None:
         least_squares = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
-                                  return_problem=True, gates=gates)
+                                  return_problem=True, gates=gates, bench_errors=bench_errors)
     ls, ls_problem, ls_sol = least_squares
     model = Model(effects, reference_temperature_C)
     pri = default_priors(model, overrides=priors)
-    noise = noise_of(campaign)
+    noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     sigma = noise.sigma
     notes = []
     if not noise.known:

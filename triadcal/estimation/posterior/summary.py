@@ -170,7 +170,8 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
     T = campaign.t
     fit = {"chi2_dof": chi2 / (n_obs - len(names)) if n_obs > len(names) else None, "n_obs": n_obs,
            "n_params": len(names), "value": "posterior mean", "u": "posterior standard deviation",
-           "least_squares": {"status": ls.status, "chi2_dof": ls.fit.get("chi2_dof")}}
+           "least_squares": {"status": ls.status, "chi2_dof": ls.fit.get("chi2_dof")},
+           "bench_errors": ls.fit.get("bench_errors")}
     result = CalibrationResult(
         unit=ls.unit, method="posterior", parameters=params, effects=tuple(model.effect_names),
         reference_temperature_C=model.reference_temperature_C,

@@ -51,3 +51,16 @@ def sensitivity_arcsec2(model, p, cov, gravity_g=1.0, weights=(1.0, 1.0, 1.0),
 def output_variance(model, p, cov, sigma_arcsec: float, gravity_g=1.0, weights=(1.0, 1.0, 1.0)) -> np.ndarray:
     """Variance of each output (output unit^2) from positioning errors of r.m.s. ``sigma_arcsec``."""
     return sigma_arcsec ** 2 * sensitivity_arcsec2(model, p, cov, gravity_g, weights)
+
+
+def bench_variance(model, p, cov, gravity_g, sigma_position_arcsec: float, sigma_wobble_arcsec: float) -> np.ndarray:
+    """Variance of each mean output (output unit^2, shape (n, 3)) from a bench whose two axes
+    each err by ``sigma_position_arcsec`` and whose axis 1 wobbles by ``sigma_wobble_arcsec``
+    (r.m.s., independent per visit; eq. 4's sigma_1, sigma_2)::
+
+        var_b(W) = sigma_1^2 [(dW/de_1)^2 + (dW/de_2)^2] + sigma_2^2 (dW/de_w)^2
+
+    The errors act through a rotation of gravity, to first order on one output each, so the
+    per-visit covariance across outputs is taken as diagonal (docs/model.md)."""
+    s1, s2 = float(sigma_position_arcsec), float(sigma_wobble_arcsec)
+    return sensitivity_arcsec2(model, p, cov, gravity_g, weights=(s1 * s1, s1 * s1, s2 * s2))
