@@ -176,7 +176,23 @@ def test_budget_is_sorted_and_follows_eq_4_and_7(issued):
     assert by["wobble"].contribution == pytest.approx(0.5 * lab.sigma_wobble_arcsec)
     assert by["hysteresis"].contribution == pytest.approx(max(abs(P[f"{n}_hysteresis"].value) for n in ANGLES))
     assert b.combined_u == pytest.approx(math.sqrt(sum(c ** 2 for c in contrib)))
-    assert b.expanded_U == pytest.approx(2 * b.combined_u)
+    # the hysteresis is a two-point +-h: U is the coverage interval of that distribution
+    # convolved with the normal rest, checked here by Monte Carlo (JCGM 101), not 2 u_c
+    h = by["hysteresis"].contribution
+    rest = math.sqrt(sum(c.contribution ** 2 for c in b.components if c.source != "hysteresis"))
+    rng = np.random.default_rng(7)
+    x = rng.choice([-h, h], 1_000_000) + rng.normal(0.0, rest, 1_000_000)
+    assert b.expanded_U == pytest.approx(np.quantile(np.abs(x), 0.9545), rel=3e-3)
+    assert b.expanded_U < 2 * b.combined_u and by["hysteresis"].distribution == "two-point"
+
+
+def test_a_normal_budget_keeps_k_2_and_a_pure_two_point_one_its_half_width():
+    from triadcal.uncertainty.budget import Budget, BudgetComponent
+
+    normal = Budget("x", [BudgetComponent("a", 3.0), BudgetComponent("b", 4.0)])
+    assert normal.expanded_U == pytest.approx(10.0) and normal.effective_k == pytest.approx(2.0)
+    two = Budget("x", [BudgetComponent("h", 5.0, distribution="two-point")])
+    assert two.expanded_U == pytest.approx(5.0)
 
 
 def test_budget_taken_from_the_result_when_the_estimator_wrote_one():
@@ -389,16 +405,17 @@ def test_one_angle_uncertainty_for_using_the_matrix_stated_consistently(issued):
     cert = issued["cert"]
     b = cert.budget
     U, uc = significant(b.expanded_U, 2), significant(b.total, 3)
-    assert b.expanded_U == pytest.approx(2 * b.total, rel=1e-12)
-    assert f"U = {U} arcsec (k = 2; u_c = {uc} arcsec)" in cert.angle_statement
+    assert b.expanded_U == pytest.approx(b.effective_k * b.total, rel=1e-12)
+    kind = f"coverage 95.45 %, k = U/u_c = {b.effective_k:.3g}"
+    assert f"U = {U} arcsec ({kind}" in cert.angle_statement
     assert "hysteresis" in cert.angle_statement and "thermal model" in cert.angle_statement
     pdf = " ".join(pdf_text(issued["pdf"], layout=False).split())
     html = " ".join(re.sub(r"<[^>]+>", " ", issued["html"]).split())
     for text in (pdf, html):
-        assert f"U = {U} arcsec (k = 2; u_c = {uc} arcsec)" in text
+        assert f"U = {U} arcsec ({kind}" in text and f"u_c = {uc} arcsec" in text
         # the budget's totals print the same two numbers
         assert re.search(rf"u_c \(root sum of squares\)\s+{re.escape(uc)}\b", text)
-        assert re.search(rf"U = k·u_c \(k = 2\)\s+{re.escape(U)}\b", text)
+        assert re.search(rf"k = U/u_c = {b.effective_k:.3g}\)\s+{re.escape(U)}\b", text)
 
 
 def test_significant_rounds_halves_up():

@@ -148,7 +148,8 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
     if hyst:
         comps.append(BudgetComponent("hysteresis", max(hyst), max(hyst), basis=(
             "largest half-width h of the loop; the matrix is stated on the mid-line, a reading on a branch "
-            "is off by ±h (two-point distribution, sd h)"), equation="eq. 5, ΔCa_Ta"))
+            "is off by ±h (two-point distribution, sd h: U is its coverage interval, not 2h)"),
+            equation="eq. 5, ΔCa_Ta", distribution="two-point"))
     else:
         comps.append(BudgetComponent("hysteresis", None, basis="not modelled (in the thermal-model residual)",
                                      equation="eq. 5, ΔCa_Ta"))

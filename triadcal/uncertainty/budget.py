@@ -28,12 +28,15 @@ class BudgetComponent:
     basis: str = ""
     equation: str = ""
     symbol: str = ""
+    #: "normal", or "two-point": the error is +-contribution with probability 1/2 each (a reading
+    #: on one branch of a hysteresis loop stated on its mid-line); its SD is the contribution
+    distribution: str = "normal"
 
     def to_dict(self) -> dict:
         return {"source": self.source, "standard_uncertainty": self.u, "unit": self.unit,
                 "sensitivity": self.sensitivity, "sensitivity_unit": self.sensitivity_unit,
                 "contribution": self.contribution, "symbol": self.symbol, "basis": self.basis,
-                "equation": self.equation}
+                "equation": self.equation, "distribution": self.distribution}
 
 
 @dataclass
@@ -68,7 +71,39 @@ class Budget:
 
     @property
     def expanded_U(self) -> float:
-        return self.coverage_factor * self.total
+        """U: ``k u_c`` when every component is normal (GUM); with two-point components, the
+        half-width of the shortest symmetric interval that holds ``coverage_probability`` of the
+        combined distribution, solved exactly (the normal part convolved with every sign
+        combination of the two-point parts; JCGM 101 §5.3 on a known distribution): a
+        two-point +-h is not a normal of SD h, and k u_c would overstate U."""
+        two = [c.contribution for c in self.evaluated if c.distribution == "two-point" and c.contribution > 0]
+        if not two:
+            return self.coverage_factor * self.total
+        import itertools
+
+        from scipy import optimize, special
+
+        s = math.sqrt(sum(c.contribution ** 2 for c in self.evaluated if c.distribution != "two-point"))
+        offsets = [sum(sg * h for sg, h in zip(signs, two)) for signs in itertools.product((-1.0, 1.0), repeat=len(two))]
+        if s <= 1e-12 * max(two):
+            return max(abs(o) for o in offsets)
+
+        def coverage(U):
+            return sum(special.ndtr((U - o) / s) - special.ndtr((-U - o) / s) for o in offsets) / len(offsets)
+
+        hi = max(abs(o) for o in offsets) + 10.0 * s
+        return float(optimize.brentq(lambda U: coverage(U) - self.coverage_probability, 0.0, hi, xtol=1e-12))
+
+    @property
+    def coverage_probability(self) -> float:
+        """The coverage probability U stands for: that of k = 2 for a normal distribution
+        (95.45 %), so a budget with and without two-point parts means the same by U."""
+        return float(math.erf(self.coverage_factor / math.sqrt(2.0)))
+
+    @property
+    def effective_k(self) -> float:
+        """U / u_c: 2 for a normal budget, less where a two-point part dominates."""
+        return self.expanded_U / self.total if self.total > 0 else self.coverage_factor
 
     def share(self, c: BudgetComponent) -> Optional[float]:
         """Fraction of the combined variance from ``c``."""

@@ -80,12 +80,15 @@ def angle_uncertainty_statement(cert: "Certificate") -> str:
     thermal = [c for c in b.components if c.source in THERMAL_MODEL_SOURCES]
     parts = ", ".join(f"{c.source} {significant(c.contribution, 2)}" if c.contribution is not None
                       else f"{c.source} not evaluated" for c in thermal)
+    kind = ("k = 2" if abs(b.effective_k - b.coverage_factor) < 1e-9 else
+             f"coverage {100 * b.coverage_probability:.2f} %, k = U/u_c = {b.effective_k:.3g}, the hysteresis "
+             "being a two-point ±h and not a normal distribution")
     own = (f" It contains the angles' own uncertainty at the reference temperature (U up to "
            f"{max(angle_U):g} {b.unit} in the results table, which applies only at "
            f"{cert.result.reference_temperature_C:g} °C on the mid-line)" if angle_U else " It contains")
     return (f"Using the matrix: when Ca⁻¹ and the thermal model are applied at a temperature within the "
             f"calibrated range, the uncertainty of each orientation angle is U = {significant(b.expanded_U, 2)} "
-            f"{b.unit} (k = 2; u_c = {significant(b.total, 3)} {b.unit}).{own}, the bench's errors, and the "
+            f"{b.unit} ({kind}; u_c = {significant(b.total, 3)} {b.unit}).{own}, the bench's errors, and the "
             f"thermal model's error as its own components ({parts}; {b.unit}, standard uncertainties); "
             "section 7 lists them all.")
 

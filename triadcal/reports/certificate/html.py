@@ -104,8 +104,13 @@ def budget_table(b: Budget) -> tuple[list, list, list]:
                      "not evaluated" if c.contribution is None else _g(c.contribution),
                      "" if share is None else f"{100 * share:.0f} %"])
     # both from the unrounded u_c (U = 2 u_c), rounded half up: 15.25 -> 15.3 and 30.5 -> 31
+    if abs(b.effective_k - b.coverage_factor) < 1e-9:
+        u_label = f"Expanded uncertainty U = k·u_c (k = {b.coverage_factor:g})"
+    else:
+        u_label = (f"Expanded uncertainty U: {100 * b.coverage_probability:.2f} % coverage interval of the combined "
+                   f"distribution (two-point parts exact; k = U/u_c = {b.effective_k:.3g})")
     totals = [("Combined standard uncertainty u_c (root sum of squares)", significant(b.total, 3)),
-              (f"Expanded uncertainty U = k·u_c (k = {b.coverage_factor:g})", significant(b.expanded_U, 2))]
+              (u_label, significant(b.expanded_U, 2))]
     return head, body, totals
 
 
