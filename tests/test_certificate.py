@@ -451,3 +451,48 @@ def test_one_notation_in_the_certificate(issued):
         assert not re.search(r"Ca_[XYZ]{2}\b", text)
         assert not re.search(r"\bdegC\b|\bug/", text)
         assert "Ca_xy_tempco" in text and "µg/°C" in text
+
+
+# -- the lab's equipment (issue 16, item 1) ---------------------------------------------------------
+def _lab(tmp_path, text):
+    path = tmp_path / "lab.toml"
+    path.write_text(text)
+    return C.load_lab(path)
+
+
+def test_expired_equipment_refuses_the_certificate_unless_allowed_and_then_prints_it(tmp_path):
+    r = hand_result()
+    lab = _lab(tmp_path, C.EXAMPLE_LAB_TOML.replace("due = 2027-06-30", "due = 2025-06-30"))
+    assert lab.equipment["bench"] == {"instrument": "two-axis table, serial 0001", "certificate": "ANG-2026-0417",
+                                      "due": "2025-06-30"}
+    cert = C.build_certificate(r, lab=lab, issue_date=ISSUE_DATE, plots=False)
+    assert not cert.issued and any("due for calibration on 2025-06-30" in x and "--allow-expired-equipment" in x
+                                   for x in cert.reasons)
+    allowed = C.build_certificate(r, lab=lab, issue_date=ISSUE_DATE, plots=False, allow_expired_equipment=True)
+    assert allowed.issued and "EXPIRED" in dict(allowed.identification)["Equipment: bench"]
+    current = C.build_certificate(r, lab=_lab(tmp_path, C.EXAMPLE_LAB_TOML), issue_date=ISSUE_DATE, plots=False)
+    assert current.issued and "due 2027-06-30" in dict(current.identification)["Equipment: bench"]
+
+
+def test_the_labs_systematic_errors_and_gravity_enter_the_certificate(tmp_path):
+    r = hand_result()
+    text = C.EXAMPLE_LAB_TOML.replace("# local_g_m_s2 = 9.8112", "local_g_m_s2 = 9.8112").replace(
+        "# u_ppm = 10", "u_ppm = 10")
+    cert = C.build_certificate(r, lab=_lab(tmp_path, text), issue_date=ISSUE_DATE, plots=False)
+    by = {c.source: c for c in cert.budget.components}
+    assert by["encoder zeros"].contribution == 2.0 and by["fixture mounting"].contribution == 3.0
+    assert by["bench axes non-orthogonality"].contribution == 2.0
+    assert "measured, lab file, u = 10 ppm" in dict(cert.conditions)["Local gravity"]
+    without = C.build_certificate(r, issue_date=ISSUE_DATE, plots=False)
+    assert {c.source: c for c in without.budget.components}["fixture mounting"].contribution is None
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[fixture]\nmounting_u_arcsec = -1\n", "must be a non-negative number"),
+    ("[fixture]\nwobble = 1\n", "unknown key 'wobble' in \\[fixture\\]"),
+    ("[bench]\ndue = \"soon\"\n", "is not a date"),
+    ("[gravity]\nlocal_g_m_s2 = 1.0\n", "not a gravity on the Earth's surface"),
+])
+def test_a_lab_file_that_cannot_be_used_is_refused(tmp_path, text, message):
+    with pytest.raises(ValueError, match=message):
+        _lab(tmp_path, text)

@@ -35,6 +35,9 @@ def register(sub) -> None:
     p.add_argument("--number", help="certificate number from the lab's register (default: PREFIX-DATE-HASH)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="date of issue (default: today)")
     p.add_argument("--lab-example", action="store_true", help="print an example lab file and exit")
+    p.add_argument("--allow-expired-equipment", action="store_true",
+                   help="issue even when equipment of the lab file was due for calibration before the "
+                        "calibration date (the expiry is printed on the certificate)")
     add_output_options(p)
     p.set_defaults(func=run)
 
@@ -77,7 +80,8 @@ def run(args) -> int:
         return 0
     cert = certificate(args.result, posterior=args.posterior, lab=args.lab, data=args.data,
                        diagnosis=args.diagnosis, html=args.html, pdf=args.pdf, plots_dir=args.plots,
-                       number=args.number, issue_date=args.date)
+                       number=args.number, issue_date=args.date,
+                       allow_expired_equipment=args.allow_expired_equipment)
     written = ", ".join(x for x in (args.html, args.pdf) if x)
     if cert.issued:
         say(f"certificate {cert.number} issued for {cert.result.unit}: {written}")

@@ -8,7 +8,7 @@ from ..errors import InputError
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
@@ -40,9 +40,31 @@ class LabConfig:
     sigma_position_arcsec: Optional[float] = None
     sigma_wobble_arcsec: Optional[float] = None
     chamber: str = ""
+    fixture: str = ""
+    thermometers: str = ""
     temperature_uncertainty_C: Optional[float] = None
     traceability: str = ""
     source: Optional[str] = None
+    #: systematic errors of the bench and the fixture (standard uncertainties, arcsec)
+    axes_nonorthogonality_u_arcsec: Optional[float] = None
+    encoder_zero_u_arcsec: Optional[float] = None
+    mounting_u_arcsec: Optional[float] = None
+    #: local gravity measured by the lab (m/s^2) and its standard uncertainty (ppm)
+    local_g_m_s2: Optional[float] = None
+    local_g_u_ppm: Optional[float] = None
+    #: the equipment's own calibration: {section: {"instrument", "certificate", "due"}}
+    equipment: dict = field(default_factory=dict)
+
+    def expired(self, on: str) -> list:
+        """Equipment whose calibration certificate was due before the date ``on`` (ISO
+        YYYY-MM-DD), as sentences."""
+        out = []
+        for section, e in self.equipment.items():
+            due = e.get("due")
+            if due and on and str(due) < str(on):
+                out.append(f"the {section} ({e.get('instrument') or 'instrument not named'}, certificate "
+                           f"{e.get('certificate') or 'not named'}) was due for calibration on {due}, before {on}")
+        return out
 
 
 #: TOML section -> key -> (field, type)
@@ -55,10 +77,19 @@ LAB_SCHEMA = {
     "bench": {"name": ("bench", str), "sigma_position_arcsec": ("sigma_position_arcsec", float),
               "sigma_wobble_arcsec": ("sigma_wobble_arcsec", float),
               "positioning_sd_arcsec": ("sigma_position_arcsec", float),
-              "wobble_sd_arcsec": ("sigma_wobble_arcsec", float)},
+              "wobble_sd_arcsec": ("sigma_wobble_arcsec", float),
+              "axes_nonorthogonality_u_arcsec": ("axes_nonorthogonality_u_arcsec", float),
+              "encoder_zero_u_arcsec": ("encoder_zero_u_arcsec", float)},
+    "fixture": {"name": ("fixture", str), "mounting_u_arcsec": ("mounting_u_arcsec", float)},
     "chamber": {"name": ("chamber", str), "temperature_uncertainty_C": ("temperature_uncertainty_C", float)},
+    "thermometers": {"name": ("thermometers", str), "u_C": ("temperature_uncertainty_C", float)},
+    "gravity": {"local_g_m_s2": ("local_g_m_s2", float), "u_ppm": ("local_g_u_ppm", float)},
     "traceability": {"statement": ("traceability", str)},
 }
+
+#: keys any equipment section may carry: the instrument, its calibration certificate, its due date
+EQUIPMENT_KEYS = ("instrument", "certificate", "due")
+EQUIPMENT_SECTIONS = ("bench", "fixture", "chamber", "thermometers", "gravity")
 
 
 EXAMPLE_LAB_TOML = """\
@@ -84,12 +115,30 @@ description = "accelerometer triad (IMU accelerometer block)"
 
 [bench]
 name = "two-axis rate-and-position table, thermal chamber"
-sigma_position_arcsec = 5.0     # sigma_1 of eq. 4
-sigma_wobble_arcsec = 2.0       # sigma_2 of eq. 4
+instrument = "two-axis table, serial 0001"
+certificate = "ANG-2026-0417"
+due = 2027-06-30
+sigma_position_arcsec = 5.0     # random positioning error of each axis per visit, sigma_1 of eq. 4
+sigma_wobble_arcsec = 2.0       # random wobble of axis 1 per visit, sigma_2 of eq. 4
+axes_nonorthogonality_u_arcsec = 2.0   # u of the angle between the two bench axes (systematic)
+encoder_zero_u_arcsec = 2.0     # u of each axis's zero (systematic)
+
+[fixture]
+name = "cube fixture"
+mounting_u_arcsec = 3.0         # u of the unit's rotation in its fixture (systematic)
+
+[gravity]
+# local_g_m_s2 = 9.8112         # measured local gravity; without it the data's value is standard gravity
+# u_ppm = 10
 
 [chamber]
 name = "thermal chamber -60..+100 °C"
-temperature_uncertainty_C = 0.2 # Delta T of eq. 7
+
+[thermometers]
+name = "Pt100 sensor on each accelerometer"
+certificate = "TMP-2026-112"
+due = 2027-03-31
+u_C = 0.2                       # Delta T of eq. 7
 
 [traceability]
 statement = "Angles traceable to the national standard of plane angle through the bench's calibration certificate; local gravity from the national gravimetric survey."
@@ -98,8 +147,10 @@ statement = "Angles traceable to the national standard of plane angle through th
 
 def load_lab(path) -> LabConfig:
     """Read a lab configuration TOML (sections ``[lab] [signatory] [customer] [item] [bench]
-    [chamber] [traceability]``, see ``EXAMPLE_LAB_TOML``). Unknown sections or keys and
-    values of the wrong type are refused with the file, section and key named."""
+    [fixture] [chamber] [thermometers] [gravity] [traceability]``, see ``EXAMPLE_LAB_TOML`` and
+    docs/lab.md); the equipment sections may name their ``instrument``, ``certificate`` and
+    ``due`` date. Unknown sections or keys and values of the wrong type are refused with the
+    file, section and key named."""
     path = Path(path)
     try:
         with open(path, "rb") as fh:
@@ -113,6 +164,11 @@ def load_lab(path) -> LabConfig:
         if not isinstance(table, dict):
             raise InputError(f"{path}: {section} must be a [section] table")
         for key, value in table.items():
+            if section in EQUIPMENT_SECTIONS and key in EQUIPMENT_KEYS:
+                if key == "due":
+                    value = _iso_date(value, path, section)
+                lab.equipment.setdefault(section, {})[key] = str(value)
+                continue
             if key not in LAB_SCHEMA[section]:
                 raise InputError(f"{path}: unknown key {key!r} in [{section}]; known: "
                                  f"{', '.join(LAB_SCHEMA[section])}")
@@ -125,7 +181,24 @@ def load_lab(path) -> LabConfig:
             elif not isinstance(value, str):
                 value = str(value)  # TOML dates etc. are written as they read
             setattr(lab, name, value)
+    if lab.local_g_m_s2 is not None and not 9.76 <= lab.local_g_m_s2 <= 9.84:
+        raise InputError(f"{path}: [gravity] local_g_m_s2 = {lab.local_g_m_s2:g} is not a gravity on the Earth's "
+                         "surface (9.76 to 9.84 m/s2)")
     return lab
+
+
+def _iso_date(value, path, section) -> str:
+    """A due date as YYYY-MM-DD (a TOML date or a string of that form), else refused."""
+    import datetime as _dt
+
+    if isinstance(value, _dt.datetime):
+        return value.date().isoformat()
+    if isinstance(value, _dt.date):
+        return value.isoformat()
+    try:
+        return _dt.date.fromisoformat(str(value)).isoformat()
+    except ValueError:
+        raise InputError(f"{path}: [{section}] due = {value!r} is not a date (YYYY-MM-DD)") from None
 
 
 def bench_errors_of(lab: "LabConfig"):

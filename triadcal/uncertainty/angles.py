@@ -20,8 +20,15 @@ from .paper import correction_error_arcsec
 ANGLES = tuple(f"Ca_{ab}" for ab in ANGLE_NAMES)
 
 
-BUDGET_SOURCES = ("output noise", "bench positioning", "wobble", "tilt", "temperature measurement",
-                  "thermal-model residual", "hysteresis")
+BUDGET_SOURCES = ("output noise", "bench positioning", "wobble", "tilt", "bench axes non-orthogonality",
+                  "encoder zeros", "fixture mounting", "temperature measurement", "thermal-model residual",
+                  "hysteresis")
+
+#: the lab's systematic angle errors: (budget row, LabConfig field, lab-file key)
+SYSTEMATIC = (("bench axes non-orthogonality", "axes_nonorthogonality_u_arcsec",
+               "[bench] axes_nonorthogonality_u_arcsec"),
+              ("encoder zeros", "encoder_zero_u_arcsec", "[bench] encoder_zero_u_arcsec"),
+              ("fixture mounting", "mounting_u_arcsec", "[fixture] mounting_u_arcsec"))
 
 
 def _given_budget(given) -> Optional[list]:
@@ -130,13 +137,24 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
                                      equation="eq. 2-3"))
     else:
         comps.append(BudgetComponent("tilt", None, basis="bench tilt not modelled", equation=""))
+    for src, attr, key in SYSTEMATIC:
+        v = getattr(lab, attr, None) if lab is not None else None
+        if v is None:
+            comps.append(BudgetComponent(src, None, basis=f"not stated (give {key} in the lab file)",
+                                         equation="eq. 1"))
+        else:
+            # a rotation of a bench axis or of the unit in its fixture turns the sensed gravity
+            # by the same angle: one to one into an orientation angle (the largest case)
+            comps.append(BudgetComponent(src, float(v), float(v), sensitivity=1.0, basis=(
+                f"{key} = {float(v):g} arcsec (lab file), one to one into an angle; the same in every "
+                "calibration on this bench, so it cancels in a drift"), equation="eq. 1"))
     tempcos = [P[f"{n}_tempco"].value for n in angles if f"{n}_tempco" in P]
     if not tempcos:
         comps.append(BudgetComponent("temperature measurement", 0.0, basis="no thermal terms in the model",
                                      equation="eq. 7"))
     elif lab is None or lab.temperature_uncertainty_C is None:
         comps.append(BudgetComponent("temperature measurement", None, basis=(
-            "ΔT not stated (give [chamber] temperature_uncertainty_C in the lab file)"), equation="eq. 7"))
+            "ΔT not stated (give [thermometers] u_C in the lab file)"), equation="eq. 7"))
     else:
         k = max(abs(t) for t in tempcos)
         dT = lab.temperature_uncertainty_C

@@ -154,12 +154,20 @@ def certificate_number(result: CalibrationResult, prefix: str, issue_date: str) 
 
 def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = None, campaign=None,
                       idata=None, diagnosis: Optional[dict] = None, number: Optional[str] = None,
-                      issue_date: Optional[str] = None, result_path=None, plots: bool = True) -> Certificate:
-    """Assemble a certificate (or a refusal report when :func:`refusal_reasons` finds any)."""
+                      issue_date: Optional[str] = None, result_path=None, plots: bool = True,
+                      allow_expired_equipment: bool = False) -> Certificate:
+    """Assemble a certificate (or a refusal report when :func:`refusal_reasons` finds any).
+    Equipment of the lab file whose calibration was due before the calibration date refuses
+    the certificate, unless ``allow_expired_equipment``: then the expiry is printed on it."""
     lab = lab or LabConfig()
     issue_date = issue_date or _dt.date.today().isoformat()
     post_diag = posterior_diagnostics(idata, list(result.parameters), result) if idata is not None else None
     reasons = refusal_reasons(result, posterior_diag=post_diag, diagnosis=diagnosis)
+    data_date_ = campaign.metadata.get("date", "") if campaign is not None else ""
+    expired = lab.expired(data_date_ or lab.calibration_date or issue_date)
+    if expired and not allow_expired_equipment:
+        reasons += [f"{e}; recalibrate it, or issue with --allow-expired-equipment, which prints the expiry on "
+                    "the certificate" for e in expired]
     issued = not reasons
     if result.method == "posterior":
         source_of_u = "posterior (standard deviation of the draws)"
@@ -187,6 +195,12 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     ident += [("Date of calibration", cal_date), ("Date of issue", issue_date)]
     if issued:
         ident.append(("Certificate number", cert.number))
+    for section, e in lab.equipment.items():
+        text = ", ".join(x for x in (e.get("instrument"), e.get("certificate") and f"certificate {e['certificate']}",
+                                     e.get("due") and f"due {e['due']}") if x)
+        ident.append((f"Equipment: {section}", text + ("" if not any(section in x for x in expired) else
+                                                       " — EXPIRED before the calibration; issued with "
+                                                       "--allow-expired-equipment")))
     ident.append(("Software", f"triadcal {__version__}"))
     if result_path is not None:
         digest = hashlib.sha256(Path(result_path).read_bytes()).hexdigest()
@@ -242,7 +256,12 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         taus = sorted(set(np.round(campaign.tau_s, 6).tolist()))
         cond.append(("Averaging time per position", ", ".join(f"{t:g} s" for t in taus)))
     g = result.extra.get("local_g_m_s2") or (campaign.local_g_m_s2 if campaign is not None else None)
-    if g:
+    if lab.local_g_m_s2 is not None:
+        u_g = f", u = {lab.local_g_u_ppm:g} ppm" if lab.local_g_u_ppm is not None else ""
+        cond.append(("Local gravity", f"{lab.local_g_m_s2:.5f} m/s² (measured, lab file{u_g})"
+                     + ("" if g is None or abs(float(g) - lab.local_g_m_s2) < 5e-7 else
+                        f"; the fit used {float(g):.5f} m/s² from the data")))
+    elif g:
         standard = abs(float(g) - STANDARD_GRAVITY_M_S2) < 5e-7
         cond.append(("Local gravity", f"{float(g):.5f} m/s²" + (
             " (standard gravity, not measured: the data state no local value)" if standard else

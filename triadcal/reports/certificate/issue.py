@@ -24,12 +24,14 @@ from .pdf import render_pdf
 # the library function behind `triadcal certificate`
 # =========================================================================================
 def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, html=None, pdf=None,
-                plots_dir=None, number: Optional[str] = None, issue_date: Optional[str] = None) -> Certificate:
+                plots_dir=None, number: Optional[str] = None, issue_date: Optional[str] = None,
+                allow_expired_equipment: bool = False) -> Certificate:
     """Issue a certificate (``triadcal certificate``) or, when a diagnostic failed, a refusal report.
 
     ``result``: a results-json path or a CalibrationResult; ``posterior``: netCDF path or
     InferenceData; ``lab``: TOML path or LabConfig; ``data``: bench CSV path or Campaign;
-    ``diagnosis``: a diagnosis JSON path or dict. Writes ``html``, ``pdf`` and the plots as
+    ``diagnosis``: a diagnosis JSON path or dict. ``allow_expired_equipment``: issue even when
+    the lab file's equipment was due for calibration before the calibration date (printed). Writes ``html``, ``pdf`` and the plots as
     PNG in ``plots_dir`` when given; returns the :class:`Certificate` (``issued`` says which).
     """
     result_path = None
@@ -65,6 +67,7 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
         if not isinstance(diagnosis.get("verdict"), dict):
             raise InputError(f"{source}: verdict is missing or not an object")
     cert = build_certificate(result, lab=lab, campaign=data, idata=posterior, diagnosis=diagnosis, number=number,
+                             allow_expired_equipment=allow_expired_equipment,
                              issue_date=issue_date, result_path=result_path)
     if html is not None:
         atomic_write_text(html, render_html(cert))
