@@ -249,3 +249,15 @@ def test_bench_errors_need_a_known_output_noise():
     campaign.sd = None
     with _pytest.raises(InputError, match="add to a known output noise"):
         fit_joint(campaign, bench_errors=BenchErrors(5.0, 2.0))
+
+
+def test_bench_errors_larger_than_the_data_show_are_said():
+    """A campaign without bench errors fitted with the lab's 5"/2": u is conservative, and the
+    result says the data scatter less than the stated errors predict (chi2 lower tail)."""
+    from triadcal.api import simulate
+    from triadcal.estimation.joint import BenchErrors, fit_joint
+
+    _, campaign = simulate(seed=4)
+    r = fit_joint(campaign, bench_errors=BenchErrors(5.0, 2.0))
+    assert r.fit["chi2_dof"] < 0.7
+    assert any("scatter less than the output noise plus the lab's bench errors" in n for n in r.notes)

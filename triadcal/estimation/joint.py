@@ -395,6 +395,12 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         notes.append(f"Levenberg-Marquardt stopped after {sol.iterations} iterations without meeting its "
                      "convergence test (cost still falling or a non-vanishing gradient); the values are not an optimum")
     p_gap = float(stats.chi2.sf(chi2, dof)) if noise.known and dof > 0 else None
+    if bench_errors is not None and dof > 0:
+        p_low = float(stats.chi2.cdf(chi2, dof))
+        if p_low < 1e-3:
+            notes.append(f"the data scatter less than the output noise plus the lab's bench errors predict "
+                         f"(chi2/dof = {chi2_dof:.3g}, P(chi2 this small) = {p_low:.2g}): the stated bench errors "
+                         "are larger than this campaign shows, so u is conservative; check the lab file's values")
     fit = {"chi2_dof": chi2_dof, "n_obs": n_obs, "n_params": n_par, "iterations": sol.iterations,
            "loss": loss if loss != "student_t" else f"student_t(nu={nu:g})",
            "noise": noise.description, "noise_known": noise.known,
