@@ -567,3 +567,33 @@ def test_cli_fit_raw_sample(tmp_path, capsys):
     d = json.loads(out.read_text())
     assert d["method"] == "posterior" and "posterior:" in text and nc.exists()
     assert rc == (0 if d["status"] == "ok" else 3)
+
+
+def test_a_tab_separated_recording_is_read_and_one_pose_is_said(tmp_path):
+    """Separators other than commas (tofupilot's climate-chamber run is tab-separated, with dotted
+    column names): the header decides. A recording in one pose is refused by the gates, and a
+    note says why in words: one orientation cannot tell K, S and the angles apart."""
+    from triadcal.estimation.raw import fit_raw
+    from triadcal.io.raw import read_raw_csv
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    acc = np.column_stack([0.18 + 0.01 * rng.standard_normal(n), -0.1 + 0.01 * rng.standard_normal(n),
+                           -9.55 + 0.01 * rng.standard_normal(n)])
+    lines = ["timestamp\timu.acc.x\timu.acc.y\timu.acc.z\timu.temperature"]
+    lines += [f"{i * 505400}\t{a:.6f}\t{b:.6f}\t{c:.6f}\t{20 + i / 100:.3f}" for i, (a, b, c) in enumerate(acc)]
+    path = tmp_path / "tab.csv"
+    path.write_text("\n".join(lines) + "\n")
+    cols = ("imu.acc.x", "imu.acc.y", "imu.acc.z")
+    rec = read_raw_csv(path, 2.0, columns=cols, unit="m/s2")
+    assert rec.acc.shape == (n, 3) and np.allclose(rec.acc[:, 2].mean(), acc[:, 2].mean(), atol=1e-6)
+    bad = path.read_text().replace("\t-9.5", "\tnine", 1)
+    (tmp_path / "bad.csv").write_text(bad)
+    with pytest.raises(ValueError, match=r"bad\.csv:\d+.*imu\.acc\.z"):
+        read_raw_csv(tmp_path / "bad.csv", 2.0, columns=cols, unit="m/s2")
+    (tmp_path / "iv.csv").write_text("start,end\n" + "".join(f"{k},{k + 200}\n" for k in range(0, n, 400)))
+    out = fit_raw(path, 2.0, columns=cols, unit="m/s2", poses="unknown", intervals=tmp_path / "iv.csv")
+    r = out.result
+    assert r.status != "ok"
+    assert r.fit["distinct_orientations"] == 1
+    assert any("only 1 distinct orientation" in note for note in r.notes)

@@ -78,12 +78,17 @@ class RawRecording:
         return INPUT_UNITS[self.unit]
 
 
+#: field separators a recording may use; the header line decides which
+DELIMITERS = (",", "\t", ";")
+
+
 def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, unit: str = "counts",
                  label_column: Optional[str] = None) -> RawRecording:
     """Read a raw recording (``triadcal fit-raw``).
 
     The header row is the first line that names all of ``columns`` (default: the first
-    of ``acc_x,acc_y,acc_z`` / ``ax,ay,az`` / ``x,y,z`` found); lines before it are kept as
+    of ``acc_x,acc_y,acc_z`` / ``ax,ay,az`` / ``x,y,z`` found), separated by commas, tabs or
+    semicolons (the header decides, the rows must follow it); lines before it are kept as
     metadata when they read ``key,value``. Every sample must be a finite number: a bad
     field is refused with its line and column, nothing is dropped.
     """
@@ -98,12 +103,15 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
     if len(head) == 1 << 16:
         lines = lines[:-1]                          # the last line of the chunk may be cut
     wanted = [tuple(columns)] if columns else list(DEFAULT_COLUMN_SETS)
-    header_at, header, cols = None, None, None
+    header_at, header, cols, delim = None, None, None, ","
     for k, line in enumerate(lines[:200]):
-        fields = [f.strip() for f in next(csv.reader([line]), [])]
-        for cand in wanted:
-            if all(c in fields for c in cand):
-                header_at, header, cols = k, fields, tuple(cand)
+        for sep in DELIMITERS:                      # the header line decides the separator
+            fields = [f.strip() for f in next(csv.reader([line], delimiter=sep), [])]
+            for cand in wanted:
+                if all(c in fields for c in cand):
+                    header_at, header, cols, delim = k, fields, tuple(cand), sep
+                    break
+            if header_at is not None:
                 break
         if header_at is not None:
             break
@@ -130,7 +138,7 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
                                     f"the stated rate {rate_hz:g} Hz disagrees with the file's header ({fr:g} Hz); "
                                     "check which one is right (imucal issue #25)")
     offset = _line_start(path, header_at, bom)
-    acc, labels = _read_samples_fast(path, offset, header_at, header, cols, label_column)
+    acc, labels = _read_samples_fast(path, offset, header_at, header, cols, label_column, delim)
     return RawRecording(acc, float(rate_hz), unit, cols, labels, label_column, metadata, path, header_at + 2)
 
 
@@ -150,7 +158,7 @@ def _all_lines(path) -> list:
         raise RawRecordingError(path, None, None, f"not UTF-8 text (byte {exc.start})") from None
 
 
-def _read_samples_fast(path, offset, header_at, header, cols, label_column):
+def _read_samples_fast(path, offset, header_at, header, cols, label_column, delim=","):
     """The samples with pyarrow's multi-threaded CSV reader (typed float64 columns, only the
     columns needed); any problem (a field that is not a number, a wrong field count, a value
     not finite or beyond :data:`~triadcal.io.numbers.MAX_READING`) sends the file through
@@ -159,7 +167,8 @@ def _read_samples_fast(path, offset, header_at, header, cols, label_column):
     from pyarrow import csv as pacsv
 
     want = list(cols) + ([label_column] if label_column else [])
-    slow = lambda: _read_samples_slow(path, _all_lines(path), header_at, header, cols, label_column)  # noqa: E731
+    slow = lambda: _read_samples_slow(path, _all_lines(path), header_at, header, cols, label_column,  # noqa: E731
+                                      delim)
     cols_out = {c: [] for c in want}
     try:
         with open(path, "rb") as source:
@@ -167,7 +176,7 @@ def _read_samples_fast(path, offset, header_at, header, cols, label_column):
             reader = pacsv.open_csv(
                 source,
                 read_options=pacsv.ReadOptions(use_threads=True, block_size=1 << 22),
-                parse_options=pacsv.ParseOptions(newlines_in_values=False),
+                parse_options=pacsv.ParseOptions(delimiter=delim, newlines_in_values=False),
                 convert_options=pacsv.ConvertOptions(
                     include_columns=want, column_types={c: pa.float64() for c in cols},
                     strings_can_be_null=False, quoted_strings_can_be_null=False),
@@ -197,7 +206,7 @@ def _read_samples_fast(path, offset, header_at, header, cols, label_column):
     return acc, labels
 
 
-def _read_samples_slow(path, lines, header_at, header, cols, label_column):
+def _read_samples_slow(path, lines, header_at, header, cols, label_column, delim=","):
     """Line by line with one number parser (:func:`~triadcal.io.numbers.parse_number`): the
     first bad field is refused with its line and column."""
     idx = [header.index(c) for c in cols]
@@ -207,7 +216,7 @@ def _read_samples_slow(path, lines, header_at, header, cols, label_column):
         line = lines[k]
         if not line.strip():
             continue
-        row = next(csv.reader([line]))
+        row = next(csv.reader([line], delimiter=delim))
         if len(row) != len(header):
             raise RawRecordingError(path, k + 1, header[len(row)] if len(row) < len(header) else None,
                                     f"{len(row)} fields, the header has {len(header)}")

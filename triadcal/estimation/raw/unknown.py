@@ -135,6 +135,24 @@ def norm_start(w: np.ndarray, gravity_g: float) -> np.ndarray:
     return np.concatenate([K, K * centre, np.zeros(3)])
 
 
+#: two static intervals are the same orientation when their mean directions are closer than this
+ORIENTATION_SEPARATION_DEG = 10.0
+
+
+def distinct_orientations(w: np.ndarray, separation_deg: float = ORIENTATION_SEPARATION_DEG) -> int:
+    """How many distinct directions the interval means ``w`` (n, 3) point in: greedy clusters
+    of unit vectors closer than ``separation_deg`` (the offset is small against g, so the raw
+    means' directions are the poses' to within a few degrees)."""
+    u = np.asarray(w, float)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    centres = []
+    cos_sep = np.cos(np.radians(separation_deg))
+    for v in u:
+        if not any(float(v @ c) > cos_sep for c in centres):
+            centres.append(v)
+    return len(centres)
+
+
 def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float, serial: str,
                       gates: GateConfig = DEFAULT_CONFIG):
     """Gravity-norm fit; returns ``(CalibrationResult, NormProblem, Solution)``."""
@@ -182,6 +200,13 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
     notes = ["gravity-norm model: a rotation of the IMU frame is unobservable from norms, so the frame is imu_tk's "
              "(Z along the Z sensing axis, the Y sensing axis in the Y-Z plane): Ca_zx = Ca_zy = Ca_yx = 0 by "
              "definition and only Ca_xy, Ca_xz, Ca_yz are estimated"]
+    k_orient = distinct_orientations(avg.w)
+    fit_orientations = k_orient
+    if k_orient < len(NORM_NAMES):
+        notes.append(f"the {n} static intervals show only {k_orient} distinct orientation{'s' if k_orient != 1 else ''} "
+                     f"(directions {ORIENTATION_SEPARATION_DEG:g} deg apart or more): the gravity-norm model's "
+                     f"{len(NORM_NAMES)} parameters need poses spread over the sphere, so K, S and the angles "
+                     "cannot be told apart (a thermal run in one pose calibrates no scale factor)")
     if dof <= 0:
         notes.append(f"{n} static intervals for {len(NORM_NAMES)} parameters: no residual degrees of freedom, so "
                      "the misfit of the model cannot be judged; the uncertainties carry the sample noise only "
@@ -190,7 +215,8 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
         notes.append(f"only {dof} residual degree{'s' if dof != 1 else ''} of freedom: the residual variance is itself uncertain; "
                      "the 95 % intervals use Student's t")
     fit = {"model": "unknown poses: gravity norm (Tedaldi et al. 2014)", "n_obs": n, "n_params": len(NORM_NAMES),
-           "dof": dof, "residual_variance_g2": s2_resid, "noise_variance_g2": s2_noise,
+           "dof": dof, "distinct_orientations": fit_orientations,
+           "residual_variance_g2": s2_resid, "noise_variance_g2": s2_noise,
            "variance_used": "residual" if s2_resid is not None and s2_resid >= s2_noise else "noise floor",
            "iterations": sol.iterations, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds}
     corr = cov / np.outer(np.where(u > 0, u, 1.0), np.where(u > 0, u, 1.0))
