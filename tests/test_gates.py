@@ -197,3 +197,19 @@ def test_orientation_hints_on_hand_made_outputs():
     w = G.copy()
     w[:, 2] *= -1
     assert orientation_hints(w, G) == ["output w_z falls when its axis points up (an inverted sign?)"]
+
+
+def test_a_negative_thermal_time_constant_is_not_an_answer():
+    """A time constant is >= 0: a thermal lag forced onto data whose sensors lag the element
+    comes out negative, and that is refused (it was status ok), naming the number."""
+    from triadcal.estimation.gates import result_gates
+    from triadcal.estimation.result import ParameterValue
+
+    base = {"K_x": ParameterValue(1.0, 1e-6, "g/V"), "K_y": ParameterValue(1.0, 1e-6, "g/V"),
+            "K_z": ParameterValue(1.0, 1e-6, "g/V")}
+    bad = [o for o in result_gates({**base, "thermal_lag": ParameterValue(-12.0, 2.0, "min")}, output_unit="V")
+           if o.passed is False]
+    assert [o.status for o in bad] == ["unphysical_term"] and "thermal_lag = -12 +- 2 min" in bad[0].reason
+    ok = {o.gate: o for o in result_gates({**base, "thermal_lag": ParameterValue(-1.0, 2.0, "min")},
+                                          output_unit="V")}
+    assert ok["signs"].passed is True            # within 2u of zero: not known to be negative

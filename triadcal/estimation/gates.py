@@ -36,6 +36,8 @@ STATUSES = {
     "unphysical_scale": "a scale factor is not positive, or lies outside the band that the declared "
                         "output unit and the local g imply",
     "angle_out_of_range": "an orientation angle beyond the bound (default 3600 arcsec = 1 deg)",
+    "unphysical_term": "a term whose physics fixes its sign (a thermal time constant) has the other sign "
+                       "by more than 2u",
     "model_mismatch": "the residuals are larger than the noise floor allows (chi2/dof against the noise, "
                       "or the posterior predictive check): the model misses something in the data",
     "inconsistent_redundancy": "classical method: the position pairs that measure the same quantity "
@@ -293,12 +295,31 @@ def _gate_determined(params: Mapping, cfg: GateConfig) -> GateOutcome:
                        "turn the axes involved, determine it)", u, f"u <= {cfg.angle_bound_arcsec:g} arcsec")
 
 
+#: terms whose physics fixes their sign: name -> (what it is, why it cannot be negative)
+NON_NEGATIVE = {"thermal_lag": ("the sensing elements' thermal time constant",
+                                "an element cannot respond before its temperature changes")}
+
+
+def _gate_signs(params: Mapping) -> GateOutcome:
+    """Every term in :data:`NON_NEGATIVE` is >= 0 within 2u: a negative thermal time constant
+    (forced onto a lag of the chamber air, or a lead of the sensors) is not a physical answer."""
+    present = {n: (_value(p), _u(p)) for n, p in params.items() if n in NON_NEGATIVE}
+    if not present:
+        return GateOutcome("signs", None, "unphysical_term", "no sign-constrained term in the result")
+    bad = [f"{n} = {v:.4g} +- {u:.2g} {_unit(params[n])} is negative beyond 2u ({NON_NEGATIVE[n][0]}: "
+           f"{NON_NEGATIVE[n][1]})" for n, (v, u) in present.items()
+           if v is not None and math.isfinite(v) and v + 2 * (u if u is not None and math.isfinite(u) else 0.0) < 0]
+    if bad:
+        return GateOutcome("signs", False, "unphysical_term", "; ".join(bad), float(len(bad)), "value + 2u >= 0")
+    return GateOutcome("signs", True, "unphysical_term", "every sign-constrained term is >= 0 within 2u")
+
+
 def result_gates(parameters: Mapping, *, output_unit: Optional[str] = None, local_g_m_s2: Optional[float] = None,
                  config: GateConfig = DEFAULT_CONFIG) -> list[GateOutcome]:
-    """The gates that a result can be checked on by itself: finite values, K, angles, and
-    angles so uncertain that they are not measured."""
+    """The gates that a result can be checked on by itself: finite values, K, angles, angles
+    so uncertain that they are not measured, and terms whose physics fixes their sign."""
     return [_gate_finite(parameters), _gate_scale(parameters, output_unit, local_g_m_s2, config),
-            _gate_angles(parameters, config), _gate_determined(parameters, config)]
+            _gate_angles(parameters, config), _gate_determined(parameters, config), _gate_signs(parameters)]
 
 
 # ------------------------------------------------------------------------------------------
