@@ -250,3 +250,20 @@ def test_an_effect_outside_the_vocabulary_is_unexplained_not_noise(example):
     assert d.verdict_effect == "unexplained"
     assert "keep structure" in d.verdict["reason"] and d.verdict["where"]
     assert all(w["p_adjusted"] < d.alpha for w in d.verdict["where"])
+
+
+def test_a_quadratic_angle_tempco_made_with_numpy_is_named_and_recovered(example):
+    """Ca_xy(T) = Ca_xy + 0.006"/degC^2 (t_x - 20)^2 added to the x output through the nominal
+    gravity (eq. 1 to first order, written here with numpy, not the model's code): the diagnosis
+    names angle_tempco2, the gap closes, and the refit recovers the coefficient within 3u."""
+    import copy
+
+    from triadcal.models.campaign import nominal_gravity
+
+    c = copy.deepcopy(example)
+    G = nominal_gravity(c.axis1_deg, c.axis2_deg)
+    c.w[:, 0] += 0.006 * (c.t[:, 0] - 20.0) ** 2 * (np.pi / 648000.0) * G[:, 1]
+    d = diagnose(c)
+    assert d.verdict_effect == "angle_tempco2" and d.verdict.get("gap_closed") is True
+    est = next(x for x in d.candidates if x.effect == "angle_tempco2").refit["new_parameters"]["Ca_xy_tempco2"]
+    assert abs(est["value"] - 0.006) < 3 * est["u"] and est["unit"] == "arcsec/degC2"

@@ -378,7 +378,7 @@ def test_tilt_changes_nothing_when_level():
 # -- vocabulary and parameters ----------------------------------------------------------
 
 ALLOWED_UNITS = {"arcsec", "arcsec/degC", "deg", "g", "g/V", "ppm", "ppm/degC", "ug", "ug/degC", "ug/g2",
-                 "ug/h", "min"}
+                 "ug/h", "min", "arcsec/degC2", "ppm/degC2", "ug/degC2"}
 
 
 def test_parameter_names_and_units_follow_results_json():
@@ -396,7 +396,10 @@ def test_parameter_names_and_units_follow_results_json():
         assert model.spec[f"S_{a}_tempco"].unit == "ug/degC"
     assert set(EFFECTS) | set(NOISE_EFFECTS) == {
         "bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis", "scale_nonlinearity",
-        "thermal_lag", "bias_drift", "scale_asymmetry", "position_error", "heavy_tails"}
+        "thermal_lag", "bias_drift", "scale_asymmetry", "position_error", "heavy_tails",
+        "angle_tempco2", "scale_tempco2", "bias_tempco2"}
+    for ab in sensor.ANGLE_NAMES:
+        assert model.spec[f"Ca_{ab}_tempco2"].unit == "arcsec/degC2"
 
 
 def test_effects_come_in_canonical_order_once():
@@ -583,3 +586,21 @@ def test_branch_rule_and_sensor_temperatures_by_hand():
     # from power-on: dT (1 - exp(-t/tau)); at t = tau, 63.2 % of the self-heating
     T = sensor_temperatures(np.array([20.0, 20.0]), (1.0, 2.0, 0.0), np.array([0.0, 300.0]), 300.0)
     assert np.allclose(T[0], 20.0) and np.allclose(T[1], [20.0 + (1 - np.exp(-1)), 20.0 + 2 * (1 - np.exp(-1)), 20.0])
+
+
+def test_quadratic_tempcos_by_hand():
+    """value(T) = value(T0) + c2 (T - T0)^2 for the angles, the scale factors and the biases."""
+    import numpy as np
+
+    from triadcal.models.effects.thermal2 import AngleTempco2, BiasTempco2, ScaleTempco2
+    from triadcal.models.units import ARCSEC, PPM, UG
+
+    dT = (10.0, -20.0, 30.0)
+    p = {f"Ca_{ab}_tempco2": 0.004 * ARCSEC for ab in ("xy", "xz", "yx", "yz", "zx", "zy")}
+    angles = AngleTempco2().angles(p, None, dT, {ab: 0.0 for ab in ("xy", "xz", "yx", "yz", "zx", "zy")})
+    assert np.isclose(angles["xy"] / ARCSEC, 0.4) and np.isclose(angles["yz"] / ARCSEC, 1.6)
+    assert np.isclose(angles["zx"] / ARCSEC, 3.6)
+    K = ScaleTempco2().scale({f"K_{a}_tempco2": 0.05 * PPM for a in "xyz"}, None, dT, (1.0, 2.0, 1.0))
+    assert np.allclose(K, (1.0 + 5e-6, 2.0 * (1.0 + 2e-5), 1.0 + 4.5e-5))
+    S = BiasTempco2().bias({f"S_{a}_tempco2": 0.05 * UG for a in "xyz"}, None, dT, (0.0, 0.0, 0.0))
+    assert np.allclose(np.array(S) / UG, (5.0, 20.0, 45.0))

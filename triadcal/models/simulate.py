@@ -135,8 +135,14 @@ def _angles(values):
     return dict(zip(("xy", "xz", "yx", "yz", "zx", "zy"), values))
 
 
-def _preset(K, S, angles, tempco, hyst, K_tc, S_tc, K2, asym, drift, lag_min, tilt_arcsec, tilt_beta_deg):
+def _preset(K, S, angles, tempco, hyst, K_tc, S_tc, K2, asym, drift, lag_min, tilt_arcsec, tilt_beta_deg,
+            tempco2=(0.004, -0.003, 0.0035, -0.004, 0.003, 0.0025), K_tc2=(0.05, -0.04, 0.06),
+            S_tc2=(0.05, -0.04, 0.06)):
     p = {}
+    for ab, v in _angles(tempco2).items():
+        p[f"Ca_{ab}_tempco2"] = v
+    for a, k2c, s2c in zip("xyz", K_tc2, S_tc2):
+        p.update({f"K_{a}_tempco2": k2c, f"S_{a}_tempco2": s2c})
     for a, k, s, ktc, stc, k2, e, d in zip("xyz", K, S, K_tc, S_tc, K2, asym, drift):
         p.update({f"K_{a}": k, f"S_{a}": s, f"K_{a}_tempco": ktc, f"S_{a}_tempco": stc,
                   f"K2_{a}": k2, f"K_{a}_asymmetry": e, f"S_{a}_drift": d})

@@ -7,7 +7,8 @@ from __future__ import annotations
 import re
 
 DISPLAY_UNIT = {"degC": "°C", "ug": "µg", "arcsec/degC": "arcsec/°C", "ppm/degC": "ppm/°C",
-                "ug/degC": "µg/°C", "ug/g2": "µg/g²", "ug/h": "µg/h"}
+                "ug/degC": "µg/°C", "ug/g2": "µg/g²", "ug/h": "µg/h", "arcsec/degC2": "arcsec/°C²",
+                "ppm/degC2": "ppm/°C²", "ug/degC2": "µg/°C²"}
 
 
 def display_unit(unit: str) -> str:
@@ -16,5 +17,6 @@ def display_unit(unit: str) -> str:
 
 def display_text(text: str) -> str:
     """Units inside a sentence in the report's notation: (arcsec/degC) -> (arcsec/°C), ug -> µg."""
+    text = re.sub(r"\bdegC2\b", "°C²", text)
     text = re.sub(r"\bdegC\b", "°C", text)
     return re.sub(r"\bug(?=/|\b)", "µg", text)

@@ -14,13 +14,14 @@ from .bias_drift import BiasDrift
 from .hysteresis import Hysteresis
 from .nonlinearity import ScaleNonlinearity
 from .thermal import AngleTempco, BiasTempco, ScaleTempco
+from .thermal2 import AngleTempco2, BiasTempco2, ScaleTempco2
 from .thermal_lag import ThermalLag
 from .tilt import BenchTilt
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls
-    for cls in (BenchTilt, ThermalLag, AngleTempco, Hysteresis, ScaleTempco, BiasTempco,
-                BiasDrift, ScaleNonlinearity, ScaleAsymmetry)
+    for cls in (BenchTilt, ThermalLag, AngleTempco, AngleTempco2, Hysteresis, ScaleTempco, ScaleTempco2,
+                BiasTempco, BiasTempco2, BiasDrift, ScaleNonlinearity, ScaleAsymmetry)
 }
 NOISE_EFFECTS = ("position_error", "heavy_tails")
 VOCABULARY = tuple(EFFECTS) + NOISE_EFFECTS
