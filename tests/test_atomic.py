@@ -102,7 +102,7 @@ def test_the_lock_of_a_killed_process_does_not_block(tmp_path):
                 pass
     finally:
         proc.kill()
-        proc.wait(timeout=30)
+        proc.wait()
     with folder_lock(tmp_path, "capture"):        # the kernel released it with the process
         pass
 

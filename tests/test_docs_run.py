@@ -210,9 +210,8 @@ def _env(tmp):
     return env
 
 
-def _run(argv, cwd, stdout_to=None, timeout=900):
-    p = subprocess.run([TRIADCAL, *argv], cwd=cwd, env=_env(Path(cwd)), capture_output=True, text=True,
-                       timeout=timeout)
+def _run(argv, cwd, stdout_to=None):
+    p = subprocess.run([TRIADCAL, *argv], cwd=cwd, env=_env(Path(cwd)), capture_output=True, text=True)
     if stdout_to is not None:
         (Path(cwd) / stdout_to).write_text(p.stdout, encoding="utf-8")
     return p
@@ -285,14 +284,14 @@ def run_doc_command(doc, cmd, cwd):
 
 
 def _start_server(cmd, cwd):
+    """Start a server command and wait for the event that it is ready (the file it writes), not
+    for the clock: a server that stops first fails the test with its log."""
     argv = _prepare(list(cmd[1:]), cwd)
     log = open(Path(cwd) / f"{argv[0]}.log", "w", encoding="utf-8")
     proc = subprocess.Popen([TRIADCAL, *argv], cwd=cwd, env=_env(Path(cwd)), stdout=log, stderr=subprocess.STDOUT)
     ready = Path(cwd) / SERVERS[argv[0]].format(*argv[1:])
-    deadline = time.monotonic() + 60
     while not ready.exists():
         assert proc.poll() is None, f"`triadcal {' '.join(argv)}` stopped: {(Path(cwd) / log.name).read_text()}"
-        assert time.monotonic() < deadline, f"`triadcal {' '.join(argv)}` did not write {ready} in 60 s"
         time.sleep(0.2)
     return proc, log
 
@@ -322,12 +321,11 @@ def _run_block(doc, line, cmds, tmp_path, servers):
         if cmd[1] in SERVERS:
             servers.append(_start_server(cmd, tmp_path))
             continue
-        t0 = time.monotonic()
         argv, p = run_doc_command(doc, cmd, tmp_path)
         want = EXPECTED_EXIT.get((doc, _first_words(cmd)), 0)
         assert p.returncode == want, (
-            f"{doc}:{line}: `triadcal {' '.join(argv)}` exited {p.returncode}, the doc implies {want} "
-            f"({time.monotonic() - t0:.1f} s)\nstdout:\n{p.stdout[-3000:]}\nstderr:\n{p.stderr[-3000:]}")
+            f"{doc}:{line}: `triadcal {' '.join(argv)}` exited {p.returncode}, the doc implies {want}"
+            f"\nstdout:\n{p.stdout[-3000:]}\nstderr:\n{p.stderr[-3000:]}")
         assert "Traceback" not in p.stderr
 
 

@@ -211,8 +211,8 @@ def _run_in_pty(cmd, cwd):
     os.close(slave)
     t = threading.Thread(target=reader, daemon=True)
     t.start()
-    out, _ = proc.communicate(timeout=120)
-    t.join(timeout=5)
+    out, _ = proc.communicate()
+    t.join()
     os.close(master)
     return proc.returncode, out.decode(), b"".join(chunks).decode(errors="replace")
 

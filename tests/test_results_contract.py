@@ -287,7 +287,7 @@ def _cli_env(cwd):
 def test_diagnosis_validation_follows_the_contract(work):
     p = subprocess.run([sys.executable, "-m", "triadcal", "validate-diagnosis", "--seeds", "1", "--effects",
                         "clean,scale_asymmetry", "--out", "v", "--quiet"], cwd=work, env=_cli_env(work),
-                       capture_output=True, text=True, timeout=120)
+                       capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     assert_valid(load(work / "v" / "validation.json"), "triadcal.diagnosis_validation")
 
@@ -298,7 +298,7 @@ def test_capture_state_and_emulator_truth_follow_the_contract(work):
                         "--setpoints", "20", "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2",
                         "--stab-window-s", "30", "--stab-hold-s", "30", "--emulate-effects", "bench_tilt",
                         "--emulate-seed", "3", "--no-progress"], cwd=work, env=_cli_env(work),
-                       capture_output=True, text=True, timeout=120)
+                       capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     assert_valid(load(out / "capture.json"), "triadcal.capture")
     assert_valid(load(out / "emulator_truth.json"), "triadcal.truth")

@@ -26,7 +26,7 @@ ALPHA = 1e-3  # two-sided level of every statistical bound below
 
 
 def cli(*args, cwd=None):
-    return subprocess.run([TRIADCAL, *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=60)
+    return subprocess.run([TRIADCAL, *map(str, args)], capture_output=True, text=True, cwd=cwd)
 
 
 def chi2_bounds(dof: int):
