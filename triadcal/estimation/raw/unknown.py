@@ -201,7 +201,6 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
              "(Z along the Z sensing axis, the Y sensing axis in the Y-Z plane): Ca_zx = Ca_zy = Ca_yx = 0 by "
              "definition and only Ca_xy, Ca_xz, Ca_yz are estimated"]
     k_orient = distinct_orientations(avg.w)
-    fit_orientations = k_orient
     if k_orient < len(NORM_NAMES):
         notes.append(f"the {n} static intervals show only {k_orient} distinct orientation{'s' if k_orient != 1 else ''} "
                      f"(directions {ORIENTATION_SEPARATION_DEG:g} deg apart or more): the gravity-norm model's "
@@ -215,7 +214,7 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
         notes.append(f"only {dof} residual degree{'s' if dof != 1 else ''} of freedom: the residual variance is itself uncertain; "
                      "the 95 % intervals use Student's t")
     fit = {"model": "unknown poses: gravity norm (Tedaldi et al. 2014)", "n_obs": n, "n_params": len(NORM_NAMES),
-           "dof": dof, "distinct_orientations": fit_orientations,
+           "dof": dof, "distinct_orientations": k_orient,
            "residual_variance_g2": s2_resid, "noise_variance_g2": s2_noise,
            "variance_used": "residual" if s2_resid is not None and s2_resid >= s2_noise else "noise floor",
            "iterations": sol.iterations, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds}

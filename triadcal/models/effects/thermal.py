@@ -18,38 +18,49 @@ def linear_in_temperature(value_ref, coefficient, dT):
     return value_ref + coefficient * dT
 
 
+def quadratic_in_temperature(value, coefficient2, dT):
+    """``value + c2 (T - T0)^2``: the second-order term of the thermal dependence."""
+    return value + coefficient2 * dT * dT
+
+
 class AngleTempco(Effect):
     name = "angle_tempco"
     description = "linear temperature coefficient of each orientation angle (arcsec/degC)"
+    #: the term's power of (T - T0), parameter suffix, unit, typical size and description
+    term, suffix, unit, typical = staticmethod(linear_in_temperature), "tempco", "arcsec/degC", 2.0
+    meaning = "temperature coefficient of Ca_{ab}"
 
     def parameters(self):
-        return per_angle("Ca_{ab}_tempco", "arcsec/degC", 2.0,
-                         "temperature coefficient of Ca_{ab}", self.name)
+        return per_angle(f"Ca_{{ab}}_{self.suffix}", self.unit, self.typical, self.meaning, self.name)
 
     def angles(self, p, cov, dT, angles):
         out = dict(angles)
         for ab in ANGLE_NAMES:
-            out[ab] = linear_in_temperature(angles[ab], p[f"Ca_{ab}_tempco"], dT[AXES.index(ab[0])])
+            out[ab] = self.term(angles[ab], p[f"Ca_{ab}_{self.suffix}"], dT[AXES.index(ab[0])])
         return out
 
 
 class ScaleTempco(Effect):
     name = "scale_tempco"
     description = "linear temperature coefficient of each scale factor (ppm/degC)"
+    term, suffix, unit, typical = staticmethod(linear_in_temperature), "tempco", "ppm/degC", 50.0
+    meaning = "temperature coefficient of K_{ax}"
 
     def parameters(self):
-        return per_axis("K_{a}_tempco", "ppm/degC", 50.0, "temperature coefficient of K_{ax}", self.name)
+        return per_axis(f"K_{{a}}_{self.suffix}", self.unit, self.typical, self.meaning, self.name)
 
     def scale(self, p, cov, dT, K):
-        return tuple(K[i] * linear_in_temperature(1.0, p[f"K_{a}_tempco"], dT[i]) for i, a in enumerate(AXES))
+        return tuple(K[i] * self.term(1.0, p[f"K_{a}_{self.suffix}"], dT[i]) for i, a in enumerate(AXES))
 
 
 class BiasTempco(Effect):
     name = "bias_tempco"
     description = "linear temperature coefficient of each bias (ug/degC)"
+    term, suffix, unit, typical = staticmethod(linear_in_temperature), "tempco", "ug/degC", 30.0
+    meaning = "temperature coefficient of S_{ax}"
 
     def parameters(self):
-        return per_axis("S_{a}_tempco", "ug/degC", 30.0, "temperature coefficient of S_{ax}", self.name)
+        return per_axis(f"S_{{a}}_{self.suffix}", self.unit, self.typical, self.meaning, self.name)
 
     def bias(self, p, cov, dT, S):
-        return tuple(linear_in_temperature(S[i], p[f"S_{a}_tempco"], dT[i]) for i, a in enumerate(AXES))
+        return tuple(self.term(S[i], p[f"S_{a}_{self.suffix}"], dT[i]) for i, a in enumerate(AXES))

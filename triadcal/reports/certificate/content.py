@@ -163,8 +163,8 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     issue_date = issue_date or _dt.date.today().isoformat()
     post_diag = posterior_diagnostics(idata, list(result.parameters), result) if idata is not None else None
     reasons = refusal_reasons(result, posterior_diag=post_diag, diagnosis=diagnosis)
-    data_date_ = campaign.metadata.get("date", "") if campaign is not None else ""
-    expired = lab.expired(data_date_ or lab.calibration_date or issue_date)
+    data_date = campaign.metadata.get("date", "") if campaign is not None else ""
+    expired = lab.expired(data_date or lab.calibration_date or issue_date)
     if expired and not allow_expired_equipment:
         reasons += [f"{e}; recalibrate it, or issue with --allow-expired-equipment, which prints the expiry on "
                     "the certificate" for e in expired]
@@ -181,7 +181,6 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
                        number=(number or certificate_number(result, lab.certificate_prefix, issue_date)) if issued else None,
                        issue_date=issue_date, lab=lab, source_of_u=source_of_u, notes=list(result.notes))
     # identification ---------------------------------------------------------------------
-    data_date = campaign.metadata.get("date", "") if campaign is not None else ""
     if data_date:
         cal_date = f"{data_date} (from the data)"
     elif lab.calibration_date:
