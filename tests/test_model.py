@@ -397,9 +397,10 @@ def test_parameter_names_and_units_follow_results_json():
     assert set(EFFECTS) | set(NOISE_EFFECTS) == {
         "bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis", "scale_nonlinearity",
         "thermal_lag", "bias_drift", "scale_asymmetry", "position_error", "heavy_tails",
-        "angle_tempco2", "scale_tempco2", "bias_tempco2"}
+        "angle_tempco2", "scale_tempco2", "bias_tempco2", "bench_nonorthogonality"}
     for ab in sensor.ANGLE_NAMES:
         assert model.spec[f"Ca_{ab}_tempco2"].unit == "arcsec/degC2"
+    assert model.spec["bench_nonorth"].unit == "arcsec"
 
 
 def test_effects_come_in_canonical_order_once():

@@ -56,3 +56,21 @@ def gravity_in_imu(axis1, axis2, f_base, wobble=0.0):
     q2 = v2
     # G = M^T q
     return q0, q2, -q1
+
+
+def fixture_rotated(g_imu, rx, ry, rz):
+    """Apparent gravity in the frame of a unit turned in its fixture by the small rotation
+    ``(rx, ry, rz)`` (radians, about the IMU's x, y, z axes; rotation vector ``r``)::
+
+        G' = R(r)^T G,   R(r) ~ I + [r]x   (first order; Rodrigues' formula)
+
+    so ``G' = G - r x G``. A fixture rotation, an encoder zero of axis 1 (``Rz`` next to the
+    unit in :func:`gravity_in_imu`) or any other constant rotation of the unit against the
+    platform is the same for every visit of a campaign: it enters eq. 1 as ``Ca R^T`` and the
+    fit cannot tell it from the unit's own angles (docs/lab.md, "The systematic errors").
+    First order is exact enough: the rotations are tens of arcseconds (1e-4 rad), whose
+    second-order terms (5e-9) are below any output noise. Elementwise on floats, numpy
+    arrays or CasADi symbols."""
+    gx, gy, gz = g_imu
+    # r x G = (ry gz - rz gy, rz gx - rx gz, rx gy - ry gx)
+    return (gx - (ry * gz - rz * gy), gy - (rz * gx - rx * gz), gz - (rx * gy - ry * gx))

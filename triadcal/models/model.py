@@ -39,6 +39,9 @@ class Covariates:
     axis1_error: Any = 0.0
     axis2_error: Any = 0.0
     wobble: Any = 0.0
+    #: a constant rotation of the unit in its fixture (radians about the IMU x, y, z axes);
+    #: zero for an estimator, a Type B input of the budget (:func:`kinematics.fixture_rotated`)
+    fixture: tuple = (0.0, 0.0, 0.0)
 
     def take(self, index) -> "Covariates":
         """The covariates of a subset of visits (numpy only)."""
@@ -46,7 +49,8 @@ class Covariates:
             return v[index] if isinstance(v, np.ndarray) and v.ndim else v
         return Covariates(t(self.axis1), t(self.axis2), tuple(t(v) for v in self.temp),
                           tuple(t(v) for v in self.temp_rate), t(self.branch), t(self.time_s),
-                          t(self.axis1_error), t(self.axis2_error), t(self.wobble))
+                          t(self.axis1_error), t(self.axis2_error), t(self.wobble),
+                          tuple(t(v) for v in self.fixture))
 
 
 class Model:
@@ -127,8 +131,13 @@ class Model:
         f = (0.0, 0.0, 1.0)
         for e in self.effects:
             f = e.gravity_base(p, cov, f)
+        wobble = cov.wobble
+        for e in self.effects:
+            wobble = e.wobble(p, cov, wobble)
         g_imu = kinematics.gravity_in_imu(cov.axis1 + cov.axis1_error, cov.axis2 + cov.axis2_error,
-                                          f, cov.wobble)
+                                          f, wobble)
+        if any(not (isinstance(v, float) and v == 0.0) for v in cov.fixture):
+            g_imu = kinematics.fixture_rotated(g_imu, *cov.fixture)
         g_imu = tuple(gravity_g * c for c in g_imu)
 
         K, S, angles = self.terms(p, cov)

@@ -10,6 +10,7 @@ draws them (:class:`triadcal.models.simulate.NoiseModel`), and their likelihood 
 from ...errors import InputError
 from .asymmetry import ScaleAsymmetry
 from .base import Effect
+from .bench_geometry import BenchNonorthogonality
 from .bias_drift import BiasDrift
 from .hysteresis import Hysteresis
 from .nonlinearity import ScaleNonlinearity
@@ -20,7 +21,7 @@ from .tilt import BenchTilt
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls
-    for cls in (BenchTilt, ThermalLag, AngleTempco, AngleTempco2, Hysteresis, ScaleTempco, ScaleTempco2,
+    for cls in (BenchTilt, BenchNonorthogonality, ThermalLag, AngleTempco, AngleTempco2, Hysteresis, ScaleTempco, ScaleTempco2,
                 BiasTempco, BiasTempco2, BiasDrift, ScaleNonlinearity, ScaleAsymmetry)
 }
 NOISE_EFFECTS = ("position_error", "heavy_tails")

@@ -25,6 +25,11 @@ class Effect:
         """Apparent gravity direction in the base frame (3-tuple)."""
         return f
 
+    def wobble(self, p, cov, wobble):
+        """Rotation about the platform's y axis between the bench's two axes (rad): the
+        per-visit wobble of axis 1 plus, for a bench whose axes are not orthogonal, a constant."""
+        return wobble
+
     def temperature(self, p, cov, dT):
         """Temperature of each sensing element, as deviations from the reference (3-tuple, degC)."""
         return dT
