@@ -57,7 +57,9 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     ``angle_bound_arcsec``: the answer gates' bound on an orientation angle (arcsec).
     ``lab``: a lab file (path or :class:`~triadcal.io.lab.LabConfig`) whose bench errors
     (``[bench] sigma_position_arcsec, sigma_wobble_arcsec``, arcsec) enter the joint fit as
-    variance components; without it the joint fit's uncertainties are Type A only.
+    variance components and whose systematic errors (encoder zeros, axes non-orthogonality,
+    fixture, g, thermometers, voltmeter) are propagated to every parameter as Type B
+    (:mod:`triadcal.uncertainty.typeb`); without it the joint fit's uncertainties are Type A only.
     Returns a :class:`~triadcal.estimation.result.CalibrationResult` whose ``status`` is
     ``ok`` only when every answer gate passed (docs/statuses.md)."""
     from .estimation.gates import GateConfig
@@ -71,17 +73,27 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
         from .estimation.classical import fit_classical
 
         result = fit_classical(campaign, reference_temperature_C=reference_temperature_C, gates=gates)
+        if lab is not None:
+            result.notes.append("the classical method does not propagate the lab file's errors into u (Type A "
+                                "only); its certificate budget adds them by the paper's eq. 4-7; use --method joint "
+                                "for a budget per parameter")
     elif method == "joint":
         from .estimation.joint import fit_joint
 
         from .io.lab import LabConfig, bench_errors_of, load_lab
+        from .uncertainty.typeb import effects_with_lab, systematic_sources
 
         if lab is not None and not isinstance(lab, LabConfig):
             lab = load_lab(lab)
+        systematics = systematic_sources(lab, campaign.output_unit)
+        effects, added = effects_with_lab(effects, systematics)
         result, problem, solution = fit_joint(
             campaign, effects, reference_temperature_C=reference_temperature_C, loss=loss,
             unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates,
-            bench_errors=bench_errors_of(lab) if lab is not None else None)
+            bench_errors=bench_errors_of(lab) if lab is not None else None,
+            systematics=systematics)
+        if added:
+            result.notes.append(added)
         if netcdf_path is not None:
             from .io.netcdf import write_fit_netcdf
 

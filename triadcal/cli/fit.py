@@ -34,7 +34,9 @@ def register(sub) -> None:
                         "angle_out_of_range (default 3600 = 1 deg; raise only for a unit known to be that skewed)")
     p.add_argument("--lab", metavar="LAB.toml",
                    help="lab file: its [bench] positioning and wobble SDs (arcsec) enter the joint fit as "
-                        "variance components (without it, u is Type A only)")
+                        "variance components, its systematic errors (encoder zeros, axes non-orthogonality, "
+                        "fixture, g, thermometers, voltmeter) are propagated to every parameter as Type B, "
+                        "with a budget, U and k per parameter (docs/lab.md; without it, u is Type A only)")
     p.add_argument("--json", metavar="OUT", help="write the result (results-json v1)")
     p.add_argument("--netcdf", metavar="OUT.nc", help="write residuals per visit and axis (joint)")
     add_output_options(p)

@@ -31,8 +31,10 @@ def register(sub) -> None:
     p.add_argument("--angle-bound-arcsec", type=float, default=3600.0, metavar="ARCSEC",
                    help="answer gate: largest orientation angle accepted as 'ok', arcsec (default 3600 = 1 deg)")
     p.add_argument("--lab", metavar="LAB.toml",
-                   help="lab file: its [bench] positioning and wobble SDs (arcsec) enter the model as variance "
-                        "components (without it, u is Type A only)")
+                   help="lab file: its [bench] positioning and wobble SDs (arcsec) enter the model as "
+                        "variance components, its systematic errors (encoder zeros, axes non-orthogonality, "
+                        "fixture, g, thermometers, voltmeter) are propagated to every parameter as Type B, "
+                        "with a budget, U and k per parameter (docs/lab.md; without it, u is Type A only)")
     p.add_argument("--json", metavar="OUT", help="write the result (results-json v1, method posterior)")
     p.add_argument("--posterior", metavar="OUT.nc", help="write the arviz InferenceData (netCDF)")
     add_output_options(p)
@@ -43,12 +45,15 @@ def run(args) -> int:
     from ..api import example_path
     from ..estimation.gates import GateConfig
     from ..estimation.posterior import sample
+    from ..io.bench_csv import read_bench_csv
     from ..io.lab import bench_errors_of, load_lab
+    from ..uncertainty.typeb import systematic_sources
     from ..reports.summary import summary_text
 
     if bool(args.data) == bool(args.example):
         raise InputError("give a bench CSV file or --example")
     data = str(example_path()) if args.example else args.data
+    lab = load_lab(args.lab) if args.lab else None
     out = output(args)
     bar = out.bar(total=args.max_steps, desc="sampling", unit="step")
     progress = None
@@ -63,7 +68,8 @@ def run(args) -> int:
                         ess=args.ess, max_steps=args.max_steps, n_walkers=args.walkers, seed=args.seed,
                         progress=progress, json_path=args.json, posterior_path=args.posterior,
                         gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec),
-                        bench_errors=bench_errors_of(load_lab(args.lab)) if args.lab else None)
+                        bench_errors=bench_errors_of(lab) if lab else None,
+                        systematics=systematic_sources(lab, read_bench_csv(data).output_unit) if lab else ())
     finally:
         if bar is not None:
             bar.close()

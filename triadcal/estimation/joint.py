@@ -310,8 +310,13 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
               reference_temperature_C: float = 20.0, loss: str = "l2", nu: float = 4.0,
               fix: Optional[dict] = None, unidentifiable: str = "fix", max_iter: int = 100,
               return_problem: bool = False, gates: GateConfig = DEFAULT_CONFIG,
-              bench_errors: Optional[BenchErrors] = None):
+              bench_errors: Optional[BenchErrors] = None, systematics: Sequence = ()):
     """Fit the joint model to a campaign (``triadcal fit --method joint``).
+
+    ``systematics``: the lab's systematic errors
+    (:func:`triadcal.uncertainty.typeb.systematic_sources`), propagated to every parameter by
+    its linearised sensitivity (:mod:`triadcal.uncertainty.typeb`): ``u`` is then the combined
+    standard uncertainty and each parameter carries its budget, U, k and dof_eff.
 
     ``bench_errors``: the lab's random bench errors, added to the output noise as variance
     components (:func:`with_bench_errors`); without them the uncertainties are Type A only
@@ -335,9 +340,12 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     model = Model(effects, reference_temperature_C)
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     notes = []
-    if bench_errors is None:
+    if bench_errors is None and not systematics:
         notes.append("uncertainties are Type A only: the bench's own errors (positioning, wobble) are not in "
                      "them; give them with --lab LAB.toml ([bench] sigma_position_arcsec, sigma_wobble_arcsec)")
+    elif not systematics:
+        notes.append("no systematic errors of the lab declared (encoder zeros, non-orthogonality, fixture, g): "
+                     "u holds the output noise and the bench's random errors only")
     problems = identifiability_problems(campaign, model)
     fixed = dict(fix or {})
     start = start_values(campaign, model)
@@ -384,10 +392,29 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         cov = cov * max(s2, 1e-300) if not noise.known else cov * max(1.0, s2)
     elif not noise.known:
         cov = cov * chi2_dof
+    u_a = np.sqrt(np.diag(cov))
+    units_of = {n: parameter_unit(model, n, campaign.output_unit) for n in problem.names}
+    budgets = {}
+    if "bench_nonorth" in problem.index:
+        # measured by the fit: its Type B row is the estimate's own u
+        systematics = [t for t in systematics if t.kind != "axes_nonorthogonality"]
+    if systematics:
+        from ..uncertainty.typeb import propagate
+
+        p_hat = model.to_internal({**{n: float(v) for n, v in zip(problem.names, sol.x)}, **fixed})
+        tb = propagate(systematics, model, p_hat, campaign.covariates(), campaign.gravity_g, campaign.w,
+                       sol.J, noise.sigma, problem.names, campaign.output_unit, sol.weights, u_a)
+        type_a = "fit: output noise" + (", bench's random errors per visit" if bench_errors is not None else "")
+        dof_a = None if noise.known else float(dof)
+        budgets = {n: tb.budget(n, units_of[n], float(ua), dof_a, type_a) for n, ua in zip(problem.names, u_a)}
+        cov = cov + tb.covariance()
     u = np.sqrt(np.diag(cov))
     corr = cov / np.outer(u, u)
 
-    params = {n: ParameterValue(float(v), float(s), parameter_unit(model, n, campaign.output_unit))
+    from ..uncertainty.typeb import parameter_fields
+
+    params = {n: ParameterValue(float(v), float(s), units_of[n],
+                                parameter_fields(budgets[n]) if n in budgets else {})
               for n, v, s in zip(problem.names, sol.x, u)}
     if "tilt_x" in problem.index and "tilt_y" in problem.index:
         params.update(tilt_polar_values(sol.x, cov, problem.index))
@@ -408,7 +435,10 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
            "bench_errors": (None if bench_errors is None else
                             {"sigma_position_arcsec": bench_errors.sigma_position_arcsec,
                              "sigma_wobble_arcsec": bench_errors.sigma_wobble_arcsec,
-                             "source": bench_errors.source, "in_u": True})}
+                             "source": bench_errors.source, "in_u": True}),
+           "systematic_errors": ([{"source": t.source, "key": t.key, "u": t.u, "unit": t.unit,
+                                   "distribution": t.distribution, "equipment": t.equipment} for t in systematics]
+                                 if systematics else None)}
     if not noise.known:
         # weights were 1/sqrt(tau): the residual variance estimates the white-noise intensity Q
         fit["Q_estimate"] = chi2_dof if dof > 0 else None

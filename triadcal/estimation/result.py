@@ -34,14 +34,25 @@ METHODS = ("classical", "joint", "posterior")
 
 @dataclass
 class ParameterValue:
-    """A value with its standard uncertainty (k = 1) in ``unit``."""
+    """A value with its standard uncertainty (k = 1) in ``unit``.
+
+    With a lab file's systematic errors (:mod:`triadcal.uncertainty.typeb`), ``u`` is the
+    combined standard uncertainty and ``uncertainty`` holds the rest of the budget: ``u_type_a``,
+    ``U``, ``k``, ``coverage_probability``, ``dof_eff``, ``U_method`` and ``budget`` (the rows,
+    docs/results-json.md); empty when the uncertainty is Type A only."""
 
     value: float
     u: float
     unit: str
+    uncertainty: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return {"value": float(self.value), "u": float(self.u), "unit": self.unit}
+        return {"value": float(self.value), "u": float(self.u), "unit": self.unit, **self.uncertainty}
+
+    @property
+    def U(self) -> Optional[float]:
+        """The expanded uncertainty when the budget gave one."""
+        return self.uncertainty.get("U")
 
 
 @dataclass
@@ -122,7 +133,8 @@ class CalibrationResult:
             unit = r.string(v, "unit", where)
             if unit not in TO_INTERNAL and not unit.startswith("g/"):
                 raise r.error(f"{where}.unit", f"{unit!r} is not a unit this triadcal knows")
-            params[k] = ParameterValue(r.number(v, "value", where), r.number(v, "u", where), unit)
+            params[k] = ParameterValue(r.number(v, "value", where), r.number(v, "u", where), unit,
+                                       _read_uncertainty(r, v, where))
         status = r.string(d, "status")
         from .gates import STATUSES
         if status not in STATUSES:
@@ -244,6 +256,47 @@ class CalibrationResult:
 
 class ResultFormatError(InputError):
     """A results-json document with a field of the wrong type, missing or unknown (one line)."""
+
+
+#: the budget fields of a parameter (docs/results-json.md) and the row fields
+UNCERTAINTY_FIELDS = ("u_type_a", "U", "k", "coverage_probability", "dof_eff", "U_method", "budget")
+BUDGET_ROW_NUMBERS = ("u", "sensitivity", "contribution")
+
+
+def _read_uncertainty(r: "_Reader", v: dict, where: str) -> dict:
+    """The budget fields of ``parameters.NAME``, validated (numbers finite and >= 0 where they
+    are uncertainties, the rows' fields typed); {} when there is no budget."""
+    out = {}
+    for key in UNCERTAINTY_FIELDS:
+        if key not in v:
+            continue
+        x = v[key]
+        if key == "budget":
+            if not isinstance(x, list):
+                raise r.error(f"{where}.budget", f"is a {_kind(x)}, expected a list of rows")
+            rows = []
+            for i, row in enumerate(x):
+                w = f"{where}.budget[{i}]"
+                if not isinstance(row, dict):
+                    raise r.error(w, f"is a {_kind(row)}, expected an object")
+                r.string(row, "source", w)
+                for n in BUDGET_ROW_NUMBERS:
+                    if row.get(n) is not None:
+                        r.number(row, n, w)
+                if row.get("contribution") is not None and row["contribution"] < 0:
+                    raise r.error(f"{w}.contribution", "is negative")
+                rows.append(dict(row))
+            out[key] = rows
+        elif key == "U_method":
+            out[key] = r.string(v, key, where)
+        elif key == "dof_eff" and x is None:
+            out[key] = None           # infinite
+        else:
+            val = r.number(v, key, where)
+            if val < 0 or (key == "coverage_probability" and val >= 1):
+                raise r.error(f"{where}.{key}", f"= {val!r} is out of range")
+            out[key] = val
+    return out
 
 
 def _kind(v) -> str:

@@ -52,6 +52,16 @@ class LabConfig:
     #: local gravity measured by the lab (m/s^2) and its standard uncertainty (ppm)
     local_g_m_s2: Optional[float] = None
     local_g_u_ppm: Optional[float] = None
+    #: an analog unit's voltmeter (one per axis or a scanner): gain (ppm of reading) and offset (V)
+    voltmeter: str = ""
+    voltmeter_gain_u_ppm: Optional[float] = None
+    voltmeter_offset_u_V: Optional[float] = None
+    #: the distribution of each section's systematic terms: {section: "normal" | "rectangular" |
+    #: "arcsine"}; the stated value is always the standard uncertainty (docs/lab.md)
+    distributions: dict = field(default_factory=dict)
+    #: equipment whose systematic errors are the same in two calibrations compared with this
+    #: lab file (``[compare] shared_equipment``; default none: independent, the conservative case)
+    shared_equipment: tuple = ()
     #: the equipment's own calibration: {section: {"instrument", "certificate", "due"}}
     equipment: dict = field(default_factory=dict)
 
@@ -84,12 +94,19 @@ LAB_SCHEMA = {
     "chamber": {"name": ("chamber", str), "temperature_uncertainty_C": ("temperature_uncertainty_C", float)},
     "thermometers": {"name": ("thermometers", str), "u_C": ("temperature_uncertainty_C", float)},
     "gravity": {"local_g_m_s2": ("local_g_m_s2", float), "u_ppm": ("local_g_u_ppm", float)},
+    "voltmeter": {"name": ("voltmeter", str), "gain_u_ppm": ("voltmeter_gain_u_ppm", float),
+                  "offset_u_V": ("voltmeter_offset_u_V", float)},
     "traceability": {"statement": ("traceability", str)},
+    "compare": {"shared_equipment": ("shared_equipment", list)},
 }
 
 #: keys any equipment section may carry: the instrument, its calibration certificate, its due date
 EQUIPMENT_KEYS = ("instrument", "certificate", "due")
-EQUIPMENT_SECTIONS = ("bench", "fixture", "chamber", "thermometers", "gravity")
+EQUIPMENT_SECTIONS = ("bench", "fixture", "chamber", "thermometers", "gravity", "voltmeter")
+#: sections whose systematic terms may state their ``distribution`` (the values are standard
+#: uncertainties whatever the distribution: a rectangular +-a is stated as a/sqrt(3))
+DISTRIBUTION_SECTIONS = ("bench", "fixture", "thermometers", "gravity", "voltmeter")
+DISTRIBUTIONS = ("normal", "rectangular", "arcsine")
 
 
 EXAMPLE_LAB_TOML = """\
@@ -134,6 +151,11 @@ mounting_u_arcsec = 3.0         # u of the unit's rotation in its fixture (syste
 [chamber]
 name = "thermal chamber -60..+100 °C"
 
+# [voltmeter]                   # an analog unit's outputs read by a DMM (one per axis or a scanner)
+# instrument = "DMM 34465A, serial MY0000"
+# gain_u_ppm = 15               # u of the meter's gain, ppm of reading
+# offset_u_V = 2e-6             # u of the meter's offset, V
+
 [thermometers]
 name = "Pt100 sensor on each accelerometer"
 certificate = "TMP-2026-112"
@@ -164,6 +186,12 @@ def load_lab(path) -> LabConfig:
         if not isinstance(table, dict):
             raise InputError(f"{path}: {section} must be a [section] table")
         for key, value in table.items():
+            if section in DISTRIBUTION_SECTIONS and key == "distribution":
+                if value not in DISTRIBUTIONS:
+                    raise InputError(f"{path}: [{section}] distribution = {value!r}; choose one of "
+                                     f"{', '.join(DISTRIBUTIONS)}")
+                lab.distributions[section] = value
+                continue
             if section in EQUIPMENT_SECTIONS and key in EQUIPMENT_KEYS:
                 if key == "due":
                     value = _iso_date(value, path, section)
@@ -178,6 +206,11 @@ def load_lab(path) -> LabConfig:
                         or value < 0:
                     raise InputError(f"{path}: [{section}] {key} must be a non-negative number, got {value!r}")
                 value = float(value)
+            elif typ is list:
+                if not isinstance(value, list) or not all(v in DISTRIBUTION_SECTIONS for v in value):
+                    raise InputError(f"{path}: [{section}] {key} must be a list of equipment sections from "
+                                     f"{', '.join(DISTRIBUTION_SECTIONS)}, got {value!r}")
+                value = tuple(value)
             elif not isinstance(value, str):
                 value = str(value)  # TOML dates etc. are written as they read
             setattr(lab, name, value)

@@ -49,11 +49,21 @@ def summary_text(result: CalibrationResult) -> str:
             bits.append(f"{lo:.1f} .. {hi:.1f} °C, reference {result.reference_temperature_C:g} °C")
         lines.append("  " + "; ".join(bits))
     k, how = coverage_factor(result)
-    lines.append(f"  {'parameter':<20} {'value':>16} {f'U (k={k:.3g})':>12}  unit")
-    for name, p in result.parameters.items():
-        v, U = round_to_uncertainty(p.value, k * p.u)
-        lines.append(f"  {name:<20} {v:>16} {U:>12}  {display_unit(p.unit)}")
-    lines.append(f"  U = {k:.3g} u, {how}; u (k = 1) in the JSON")
+    if any(p.U is not None for p in result.parameters.values()):
+        # a budget per parameter (lab file): its own U and k (from dof_eff, or a Monte Carlo)
+        lines.append(f"  {'parameter':<20} {'value':>16} {'U':>12} {'k':>5}  unit")
+        for name, p in result.parameters.items():
+            kp = p.uncertainty.get("k", k) if p.U is not None else k
+            v, U = round_to_uncertainty(p.value, p.U if p.U is not None else k * p.u)
+            lines.append(f"  {name:<20} {v:>16} {U:>12} {kp:>5.3g}  {display_unit(p.unit)}")
+        lines.append("  U at 95.45 % coverage from each parameter's budget (Type A and the lab's Type B; "
+                     "k from dof_eff, or a Monte Carlo); the budgets are in the JSON")
+    else:
+        lines.append(f"  {'parameter':<20} {'value':>16} {f'U (k={k:.3g})':>12}  unit")
+        for name, p in result.parameters.items():
+            v, U = round_to_uncertainty(p.value, k * p.u)
+            lines.append(f"  {name:<20} {v:>16} {U:>12}  {display_unit(p.unit)}")
+        lines.append(f"  U = {k:.3g} u, {how}; u (k = 1) in the JSON")
     rec = result.extra.get("intervals_to_use")
     if isinstance(rec, dict) and rec.get("use"):
         which = "the least-squares ones (fit.least_squares)" if rec["use"] == "least_squares" else "the posterior's"

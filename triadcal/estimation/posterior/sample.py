@@ -56,7 +56,8 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
            moves: str = "de-snooker-laplace", progress: Union[bool, Callable, None] = None,
            json_path=None, posterior_path=None, max_saved_draws: int = MAX_SAVED_DRAWS,
            return_run: bool = False, least_squares: Optional[tuple] = None,
-           gates: Optional[GateConfig] = None, bench_errors: Optional[BenchErrors] = None):
+           gates: Optional[GateConfig] = None, bench_errors: Optional[BenchErrors] = None,
+           systematics: Sequence = ()):
     """Posterior of every parameter of the joint model (``triadcal sample``).
 
     ``data``: a bench CSV v1 path or a :class:`Campaign`. ``ess``: requested bulk and
@@ -71,22 +72,28 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     return_problem=True)`` when the caller already has it (it is computed otherwise).
     ``gates``: the answer gates' thresholds (:class:`~triadcal.estimation.gates.GateConfig`).
     ``bench_errors``: the lab's random bench errors, variance components of the noise as in
-    the joint fit (:func:`~triadcal.estimation.joint.with_bench_errors`).
+    the joint fit (:func:`~triadcal.estimation.joint.with_bench_errors`). ``systematics``: the
+    lab's systematic errors (:func:`triadcal.uncertainty.typeb.systematic_sources`),
+    propagated through the least squares and combined with the posterior's SD in each ``u``.
     """
     gates = gates or DEFAULT_CONFIG
     if moves not in MOVES:
         raise InputError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
     campaign = _load(data)
+    from ...uncertainty.typeb import effects_with_lab
+
+    effects, added = effects_with_lab(effects, systematics)
     t_start = time.perf_counter()
     if least_squares is None:
         least_squares = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
-                                  return_problem=True, gates=gates, bench_errors=bench_errors)
+                                  return_problem=True, gates=gates, bench_errors=bench_errors,
+                                  systematics=systematics)
     ls, ls_problem, ls_sol = least_squares
     model = Model(effects, reference_temperature_C)
     pri = default_priors(model, overrides=priors)
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     sigma = noise.sigma
-    notes = []
+    notes = [added] if added else []
     if not noise.known:
         chi2_dof = ls.fit.get("chi2_dof")
         if not (chi2_dof and np.isfinite(chi2_dof)):

@@ -143,11 +143,64 @@ def _flags_block(non_gaussian, prior_dominated) -> dict:
                          "prior_dominated": f"posterior SD / prior SD > {PRIOR_DOMINATED_RATIO}"}}
 
 
+def _add_type_b(params: dict, ls, notes: list) -> None:
+    """The lab's systematic errors, propagated through the least squares (their budgets in
+    ``ls``), combined with each posterior standard deviation: ``u`` becomes the combined
+    standard uncertainty; the posterior's intervals stay Type A (said in the notes)."""
+    from ...uncertainty.typeb import parameter_fields, with_type_a
+
+    done = False
+    for n, p in params.items():
+        rows = ls.parameters[n].uncertainty.get("budget") if n in ls.parameters else None
+        if rows:
+            b = with_type_a(n, p.unit, p.u, None, "posterior standard deviation (output noise and the bench's "
+                            "random errors)", rows)
+            params[n] = ParameterValue(p.value, b.total, p.unit, parameter_fields(b))
+            done = True
+    if done:
+        notes.append("u is the combined standard uncertainty: the posterior's SD with the lab's systematic errors "
+                     "(Type B, linearised through the least squares); the 95 % intervals low/high include them (the "
+                     "systematic errors drawn from their distributions and added to the draws), type_a_low/high and "
+                     "the HDI are the posterior's own")
+
+
+def _combined_intervals(intervals: dict, params: dict, names, draws: np.ndarray) -> None:
+    """With the lab's systematic errors in the budgets: ``low``/``high`` become the 95 % central
+    interval of the posterior draws plus the systematic errors drawn from their distributions
+    (JCGM 101); the posterior's own (Type A) interval stays as ``type_a_low``/``type_a_high``."""
+    from ...uncertainty.typeb import with_type_b_draws
+
+    if not any(params[n].U is not None for n in names):
+        return
+    comb = with_type_b_draws(draws, [params[n] for n in names])
+    lo, hi = np.quantile(comb, [(1 - LEVEL) / 2, (1 + LEVEL) / 2], axis=0)
+    for i, n in enumerate(names):
+        iv = intervals.get(n)
+        if iv is None or params[n].U is None:
+            continue
+        iv["type_a_low"], iv["type_a_high"] = iv["low"], iv["high"]
+        iv["low"], iv["high"] = float(lo[i]), float(hi[i])
+        iv["includes"] = "the posterior (Type A) and the lab's systematic errors (Type B), JCGM 101"
+
+
+def _combined_correlation(cov_draws: np.ndarray, names, params: dict) -> np.ndarray:
+    """Correlation of the draws' covariance plus the Type B part ``sum_s c_s c_s^T u_s^2`` (from
+    the budget rows' signed sensitivities), so that ``u`` (combined) and the correlation
+    describe one covariance."""
+    from ...uncertainty.typeb import type_b_covariance
+
+    cov = np.atleast_2d(cov_draws) + type_b_covariance([params[n] for n in names])
+    s = np.sqrt(np.diag(cov))
+    return cov / np.outer(s, s)
+
+
 def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_seconds, ess, rhat_max, tau_factor,
             max_steps, gates: GateConfig = DEFAULT_CONFIG) -> CalibrationResult:
     names = list(model.names)
     z = Z95
-    ls_intervals = {n: (p.value - z * p.u, p.value + z * p.u) for n, p in ls.parameters.items()}
+    # the posterior's draws are the Type A part: compare them with the least squares' own (Type A) u
+    ua = {n: p.uncertainty.get("u_type_a", p.u) for n, p in ls.parameters.items()}
+    ls_intervals = {n: (p.value - z * ua[n], p.value + z * ua[n]) for n, p in ls.parameters.items()}
     params, intervals, non_gaussian, prior_dominated = posterior_summary(
         names, [parameter_unit(model, n, campaign.output_unit) for n in names], run, pri, ls_intervals)
     draws = run.flat()
@@ -159,11 +212,13 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
         dev = np.angle(np.exp(1j * (np.asarray(beta) - beta_mean)))
         params["tilt_delta"] = ParameterValue(float(delta.mean()), float(delta.std(ddof=1)), "arcsec")
         params["tilt_beta"] = ParameterValue(beta_mean / DEG, float(dev.std(ddof=1)) / DEG, "deg")
+    _add_type_b(params, ls, notes)
+    _combined_intervals(intervals, params, names, draws)
     posterior_notes(intervals, non_gaussian, prior_dominated, ls.parameters, run, ess, rhat_max, tau_factor,
                     max_steps, notes)
     rec = intervals_to_use(non_gaussian, ls.parameters)
     notes.append(recommendation_note(rec))
-    corr = np.corrcoef(draws, rowvar=False)
+    corr = _combined_correlation(np.cov(draws, rowvar=False), names, params)
     x_mean = draws.mean(axis=0)
     chi2 = float(np.sum(problem.residuals(x_mean) ** 2))
     n_obs = 3 * campaign.n_visits

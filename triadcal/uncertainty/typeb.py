@@ -1,0 +1,295 @@
+"""The lab's systematic errors (Type B) propagated to every fitted parameter.
+
+A systematic error of the lab is the same in every visit of a campaign: an encoder zero, the
+non-orthogonality of the bench's axes, the unit's rotation in its fixture, the local g, a
+thermometer's offset, a voltmeter's gain and offset. The fit assumes each is zero. If the
+true setup deviates by ``delta``, the data differ by ``dW = F delta`` (``F`` from the
+model, :meth:`triadcal.models.model.Model.predict` with the error put in) and the
+least-squares estimate moves by the linearised sensitivity (JCGM 100 5.1.3)::
+
+    c = d(theta_hat)/d(delta) = -(J^T J)^-1 J^T (F / sigma)
+
+with ``J`` the fit's Jacobian of its normalised residuals ``(W - f)/sigma``. The combined
+standard uncertainty of each parameter is then ``u_c^2 = u_A^2 + sum_s (c_s u_s)^2`` and the
+covariance ``C_A + sum_s c_s c_s^T u_s^2`` (so the correlations of the parameters include the
+systematic terms). What a constant rotation does is left to the algebra: a fixture rotation or
+an encoder zero of axis 1 goes one to one into a pair of angles (sensitivity +-1); an encoder
+zero of axis 2 is a tilt of gravity in the base frame and goes into the bench tilt when it is
+fitted; a g error goes into K one to one (ppm per ppm). docs/lab.md lists every source.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..models.units import ARCSEC
+from .budget import Budget, BudgetComponent
+
+
+@dataclass(frozen=True)
+class SystematicSource:
+    """One Type B input: its name on the budget, the lab-file key it comes from, its standard
+    uncertainty ``u`` in ``unit``, its distribution, the equipment it belongs to and how it
+    acts on the data (``kind``; ``axis`` for the per-axis ones)."""
+
+    source: str
+    key: str
+    u: float
+    unit: str
+    kind: str
+    axis: int = 0
+    distribution: str = "normal"
+    equipment: str = ""
+
+
+#: kind -> (unit of u, step of the central difference in that unit)
+KINDS = {"encoder_zero_1": ("arcsec", 10.0), "encoder_zero_2": ("arcsec", 10.0),
+         "axes_nonorthogonality": ("arcsec", 10.0), "fixture": ("arcsec", 10.0),
+         "gravity": ("ppm", 10.0), "thermometer": ("degC", 0.1),
+         "voltmeter_gain": ("ppm", 10.0), "voltmeter_offset": ("V", 1e-5)}
+
+#: the equipment whose systematic errors are the same in two calibrations on one bench with no
+#: adjustment between them (``compare --shared-bench``)
+BENCH_EQUIPMENT = ("bench", "gravity")
+
+
+def systematic_sources(lab, output_unit: str = "V") -> list:
+    """The Type B sources a lab file declares (:class:`triadcal.io.lab.LabConfig`), one per
+    independent error: an encoder zero per axis, a fixture rotation about each IMU axis, a
+    voltmeter gain and offset per axis (one meter per axis; a scanner's common meter gives the
+    same u of every parameter). A voltmeter on outputs that are not volts is refused."""
+    if lab is None:
+        return []
+    dist = getattr(lab, "distributions", {}) or {}
+    out = []
+
+    def add(source, key, u, kind, equipment, axis=0):
+        if u is not None and u > 0:
+            out.append(SystematicSource(source, key, float(u), KINDS[kind][0], kind, axis,
+                                        dist.get(equipment, "normal"), equipment))
+
+    add("bench axes non-orthogonality", "[bench] axes_nonorthogonality_u_arcsec",
+        lab.axes_nonorthogonality_u_arcsec, "axes_nonorthogonality", "bench")
+    for i in (1, 2):
+        add(f"encoder zero, axis {i}", "[bench] encoder_zero_u_arcsec", lab.encoder_zero_u_arcsec,
+            f"encoder_zero_{i}", "bench")
+    for i, a in enumerate("xyz"):
+        add(f"fixture mounting, about {a}", "[fixture] mounting_u_arcsec", lab.mounting_u_arcsec, "fixture",
+            "fixture", i)
+    add("local gravity", "[gravity] u_ppm", getattr(lab, "local_g_u_ppm", None), "gravity", "gravity")
+    add("thermometers", "[thermometers] u_C", lab.temperature_uncertainty_C, "thermometer", "thermometers")
+    gain, offset = getattr(lab, "voltmeter_gain_u_ppm", None), getattr(lab, "voltmeter_offset_u_V", None)
+    if (gain or offset) and output_unit not in VOLTS:
+        raise InputError(f"{lab.source or 'lab file'}: [voltmeter] states a gain or offset uncertainty, but the "
+                         f"outputs are in {output_unit!r}, not volts: a voltmeter reads an analog unit")
+    for i, a in enumerate("xyz"):
+        add(f"voltmeter gain, axis {a}", "[voltmeter] gain_u_ppm", gain, "voltmeter_gain", "voltmeter", i)
+        add(f"voltmeter offset, axis {a}", "[voltmeter] offset_u_V", offset, "voltmeter_offset", "voltmeter", i)
+    return out
+
+
+#: output units a voltmeter can read, and volts per unit
+VOLTS = {"V": 1.0, "mV": 1e-3, "uV": 1e-6}
+
+
+def data_change(source: SystematicSource, model, p: dict, cov, gravity_g: float, w: np.ndarray,
+                output_unit: str = "V") -> np.ndarray:
+    """``F``: the change of each visit's outputs (n, 3, in the output unit) per unit of the
+    source (arcsec, ppm, degC, V) when the true setup deviates from the assumed one by it, by a
+    central difference of :meth:`Model.predict` (the error put into its covariates)."""
+    unit, h = KINDS[source.kind]
+    k = source.kind
+    if k == "voltmeter_gain":
+        # the meter reads W (1 + g): the data change by W g
+        F = np.zeros_like(w)
+        F[:, source.axis] = w[:, source.axis] * 1e-6
+        return F
+    if k == "voltmeter_offset":
+        F = np.zeros_like(w)
+        F[:, source.axis] = 1.0 / VOLTS[output_unit]
+        return F
+
+    def at(step):
+        c, g = cov, gravity_g
+        if k == "encoder_zero_1":
+            c = replace(cov, axis1_error=cov.axis1_error + step * ARCSEC)
+        elif k == "encoder_zero_2":
+            c = replace(cov, axis2_error=cov.axis2_error + step * ARCSEC)
+        elif k == "axes_nonorthogonality":
+            c = replace(cov, wobble=cov.wobble + step * ARCSEC)
+        elif k == "fixture":
+            rot = [0.0, 0.0, 0.0]
+            rot[source.axis] = step * ARCSEC
+            c = replace(cov, fixture=tuple(rot))
+        elif k == "gravity":
+            g = gravity_g * (1.0 + step * 1e-6)
+        elif k == "thermometer":
+            # the sensors are truly warmer by step than the thermometers read
+            c = replace(cov, temp=tuple(t + step for t in cov.temp))
+        return np.stack([np.asarray(v, float) * np.ones(len(w)) for v in model.predict(p, c, g)], axis=1)
+
+    return (at(h) - at(-h)) / (2.0 * h)
+
+
+def sensitivities(jacobian: np.ndarray, sigma: np.ndarray, F: np.ndarray, weights: Optional[np.ndarray] = None
+                  ) -> np.ndarray:
+    """``c = -(J^T J)^-1 J^T (F/sigma)`` for the fit's residual Jacobian ``J`` (3n x p, of
+    ``(W - f)/sigma``, robust weights applied by the caller or given as ``weights``): the
+    shift of each free parameter (reporting units) per unit of the source."""
+    from ..estimation.joint import scaled_covariance
+
+    rhs = (F / sigma).reshape(-1)
+    J = jacobian
+    if weights is not None:
+        sw = np.sqrt(weights)
+        J, rhs = J * sw[:, None], rhs * sw
+    return -scaled_covariance(J) @ (J.T @ rhs)
+
+
+@dataclass
+class TypeB:
+    """The Type B part of a fit: per source, the sensitivity of every free parameter."""
+
+    sources: list
+    names: tuple
+    c: np.ndarray          # (n_sources, n_names)
+
+    def covariance(self) -> np.ndarray:
+        """``sum_s c_s c_s^T u_s^2`` in reporting units."""
+        u = np.array([s.u for s in self.sources])
+        cu = self.c * u[:, None]
+        return cu.T @ cu
+
+    def budget(self, name: str, unit: str, u_a: float, dof_a: Optional[float], type_a_source: str) -> Budget:
+        """The budget of one parameter: the fit's own (Type A) row and one row per source."""
+        j = self.names.index(name)
+        rows = [BudgetComponent(type_a_source, float(u_a), float(u_a), unit=unit, sensitivity=1.0,
+                                sensitivity_unit="1", type="A", dof=dof_a,
+                                basis="the fit's standard uncertainty")]
+        for s, c in zip(self.sources, self.c[:, j]):
+            rows.append(BudgetComponent(s.source, float(abs(c) * s.u), s.u, unit=s.unit, sensitivity=float(c),
+                                        sensitivity_unit=f"{unit}/{s.unit}", basis=s.key,
+                                        distribution=s.distribution, type="B"))
+        return Budget(name, rows, unit)
+
+
+def propagate(sources: Sequence[SystematicSource], model, p: dict, cov, gravity_g: float, w: np.ndarray,
+              jacobian: np.ndarray, sigma: np.ndarray, names: Sequence[str], output_unit: str = "V",
+              weights: Optional[np.ndarray] = None, type_a_u: Optional[np.ndarray] = None) -> TypeB:
+    """Sensitivities of the free parameters ``names`` to every source (see the module)."""
+    c = np.array([sensitivities(jacobian, sigma, data_change(s, model, p, cov, gravity_g, w, output_unit), weights)
+                  for s in sources]).reshape(len(sources), len(names))
+    if not np.all(np.isfinite(c)):
+        raise InputError("the sensitivities of the parameters to the lab's systematic errors are not finite")
+    # a source that does not reach a parameter gives c at the rounding level of the difference
+    # quotient (1e-18 g/V per arcsec for K and a fixture rotation): such c are exactly 0 in the
+    # algebra of eq. 1; below 1e-9 of the parameter's Type A u per unit of the source, set 0
+    if type_a_u is not None:
+        u = np.array([s.u for s in sources])[:, None]
+        c[np.abs(c) * u < 1e-9 * np.asarray(type_a_u)[None, :]] = 0.0
+    return TypeB(list(sources), tuple(names), c)
+
+
+def parameter_fields(b: Budget) -> dict:
+    """What the results JSON adds to a parameter with a budget (docs/results-json.md)."""
+    nu = b.dof_eff
+    return {"u_type_a": next((c.contribution for c in b.components if c.type == "A"), None),
+            "U": b.expanded_U, "k": b.effective_k, "coverage_probability": b.coverage_probability,
+            "dof_eff": None if math.isinf(nu) else nu, "U_method": b.method,
+            "budget": [{"source": c.source, "type": c.type, "distribution": c.distribution, "u": c.u,
+                        "unit": c.unit, "sensitivity": c.sensitivity, "sensitivity_unit": c.sensitivity_unit,
+                        "contribution": c.contribution, "dof": c.dof, "key": c.basis}
+                       for c in b.components]}
+
+
+def with_type_a(name: str, unit: str, u_a: float, dof_a: Optional[float], type_a_source: str, rows: list
+                ) -> Budget:
+    """A budget whose Type A row is ``u_a`` and whose Type B rows are those of another budget of
+    the same parameter (``rows``, the results JSON's ``budget``): how the posterior's standard
+    deviation is combined with the systematic errors propagated through the least squares."""
+    comps = [BudgetComponent(type_a_source, float(u_a), float(u_a), unit=unit, type="A", dof=dof_a,
+                             basis="the fit's standard uncertainty")]
+    for r in rows:
+        if r.get("type") == "B":
+            comps.append(BudgetComponent(r["source"], r["contribution"], r["u"], unit=r["unit"],
+                                         sensitivity=r["sensitivity"], sensitivity_unit=r["sensitivity_unit"],
+                                         basis=r.get("key", ""), distribution=r.get("distribution", "normal"),
+                                         type="B"))
+    return Budget(name, comps, unit)
+
+
+def effects_with_lab(effects: Sequence[str], sources: Sequence[SystematicSource]) -> tuple:
+    """The model's effects with ``bench_nonorthogonality`` added when the lab declares a
+    non-orthogonality of its bench axes: it turns with axis 2, so a plan with several axis-2
+    angles measures it (its Type B row is then replaced by the fit's estimate); linearised as a
+    Type B input it would leave its trace in the residuals, not in u. Returns ``(effects,
+    note)`` (note "" when nothing was added)."""
+    effects = tuple(effects)
+    if any(s.kind == "axes_nonorthogonality" for s in sources) and "bench_nonorthogonality" not in effects:
+        return effects + ("bench_nonorthogonality",), (
+            "bench_nonorthogonality added to the model: the lab declares a non-orthogonality of its bench axes "
+            "([bench] axes_nonorthogonality_u_arcsec), which the data measure (it turns with axis 2)")
+    return effects, ""
+
+
+def budget_of(name: str, p) -> Optional[Budget]:
+    """The :class:`Budget` of a parameter read from a result (``ParameterValue.uncertainty``,
+    the results JSON's rows), or None when it has none (Type A only)."""
+    rows = p.uncertainty.get("budget") if getattr(p, "uncertainty", None) else None
+    if not rows:
+        return None
+    comps = [BudgetComponent(r["source"], r.get("contribution"), r.get("u"), unit=r.get("unit", p.unit),
+                             sensitivity=r.get("sensitivity"), sensitivity_unit=r.get("sensitivity_unit", "1"),
+                             basis=r.get("key", ""), distribution=r.get("distribution", "normal"),
+                             type=r.get("type", "B"), dof=r.get("dof"))
+             for r in rows]
+    return Budget(name, comps, p.unit)
+
+
+def type_b_covariance(values: Sequence) -> np.ndarray:
+    """``sum_s c_s c_s^T u_s^2`` of parameters (``ParameterValue`` with budgets, in order) from
+    their Type B rows: the same source (by name) in two budgets is one error."""
+    n = len(values)
+    by_source = {}
+    for i, p in enumerate(values):
+        for r in (p.uncertainty.get("budget") or []) if getattr(p, "uncertainty", None) else []:
+            if r.get("type") == "B" and r.get("sensitivity") is not None and r.get("u") is not None:
+                by_source.setdefault(r["source"], [float(r["u"]), np.zeros(n)])[1][i] = float(r["sensitivity"])
+    C = np.zeros((n, n))
+    for u, c in by_source.values():
+        C += np.outer(c, c) * u * u
+    return C
+
+
+def draw(rng: np.random.Generator, distribution: str, u: float, size: int) -> np.ndarray:
+    """Draws of an error of standard deviation ``u`` from its distribution (JCGM 101 6.4)."""
+    if distribution == "rectangular":
+        return rng.uniform(-math.sqrt(3.0) * u, math.sqrt(3.0) * u, size)
+    if distribution == "arcsine":
+        return math.sqrt(2.0) * u * np.sin(2.0 * math.pi * rng.random(size))
+    if distribution == "two-point":
+        return u * rng.choice((-1.0, 1.0), size)
+    return rng.normal(0.0, u, size)
+
+
+def with_type_b_draws(draws: np.ndarray, values: Sequence, seed: int = 0) -> np.ndarray:
+    """Posterior draws (M x n, the Type A part) plus the lab's systematic errors drawn from their
+    distributions through the budget rows' signed sensitivities (one draw of each source shared
+    by every parameter): the JCGM 101 propagation whose quantiles are the combined intervals."""
+    n = len(values)
+    sources = {}
+    for i, p in enumerate(values):
+        for r in (p.uncertainty.get("budget") or []) if getattr(p, "uncertainty", None) else []:
+            if r.get("type") == "B" and r.get("sensitivity") and r.get("u"):
+                sources.setdefault(r["source"], [float(r["u"]), r.get("distribution", "normal"), np.zeros(n)])[2][i] = \
+                    float(r["sensitivity"])
+    rng = np.random.default_rng(seed)
+    out = np.array(draws, float, copy=True)
+    for u, dist, c in sources.values():
+        out += draw(rng, dist, u, out.shape[0])[:, None] * c[None, :]
+    return out
