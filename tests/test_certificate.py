@@ -36,18 +36,18 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 # -- inputs -------------------------------------------------------------------------------------
-def fitted_result(campaign) -> CalibrationResult:
-    """The joint fit of the campaign; a hand-made result with the default-effect names while
-    the joint fit is not installed."""
-    try:
-        from triadcal.estimation.joint import fit_joint
-    except ImportError:
-        return hand_result(campaign.units[0])
-    return fit_joint(campaign, DEFAULT_EFFECTS)
+def fitted_result(campaign, lab=None) -> CalibrationResult:
+    """The joint fit of the campaign, with the lab file's errors when given (docs/lab.md)."""
+    from triadcal import api
+
+    return api.fit(campaign, effects=DEFAULT_EFFECTS, lab=lab)
 
 
-def hand_result(unit: str = "SN-HAND-0001", status: str = "ok") -> CalibrationResult:
-    """A plausible result by hand: the default-effect parameters in their reporting units."""
+def hand_result(unit: str = "SN-HAND-0001", status: str = "ok", method: str = "joint",
+                typeb: bool = True) -> CalibrationResult:
+    """A plausible result by hand: the default-effect parameters in their reporting units; a
+    joint one carries a budget per parameter (its Type A row only, as a fit with a lab file
+    that declares no systematic error writes it), unless ``typeb`` is False."""
     model = Model(DEFAULT_EFFECTS)
     rng = np.random.default_rng(5)
     u_of = {"g/V": 1.3e-6, "g": 7.6e-7, "arcsec": 0.27, "arcsec/degC": 0.0087, "ppm/degC": 0.041,
@@ -55,8 +55,14 @@ def hand_result(unit: str = "SN-HAND-0001", status: str = "ok") -> CalibrationRe
     params = {}
     for n in model.names:
         s = model.spec[n]
-        params[n] = ParameterValue(s.nominal + s.typical * rng.normal(), u_of[s.unit], s.unit)
-    return CalibrationResult(unit=unit, method="joint", parameters=params, status=status,
+        u = u_of[s.unit]
+        extra = {"u_type_a": u, "U": 2 * u, "k": 2.0, "coverage_probability": 0.9545, "dof_eff": None,
+                 "U_method": "GUM", "budget": [{"source": "fit: output noise", "type": "A", "distribution": "normal",
+                                                "u": u, "unit": s.unit, "sensitivity": 1.0, "sensitivity_unit": "1",
+                                                "contribution": u, "dof": None, "key": ""}]}
+        params[n] = ParameterValue(s.nominal + s.typical * rng.normal(), u, s.unit,
+                                   extra if typeb and method != "classical" else {})
+    return CalibrationResult(unit=unit, method=method, parameters=params, status=status,
                              effects=tuple(DEFAULT_EFFECTS), temperature_range_C=(-39.7, 70.3),
                              fit={"chi2_dof": 1.01, "n_obs": 540, "n_params": len(params), "gap_p_value": 0.4,
                                   "noise_known": True},
@@ -80,9 +86,9 @@ def fake_posterior(result, chains=4, draws=400, seed=1, shift_chain=None):
 def issued(tmp_path_factory):
     d = tmp_path_factory.mktemp("cert")
     _, campaign = simulate(d / "campaign.csv", seed=11, unit="SN-GOLD-0001")
-    result = fitted_result(campaign)
-    result.save(d / "result.json")
     (d / "lab.toml").write_text(C.EXAMPLE_LAB_TOML)
+    result = fitted_result(campaign, lab=d / "lab.toml")
+    result.save(d / "result.json")
     fake_posterior(result).to_netcdf(d / "post.nc")
     cert = C.certificate(d / "result.json", posterior=d / "post.nc", lab=d / "lab.toml", data=d / "campaign.csv",
                          html=d / "c.html", pdf=d / "c.pdf", plots_dir=d / "plots", issue_date=ISSUE_DATE)
@@ -106,7 +112,7 @@ def test_every_parameter_in_html_and_pdf_with_the_same_rounded_value_and_U(issue
     html = issued["html"]
     lines = pdf_text(issued["pdf"]).splitlines()
     for name, p in params.items():
-        value, U = round_to_uncertainty(p["value"], 2.0 * p["u"])
+        value, U = round_to_uncertainty(p["value"], p.get("U", 2.0 * p["u"]))
         assert significant_digits(U) <= 2, (name, U)
         assert abs(float(value) - p["value"]) <= float(U) / 2 + 1e-15, name   # rounded, not moved
         # HTML: the parameter's own row holds exactly this value and U
@@ -128,11 +134,12 @@ def test_pdf_text_states_the_certificate(issued):
     for i, page in enumerate(reader.pages, 1):
         t = page.extract_text()
         assert cert.number in t and f"page {i} of {n}" in t      # every page identifies the certificate
-    for needed in ("Calibration certificate", "SN-GOLD-0001", "triadcal 0.1.0", "U (k = 2)",
+    for needed in ("Calibration certificate", "SN-GOLD-0001", "triadcal 0.1.0", "U (95.45 %)",
+                   "Budgets of the parameters at the reference temperature", "Type B",
                    "least squares", "Uncertainty budget", "Inverse matrix", "Reference temperature",
                    "Local gravity", "Inertial Sensors Calibration Laboratory", "A. N. Engineer",
                    "shall not be reproduced except in full"):
-        assert needed in text, needed
+        assert needed in text or needed in re.sub(r"\s+", " ", text), needed
 
 
 def test_html_is_self_contained_with_every_plot_embedded(issued):
@@ -160,7 +167,21 @@ def test_inverse_matrix_on_the_certificate_inverts_Ca(issued):
 
 
 def test_budget_is_sorted_and_follows_eq_4_and_7(issued):
-    b = issued["cert"].budget
+    """The paper's budget for a result without budgets of its own (Type A only): every row of
+    eq. 4-7 with the lab file's figures, the systematic rows with sensitivity 1."""
+    from triadcal.uncertainty.angles import uncertainty_budget
+
+    res = issued["cert"].result
+    bare = CalibrationResult(unit=res.unit, method=res.method, effects=res.effects, status=res.status,
+                             parameters={n: ParameterValue(p.value, p.uncertainty.get("u_type_a", p.u), p.unit)
+                                         for n, p in res.parameters.items()},
+                             temperature_range_C=res.temperature_range_C, fit={})
+    from triadcal.reports.plots import per_setpoint_angles
+    from triadcal.io.bench_csv import read_bench_csv
+
+    campaign = read_bench_csv(issued["dir"] / "campaign.csv")
+    plan = dict(zip(campaign.position.tolist(), zip(campaign.axis1_deg.tolist(), campaign.axis2_deg.tolist())))
+    b = uncertainty_budget(bare, C.load_lab(issued["dir"] / "lab.toml"), per_setpoint_angles(campaign), "", plan)
     sources = [c.source for c in b.components]
     assert sorted(sources) == sorted(BUDGET_SOURCES)
     contrib = [c.contribution for c in b.components if c.contribution is not None]
@@ -184,6 +205,29 @@ def test_budget_is_sorted_and_follows_eq_4_and_7(issued):
     x = rng.choice([-h, h], 1_000_000) + rng.normal(0.0, rest, 1_000_000)
     assert b.expanded_U == pytest.approx(np.quantile(np.abs(x), 0.9545), rel=3e-3)
     assert b.expanded_U < 2 * b.combined_u and by["hysteresis"].distribution == "two-point"
+
+
+def test_budget_with_the_results_own_rows(issued):
+    """A result fitted with the lab file: the angle budget over the range takes the largest
+    angle's own rows (Type A, every Type B with its sensitivity from the model), the thermometers
+    through that angle's tempco; the bench's random errors are inside the Type A row."""
+    cert = issued["cert"]
+    b = cert.budget
+    by = {c.source: c for c in b.components}
+    P = cert.result.parameters
+    worst = max(ANGLES, key=lambda n: P[n].u)
+    own = {r["source"]: r for r in P[worst].uncertainty["budget"]}
+    for src, row in own.items():
+        assert by[src].contribution == pytest.approx(row["contribution"])
+    assert "encoder zeros" not in by and "temperature measurement" not in by
+    assert by["thermometers"].contribution == pytest.approx(0.2 * abs(P[f"{worst}_tempco"].value), rel=0.02)
+    assert by["bench positioning"].contribution == 0.0 and "inside the angles' u" in by["bench positioning"].basis
+    contrib = [c.contribution for c in b.components if c.contribution is not None]
+    assert contrib == sorted(contrib, reverse=True)
+    assert b.combined_u == pytest.approx(math.sqrt(sum(c ** 2 for c in contrib)))
+    groups = cert.parameter_budgets
+    assert [x.quantity for x in groups["Scale factors"]] == ["K_x", "K_y", "K_z"]
+    assert all(x.expanded_U == pytest.approx(P[x.quantity].U) for g in groups.values() for x in g)
 
 
 def test_a_normal_budget_keeps_k_2_and_a_pure_two_point_one_its_half_width():
@@ -475,7 +519,9 @@ def test_expired_equipment_refuses_the_certificate_unless_allowed_and_then_print
 
 
 def test_the_labs_systematic_errors_and_gravity_enter_the_certificate(tmp_path):
-    r = hand_result()
+    """A classical result (no budget of its own): eq. 4-7 with the systematic rows at
+    sensitivity 1, the largest case."""
+    r = hand_result(method="classical")
     text = C.EXAMPLE_LAB_TOML.replace("# local_g_m_s2 = 9.8112", "local_g_m_s2 = 9.8112").replace(
         "# u_ppm = 10", "u_ppm = 10")
     cert = C.build_certificate(r, lab=_lab(tmp_path, text), issue_date=ISSUE_DATE, plots=False)
@@ -485,6 +531,16 @@ def test_the_labs_systematic_errors_and_gravity_enter_the_certificate(tmp_path):
     assert "measured, lab file, u = 10 ppm" in dict(cert.conditions)["Local gravity"]
     without = C.build_certificate(r, issue_date=ISSUE_DATE, plots=False)
     assert {c.source: c for c in without.budget.components}["fixture mounting"].contribution is None
+
+
+def test_a_type_a_result_with_a_lab_that_declares_systematic_errors_is_refused(tmp_path):
+    r = hand_result(typeb=False)
+    cert = C.build_certificate(r, lab=_lab(tmp_path, C.EXAMPLE_LAB_TOML), issue_date=ISSUE_DATE, plots=False)
+    assert not cert.issued
+    assert any("Type A only" in x and "[fixture] mounting_u_arcsec" in x and "--lab" in x for x in cert.reasons)
+    # a lab file without systematic errors: nothing to leave out
+    plain = _lab(tmp_path, "[lab]\nname = \"L\"\n")
+    assert C.build_certificate(r, lab=plain, issue_date=ISSUE_DATE, plots=False).issued
 
 
 @pytest.mark.parametrize("text, message", [

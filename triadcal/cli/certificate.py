@@ -86,8 +86,12 @@ def run(args) -> int:
     if cert.issued:
         say(f"certificate {cert.number} issued for {cert.result.unit}: {written}")
         b = cert.budget
-        say(f"  {len(cert.rows)} parameters, U (k = 2) at {cert.result.reference_temperature_C:g} °C from the "
-            f"{cert.source_of_u}")
+        if cert.parameter_budgets:
+            say(f"  {len(cert.rows)} parameters, U (95.45 %) at {cert.result.reference_temperature_C:g} °C from each "
+                f"parameter's budget: the {cert.source_of_u} (Type A) and the lab's systematic errors (Type B)")
+        else:
+            say(f"  {len(cert.rows)} parameters, U (k = 2) at {cert.result.reference_temperature_C:g} °C from the "
+                f"{cert.source_of_u} (Type A only)")
         if cert.angle_statement:
             say(f"  {cert.angle_statement} Largest component: {b.components[0].source}.")
         for name, why in cert.skipped_plots.items():

@@ -92,7 +92,18 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
     angles = [n for n in ANGLES if n in P]
     comps = []
     declared = result.fit.get("angle_uncertainty")
-    if angles and declared:
+    from .typeb import budget_of
+
+    own = budget_of(max(angles, key=lambda n: P[n].u), P[max(angles, key=lambda n: P[n].u)]) if angles else None
+    if own is not None:
+        # the fit propagated the lab's systematic errors: the largest angle's own budget (Type A
+        # and every Type B row with its sensitivity from the model), not sensitivity-1 rows
+        worst = own.quantity
+        for c in own.components:
+            c.basis = (f"{c.basis}; " if c.basis else "") + f"{worst}'s budget in the result (sensitivity from the model)"
+            c.equation = c.equation or "eq. 1"
+            comps.append(c)
+    elif angles and declared:
         # the estimator says what sets its angles' u (fit-raw, known poses: the hand placement)
         worst = max(angles, key=lambda n: P[n].u)
         comps.append(BudgetComponent(declared["source"], P[worst].u, P[worst].u,
@@ -139,6 +150,8 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
         comps.append(BudgetComponent("tilt", None, basis="bench tilt not modelled", equation=""))
     for src, attr, key in SYSTEMATIC:
         v = getattr(lab, attr, None) if lab is not None else None
+        if own is not None:
+            continue                      # in the angle's own budget above
         if v is None:
             comps.append(BudgetComponent(src, None, basis=f"not stated (give {key} in the lab file)",
                                          equation="eq. 1"))
@@ -152,6 +165,8 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
     if not tempcos:
         comps.append(BudgetComponent("temperature measurement", 0.0, basis="no thermal terms in the model",
                                      equation="eq. 7"))
+    elif own is not None and any(c.source == "thermometers" for c in own.components):
+        pass                              # propagated through the fit: the "thermometers" row above
     elif lab is None or lab.temperature_uncertainty_C is None:
         comps.append(BudgetComponent("temperature measurement", None, basis=(
             "ΔT not stated (give [thermometers] u_C in the lab file)"), equation="eq. 7"))

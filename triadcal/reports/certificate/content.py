@@ -23,6 +23,7 @@ from ...models.sensor import AXES
 from ...uncertainty.angles import ANGLES, uncertainty_budget
 from ...uncertainty.budget import COVERAGE_FACTOR, Budget
 from ...io.lab import LabConfig
+from ...errors import InputError
 from ..notation import display_text
 from .refusal import GAP_P_THRESHOLD, posterior_diagnostics, refusal_reasons
 
@@ -62,6 +63,9 @@ class Certificate:
     notes: list = field(default_factory=list)
     diagnostics: list = field(default_factory=list)       # (label, text)
     angle_statement: str = ""                             # the one angle uncertainty for using the matrix
+    #: the budgets of the certified parameters at the reference temperature (angles, K, S),
+    #: by group: {"Orientation angles": [Budget, ...], ...}; empty when the result has none
+    parameter_budgets: dict = field(default_factory=dict)
 
 
 #: budget components that are errors of the thermal model (the matrix used away from T0)
@@ -105,6 +109,10 @@ GROUPS = ("Scale factors", "Biases", "Orientation angles", "Thermal coefficients
           "Other terms", "Bench (not a property of the unit)")
 
 
+#: the groups whose budgets the certificate prints parameter by parameter
+BUDGET_GROUPS = ("Orientation angles", "Scale factors", "Biases")
+
+
 def _group(name: str) -> str:
     if name.startswith("tilt_"):
         return GROUPS[6]
@@ -136,7 +144,8 @@ def parameter_rows(result: CalibrationResult) -> list:
                   "tilt_beta": "direction of the bench tilt (β)"}
     rows = []
     for name, p in result.parameters.items():
-        v, U = expanded(p.value, p.u)
+        # the parameter's own U (its budget: k from dof_eff, or a Monte Carlo) when it has one
+        v, U = round_to_uncertainty(p.value, p.U) if p.U is not None else expanded(p.value, p.u)
         desc = display_text(spec[name].description if name in spec else extra_desc.get(name, ""))
         rows.append(ParameterRow(name, desc, _group(name), v, U, p.unit))
     order = {g: i for i, g in enumerate(GROUPS)}
@@ -165,6 +174,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     reasons = refusal_reasons(result, posterior_diag=post_diag, diagnosis=diagnosis)
     data_date = campaign.metadata.get("date", "") if campaign is not None else ""
     expired = lab.expired(data_date or lab.calibration_date or issue_date)
+    reasons += _missing_type_b(result, lab)
     if expired and not allow_expired_equipment:
         reasons += [f"{e}; recalibrate it, or issue with --allow-expired-equipment, which prints the expiry on "
                     "the certificate" for e in expired]
@@ -242,8 +252,20 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     else:
         ptxt = "none (least squares)" if result.method != "posterior" else "as stated in the result file"
     method.append(("Priors", ptxt))
-    method.append(("Uncertainty", f"U = k·u with k = 2 (coverage probability about 95 %), u from the "
-                   f"{source_of_u}; U rounded to two significant digits, the value to match"))
+    if any(p.U is not None for p in result.parameters.values()):
+        ks = {n: p.uncertainty.get("k") for n, p in result.parameters.items() if p.U is not None}
+        odd = [f"{n} (k = {k:.3g})" for n, k in ks.items() if k is not None and abs(k - 2.0) > 0.005]
+        method.append(("Uncertainty", (
+            f"u_c of each parameter combines the {source_of_u} (Type A, with the bench's random errors when "
+            "the lab states them) and the lab's systematic errors (Type B) through their sensitivities from the "
+            "model (JCGM 100); U at a coverage probability of 95.45 %: U = k·u_c with k from the effective "
+            "degrees of freedom (Welch–Satterthwaite), or the JCGM 101 Monte Carlo interval where a term is not "
+            "normal; k = 2 for every parameter" + (f" except {', '.join(odd)}" if odd else "")
+            + "; section 7 gives the budgets; U rounded to two significant digits, the value to match")))
+    else:
+        method.append(("Uncertainty", f"U = k·u with k = 2 (coverage probability about 95 %), u from the "
+                       f"{source_of_u} (Type A only: no lab file with the lab's own errors); U rounded to two "
+                       "significant digits, the value to match"))
     cert.method = method
     # conditions ------------------------------------------------------------------------
     cond = []
@@ -307,6 +329,13 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     if campaign is not None:
         plan = dict(zip(campaign.position.tolist(), zip(campaign.axis1_deg.tolist(), campaign.axis2_deg.tolist())))
     cert.budget = uncertainty_budget(result, lab, per_setpoint, source_of_u, plan)
+    from ...uncertainty.typeb import budget_of
+
+    for row in cert.rows:
+        if row.group in BUDGET_GROUPS:
+            b = budget_of(row.name, result.parameters[row.name])
+            if b is not None:
+                cert.parameter_budgets.setdefault(row.group, []).append(b)
     cert.angle_statement = angle_uncertainty_statement(cert)
     if plots:
         from ..plots import report_plots
@@ -314,6 +343,26 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         ps = report_plots(result, campaign, idata)
         cert.plots, cert.skipped_plots = ps.plots, ps.skipped
     return cert
+
+
+def _missing_type_b(result: CalibrationResult, lab: LabConfig) -> list:
+    """A joint or posterior result whose u is Type A only while the lab file declares systematic
+    errors: its U would leave them out of every parameter (the classical method's budget adds
+    them by eq. 4-7 and is not refused)."""
+    if result.method == "classical" or lab.source is None:
+        return []
+    from ...uncertainty.typeb import systematic_sources
+
+    try:
+        declared = systematic_sources(lab, str(result.extra.get("output_unit") or "V"))
+    except InputError:                    # a voltmeter on counts: the fit would have refused it
+        declared = []
+    if not declared or any(p.U is not None for p in result.parameters.values()):
+        return []
+    names = sorted({s.key for s in declared})
+    return [f"the lab file declares systematic errors ({', '.join(names)}), but the result's uncertainties are "
+            "Type A only (it was fitted without them): fit again with --lab so that every parameter's U includes "
+            "them"]
 
 
 def _diagnostic_lines(result, post_diag, diagnosis) -> list:

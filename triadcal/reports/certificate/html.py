@@ -4,6 +4,8 @@ fetched from a network).
 
 from __future__ import annotations
 
+import math
+
 import base64
 import html as _html
 from typing import Optional
@@ -91,6 +93,15 @@ def _g(x: Optional[float], digits: int = 2) -> str:
     return f"{x:.{digits}g}"
 
 
+PARAMETER_BUDGETS_TEXT = (
+    "Each column is one parameter of section 4: the contribution |cᵢ|·u(xᵢ) of every source in the parameter's "
+    "unit, cᵢ its sensitivity from the model (the least-squares estimate's response to the source; the results "
+    "file gives cᵢ with its sign). Type A is the fit's own uncertainty (output noise, and the bench's random "
+    "errors per visit when the lab states them); Type B are the lab's systematic errors from its lab file. "
+    "A contribution of 0 means the source does not reach that parameter (e.g. a fixture rotation about z "
+    "reaches Ca_xy and Ca_yx only).")
+
+
 def budget_table(b: Budget) -> tuple[list, list, list]:
     """Header, rows and totals of a budget as display strings (shared by HTML and PDF)."""
     head = ["Source", "Basis", "Eq.", "u(xᵢ)", "cᵢ", f"uᵢ ({b.unit})", "Share"]
@@ -112,6 +123,46 @@ def budget_table(b: Budget) -> tuple[list, list, list]:
     totals = [("Combined standard uncertainty u_c (root sum of squares)", significant(b.total, 3)),
               (u_label, significant(b.expanded_U, 2))]
     return head, body, totals
+
+
+def budget_matrix(budgets: list) -> tuple[list, list, list]:
+    """The budgets of several parameters of one unit side by side (shared by HTML and PDF):
+    a row per source (its standard uncertainty u(xᵢ), then each parameter's contribution
+    |cᵢ|·u(xᵢ) in the parameter's unit), then u_c, ν_eff, k and U of each parameter."""
+    unit = display_unit(budgets[0].unit)
+    head = ["Source", "Type", "u(xᵢ)"] + [f"{b.quantity}" for b in budgets]
+    sources = []
+    for b in budgets:
+        for c in b.components:
+            if c.source not in [x.source for x in sources]:
+                sources.append(c)
+    body = []
+    for src in sources:
+        cells = []
+        for b in budgets:
+            c = next((x for x in b.components if x.source == src.source), None)
+            cells.append("" if c is None or c.contribution is None else _g(c.contribution))
+        ux = "" if src.type == "A" or src.u is None else f"{_g(src.u)} {display_unit(src.unit)}"
+        dist = "" if src.distribution == "normal" else f", {src.distribution}"
+        body.append([src.source, f"{src.type}{dist}", ux] + cells)
+    dof = ["∞" if math.isinf(b.dof_eff) else f"{b.dof_eff:.0f}" for b in budgets]
+    totals = [(f"Combined standard uncertainty u_c ({unit})", [significant(b.total, 3) for b in budgets]),
+              ("Effective degrees of freedom ν_eff", dof),
+              ("Coverage factor k (95.45 %)", [f"{b.effective_k:.3g}" + (" MC" if b.method == "Monte Carlo" else "")
+                                               for b in budgets]),
+              (f"Expanded uncertainty U ({unit})", [significant(b.expanded_U, 2) for b in budgets])]
+    return head, body, totals
+
+
+def results_intro(cert: Certificate) -> str:
+    """The sentence above the results table (HTML and PDF)."""
+    T0 = cert.result.reference_temperature_C
+    if cert.parameter_budgets:
+        return (f"Value and expanded uncertainty U (coverage probability 95.45 %) of every parameter at the reference "
+                f"temperature {T0:g} °C. U comes from each parameter's budget: the {cert.source_of_u} (Type A) and "
+                "the lab's systematic errors (Type B), section 7.")
+    return (f"Value and expanded uncertainty U (k = 2, coverage probability about 95 %) of every parameter at the "
+            f"reference temperature {T0:g} °C. U comes from the {cert.source_of_u}.")
 
 
 def render_html(cert: Certificate) -> str:
@@ -148,13 +199,12 @@ def render_html(cert: Certificate) -> str:
         h.append(f"<footer>triadcal {_e(__version__)} · refusal report · {_e(r.unit)}</footer></main></body></html>")
         return "".join(h)
     h.append("<h2>4. Results</h2>")
-    h.append(f"<p class='note'>Value and expanded uncertainty U (k = 2, coverage probability about 95 %) of "
-             f"every parameter at the reference temperature {r.reference_temperature_C:g} °C. "
-             f"U comes from the <b>{_e(cert.source_of_u)}</b>.</p>")
+    h.append(f"<p class='note'>{_e(results_intro(cert))}</p>")
     if cert.angle_statement:
         h.append(f"<p class='statement'><b>{_e(cert.angle_statement)}</b></p>")
+    u_head = "U (95.45 %)" if cert.parameter_budgets else "U (k = 2)"
     h.append("<table class='results'><tr><th>Parameter</th><th>Meaning</th><th class='num'>Value</th>"
-             "<th class='num'>U (k = 2)</th><th>Unit</th></tr>")
+             f"<th class='num'>{u_head}</th><th>Unit</th></tr>")
     group = None
     for row in cert.rows:
         if row.group != group:
@@ -192,6 +242,21 @@ def render_html(cert: Certificate) -> str:
     missing = [c.source for c in b.components if c.contribution is None]
     if missing:
         h.append(f"<p class='note'>Not evaluated (not in u_c): {_e(', '.join(missing))}.</p>")
+    if cert.parameter_budgets:
+        h.append("<h3>Budgets of the parameters at the reference temperature</h3>")
+        h.append("<p class='note'>" + _e(PARAMETER_BUDGETS_TEXT) + "</p>")
+        for group, budgets in cert.parameter_budgets.items():
+            head, body, totals = budget_matrix(budgets)
+            h.append(f"<table class='budget' data-budget='{_e(group)}'><tr><th colspan='{len(head)}'>{_e(group)}: "
+                     f"contributions in {_e(display_unit(budgets[0].unit))}</th></tr><tr>"
+                     + "".join(f"<th{' class=num' if i >= 2 else ''}>{_e(x)}</th>" for i, x in enumerate(head)) + "</tr>")
+            for row in body:
+                h.append("<tr>" + "".join(f"<td class='{'num' if i >= 2 else ''}'>{_e(x)}</td>"
+                                          for i, x in enumerate(row)) + "</tr>")
+            for label, values in totals:
+                h.append(f"<tr class='total'><td colspan='3'>{_e(label)}</td>"
+                         + "".join(f"<td class='num'>{_e(v)}</td>" for v in values) + "</tr>")
+            h.append("</table>")
     h.append("<h2>8. Diagnostics</h2>" + _kv_table(cert.diagnostics))
     if cert.notes:
         h.append("<ul class='note'>" + "".join(f"<li>{_e(n)}</li>" for n in cert.notes) + "</ul>")

@@ -11,7 +11,7 @@ from ... import __version__
 from ...io.atomic import atomic_path
 from ..notation import display_unit
 from .content import Certificate
-from .html import STATEMENTS, _matrix_str, budget_table
+from .html import PARAMETER_BUDGETS_TEXT, results_intro, STATEMENTS, _matrix_str, budget_matrix, budget_table
 
 # =========================================================================================
 # PDF (reportlab)
@@ -75,6 +75,7 @@ def render_pdf(cert: Certificate, path) -> None:
         "h1": ParagraphStyle("h1", fontName=bold, fontSize=16, leading=20, textColor=navy, spaceAfter=2),
         "h1r": ParagraphStyle("h1r", fontName=bold, fontSize=16, leading=20, textColor=colors.HexColor("#922b21")),
         "h2": ParagraphStyle("h2", fontName=bold, fontSize=11, leading=14, textColor=navy, spaceBefore=9, spaceAfter=4),
+        "h3": ParagraphStyle("h3", fontName=bold, fontSize=9.5, leading=12, textColor=navy, spaceBefore=6, spaceAfter=3),
         "lab": ParagraphStyle("lab", fontName=bold, fontSize=12, leading=15, textColor=navy),
         "right": ParagraphStyle("right", fontName=font, fontSize=8, leading=10, alignment=2),
         "num": ParagraphStyle("num", fontName=bold, fontSize=10.5, leading=13, alignment=2),
@@ -122,13 +123,11 @@ def render_pdf(cert: Certificate, path) -> None:
         story += [P("• " + n, "small") for n in cert.notes]
     else:
         story.append(P("4. Results", "h2"))
-        story.append(P(f"Value and expanded uncertainty U (k = 2, coverage probability about 95 %) of every "
-                       f"parameter at the reference temperature {r.reference_temperature_C:g} °C. U comes from the "
-                       f"{cert.source_of_u}."))
+        story.append(P(results_intro(cert)))
         if cert.angle_statement:
             story.append(Paragraph(f"<b>{_html.escape(cert.angle_statement)}</b>", st["body"]))
         story.append(Spacer(1, 3))
-        rows = [[P("Parameter", "cellb"), P("Meaning", "cellb"), P("Value", "cellb"), P("U (k = 2)", "cellb"),
+        rows = [[P("Parameter", "cellb"), P("Meaning", "cellb"), P("Value", "cellb"), P("U (95.45 %)" if cert.parameter_budgets else "U (k = 2)", "cellb"),
                  P("Unit", "cellb")]]
         style = list(grid) + [("BACKGROUND", (0, 0), (-1, 0), colors.HexColor("#eef1f6")),
                               ("ALIGN", (2, 1), (3, -1), "RIGHT"), ("FONTNAME", (0, 1), (0, -1), mono),
@@ -178,6 +177,28 @@ def render_pdf(cert: Certificate, path) -> None:
         missing = [c.source for c in b.components if c.contribution is None]
         if missing:
             story.append(P(f"Not evaluated (not in u_c): {', '.join(missing)}.", "small"))
+        if cert.parameter_budgets:
+            story += [P("Budgets of the parameters at the reference temperature", "h3"),
+                      P(PARAMETER_BUDGETS_TEXT, "small")]
+            for group, budgets in cert.parameter_budgets.items():
+                head, body, totals = budget_matrix(budgets)
+                ncol = len(head)
+                rows = [[P(f"{group}: contributions in {display_unit(budgets[0].unit)}", "cellb")] + [""] * (ncol - 1),
+                        [P(x, "cellb") for x in head]]
+                rows += [[P(row[0], "cell"), P(row[1], "small"), P(row[2], "smallr")] + list(row[3:]) for row in body]
+                n = len(rows)
+                rows += [[P(label, "cellb"), "", ""] + list(values) for label, values in totals]
+                first = 0.3 * width
+                rest = (width - first - 0.16 * width) / (ncol - 3)
+                t = Table(rows, colWidths=[first, 0.06 * width, 0.1 * width] + [rest] * (ncol - 3), repeatRows=2)
+                t.setStyle(TableStyle(grid + [("SPAN", (0, 0), (-1, 0)),
+                                              ("BACKGROUND", (0, 0), (-1, 1), colors.HexColor("#eef1f6")),
+                                              ("ALIGN", (3, 2), (-1, -1), "RIGHT"),
+                                              ("FONTSIZE", (0, 2), (-1, -1), 7.5),
+                                              ("FONTNAME", (3, 2), (-1, -1), mono)]
+                                      + [("SPAN", (0, k), (2, k)) for k in range(n, n + len(totals))]
+                                      + [("BACKGROUND", (0, n), (-1, -1), colors.HexColor("#f3f3f3"))]))
+                story += [Spacer(1, 4), t]
         story += [P("8. Diagnostics", "h2"), kv(cert.diagnostics)]
         story += [P("• " + n, "small") for n in cert.notes]
         if cert.plots or cert.skipped_plots:
