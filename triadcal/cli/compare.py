@@ -2,7 +2,8 @@
 
 Three forms (docs/compare.md):
 
-* ``triadcal compare BEFORE.json AFTER.json [--posterior-before A.nc --posterior-after B.nc]``
+* ``triadcal compare BEFORE.json AFTER.json [--posterior-before A.nc --posterior-after B.nc]
+  [--lab LAB.toml | --shared-bench]``
 * ``triadcal compare S0.json S1.json S2.json ... --sequence [--labels ...]``
 * ``triadcal compare --published TABLE.csv --u-arcsec 12``
 """
@@ -45,6 +46,14 @@ def register(sub) -> None:
     p.add_argument("--correlation", default=None,
                    help="correlation coefficient rho between the two calibrations' errors (default: derived, "
                         "0 for fitted results and published tables; the reason is written in the output)")
+    p.add_argument("--lab", metavar="LAB.toml",
+                   help="lab file whose [compare] shared_equipment (e.g. [\"bench\", \"gravity\"]) names the "
+                        "equipment shared by both calibrations: its systematic errors (the results' Type B budget "
+                        "rows) are one error in both and partly cancel in the drift (default: nothing shared)")
+    p.add_argument("--shared-bench", action="store_true",
+                   help="both calibrations ran on the same bench with no adjustment between them: share the "
+                        "[bench] and [gravity] systematic errors (shorthand for shared_equipment = "
+                        "[\"bench\", \"gravity\"])")
     p.add_argument("--level", type=float, default=0.95, help="confidence level of the rule (default 0.95)")
     p.add_argument("--json", metavar="OUT", help="write the comparison (triadcal.comparison v1, or "
                    "triadcal.comparison_sequence v1 for a sequence or a table)")
@@ -63,12 +72,16 @@ def run(args) -> int:
     tolerance = parse_tolerance(args.tolerance)
     tolerances = assignments(args.param_tolerance)
     correlation = "auto" if args.correlation in (None, "auto") else _float(args.correlation, "--correlation")
+    shared = _shared_equipment(args)
 
     if args.published:
         if args.results:
             raise InputError("--published takes a table, not calibration results")
         if args.posterior_before or args.posterior_after or args.posteriors or args.sequence:
             raise InputError("--published judges drift values only: no posteriors, no --sequence")
+        if args.lab or args.shared_bench:
+            raise InputError("--lab and --shared-bench share the systematic errors of calibration results' "
+                             "budgets; a published table has none")
         if tolerances:
             raise InputError("--param-tolerance applies to calibration results, not to a published table")
         rows = read_published_table(args.published)
@@ -87,7 +100,8 @@ def run(args) -> int:
         labels = name_list(args.labels) if args.labels else [_stem(f) for f in args.results]
         posteriors = name_list(args.posteriors) if args.posteriors else None
         out = compare_sequence(results, labels, tolerance_arcsec=tolerance, tolerances=tolerances,
-                               correlation=correlation, level=args.level, posteriors=posteriors)
+                               correlation=correlation, level=args.level, posteriors=posteriors,
+                               shared_equipment=shared)
         say(f"{results[0].unit}: {len(results)} calibrations")
         say("step by step:")
         say(out.table("step"))
@@ -104,8 +118,8 @@ def run(args) -> int:
         before, after = (_load_checked(f) for f in args.results)
         out = compare(before, after, tolerance_arcsec=tolerance, tolerances=tolerances,
                       posterior_before=args.posterior_before, posterior_after=args.posterior_after,
-                      correlation=correlation, level=args.level, label=f"{_stem(args.results[0])} -> "
-                                                                        f"{_stem(args.results[1])}")
+                      correlation=correlation, level=args.level, shared_equipment=shared,
+                      label=f"{_stem(args.results[0])} -> {_stem(args.results[1])}")
         say(_comparison_text(out))
         _print_footer(out, say)
         say(f"overall: {out.overall}")
@@ -153,7 +167,30 @@ def _print_footer(c, say=print, joint: bool = True) -> None:
         say(f"joint test of {j.dof} angles: D2 = {j.D2:.2f}, p = {j.p_value:.3g} "
               f"({'significant' if j.significant else 'not significant'} at {100 * j.level:g}%)")
     say(f"correlation between calibrations: {c.correlation.get('reason', '')}")
+    sh = c.correlation.get("shared")
+    if not isinstance(sh, dict):
+        pass                                  # a published table: no budgets
+    elif sh.get("equipment"):
+        rows = ", ".join(f"{s['source']} ({s['key']}, u = {s['u']:g} {s['unit']})" for s in sh.get("sources", []))
+        say(f"shared equipment: {', '.join(sh['equipment'])}; shared sources: {rows or 'none (nothing to share)'}")
+    else:
+        say("shared equipment: none (the calibrations' systematic errors are independent)")
     say(f"rule: {c.rule}")
+
+
+def _shared_equipment(args) -> tuple:
+    """The equipment shared by the calibrations: ``[compare] shared_equipment`` of ``--lab``
+    and, with ``--shared-bench``, bench and gravity."""
+    shared = []
+    if args.lab:
+        from ..io.lab import load_lab
+
+        shared += list(load_lab(args.lab).shared_equipment)
+    if args.shared_bench:
+        from ..uncertainty.typeb import BENCH_EQUIPMENT
+
+        shared += list(BENCH_EQUIPMENT)
+    return tuple(dict.fromkeys(shared))
 
 
 def _load_checked(path: str):

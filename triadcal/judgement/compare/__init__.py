@@ -25,9 +25,13 @@ from .rule import (  # noqa: F401
 from .correlation import (  # noqa: F401
     CORRELATION_TERMS,
     POSTERIOR_PAIRS,
+    SharedErrors,
+    budget_equipment,
     derive_correlation,
     posterior_draws,
     posterior_drift,
+    shared_errors,
+    type_b_rows,
 )
 from .results import (  # noqa: F401
     ANGLES,

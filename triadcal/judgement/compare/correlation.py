@@ -4,7 +4,11 @@ posterior draws of both.
 
 from __future__ import annotations
 from ...errors import InputError
+import math
 import os
+import re
+from dataclasses import dataclass, field
+from typing import Sequence
 import numpy as np
 from ...estimation.result import CalibrationResult
 
@@ -24,26 +28,167 @@ CORRELATION_TERMS = (
      "how": "the same bench levelling, but estimated in each joint fit (cancelled by pairing in eq. 2-3): "
             "its estimation error is campaign-specific and already in each result's covariance; its "
             "change is reported as a bench check, not judged"},
-    {"term": "repeatable bench errors (encoder error at the commanded angles, axis non-orthogonality, "
-             "wobble as a function of angle, fixture)", "shared": True,
-     "how": "identical in both campaigns, so they cancel in the drift; the fit's u does not contain them, "
-            "so nothing is subtracted (rho = 0); if a result's u includes such a budget term, state rho"},
-    {"term": "temperature sensors and reference temperature (thermal terms)", "shared": True,
-     "how": "a sensor offset shifts both calibrations alike and cancels; not in the fit's u"},
-    {"term": "local gravity value (K)", "shared": True,
-     "how": "scales K identically when both use the same value, cancels in the K drift; not in the fit's u"},
+    {"term": "the lab's systematic errors (encoder zeros, axes non-orthogonality, fixture, local g, "
+             "thermometers, voltmeter: the Type B rows of a result fitted with a lab file)", "shared": "optional",
+     "how": "in a result's u when it was fitted with a lab file (its budget has Type B rows), else not in u "
+            "at all. By default each calibration's rows are independent errors (its own bench setup, the "
+            "conservative case: they add in quadrature); with shared equipment (compare(..., "
+            "shared_equipment=...), --lab with [compare] shared_equipment, --shared-bench) the rows of that "
+            "equipment are one error in both calibrations and 2 sum_s c_b,s c_a,s u_s^2 is subtracted"},
+    {"term": "repeatable bench errors not in the lab file (encoder error at the commanded angles, wobble "
+             "as a function of angle)", "shared": True,
+     "how": "identical in both campaigns, so they cancel in the drift; not in any u, so nothing is subtracted"},
 )
 
 
-def derive_correlation(before: CalibrationResult, after: CalibrationResult) -> tuple[float, str]:
-    """Default correlation ``rho`` between two calibrations' errors, with the reason."""
+def _equipment(key) -> str:
+    """The equipment (lab-file section) of a budget row's key: ``"[bench] encoder_zero_u_arcsec"`` -> bench."""
+    m = re.match(r"\s*\[([^\]]+)\]", key if isinstance(key, str) else "")
+    return m.group(1).strip() if m else ""
+
+
+def type_b_rows(result: CalibrationResult, name: str) -> list:
+    """The Type B rows of one parameter's budget (``[]`` without a budget)."""
+    rows = result.parameters[name].uncertainty.get("budget") or []
+    return [r for r in rows if isinstance(r, dict) and r.get("type") == "B"]
+
+
+def budget_equipment(result: CalibrationResult) -> list:
+    """The equipment of the Type B rows in a result's budgets (sorted; [] when it has none)."""
+    return sorted({_equipment(r.get("key")) or "?" for n in result.parameters for r in type_b_rows(result, n)})
+
+
+def _describe_budget(tag: str, result: CalibrationResult) -> str:
+    eq = budget_equipment(result)
+    if not eq:
+        return (f"{tag}: u is Type A only (no budget: fitted without a lab file; the lab's systematic errors "
+                "are not in its u)")
+    return f"{tag}: u is combined (Type A + the lab's systematic errors of {', '.join(f'[{e}]' for e in eq)})"
+
+
+def derive_correlation(before: CalibrationResult, after: CalibrationResult,
+                       shared_equipment: Sequence[str] = ()) -> tuple[float, str]:
+    """Default correlation ``rho`` between two calibrations' errors, with the reason; the reason
+    says, per result, whether its u holds the lab's systematic errors (Type B rows) and, with
+    ``shared_equipment``, that the rows of that equipment are one error in both (their covariance
+    is subtracted per parameter by :func:`shared_errors`, not by ``rho``)."""
     methods = {before.method, after.method}
-    if methods <= {"joint", "classical", "posterior"}:
-        return 0.0, ("rho = 0: the uncertainties of fitted results come from each campaign's own random "
-                     "errors (output noise, per-visit bench errors), which are independent between "
-                     "campaigns; the bench's shared systematic errors cancel in the drift and are not in "
-                     "these uncertainties, so there is nothing to subtract")
-    return 0.0, f"rho = 0 assumed for methods {sorted(methods)}: no shared component is known"
+    if not methods <= {"joint", "classical", "posterior"}:
+        return 0.0, f"rho = 0 assumed for methods {sorted(methods)}: no shared component is known"
+    per = "; ".join(_describe_budget(t, r) for t, r in (("before", before), ("after", after)))
+    base = ("rho = 0 for the random errors: the Type A part of fitted results comes from each campaign's own "
+            "random errors (output noise, per-visit bench errors), independent between campaigns. " + per + ". ")
+    any_b = bool(budget_equipment(before) or budget_equipment(after))
+    both_b = bool(budget_equipment(before) and budget_equipment(after))
+    if shared_equipment:
+        eq = ", ".join(f"[{e}]" for e in shared_equipment)
+        if any_b and not both_b:
+            return 0.0, base + (f"Shared equipment {eq} was requested, but only one result has Type B rows: "
+                                "nothing to share (its rows stay in its u, independent)")
+        if any_b:
+            return 0.0, base + (f"Shared equipment {eq}: its Type B rows are the same error in both calibrations, "
+                                "so 2 sum_s c_b,s c_a,s u_s^2 over those sources is subtracted from each drift's "
+                                "variance (per-parameter rho = that sum / (u_b u_a)) and from the covariance of "
+                                "the angle drifts; every other row is independent")
+        return 0.0, base + (f"Shared equipment {eq} was requested, but neither result has Type B rows: nothing "
+                            "to share")
+    if any_b:
+        return 0.0, base + ("Nothing shared (the default): the Type B rows of the two calibrations are taken as "
+                            "independent errors (each on its own bench setup, the conservative case), so they add "
+                            "in quadrature; if both ran on the same equipment with no adjustment between them, "
+                            "share it (--shared-bench, --lab with [compare] shared_equipment)")
+    return 0.0, base + ("The bench's systematic errors cancel in the drift and are not in these uncertainties, so "
+                        "there is nothing to subtract")
+
+
+@dataclass
+class SharedErrors:
+    """The systematic errors two calibrations share: per source (``source``, ``key``,
+    ``equipment``, ``u``, ``unit``) and, per parameter, the sensitivities before and after."""
+
+    equipment: tuple = ()
+    sources: list = field(default_factory=list)
+    c_before: dict = field(default_factory=dict)     # source -> {name: c}
+    c_after: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+    def cross(self, names: Sequence[str]) -> np.ndarray:
+        """``X[i, j] = sum_s c_b,s,i c_a,s,j u_s^2`` (the covariance of before's errors of
+        ``names[i]`` with after's of ``names[j]``); the drift covariance is ``C_b + C_a - X - X^T``."""
+        X = np.zeros((len(names), len(names)))
+        for s in self.sources:
+            cb = np.array([self.c_before[s["source"]].get(n, 0.0) for n in names])
+            ca = np.array([self.c_after[s["source"]].get(n, 0.0) for n in names])
+            X += np.outer(cb, ca) * s["u"] ** 2
+        return X
+
+    def covariance(self, name: str) -> float:
+        """``sum_s c_b,s c_a,s u_s^2`` of one parameter."""
+        return float(self.cross([name])[0, 0])
+
+    def to_dict(self, names: Sequence[str] = ()) -> dict:
+        return {"equipment": list(self.equipment), "sources": [dict(s) for s in self.sources],
+                "covariance": {n: self.covariance(n) for n in names if self.sources}}
+
+
+def _source_table(result: CalibrationResult, names: Sequence[str], tag: str, equipment: Sequence[str]):
+    """``({source: row info}, {source: {name: c}})`` of the Type B rows of ``equipment``; a source
+    whose u differs between two parameters of one result is refused."""
+    info, sens = {}, {}
+    for n in names:
+        for r in type_b_rows(result, n):
+            eq = _equipment(r.get("key"))
+            if eq not in equipment:
+                continue
+            src = str(r.get("source"))
+            u, unit, c = r.get("u"), r.get("unit"), r.get("sensitivity")
+            if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in (u, c)):
+                raise InputError(f"the {tag} calibration: {n}'s budget row {src!r} has no finite u and sensitivity "
+                                 "(both are needed to share it)")
+            row = {"source": src, "key": r.get("key", ""), "equipment": eq, "u": float(u), "unit": unit}
+            if src in info and not (math.isclose(info[src]["u"], row["u"], rel_tol=1e-9)
+                                    and info[src]["unit"] == unit):
+                raise InputError(f"the {tag} calibration: source {src!r} has u = {info[src]['u']:g} "
+                                 f"{info[src]['unit']} in one parameter's budget and {row['u']:g} {unit} in {n}'s")
+            info.setdefault(src, row)
+            sens.setdefault(src, {})[n] = float(c)
+    return info, sens
+
+
+def shared_errors(before: CalibrationResult, after: CalibrationResult, names: Sequence[str],
+                  equipment: Sequence[str]) -> SharedErrors:
+    """The Type B sources of ``equipment`` that both results carry (same ``source`` name): one
+    error in both calibrations. Their ``u`` must agree (else an InputError naming the source and
+    both values); a source in one result only, or a result without budget rows, is said in
+    ``notes`` (nothing to share from it)."""
+    equipment = tuple(dict.fromkeys(equipment))
+    out = SharedErrors(equipment=equipment)
+    if not equipment:
+        return out
+    for tag, r in (("before", before), ("after", after)):
+        if not budget_equipment(r):
+            out.notes.append(f"shared equipment {', '.join(equipment)} requested, but the {tag} calibration has no "
+                             "budget rows (fitted without a lab file: its u is Type A only): nothing to share")
+    info_b, sens_b = _source_table(before, names, "before", equipment)
+    info_a, sens_a = _source_table(after, names, "after", equipment)
+    for src in info_b:
+        if src not in info_a:
+            continue
+        b, a = info_b[src], info_a[src]
+        if b["unit"] != a["unit"] or not math.isclose(b["u"], a["u"], rel_tol=1e-9):
+            raise InputError(f"shared source {src!r} ({b['key']}): u = {b['u']:g} {b['unit']} in the before "
+                             f"calibration and {a['u']:g} {a['unit']} in the after one; one error of shared "
+                             "equipment has one uncertainty: fit both with the same lab file, or do not share "
+                             f"[{b['equipment']}]")
+        out.sources.append(b)
+        out.c_before[src], out.c_after[src] = sens_b[src], sens_a[src]
+    one = sorted(set(info_b) ^ set(info_a))
+    if one and info_b and info_a:
+        out.notes.append("not shared (Type B row of shared equipment in one calibration only): " + ", ".join(one))
+    missing = [e for e in equipment if not any(s["equipment"] == e for s in out.sources)]
+    if missing and budget_equipment(before) and budget_equipment(after):
+        out.notes.append(f"shared equipment {', '.join(missing)}: no Type B row in both calibrations, nothing to share")
+    return out
 
 
 def posterior_draws(source) -> dict:

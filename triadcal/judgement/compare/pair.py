@@ -9,15 +9,16 @@ import numpy as np
 from scipy import stats
 from ...estimation.gates import check_result_for_use
 from ...estimation.result import CalibrationResult
+from ...io.lab import EQUIPMENT_SECTIONS
 from .rule import combined_covariance, coverage_factors, decide, decide_from_draws, drift_uncertainty, normalised_error, probability_exceeds, rule_text
-from .correlation import CORRELATION_TERMS, derive_correlation, posterior_draws, posterior_drift
+from .correlation import CORRELATION_TERMS, derive_correlation, posterior_draws, posterior_drift, shared_errors
 from .results import ANGLES, BENCH_PARAMETERS, ComparisonResult, JointTest, ParameterDrift
 
 
 def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_arcsec: Optional[float] = 30.0,
             tolerances: Optional[Mapping[str, float]] = None, posterior_before=None, posterior_after=None,
             correlation: Union[str, float] = "auto", level: float = 0.95,
-            label: Optional[str] = None) -> ComparisonResult:
+            label: Optional[str] = None, shared_equipment: Sequence[str] = ()) -> ComparisonResult:
     """Drift of every parameter from ``before`` to ``after`` and the verdicts (``triadcal compare``).
 
     ``tolerance_arcsec``: tolerance on the drift of each angle (None: significance only).
@@ -27,6 +28,12 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     ``posterior`` variables are named like the parameters (reporting units).
     ``correlation``: ``"auto"`` (derived, see :func:`derive_correlation`) or a coefficient
     rho in [-1, 1] between the two calibrations' errors, applied to every parameter.
+    ``shared_equipment``: lab-file sections (``("bench", "gravity")``) whose systematic errors
+    are the same in both calibrations (same equipment, no adjustment between them). Default
+    none: the Type B rows of the two budgets are independent (the conservative case). Shared,
+    a source of that equipment in both budgets (same ``source``, same ``u``) gives
+    ``var(d) = u_b^2 + u_a^2 - 2 sum_s c_b,s c_a,s u_s^2`` per parameter (reported as the
+    parameter's ``rho``) and ``C_b + C_a - X - X^T`` for the joint test (docs/compare.md).
     """
     k2, _ = coverage_factors(level)
     tolerances = dict(tolerances or {})
@@ -51,15 +58,25 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     if gb is not None and ga is not None and gb != ga:
         notes.append(f"local gravity differs ({gb} vs {ga} m/s^2): the K drift contains that difference")
 
+    if isinstance(shared_equipment, str):
+        shared_equipment = (shared_equipment,)
+    shared_equipment = tuple(dict.fromkeys(str(e).strip().strip("[]") for e in (shared_equipment or ())))
+    unknown_eq = [e for e in shared_equipment if e not in EQUIPMENT_SECTIONS]
+    if unknown_eq:
+        raise InputError(f"shared equipment {', '.join(map(repr, unknown_eq))} is not a lab-file equipment section "
+                         f"({', '.join(EQUIPMENT_SECTIONS)})")
     if isinstance(correlation, str):
         if correlation != "auto":
             raise InputError(f"correlation must be 'auto' or a number in [-1, 1], got {correlation!r}")
-        rho, reason = derive_correlation(before, after)
+        rho, reason = derive_correlation(before, after, shared_equipment)
     else:
         rho = float(correlation)
         if not -1.0 <= rho <= 1.0:
             raise InputError(f"correlation must lie in [-1, 1], got {rho}")
         reason = f"rho = {rho:g} stated by the user for every parameter"
+        if shared_equipment:
+            raise InputError("give either a correlation coefficient or shared equipment, not both: the shared "
+                             "equipment's correlation is derived from the budgets, parameter by parameter")
 
     names = [n for n in before.parameters if n in after.parameters and n not in BENCH_PARAMETERS]
     for n in names:
@@ -72,23 +89,36 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     if unknown:
         raise InputError(f"tolerances given for {unknown}, which are not in both results")
 
+    shared = shared_errors(before, after, names, shared_equipment)
+    notes.extend(shared.notes)
+
     post_b = posterior_draws(posterior_before) if posterior_before is not None else None
     post_a = posterior_draws(posterior_after) if posterior_after is not None else None
     if (post_b is None) != (post_a is None):
         raise InputError("give posteriors for both calibrations (before and after), or for neither")
 
-    params = {}
+    params, type_b_added = {}, []
     for n in names:
         b, a = before[n], after[n]
         T = tolerance_arcsec if n in ANGLES else tolerances.get(n)
         judged = n in ANGLES or n in tolerances
         d = a.value - b.value
-        u = drift_uncertainty(b.u, a.u, rho)
+        rho_n = rho
+        cov_shared = shared.covariance(n) if shared.sources else 0.0
+        if shared.sources:
+            # per-parameter rho of the shared systematic errors: u_b^2 + u_a^2 - 2 rho u_b u_a is then
+            # u_b^2 + u_a^2 - 2 sum_s c_b,s c_a,s u_s^2
+            rho_n = cov_shared / (b.u * a.u) if b.u > 0 and a.u > 0 else 0.0
+            if abs(rho_n) > 1.0 + 1e-9:
+                raise InputError(f"{n}: the shared systematic errors' covariance {cov_shared:.6g} exceeds "
+                                 f"u_b u_a = {b.u * a.u:.6g}: a result's u is smaller than its own budget rows")
+            rho_n = max(-1.0, min(1.0, rho_n))
+        u = drift_uncertainty(b.u, a.u, rho_n)
         z = d / u if u > 0 else (math.inf if d else 0.0)
         verdict, significant = decide(d, u, T, level)
         pd = ParameterDrift(
             name=n, unit=b.unit, drift=d, u=u, before=b.value, after=a.value, u_before=b.u, u_after=a.u,
-            rho=rho, tolerance=T, En=normalised_error(d, b.u, a.u, rho), z=z,
+            rho=rho_n, tolerance=T, En=normalised_error(d, b.u, a.u, rho_n), z=z,
             p_value=float(2 * stats.norm.sf(abs(z))), significant=significant,
             p_exceeds=probability_exceeds(d, u, T), verdict=verdict, judged=judged)
         if post_b is not None and n in post_b and n in post_a:
@@ -97,6 +127,12 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                 if unit_p is not None and unit_p != b.unit:
                     raise InputError(f"posterior {tag}: {n} is in {unit_p!r}, the results give {b.unit!r}")
             draws = posterior_drift(db, da)
+            var_b = _type_b_variance(b) + _type_b_variance(a) - 2.0 * cov_shared
+            if var_b > 0.0:
+                # posterior draws are the Type A part (results-json: u_type_a); the lab's systematic
+                # errors (independent, minus what is shared) are added as a normal term (fixed seed)
+                draws = draws + np.random.default_rng(1).normal(0.0, math.sqrt(var_b), len(draws))
+                type_b_added.append(n)
             if rho != 0.0:
                 # shared error: shrink the spread of the (independent-posterior) drift about its mean
                 s0 = math.sqrt(np.var(db) + np.var(da))
@@ -110,6 +146,10 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         missing = [n for n in ANGLES if n in params and params[n].basis != "posterior"]
         if missing:
             notes.append("no posterior draws for " + ", ".join(missing) + ": judged on (value, u)")
+        if type_b_added:
+            notes.append("posterior draws hold the Type A part only: the lab's systematic errors (Type B rows, "
+                         + ("minus the shared ones, " if shared.sources else "independent, ")
+                         + "as a normal term) were added to the drift draws of " + ", ".join(type_b_added))
         if rho != 0.0:
             notes.append("posterior drifts assume independent calibrations; their spread was rescaled "
                          f"about the mean for rho = {rho:g}")
@@ -118,7 +158,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     joint = None
     if angles:
         d = np.array([params[n].drift for n in angles])
-        cov = combined_covariance(before.covariance(angles), after.covariance(angles), rho)
+        cov = combined_covariance(before.covariance(angles), after.covariance(angles), rho,
+                                  cross=shared.cross(angles) if shared.sources else None)
         joint = joint_test(d, cov, angles, level)
 
     bench = {}
@@ -137,7 +178,12 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
             "within_calibration": ("each result's correlation matrix enters the covariance of the angle "
                                    "drifts (joint test); a single parameter's u(d) needs only its variances")
             if (before.correlation is not None or after.correlation is not None)
-            else "no correlation matrix in the results: angles taken as uncorrelated within each calibration"}
+            else "no correlation matrix in the results: angles taken as uncorrelated within each calibration",
+            "shared": shared.to_dict(names)}
+    if shared.sources:
+        notes.append("shared between the calibrations (one error in both, subtracted from each drift's variance and "
+                     "from the joint test's covariance): " + ", ".join(
+                         f"{s['source']} ({s['key']}, u = {s['u']:g} {s['unit']})" for s in shared.sources))
     return ComparisonResult(
         parameters=params, overall=overall_verdict(params, joint, tolerance_arcsec), level=level,
         rule=rule_text(level, tolerance_arcsec, tolerances, posterior=post_b is not None),
@@ -180,6 +226,14 @@ def overall_verdict(params: Mapping[str, ParameterDrift], joint: Optional[JointT
     if judged and all(p.verdict == "pass" for p in judged):
         return "pass"
     return "inconclusive"
+
+
+def _type_b_variance(p) -> float:
+    """``u^2 - u_type_a^2`` of a parameter with a budget (the lab's systematic errors), else 0."""
+    ua = p.uncertainty.get("u_type_a")
+    if ua is None or not p.uncertainty.get("budget"):
+        return 0.0
+    return max(p.u ** 2 - float(ua) ** 2, 0.0)
 
 
 def _describe(r: CalibrationResult) -> dict:

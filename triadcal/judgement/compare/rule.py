@@ -133,14 +133,22 @@ def rule_text(level: float, tolerance_arcsec: Optional[float], tolerances: Mappi
     return text
 
 
-def combined_covariance(cov_before: np.ndarray, cov_after: np.ndarray, rho: float = 0.0) -> np.ndarray:
+def combined_covariance(cov_before: np.ndarray, cov_after: np.ndarray, rho: float = 0.0,
+                        cross: Optional[np.ndarray] = None) -> np.ndarray:
     """Covariance of ``after - before``: ``S_b + S_a - rho (D_b R D_a + D_a R D_b)``, ``R`` the mean
-    correlation matrix of the two calibrations (reduces to ``u_b^2 + u_a^2 - 2 rho u_b u_a``)."""
+    correlation matrix of the two calibrations (reduces to ``u_b^2 + u_a^2 - 2 rho u_b u_a``).
+
+    ``cross``: the covariance ``X`` of before's errors with after's from shared systematic
+    errors, ``X[i, j] = sum_s c_b,s,i c_a,s,j u_s^2`` (:func:`.correlation.shared_errors`);
+    then ``- (X + X^T)`` is subtracted as well."""
     cov_before, cov_after = np.asarray(cov_before, float), np.asarray(cov_after, float)
     cov = cov_before + cov_after
     if rho != 0.0:
         ub, ua = np.sqrt(np.diag(cov_before)), np.sqrt(np.diag(cov_after))
         R = 0.5 * (cov_before / np.outer(ub, ub) + cov_after / np.outer(ua, ua))
-        cross = rho * (ub[:, None] * R * ua[None, :])
-        cov = cov - cross - cross.T
+        c = rho * (ub[:, None] * R * ua[None, :])
+        cov = cov - c - c.T
+    if cross is not None:
+        X = np.asarray(cross, float)
+        cov = cov - X - X.T
     return cov
