@@ -39,6 +39,26 @@ def _warning_line(message, category, filename, lineno, file=None, line=None):
     print(f"triadcal: warning: {message}", file=file or sys.stderr)
 
 
+#: options whose value may start with a minus sign that is not a number (a range: -40:85:5)
+NEGATIVE_VALUE_OPTIONS = ("--grid", "--range")
+
+
+def _negative_values(argv: list) -> list:
+    """``--grid -40:85:5`` as ``--grid=-40:85:5``: argparse takes a value that starts with '-' and
+    is not a plain number for an option, and the documented form would fail."""
+    out, i = [], 0
+    while i < len(argv):
+        a = str(argv[i])
+        if a in NEGATIVE_VALUE_OPTIONS and i + 1 < len(argv) and str(argv[i + 1]).startswith("-") \
+                and ":" in str(argv[i + 1]):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
 def main(argv=None) -> int:
     """Run one command. Exit codes: 0 done, 1 refused input or a failed precondition (one line on
     stderr naming the file and the place), 2 usage, 3 a result whose status is not ok (or no
@@ -48,7 +68,7 @@ def main(argv=None) -> int:
 
     os.environ.setdefault("XDG_CACHE_HOME", os.path.join(os.path.expanduser("~"), ".cache"))
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_negative_values(sys.argv[1:] if argv is None else list(argv)))
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -1,0 +1,145 @@
+"""Compensation tables (issue 17, item 4): the table applied to data made another way gives
+residuals within u; the interpolation bound by hand; the C header compiles; refusals."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from independent_bench import simulate_campaign
+from triadcal import api
+from triadcal.errors import InputError
+from triadcal.estimation.result import CalibrationResult, ParameterValue
+from triadcal.io.bench_csv import read_bench_csv
+from triadcal.models.effects import DEFAULT_EFFECTS
+from triadcal.models.model import Model
+from triadcal.reports.compensation import compensation_table, export_compensation, load_table, parse_grid
+
+EFFECTS = ("bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco")
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("comp")
+    text, truth = simulate_campaign(np.random.default_rng(21))
+    path = tmp / "c.csv"
+    path.write_text(text)
+    r = api.fit(path, effects=EFFECTS)
+    assert r.status == "ok"
+    r.save(tmp / "r.json")
+    return r, read_bench_csv(path), tmp
+
+
+def test_table_applied_to_the_data_gives_residuals_within_u(fitted):
+    r, campaign, tmp = fitted
+    T = campaign.t.mean(axis=1)
+    # a 5 degC grid spanning the visits (their mean temperatures lie inside the calibrated range)
+    table = export_compensation(tmp / "r.json", tmp / "t.json", "json", f"{math.floor(T.min() * 1e4) / 1e4}:{math.ceil(T.max() * 1e4) / 1e4}:5")
+    A = table.apply(campaign.w, T)
+    # the table is the result's own model, interpolated: the same as applying the result
+    assert np.max(np.abs(A - r.apply(campaign.w, np.repeat(T[:, None], 3, axis=1)))) < 1e-9
+    # gravity's magnitude (standard g in the file) from every visit, against the u of a reading:
+    # output noise of the mean plus the table's u of K and S at that temperature (unit vector: each
+    # axis in turn carries gravity, so its own K and S set the magnitude)
+    mag = np.linalg.norm(A, axis=1) - 1.0
+    up = np.argmax(np.abs(A), axis=1)
+    sd_mean = (campaign.sd / np.sqrt(campaign.n_samples)[:, None])[np.arange(len(up)), up]
+    uK = np.array([np.interp(t, table.grid_C, table.u_K[:, a]) for t, a in zip(T, up)])
+    uS = np.array([np.interp(t, table.grid_C, table.u_S[:, a]) for t, a in zip(T, up)])
+    u = np.sqrt(sd_mean ** 2 + uK ** 2 + uS ** 2)
+    z = mag / u
+    assert np.sqrt(np.mean(z ** 2)) < 1.5 and np.max(np.abs(z)) < 4.5
+    # the JSON reads back to the same table
+    back = load_table(tmp / "t.json")
+    assert np.array_equal(back.K, table.K) and np.array_equal(back.Ca_inv, table.Ca_inv)
+
+
+def test_u_at_the_reference_temperature_is_the_results_u(fitted):
+    r, _, _ = fitted
+    table = compensation_table(r, parse_grid("-30:60:10"))
+    i = int(np.flatnonzero(table.grid_C == 20.0)[0])
+    for j, a in enumerate("xyz"):
+        assert table.u_K[i, j] == pytest.approx(r.parameters[f"K_{a}"].u, rel=1e-4)
+        assert table.u_S[i, j] == pytest.approx(r.parameters[f"S_{a}"].u, rel=1e-4)
+    assert table.u_angles[i, 0] == pytest.approx(r.parameters["Ca_xy"].u, rel=1e-4)
+    # away from T0 the tempco's u adds: u(T) >= u(T0)
+    assert np.all(table.u_angles[0] >= table.u_angles[i] - 1e-12)
+
+
+def _quadratic_result(c2=0.004):
+    model = Model(("angle_tempco", "angle_tempco2"))
+    params = {n: ParameterValue(model.spec[n].nominal, 0.1, model.spec[n].unit) for n in model.names}
+    for a in "xyz":
+        params[f"K_{a}"] = ParameterValue(1.0, 1e-6, "g/V")
+    params["Ca_xy_tempco2"] = ParameterValue(c2, 1e-4, "arcsec/degC2")
+    return CalibrationResult(unit="SN-Q", method="joint", parameters=params, effects=model.effect_names,
+                             temperature_range_C=(-40.0, 85.0), fit={"chi2_dof": 1.0, "n_obs": 540, "n_params": 30},
+                             extra={"output_unit": "V"})
+
+
+def test_interpolation_bound_of_a_quadratic_tempco_by_hand():
+    """q(T) = c (T - T0)^2: linear interpolation over an interval of width D errs by D^2 |q''| / 8
+    = D^2 2c / 8 at its middle: 0.025 arcsec for c = 0.004 arcsec/degC2 and D = 5 degC."""
+    table = compensation_table(_quadratic_result(), parse_grid("-40:85:5"))
+    j = 0   # Ca_xy
+    assert table.interp_angles[:-1, j] == pytest.approx(np.full(len(table.grid_C) - 1, 0.025), rel=2e-3)
+    assert table.interp_angles[-1, j] == 0.0 and np.all(table.interp_angles[:, 1:] == 0.0)
+    assert np.all(table.interp_K == 0.0)
+    # halving the step quarters the bound
+    fine = compensation_table(_quadratic_result(), parse_grid("-40:85:2.5"))
+    assert fine.interp_angles[0, 0] == pytest.approx(0.025 / 4, rel=2e-3)
+
+
+def test_refusals_name_the_reason(fitted):
+    r, _, _ = fitted
+    with pytest.raises(InputError, match="outside the calibrated range"):
+        compensation_table(r, parse_grid("-60:80:5"))
+    t = compensation_table(r, parse_grid("-60:80:5"), allow_outside=True)
+    assert any("EXTRAPOLATED" in n for n in t.notes)
+    for bad in ("-40:85", "85:-40:5", "a:b:c", "-40:85:0"):
+        with pytest.raises(InputError, match="--grid"):
+            parse_grid(bad)
+    d = r.to_dict()
+    d["effects"] = list(d["effects"]) + ["bias_drift"]
+    for a in "xyz":
+        d["parameters"][f"S_{a}_drift"] = {"value": 1.0, "u": 0.1, "unit": "ug/h"}
+    with pytest.raises(InputError, match="bias_drift"):
+        compensation_table(CalibrationResult.from_dict(d), parse_grid("-30:60:10"))
+    d = r.to_dict()
+    d["status"] = "model_mismatch"
+    with pytest.raises(InputError, match="refused"):
+        compensation_table(CalibrationResult.from_dict(d), parse_grid("-30:60:10"))
+
+
+def test_cli_formats_and_the_header_compiles(fitted, tmp_path):
+    from triadcal.cli import main
+
+    _, _, tmp = fitted
+    assert main(["export-compensation", str(tmp / "r.json"), "--grid", "-35:75:5", "--format", "c-header",
+                 "-o", str(tmp_path / "comp.h"), "--quiet"]) == 0
+    assert main(["export-compensation", str(tmp / "r.json"), "--format", "csv", "-o", str(tmp_path / "c.csv"),
+                 "--quiet"]) == 0
+    rows = [ln for ln in (tmp_path / "c.csv").read_text().splitlines() if not ln.startswith("#")]
+    # the default grid: the calibrated range (-40.0x .. 80.0x degC) in 5 degC steps, -40 .. 80
+    assert rows[0].startswith("T_C,K_x,u_K_x,interp_K_x") and len(rows) == 1 + 25
+    assert main(["export-compensation", str(tmp / "r.json"), "--format", "json", "--grid", "-35:75:5",
+                 "-o", str(tmp_path / "c.json"), "--quiet"]) == 0
+    from test_results_contract import assert_valid
+
+    assert_valid(json.loads((tmp_path / "c.json").read_text()), "triadcal.compensation")
+    text = (tmp_path / "comp.h").read_text()
+    assert "#define TRIADCAL_COMP_N 23" in text and "-35.0f" in text
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc is None:
+        pytest.skip("no C compiler on this machine: the header's syntax is not checked")
+    (tmp_path / "t.c").write_text('#include "comp.h"\nint main(void){return (int)(triadcal_comp_K[0][0] < 0.5f)'
+                                  ' + (int)(triadcal_comp_Ca_inv[0][1][1] < 0.5f);}\n')
+    p = subprocess.run([cc, "-Wall", "-Wextra", "-Werror", "-o", str(tmp_path / "t"), str(tmp_path / "t.c")],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert subprocess.run([str(tmp_path / "t")]).returncode == 0

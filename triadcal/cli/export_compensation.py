@@ -1,0 +1,45 @@
+"""``triadcal export-compensation``: per-temperature tables of K, S and Ca for a firmware."""
+
+from __future__ import annotations
+
+from ._common import add_output_options, output
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "export-compensation", help="write per-temperature tables of K, S and Ca (Ca^-1) for a firmware",
+        description="Evaluate a calibration result's thermal model on a temperature grid and write the tables a "
+                    "firmware loads: K, S, the angles and Ca^-1 at each grid point, with the standard uncertainty "
+                    "of each entry and the bound of linear interpolation to the next grid point (docs/compensation.md).")
+    p.add_argument("result", help="calibration result (results-json v1, status ok)")
+    p.add_argument("--format", choices=("json", "csv", "c-header"), default="json")
+    p.add_argument("--grid", default=None, metavar="LO:HI:STEP",
+                   help="temperature grid in degC, e.g. -40:85:5 (default: the calibrated range in 5 degC steps)")
+    p.add_argument("-o", "--out", required=True, metavar="FILE", help="the table file to write")
+    p.add_argument("--allow-extrapolation", action="store_true",
+                   help="accept grid points outside the calibrated range (marked EXTRAPOLATED in the table)")
+    add_output_options(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import math
+
+    from ..estimation.result import CalibrationResult
+    from ..reports.compensation import export_compensation
+
+    grid = args.grid
+    if grid is None:
+        lo, hi = CalibrationResult.load(args.result).temperature_range_C or (20.0, 20.0)
+        lo5, hi5 = 5.0 * math.ceil(lo / 5.0 - 1e-9), 5.0 * math.floor(hi / 5.0 + 1e-9)
+        grid = f"{lo5:g}:{hi5:g}:5"
+    table = export_compensation(args.result, args.out, args.format, grid, args.allow_extrapolation)
+    out = output(args)
+    out.say(f"{table.unit}: {len(table.grid_C)} grid points {table.grid_C[0]:g}..{table.grid_C[-1]:g} degC "
+            f"written to {args.out} ({args.format})")
+    out.say(f"  largest u: K {table.u_K.max():.2g} {table.K_unit}, S {table.u_S.max():.2g} g, angles "
+            f"{table.u_angles.max():.2g} arcsec; largest interpolation bound: K {table.interp_K.max():.2g}, "
+            f"S {table.interp_S.max():.2g}, angles {table.interp_angles.max():.2g}")
+    for n in table.notes:
+        out.say(f"  note: {n}")
+    return 0
