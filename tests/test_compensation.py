@@ -16,7 +16,6 @@ from triadcal import api
 from triadcal.errors import InputError
 from triadcal.estimation.result import CalibrationResult, ParameterValue
 from triadcal.io.bench_csv import read_bench_csv
-from triadcal.models.effects import DEFAULT_EFFECTS
 from triadcal.models.model import Model
 from triadcal.reports.compensation import compensation_table, export_compensation, load_table, parse_grid
 
