@@ -1,0 +1,355 @@
+"""One static pose through a chamber cycle: which thermal form explains the output
+(``triadcal thermal-cycle``, docs/model.md "A real chamber cycle").
+
+A unit resting in one pose while the chamber ramps down and up gives, per axis, the output
+against the measured temperature history. One pose cannot separate scale from bias: what is
+fitted is the output along each axis, ``W_a = (g_a + S_a(T)) / K_a(T)`` with the fixed gravity
+component ``g_a``, so a thermal change of K and of S look the same; the forms below describe
+that output. Candidate forms (least squares in the coefficients, a grid search in the one
+non-linear parameter, :mod:`triadcal.models.thermal_history` for the operators):
+
+- ``linear``, ``quadratic``, ``cubic``: a polynomial in ``T - T_ref``;
+- ``offset_hysteresis``, ``quadratic_hysteresis``: linear / quadratic plus ``h b`` with ``b`` =
+  +1 cooling, -1 heating, 0 still (the joint model's hysteresis term);
+- ``lag``, ``lag_quadratic``: linear / quadratic in the temperature of an element lagging the
+  sensor by a first-order time constant tau;
+- ``play``, ``play_quadratic``: linear / quadratic in the play operator of the temperature
+  (half-width r; the branches join at the turning points);
+- ``quadratic_play``: quadratic in T plus ``h (play(T, r) - T)``: a play hysteresis on top of a
+  nonlinear tempco (the branch offset is +-r on a ramp and turns over at the turning points).
+
+Each form is judged on data it was not fitted to: blocked cross-validation over the cycle
+(``folds`` contiguous blocks in time; the non-linear parameter chosen on the training blocks
+only), RMS of the held-out residuals. The branch gap at ``T_ref`` (cooling minus heating, from
+a local line through each branch within +-5 degC) is measured in the data's linear residual and
+after each form.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..models.thermal_history import first_order_lag, play_operator
+
+FORMAT = "triadcal.thermal_cycle"
+VERSION = 1
+FORMS = ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hysteresis", "lag", "lag_quadratic", "play",
+         "play_quadratic", "quadratic_play")
+#: time constants tried for the lag (s) and half-widths for the play (degC)
+TAU_GRID_S = tuple(float(x) for x in np.geomspace(30.0, 7200.0, 36))
+PLAY_GRID_C = tuple(float(x) for x in np.linspace(0.25, 30.0, 120))
+#: a form "explains" an axis when its held-out RMS is within this factor of the white-noise floor
+EXPLAINED_FACTOR = 3.0
+#: |dT/dt| below which the chamber counts as still (no branch), degC/min
+STILL_RATE_C_MIN = 0.2
+#: m/s^2 per g (the conversion constant only: the recording's own g is not known)
+G0 = 9.80665
+
+
+@dataclass
+class FormFit:
+    name: str
+    cv_rms: float
+    fit_rms: float
+    parameter: Optional[dict]
+    coefficients: list
+    branch_gap: Optional[float]
+
+    def to_dict(self) -> dict:
+        return {"form": self.name, "cv_rms": self.cv_rms, "fit_rms": self.fit_rms, "parameter": self.parameter,
+                "coefficients": self.coefficients, "branch_gap_after": self.branch_gap}
+
+
+@dataclass
+class AxisCycle:
+    column: str
+    unit: str
+    noise_floor: float
+    branch_gap: Optional[float]
+    forms: list
+    best: str
+    prediction: np.ndarray = field(repr=False, default=None)
+
+    def form(self, name: str) -> FormFit:
+        return next(f for f in self.forms if f.name == name)
+
+    def to_dict(self) -> dict:
+        lin = self.form("linear")
+        best = self.form(self.best)
+        return {"column": self.column, "unit": self.unit, "noise_floor": self.noise_floor,
+                "branch_gap_linear": self.branch_gap, "best": self.best,
+                "explained": bool(best.cv_rms <= EXPLAINED_FACTOR * self.noise_floor),
+                "explained_criterion": f"held-out RMS <= {EXPLAINED_FACTOR:g} x the white-noise floor",
+                "cv_improvement_over_linear": 1.0 - best.cv_rms / lin.cv_rms if lin.cv_rms > 0 else None,
+                "forms": [f.to_dict() for f in self.forms]}
+
+
+@dataclass
+class ThermalCycle:
+    source: str
+    unit: str
+    n: int
+    duration_s: float
+    temperature_range_C: tuple
+    reference_temperature_C: float
+    folds: int
+    axes: list
+    verdict: str
+    notes: list
+    t_s: np.ndarray = field(repr=False, default=None)
+    T: np.ndarray = field(repr=False, default=None)
+    y: np.ndarray = field(repr=False, default=None)
+    branch: np.ndarray = field(repr=False, default=None)
+
+    def to_dict(self) -> dict:
+        return {"format": FORMAT, "version": VERSION, "source": self.source, "unit": self.unit, "n_samples": self.n,
+                "duration_s": self.duration_s, "temperature_range_C": list(self.temperature_range_C),
+                "reference_temperature_C": self.reference_temperature_C, "folds": self.folds,
+                "validation": "blocked cross-validation over time (contiguous folds; the form's non-linear "
+                              "parameter chosen on the training folds)",
+                "axes": [a.to_dict() for a in self.axes], "verdict": self.verdict, "notes": list(self.notes)}
+
+
+def branch_of(t_s, T, window_s: float = 120.0) -> np.ndarray:
+    """+1 cooling, -1 heating, 0 still, from the temperature's rate over ``window_s`` (degC/min
+    above :data:`STILL_RATE_C_MIN`): the convention of the joint model's hysteresis."""
+    t, T = np.asarray(t_s, float), np.asarray(T, float)
+    lo = np.searchsorted(t, t - window_s / 2)
+    hi = np.minimum(np.searchsorted(t, t + window_s / 2, side="right") - 1, len(t) - 1)
+    dt = np.maximum(t[hi] - t[lo], 1e-9)
+    rate = (T[hi] - T[lo]) / dt * 60.0
+    return np.where(rate < -STILL_RATE_C_MIN, 1.0, np.where(rate > STILL_RATE_C_MIN, -1.0, 0.0))
+
+
+def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> np.ndarray:
+    cache = {} if cache is None else cache
+
+    def op(kind, v):
+        if (kind, v) not in cache:
+            cache[(kind, v)] = first_order_lag(t, T, v) if kind == "lag" else play_operator(T, v)
+        return cache[(kind, v)]
+
+    one = np.ones_like(T)
+    if form in ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hysteresis", "quadratic_play"):
+        d = T - T_ref
+    elif form.startswith("lag"):
+        d = op("lag", p) - T_ref
+    else:
+        d = op("play", p) - T_ref
+    cols = [one, d]
+    if form in ("quadratic", "cubic", "lag_quadratic", "play_quadratic", "quadratic_hysteresis", "quadratic_play"):
+        cols.append(d * d)
+    if form == "quadratic_play":
+        # a play hysteresis on top of a quadratic tempco: the branch offset (play(T) - T) is +-r
+        # on a ramp and changes sign through the turning points
+        cols.append(op("play", p) - T)
+    if form == "cubic":
+        cols.append(d ** 3)
+    if form in ("offset_hysteresis", "quadratic_hysteresis"):
+        cols.append(branch)
+    return np.stack(cols, axis=1)
+
+
+def _grid(form: str):
+    if form.startswith("lag"):
+        return TAU_GRID_S
+    if "play" in form:
+        return PLAY_GRID_C
+    return (None,)
+
+
+def branch_gap(T, r, branch, T_ref: float, half_window: float = 5.0) -> Optional[float]:
+    """Cooling minus heating at ``T_ref``: a local line through each branch's samples within
+    ``+-half_window`` degC; None when a branch has fewer than 10 samples there."""
+    T, r = np.asarray(T, float), np.asarray(r, float)
+    near = np.abs(T - T_ref) <= half_window
+    at = []
+    for b in (1.0, -1.0):
+        m = near & (branch == b)
+        if m.sum() < 10:
+            return None
+        A = np.stack([np.ones(m.sum()), T[m] - T_ref], axis=1)
+        at.append(np.linalg.lstsq(A, r[m], rcond=None)[0][0])
+    return float(at[0] - at[1])
+
+
+def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, branch) -> AxisCycle:
+    n = len(y)
+    edges = np.linspace(0, n, folds + 1).astype(int)
+    noise = float(np.std(np.diff(y)) / math.sqrt(2.0))
+    cache = {}
+    designs = {f: {p: _design(f, t, T, T_ref, branch, p, cache) for p in _grid(f)} for f in FORMS}
+    forms = []
+    lin_resid = None
+    for f in FORMS:
+        # held-out residuals: on each block, the form (and its parameter) fitted to the others
+        sq = []
+        for k in range(folds):
+            test = np.zeros(n, bool)
+            test[edges[k]:edges[k + 1]] = True
+            best = None
+            for p, X in designs[f].items():
+                c, *_ = np.linalg.lstsq(X[~test], y[~test], rcond=None)
+                rss = float(np.sum((y[~test] - X[~test] @ c) ** 2))
+                if best is None or rss < best[0]:
+                    best = (rss, p, c)
+            _, p, c = best
+            sq.append((y[test] - designs[f][p][test] @ c) ** 2)
+        cv = float(np.sqrt(np.mean(np.concatenate(sq))))
+        best = None
+        for p, X in designs[f].items():
+            c, *_ = np.linalg.lstsq(X, y, rcond=None)
+            rss = float(np.sum((y - X @ c) ** 2))
+            if best is None or rss < best[0]:
+                best = (rss, p, c)
+        rss, p, c = best
+        resid = y - designs[f][p] @ c
+        if f == "linear":
+            lin_resid = resid
+        par = None
+        if f.startswith("lag"):
+            par = {"tau_min": p / 60.0}
+        elif "play" in f:
+            par = {"half_width_C": p}
+        if p is not None and p in (_grid(f)[0], _grid(f)[-1]):
+            par["at_grid_edge"] = True       # the optimum may lie beyond the searched range
+        forms.append(FormFit(f, cv, math.sqrt(rss / n), par, [float(x) for x in c], branch_gap(T, resid, branch, T_ref)))
+    best = min(forms, key=lambda x: x.cv_rms)
+    bp = best.parameter
+    p = None if bp is None else (bp.get("tau_min", 0) * 60.0 if "tau_min" in bp else bp.get("half_width_C"))
+    pred = _design(best.name, t, T, T_ref, branch, p) @ np.array(best.coefficients)
+    return AxisCycle(column, unit, noise, branch_gap(T, lin_resid + 0.0, branch, T_ref) if lin_resid is not None
+                     else None, forms, best.name, pred)
+
+
+def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, temperature_column: str):
+    """``(t_s, T, y)`` of a recording with named columns (comma, tab or semicolon separated: the
+    header line that names every column decides). Every field must be a finite number; a bad one
+    is refused with the file, line and column; nothing is dropped."""
+    import csv
+
+    scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+    if time_unit not in scale:
+        raise InputError(f"--time-unit {time_unit!r}: choose one of {', '.join(scale)}")
+    cols = list(columns)
+    if not cols:
+        raise InputError("give at least one output column")
+    want = [time_column, temperature_column] + cols
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            lines = fh.read().splitlines()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    header_at, index, sep = None, None, None
+    for k, line in enumerate(lines[:200]):
+        for d in (",", "\t", ";"):
+            fields = [f.strip() for f in next(csv.reader([line], delimiter=d), [])]
+            if all(c in fields for c in want):
+                header_at, index, sep = k, [fields.index(c) for c in want], d
+                break
+        if header_at is not None:
+            break
+    if header_at is None:
+        raise InputError(f"{path}: no header line names all of {', '.join(want)} in its first 200 lines")
+    rows = []
+    for k, line in enumerate(lines[header_at + 1:], start=header_at + 2):
+        if not line.strip():
+            continue
+        fields = next(csv.reader([line], delimiter=sep))
+        row = []
+        for c, j in zip(want, index):
+            try:
+                v = float(fields[j])
+            except (IndexError, ValueError):
+                raise InputError(f"{path}:{k}: column '{c}': {fields[j] if j < len(fields) else 'missing'!r} "
+                                 "is not a number") from None
+            if not math.isfinite(v):
+                raise InputError(f"{path}:{k}: column '{c}': {v} is not finite")
+            row.append(v)
+        rows.append(row)
+    if len(rows) < 2:
+        raise InputError(f"{path}: fewer than two samples")
+    a = np.array(rows)
+    t = (a[:, 0] - a[0, 0]) * scale[time_unit]
+    if np.any(np.diff(t) <= 0):
+        k = int(np.flatnonzero(np.diff(t) <= 0)[0])
+        raise InputError(f"{path}:{header_at + k + 3}: column '{time_column}': the time does not increase")
+    return t, a[:, 1], a[:, 2:]
+
+
+def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature_column: str, time_unit: str = "s",
+                  unit: str = "m/s2", reference_temperature_C: float = 20.0, folds: int = 6) -> ThermalCycle:
+    """Analyse a one-pose chamber cycle (see the module)."""
+    if folds < 3:
+        raise InputError("--folds must be at least 3")
+    t, T, y = read_cycle(path, columns, time_column, time_unit, temperature_column)
+    if np.ptp(T) < 10.0:
+        raise InputError(f"{path}: the temperature spans {np.ptp(T):.1f} degC; a thermal form needs a cycle of at "
+                         "least 10 degC")
+    br = branch_of(t, T)
+    if not (np.any(br == 1) and np.any(br == -1)):
+        raise InputError(f"{path}: the temperature only rises or only falls: no heating and cooling branches")
+    if len(t) < 20 * folds:
+        raise InputError(f"{path}: {len(t)} samples are too few for {folds} folds")
+    axes = [analyse_axis(t, T, y[:, i], c, unit, reference_temperature_C, folds, br) for i, c in enumerate(columns)]
+    notes = ["one static pose: the output along each axis is W = (g_a + S_a(T)) / K_a(T); a thermal change of the "
+             "scale factor and of the bias cannot be told apart, so the forms describe that output, not K and S",
+             f"noise floor: the SD of sample-to-sample differences / sqrt 2 (white part only); held-out RMS near it "
+             "means the form leaves nothing but noise"]
+    parts = []
+    for a in axes:
+        lin, best = a.form("linear"), a.form(a.best)
+        gap = "" if a.branch_gap is None else (
+            f"; branch gap at {reference_temperature_C:g} degC {a.branch_gap:+.3g} {unit} after a line, "
+            f"{best.branch_gap:+.3g} after {a.best}" if best.branch_gap is not None else "")
+        par = "" if not best.parameter else " (" + ", ".join(
+            f"{k} {v:.3g}" for k, v in best.parameter.items() if k != "at_grid_edge") + (
+            ", at the edge of the search" if best.parameter.get("at_grid_edge") else "") + ")"
+        left = ("" if best.cv_rms <= EXPLAINED_FACTOR * a.noise_floor else
+                f"; UNEXPLAINED: no form comes within {EXPLAINED_FACTOR:g}x the noise floor (held-out RMS "
+                f"{best.cv_rms / a.noise_floor:.0f}x it): the output has structure none of these forms holds")
+        parts.append(f"{a.column}: {a.best}{par} predicts held-out blocks best, RMS {best.cv_rms:.3g} {unit} against "
+                     f"{lin.cv_rms:.3g} for a line (noise floor {a.noise_floor:.2g}){gap}{left}")
+    return ThermalCycle(source=str(path), unit=unit, n=len(t), duration_s=float(t[-1]),
+                        temperature_range_C=(float(T.min()), float(T.max())),
+                        reference_temperature_C=reference_temperature_C, folds=folds, axes=axes,
+                        verdict="; ".join(parts), notes=notes, t_s=t, T=T, y=y, branch=br)
+
+
+def plot_cycle(cycle: ThermalCycle, path) -> None:
+    """Each axis's output against temperature (heating and cooling coloured) with its best form,
+    and the residuals of a line and of the best form against time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    k = len(cycle.axes)
+    fig, ax = plt.subplots(k, 2, figsize=(11, 3.2 * k), squeeze=False)
+    for i, a in enumerate(cycle.axes):
+        y = cycle.y[:, i]
+        for b, c, lab in ((-1.0, "tab:red", "heating"), (1.0, "tab:blue", "cooling"), (0.0, "0.6", "still")):
+            m = cycle.branch == b
+            ax[i, 0].plot(cycle.T[m], y[m], ".", ms=1.5, color=c, label=lab)
+        ax[i, 0].plot(cycle.T, a.prediction, "-", color="k", lw=0.8, label=f"{a.best} (fit)")
+        ax[i, 0].set_xlabel("temperature (°C)")
+        ax[i, 0].set_ylabel(f"{a.column} ({cycle.unit})")
+        ax[i, 0].legend(fontsize=7, markerscale=4)
+        lin = a.form("linear")
+        X = _design("linear", cycle.t_s, cycle.T, cycle.reference_temperature_C, cycle.branch, None)
+        ax[i, 1].plot(cycle.t_s / 60.0, y - X @ np.array(lin.coefficients), lw=0.5, color="0.5", label="after a line")
+        ax[i, 1].plot(cycle.t_s / 60.0, y - a.prediction, lw=0.5, color="k", label=f"after {a.best}")
+        ax[i, 1].set_xlabel("time (min)")
+        ax[i, 1].set_ylabel(f"residual ({cycle.unit})")
+        ax[i, 1].legend(fontsize=7)
+    fig.tight_layout()
+    from ..io.atomic import atomic_path
+
+    with atomic_path(path, ".png") as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)

@@ -1,0 +1,64 @@
+"""Operators on a measured temperature history: the sensing element's first-order lag behind its
+sensor, and the play (backlash) operator of a hysteresis. Pure numpy functions of the sampled
+history, used by the thermal-cycle analysis of real recordings (``triadcal thermal-cycle``) and
+written once here (docs/model.md, "A real chamber cycle").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def first_order_lag(t_s, T, tau_s: float, start=None) -> np.ndarray:
+    """Temperature of an element that lags the measured ``T`` by a first-order time constant::
+
+        dT_e/dt = (T - T_e) / tau
+
+    solved exactly for ``T`` linear between samples (ramp-invariant discretisation): with
+    ``s = (T1 - T0)/dt`` and ``a = exp(-dt/tau)``,
+    ``T_e1 = T1 - s tau + (T_e0 - T0 + s tau) a``. ``start``: T_e at the first sample
+    (default: equal to T, the element at rest with its sensor). ``tau_s = 0`` returns ``T``.
+    """
+    t = np.asarray(t_s, float)
+    x = np.asarray(T, float)
+    if tau_s <= 0:
+        return x.copy()
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        raise ValueError("times must increase")
+    a = np.exp(-dt / tau_s).tolist()
+    st = (np.diff(x) / dt * tau_s).tolist()
+    xs = x.tolist()
+    prev = xs[0] if start is None else float(start)
+    out = [prev]
+    for k in range(1, len(xs)):          # plain floats: the recursion is sequential
+        prev = xs[k] - st[k - 1] + (prev - xs[k - 1] + st[k - 1]) * a[k - 1]
+        out.append(prev)
+    return np.array(out)
+
+
+def play_operator(x, half_width: float, start=None) -> np.ndarray:
+    """The play (backlash) operator of half-width ``r`` (Krasnosel'skii & Pokrovskii; the
+    elementary operator of a Prandtl-Ishlinskii hysteresis)::
+
+        y_k = max(x_k - r, min(x_k + r, y_{k-1}))
+
+    ``y`` follows ``x`` with a dead band of width 2r: on a rising ``x`` it trails by r, on a
+    falling one it leads by r, so a quantity linear in ``y`` has a heating and a cooling branch
+    2 r (times its slope) apart that join where the temperature turns. ``start``: the initial
+    state ``y_0`` (default: ``x_0``, the middle of the band); ``r = 0`` returns ``x``. The
+    constant-offset hysteresis of the joint model (``Ca_ab_hysteresis``) is its limit far from
+    the turning points.
+    """
+    x = np.asarray(x, float)
+    r = float(half_width)
+    if r <= 0:
+        return x.copy()
+    xs = x.tolist()
+    prev = xs[0] if start is None else min(max(float(start), xs[0] - r), xs[0] + r)
+    out = []
+    for v in xs:                          # plain floats: the recursion is sequential
+        lo, hi = v - r, v + r
+        prev = lo if prev < lo else (hi if prev > hi else prev)
+        out.append(prev)
+    return np.array(out)
