@@ -96,7 +96,7 @@ EXTRA_ARGS = {
     ("docs/raw.md", "triadcal fit-raw RECORDING.csv"): ["--unit", "m/s2", "--poses", "unknown"],
 }
 # subcommands with a --no-progress option (their --help lists it)
-NO_PROGRESS = {"fit-raw", "sample", "validate", "capture"}
+NO_PROGRESS = {"fit-raw", "sample", "validate", "capture", "batch"}
 # long statistical commands: the option set to a reduced count (the block becomes slow)
 REDUCED = {
     "validate": {"--campaigns": "4"},
@@ -114,6 +114,10 @@ NOT_RUN = {
     ".venv/bin/python -m pytest": "the test suite itself",
     ".venv/bin/python benchmarks/": "benchmarks time against alternatives (minutes), not doc behaviour",
     "bash .ci/run": "what CI runs on a clean clone (the whole suite)",
+    "dask scheduler": "starts a Dask scheduler that serves until stopped (docs/fleet.md, on a cluster)",
+    "OMP_NUM_THREADS=1 dask worker": "starts Dask workers on a cluster's machines (docs/fleet.md)",
+    "triadcal batch data/*.csv --out fleet --scheduler": "needs a running Dask scheduler at the address; "
+                                            "the same batch runs on a LocalCluster (docs/fleet.md)",
     "duplicates --change": "a developer tool of the environment, not part of triadcal",
     "triadcal capture --config examples/data/ports.toml": "needs the real instruments on the serial ports of "
                                             "examples/data/ports.toml; the same capture runs "

@@ -18,6 +18,9 @@ def register(sub) -> None:
                     "least-squares fit of every term over all positions and temperatures.")
     p.add_argument("data", nargs="?", help="bench CSV v1 file")
     p.add_argument("--example", action="store_true", help="use the built-in example campaign")
+    p.add_argument("--unit", default=None, metavar="SN", help="serial number to fit when the file holds several")
+    p.add_argument("--state", default=None, metavar="NAME",
+                   help="mechanical state to fit when the file holds several")
     p.add_argument("--method", choices=("classical", "joint"), default="joint")
     p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS),
                    help=f"effects of the joint model, from: {', '.join(EFFECTS)}; default: "
@@ -44,13 +47,17 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..api import fit
+    from ..api import example_path, fit
+    from ..fleet.select import select_unit_state
+    from ..io.bench_csv import read_bench_csv
     from ..reports.summary import summary_text
 
     if bool(args.data) == bool(args.example):
         raise InputError("give a bench CSV file or --example")
     out = output(args)
-    result = fit(args.data, method=args.method, effects=name_list(args.effects),
+    campaign = select_unit_state(read_bench_csv(args.data or example_path()), args.unit, args.state,
+                                 source=args.data)
+    result = fit(campaign, method=args.method, effects=name_list(args.effects),
                  reference_temperature_C=args.reference_temperature, loss=args.loss,
                  strict=args.strict, json_path=args.json, netcdf_path=args.netcdf,
                  angle_bound_arcsec=args.angle_bound_arcsec, lab=args.lab)

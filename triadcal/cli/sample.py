@@ -19,6 +19,9 @@ def register(sub) -> None:
                     "ESS and R-hat < 1.01; otherwise the result says status: not_converged (exit code 3).")
     p.add_argument("data", nargs="?", help="bench CSV v1 file")
     p.add_argument("--example", action="store_true", help="use the built-in example campaign")
+    p.add_argument("--unit", default=None, metavar="SN", help="serial number to sample when the file holds several")
+    p.add_argument("--state", default=None, metavar="NAME",
+                   help="mechanical state to sample when the file holds several")
     p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS),
                    help=f"effects of the joint model, from: {', '.join(EFFECTS)}; default: {','.join(DEFAULT_EFFECTS)}")
     p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
@@ -52,7 +55,10 @@ def run(args) -> int:
 
     if bool(args.data) == bool(args.example):
         raise InputError("give a bench CSV file or --example")
+    from ..fleet.select import select_unit_state
+
     data = str(example_path()) if args.example else args.data
+    campaign = select_unit_state(read_bench_csv(data), args.unit, args.state, source=data)
     lab = load_lab(args.lab) if args.lab else None
     out = output(args)
     bar = out.bar(total=args.max_steps, desc="sampling", unit="step")
@@ -64,12 +70,12 @@ def run(args) -> int:
                 bar.set_postfix(tau=f"{check['tau_max']:.1f}", ess=f"{check['ess_estimate']:.0f}",
                                 rhat=f"{check.get('rhat_max', check['rhat_classic_max']):.3f}")
     try:
-        result = sample(data, name_list(args.effects), reference_temperature_C=args.reference_temperature,
+        result = sample(campaign, name_list(args.effects), reference_temperature_C=args.reference_temperature,
                         ess=args.ess, max_steps=args.max_steps, n_walkers=args.walkers, seed=args.seed,
                         progress=progress, json_path=args.json, posterior_path=args.posterior,
                         gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec),
                         bench_errors=bench_errors_of(lab) if lab else None,
-                        systematics=systematic_sources(lab, read_bench_csv(data).output_unit) if lab else ())
+                        systematics=systematic_sources(lab, campaign.output_unit) if lab else ())
     finally:
         if bar is not None:
             bar.close()

@@ -64,6 +64,9 @@ class LabConfig:
     shared_equipment: tuple = ()
     #: the equipment's own calibration: {section: {"instrument", "certificate", "due"}}
     equipment: dict = field(default_factory=dict)
+    #: the calibration history database (SQLite, ``[history] path``; relative to the lab file's
+    #: folder), used by ``triadcal history`` and ``triadcal batch --history`` (docs/fleet.md)
+    history_path: str = ""
 
     def expired(self, on: str) -> list:
         """Equipment whose calibration certificate was due before the date ``on`` (ISO
@@ -98,6 +101,7 @@ LAB_SCHEMA = {
                   "offset_u_V": ("voltmeter_offset_u_V", float)},
     "traceability": {"statement": ("traceability", str)},
     "compare": {"shared_equipment": ("shared_equipment", list)},
+    "history": {"path": ("history_path", str)},
 }
 
 #: keys any equipment section may carry: the instrument, its calibration certificate, its due date

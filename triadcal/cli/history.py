@@ -1,0 +1,62 @@
+"""``triadcal history``: the calibrations of a serial number over time (docs/fleet.md)."""
+
+from __future__ import annotations
+
+from ..errors import InputError
+from ._common import add_output_options, output
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "history", help="calibration history of a serial number: every calibration, drift, compare verdicts",
+        description="Show every recorded calibration of a serial number (date, lab, method, status, each angle, "
+                    "K and S with its u) and the compare verdict (significance only) between consecutive ones; "
+                    "or record a result with --add. The history is an SQLite file: --db, else [history] path "
+                    "of --lab, else triadcal-history.sqlite in the current directory.")
+    p.add_argument("serial", nargs="?", metavar="SN", help="serial number to show")
+    p.add_argument("--add", nargs="+", metavar="RESULT.json", help="record these results (a repeat is a no-op)")
+    p.add_argument("--date", help="with --add: the calibration date (YYYY-MM-DD; default: the result's, else "
+                                  "the lab file's [item] calibration_date, else today)")
+    p.add_argument("--db", metavar="PATH", help="history database (SQLite)")
+    p.add_argument("--lab", metavar="LAB.toml", help="lab file: [history] path, and the lab and equipment recorded "
+                                                    "with --add")
+    p.add_argument("--plot", metavar="FILE.png", help="draw each angle over time with its error bars")
+    add_output_options(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import datetime as dt
+
+    from ..fleet.history import HistoryDB, history_path, history_text, plot_history
+    from ..io.atomic import read_json
+    from ..io.lab import load_lab
+
+    if not args.serial and not args.add:
+        raise InputError("give a serial number to show, or --add RESULT.json")
+    if args.date:
+        try:
+            dt.date.fromisoformat(args.date)
+        except ValueError:
+            raise InputError(f"--date {args.date!r} is not a date (YYYY-MM-DD)") from None
+    lab = load_lab(args.lab) if args.lab else None
+    path = history_path(args.db, lab)
+    out = output(args)
+    with HistoryDB(path) as db:
+        for f in args.add or ():
+            d = read_json(f)
+            from ..estimation.result import CalibrationResult
+
+            CalibrationResult.from_dict(d, str(f))            # validated before it is recorded
+            added = db.add(d, lab=lab, date=args.date)
+            out.say(f"{f}: {'recorded' if added else 'already recorded (no change)'} in {path}")
+        if not args.serial:
+            return 0
+        cals = db.calibrations(args.serial)
+    if not cals:
+        raise InputError(f"{path}: no calibration of {args.serial!r} recorded")
+    out.say(history_text(args.serial, cals))
+    if args.plot:
+        plot_history(args.serial, cals, args.plot)
+        out.say(f"plot written to {args.plot}")
+    return 0

@@ -1,0 +1,299 @@
+"""``triadcal batch``: every (unit, state) of many bench CSV files fitted with the joint
+estimator on a dask.distributed cluster, one results JSON per unit and state, resumable.
+
+The work is cut into tasks of whole files (a task reads its file once and fits its pairs one
+after the other); when there are fewer files than twice the workers, each file is cut into
+parts (part i of k fits the pairs i, i + k, ...), so one multi-unit file still keeps every
+worker busy. A task writes each result as soon as it is fitted (atomically,
+:mod:`triadcal.io.atomic`), so a batch killed at any moment loses nothing already written, and
+skips a pair whose result file exists and records the SHA-256 of the same input file
+(``batch.input_sha256`` in the result). The numbers are those of :func:`triadcal.api.fit` on
+the same selection: the task calls it, with one BLAS thread (docs/fleet.md).
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import math
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+from ..errors import InputError
+
+#: one BLAS/OpenMP thread per worker: the matrices are small (triadcal/cli/__init__.py)
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+# -- inputs and names ----------------------------------------------------------------------
+
+def expand_inputs(inputs: Sequence) -> list[Path]:
+    """Files named or matched by glob patterns (``*``, ``?``, ``[..]``, ``**``), in the order
+    given, each once. A pattern that matches nothing, or a file that is not there, is refused."""
+    out, seen = [], set()
+    for item in inputs:
+        item = str(item)
+        if glob.has_magic(item):
+            matches = sorted(glob.glob(item, recursive=True))
+            matches = [m for m in matches if Path(m).is_file()]
+            if not matches:
+                raise InputError(f"{item}: no file matches this pattern")
+        else:
+            if not Path(item).is_file():
+                raise InputError(f"{item}: no such file")
+            matches = [item]
+        for m in matches:
+            key = os.path.realpath(m)
+            if key not in seen:
+                seen.add(key)
+                out.append(Path(m))
+    if not out:
+        raise InputError("no input files given")
+    return out
+
+
+def sha256_of(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def safe_name(text: str) -> str:
+    """A file-name-safe form of a serial number or state (anything but letters, digits, ``.``,
+    ``-`` and ``_`` becomes ``_``)."""
+    s = re.sub(r"[^A-Za-z0-9._-]", "_", text)
+    return s if s.strip(".") else "_" + s
+
+
+def result_path(out_dir, unit: str, state: str) -> Path:
+    return Path(out_dir) / "results" / f"{safe_name(unit)}__{safe_name(state)}.json"
+
+
+# -- the options of a fit and the task ---------------------------------------------------------
+
+@dataclass(frozen=True)
+class FitOptions:
+    """What every fit of the batch is given (the defaults of ``triadcal fit --method joint``)."""
+
+    effects: Optional[tuple] = None           # None: DEFAULT_EFFECTS
+    reference_temperature_C: float = 20.0
+    loss: str = "l2"
+    strict: bool = False
+    angle_bound_arcsec: float = 3600.0
+
+    def kwargs(self) -> dict:
+        from ..models.effects import DEFAULT_EFFECTS
+
+        return dict(method="joint", effects=list(self.effects) if self.effects is not None else DEFAULT_EFFECTS,
+                    reference_temperature_C=self.reference_temperature_C, loss=self.loss, strict=self.strict,
+                    angle_bound_arcsec=self.angle_bound_arcsec)
+
+
+def _existing(path: Path, sha: str) -> Optional[dict]:
+    """The result document at ``path`` if it is one of this input file (same SHA-256)."""
+    if not path.exists():
+        return None
+    from ..io.atomic import read_json
+
+    try:
+        d = read_json(path)
+    except InputError:
+        return None
+    b = d.get("batch") if isinstance(d, dict) else None
+    return d if isinstance(b, dict) and b.get("input_sha256") == sha else None
+
+
+def calibration_date(campaign, lab=None) -> str:
+    """The date the data were taken: the file's ``# date`` (capture writes it), else the lab
+    file's ``[item] calibration_date``, else empty."""
+    return str(campaign.metadata.get("date") or (lab.calibration_date if lab is not None else "") or "")
+
+
+def fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, options: FitOptions) -> list:
+    """The task: read one bench CSV, fit its (unit, state) pairs ``part, part + n_parts, ...``
+    that have no result yet, write each result as soon as it is fitted; return one record per
+    pair: ``{"unit", "state", "input", "path", "action": "fitted" | "skipped" | "error", ...}``."""
+    for k, v in WORKER_ENV.items():
+        os.environ.setdefault(k, v)
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:          # pragma: no cover - threadpoolctl comes with scipy's stack
+        threadpool_limits = None
+    from ..api import fit
+    from ..io.bench_csv import read_bench_csv
+    from .select import pair_mask, pairs
+
+    sha = sha256_of(input_path)
+    records = []
+    try:
+        campaign = read_bench_csv(input_path)
+    except InputError as exc:
+        return [{"unit": "", "state": "", "input": str(input_path), "path": "", "action": "error",
+                 "status": "refused", "error": str(exc)}]
+    todo = pairs(campaign)[part::n_parts]
+    for unit, state in todo:
+        path = result_path(out_dir, unit, state)
+        rec = {"unit": unit, "state": state, "input": str(input_path), "path": str(path)}
+        done = _existing(path, sha)
+        if done is not None:
+            records.append({**rec, "action": "skipped", "result": done})
+            continue
+        sub = campaign.select(pair_mask(campaign, unit, state))
+        t0 = time.perf_counter()
+        try:
+            if threadpool_limits is not None:
+                with threadpool_limits(1):
+                    result = fit(sub, lab=lab, **options.kwargs())
+            else:                # pragma: no cover
+                result = fit(sub, lab=lab, **options.kwargs())
+        except InputError as exc:
+            records.append({**rec, "action": "error", "status": "refused", "error": str(exc)})
+            continue
+        result.extra["batch"] = {"input": str(input_path), "input_sha256": sha, "state": state,
+                                 "date": calibration_date(campaign, lab),
+                                 "lab": lab.name if lab is not None else ""}
+        path.parent.mkdir(parents=True, exist_ok=True)
+        result.save(path)
+        records.append({**rec, "action": "fitted", "seconds": time.perf_counter() - t0,
+                        "result": result.to_dict()})
+    return records
+
+
+# -- the batch -------------------------------------------------------------------------------
+
+@dataclass
+class BatchReport:
+    """What a batch did: one record per (unit, state) (see :func:`fit_file_part`), the files
+    of the summary, the flags."""
+
+    out_dir: Path
+    records: list = field(default_factory=list)
+    files: dict = field(default_factory=dict)
+    flags: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+    seconds: float = 0.0
+
+    def count(self, action: str) -> int:
+        return sum(1 for r in self.records if r["action"] == action)
+
+    @property
+    def n_fitted(self) -> int:
+        return self.count("fitted")
+
+    @property
+    def n_skipped(self) -> int:
+        return self.count("skipped")
+
+    @property
+    def n_errors(self) -> int:
+        return self.count("error")
+
+    @property
+    def all_ok(self) -> bool:
+        return all(r["action"] != "error" and r["result"]["status"] == "ok" for r in self.records)
+
+
+def plan_tasks(files: Sequence[Path], n_workers: int) -> list[tuple[str, int, int]]:
+    """(file, part, n_parts) of every task: whole files, or each file in parts when there are
+    fewer files than twice the workers."""
+    n_parts = 1 if len(files) >= 2 * n_workers else math.ceil(2 * n_workers / len(files))
+    return [(str(f), i, n_parts) for f in files for i in range(n_parts)]
+
+
+def start_client(scheduler: Optional[str] = None, workers: int = 2, processes: bool = True):
+    """A dask.distributed client: of a running scheduler at ``scheduler`` (its workers should
+    run with OMP_NUM_THREADS=1), else of a new LocalCluster of ``workers`` processes (or
+    threads with ``processes=False``), one thread each, one BLAS thread each. Returns
+    ``(client, cluster or None)``."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        return Client(scheduler), None
+    if workers < 1:
+        raise InputError(f"--workers must be at least 1, got {workers}")
+    for k, v in WORKER_ENV.items():
+        os.environ.setdefault(k, v)
+    kw = {"env": dict(WORKER_ENV)} if processes else {}
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=processes,
+                           dashboard_address=None, **kw)
+    return Client(cluster), cluster
+
+
+def batch(inputs: Sequence, out_dir, *, lab=None, scheduler: Optional[str] = None, workers: int = 2,
+          processes: bool = True, tolerances=None, history=None, options: FitOptions = FitOptions(),
+          client=None, html: bool = True, progress: Optional[Callable[[dict], None]] = None) -> BatchReport:
+    """Fit every (unit, state) of ``inputs`` (bench CSV files or glob patterns) into
+    ``out_dir/results/<unit>__<state>.json`` and write the fleet summary (``fleet.csv``,
+    ``fleet.parquet``, ``fleet.html``, :mod:`triadcal.fleet.summary`).
+
+    ``lab``: lab file (path or LabConfig) given to every fit. ``scheduler``: address of a
+    running dask scheduler; else a LocalCluster of ``workers`` (``processes=False``: threads).
+    ``client``: an existing dask Client to use instead (not closed). ``tolerances``: a
+    tolerance file (TOML) whose limits flag units. ``history``: an SQLite history database
+    into which every result of the batch is recorded. ``progress``: called with each record
+    as its task completes. ``html=False``: no fleet.html (its histograms take ~0.1 s each)."""
+    from ..io.lab import LabConfig, load_lab
+
+    t0 = time.perf_counter()
+    files = expand_inputs(inputs)
+    if lab is not None and not isinstance(lab, LabConfig):
+        lab = load_lab(lab)
+    tol = None
+    if tolerances is not None:
+        from .summary import load_tolerances
+
+        tol = load_tolerances(tolerances)      # refused before any fit
+    out_dir = Path(out_dir)
+    (out_dir / "results").mkdir(parents=True, exist_ok=True)
+
+    own = client is None
+    cluster = None
+    if own:
+        client, cluster = start_client(scheduler, workers, processes)
+    try:
+        from dask.distributed import as_completed
+
+        n_workers = max(1, len(client.scheduler_info().get("workers", {})) or workers)
+        tasks = plan_tasks(files, n_workers)
+        futures = [client.submit(fit_file_part, f, str(out_dir), i, k, lab, options, pure=False)
+                   for f, i, k in tasks]
+        records = []
+        for fut in as_completed(futures):
+            recs = fut.result()
+            records.extend(recs)
+            if progress is not None:
+                for r in recs:
+                    progress(r)
+    finally:
+        if own:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    # a pair in two input files (or two names that map to one file name): the last one written wins
+    seen, warnings = {}, []
+    for r in records:
+        if r["action"] != "error":
+            if r["path"] in seen and seen[r["path"]] != r["input"]:
+                warnings.append(f"unit {r['unit']} in state {r['state']} is in {seen[r['path']]} and in "
+                                f"{r['input']}: one result file ({r['path']}) holds the last fitted")
+            seen[r["path"]] = r["input"]
+    records.sort(key=lambda r: (r["unit"], r["state"], r["input"]))
+    report = BatchReport(out_dir=out_dir, records=records, warnings=warnings)
+    from .summary import write_summary
+
+    report.files, report.flags = write_summary(records, out_dir, tol, html_page=html)
+    if history is not None:
+        from .history import HistoryDB
+
+        with HistoryDB(history) as db:
+            for r in records:
+                if r["action"] != "error":
+                    db.add(r["result"], lab=lab)
+    report.seconds = time.perf_counter() - t0
+    return report

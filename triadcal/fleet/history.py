@@ -1,0 +1,201 @@
+"""The calibration history per serial number: an SQLite database (standard library) with one
+table ``calibrations(id, serial, state, date, lab, equipment, result, sha256, added)``;
+``equipment`` and ``result`` are JSON text, ``sha256`` that of the result's JSON text (unique:
+recording the same result twice is a no-op)."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import sqlite3
+from pathlib import Path
+from typing import Optional
+
+from ..errors import InputError
+
+DEFAULT_DB = "triadcal-history.sqlite"
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS calibrations (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    serial TEXT NOT NULL,
+    state TEXT NOT NULL DEFAULT '',
+    date TEXT NOT NULL,
+    lab TEXT NOT NULL DEFAULT '',
+    equipment TEXT NOT NULL DEFAULT '{}',
+    result TEXT NOT NULL,
+    sha256 TEXT NOT NULL UNIQUE,
+    added TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS calibrations_serial ON calibrations (serial, date);
+"""
+
+
+def history_path(db: Optional[str] = None, lab=None) -> Path:
+    """``db`` if given, else the lab file's ``[history] path`` (relative to the lab file's
+    folder), else triadcal-history.sqlite in the current directory."""
+    if db:
+        return Path(db)
+    if lab is not None and getattr(lab, "history_path", ""):
+        p = Path(lab.history_path)
+        if not p.is_absolute() and lab.source:
+            p = Path(lab.source).parent / p
+        return p
+    return Path(DEFAULT_DB)
+
+
+def equipment_of(lab) -> dict:
+    if lab is None:
+        return {}
+    eq = {k: dict(v) for k, v in lab.equipment.items()}
+    for section, name in (("bench", lab.bench), ("fixture", lab.fixture), ("chamber", lab.chamber),
+                          ("thermometers", lab.thermometers), ("voltmeter", lab.voltmeter)):
+        if name:
+            eq.setdefault(section, {})["name"] = name
+    return eq
+
+
+class HistoryDB:
+    """``with HistoryDB(path) as db: db.add(result_dict, lab=...)``; :meth:`calibrations`."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        if self.path.parent and not self.path.parent.exists():
+            raise InputError(f"{self.path}: folder {self.path.parent} does not exist")
+        self.con = sqlite3.connect(self.path, timeout=30)
+        self.con.executescript(SCHEMA)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        self.con.close()
+
+    def add(self, result: dict, lab=None, date: Optional[str] = None) -> bool:
+        """Record a result (results-json document); False when it was already recorded."""
+        from ..io.atomic import json_safe
+
+        text = json.dumps(json_safe(result), sort_keys=True, allow_nan=False)
+        sha = hashlib.sha256(text.encode("utf-8")).hexdigest()
+        b = result.get("batch") or {}
+        date = date or b.get("date") or result.get("date") or (lab.calibration_date if lab is not None else "") \
+            or _dt.datetime.now(_dt.timezone.utc).date().isoformat()
+        lab_name = (lab.name if lab is not None else "") or b.get("lab", "")
+        state = b.get("state") or result.get("state") or ""
+        with self.con:
+            cur = self.con.execute(
+                "INSERT OR IGNORE INTO calibrations (serial, state, date, lab, equipment, result, sha256, added) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (str(result["unit"]), state, str(date), lab_name, json.dumps(equipment_of(lab), sort_keys=True),
+                 text, sha, _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")))
+        return cur.rowcount == 1
+
+    def calibrations(self, serial: str) -> list[dict]:
+        """Every recorded calibration of ``serial``, oldest first (by date, then by when recorded)."""
+        cur = self.con.execute("SELECT id, serial, state, date, lab, equipment, result, sha256, added FROM "
+                               "calibrations WHERE serial = ? ORDER BY date, id", (serial,))
+        out = []
+        for row in cur.fetchall():
+            out.append({"id": row[0], "serial": row[1], "state": row[2], "date": row[3], "lab": row[4],
+                        "equipment": json.loads(row[5]), "result": json.loads(row[6]), "sha256": row[7],
+                        "added": row[8]})
+        return out
+
+    def serials(self) -> list[str]:
+        return [r[0] for r in self.con.execute("SELECT DISTINCT serial FROM calibrations ORDER BY serial")]
+
+
+def shown_parameters(calibrations) -> list[str]:
+    """Angles, K and S present in any of the calibrations, in a fixed order."""
+    order = [f"Ca_{a}" for a in ("xy", "xz", "yx", "yz", "zx", "zy")] + [f"K_{a}" for a in "xyz"] + \
+            [f"S_{a}" for a in "xyz"]
+    return [n for n in order if any(n in c["result"].get("parameters", {}) for c in calibrations)]
+
+
+def verdicts(calibrations) -> list[str]:
+    """The ``compare`` overall verdict (significance only: tolerance_arcsec=None) of each
+    calibration against the one before it, or why there is none."""
+    from ..estimation.result import CalibrationResult
+    from ..judgement.compare import compare
+
+    out = []
+    for a, b in zip(calibrations, calibrations[1:]):
+        try:
+            before = CalibrationResult.from_dict(a["result"], f"history #{a['id']}")
+            after = CalibrationResult.from_dict(b["result"], f"history #{b['id']}")
+            out.append(compare(before, after, tolerance_arcsec=None).overall)
+        except InputError as exc:
+            out.append(f"not compared: {exc}")
+    return out
+
+
+def history_text(serial: str, calibrations) -> str:
+    from ..estimation.result import round_to_uncertainty
+
+    if not calibrations:
+        return f"{serial}: no calibration recorded"
+    lines = [f"{serial}: {len(calibrations)} calibration(s)"]
+    for i, c in enumerate(calibrations, 1):
+        r = c["result"]
+        lines.append(f"  #{i} {c['date']}  state {c['state'] or '-'}  lab {c['lab'] or '-'}  method "
+                     f"{r.get('method')}  status {r.get('status')}")
+    names = shown_parameters(calibrations)
+    head = "  " + "parameter".ljust(12) + "".join(f"#{i}".rjust(24) for i in range(1, len(calibrations) + 1))
+    lines += ["", head]
+    for n in names:
+        cells = []
+        unit = ""
+        for c in calibrations:
+            p = c["result"].get("parameters", {}).get(n)
+            if p is None or p.get("value") is None or p.get("u") is None:
+                cells.append("-".rjust(24))
+                continue
+            unit = p.get("unit", "")
+            v, u = round_to_uncertainty(p["value"], p["u"])
+            cells.append(f"{v} ± {u}".rjust(24))
+        lines.append("  " + f"{n}".ljust(12) + "".join(cells) + f"  {unit}")
+    vs = verdicts(calibrations)
+    if vs:
+        lines += ["", "  compare (consecutive, significance only):"]
+        for i, v in enumerate(vs, 1):
+            lines.append(f"    #{i} -> #{i + 1}: {v}")
+    return "\n".join(lines)
+
+
+def plot_history(serial: str, calibrations, path) -> None:
+    """Each angle against the calibration date with its error bar (k = 1), one panel per angle."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+
+    from ..io.atomic import atomic_path
+
+    angles = [n for n in shown_parameters(calibrations) if n.startswith("Ca_")]
+    if not angles:
+        raise InputError(f"{serial}: no angle recorded to plot")
+    fig = Figure(figsize=(9, 5.5))
+    for k, n in enumerate(angles):
+        ax = fig.add_subplot(2, 3, k + 1)
+        xs, ys, us = [], [], []
+        for c in calibrations:
+            p = c["result"].get("parameters", {}).get(n)
+            if p and p.get("value") is not None and p.get("u") is not None:
+                try:
+                    xs.append(_dt.date.fromisoformat(c["date"][:10]))
+                except ValueError:
+                    continue
+                ys.append(p["value"])
+                us.append(p["u"])
+        ax.errorbar(xs, ys, yerr=us, fmt="o-", capsize=3)
+        ax.set_title(f"{n} (arcsec)", fontsize=9)
+        ax.tick_params(labelsize=7)
+        for lab in ax.get_xticklabels():
+            lab.set_rotation(30)
+    fig.suptitle(f"{serial}: angles over time (error bars: u, k = 1)")
+    fig.tight_layout()
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png", dpi=90)

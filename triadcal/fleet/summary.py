@@ -1,0 +1,236 @@
+"""The fleet summary of a batch: one row per unit and state (``fleet.csv``, ``fleet.parquet``),
+units outside a tolerance file, the fleet's outliers against its own spread, and an HTML page
+with the distribution of every parameter (``fleet.html``, self-contained)."""
+
+from __future__ import annotations
+
+import base64
+import csv
+import fnmatch
+import html
+import io
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+#: the outlier rule: |x - median| > OUTLIER_K * 1.4826 * MAD over the units whose status is ok,
+#: for every parameter with at least OUTLIER_MIN_UNITS such units and a MAD > 0
+OUTLIER_K = 5.0
+MAD_TO_SD = 1.4826
+OUTLIER_MIN_UNITS = 5
+
+BASE_COLUMNS = ("unit", "state", "input", "action", "status", "chi2_dof", "n_obs", "out_of_tolerance",
+                "outliers", "error")
+
+
+# -- tolerances --------------------------------------------------------------------------------
+
+def load_tolerances(path) -> list[tuple[str, float, float]]:
+    """A tolerance file (TOML)::
+
+        [tolerances]
+        "Ca_*" = 120            # |value| <= 120 (the parameter's unit: arcsec)
+        K_x = [0.99, 1.01]      # 0.99 <= value <= 1.01
+
+    Names may hold ``*``/``?`` wildcards. Returns ``[(pattern, low, high)]``."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML: {exc}") from None
+    extra = [k for k in data if k != "tolerances"]
+    if extra or not isinstance(data.get("tolerances"), dict):
+        raise InputError(f"{path}: a tolerance file has one section [tolerances] (NAME = limit or [low, high])"
+                         + (f"; unknown: {', '.join(extra)}" if extra else ""))
+    out = []
+    for name, v in data["tolerances"].items():
+        def num(x):
+            return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+        if num(v) and v >= 0:
+            out.append((name, -float(v), float(v)))
+        elif isinstance(v, list) and len(v) == 2 and all(num(x) for x in v) and v[0] <= v[1]:
+            out.append((name, float(v[0]), float(v[1])))
+        else:
+            raise InputError(f"{path}: [tolerances] {name} = {v!r}: give a limit >= 0 (|value| <= limit) or "
+                             "[low, high] with low <= high")
+    return out
+
+
+def out_of_tolerance(params: dict, tolerances) -> list[str]:
+    """Names of the parameters of ``params`` (name -> {"value", ...}) outside their tolerance."""
+    bad = []
+    for name, p in params.items():
+        x = p.get("value")
+        for pattern, low, high in tolerances or ():
+            if fnmatch.fnmatchcase(name, pattern):
+                if x is None or not (low <= x <= high):
+                    bad.append(name)
+                break
+    return bad
+
+
+# -- outliers ----------------------------------------------------------------------------------
+
+def robust_outliers(values, k: float = OUTLIER_K) -> np.ndarray:
+    """Boolean mask of the values with |x - median| > k * 1.4826 * MAD (NaN: never an
+    outlier). No flag when fewer than OUTLIER_MIN_UNITS values are finite or the MAD is 0."""
+    x = np.asarray(values, float)
+    ok = np.isfinite(x)
+    flags = np.zeros(len(x), bool)
+    if ok.sum() < OUTLIER_MIN_UNITS:
+        return flags
+    med = np.median(x[ok])
+    mad = np.median(np.abs(x[ok] - med))
+    if not mad > 0:
+        return flags
+    flags[ok] = np.abs(x[ok] - med) > k * MAD_TO_SD * mad
+    return flags
+
+
+# -- the table -----------------------------------------------------------------------------------
+
+def parameter_names(records) -> list[str]:
+    names = []
+    for r in records:
+        for n in (r.get("result") or {}).get("parameters", {}):
+            if n not in names:
+                names.append(n)
+    return names
+
+
+def table(records, tolerances=None):
+    """(columns, rows as dicts) of the fleet: BASE_COLUMNS then ``<p>``, ``<p>_u`` per parameter."""
+    names = parameter_names(records)
+    rows = []
+    for r in records:
+        res = r.get("result") or {}
+        params = res.get("parameters", {})
+        fit = res.get("fit", {})
+        row = {"unit": r["unit"], "state": r["state"], "input": r["input"], "action": r["action"],
+               "status": res.get("status", r.get("status", "refused")), "chi2_dof": fit.get("chi2_dof"),
+               "n_obs": fit.get("n_obs"), "out_of_tolerance": ";".join(out_of_tolerance(params, tolerances)),
+               "outliers": "", "error": r.get("error", "")}
+        for n in names:
+            p = params.get(n) or {}
+            row[n] = p.get("value")
+            row[n + "_u"] = p.get("u")
+        rows.append(row)
+    ok = np.array([row["status"] == "ok" for row in rows], bool)
+    flagged = {i: [] for i in range(len(rows))}
+    for n in names:
+        x = np.array([row[n] if (row[n] is not None and ok[i]) else np.nan for i, row in enumerate(rows)], float)
+        for i in np.flatnonzero(robust_outliers(x)):
+            flagged[int(i)].append(n)
+    for i, row in enumerate(rows):
+        row["outliers"] = ";".join(flagged[i])
+    columns = list(BASE_COLUMNS) + [c for n in names for c in (n, n + "_u")]
+    return columns, rows, names
+
+
+def write_summary(records, out_dir, tolerances=None, html_page: bool = True) -> tuple[dict, dict]:
+    """Write fleet.csv, fleet.parquet and fleet.html into ``out_dir``; return (files, flags)
+    with flags = {"out_of_tolerance": {unit/state: [names]}, "outliers": {unit/state: [names]}}."""
+    from ..io.atomic import atomic_path, atomic_write, atomic_write_text
+
+    out_dir = Path(out_dir)
+    columns, rows, names = table(records, tolerances)
+    files = {"csv": out_dir / "fleet.csv", "parquet": out_dir / "fleet.parquet"}
+    if html_page:
+        files["html"] = out_dir / "fleet.html"
+    with atomic_write(files["csv"], "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n")
+        w.writeheader()
+        for row in rows:
+            w.writerow({k: ("" if v is None else (repr(v) if isinstance(v, float) else v)) for k, v in row.items()})
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    arrays = {}
+    for c in columns:
+        vals = [row[c] for row in rows]
+        if c in ("unit", "state", "input", "action", "status", "out_of_tolerance", "outliers", "error"):
+            arrays[c] = pa.array([str(v) for v in vals], pa.string())
+        elif c == "n_obs":
+            arrays[c] = pa.array([None if v is None else int(v) for v in vals], pa.int64())
+        else:
+            arrays[c] = pa.array([None if v is None else float(v) for v in vals], pa.float64())
+    with atomic_path(files["parquet"], suffix=".parquet") as tmp:
+        pq.write_table(pa.table(arrays), tmp)
+    if html_page:
+        atomic_write_text(files["html"], render_html(rows, names, tolerances))
+    flags = {"out_of_tolerance": {f"{r['unit']}/{r['state']}": r["out_of_tolerance"].split(";")
+                                  for r in rows if r["out_of_tolerance"]},
+             "outliers": {f"{r['unit']}/{r['state']}": r["outliers"].split(";") for r in rows if r["outliers"]}}
+    return files, flags
+
+
+# -- the HTML page -------------------------------------------------------------------------------
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=80)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def render_html(rows, names, tolerances=None) -> str:
+    """A self-contained page: counts, flagged units, one histogram per parameter (units whose
+    status is ok; outliers in red, tolerance limits dashed) as inline PNG, and the table."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+
+    esc = html.escape
+    ok = [r for r in rows if r["status"] == "ok"]
+    parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'><title>triadcal fleet summary</title>",
+             "<style>body{font-family:sans-serif;margin:1.5em}table{border-collapse:collapse;font-size:12px}"
+             "td,th{border:1px solid #ccc;padding:2px 6px}.bad{background:#fdd}.fig{display:inline-block;margin:4px}"
+             "</style></head><body><h1>Fleet summary</h1>",
+             f"<p>{len(rows)} unit/state pairs, {len(ok)} with status ok. Outliers: |x &minus; median| &gt; "
+             f"{OUTLIER_K:g} &times; {MAD_TO_SD} &times; MAD over the units whose status is ok (at least "
+             f"{OUTLIER_MIN_UNITS}, MAD &gt; 0), per parameter."
+             + (" Tolerances: " + esc(", ".join(f"{p} in [{lo:g}, {hi:g}]" for p, lo, hi in tolerances))
+                if tolerances else " No tolerance file.") + "</p>"]
+    flagged = [r for r in rows if r["status"] != "ok" or r["out_of_tolerance"] or r["outliers"]]
+    parts.append("<h2>Flagged units</h2>")
+    if flagged:
+        parts.append("<table><tr><th>unit</th><th>state</th><th>status</th><th>outside tolerance</th>"
+                     "<th>fleet outlier in</th></tr>")
+        for r in flagged:
+            parts.append(f"<tr class='bad'><td>{esc(r['unit'])}</td><td>{esc(r['state'])}</td><td>{esc(r['status'])}"
+                         f"</td><td>{esc(r['out_of_tolerance'])}</td><td>{esc(r['outliers'])}</td></tr>")
+        parts.append("</table>")
+    else:
+        parts.append("<p>none</p>")
+    parts.append("<h2>Distributions</h2>")
+    for n in names:
+        x = np.array([r[n] for r in ok if r[n] is not None], float)
+        if not len(x):
+            continue
+        out = np.array([n in r["outliers"].split(";") for r in ok if r[n] is not None], bool)
+        fig = Figure(figsize=(3.6, 2.4))
+        ax = fig.add_axes((0.16, 0.14, 0.8, 0.74))
+        ax.hist(x[~out] if (~out).any() else x, bins=min(30, max(5, len(x) // 5)), color="#4a7ab0")
+        for v in x[out]:
+            ax.axvline(v, color="red", lw=1)
+        for pattern, lo, hi in tolerances or ():
+            if fnmatch.fnmatchcase(n, pattern):
+                for v in (lo, hi):
+                    ax.axvline(v, color="k", ls="--", lw=0.8)
+                break
+        ax.set_title(n, fontsize=9)
+        ax.tick_params(labelsize=7)
+        parts.append(f"<div class='fig'><img alt='{esc(n)}' src='data:image/png;base64,{_png(fig)}'></div>")
+    parts.append("<h2>Table</h2><table><tr><th>unit</th><th>state</th><th>status</th><th>chi2/dof</th>"
+                 "<th>input</th></tr>")
+    for r in rows:
+        chi = "" if r["chi2_dof"] is None else f"{r['chi2_dof']:.3f}"
+        parts.append(f"<tr><td>{esc(r['unit'])}</td><td>{esc(r['state'])}</td><td>{esc(r['status'])}</td>"
+                     f"<td>{chi}</td><td>{esc(r['input'])}</td></tr>")
+    parts.append("</table><p>Every value, its u and unit: fleet.csv, fleet.parquet and results/.</p></body></html>\n")
+    return "".join(parts)
