@@ -1,7 +1,14 @@
 """Thermal chamber driver: set and read the temperature.
 
 :class:`Chamber` is the interface; :class:`ModbusChamber` talks Modbus RTU through
-minimalmodbus (over pyserial), with the register map of docs/hardware.md:
+minimalmodbus (over pyserial), with triadcal's own register map (docs/hardware.md). The
+documented controllers have their own modules: :mod:`.watlow` (Watlow F4, F4T) and
+:mod:`.espec` (Espec P300 / SCP-220 ASCII); :func:`open_chamber` picks one from a config
+section, and :func:`open_serial` opens any pyserial URL or device path. Stabilisation is
+not the chamber's job: the capture runner waits on the unit's own temperatures
+(capture.Stabilisation).
+
+The register map of :class:`ModbusChamber`:
 
 =========  ======  ======================================  ==========
 register   access  meaning                                 encoding
@@ -14,7 +21,7 @@ register   access  meaning                                 encoding
 
 from __future__ import annotations
 
-from ...errors import TriadcalError
+from ...errors import InputError, TriadcalError
 
 import time
 from abc import ABC, abstractmethod
@@ -81,3 +88,52 @@ class ModbusChamber(Chamber):
 
     def close(self) -> None:
         self._inst.serial.close()
+
+
+def open_serial(port: str, *, baudrate: int, bytesize: int = 8, parity: str = "N", stopbits: float = 1,
+                timeout_s: float = 0.5) -> serial.SerialBase:
+    """An open pyserial port from a device path (``/dev/ttyUSB0``, ``COM3``) or any pyserial
+    URL (``rfc2217://host:port``, ``socket://host:port``, ``loop://``, ``spy://...``)."""
+    if parity not in ("N", "E", "O"):
+        raise ValueError(f"parity must be N, E or O, not {parity!r}")
+    if stopbits not in (1, 1.5, 2):
+        raise ValueError(f"stop bits must be 1, 1.5 or 2, not {stopbits!r}")
+    try:
+        return serial.serial_for_url(port, baudrate=int(baudrate), bytesize=int(bytesize), parity=parity,
+                                     stopbits=stopbits, timeout=timeout_s)
+    except (serial.SerialException, ValueError) as exc:
+        raise ChamberError(f"cannot open the chamber's port {port}: {exc}") from None
+
+
+#: the ``driver`` names of a ``[chamber]`` config section
+CHAMBER_DRIVERS = ("modbus", "watlow-f4", "watlow-f4t", "espec")
+
+
+def open_chamber(cfg) -> Chamber:
+    """A chamber driver from a config mapping: ``driver`` (one of :data:`CHAMBER_DRIVERS`,
+    default ``modbus``: triadcal's own map), ``port`` (device path or pyserial URL), and the
+    driver's options: ``baudrate``, ``slave`` / ``address``, ``stopbits``, ``parity``, ``loop``,
+    ``word_order`` (F4T: ``low-first`` | ``high-first``), ``timeout_s``."""
+    driver = str(cfg.get("driver", "modbus")).lower()
+    if not cfg.get("port"):
+        raise InputError("[chamber] needs a 'port' (a device path or a pyserial URL)")
+    port = cfg["port"]
+    opt = {k: cfg[k] for k in ("stopbits", "parity", "timeout_s") if k in cfg}
+    if driver == "modbus":
+        return ModbusChamber(port, slave=int(cfg.get("slave", cfg.get("address", 1))),
+                             baudrate=int(cfg.get("baudrate", 19200)))
+    if driver in ("watlow-f4", "watlow-f4t"):
+        from .watlow import WatlowF4, WatlowF4T
+
+        kw = dict(slave=int(cfg.get("slave", cfg.get("address", 1))), baudrate=int(cfg.get("baudrate", 9600)),
+                  loop=int(cfg.get("loop", 1)), **opt)
+        if driver == "watlow-f4t":
+            return WatlowF4T(port, word_order=str(cfg.get("word_order", "low-first")), **kw)
+        return WatlowF4(port, **kw)
+    if driver == "espec":
+        from .espec import EspecChamber
+
+        address = cfg.get("address")
+        return EspecChamber(port, baudrate=int(cfg.get("baudrate", 9600)),
+                            address=None if address in (None, "", 0) else int(address), **opt)
+    raise InputError(f"[chamber] driver {driver!r}: expected one of {', '.join(CHAMBER_DRIVERS)}")
