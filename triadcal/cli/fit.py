@@ -42,6 +42,10 @@ def register(sub) -> None:
                         "with a budget, U and k per parameter (docs/lab.md; without it, u is Type A only)")
     p.add_argument("--json", metavar="OUT", help="write the result (results-json v1)")
     p.add_argument("--netcdf", metavar="OUT.nc", help="write residuals per visit and axis (joint)")
+    p.add_argument("--joint-units", action="store_true",
+                   help="fit every unit of a multi-unit file jointly, the bench's tilt (and non-orthogonality) "
+                        "shared, each unit with its own parameters (docs/joint.md); one result per unit in --json-dir")
+    p.add_argument("--json-dir", metavar="DIR", help="with --joint-units: write DIR/<unit>.json for every unit")
     add_output_options(p)
     p.set_defaults(func=run)
 
@@ -55,6 +59,10 @@ def run(args) -> int:
     if bool(args.data) == bool(args.example):
         raise InputError("give a bench CSV file or --example")
     out = output(args)
+    if args.joint_units:
+        return _joint_units(args, out)
+    if args.json_dir:
+        raise InputError("--json-dir goes with --joint-units (one result per unit); for one unit use --json")
     campaign = select_unit_state(read_bench_csv(args.data or example_path()), args.unit, args.state,
                                  source=args.data)
     result = fit(campaign, method=args.method, effects=name_list(args.effects),
@@ -69,3 +77,41 @@ def run(args) -> int:
     for note in result.notes:
         print(f"note: {note}", file=sys.stderr)
     return 0 if result.status == "ok" else 3
+
+
+def _joint_units(args, out) -> int:
+    """``fit --joint-units``: every unit of the file (one state) with the bench terms shared."""
+    from pathlib import Path
+
+    from ..api import example_path
+    from ..estimation.gates import GateConfig
+    from ..estimation.multi import fit_joint_units
+    from ..io.bench_csv import read_bench_csv
+    from ..io.lab import bench_errors_of, load_lab
+    from ..reports.summary import summary_text
+    from ..uncertainty.typeb import systematic_sources
+
+    if args.method != "joint" or args.unit or args.json or args.netcdf:
+        raise InputError("--joint-units fits every unit with the joint method: no --unit, --json or --netcdf "
+                         "(give --json-dir DIR)")
+    campaign = read_bench_csv(args.data or example_path())
+    if args.state is not None:
+        states = sorted(set(campaign.state.tolist()))
+        if args.state not in states:
+            raise InputError(f"{args.data}: no state {args.state!r}; its states are {', '.join(states)}")
+        campaign = campaign.select(campaign.state == args.state)
+    lab = load_lab(args.lab) if args.lab else None
+    results = fit_joint_units(campaign, name_list(args.effects), reference_temperature_C=args.reference_temperature,
+                              bench_errors=bench_errors_of(lab) if lab else None,
+                              systematics=systematic_sources(lab, campaign.output_unit) if lab else (),
+                              gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec))
+    for unit, r in results.items():
+        out.say(summary_text(r))
+        if args.json_dir:
+            from ..fleet.batch import safe_name
+
+            path = Path(args.json_dir) / f"{safe_name(unit)}.json"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            r.save(path)
+            out.say(f"result written to {path}")
+    return 0 if all(r.status == "ok" for r in results.values()) else 3

@@ -1,0 +1,79 @@
+"""Several units on one bench fitted jointly (issue 21, item 1): the shared bench terms and what
+sharing gains, on units made by the independent simulator on one tilted bench."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from independent_bench import simulate_campaign
+from triadcal.cli import main
+from triadcal.errors import InputError
+from triadcal.estimation.joint import fit_joint
+from triadcal.estimation.multi import fit_joint_units
+from triadcal.io.bench_csv import read_bench_csv
+from triadcal.io.lab import LabConfig
+from triadcal.uncertainty.typeb import systematic_sources
+
+EFFECTS = ("bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco")
+
+
+def _fleet_file(tmp_path, n=4, seed=3, tilt=(40.0, -25.0)):
+    rng = np.random.default_rng(seed)
+    lines, truths = [], {}
+    for k in range(n):
+        text, truth = simulate_campaign(rng, unit=f"SN-{k}", tilt_arcsec=tilt)
+        truths[f"SN-{k}"] = truth
+        rows = text.splitlines()
+        lines += rows if k == 0 else [r for r in rows if not r.startswith("#") and not r.startswith("unit,")]
+    p = tmp_path / "fleet.csv"
+    p.write_text("\n".join(lines) + "\n")
+    return p, truths
+
+
+def test_sharing_the_bench_halves_the_tilts_u_for_four_units_and_keeps_the_angles(tmp_path):
+    """Four units see one tilt: its u falls by sqrt(4) = 2 against one unit's fit. On the
+    12-position plan the angles do not correlate with the tilt (the half-turn pairs cancel it),
+    so their u is that of the separate fits — sharing buys the bench terms, not the angles."""
+    path, truths = _fleet_file(tmp_path)
+    c = read_bench_csv(path)
+    res = fit_joint_units(c, EFFECTS)
+    assert set(res) == set(truths)
+    tilts = {round(r["tilt_x"].value, 9) for r in res.values()}
+    assert len(tilts) == 1                                   # one tilt in every unit's result
+    for u, r in res.items():
+        sep = fit_joint(c.select(c.unit == u), EFFECTS)
+        assert r.status == "ok" and sep.status == "ok"
+        assert r["tilt_x"].u / sep["tilt_x"].u == pytest.approx(0.5, abs=0.03)
+        assert r["tilt_y"].u / sep["tilt_y"].u == pytest.approx(0.5, abs=0.03)
+        for n in ("Ca_xy", "Ca_zx", "K_y", "S_z", "Ca_yz_tempco"):
+            assert r[n].u == pytest.approx(sep[n].u, rel=0.02), n
+            assert abs(r[n].value - truths[u][n]) < 4 * r[n].u, n
+        assert abs(r["tilt_x"].value - 40.0) < 4 * r["tilt_x"].u
+        assert "fitted jointly" in " ".join(r.notes) and r.fit["joint_units"]["shared"] == ["tilt_x", "tilt_y"]
+
+
+def test_refusals(tmp_path, example):
+    path, _ = _fleet_file(tmp_path, n=2)
+    c = read_bench_csv(path)
+    with pytest.raises(InputError, match="nothing to share"):
+        fit_joint_units(c.select(c.unit == "SN-0"), EFFECTS)
+    with pytest.raises(InputError, match="no bench terms to share"):
+        fit_joint_units(c, ("angle_tempco",))
+    lab = LabConfig(mounting_u_arcsec=10.0, source="t")
+    with pytest.raises(InputError, match="does not yet propagate"):
+        fit_joint_units(c, EFFECTS, systematics=systematic_sources(lab))
+
+
+def test_cli_writes_one_result_per_unit(tmp_path):
+    path, _ = _fleet_file(tmp_path, n=2, seed=5)
+    out = tmp_path / "res"
+    code = main(["fit", str(path), "--joint-units", "--effects", ",".join(EFFECTS), "--json-dir", str(out),
+                 "--quiet"])
+    assert code == 0
+    docs = {p.stem: json.loads(p.read_text()) for p in out.glob("*.json")}
+    assert set(docs) == {"SN-0", "SN-1"}
+    assert docs["SN-0"]["parameters"]["tilt_x"]["value"] == docs["SN-1"]["parameters"]["tilt_x"]["value"]
+    assert main(["fit", str(path), "--joint-units", "--json", str(tmp_path / "x.json")]) == 1
