@@ -51,7 +51,8 @@ def example_path():
 
 def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS,
         reference_temperature_C: float = 20.0, loss: str = "l2", strict: bool = False,
-        json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0, lab=None):
+        json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0, lab=None,
+        hysteresis_form: str = "offset", hysteresis_half_width_C: Optional[float] = None):
     """Calibrate from a campaign (``triadcal fit``): ``data`` is a bench CSV path, a
     :class:`~triadcal.models.campaign.Campaign`, or None for the built-in example.
     ``angle_bound_arcsec``: the answer gates' bound on an orientation angle (arcsec).
@@ -60,6 +61,9 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     variance components and whose systematic errors (encoder zeros, axes non-orthogonality,
     fixture, g, thermometers, voltmeter) are propagated to every parameter as Type B
     (:mod:`triadcal.uncertainty.typeb`); without it the joint fit's uncertainties are Type A only.
+    ``hysteresis_form``: ``offset`` (the branches a constant offset apart), ``play`` (a play
+    hysteresis of half-width ``hysteresis_half_width_C`` degC, profiled when None) or ``auto``
+    (chosen by the data; :mod:`triadcal.estimation.hysteresis_form`).
     Returns a :class:`~triadcal.estimation.result.CalibrationResult` whose ``status`` is
     ``ok`` only when every answer gate passed (docs/statuses.md)."""
     from .estimation.gates import GateConfig
@@ -87,11 +91,18 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             lab = load_lab(lab)
         systematics = systematic_sources(lab, campaign.output_unit)
         effects, added = effects_with_lab(effects, systematics)
-        result, problem, solution = fit_joint(
-            campaign, effects, reference_temperature_C=reference_temperature_C, loss=loss,
-            unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates,
-            bench_errors=bench_errors_of(lab) if lab is not None else None,
-            systematics=systematics)
+        kwargs = dict(reference_temperature_C=reference_temperature_C, loss=loss,
+                      unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates,
+                      bench_errors=bench_errors_of(lab) if lab is not None else None, systematics=systematics)
+        if hysteresis_form == "offset" and hysteresis_half_width_C is None:
+            result, problem, solution = fit_joint(campaign, effects, **kwargs)
+        else:
+            from .estimation.hysteresis_form import fit_hysteresis_form
+
+            kwargs.pop("return_problem")
+            result, problem, solution, campaign = fit_hysteresis_form(
+                campaign, effects, "play" if hysteresis_form == "offset" else hysteresis_form,
+                hysteresis_half_width_C, **kwargs)
         if added:
             result.notes.append(added)
         if netcdf_path is not None:
@@ -118,6 +129,9 @@ _LAZY = {
     "diagnose": ("triadcal.judgement.diagnose", "diagnose"),
     "validate_diagnosis": ("triadcal.judgement.diagnosis_validation", "validate"),
     "sample": ("triadcal.estimation.posterior", "sample"),
+    "batch": ("triadcal.fleet.batch", "batch"),
+    "export_compensation": ("triadcal.reports.compensation", "export_compensation"),
+    "thermal_cycle": ("triadcal.estimation.thermal_cycle", "thermal_cycle"),
 }
 
 

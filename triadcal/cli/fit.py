@@ -42,6 +42,12 @@ def register(sub) -> None:
                         "with a budget, U and k per parameter (docs/lab.md; without it, u is Type A only)")
     p.add_argument("--json", metavar="OUT", help="write the result (results-json v1)")
     p.add_argument("--netcdf", metavar="OUT.nc", help="write residuals per visit and axis (joint)")
+    p.add_argument("--hysteresis-form", choices=("offset", "play", "auto"), default="offset",
+                   help="form of the angles' hysteresis: offset (the branches a constant offset apart, default), "
+                        "play (a backlash of half-width r on the temperature history, r profiled), auto (chosen by "
+                        "the data: likelihood ratio at 99 %%); docs/model.md")
+    p.add_argument("--hysteresis-width", type=float, default=None, metavar="DEGC",
+                   help="the play's half-width r in degC (fixed instead of profiled)")
     p.add_argument("--joint-units", action="store_true",
                    help="fit every unit of a multi-unit file jointly, the bench's tilt (and non-orthogonality) "
                         "shared, each unit with its own parameters (docs/joint.md); one result per unit in --json-dir")
@@ -68,7 +74,8 @@ def run(args) -> int:
     result = fit(campaign, method=args.method, effects=name_list(args.effects),
                  reference_temperature_C=args.reference_temperature, loss=args.loss,
                  strict=args.strict, json_path=args.json, netcdf_path=args.netcdf,
-                 angle_bound_arcsec=args.angle_bound_arcsec, lab=args.lab)
+                 angle_bound_arcsec=args.angle_bound_arcsec, lab=args.lab,
+                 hysteresis_form=args.hysteresis_form, hysteresis_half_width_C=args.hysteresis_width)
     out.say(summary_text(result))
     if args.json:
         out.say(f"result written to {args.json}")

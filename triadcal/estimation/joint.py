@@ -180,7 +180,7 @@ def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]
     problems = {}
     eff = set(model.effect_names)
     T = campaign.t.mean(axis=1)
-    branches = set(campaign.branch.tolist())
+    branches = set(np.sign(campaign.branch).tolist())
     if "hysteresis" in eff and not {-1.0, 1.0} <= branches:
         have = {-1.0: "heating", 1.0: "cooling", 0.0: "none"}
         for ab in ANGLE_NAMES:

@@ -73,6 +73,9 @@ class Campaign:
     lines: Optional[np.ndarray] = None
     #: columns the format does not define, kept as text so nothing is dropped
     extra: dict = field(default_factory=dict)
+    #: the hysteresis branch of each visit when not the direction's +-1/0: a play hysteresis's
+    #: continuous branch (:func:`triadcal.models.effects.hysteresis.play_branch`); not written to files
+    branch_values: Optional[np.ndarray] = None
 
     def __post_init__(self):
         n = len(self.time_s)
@@ -103,7 +106,9 @@ class Campaign:
 
     @property
     def branch(self) -> np.ndarray:
-        """Hysteresis branch of each visit: +1 cooling, -1 heating, 0 none."""
+        """Hysteresis branch of each visit: +1 cooling, -1 heating, 0 none (or ``branch_values``)."""
+        if self.branch_values is not None:
+            return np.asarray(self.branch_values, float)
         return np.array([BRANCH[d] for d in self.direction])
 
     @property
@@ -169,4 +174,5 @@ class Campaign:
                        axis2_deg=self.axis2_deg[idx], tau_s=self.tau_s[idx], w=self.w[idx],
                        t=self.t[idx], cycle=self.cycle[idx], state=self.state[idx],
                        sd=t(self.sd), n_samples=t(self.n_samples), lines=t(self.lines),
-                       metadata=dict(self.metadata), extra={k: v[idx] for k, v in self.extra.items()})
+                       metadata=dict(self.metadata), extra={k: v[idx] for k, v in self.extra.items()},
+                       branch_values=t(self.branch_values))

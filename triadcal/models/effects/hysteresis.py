@@ -6,7 +6,9 @@ branches of the loop, parallel to the mid-line: ``angle = mid-line + h * b`` wit
 ``b = +1`` on the cooling branch, ``-1`` on the heating branch and ``0`` for a setpoint
 reached with no known history (direction ``none``, e.g. a unit soaked at ambient).
 ``h = (cooling - heating) / 2`` as in results-json.md. This saturated-loop form holds
-when each sweep spans well more than the loop's own width, as bench campaigns do.
+when each sweep spans well more than the loop's own width, as bench campaigns do; for a loop as
+wide as the sweeps, :func:`play_branch` gives the branch of a play hysteresis (the same ``h``,
+``b`` continuous in [-1, 1]; docs/model.md, "Hysteresis forms").
 """
 
 from __future__ import annotations
@@ -26,6 +28,33 @@ def direction_after(direction: str, previous_setpoint_C, setpoint_C) -> str:
     if previous_setpoint_C is None or setpoint_C == previous_setpoint_C:
         return direction
     return "heating" if setpoint_C > previous_setpoint_C else "cooling"
+
+
+def play_branch(temperature_C, half_width_C: float, start: str = "mid"):
+    """The branch of each visit for a play (backlash) hysteresis of half-width ``r`` (degC) on the
+    temperature history (Krasnosel'skii-Pokrovskii; :func:`triadcal.models.thermal_history.play_operator`)::
+
+        b = (play(T, r) - T) / r        in [-1, 1]
+
+    -1 on a rise that has crossed the dead band (heating branch), +1 on a fall (cooling), in
+    between after a turn smaller than 2r: a loop that does not saturate. ``angle = mid-line +
+    h b`` as for the offset form, so ``h`` is the half-width of the saturated loop; as r -> 0,
+    b -> the direction's +-1 (the constant-offset form is the limit). ``temperature_C``: the
+    history in time order (visits, or a denser record); ``start``: the state before it is
+    unknown — ``"mid"`` (y0 = T0, b = 0), ``"heating"`` (y0 = T0 - r) or ``"cooling"``."""
+    import numpy as np
+
+    from ..thermal_history import play_operator
+
+    T = np.asarray(temperature_C, float)
+    r = float(half_width_C)
+    if r <= 0:
+        raise ValueError("a play hysteresis needs a half-width > 0 degC (r = 0 is the offset form)")
+    y0 = {"mid": T[0], "heating": T[0] - r, "cooling": T[0] + r}[start]
+    return (play_operator(T, r, start=y0) - T) / r
+
+
+PLAY_STARTS = ("mid", "heating", "cooling")
 
 
 def branch_offset(half_width, branch):

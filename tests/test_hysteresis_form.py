@@ -1,0 +1,105 @@
+"""The hysteresis's form chosen by the data (issue 17, item 1): a play (backlash) hysteresis
+added to simulated outputs by numpy in this test (its own relay loop on the setpoint path, not
+the model's code), against the constant offset; and the offset's data, where the play must not
+be chosen."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from triadcal import api
+from triadcal.estimation.hysteresis_form import fit_hysteresis_form
+from triadcal.models.effects.hysteresis import play_branch
+from triadcal.models.simulate import PRESETS
+
+EFFECTS = ("bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis")
+ARCSEC = math.pi / 180 / 3600
+H = {"xy": 12.0, "xz": -8.0, "yx": 15.0, "yz": 6.0, "zx": -10.0, "zy": 9.0}   # arcsec, the ak18 preset's
+
+
+def _own_play(setpoints, r):
+    """The test's own backlash on the sequence of setpoints the chamber walks through (the unit
+    soaks at each, so the path between two is monotone): y trails a rise by r and leads a fall."""
+    y, out = setpoints[0], []
+    for x in setpoints:
+        if x - y > r:
+            y = x - r
+        elif y - x > r:
+            y = x + r
+        out.append((y - x) / r)
+    return np.array(out)
+
+
+def _play_campaign(r, seed):
+    """Simulated outputs without hysteresis, then h_ab * b * G_b / K_a added to W_a (first order of
+    eq. 1 in an angle), b from the test's own play of the setpoint path."""
+    truth, c = api.simulate(effects=EFFECTS[:-1], seed=seed)
+    order = np.argsort(c.time_s, kind="stable")
+    sp = c.setpoint_C[order]
+    changes = np.flatnonzero(np.r_[True, np.diff(sp) != 0])
+    b_sp = _own_play(sp[changes], r)
+    b = np.empty(c.n_visits)
+    b[order] = b_sp[np.searchsorted(changes, np.arange(len(sp)), side="right") - 1]
+    a1, a2 = np.radians(c.axis1_deg), np.radians(c.axis2_deg)
+    # nominal gravity of the 12 positions in the IMU frame, written out: Rx(a2)^T e_z = (0, sin a2,
+    # cos a2); Rz(a1)^T turns it to (sin a1 sin a2, cos a1 sin a2, cos a2); M^T maps platform
+    # (x, y, z) to IMU (x, z, -y): G = (sin a1 sin a2, cos a2, -cos a1 sin a2)
+    G = np.stack([np.sin(a1) * np.sin(a2), np.cos(a2), -np.cos(a1) * np.sin(a2)], axis=1)
+    w = c.w.copy()
+    for i, a in enumerate("xyz"):
+        K = truth.parameters[f"K_{a}"]
+        for j, bb in enumerate("xyz"):
+            if a != bb:
+                w[:, i] += H[a + bb] * ARCSEC * b * G[:, j] / K
+    from dataclasses import replace
+
+    return truth, replace(c, w=w), b
+
+
+def test_gravity_written_out_matches_the_kinematics():
+    from triadcal.models.campaign import nominal_gravity
+
+    a1 = np.array([0, 180, 0, 180, 90, 270, 270, 90, 180, 0, 0, 180.0])
+    a2 = np.array([0, 0, 180, 180, 90, 270, 90, 270, 90, 270, 90, 270.0])
+    r1, r2 = np.radians(a1), np.radians(a2)
+    mine = np.stack([np.sin(r1) * np.sin(r2), np.cos(r2), -np.cos(r1) * np.sin(r2)], axis=1)
+    assert np.allclose(mine, nominal_gravity(a1, a2), atol=1e-12)
+
+
+@pytest.mark.parametrize("r, seed", [(10.0, 1), (30.0, 2)])
+def test_a_play_hysteresis_is_chosen_with_its_width_and_the_angles_come_right(r, seed):
+    truth, c, _ = _play_campaign(r, seed)
+    off, *_ = fit_hysteresis_form(c, EFFECTS, "offset", return_problem=True)
+    res, _, _, used = fit_hysteresis_form(c, EFFECTS, "auto")
+    h = res.fit["hysteresis"]
+    assert h["form"] == "play", h["criterion"]
+    lo, hi = h["half_width_interval_C"]
+    assert lo - 2.5 <= r <= hi + 2.5, (r, h["half_width_C"], h["half_width_interval_C"])
+    assert res.status == "ok" and 0.8 < res.fit["chi2_dof"] < 1.25
+    for ab, v in H.items():
+        p = res.parameters[f"Ca_{ab}_hysteresis"]
+        assert abs(p.value - v) < 3.5 * p.u, (ab, p.value, p.u)
+        q = res.parameters[f"Ca_{ab}"]
+        assert abs(q.value - truth.parameters[f"Ca_{ab}"]) < 3.5 * q.u
+    # the offset form misses it: a larger chi^2
+    assert off.fit["chi2_dof"] > res.fit["chi2_dof"] + 0.2
+
+
+def test_offset_data_keep_the_offset_form():
+    truth, c = api.simulate(effects=EFFECTS, seed=4)
+    res, _, _, used = fit_hysteresis_form(c, EFFECTS, "auto")
+    assert res.fit["hysteresis"]["form"] == "offset", res.fit["hysteresis"]["criterion"]
+    assert used is c
+
+
+def test_play_branch_limits():
+    T = np.array([20.0, 35, 55, 70, 55, 35, 20, 5, -10])
+    b = play_branch(T, 5.0, "mid")
+    assert b[1] == -1.0 and b[3] == -1.0 and b[4] == 1.0 and b[-1] == 1.0
+    wide = play_branch(T, 60.0, "mid")     # from the middle a rise of r saturates; these rises and falls stay under r
+    assert np.all(np.abs(wide[1:]) < 1.0) and np.any(wide > 0)
+    with pytest.raises(ValueError):
+        play_branch(T, 0.0)
