@@ -13,7 +13,6 @@ import pytest
 from triadcal import api
 from triadcal.estimation.hysteresis_form import fit_hysteresis_form
 from triadcal.models.effects.hysteresis import play_branch
-from triadcal.models.simulate import PRESETS
 
 EFFECTS = ("bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis")
 ARCSEC = math.pi / 180 / 3600
