@@ -34,8 +34,10 @@ from .protocols.binary import crc16_modbus
 
 #: bytes the emulator's garbage never contains, so that every damaged frame is counted
 #: exactly once (the parsers cope with any bytes; this keeps the tests' accounting exact)
-_SYNC_BYTES = {"nmea": set(b"$\r\n*"), "binary": {0xA5}}
-FATES = ("sent", "flipped", "dropped", "unattached", "disconnected", "overrun", "truncated")
+_SYNC_BYTES = {"nmea": set(b"$\r\n*"), "binary": {0xA5}, "vectornav": set(b"$\r\n*"), "xsens": {0xFA},
+               "mip": {0x75}}
+#: "silent": a vendor IMU whose output is off (not yet configured, or in config mode)
+FATES = ("sent", "flipped", "dropped", "unattached", "disconnected", "overrun", "truncated", "silent")
 
 
 @dataclass
@@ -160,8 +162,9 @@ class UnitPhysics:
             return (float(a[0]), float(a[1])), self._move[2], t >= self._move[4]
 
     # -- outputs ----------------------------------------------------------------------
-    def sample(self, t: np.ndarray):
-        """Outputs (n, 3) in V and temperature readings (n, 3) in degC at times ``t``."""
+    def sample(self, t: np.ndarray, rate_hz: Optional[float] = None):
+        """Outputs (n, 3) in V and temperature readings (n, 3) in degC at times ``t``
+        (white noise for samples at ``rate_hz``, by default the timing's rate)."""
         tm = self.timing
         t = np.asarray(t, float)
         n = len(t)
@@ -176,7 +179,7 @@ class UnitPhysics:
                          branch=np.full(n, branch), time_s=t, axis1_error=e1, axis2_error=e2, wobble=wob)
         w = np.stack(np.broadcast_arrays(*self.model.predict(self.p, cov, self.gravity_g)), axis=1)
         noise = self.truth.noise
-        w = w + self.rng.normal(0.0, math.sqrt(noise.Q_V2s * tm.rate_hz), (n, 3))
+        w = w + self.rng.normal(0.0, math.sqrt(noise.Q_V2s * (rate_hz or tm.rate_hz)), (n, 3))
         temps = sensor + self.rng.normal(0.0, noise.temp_noise_C, (n, 3))
         return w, temps
 
@@ -239,6 +242,10 @@ class Emulator:
         self.truth = truth or preset_truth()
         self.protocol = protocol
         self.codec = get_protocol(protocol)
+        # a vendor IMU answers configuration commands and may have its output off
+        # (protocols/<name>.py, class Emulated); the generic formats just stream
+        self.imu_device = (self.codec.Emulated(rate_hz=(timing or EmulatorTiming()).rate_hz)
+                           if hasattr(self.codec, "Emulated") else None)
         self.timing = timing or EmulatorTiming()
         self.faults = faults or FaultPlan()
         self.physics = UnitPhysics(self.truth, self.timing, seed)
@@ -294,7 +301,8 @@ class Emulator:
         path = Path(path) if path else self.directory / "ports.toml"
         atomic_write_text(
             path,
-            f'# written by triadcal emulate\n[imu]\nport = "{self.ports["imu"]}"\nprotocol = "{self.protocol}"\n\n'
+            f'# written by triadcal emulate\n[imu]\nport = "{self.ports["imu"]}"\nprotocol = "{self.protocol}"\n'
+            + (f'rate_hz = {self.timing.rate_hz:g}\n' if self.imu_device is not None else '') + '\n'
             f'[bench]\nport = "{self.ports["bench"]}"\n\n'
             f'[chamber]\nport = "{self.ports["chamber"]}"\nslave = {self.chamber_slave}\n')
         return path
@@ -311,6 +319,9 @@ class Emulator:
     def _run_imu(self) -> None:
         port = self._ptys["imu"]
         f = self.timing.rate_hz
+        dev = self.imu_device
+        encode = dev.encode if dev is not None else self.codec.encode
+        quantise = dev.quantise if dev is not None else self.codec.quantise
         k_next = 0                # index of the next frame time k / f
         seq = 0
         attached_at = None        # wall time the reader was seen attached
@@ -337,6 +348,11 @@ class Emulator:
             elif state == "down" and now_i >= reconnect_at:
                 port.open()
                 state, attached_at = "up", None
+            if dev is not None:
+                self._imu_commands(port, state)
+                if dev.rate_hz != f:           # output rate changed by a command
+                    f = dev.rate_hz
+                    k_next = int(math.floor(now_i * f)) + 1
             k_end = int(math.floor(now_i * f)) + 1
             if k_end <= k_next:
                 continue
@@ -347,7 +363,7 @@ class Emulator:
                 times = times[~stalled]
             if not len(times):
                 continue
-            w, temps = self.physics.sample(times)
+            w, temps = self.physics.sample(times, f)
             if state == "up" and port.attached():
                 if attached_at is None:
                     attached_at = wall
@@ -359,6 +375,11 @@ class Emulator:
             for j in range(len(times)):
                 fr = Frame(seq, float(times[j]), tuple(w[j].tolist()), tuple(temps[j].tolist()))
                 seq += 1
+                if can_write and dev is not None and not dev.streaming:
+                    fates.append("silent")
+                    chunks.append(b"")
+                    frames.append(fr)
+                    continue
                 if not can_write:
                     fates.append("unattached" if state == "up" else "disconnected")
                     chunks.append(b"")
@@ -369,7 +390,7 @@ class Emulator:
                     chunks.append(b"")
                     frames.append(fr)
                     continue
-                data = self.codec.encode(fr)
+                data = encode(fr)
                 fate = "sent"
                 if fl.bitflip_prob and self.rng.random() < fl.bitflip_prob:
                     data = self._flip(data, forbidden)
@@ -401,13 +422,30 @@ class Emulator:
                     pos += len(data)
                 self.fates[fate] += 1
                 if self.keep_log:
-                    self.log.append((fr.seq, fate, self.codec.quantise(fr)))
+                    self.log.append((fr.seq, fate, quantise(fr)))
+
+    def _imu_commands(self, port, state) -> None:
+        """Commands to a vendor IMU (configuration) read from the line and answered."""
+        if state != "up" or port.master < 0:
+            return
+        try:
+            data = os.read(port.master, 4096)
+        except (BlockingIOError, OSError):
+            return
+        if data:
+            reply = self.imu_device.feed(data)
+            if reply:
+                try:
+                    os.write(port.master, reply)
+                except OSError:
+                    pass
 
     def _flip(self, data: bytes, forbidden) -> bytes:
         """One bit flipped inside the frame (past its sync word), never creating a sync byte."""
         b = bytearray(data)
-        lo = 1 if self.protocol == "nmea" else 2
-        hi = len(b) - (2 if self.protocol == "nmea" else 0)
+        text = self.protocol in ("nmea", "vectornav")
+        lo = 1 if text else 2
+        hi = len(b) - (2 if text else 0)
         while True:
             i = int(self.rng.integers(lo, hi))
             v = b[i] ^ (1 << int(self.rng.integers(0, 8)))

@@ -1,7 +1,9 @@
 """IMU readout driver: a stream of frames over a serial line, surviving disconnects.
 
 :class:`ImuReadout` is the interface (open, read, close, stats); :class:`SerialImu`
-implements it over pyserial with either wire protocol; :class:`StreamThread` reads
+implements it over pyserial with any wire protocol of ``protocols`` (the generic
+``nmea`` / ``binary`` and the vendors' ``vectornav`` / ``xsens`` / ``mip``, which it
+configures on every open); :class:`StreamThread` reads
 any readout in the background into a queue so that the campaign runner can command
 the bench and chamber without the stream overflowing.
 """
@@ -17,7 +19,8 @@ from typing import Optional
 
 import serial
 
-from ..protocols import Frame, ParserStats, get_protocol
+from ..protocols import (VENDOR_PROTOCOLS, DeviceError, Frame, Link, ParserStats, get_protocol,
+                         protocol_info)
 
 
 @dataclass
@@ -58,7 +61,19 @@ class ImuReadout(ABC):
 
 
 class SerialImu(ImuReadout):
-    """Frames over a serial port (pyserial), ``protocol`` 'nmea' or 'binary'.
+    """Frames over a serial port (pyserial), ``protocol`` one of ``protocols.PROTOCOLS``.
+
+    The vendor protocols are configured on every open (a replugged instrument starts from
+    its defaults): ``vectornav`` $VNWRG,06 (output type, ``output`` 'VNIMU' by default: it
+    carries the temperature) and $VNWRG,07 (``rate_hz``), each confirmed by its echo;
+    ``xsens`` GoToConfig, SetOutputConfiguration (acceleration at ``rate_hz``, temperature at
+    ``temperature_hz``, SampleTimeFine, packet counter), GoToMeasurement, each acknowledged;
+    ``mip`` a Ping answered by its ACK. A refusal ($VNERR, Xsens error 0x42, MIP NACK) raises
+    :class:`~triadcal.hardware.protocols.DeviceError` naming the code; no answer raises it
+    with ``code`` None at the first open and counts as a lost link on a reopen.
+    ``options`` go to the protocol's ``configure`` (e.g. ``output``, ``temperature_hz``,
+    ``timeout_s``); ``configure=False`` skips it. ``output_unit`` and ``temperature`` say
+    what the frames carry (``protocols.protocol_info``).
 
     A read error (cable pulled, USB adapter gone) closes the port and reopens it as
     soon as it is back; no data for ``stall_timeout_s`` counts as a stall and the port is
@@ -66,10 +81,25 @@ class SerialImu(ImuReadout):
     """
 
     def __init__(self, port: str, protocol: str = "nmea", baudrate: int = 921600,
-                 stall_timeout_s: float = 1.0, poll_s: float = 0.02):
+                 stall_timeout_s: float = 1.0, poll_s: float = 0.02, rate_hz: Optional[float] = None,
+                 configure: bool = True, **options):
         self.port, self.baudrate = port, baudrate
         self.protocol = protocol
-        self._parser = get_protocol(protocol).Parser()
+        self._codec = get_protocol(protocol)
+        self.vendor = protocol in VENDOR_PROTOCOLS
+        if self.vendor:
+            self.rate_hz = float(rate_hz) if rate_hz else 100.0 if protocol != "vectornav" else 40.0
+            self._parser = self._codec.Parser(rate_hz=self.rate_hz)
+        else:
+            if options:
+                raise TypeError(f"protocol {protocol!r} takes no options ({', '.join(options)})")
+            self.rate_hz = rate_hz
+            self._parser = self._codec.Parser()
+        self.configure = configure and self.vendor
+        self.options = options
+        info = protocol_info(protocol)
+        self.output_unit, self.temperature = info["output_unit"], info["temperature"]
+        self._pending: list[Frame] = []
         self._link = LinkStats()
         self.stall_timeout_s = stall_timeout_s
         self.poll_s = poll_s
@@ -87,6 +117,27 @@ class SerialImu(ImuReadout):
     def open(self) -> None:
         self._ser = serial.Serial(self.port, self.baudrate, timeout=self.poll_s)
         self._last_data = time.monotonic()
+        if self.configure:
+            try:
+                self._pending.extend(self._configure(self._ser))
+            except BaseException:
+                self.close()
+                raise
+
+    def _configure(self, ser) -> list[Frame]:
+        def read() -> bytes:
+            data = ser.read(ser.in_waiting or 1)
+            if data:
+                self._link.bytes_read += len(data)
+            return data
+
+        def write(data: bytes) -> None:
+            ser.write(data)
+            ser.flush()
+
+        frames = self._codec.configure(Link(write, read), self._parser, self.rate_hz, **self.options)
+        self._link.note(f"configured {self.protocol} on {self.port}")
+        return frames
 
     def close(self) -> None:
         if self._ser is not None:
@@ -104,8 +155,17 @@ class SerialImu(ImuReadout):
             self._link.note(f"reopened {self.port}")
         except (OSError, serial.SerialException):
             time.sleep(self.poll_s)
+        except DeviceError as exc:
+            if exc.code is not None:       # the instrument refused: not a link problem
+                raise
+            self._link.note(f"no answer from {self.port} while configuring: {exc}")
+            time.sleep(self.poll_s)
 
     def read(self) -> list[Frame]:
+        if self._pending:
+            out, self._pending = self._pending, []
+            self._last_data = time.monotonic()
+            return out
         if self._ser is None:
             self._reopen()
             if self._ser is None:
