@@ -32,6 +32,9 @@ def register(sub) -> None:
                    help="wobble of axis 1, arcsec (sigma_2; default 0, or 2 with position_error)")
     p.add_argument("--heavy-tails-dof", type=float, default=None,
                    help="Student-t degrees of freedom of the output noise (default 3 with heavy_tails)")
+    p.add_argument("--plan", metavar="PLAN",
+                   help="simulate a plan of `triadcal plan` (its setpoints, soaks, positions, repetitions and tau; "
+                        "replaces --setpoints, --soak-s and --tau-s; docs/plan.md)")
     p.add_argument("--unit", default="SN-SIM-0001", help="serial number written in the file")
     p.add_argument("--seed", type=int, default=0)
     add_output_options(p)
@@ -42,12 +45,19 @@ def run(args) -> int:
     from ..api import simulate
 
     effects = name_list(args.effects)
-    schedule = Schedule(setpoints_C=tuple(float_list(args.setpoints)), soak_s=args.soak_s, tau_s=args.tau_s)
+    positions = None
+    if getattr(args, "plan", None):
+        from ..planning import Plan
+
+        plan = Plan.load(args.plan)
+        schedule, positions = plan.schedule(), plan.visit_positions()
+    else:
+        schedule = Schedule(setpoints_C=tuple(float_list(args.setpoints)), soak_s=args.soak_s, tau_s=args.tau_s)
     truth, campaign = simulate(
         args.output, truth_path=args.truth, preset=args.preset, effects=effects,
         parameters=assignments(args.set), schedule=schedule, Q_V2s=args.Q,
         sigma_position_arcsec=args.sigma_position_arcsec, sigma_wobble_arcsec=args.sigma_wobble_arcsec,
-        heavy_tails_dof=args.heavy_tails_dof, unit=args.unit, seed=args.seed)
+        heavy_tails_dof=args.heavy_tails_dof, unit=args.unit, seed=args.seed, plan=positions)
     output(args).say(f"wrote {args.output}: {campaign.n_visits} visits of {truth.unit} at "
                      f"{len(schedule.setpoints_C)} setpoints, with effects {', '.join(effects) or 'none'}"
                      + (f"; the truth is in {args.truth}" if args.truth else ""))

@@ -50,6 +50,13 @@ class Schedule:
     chamber_time_constant_s: float = 600.0
     unit_time_constant_s: float = 1200.0
     self_heating_C: tuple = (0.30, 0.35, 0.25)
+    #: soak per setpoint (s), in the order of ``setpoints_C``; None: ``soak_s`` at every one
+    #: (a plan of ``triadcal plan`` states its own, see triadcal.planning)
+    soak_each_s: Optional[Sequence[float]] = None
+
+    def soak_at(self, i: int) -> float:
+        """The soak before the visits of setpoint ``i`` (s)."""
+        return float(self.soak_s if self.soak_each_s is None else self.soak_each_s[i])
 
     def directions(self) -> list[str]:
         out, previous = [], None
@@ -227,9 +234,9 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
 
     labels, a1, a2, sp_c, dirs, times, taus, starts = [], [], [], [], [], [], [], []
     t = 0.0
-    for sp, d in zip(schedule.setpoints_C, schedule.directions()):
+    for i_sp, (sp, d) in enumerate(zip(schedule.setpoints_C, schedule.directions())):
         starts.append(t)
-        t += schedule.soak_s
+        t += schedule.soak_at(i_sp)
         for label, (ax1, ax2) in plan.items():
             t += schedule.move_s
             labels.append(label)

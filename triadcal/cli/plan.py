@@ -1,0 +1,85 @@
+"""``triadcal plan``: choose a stepped campaign for a target uncertainty and predict its U and hours."""
+
+from __future__ import annotations
+
+from ..errors import InputError
+from ._common import add_output_options, name_list, output
+
+
+def _range(text: str) -> tuple:
+    try:
+        lo, hi = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise InputError(f"--range: {text!r}; write LOW:HIGH in degC, e.g. -40:85") from None
+    return lo, hi
+
+
+def _rate(text: str) -> float:
+    t = text.strip().replace("°C", "degC").replace(" ", "")
+    for suffix, f in (("degC/min", 1.0), ("degC/h", 1.0 / 60.0), ("K/min", 1.0)):
+        if t.endswith(suffix):
+            t = t[: -len(suffix)]
+            break
+    else:
+        f = 1.0
+    try:
+        return float(t) * f
+    except ValueError:
+        raise InputError(f"--chamber-rate: {text!r}; write e.g. 1degC/min") from None
+
+
+def register(sub) -> None:
+    from ..models.effects import DEFAULT_EFFECTS
+
+    p = sub.add_parser(
+        "plan", help="plan a stepped campaign for target uncertainties (predicted U and chamber hours)",
+        description="Search setpoints (heating and cooling sweeps), positions (12/18/24), dwell and repetitions "
+                    "for the plan with the fewest chamber hours whose predicted U (Fisher information of the "
+                    "model, the lab's bench and systematic errors included) meets every target (docs/plan.md).")
+    p.add_argument("--target", required=True,
+                   help='targets, e.g. "Ca:U<=5arcsec, Ca_tempco:U<=0.1arcsec/degC, K:U<=20ppm" '
+                        "(families Ca, Ca_tempco, Ca_hysteresis, K, K_tempco, S, S_tempco, tilt, or one parameter)")
+    p.add_argument("--lab", metavar="LAB.toml", help="lab file: bench errors and systematic errors (docs/lab.md)")
+    p.add_argument("--range", required=True, metavar="LOW:HIGH", help="temperature range, degC (e.g. -40:85)")
+    p.add_argument("--chamber-rate", default="1degC/min", help="chamber ramp rate (default 1degC/min)")
+    p.add_argument("--positions", default="auto", choices=("auto", "12", "18", "24"),
+                   help="position set (default auto: search 12, 18 and 24)")
+    p.add_argument("--q", type=float, default=None, metavar="V2S",
+                   help="white-noise intensity of the outputs, V^2 s (default 3e-9, the example campaign's Q_V2s)")
+    p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS), help="effects of the model to be fitted")
+    p.add_argument("--preset", default="ak18-quartz", help="unit whose parameter values the Jacobian is taken at")
+    p.add_argument("--max-hours", type=float, default=200.0, help="cap of chamber hours (default 200)")
+    p.add_argument("-o", "--output", required=True, metavar="PLAN", help="plan file to write (JSON, docs/plan.md)")
+    p.add_argument("--json", metavar="PRED.json", help="write the prediction (U per parameter, hours, targets)")
+    add_output_options(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..io.atomic import atomic_write_json
+    from ..io.lab import load_lab
+    from ..planning import DEFAULT_Q_V2S, prediction_document, search
+
+    lo, hi = _range(args.range)
+    lab = load_lab(args.lab) if args.lab else None
+    Q = DEFAULT_Q_V2S if args.q is None else args.q
+    effects = name_list(args.effects)
+    choice = search(args.target, lo, hi, lab=lab, Q_V2s=Q, chamber_rate_C_per_min=_rate(args.chamber_rate),
+                    positions=args.positions, effects=effects, preset=args.preset, hours_cap=args.max_hours)
+    doc = prediction_document(choice, Q_V2s=Q, lab_source=args.lab, preset=args.preset, effects=effects)
+    choice.plan.save(args.output, predicted={"chamber_hours": doc["chamber_hours"],
+                                             "U": {n: v["U"] for n, v in doc["parameters"].items()},
+                                             "criterion": doc["criterion"]})
+    if args.json:
+        atomic_write_json(args.json, doc)
+    plan = choice.plan
+    out = output(args)
+    out.say(f"plan: {plan.name}; {len(plan.setpoints_C)} setpoints "
+            f"({', '.join(f'{s:g}' for s in plan.setpoints_C)} degC), {len(plan.positions)} positions x "
+            f"{plan.repetitions}, tau {plan.tau_s:g} s: {plan.chamber_hours():.1f} chamber hours "
+            f"({doc['candidates_searched']} plans searched)")
+    for spec, t in doc["target"].items():
+        out.say(f"  {spec}: predicted U {t['U_worst']:.3g} {t['unit']} ({t['worst_parameter']}) "
+                f"{'met' if t['met'] else 'NOT met'}")
+    out.say(f"wrote {args.output}" + (f" and {args.json}" if args.json else ""))
+    return 0

@@ -1,0 +1,261 @@
+"""A stepped calibration plan and its predicted uncertainty (``triadcal plan``, docs/plan.md).
+
+A plan is a sequence of chamber setpoints (each with its direction: the first ``none``, then
+``heating`` or ``cooling``), a set of bench positions visited at every setpoint, the dwell
+(averaging time) ``tau_s`` of a visit and the number of repetitions of the position set.
+
+Chamber time (the hours rule, stated in docs/plan.md)::
+
+    per setpoint:  |T_i - T_(i-1)| / rate  +  settle_s  +  n_positions * repetitions * (move_s + tau_s)
+
+with ``T_0`` the ambient start (20 degC), ``rate`` the chamber's ramp rate (1 degC/min),
+``settle_s`` = 6300 s (the example's soak: 7200 s for its 15 degC steps at 1 degC/min is a
+15-minute ramp plus 6300 s) and ``move_s`` = 20 s (the simulator's bench move and settle).
+
+Predicted uncertainty (the Fisher information of the model on the plan): the plan's
+covariates are those the simulator builds (:func:`triadcal.models.simulate.simulate_campaign`,
+same thermal history), the residual Jacobian is the joint fit's
+(:class:`triadcal.estimation.joint.JointProblem`) at the preset unit's parameter values, each
+visit's output variance is ``Q / tau_s`` plus the lab's random bench errors
+(:func:`triadcal.models.effects.position_error.bench_variance`), so ``C_A = (J^T W J)^-1``;
+the lab's systematic errors add ``C_B`` (:func:`triadcal.uncertainty.typeb.propagate`, the
+fit's own algebra) and ``U = 2 sqrt(diag(C_A + C_B))``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, replace
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..models.campaign import DEFAULT_PLAN
+from ..models.effects import DEFAULT_EFFECTS
+from ..models.simulate import NoiseModel, Schedule, preset_truth, simulate_campaign
+
+#: the positions a plan chooses from: the 12 of bench CSV v1 (gravity along +-X, +-Y, +-Z), and
+#: 6 or 12 more with gravity along a face diagonal of the IMU frame (two axes at 45 deg)
+DIAGONALS = {
+    "D01": (90.0, 45.0), "D02": (90.0, 225.0),     # +X+Y, -X-Y
+    "D03": (135.0, 90.0), "D04": (135.0, 270.0),   # +X+Z, -X-Z
+    "D05": (0.0, 315.0), "D06": (0.0, 135.0),      # +Y+Z, -Y-Z
+    "D07": (90.0, 135.0), "D08": (90.0, 315.0),    # +X-Y, -X+Y
+    "D09": (45.0, 90.0), "D10": (45.0, 270.0),     # +X-Z, -X+Z
+    "D11": (0.0, 45.0), "D12": (0.0, 225.0),       # +Y-Z, -Y+Z
+}
+POSITION_SETS = {
+    12: dict(DEFAULT_PLAN),
+    18: {**DEFAULT_PLAN, **{k: DIAGONALS[k] for k in ("D01", "D02", "D03", "D04", "D05", "D06")}},
+    24: {**DEFAULT_PLAN, **DIAGONALS},
+}
+
+AMBIENT_C = 20.0
+SETTLE_S = 6300.0
+MOVE_S = 20.0
+CHAMBER_RATE_C_PER_MIN = 1.0
+#: the example campaign's white-noise intensity (its ``# Q_V2s`` line)
+DEFAULT_Q_V2S = 3e-9
+HOURS_CAP = 200.0
+FORMAT = "triadcal.plan"
+
+
+@dataclass
+class Plan:
+    """A stepped plan (see the module). ``positions``: label -> (axis1_deg, axis2_deg)."""
+
+    setpoints_C: tuple
+    positions: dict = field(default_factory=lambda: dict(DEFAULT_PLAN))
+    tau_s: float = 30.0
+    repetitions: int = 1
+    start_C: float = AMBIENT_C
+    chamber_rate_C_per_min: float = CHAMBER_RATE_C_PER_MIN
+    settle_s: float = SETTLE_S
+    move_s: float = MOVE_S
+    soak_s: Optional[tuple] = None       # per setpoint; None: the hours rule (ramp + settle)
+    name: str = ""
+
+    def soaks(self) -> list:
+        if self.soak_s is not None:
+            return [float(s) for s in self.soak_s]
+        out, prev = [], self.start_C
+        for sp in self.setpoints_C:
+            out.append(abs(sp - prev) / self.chamber_rate_C_per_min * 60.0 + self.settle_s)
+            prev = sp
+        return out
+
+    def schedule(self) -> Schedule:
+        return Schedule(setpoints_C=tuple(float(s) for s in self.setpoints_C), start_C=self.start_C,
+                        soak_s=self.settle_s, tau_s=float(self.tau_s), move_s=self.move_s,
+                        soak_each_s=tuple(self.soaks()))
+
+    def directions(self) -> list:
+        return self.schedule().directions()
+
+    def visit_positions(self) -> dict:
+        """The positions as visited at each setpoint: the set, repeated ``repetitions`` times
+        (labels ``P01``, then ``P01-2`` ...)."""
+        out = {}
+        for r in range(int(self.repetitions)):
+            for k, v in self.positions.items():
+                out[k if r == 0 else f"{k}-{r + 1}"] = v
+        return out
+
+    @property
+    def n_visits(self) -> int:
+        return len(self.setpoints_C) * len(self.positions) * int(self.repetitions)
+
+    def chamber_hours(self) -> float:
+        per_visit = self.move_s + self.tau_s
+        return (sum(self.soaks()) + self.n_visits * per_visit) / 3600.0
+
+    def to_dict(self, predicted: Optional[dict] = None) -> dict:
+        soaks = self.soaks()
+        d = {"format": FORMAT, "version": 1, "name": self.name,
+             "start_C": self.start_C, "chamber_rate_C_per_min": self.chamber_rate_C_per_min,
+             "settle_s": self.settle_s, "move_s": self.move_s, "tau_s": float(self.tau_s),
+             "repetitions": int(self.repetitions),
+             "setpoints": [{"setpoint_C": float(sp), "direction": d, "soak_s": s}
+                           for sp, d, s in zip(self.setpoints_C, self.directions(), soaks)],
+             "positions": [{"label": k, "axis1_deg": a1, "axis2_deg": a2} for k, (a1, a2) in self.positions.items()],
+             "n_visits": self.n_visits, "chamber_hours": self.chamber_hours()}
+        if predicted is not None:
+            d["predicted"] = predicted
+        return d
+
+    def save(self, path, predicted: Optional[dict] = None) -> None:
+        from ..io.atomic import atomic_write_json
+
+        atomic_write_json(path, self.to_dict(predicted))
+
+    @classmethod
+    def from_dict(cls, d: Mapping, source: str = "plan") -> "Plan":
+        if d.get("format") != FORMAT or d.get("version") != 1:
+            raise InputError(f"{source}: not a {FORMAT} version 1 document (format={d.get('format')!r}, "
+                             f"version={d.get('version')!r})")
+        try:
+            sps = d["setpoints"]
+            plan = cls(setpoints_C=tuple(float(s["setpoint_C"]) for s in sps),
+                       positions={str(p["label"]): (float(p["axis1_deg"]), float(p["axis2_deg"]))
+                                  for p in d["positions"]},
+                       tau_s=float(d["tau_s"]), repetitions=int(d.get("repetitions", 1)),
+                       start_C=float(d.get("start_C", AMBIENT_C)),
+                       chamber_rate_C_per_min=float(d.get("chamber_rate_C_per_min", CHAMBER_RATE_C_PER_MIN)),
+                       settle_s=float(d.get("settle_s", SETTLE_S)), move_s=float(d.get("move_s", MOVE_S)),
+                       soak_s=tuple(float(s["soak_s"]) for s in sps), name=str(d.get("name", "")))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{source}: a plan needs setpoints (setpoint_C, soak_s), positions (label, "
+                             f"axis1_deg, axis2_deg) and tau_s: {exc!r}") from None
+        if not plan.setpoints_C or not plan.positions or plan.tau_s <= 0 or plan.repetitions < 1:
+            raise InputError(f"{source}: a plan needs at least one setpoint, one position, tau_s > 0 and "
+                             "repetitions >= 1")
+        return plan
+
+    @classmethod
+    def load(cls, path) -> "Plan":
+        try:
+            with open(path, encoding="utf-8") as fh:
+                d = json.load(fh)
+        except (OSError, json.JSONDecodeError) as exc:
+            raise InputError(f"{path}: cannot read the plan: {exc}") from None
+        return cls.from_dict(d, str(path))
+
+
+def example_plan() -> Plan:
+    """The example campaign's plan (examples/data/campaign.csv): 12 positions x 15 setpoints,
+    -40..+70 degC, 7200 s soak at every setpoint, tau 30 s: 32.5 chamber hours."""
+    from ..models.simulate import STANDARD_SETPOINTS_C
+
+    return Plan(setpoints_C=STANDARD_SETPOINTS_C, tau_s=30.0, soak_s=(7200.0,) * len(STANDARD_SETPOINTS_C),
+                name="example: 12 positions x 15 setpoints")
+
+
+# ---------------------------------------------------------------------------------------
+# the Fisher information of the model on a plan
+# ---------------------------------------------------------------------------------------
+@dataclass
+class Design:
+    """What the prediction needs of one plan at reps = 1: the raw Jacobian of the outputs
+    (3n x p, output unit per reporting unit), the bench variance per output (n, 3), the Type B
+    data changes (one (n, 3) array per systematic source) and the names."""
+
+    plan: Plan
+    names: tuple
+    units: dict
+    J: np.ndarray
+    var_bench: np.ndarray
+    F: list
+    sources: list
+    values: dict
+    problems: dict
+
+
+def _model_and_sources(effects, lab, output_unit="V"):
+    from ..models.model import Model
+    from ..uncertainty.typeb import effects_with_lab, systematic_sources
+
+    sources = systematic_sources(lab, output_unit)
+    effects, _ = effects_with_lab(effects, sources)
+    if "bench_nonorthogonality" in effects:
+        sources = [s for s in sources if s.kind != "axes_nonorthogonality"]
+    return Model(effects), tuple(effects), sources
+
+
+def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, preset: str = "ak18-quartz") -> Design:
+    """Covariates, Jacobian and bench variance of ``plan`` (its position set once per setpoint;
+    repetitions multiply the information, :func:`predict`)."""
+    from ..estimation.joint import JointProblem, identifiability_problems, null_space_problems, parameter_unit
+    from ..io.lab import bench_errors_of
+    from ..models.effects.position_error import bench_variance
+    from ..uncertainty.typeb import data_change
+
+    model, effects, sources = _model_and_sources(effects, lab)
+    truth = preset_truth(preset, [e for e in effects if e != "bench_nonorthogonality"],
+                         noise=NoiseModel(Q_V2s=DEFAULT_Q_V2S, temp_noise_C=0.0))
+    once = replace(plan, repetitions=1)
+    campaign = simulate_campaign(truth, once.visit_positions(), once.schedule(), seed=0)
+    values = {n: float(truth.parameters.get(n, model.spec[n].nominal)) for n in model.names}
+    problems = identifiability_problems(campaign, model)
+    fixed = {k: values[k] for k in problems}
+    prob = JointProblem(campaign, model, np.ones((campaign.n_visits, 3)), fixed)
+    x = np.array([values[n] for n in prob.names])
+    _, Jr = prob.residuals_and_jacobian(x)
+    problems.update(null_space_problems(Jr, prob.names))
+    if set(problems) - set(fixed):
+        fixed = {k: values[k] for k in problems}
+        prob = JointProblem(campaign, model, np.ones((campaign.n_visits, 3)), fixed)
+        x = np.array([values[n] for n in prob.names])
+        _, Jr = prob.residuals_and_jacobian(x)
+    J = -Jr                                                  # d W / d x, (3n, p) visit-major
+    p_int = model.to_internal(values)
+    cov = campaign.covariates()
+    bench = bench_errors_of(lab) if lab is not None else None
+    var_b = (bench_variance(model, p_int, cov, campaign.gravity_g, bench.sigma_position_arcsec,
+                            bench.sigma_wobble_arcsec) if bench is not None else np.zeros((campaign.n_visits, 3)))
+    w = prob.predict(x)
+    F = [data_change(s, model, p_int, cov, campaign.gravity_g, w, "V") for s in sources]
+    units = {n: parameter_unit(model, n, "V") for n in prob.names}
+    return Design(plan, prob.names, units, J, np.asarray(var_b), F, sources, values, problems)
+
+
+def predict(d: Design, Q_V2s: float, tau_s: Optional[float] = None, repetitions: Optional[int] = None) -> dict:
+    """Predicted covariance of the design at dwell ``tau_s`` and ``repetitions``: returns
+    ``{"names", "u_a", "u", "U", "cov"}`` (reporting units; U = 2 u)."""
+    tau = d.plan.tau_s if tau_s is None else tau_s
+    reps = d.plan.repetitions if repetitions is None else repetitions
+    sigma = np.sqrt(Q_V2s / tau + d.var_bench).reshape(-1)
+    Jw = d.J / sigma[:, None]
+    s = np.sqrt(np.sum(Jw ** 2, axis=0))
+    s[s == 0] = 1.0
+    A = (Jw / s)
+    C_one = np.linalg.pinv(A.T @ A) / np.outer(s, s)         # one pass of the position set
+    C_a = C_one / reps
+    C = C_a.copy()
+    if d.sources:
+        for src, F in zip(d.sources, d.F):
+            c = -C_one @ (Jw.T @ (F.reshape(-1) / sigma))     # the fit's sensitivity, reps-invariant
+            C += np.outer(c, c) * src.u ** 2
+    u_a = np.sqrt(np.diag(C_a))
+    u = np.sqrt(np.diag(C))
+    return {"names": d.names, "u_a": u_a, "u": u, "U": 2.0 * u, "cov": C}

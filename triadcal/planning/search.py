@@ -1,0 +1,239 @@
+"""Targets, the candidate plans and the choice among them (``triadcal plan``, docs/plan.md).
+
+Criterion (stated in every prediction): the plan with the fewest chamber hours whose predicted
+U meets every target; among plans of equal hours (within 1 s), the A-optimal one over the
+targeted parameters (the smallest sum of (U / target)^2). The search covers the setpoint
+sequences of :func:`candidate_sequences`, the position sets 12 / 18 / 24
+(:data:`triadcal.planning.plan.POSITION_SETS`), the dwell ``tau_s`` in :data:`TAUS` and
+1-3 repetitions of the position set at each setpoint, under a cap of chamber hours.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..models.effects import DEFAULT_EFFECTS
+from ..models.units import ARCSEC
+from .plan import AMBIENT_C, DEFAULT_Q_V2S, HOURS_CAP, POSITION_SETS, Plan, design, predict
+
+TAUS = (30.0, 60.0, 120.0, 300.0)
+REPETITIONS = (1, 2, 3)
+LEVELS = (2, 3, 4, 5, 6)
+
+_AB = "(xy|xz|yx|yz|zx|zy)"
+#: target family -> (pattern of its parameters, {unit: factor from the results-JSON unit});
+#: a factor of None is K's relative ppm: 1e6 / K (K the preset unit's nominal value)
+FAMILIES = {
+    "Ca": (rf"^Ca_{_AB}$", {"arcsec": 1.0, "urad": ARCSEC * 1e6}),
+    "Ca_tempco": (rf"^Ca_{_AB}_tempco$", {"arcsec/degC": 1.0}),
+    "Ca_hysteresis": (rf"^Ca_{_AB}_hysteresis$", {"arcsec": 1.0}),
+    "K": (r"^K_[xyz]$", {"ppm": None, "g/V": 1.0}),
+    "K_tempco": (r"^K_[xyz]_tempco$", {"ppm/degC": 1.0}),
+    "S": (r"^S_[xyz]$", {"g": 1.0, "mg": 1e3, "ug": 1e6}),
+    "S_tempco": (r"^S_[xyz]_tempco$", {"ug/degC": 1.0}),
+    "tilt": (r"^tilt_[xy]$", {"arcsec": 1.0}),
+}
+
+
+@dataclass
+class Target:
+    spec: str            # as written
+    family: str          # family or single parameter name
+    limit: float         # in ``unit``
+    unit: str
+
+    def parameters(self, names: Sequence[str]) -> list:
+        if self.family in FAMILIES:
+            return [n for n in names if re.match(FAMILIES[self.family][0], n)]
+        return [self.family] if self.family in names else []
+
+    def in_unit(self, name: str, U: float, values: dict) -> float:
+        fam = self.family if self.family in FAMILIES else family_of(name)
+        f = FAMILIES[fam][1][self.unit]
+        return U * (1e6 / values[name] if f is None else f)
+
+
+def family_of(name: str) -> Optional[str]:
+    for fam, (pat, _) in FAMILIES.items():
+        if re.match(pat, name):
+            return fam
+    return None
+
+
+def _norm_unit(u: str) -> str:
+    return u.strip().replace("µ", "u").replace("°C", "degC").replace("″", "arcsec").replace(" ", "")
+
+
+def parse_targets(text: str, names: Sequence[str]) -> list:
+    """``"Ca:U<=5arcsec, Ca_tempco:U<=0.1arcsec/degC, K:U<=20ppm"`` -> targets; a family
+    (``Ca``, ``Ca_tempco``, ``K``, ``S``, ...) means each of its parameters. Refuses an unknown
+    parameter, a parameter not in the model, a bad unit or a malformed entry, naming it."""
+    out = []
+    for part in [p.strip() for p in text.split(",") if p.strip()]:
+        m = re.fullmatch(r"([A-Za-z_]+)\s*:\s*U\s*<=\s*([0-9.eE+-]+)\s*(.+)", part)
+        if not m:
+            raise InputError(f"--target: cannot read {part!r}; write NAME:U<=VALUEUNIT, e.g. Ca:U<=5arcsec")
+        name, value, unit = m.group(1), m.group(2), _norm_unit(m.group(3))
+        try:
+            limit = float(value)
+        except ValueError:
+            raise InputError(f"--target: {part!r}: {value!r} is not a number") from None
+        if not limit > 0:
+            raise InputError(f"--target: {part!r}: the target U must be > 0")
+        fam = name if name in FAMILIES else family_of(name)
+        if fam is None:
+            raise InputError(f"--target: unknown parameter {name!r}; give a family ({', '.join(FAMILIES)}) or a "
+                             "parameter of the model (Ca_xy, K_x_tempco, ...)")
+        t = Target(part, name, limit, unit)
+        if unit not in FAMILIES[fam][1]:
+            raise InputError(f"--target: {part!r}: unit {m.group(3).strip()!r} is not one for {name}; use "
+                             f"{' or '.join(FAMILIES[fam][1])}")
+        if not t.parameters(names):
+            raise InputError(f"--target: {name!r} is not a parameter of the planned model (effects decide which are)")
+        out.append(t)
+    if not out:
+        raise InputError("--target: no target given")
+    return out
+
+
+def candidate_sequences(lo: float, hi: float, hysteresis: bool = True) -> list:
+    """Setpoint sequences over [lo, hi] with ``m`` levels equally spaced (ends included). Every
+    sequence starts at ambient (20 degC, clamped into the range): the unit has soaked there, so its
+    first setpoint is on the mid-line (direction ``none``, docs/model.md); then ``up-down``
+    (heating sweep to hi, cooling sweep to lo), ``down-up`` (mirrored), each also with the sweep
+    back to ambient (the example's shape); without hysteresis in the model also a single sweep."""
+    if not hi > lo:
+        raise InputError(f"--range: the upper end must exceed the lower ({lo:g}:{hi:g})")
+    amb = min(max(AMBIENT_C, lo), hi)
+    out = []
+    for m in LEVELS:
+        lv = [round(float(v), 1) for v in np.linspace(lo, hi, m)]
+        up = [v for v in lv if v > amb]                       # amb -> hi
+        hi_lo = [v for v in lv[::-1] if v < hi]               # hi -> lo
+        lo_amb = [v for v in lv if lo < v < amb] + [amb]      # lo -> amb
+        dn = [v for v in lv[::-1] if v < amb]                 # amb -> lo
+        lo_hi = [v for v in lv if v > lo]                     # lo -> hi
+        hi_amb = [v for v in lv[::-1] if amb < v < hi] + [amb]
+        if hysteresis:
+            out.append((f"up-down, {m} levels", tuple([amb] + up + hi_lo)))
+            out.append((f"up-down-back, {m} levels", tuple([amb] + up + hi_lo + lo_amb)))
+            out.append((f"down-up, {m} levels", tuple([amb] + dn + lo_hi)))
+            out.append((f"down-up-back, {m} levels", tuple([amb] + dn + lo_hi + hi_amb)))
+        else:
+            out.append((f"sweep, {m} levels", tuple([amb] + dn + lo_hi)))
+    seen, uniq = set(), []
+    for name, seq in out:
+        if seq not in seen:
+            seen.add(seq)
+            uniq.append((name, seq))
+    return uniq
+
+
+@dataclass
+class Choice:
+    plan: Plan
+    prediction: dict
+    targets: list
+    met: dict            # spec -> (met, worst U in the target's unit, parameter)
+    values: dict
+    units: dict
+    searched: int
+    problems: dict
+
+
+CRITERION = ("the fewest chamber hours whose predicted U (Fisher information, bench errors and the lab's "
+             "systematic errors included) meets every target; ties broken A-optimally (smallest sum of "
+             "(U/target)^2 over the targeted parameters)")
+
+
+def evaluate(targets, names, U, values) -> dict:
+    out = {}
+    for t in targets:
+        worst = max(((t.in_unit(n, float(U[names.index(n)]), values), n) for n in t.parameters(names)))
+        out[t.spec] = (worst[0] <= t.limit, worst[0], worst[1])
+    return out
+
+
+def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = DEFAULT_Q_V2S,
+           chamber_rate_C_per_min: float = 1.0, positions: str = "auto",
+           effects: Sequence[str] = DEFAULT_EFFECTS, preset: str = "ak18-quartz",
+           hours_cap: float = HOURS_CAP, taus: Sequence[float] = TAUS,
+           repetitions: Sequence[int] = REPETITIONS, sequences: Optional[list] = None) -> Choice:
+    """The chosen plan (see the module); refuses an unreachable target within ``hours_cap``."""
+    if not chamber_rate_C_per_min > 0:
+        raise InputError("--chamber-rate must be > 0 degC/min")
+    if not Q_V2s > 0:
+        raise InputError("--q must be > 0 V^2 s")
+    sets = sorted(POSITION_SETS) if positions == "auto" else [int(positions)]
+    for s in sets:
+        if s not in POSITION_SETS:
+            raise InputError(f"--positions: {positions!r}; choose auto, 12, 18 or 24")
+    seqs = sequences or candidate_sequences(lo, hi, "hysteresis" in effects)
+    targets = None
+    best, best_key, searched = None, None, 0
+    reach: dict = {}
+    for name, sps in seqs:
+        for npos in sets:
+            plan = Plan(setpoints_C=sps, positions=dict(POSITION_SETS[npos]),
+                        chamber_rate_C_per_min=chamber_rate_C_per_min, name=f"{name}, {npos} positions")
+            d = design(plan, effects, lab, preset)
+            if targets is None:
+                targets = parse_targets(target_text, d.names)
+            for tau in taus:
+                for reps in repetitions:
+                    p = Plan(**{**plan.__dict__, "tau_s": float(tau), "repetitions": int(reps)})
+                    hours = p.chamber_hours()
+                    if hours > hours_cap:
+                        continue
+                    searched += 1
+                    pred = predict(d, Q_V2s, tau, reps)
+                    if not np.all(np.isfinite(pred["U"])):
+                        continue
+                    met = evaluate(targets, list(d.names), pred["U"], d.values)
+                    for spec, (ok, worst, n) in met.items():
+                        if spec not in reach or worst < reach[spec][0]:
+                            reach[spec] = (worst, n, hours)
+                    if all(m[0] for m in met.values()):
+                        a = sum((t.in_unit(n, float(pred["U"][d.names.index(n)]), d.values) / t.limit) ** 2
+                                for t in targets for n in t.parameters(d.names))
+                        key = (round(hours * 3600.0), a)
+                        if best_key is None or key < best_key:
+                            best_key = key
+                            best = Choice(p, pred, targets, met, d.values, d.units, 0, d.problems)
+    if best is None:
+        bad = [f"{spec}: best reachable U = {w:.3g} {t.unit} ({n}, in {h:.1f} h)"
+               for t in targets for spec, (w, n, h) in [(t.spec, reach[t.spec])] if w > t.limit]
+        why = "; ".join(bad) if bad else "each target alone is reachable, but no searched plan meets them all"
+        raise InputError(f"--target cannot be met within {hours_cap:g} chamber hours by any of the {searched} "
+                         f"plans searched: {why}")
+    best.searched = searched
+    return best
+
+
+def prediction_document(choice: Choice, *, Q_V2s: float, lab_source: Optional[str], preset: str,
+                        effects: Sequence[str]) -> dict:
+    """PRED.json (docs/plan.md)."""
+    pred, names = choice.prediction, list(choice.prediction["names"])
+    params = {n: {"U": float(U), "u": float(u), "u_type_a": float(ua), "k": 2.0, "unit": choice.units[n]}
+              for n, U, u, ua in zip(names, pred["U"], pred["u"], pred["u_a"])}
+    target = {}
+    for t in choice.targets:
+        ok, worst, n = choice.met[t.spec]
+        target[t.spec] = {"parameters": t.parameters(names), "limit": t.limit, "unit": t.unit,
+                          "U_worst": worst, "worst_parameter": n, "met": bool(ok)}
+    return {"format": "triadcal.plan_prediction", "version": 1,
+            "criterion": CRITERION, "chamber_hours": choice.plan.chamber_hours(),
+            "plan": {"name": choice.plan.name, "setpoints_C": list(choice.plan.setpoints_C),
+                     "directions": choice.plan.directions(), "n_positions": len(choice.plan.positions),
+                     "tau_s": choice.plan.tau_s, "repetitions": choice.plan.repetitions,
+                     "n_visits": choice.plan.n_visits},
+            "parameters": params, "target": target, "candidates_searched": choice.searched,
+            "assumptions": {"Q_V2s": Q_V2s, "lab": lab_source, "preset": preset, "effects": list(effects),
+                            "not_estimated": choice.problems,
+                            "K_ppm": "K's U in ppm is relative: U(K) / K * 1e6, K the preset unit's value",
+                            "hours": "per setpoint |dT| / chamber rate + settle_s, then per visit move_s + tau_s"}}
