@@ -52,7 +52,8 @@ def example_path():
 def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS,
         reference_temperature_C: float = 20.0, loss: str = "l2", strict: bool = False,
         json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0, lab=None,
-        hysteresis_form: str = "offset", hysteresis_half_width_C: Optional[float] = None):
+        hysteresis_form: str = "offset", hysteresis_half_width_C: Optional[float] = None,
+        bench_errors_from_replicates: bool = False):
     """Calibrate from a campaign (``triadcal fit``): ``data`` is a bench CSV path, a
     :class:`~triadcal.models.campaign.Campaign`, or None for the built-in example.
     ``angle_bound_arcsec``: the answer gates' bound on an orientation angle (arcsec).
@@ -61,6 +62,9 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     variance components and whose systematic errors (encoder zeros, axes non-orthogonality,
     fixture, g, thermometers, voltmeter) are propagated to every parameter as Type B
     (:mod:`triadcal.uncertainty.typeb`); without it the joint fit's uncertainties are Type A only.
+    ``bench_errors_from_replicates``: estimate the bench's random errors from the plan's
+    replicated visits (:func:`triadcal.estimation.joint.bench_errors_from_replicates`) instead of
+    taking them from the lab file (the result's ``fit.bench_errors.source`` says which).
     ``hysteresis_form``: ``offset`` (the branches a constant offset apart), ``play`` (a play
     hysteresis of half-width ``hysteresis_half_width_C`` degC, profiled when None) or ``auto``
     (chosen by the data; :mod:`triadcal.estimation.hysteresis_form`).
@@ -91,9 +95,15 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             lab = load_lab(lab)
         systematics = systematic_sources(lab, campaign.output_unit)
         effects, added = effects_with_lab(effects, systematics)
+        bench = bench_errors_of(lab) if lab is not None else None
+        if bench_errors_from_replicates:
+            from .estimation.joint import bench_errors_from_replicates as from_replicates
+            from .models.model import Model
+
+            bench = from_replicates(campaign, Model(effects, reference_temperature_C))
         kwargs = dict(reference_temperature_C=reference_temperature_C, loss=loss,
                       unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates,
-                      bench_errors=bench_errors_of(lab) if lab is not None else None, systematics=systematics)
+                      bench_errors=bench, systematics=systematics)
         if hysteresis_form == "offset" and hysteresis_half_width_C is None:
             result, problem, solution = fit_joint(campaign, effects, **kwargs)
         else:

@@ -42,6 +42,9 @@ def register(sub) -> None:
                         "with a budget, U and k per parameter (docs/lab.md; without it, u is Type A only)")
     p.add_argument("--json", metavar="OUT", help="write the result (results-json v1)")
     p.add_argument("--netcdf", metavar="OUT.nc", help="write residuals per visit and axis (joint)")
+    p.add_argument("--bench-errors-from-replicates", action="store_true",
+                   help="estimate the bench's random positioning and wobble errors from the plan's replicated "
+                        "visits (one position visited twice or more at a setpoint) instead of the lab file's")
     p.add_argument("--hysteresis-form", choices=("offset", "play", "auto"), default="offset",
                    help="form of the angles' hysteresis: offset (the branches a constant offset apart, default), "
                         "play (a backlash of half-width r on the temperature history, r profiled), auto (chosen by "
@@ -75,7 +78,8 @@ def run(args) -> int:
                  reference_temperature_C=args.reference_temperature, loss=args.loss,
                  strict=args.strict, json_path=args.json, netcdf_path=args.netcdf,
                  angle_bound_arcsec=args.angle_bound_arcsec, lab=args.lab,
-                 hysteresis_form=args.hysteresis_form, hysteresis_half_width_C=args.hysteresis_width)
+                 hysteresis_form=args.hysteresis_form, hysteresis_half_width_C=args.hysteresis_width,
+                 bench_errors_from_replicates=args.bench_errors_from_replicates)
     out.say(summary_text(result))
     if args.json:
         out.say(f"result written to {args.json}")

@@ -491,3 +491,57 @@ def tilt_polar_values(x: np.ndarray, cov: np.ndarray, index: dict) -> dict:
         ud, ub = math.sqrt(np.trace(C) / 2), math.pi
     return {"tilt_delta": ParameterValue(float(delta) / ARCSEC, ud / ARCSEC, "arcsec"),
             "tilt_beta": ParameterValue(float(beta) / DEG, min(ub, math.pi) / DEG, "deg")}
+
+
+#: the paper's example ratio of the wobble to the positioning error (eq. 4: 2" / 5"), used when
+#: the bench's errors are estimated from replicates and the lab states no wobble of its own
+WOBBLE_TO_POSITION = 0.4
+
+
+def replicate_groups(campaign: Campaign) -> list:
+    """Visits that repeat one bench position at one setpoint on one branch and cycle (same axis
+    angles): index arrays of the groups with at least two visits."""
+    keys = {}
+    for i, k in enumerate(zip(np.round(campaign.axis1_deg, 6), np.round(campaign.axis2_deg, 6),
+                              campaign.setpoint_C, campaign.direction, campaign.cycle)):
+        keys.setdefault(k, []).append(i)
+    return [np.array(v) for v in keys.values() if len(v) >= 2]
+
+
+def bench_errors_from_replicates(campaign: Campaign, model: Model, wobble_ratio: float = WOBBLE_TO_POSITION
+                                 ) -> BenchErrors:
+    """The bench's random positioning error estimated from the plan's replicates (method of
+    moments): within a group of visits of one position at one setpoint, the outputs scatter by
+    the output noise plus the bench's errors, ``var(W_a) = s_a^2 + sigma_1^2 c_a`` with ``c_a``
+    the sensitivity of eq. 4 (:func:`~triadcal.models.effects.position_error.bench_variance` per
+    arcsec^2, wobble at ``wobble_ratio`` sigma_1), so
+
+        sigma_1^2 = sum_g,a [(n_g - 1) (S_g,a^2 - mean s_a^2)] / sum_g,a [(n_g - 1) mean c_a]
+
+    (S^2 the group's sample variance), clipped at 0. Needs the output noise (sd_* or Q_V2s) and at
+    least 5 groups; the source says how many groups and visits it came from."""
+    noise = noise_of(campaign)
+    if not noise.known:
+        raise InputError(f"{campaign.source or 'campaign'}: estimating the bench's errors from replicates needs the "
+                         "output noise in the data (sd_*/n_samples columns or Q_V2s)")
+    groups = replicate_groups(campaign)
+    if len(groups) < 5:
+        raise InputError(f"{campaign.source or 'campaign'}: {len(groups)} groups of replicated visits (one position "
+                         "visited twice or more at one setpoint): at least 5 are needed to estimate the bench's errors; "
+                         "state them in the lab file instead ([bench] sigma_position_arcsec, sigma_wobble_arcsec)")
+    from ..models.effects.position_error import bench_variance
+
+    start = start_values(campaign, model)
+    p = model.to_internal({n: start.get(n, model.spec[n].nominal) for n in model.names})
+    c = bench_variance(model, p, campaign.covariates(), campaign.gravity_g, 1.0, wobble_ratio)   # per arcsec^2
+    num = den = 0.0
+    for g in groups:
+        k = len(g) - 1
+        S2 = np.var(campaign.w[g], axis=0, ddof=1)
+        num += float(np.sum(k * (S2 - np.mean(noise.sigma[g] ** 2, axis=0))))
+        den += float(np.sum(k * np.mean(c[g], axis=0)))
+    s1 = math.sqrt(max(num / den, 0.0)) if den > 0 else 0.0
+    n_vis = int(sum(len(g) for g in groups))
+    return BenchErrors(s1, wobble_ratio * s1, source=(f"estimated from the replicates of the plan ({len(groups)} "
+                                                      f"groups, {n_vis} visits; wobble taken as {wobble_ratio:g} of "
+                                                      "the positioning error)"))
