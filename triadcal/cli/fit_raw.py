@@ -53,6 +53,10 @@ def register(sub) -> None:
                    help="answer gate: largest orientation angle accepted as 'ok', arcsec (default 3600 = 1 deg)")
     p.add_argument("--json", metavar="OUT", required=True, help="write the result (results-json v1)")
     p.add_argument("--bench-csv", metavar="OUT.csv", help="write the pose averages as bench CSV v1 (known poses)")
+    p.add_argument("--diagnose", metavar="OUT.json",
+                   help="after the fit, diagnose the static intervals (where the residual lies, which candidate "
+                        "term shrinks it on held-out intervals) and write a triadcal.diagnosis JSON "
+                        "(docs/diagnosis.md, 'Diagnosing real recordings')")
     add_output_options(p)
     p.set_defaults(func=run)
 
@@ -101,6 +105,14 @@ def run(args) -> int:
         ui.say(f"posterior draws written to {args.posterior} (arviz InferenceData)")
     if args.bench_csv:
         ui.say(f"position averages written to {args.bench_csv} (bench CSV v1)")
+    if args.diagnose:
+        from ..judgement.raw_diagnosis import diagnose_raw, summary_lines
+
+        diag = diagnose_raw(out)
+        diag.save(args.diagnose)
+        for line in summary_lines(diag):
+            ui.say(line)
+        ui.say(f"diagnosis written to {args.diagnose}")
     for note in r.notes:
         print(f"note: {note}", file=sys.stderr)
     return 0 if r.status == "ok" else 3
