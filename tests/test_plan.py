@@ -150,3 +150,21 @@ def test_planned_U_is_achieved_and_covers(tmp_path):
     assert worst <= 0.15
     for fam, c in cover.items():
         assert abs(c - 0.95) <= 0.03, (fam, c)
+
+
+def test_plan_files_follow_the_contract(tmp_path):
+    """The stepped plan, the ramp plan and the prediction validate against their schemas in
+    docs/results-json.md."""
+    import json
+
+    from test_results_contract import assert_valid
+    from triadcal.cli import main
+
+    target = "Ca:U<=5arcsec, Ca_tempco:U<=0.1arcsec/degC, K:U<=20ppm"
+    assert main(["plan", "--target", target, "--range", "-40:85", "-o", str(tmp_path / "p.json"),
+                 "--json", str(tmp_path / "pred.json"), "--quiet"]) == 0
+    assert main(["plan", "--target", target, "--range", "-40:85", "--ramp", "-o", str(tmp_path / "r.json"),
+                 "--quiet"]) == 0
+    assert_valid(json.loads((tmp_path / "p.json").read_text()), "triadcal.plan")
+    assert_valid(json.loads((tmp_path / "r.json").read_text()), "triadcal.ramp_plan")
+    assert_valid(json.loads((tmp_path / "pred.json").read_text()), "triadcal.plan_prediction")

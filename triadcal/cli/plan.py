@@ -14,7 +14,7 @@ def _range(text: str) -> tuple:
     return lo, hi
 
 
-def _rate(text: str) -> float:
+def _rate(text: str, option: str = "--chamber-rate") -> float:
     t = text.strip().replace("°C", "degC").replace(" ", "")
     for suffix, f in (("degC/min", 1.0), ("degC/h", 1.0 / 60.0), ("K/min", 1.0)):
         if t.endswith(suffix):
@@ -25,7 +25,7 @@ def _rate(text: str) -> float:
     try:
         return float(t) * f
     except ValueError:
-        raise InputError(f"--chamber-rate: {text!r}; write e.g. 1degC/min") from None
+        raise InputError(f"{option}: {text!r}; write e.g. 1degC/min") from None
 
 
 def register(sub) -> None:
@@ -49,6 +49,9 @@ def register(sub) -> None:
     p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS), help="effects of the model to be fitted")
     p.add_argument("--preset", default="ak18-quartz", help="unit whose parameter values the Jacobian is taken at")
     p.add_argument("--max-hours", type=float, default=200.0, help="cap of chamber hours (default 200)")
+    p.add_argument("--ramp", action="store_true",
+                   help="plan a continuous ramp instead (no soak): program legs, rate (1, 1/2, 1/4 of --chamber-rate), "
+                        "holds, positions and dwell; thermal_lag is added to the model (docs/plan.md)")
     p.add_argument("-o", "--output", required=True, metavar="PLAN", help="plan file to write (JSON, docs/plan.md)")
     p.add_argument("--json", metavar="PRED.json", help="write the prediction (U per parameter, hours, targets)")
     add_output_options(p)
@@ -64,8 +67,16 @@ def run(args) -> int:
     lab = load_lab(args.lab) if args.lab else None
     Q = DEFAULT_Q_V2S if args.q is None else args.q
     effects = name_list(args.effects)
-    choice = search(args.target, lo, hi, lab=lab, Q_V2s=Q, chamber_rate_C_per_min=_rate(args.chamber_rate),
-                    positions=args.positions, effects=effects, preset=args.preset, hours_cap=args.max_hours)
+    if getattr(args, "ramp", False):
+        from ..planning.ramp import ramp_effects, search_ramp
+
+        effects = ramp_effects(effects)
+        choice = search_ramp(args.target, lo, hi, lab=lab, Q_V2s=Q, chamber_rate_C_per_min=_rate(args.chamber_rate),
+                             positions=args.positions, effects=effects, preset=args.preset,
+                             hours_cap=args.max_hours)
+    else:
+        choice = search(args.target, lo, hi, lab=lab, Q_V2s=Q, chamber_rate_C_per_min=_rate(args.chamber_rate),
+                        positions=args.positions, effects=effects, preset=args.preset, hours_cap=args.max_hours)
     doc = prediction_document(choice, Q_V2s=Q, lab_source=args.lab, preset=args.preset, effects=effects)
     choice.plan.save(args.output, predicted={"chamber_hours": doc["chamber_hours"],
                                              "U": {n: v["U"] for n, v in doc["parameters"].items()},
@@ -74,10 +85,14 @@ def run(args) -> int:
         atomic_write_json(args.json, doc)
     plan = choice.plan
     out = output(args)
-    out.say(f"plan: {plan.name}; {len(plan.setpoints_C)} setpoints "
-            f"({', '.join(f'{s:g}' for s in plan.setpoints_C)} degC), {len(plan.positions)} positions x "
-            f"{plan.repetitions}, tau {plan.tau_s:g} s: {plan.chamber_hours():.1f} chamber hours "
-            f"({doc['candidates_searched']} plans searched)")
+    if getattr(args, "ramp", False):
+        out.say(f"plan: {plan.describe()}: {plan.chamber_hours():.1f} chamber hours "
+                f"({doc['candidates_searched']} ramp plans evaluated)")
+    else:
+        out.say(f"plan: {plan.name}; {len(plan.setpoints_C)} setpoints "
+                f"({', '.join(f'{s:g}' for s in plan.setpoints_C)} degC), {len(plan.positions)} positions x "
+                f"{plan.repetitions}, tau {plan.tau_s:g} s: {plan.chamber_hours():.1f} chamber hours "
+                f"({doc['candidates_searched']} plans searched)")
     for spec, t in doc["target"].items():
         out.say(f"  {spec}: predicted U {t['U_worst']:.3g} {t['unit']} ({t['worst_parameter']}) "
                 f"{'met' if t['met'] else 'NOT met'}")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..models.effects import DEFAULT_EFFECTS, VOCABULARY
-from ..models.simulate import PRESETS, STANDARD_SETPOINTS_C, Schedule
+from ..models.simulate import PRESETS, STANDARD_SETPOINTS_C, RampSchedule, Schedule
 from ._common import add_output_options, assignments, float_list, name_list, output
 
 
@@ -35,6 +35,13 @@ def register(sub) -> None:
     p.add_argument("--plan", metavar="PLAN",
                    help="simulate a plan of `triadcal plan` (its setpoints, soaks, positions, repetitions and tau; "
                         "replaces --setpoints, --soak-s and --tau-s; docs/plan.md)")
+    p.add_argument("--ramp", metavar="T0:T1:...",
+                   help="continuous ramp instead of setpoints: the chamber's piecewise-linear program in degC, e.g. "
+                        "20:-40:85:20; the bench cycles through the positions back to back for the program's "
+                        "duration (no soak; replaces --setpoints and --soak-s; docs/plan.md)")
+    p.add_argument("--ramp-rate", default="1degC/min", help="rate of the ramp program (default 1degC/min)")
+    p.add_argument("--ramp-hold-s", type=float, default=0.0,
+                   help="hold at every interior turning point of the ramp program, s (default 0)")
     p.add_argument("--unit", default="SN-SIM-0001", help="serial number written in the file")
     p.add_argument("--seed", type=int, default=0)
     add_output_options(p)
@@ -47,10 +54,21 @@ def run(args) -> int:
     effects = name_list(args.effects)
     positions = None
     if getattr(args, "plan", None):
-        from ..planning import Plan
+        from ..planning.ramp import load_plan
 
-        plan = Plan.load(args.plan)
+        plan = load_plan(args.plan)
         schedule, positions = plan.schedule(), plan.visit_positions()
+    elif getattr(args, "ramp", None):
+        from ..errors import InputError
+        from .plan import _rate
+
+        try:
+            program = tuple(float(v) for v in args.ramp.split(":"))
+        except ValueError:
+            raise InputError(f"--ramp: {args.ramp!r}; write the program's temperatures in degC, e.g. 20:-40:85:20") from None
+        schedule = RampSchedule(program_C=program, rate_C_per_min=_rate(args.ramp_rate, "--ramp-rate"),
+                                hold_s=args.ramp_hold_s, tau_s=args.tau_s)
+        schedule.knots()                                  # refuses a bad program, rate or hold here
     else:
         schedule = Schedule(setpoints_C=tuple(float_list(args.setpoints)), soak_s=args.soak_s, tau_s=args.tau_s)
     truth, campaign = simulate(
@@ -58,7 +76,10 @@ def run(args) -> int:
         parameters=assignments(args.set), schedule=schedule, Q_V2s=args.Q,
         sigma_position_arcsec=args.sigma_position_arcsec, sigma_wobble_arcsec=args.sigma_wobble_arcsec,
         heavy_tails_dof=args.heavy_tails_dof, unit=args.unit, seed=args.seed, plan=positions)
-    output(args).say(f"wrote {args.output}: {campaign.n_visits} visits of {truth.unit} at "
-                     f"{len(schedule.setpoints_C)} setpoints, with effects {', '.join(effects) or 'none'}"
+    where = (f"on the ramp {':'.join(f'{v:g}' for v in schedule.program_C)} degC at {schedule.rate_C_per_min:g} "
+             f"degC/min ({schedule.duration_s / 3600.0:.2f} chamber hours)" if isinstance(schedule, RampSchedule)
+             else f"at {len(schedule.setpoints_C)} setpoints")
+    output(args).say(f"wrote {args.output}: {campaign.n_visits} visits of {truth.unit} {where}, "
+                     f"with effects {', '.join(effects) or 'none'}"
                      + (f"; the truth is in {args.truth}" if args.truth else ""))
     return 0

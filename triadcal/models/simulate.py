@@ -25,7 +25,7 @@ from .campaign import DEFAULT_PLAN, Campaign
 from .effects.hysteresis import BRANCH, direction_after
 from .effects import DEFAULT_EFFECTS, NOISE_EFFECTS
 from .model import Covariates, Model
-from .thermal_environment import sensor_temperatures, step_sequence
+from .thermal_environment import ramp_sequence, sensor_temperatures, step_sequence
 from .units import ARCSEC, DEG, STANDARD_GRAVITY_M_S2
 
 #: 12 positions x 15 setpoints: soaked at ambient, heated to +70, cooled to -40, heated back
@@ -64,6 +64,103 @@ class Schedule:
             out.append(direction_after(out[-1] if out else "none", previous, sp))
             previous = sp
         return out
+
+
+@dataclass
+class RampSchedule:
+    """A continuous-ramp campaign (no soak): the chamber follows a piecewise-linear program
+    through ``program_C`` (e.g. 20 -> -40 -> 85 -> 20 degC) at ``rate_C_per_min``, holding
+    ``hold_s`` at every interior turning point (0: none), while the bench cycles through the
+    positions without pause (a move of ``move_s``, then an averaging window of ``tau_s`` per
+    visit) for as long as the program runs; the chamber hours are the program's duration.
+
+    The unit follows the chamber through the thermal environment of :class:`Schedule` (two
+    first-order lags, :func:`~triadcal.models.thermal_environment.ramp_sequence`, exact for the
+    ramp). Each visit is labelled with the direction in which the unit's temperature moves
+    during it (``heating`` on a rise, ``cooling`` on a fall: the ramp as the unit sees it, which
+    trails the program's turns by the lags) and with the target of the program's current leg as
+    its ``setpoint_C``, so a bench CSV block (consecutive visits of equal setpoint and direction)
+    is one leg, within which the fit takes the rate of the readings (central differences).
+    """
+
+    program_C: Sequence[float] = (20.0, -40.0, 85.0, 20.0)
+    rate_C_per_min: float = 1.0
+    hold_s: float = 0.0
+    tau_s: float = 30.0
+    move_s: float = 20.0
+    chamber_time_constant_s: float = 600.0
+    unit_time_constant_s: float = 1200.0
+    self_heating_C: tuple = (0.30, 0.35, 0.25)
+
+    @property
+    def start_C(self) -> float:
+        return float(self.program_C[0])
+
+    @property
+    def setpoints_C(self) -> tuple:
+        """The program's turning points (for messages; the visits carry their leg's target)."""
+        return tuple(float(v) for v in self.program_C)
+
+    def knots(self) -> tuple:
+        """``(times_s, values_C)`` of the program, holds included."""
+        if len(self.program_C) < 2:
+            raise InputError("a ramp program needs at least two temperatures")
+        if not self.rate_C_per_min > 0:
+            raise InputError("the ramp rate must be > 0 degC/min")
+        if self.hold_s < 0 or not self.tau_s > 0 or self.move_s < 0:
+            raise InputError("a ramp needs hold_s >= 0, tau_s > 0 and move_s >= 0")
+        rate = self.rate_C_per_min / 60.0
+        ts, vs = [0.0], [float(self.program_C[0])]
+        last = len(self.program_C) - 1
+        for k in range(1, len(self.program_C)):
+            v = float(self.program_C[k])
+            ts.append(ts[-1] + abs(v - vs[-1]) / rate)
+            vs.append(v)
+            if self.hold_s > 0 and k < last:
+                ts.append(ts[-1] + self.hold_s)
+                vs.append(v)
+        return np.array(ts), np.array(vs)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.knots()[0][-1])
+
+    def visit_windows(self) -> np.ndarray:
+        """Start times (s) of the averaging windows: visits back to back for the program's duration."""
+        per = self.move_s + self.tau_s
+        n = int(np.floor(self.duration_s / per + 1e-9))
+        return np.arange(n) * per + self.move_s
+
+
+def ramp_history(schedule: RampSchedule, times) -> tuple:
+    """Chamber, unit (degC) and unit rate (degC/s) at ``times`` on the ramp program."""
+    kt, kv = schedule.knots()
+    return ramp_sequence(times, kt, kv, schedule.chamber_time_constant_s, schedule.unit_time_constant_s)
+
+
+def _ramp_visits(schedule: RampSchedule, plan: Mapping[str, tuple]):
+    """Visits of a ramp campaign: labels, axes, leg targets, directions, mid times, taus, the mean
+    sensor temperatures over each window (n, 3) and the mean unit rate over it (n,)."""
+    kt, kv = schedule.knots()
+    start = schedule.visit_windows()
+    tau = float(schedule.tau_s)
+    if len(start) == 0:
+        raise InputError(f"the ramp program ({schedule.duration_s:.0f} s) is shorter than one visit")
+    t0, tm, t1 = start, start + tau / 2, start + tau
+    _, u0, _ = ramp_history(schedule, t0)
+    _, um, _ = ramp_history(schedule, tm)
+    _, u1, _ = ramp_history(schedule, t1)
+    unit_mean = (u0 + 4.0 * um + u1) / 6.0            # Simpson: the window's mean temperature
+    rate_mean = (u1 - u0) / tau                       # exactly the window's mean rate
+    seg = np.clip(np.searchsorted(kt, tm, side="right"), 1, len(kt) - 1)
+    target = kv[seg]
+    dirs = np.where(rate_mean > 0, "heating", np.where(rate_mean < 0, "cooling", "none"))
+    items = list(plan.items())
+    labels = [items[k % len(items)][0] for k in range(len(start))]
+    a1 = [items[k % len(items)][1][0] for k in range(len(start))]
+    a2 = [items[k % len(items)][1][1] for k in range(len(start))]
+    sensor_T = sensor_temperatures(unit_mean, schedule.self_heating_C)
+    return labels, a1, a2, list(target), list(dirs), tm, [tau] * len(start), sensor_T, rate_mean
 
 
 @dataclass
@@ -225,33 +322,38 @@ def thermal_history(schedule: Schedule, times: np.ndarray, setpoint_start: np.nd
 def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
                       schedule: Optional[Schedule] = None, seed: int = 0,
                       state: str = "initial") -> Campaign:
-    """Simulate a bench campaign; the same seed gives the same campaign."""
+    """Simulate a bench campaign; the same seed gives the same campaign. ``schedule``: a stepped
+    :class:`Schedule` (default) or a continuous :class:`RampSchedule`."""
     plan = dict(DEFAULT_PLAN if plan is None else plan)
     schedule = schedule or Schedule()
     rng = np.random.default_rng(seed)
     noise = truth.noise
     model = truth.model()
 
-    labels, a1, a2, sp_c, dirs, times, taus, starts = [], [], [], [], [], [], [], []
-    t = 0.0
-    for i_sp, (sp, d) in enumerate(zip(schedule.setpoints_C, schedule.directions())):
-        starts.append(t)
-        t += schedule.soak_at(i_sp)
-        for label, (ax1, ax2) in plan.items():
-            t += schedule.move_s
-            labels.append(label)
-            a1.append(ax1)
-            a2.append(ax2)
-            sp_c.append(sp)
-            dirs.append(d)
-            times.append(t + schedule.tau_s / 2)
-            taus.append(schedule.tau_s)
-            t += schedule.tau_s
-    n = len(labels)
-    times = np.array(times)
-    _, unit_T, unit_rate = thermal_history(schedule, times, np.array(starts),
-                                           np.array(schedule.setpoints_C, float))
-    sensor_T = sensor_temperatures(unit_T, schedule.self_heating_C)
+    if isinstance(schedule, RampSchedule):
+        labels, a1, a2, sp_c, dirs, times, taus, sensor_T, unit_rate = _ramp_visits(schedule, plan)
+        n = len(labels)
+    else:
+        labels, a1, a2, sp_c, dirs, times, taus, starts = [], [], [], [], [], [], [], []
+        t = 0.0
+        for i_sp, (sp, d) in enumerate(zip(schedule.setpoints_C, schedule.directions())):
+            starts.append(t)
+            t += schedule.soak_at(i_sp)
+            for label, (ax1, ax2) in plan.items():
+                t += schedule.move_s
+                labels.append(label)
+                a1.append(ax1)
+                a2.append(ax2)
+                sp_c.append(sp)
+                dirs.append(d)
+                times.append(t + schedule.tau_s / 2)
+                taus.append(schedule.tau_s)
+                t += schedule.tau_s
+        n = len(labels)
+        times = np.array(times)
+        _, unit_T, unit_rate = thermal_history(schedule, times, np.array(starts),
+                                               np.array(schedule.setpoints_C, float))
+        sensor_T = sensor_temperatures(unit_T, schedule.self_heating_C)
     branch = np.array([BRANCH[d] for d in dirs])
 
     cov = Covariates(
@@ -290,6 +392,9 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
         "output_unit": "V",
         "Q_V2s": repr(noise.Q_V2s),
     }
+    if isinstance(schedule, RampSchedule):
+        metadata["ramp"] = (":".join(f"{v:g}" for v in schedule.program_C) + f" degC at "
+                            f"{schedule.rate_C_per_min:g} degC/min, hold {schedule.hold_s:g} s")
     return Campaign(
         unit=np.full(n, truth.unit), setpoint_C=np.array(sp_c, float), direction=np.array(dirs),
         time_s=times, position=np.array(labels), axis1_deg=np.array(a1, float),

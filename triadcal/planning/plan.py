@@ -204,7 +204,8 @@ def _model_and_sources(effects, lab, output_unit="V"):
 
 def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, preset: str = "ak18-quartz") -> Design:
     """Covariates, Jacobian and bench variance of ``plan`` (its position set once per setpoint;
-    repetitions multiply the information, :func:`predict`)."""
+    repetitions multiply the information, :func:`predict`). ``plan`` may also be a
+    :class:`triadcal.planning.ramp.RampPlan` (its visits as simulated, repetitions 1)."""
     from ..estimation.joint import JointProblem, identifiability_problems, null_space_problems, parameter_unit
     from ..io.lab import bench_errors_of
     from ..models.effects.position_error import bench_variance
@@ -213,7 +214,7 @@ def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, prese
     model, effects, sources = _model_and_sources(effects, lab)
     truth = preset_truth(preset, [e for e in effects if e != "bench_nonorthogonality"],
                          noise=NoiseModel(Q_V2s=DEFAULT_Q_V2S, temp_noise_C=0.0))
-    once = replace(plan, repetitions=1)
+    once = plan.once() if hasattr(plan, "once") else replace(plan, repetitions=1)
     campaign = simulate_campaign(truth, once.visit_positions(), once.schedule(), seed=0)
     values = {n: float(truth.parameters.get(n, model.spec[n].nominal)) for n in model.names}
     problems = identifiability_problems(campaign, model)

@@ -226,14 +226,23 @@ def prediction_document(choice: Choice, *, Q_V2s: float, lab_source: Optional[st
         ok, worst, n = choice.met[t.spec]
         target[t.spec] = {"parameters": t.parameters(names), "limit": t.limit, "unit": t.unit,
                           "U_worst": worst, "worst_parameter": n, "met": bool(ok)}
+    plan = choice.plan
+    ramp = hasattr(plan, "program_C")
+    if ramp:
+        plan_summary = {"kind": "ramp", "name": plan.name, "program_C": list(plan.program_C),
+                        "rate_C_per_min": plan.rate_C_per_min, "hold_s": plan.hold_s,
+                        "n_positions": len(plan.positions), "tau_s": plan.tau_s, "n_visits": plan.n_visits}
+    else:
+        plan_summary = {"name": plan.name, "setpoints_C": list(plan.setpoints_C), "directions": plan.directions(),
+                        "n_positions": len(plan.positions), "tau_s": plan.tau_s,
+                        "repetitions": plan.repetitions, "n_visits": plan.n_visits}
+    hours_rule = ("the ramp program's duration: sum |dT| / rate + holds" if ramp else
+                  "per setpoint |dT| / chamber rate + settle_s, then per visit move_s + tau_s")
     return {"format": "triadcal.plan_prediction", "version": 1,
             "criterion": CRITERION, "chamber_hours": choice.plan.chamber_hours(),
-            "plan": {"name": choice.plan.name, "setpoints_C": list(choice.plan.setpoints_C),
-                     "directions": choice.plan.directions(), "n_positions": len(choice.plan.positions),
-                     "tau_s": choice.plan.tau_s, "repetitions": choice.plan.repetitions,
-                     "n_visits": choice.plan.n_visits},
+            "plan": plan_summary,
             "parameters": params, "target": target, "candidates_searched": choice.searched,
             "assumptions": {"Q_V2s": Q_V2s, "lab": lab_source, "preset": preset, "effects": list(effects),
                             "not_estimated": choice.problems,
                             "K_ppm": "K's U in ppm is relative: U(K) / K * 1e6, K the preset unit's value",
-                            "hours": "per setpoint |dT| / chamber rate + settle_s, then per visit move_s + tau_s"}}
+                            "hours": hours_rule}}
