@@ -122,6 +122,9 @@ NOT_RUN = {
     "triadcal capture --config examples/data/ports.toml": "needs the real instruments on the serial ports of "
                                             "examples/data/ports.toml; the same capture runs "
                                             "against the emulator (capture --emulate, hardware.md)",
+    "triadcal capture --instruments examples/data/instruments.toml": "needs the real instruments on the serial "
+                                            "ports of examples/data/instruments.toml; the same capture runs "
+                                            "against `triadcal emulate` (capture --instruments, hardware.md)",
 }
 # commands that serve until stopped (the doc runs them in another terminal): started in the
 # background, the block goes on once the file they announce exists, stopped at its end

@@ -7,7 +7,7 @@ from ..errors import InputError
 import tempfile
 
 from ._common import add_output_options, float_list, output
-from .emulate import add_emulator_options, build_emulator, fates_text
+from .emulate import IMU_PROTOCOLS, add_emulator_options, build_emulator, fates_text
 
 
 def register(sub) -> None:
@@ -32,8 +32,13 @@ def register(sub) -> None:
     p.add_argument("--stab-hold-s", type=float, default=300.0, help="... held for this long, s (default 300)")
     p.add_argument("--stab-timeout-s", type=float, default=6 * 3600.0, help="give up after, s (default 6 h)")
     p.add_argument("--config", help="TOML file with [imu], [bench], [chamber] ports (see docs/hardware.md)")
+    p.add_argument("--instruments", metavar="INSTRUMENTS.toml",
+                   help="TOML file choosing the drivers: [imu] driver = vectornav|xsens|mip|nmea|binary, "
+                        "[chamber] driver = watlow-f4|watlow-f4t|espec|modbus, [bench] driver = template|scpi "
+                        "(docs/hardware.md, examples/data/instruments.toml)")
     p.add_argument("--imu-port")
-    p.add_argument("--imu-protocol", choices=("nmea", "binary"))
+    p.add_argument("--imu-protocol", choices=IMU_PROTOCOLS)
+    p.add_argument("--imu-rate-hz", type=float, help="IMU output rate a vendor IMU is configured to")
     p.add_argument("--bench-port")
     p.add_argument("--chamber-port")
     p.add_argument("--chamber-slave", type=int)
@@ -72,16 +77,24 @@ def _progress_bar(out):
 
 
 def run(args) -> int:
-    from ..hardware.capture import (CaptureError, CaptureSettings, Stabilisation, capture, load_port_config,
-                                    open_instruments, plan_from_csv)
+    from ..hardware.capture import (CaptureError, CaptureSettings, Stabilisation, capture, imu_metadata,
+                                    load_instruments, load_port_config, open_instruments, plan_from_csv)
+    from ..hardware.drivers.bench import BenchError
     from ..models.campaign import DEFAULT_PLAN
     from ..models.units import STANDARD_GRAVITY_M_S2
 
     out = output(args)
     plan = DEFAULT_PLAN if args.plan == "default" else plan_from_csv(args.plan)
-    cfg = load_port_config(args.config) if args.config else {}
+    if args.config and args.instruments:
+        raise InputError("give --config (a ports file) or --instruments (an instruments file), not both")
+    cfg = load_port_config(args.config) if args.config else load_instruments(args.instruments) \
+        if args.instruments else {}
+    if "dmm" in cfg and "imu" not in cfg:
+        raise InputError(f"{args.instruments}: [dmm] alone: capture records an IMU stream; a voltmeter-only "
+                         "campaign is not wired into capture yet (read it with triadcal.hardware.drivers.dmm)")
     cfg = {k: dict(cfg.get(k, {})) for k in ("imu", "bench", "chamber")}
     for section, key, value in (("imu", "port", args.imu_port), ("imu", "protocol", args.imu_protocol),
+                                ("imu", "rate_hz", args.imu_rate_hz),
                                 ("bench", "port", args.bench_port), ("chamber", "port", args.chamber_port),
                                 ("chamber", "slave", args.chamber_slave)):
         if value is not None:
@@ -98,18 +111,23 @@ def run(args) -> int:
 
         Path(args.out).mkdir(parents=True, exist_ok=True)
         emulator.truth.save(Path(args.out) / "emulator_truth.json")
-        extra["emulator"] = f"triadcal emulate (clock x{args.time_scale:g}, {emulator.protocol})"
+        extra["emulator"] = f"triadcal emulate (clock x{args.time_scale:g}, {emulator.protocol}" + (
+            f", bench profile {emulator.bench_profile_ref})" if emulator.bench_server is not None else ")")
     settings = CaptureSettings(
         tau_s=args.tau_s, settle_s=args.settle_s, unit=unit or "SN-UNKNOWN", operator=args.operator,
         local_g_m_s2=args.local_g or STANDARD_GRAVITY_M_S2,
         stabilisation=Stabilisation(args.stab_rate, args.stab_window_s, args.stab_hold_s, args.stab_timeout_s))
     try:
         imu, bench, chamber = open_instruments(cfg)
+        settings.output_unit = imu_metadata(imu).get("output_unit", settings.output_unit)
+        profile = getattr(bench, "profile", None)          # a bench by template names its controller
+        if profile is not None:
+            settings.bench_name = f"two-axis bench, {profile.name}"
         try:
             report = capture(args.out, plan=plan, setpoints_C=float_list(args.setpoints), imu=imu, bench=bench,
                              chamber=chamber, settings=settings, progress=_progress_bar(out),
                              extra_metadata=extra)
-        except CaptureError as exc:
+        except (CaptureError, BenchError) as exc:
             raise InputError(str(exc)) from None      # one line, exit 1: the campaign cannot go on
         finally:
             bench.close()
@@ -126,7 +144,8 @@ def run(args) -> int:
             f"bytes; {r.reconnects} reconnections, {r.stalls} stalls and {r.redone_visits} visits redone")
     if r.noise:
         q = r.noise["Q_V2s"]
-        out.say(f"white-noise intensity from the Allan variance: Q = {q[0]:.3g}, {q[1]:.3g}, {q[2]:.3g} V^2 s "
+        out.say(f"white-noise intensity from the Allan variance: Q = {q[0]:.3g}, {q[1]:.3g}, {q[2]:.3g} "
+                f"{settings.output_unit}^2 s "
                 "(x, y, z)")
     if emulator is not None:
         out.say(f"the emulator's frames: {fates_text(emulator.summary()['fates'])}")

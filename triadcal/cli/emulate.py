@@ -11,6 +11,9 @@ from ..models.effects import DEFAULT_EFFECTS
 from ..models.simulate import PRESETS
 from ._common import add_output_options, name_list, output
 
+#: the IMU wire protocols (triadcal.hardware.protocols.PROTOCOLS)
+IMU_PROTOCOLS = ("nmea", "binary", "vectornav", "xsens", "mip")
+
 
 def _windows(items):
     out = []
@@ -29,8 +32,11 @@ def add_emulator_options(p, prefix: str = "") -> None:
                    help="emulated unit (default ak18-quartz)")
     p.add_argument(f"--{prefix}effects", default=",".join(DEFAULT_EFFECTS),
                    help="effects present in the emulated unit ('none' for eq. 1 only)")
-    p.add_argument(f"--{prefix}protocol", default="nmea", choices=("nmea", "binary"),
-                   help="IMU wire protocol (default nmea)")
+    p.add_argument(f"--{prefix}protocol", default="nmea", choices=IMU_PROTOCOLS,
+                   help="IMU wire protocol (default nmea; vectornav, xsens, mip: the vendors' documented ones)")
+    p.add_argument(f"--{prefix}bench-profile", default=None, metavar="PROFILE",
+                   help="play the bench by a command-template profile (a TOML file or a shipped name: esp301) "
+                        "instead of the SCPI-style bench")
     p.add_argument("--time-scale", type=float, default=60.0,
                    help="instrument seconds per wall second (default 60)")
     p.add_argument(f"--{prefix}rate-hz", type=float, default=10.0,
@@ -65,7 +71,8 @@ def build_emulator(args, directory, prefix: str = ""):
     if g("stall"):
         faults.stalls = tuple(faults.stalls) + _windows(g("stall"))
     return emulate(directory, preset=g("preset"), effects=name_list(g("effects")), Q_V2s=g("Q"),
-                   protocol=g("protocol"), timing=timing, faults=faults, seed=g("seed"))
+                   protocol=g("protocol"), timing=timing, faults=faults, seed=g("seed"),
+                   bench_profile=g("bench_profile"))
 
 
 def register(sub) -> None:
@@ -100,9 +107,11 @@ def run(args) -> int:
     out = output(args)
     em = build_emulator(args, args.dir)
     em.start()
-    out.say(f"emulating on {em.ports['imu']} (IMU, {em.protocol}), {em.ports['bench']} (bench, SCPI), "
+    bench_kind = f"bench, profile {em.bench_profile_ref}" if em.bench_server is not None else "bench, SCPI"
+    out.say(f"emulating on {em.ports['imu']} (IMU, {em.protocol}), {em.ports['bench']} ({bench_kind}), "
           f"{em.ports['chamber']} (chamber, Modbus RTU slave 1); clock x{em.timing.time_scale:g}")
-    out.say(f"the capture config is {em.directory / 'ports.toml'} and the truth {em.directory / 'truth.json'}")
+    out.say(f"the capture config is {em.directory / 'ports.toml'} (or --instruments "
+            f"{em.directory / 'instruments.toml'}) and the truth {em.directory / 'truth.json'}")
     sys.stdout.flush()
     t0 = time.monotonic()
     try:

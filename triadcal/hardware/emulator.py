@@ -232,11 +232,13 @@ class Emulator:
 
     Use as a context manager or call :meth:`start` / :meth:`stop`. ``ports`` maps
     'imu', 'bench', 'chamber' to the symlinks; :meth:`now_s` is the instrument clock.
+    ``bench_profile`` (a profile name or path, or a ``BenchProfile``) plays the bench by that
+    command-template profile (:class:`TemplateBenchServer`) instead of the SCPI-style one.
     """
 
     def __init__(self, directory, truth: Optional[Truth] = None, protocol: str = "nmea",
                  timing: Optional[EmulatorTiming] = None, faults: Optional[FaultPlan] = None,
-                 seed: int = 0, keep_log: bool = False, chamber_slave: int = 1):
+                 seed: int = 0, keep_log: bool = False, chamber_slave: int = 1, bench_profile=None):
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=True)
         self.truth = truth or preset_truth()
@@ -253,6 +255,17 @@ class Emulator:
         self.bench_seed = seed + 2
         self.keep_log = keep_log
         self.chamber_slave = chamber_slave
+        # a bench by command template (drivers/bench_template.py): the same profile the driver
+        # loads; None: the SCPI-style bench
+        self.bench_profile_ref = None if bench_profile is None else str(bench_profile)
+        self.bench_server = None
+        if bench_profile is not None:
+            from .drivers.bench_template import BenchProfile, load_profile
+
+            prof = bench_profile if isinstance(bench_profile, BenchProfile) else load_profile(bench_profile)
+            if isinstance(bench_profile, BenchProfile):
+                self.bench_profile_ref = prof.source
+            self.bench_server = TemplateBenchServer(prof, self.physics, self.now_s)
         self.log: list[tuple[int, str, Frame]] = []
         self.fates = {f: 0 for f in FATES}
         self.garbage_bytes_sent = 0
@@ -299,12 +312,36 @@ class Emulator:
         from ..io.atomic import atomic_write_text
 
         path = Path(path) if path else self.directory / "ports.toml"
+        self.write_instruments()          # first: a reader waits for ports.toml, then may read both
         atomic_write_text(
             path,
             f'# written by triadcal emulate\n[imu]\nport = "{self.ports["imu"]}"\nprotocol = "{self.protocol}"\n'
             + (f'rate_hz = {self.timing.rate_hz:g}\n' if self.imu_device is not None else '') + '\n'
-            f'[bench]\nport = "{self.ports["bench"]}"\n\n'
+            f'[bench]\nport = "{self.ports["bench"]}"\n' + self._bench_driver_lines() + '\n'
             f'[chamber]\nport = "{self.ports["chamber"]}"\nslave = {self.chamber_slave}\n')
+        return path
+
+    def _bench_driver_lines(self) -> str:
+        if self.bench_server is None:
+            return ""
+        return f'driver = "template"\nprofile = {_toml_str(self.bench_profile_ref)}\n'
+
+    def write_instruments(self, path=None) -> Path:
+        """An instruments file (``triadcal capture --instruments``) naming the emulator's ports:
+        the IMU's protocol as its driver, the bench (``template`` with the profile, or ``scpi``)
+        and the chamber (triadcal's own Modbus map, ``modbus``)."""
+        from ..io.atomic import atomic_write_text
+
+        path = Path(path) if path else self.directory / "instruments.toml"
+        imu = (f'[imu]\ndriver = "{self.protocol}"\nport = {_toml_str(self.ports["imu"])}\n'
+               f'rate_hz = {self.timing.rate_hz:g}\n')
+        bench = (f'[bench]\ndriver = "template"\nprofile = {_toml_str(self.bench_profile_ref)}\n'
+                 if self.bench_server is not None else '[bench]\ndriver = "scpi"\n')
+        bench += f'port = {_toml_str(self.ports["bench"])}\n'
+        chamber = (f'[chamber]\ndriver = "modbus"\nport = {_toml_str(self.ports["chamber"])}\n'
+                   f'address = {self.chamber_slave}\n')
+        atomic_write_text(path, "# written by triadcal emulate (triadcal capture --instruments)\n"
+                          + imu + "\n" + bench + "\n" + chamber)
         return path
 
     def summary(self) -> dict:
@@ -460,6 +497,9 @@ class Emulator:
         n_lines = 0
         rng = np.random.default_rng(self.bench_seed)     # the bench thread's own stream
         ignore = set(self.faults.bench_ignore_lines)
+        server = self.bench_server
+        term_in = server.profile.write_terminator.encode("ascii") if server else b"\n"
+        term_out = server.profile.read_terminator if server else "\n"
         while not self._stop.is_set():
             if not port.wait_readable(0.02):
                 continue
@@ -467,17 +507,18 @@ class Emulator:
                 buf += os.read(port.master, 4096)
             except (BlockingIOError, OSError):
                 continue
-            while b"\n" in buf:
-                line, buf = buf.split(b"\n", 1)
+            while term_in in buf:
+                line, buf = buf.split(term_in, 1)
                 n_lines += 1
                 if n_lines in ignore or (self.faults.bench_ignore_prob and
                                          rng.random() < self.faults.bench_ignore_prob):
                     self.bench_ignored += 1
                     continue
-                reply = self._bench_command(line.decode("ascii", "replace").strip())
+                text = line.decode("ascii", "replace").strip()
+                reply = server.answer(text) if server else self._bench_command(text)
                 if reply is not None:
                     try:
-                        os.write(port.master, (reply + "\n").encode("ascii"))
+                        os.write(port.master, (reply + term_out).encode("ascii"))
                     except OSError:
                         pass
 
@@ -578,12 +619,110 @@ class Emulator:
         return bytes((req[0], fc | 0x80, 1))
 
 
+def _toml_str(text: str) -> str:
+    return '"' + str(text).replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+_NUMBER = r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?"
+
+
+class TemplateBenchServer:
+    """The bench controller of a command-template profile (drivers/bench_template.py), as the
+    emulator plays it: each command line is matched against the profile's templates (turned
+    into regular expressions) and answered with the profile's ``[emulator]`` replies, so the
+    driver and the emulator read one file. Several commands on a line are separated by ';'.
+
+    Angles go through the axis's scale and offset (controller units on the line, bench degrees
+    in the physics). A move outside an axis's ``min_deg``/``max_deg`` (the controller's own
+    travel limits, here the profile's) is not made: the error buffer gets the profile's
+    ``positive_limit`` / ``negative_limit`` code; an unknown command gets ``unknown_command``.
+    ``commands`` keeps every line received."""
+
+    def __init__(self, profile, physics: "UnitPhysics", now):
+        import re
+
+        self.profile, self.physics, self.now = profile, physics, now
+        self.commands: list[str] = []
+        self.errors: list[tuple[str, str]] = []
+        self._target = [0.0, 0.0]
+        ids = "|".join(re.escape(a.id) for a in profile.axes)
+        self._patterns = []
+        import string as _string
+
+        for name, tpl in profile.commands.items():
+            rx = ""
+            for literal, fname, _, _ in _string.Formatter().parse(tpl):
+                rx += re.escape(literal)
+                if fname is not None:
+                    rx += f"(?P<axis>{ids})" if fname == "axis" else f"(?P<value>{_NUMBER})"
+            self._patterns.append((name, re.compile(rx + r"\Z", re.IGNORECASE)))
+        em = profile.emulator
+        self.position_reply = em.get("position_reply", "{value:.6f}")
+        self.done_reply, self.moving_reply = em.get("done_reply", "1"), em.get("moving_reply", "0")
+        self.error_reply = em.get("error_reply", "{code},{message}")
+        self.no_error = (profile.responses.get("no_error", "0"), em.get("no_error_message", "no error"))
+        self.ticks_per_s = float(em.get("ticks_per_s", 1.0))
+
+    def _push(self, key: str, axis_id: str = "") -> None:
+        spec = self.profile.emulator.get(key, {"code": "1", "message": key})
+        self.errors.append((str(spec["code"]).format(axis=axis_id), str(spec.get("message", ""))))
+
+    def answer(self, line: str) -> Optional[str]:
+        replies = [r for r in (self._one(c.strip()) for c in line.split(";") if c.strip()) if r is not None]
+        return ";".join(replies) if replies else None
+
+    def _one(self, cmd: str) -> Optional[str]:
+        from .drivers.bench_template import wrap_angle
+
+        self.commands.append(cmd)
+        t = self.now()
+        for name, rx in self._patterns:
+            m = rx.match(cmd)
+            if m is None:
+                continue
+            axis_id = m.groupdict().get("axis")
+            i = next((k for k, a in enumerate(self.profile.axes) if a.id == axis_id), 0)
+            ax = self.profile.axes[i]
+            if name == "move":
+                deg = (float(m.group("value")) - ax.offset) / ax.scale
+                d = wrap_angle(deg, ax.wrap)
+                if d > ax.max_deg or d < ax.min_deg:
+                    self._push("positive_limit" if d > ax.max_deg else "negative_limit", ax.id)
+                    return None
+                self._target[i] = deg
+                self.physics.move(t, *self._target)
+                return None
+            if name in ("stop", "home"):
+                pos, _, _ = self.physics.bench_state(t)
+                self._target = list(pos)
+                if name == "home":
+                    self._target[i] = -ax.offset / ax.scale
+                self.physics.move(t, *self._target)
+                return None
+            if name == "position":
+                pos, _, _ = self.physics.bench_state(t)
+                return self.position_reply.format(value=ax.to_controller(pos[i]))
+            if name == "done":
+                _, _, ready = self.physics.bench_state(t)
+                return self.done_reply if ready else self.moving_reply
+            if name == "error":
+                code, message = self.errors.pop(0) if self.errors else self.no_error
+                ticks = int(t * self.ticks_per_s) % 2**31
+                return self.error_reply.format(code=code, timestamp=ticks, message=message)
+        self._push("unknown_command")
+        return None
+
+
 def emulate(directory, *, preset: str = "ak18-quartz", effects: Optional[Sequence[str]] = None,
             Q_V2s: float = 3e-9, sigma_position_arcsec: float = 0.0, sigma_wobble_arcsec: float = 0.0,
             unit: str = "SN-EMU-0001", protocol: str = "nmea", timing: Optional[EmulatorTiming] = None,
-            faults: Optional[FaultPlan] = None, seed: int = 0, keep_log: bool = False) -> Emulator:
+            faults: Optional[FaultPlan] = None, seed: int = 0, keep_log: bool = False,
+            bench_profile=None) -> Emulator:
     """An :class:`Emulator` of a preset unit (``triadcal emulate``), not yet started; its
-    truth is saved as ``truth.json`` and the capture config as ``ports.toml`` in ``directory``."""
+    truth is saved as ``truth.json``, the capture config as ``ports.toml`` and the instruments
+    file as ``instruments.toml`` in ``directory``. ``bench_profile`` (a shipped profile's name
+    such as ``"esp301"`` or a TOML path) plays the bench by that command-template profile
+    instead of the SCPI-style one."""
     from ..models.effects import DEFAULT_EFFECTS
 
     noise = NoiseModel(Q_V2s=Q_V2s, sigma_position_arcsec=sigma_position_arcsec,
@@ -591,7 +730,7 @@ def emulate(directory, *, preset: str = "ak18-quartz", effects: Optional[Sequenc
                        sample_rate_hz=(timing or EmulatorTiming()).rate_hz)
     truth = preset_truth(preset, DEFAULT_EFFECTS if effects is None else effects, noise=noise, unit=unit)
     em = Emulator(directory, truth=truth, protocol=protocol, timing=timing, faults=faults, seed=seed,
-                  keep_log=keep_log)
+                  keep_log=keep_log, bench_profile=bench_profile)
     truth.save(em.directory / "truth.json")
     em.write_config()
     return em

@@ -10,6 +10,9 @@ answers are one line)::
     POS?             -> <a1>,<a2>   the present angles, degrees
     STAT?            -> 1 in position / 0 moving
     SYST:ERR?        -> <code>,"<text>"   0,"No error" when none
+
+A controller with another line protocol needs no class: :mod:`.bench_template` drives it from a
+TOML profile of command templates (``profiles/esp301.toml``, the Newport ESP301).
 """
 
 from __future__ import annotations
