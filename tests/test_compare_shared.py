@@ -124,6 +124,7 @@ def _cli(*args, cwd):
                           capture_output=True, text=True, cwd=cwd, env=env)
 
 
+@pytest.mark.slow
 def test_cli_shared_bench_and_lab(tmp_path):
     _result(**BEFORE).save(tmp_path / "b.json")
     _result(**AFTER).save(tmp_path / "a.json")

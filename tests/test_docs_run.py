@@ -104,7 +104,9 @@ REDUCED = {
     "capture": {"--setpoints": "20"},
     "validate-diagnosis": {"--seeds": "1", "--effects": "clean"},
 }
-SLOW_SUBCOMMANDS = {"validate", "validate-diagnosis", "capture", "emulate"}
+# and commands of 10 s and more (a thermal cycle's ten forms x folds, a dask cluster's start, a
+# plan's search over hundreds of designs): run with the slow tests, to keep the quick ones quick
+SLOW_SUBCOMMANDS = {"validate", "validate-diagnosis", "capture", "emulate", "thermal-cycle", "batch", "plan"}
 # exit codes other than 0 that a doc implies, keyed by (doc, command's first words)
 EXPECTED_EXIT: dict = {}
 # commands not run, by their first words, each with the reason

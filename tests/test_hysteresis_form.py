@@ -68,7 +68,7 @@ def test_gravity_written_out_matches_the_kinematics():
     assert np.allclose(mine, nominal_gravity(a1, a2), atol=1e-12)
 
 
-@pytest.mark.parametrize("r, seed", [(10.0, 1), (30.0, 2)])
+@pytest.mark.parametrize("r, seed", [(10.0, 1), pytest.param(30.0, 2, marks=pytest.mark.slow)])
 def test_a_play_hysteresis_is_chosen_with_its_width_and_the_angles_come_right(r, seed):
     truth, c, _ = _play_campaign(r, seed)
     off, *_ = fit_hysteresis_form(c, EFFECTS, "offset", return_problem=True)

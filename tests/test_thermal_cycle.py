@@ -94,6 +94,7 @@ def test_a_clean_quadratic_stays_a_polynomial(tmp_path):
     assert abs(a.branch_gap) < 0.003
 
 
+@pytest.mark.slow
 def test_the_real_chamber_cycle(tmp_path):
     """tofupilot's climate-chamber run: z's branches ~0.13 m/s^2 apart at 20 degC (the shared
     data's README); a line leaves 40x the noise floor on held-out blocks, the best form a sixth of
