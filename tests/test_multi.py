@@ -62,9 +62,7 @@ def test_refusals(tmp_path, example):
         fit_joint_units(c.select(c.unit == "SN-0"), EFFECTS)
     with pytest.raises(InputError, match="no bench terms to share"):
         fit_joint_units(c, ("angle_tempco",))
-    lab = LabConfig(mounting_u_arcsec=10.0, source="t")
-    with pytest.raises(InputError, match="does not yet propagate"):
-        fit_joint_units(c, EFFECTS, systematics=systematic_sources(lab))
+
 
 
 def test_cli_writes_one_result_per_unit(tmp_path):
@@ -77,3 +75,26 @@ def test_cli_writes_one_result_per_unit(tmp_path):
     assert set(docs) == {"SN-0", "SN-1"}
     assert docs["SN-0"]["parameters"]["tilt_x"]["value"] == docs["SN-1"]["parameters"]["tilt_x"]["value"]
     assert main(["fit", str(path), "--joint-units", "--json", str(tmp_path / "x.json")]) == 1
+
+
+def test_the_labs_systematic_errors_through_the_stacked_fit(tmp_path):
+    """Type B through the stacked fit: an encoder zero of axis 1 is one error for every unit (it
+    turns each unit's Ca_xz/Ca_zx by -1/+1 alike), a fixture rotation one per unit (its own pair
+    only): so the encoder zero's rows are one shared source and the fixture's carry the unit's
+    name; g goes into every K one to one. u of each angle is then close to the root sum of the
+    fixture's and the encoder's u, as for a unit fitted alone."""
+    path, truths = _fleet_file(tmp_path, n=3, seed=9)
+    c = read_bench_csv(path)
+    lab = LabConfig(encoder_zero_u_arcsec=5.0, mounting_u_arcsec=10.0, local_g_u_ppm=10.0, source="t")
+    res = fit_joint_units(c, EFFECTS, systematics=systematic_sources(lab))
+    for u, r in res.items():
+        rows = {x["source"]: x for x in r["Ca_xz"].uncertainty["budget"]}
+        assert rows["encoder zero, axis 1"]["sensitivity"] == pytest.approx(-1.0, abs=1e-3)
+        assert rows[f"fixture mounting, about y ({u})"]["sensitivity"] == pytest.approx(-1.0, abs=1e-3)
+        assert not any(k.startswith("fixture mounting") and f"({u})" not in k for k in rows)
+        assert r["Ca_xz"].u == pytest.approx(np.sqrt(10.0 ** 2 + 5.0 ** 2 + r["Ca_xz"].uncertainty["u_type_a"] ** 2),
+                                             rel=1e-3)
+        k_rows = {x["source"]: x for x in r["K_x"].uncertainty["budget"]}
+        assert k_rows["local gravity"]["sensitivity"] == pytest.approx(-r["K_x"].value * 1e-6, rel=1e-3)
+        single = fit_joint(c.select(c.unit == u), EFFECTS, systematics=systematic_sources(lab))
+        assert r["Ca_xz"].u == pytest.approx(single["Ca_xz"].u, rel=0.01)

@@ -71,16 +71,52 @@ class StackedProblem:
         return np.concatenate([p.residuals(self.unit_x(x, k)) for k, p in enumerate(self.problems)])
 
 
+def _stacked_type_b(sources, model, problems, stacked, sol, subs, noises, units):
+    """The lab's systematic errors through the stacked fit: ``c = -(J^T J)^-1 J^T (F/sigma)`` with
+    ``J`` the stacked Jacobian and ``F`` the stacked data change: for a source of the bench or the
+    gravity the same error in every unit's rows (one source), for a source of the fixture, the
+    thermometers or the voltmeter one source per unit, non-zero in that unit's rows only."""
+    from dataclasses import replace as _replace
+
+    from ..uncertainty.typeb import TypeB, data_change, sensitivities
+
+    sigma = np.vstack([nz.sigma for nz in noises])
+    changes, out_sources = [], []
+    p_units = []
+    for k, prob in enumerate(problems):
+        xk = dict(zip(prob.names, stacked.unit_x(sol.x, k)))
+        fixed = dict(prob.fixed)
+        p_units.append(model.to_internal({**xk, **fixed}))
+
+    def unit_change(src, k):
+        c = subs[k]
+        return data_change(src, model, p_units[k], c.covariates(), c.gravity_g, c.w, c.output_unit)
+
+    rows = [p.n for p in problems]
+    for src in sources:
+        if src.equipment in ("bench", "gravity"):
+            changes.append(np.vstack([unit_change(src, k) for k in range(len(problems))]))
+            out_sources.append(src)
+            continue
+        for k, u in enumerate(units):
+            F = np.zeros((sum(rows), 3))
+            start = sum(rows[:k])
+            F[start:start + rows[k]] = unit_change(src, k)
+            changes.append(F)
+            out_sources.append(_replace(src, source=f"{src.source} ({u})"))
+    c = np.array([sensitivities(sol.J, sigma, F, sol.weights) for F in changes])
+    return TypeB(out_sources, stacked.names, c)
+
+
 def fit_joint_units(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                     reference_temperature_C: float = 20.0, bench_errors: Optional[BenchErrors] = None,
                     systematics: Sequence = (), gates: GateConfig = DEFAULT_CONFIG,
                     max_iter: int = 100) -> dict:
     """Fit every unit of a one-state campaign jointly with shared bench terms (see the module).
-    Returns ``{unit: CalibrationResult}`` (method ``joint``). The lab's systematic errors are not
-    yet propagated through a stacked fit: given, they are refused with that sentence."""
-    if systematics:
-        raise InputError("the joint fit of several units does not yet propagate the lab's systematic errors (Type B); "
-                         "fit the units one by one with --unit and --lab, or give a lab file without them")
+    Returns ``{unit: CalibrationResult}`` (method ``joint``). ``systematics``: the lab's
+    systematic errors, propagated through the stacked fit (:func:`_stacked_type_b`): the bench's
+    and the gravity's are one error for every unit, the fixture's, the thermometers' and the
+    voltmeter's one per unit."""
     units = campaign.units
     if len(set(campaign.state.tolist())) != 1:
         raise InputError(f"{campaign.source or 'campaign'}: a joint fit of several units takes one mechanical state; "
@@ -122,6 +158,13 @@ def fit_joint_units(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS
     cov = scaled_covariance(sol.J)
     if not known:
         cov = cov * (chi2 / dof)
+    cov_a = cov
+    tb = None
+    if "bench_nonorth" in shared:
+        systematics = [t for t in systematics if t.kind != "axes_nonorthogonality"]
+    if systematics:
+        tb = _stacked_type_b(systematics, model, problems, stacked, sol, subs, noises, units)
+        cov = cov + tb.covariance()
     results = {}
     others = ", ".join(units)
     for k, u in enumerate(units):
@@ -130,7 +173,21 @@ def fit_joint_units(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS
         xk = sol.x[idx]
         Ck = cov[np.ix_(idx, idx)]
         uk = np.sqrt(np.diag(Ck))
-        params = {n: ParameterValue(float(v), float(s), parameter_unit(model, n, subs[k].output_unit))
+        units_of = {n: parameter_unit(model, n, subs[k].output_unit) for n in names}
+        fields = {}
+        if tb is not None:
+            from ..uncertainty.typeb import TypeB, parameter_fields
+
+            ua = np.sqrt(np.diag(cov_a[np.ix_(idx, idx)]))
+            ck = tb.c[:, idx].copy()
+            us = np.array([t.u for t in tb.sources])[:, None]
+            ck[np.abs(ck) * us < 1e-9 * ua[None, :]] = 0.0      # rounding of the difference quotient
+            reach = np.any(ck != 0.0, axis=1)
+            own = TypeB([t for t, keep in zip(tb.sources, reach) if keep], names, ck[reach])
+            type_a = "fit: output noise" + (", bench's random errors per visit" if bench_errors is not None else "")
+            fields = {n: parameter_fields(own.budget(n, units_of[n], float(a), None if known else float(dof), type_a))
+                      for n, a in zip(names, ua)}
+        params = {n: ParameterValue(float(v), float(s), units_of[n], fields.get(n, {}))
                   for n, v, s in zip(names, xk, uk)}
         index = {n: i for i, n in enumerate(names)}
         if "tilt_x" in index and "tilt_y" in index:
