@@ -53,7 +53,7 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
         reference_temperature_C: float = 20.0, loss: str = "l2", strict: bool = False,
         json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0, lab=None,
         hysteresis_form: str = "offset", hysteresis_half_width_C: Optional[float] = None,
-        bench_errors_from_replicates: bool = False):
+        bench_errors_from_replicates: bool = False, thermal_order: str = "1"):
     """Calibrate from a campaign (``triadcal fit``): ``data`` is a bench CSV path, a
     :class:`~triadcal.models.campaign.Campaign`, or None for the built-in example.
     ``angle_bound_arcsec``: the answer gates' bound on an orientation angle (arcsec).
@@ -65,6 +65,8 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     ``bench_errors_from_replicates``: estimate the bench's random errors from the plan's
     replicated visits (:func:`triadcal.estimation.joint.bench_errors_from_replicates`) instead of
     taking them from the lab file (the result's ``fit.bench_errors.source`` says which).
+    ``thermal_order``: ``1`` (the effects as given), ``2`` (every linear tempco's quadratic term
+    added) or ``auto`` (the quadratic terms the data support, :mod:`triadcal.estimation.thermal_order`).
     ``hysteresis_form``: ``offset`` (the branches a constant offset apart), ``play`` (a play
     hysteresis of half-width ``hysteresis_half_width_C`` degC, profiled when None) or ``auto``
     (chosen by the data; :mod:`triadcal.estimation.hysteresis_form`).
@@ -104,6 +106,12 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
         kwargs = dict(reference_temperature_C=reference_temperature_C, loss=loss,
                       unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates,
                       bench_errors=bench, systematics=systematics)
+        order_block = None
+        if thermal_order != "1":
+            from .estimation.thermal_order import choose_thermal_order
+
+            effects, order_block = choose_thermal_order(
+                campaign, effects, thermal_order, **{k: v for k, v in kwargs.items() if k != "return_problem"})
         if hysteresis_form == "offset" and hysteresis_half_width_C is None:
             result, problem, solution = fit_joint(campaign, effects, **kwargs)
         else:
@@ -115,6 +123,11 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
                 hysteresis_half_width_C, **kwargs)
         if added:
             result.notes.append(added)
+        if order_block is not None:
+            result.fit["thermal_order"] = order_block
+            result.notes.append("thermal order: " + (", ".join(order_block["added"]) or "linear") + " ("
+                                + "; ".join(f"{t['term']}: {t['why']}" for t in order_block.get("tried", []))
+                                + (")" if order_block.get("tried") else order_block["criterion"] + ")"))
         if netcdf_path is not None:
             from .io.netcdf import write_fit_netcdf
 

@@ -45,6 +45,9 @@ def register(sub) -> None:
     p.add_argument("--bench-errors-from-replicates", action="store_true",
                    help="estimate the bench's random positioning and wobble errors from the plan's replicated "
                         "visits (one position visited twice or more at a setpoint) instead of the lab file's")
+    p.add_argument("--thermal-order", choices=("1", "2", "auto"), default="1",
+                   help="order of the tempcos: 1 (linear, default), 2 (quadratic terms added), auto (the quadratic "
+                        "terms the data support: likelihood ratio at 99 %% per family); docs/model.md")
     p.add_argument("--hysteresis-form", choices=("offset", "play", "auto"), default="offset",
                    help="form of the angles' hysteresis: offset (the branches a constant offset apart, default), "
                         "play (a backlash of half-width r on the temperature history, r profiled), auto (chosen by "
@@ -79,7 +82,7 @@ def run(args) -> int:
                  strict=args.strict, json_path=args.json, netcdf_path=args.netcdf,
                  angle_bound_arcsec=args.angle_bound_arcsec, lab=args.lab,
                  hysteresis_form=args.hysteresis_form, hysteresis_half_width_C=args.hysteresis_width,
-                 bench_errors_from_replicates=args.bench_errors_from_replicates)
+                 bench_errors_from_replicates=args.bench_errors_from_replicates, thermal_order=args.thermal_order)
     out.say(summary_text(result))
     if args.json:
         out.say(f"result written to {args.json}")
