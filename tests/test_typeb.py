@@ -275,3 +275,25 @@ def test_bench_errors_estimated_from_replicates(example):
         assert r.status == "ok" and 0.85 < r.fit["chi2_dof"] < 1.15
     with pytest.raises(InputError, match="at least 5 are needed"):
         api.fit(example, bench_errors_from_replicates=True)
+
+
+def test_the_labs_local_gravity_is_the_fits_when_the_data_state_none(tmp_path):
+    """Data without a local_g line and a lab file that measured g = 9.8112 m/s^2 (+469 ppm on
+    standard g, 464 ppm): the fit takes the lab's g, so K (g per volt) comes out 464 ppm higher
+    than with standard g, the g the data were taken at; a file that states another g is refused
+    naming both."""
+    from triadcal.io.lab import with_lab_gravity
+
+    text, _ = simulate_campaign(np.random.default_rng(4), true_g_m_s2=9.8112)
+    text = "\n".join(ln for ln in text.splitlines() if not ln.startswith("# local_g_m_s2")) + "\n"
+    p = tmp_path / "nog.csv"
+    p.write_text(text)
+    lab = LabConfig(local_g_m_s2=9.8112, local_g_u_ppm=10.0, source="lab.toml")
+    plain = api.fit(p, effects=EFFECTS)
+    with_g = api.fit(p, effects=EFFECTS, lab=lab)
+    rel = with_g["K_x"].value / plain["K_x"].value - 1.0
+    assert rel * 1e6 == pytest.approx((9.8112 / 9.80665 - 1.0) * 1e6, abs=0.5)
+    c = read_bench_csv(p)
+    c.metadata["local_g_m_s2"] = "9.80665"
+    with pytest.raises(InputError, match="one of them is wrong"):
+        with_lab_gravity(c, lab)

@@ -95,6 +95,9 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
 
         if lab is not None and not isinstance(lab, LabConfig):
             lab = load_lab(lab)
+        from .io.lab import with_lab_gravity
+
+        campaign = with_lab_gravity(campaign, lab)
         systematics = systematic_sources(lab, campaign.output_unit)
         effects, added = effects_with_lab(effects, systematics)
         bench = bench_errors_of(lab) if lab is not None else None

@@ -60,6 +60,9 @@ def run(args) -> int:
     data = str(example_path()) if args.example else args.data
     campaign = select_unit_state(read_bench_csv(data), args.unit, args.state, source=data)
     lab = load_lab(args.lab) if args.lab else None
+    from ..io.lab import with_lab_gravity
+
+    campaign = with_lab_gravity(campaign, lab)
     out = output(args)
     bar = out.bar(total=args.max_steps, desc="sampling", unit="step")
     progress = None

@@ -247,3 +247,31 @@ def bench_errors_of(lab: "LabConfig"):
 
     return BenchErrors(lab.sigma_position_arcsec or 0.0, lab.sigma_wobble_arcsec or 0.0,
                        f"lab file {lab.source}" if lab.source else "lab file")
+
+
+def with_lab_gravity(campaign, lab: Optional["LabConfig"]):
+    """The campaign with the lab's measured local gravity when the data state none (their
+    ``# local_g_m_s2`` metadata absent): the lab file's ``[gravity] local_g_m_s2`` is then the
+    g of the fit (K is in g per output unit, so a wrong g goes one to one into K). Data and lab
+    file that state different values (beyond 3 u of the lab's, or 1 ppm without a u) are
+    refused naming both; equal values, or no lab value, leave the campaign as it is."""
+    if lab is None or lab.local_g_m_s2 is None:
+        return campaign
+    stated = campaign.metadata.get("local_g_m_s2")
+    if stated is None:
+        from dataclasses import replace
+
+        meta = dict(campaign.metadata)
+        meta["local_g_m_s2"] = repr(lab.local_g_m_s2)
+        meta["local_g_source"] = f"lab file {lab.source or ''}".strip()
+        return replace(campaign, metadata=meta)
+    try:
+        g = float(stated)
+    except ValueError:
+        raise InputError(f"{campaign.source or 'campaign'}: local_g_m_s2 = {stated!r} is not a number") from None
+    tol = 3e-6 * (lab.local_g_u_ppm if lab.local_g_u_ppm else 1.0 / 3.0) * lab.local_g_m_s2
+    if abs(g - lab.local_g_m_s2) > tol:
+        raise InputError(f"{campaign.source or 'campaign'} states local_g_m_s2 = {g:.7g} and the lab file "
+                         f"{lab.source or ''} [gravity] local_g_m_s2 = {lab.local_g_m_s2:.7g} "
+                         f"({(g / lab.local_g_m_s2 - 1) * 1e6:+.1f} ppm): one of them is wrong (K takes g one to one)")
+    return campaign
