@@ -162,16 +162,9 @@ def search_ramp(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: floa
                 holds: Sequence[float] = HOLDS, taus: Sequence[float] = RAMP_TAUS,
                 programs: Optional[list] = None):
     """The cheapest ramp plan meeting every target (see the module); refuses an unreachable target."""
-    from .search import Choice, evaluate, parse_targets
+    from .search import Choice, checked_inputs, evaluate, parse_targets
 
-    if not chamber_rate_C_per_min > 0:
-        raise InputError("--chamber-rate must be > 0 degC/min")
-    if not Q_V2s > 0:
-        raise InputError("--q must be > 0 V^2 s")
-    sets = sorted(POSITION_SETS) if positions == "auto" else [int(positions)]
-    for s in sets:
-        if s not in POSITION_SETS:
-            raise InputError(f"--positions: {positions!r}; choose auto, 12, 18 or 24")
+    sets = checked_inputs(chamber_rate_C_per_min, Q_V2s, positions)
     effects = ramp_effects(effects)
     progs = programs or candidate_programs(lo, hi)
     groups: dict = {}

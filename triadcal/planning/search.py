@@ -159,20 +159,30 @@ def evaluate(targets, names, U, values) -> dict:
     return out
 
 
+def checked_inputs(chamber_rate_C_per_min: float, Q_V2s: float, positions: str) -> list:
+    """The position sets to search, after refusing a rate or a noise that is not positive and an
+    unknown position set (the stepped and the ramp search share them)."""
+    if not chamber_rate_C_per_min > 0:
+        raise InputError("--chamber-rate must be > 0 degC/min")
+    if not Q_V2s > 0:
+        raise InputError("--q must be > 0 V^2 s")
+    try:
+        sets = sorted(POSITION_SETS) if positions == "auto" else [int(positions)]
+    except ValueError:
+        raise InputError(f"--positions: {positions!r}; choose auto, 12, 18 or 24") from None
+    for s in sets:
+        if s not in POSITION_SETS:
+            raise InputError(f"--positions: {positions!r}; choose auto, 12, 18 or 24")
+    return sets
+
+
 def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = DEFAULT_Q_V2S,
            chamber_rate_C_per_min: float = 1.0, positions: str = "auto",
            effects: Sequence[str] = DEFAULT_EFFECTS, preset: str = "ak18-quartz",
            hours_cap: float = HOURS_CAP, taus: Sequence[float] = TAUS,
            repetitions: Sequence[int] = REPETITIONS, sequences: Optional[list] = None) -> Choice:
     """The chosen plan (see the module); refuses an unreachable target within ``hours_cap``."""
-    if not chamber_rate_C_per_min > 0:
-        raise InputError("--chamber-rate must be > 0 degC/min")
-    if not Q_V2s > 0:
-        raise InputError("--q must be > 0 V^2 s")
-    sets = sorted(POSITION_SETS) if positions == "auto" else [int(positions)]
-    for s in sets:
-        if s not in POSITION_SETS:
-            raise InputError(f"--positions: {positions!r}; choose auto, 12, 18 or 24")
+    sets = checked_inputs(chamber_rate_C_per_min, Q_V2s, positions)
     seqs = sequences or candidate_sequences(lo, hi, "hysteresis" in effects)
     targets = None
     best, best_key, searched = None, None, 0
