@@ -89,9 +89,8 @@ def run(args) -> int:
         raise InputError("give --config (a ports file) or --instruments (an instruments file), not both")
     cfg = load_port_config(args.config) if args.config else load_instruments(args.instruments) \
         if args.instruments else {}
-    if "dmm" in cfg and "imu" not in cfg:
-        raise InputError(f"{args.instruments}: [dmm] alone: capture records an IMU stream; a voltmeter-only "
-                         "campaign is not wired into capture yet (read it with triadcal.hardware.drivers.dmm)")
+    # [dmm] without [imu]: an analog unit read by a voltmeter (hardware.capture.capture_voltmeter)
+    dmm_cfg = dict(cfg["dmm"]) if "dmm" in cfg and "imu" not in cfg else None
     cfg = {k: dict(cfg.get(k, {})) for k in ("imu", "bench", "chamber")}
     for section, key, value in (("imu", "port", args.imu_port), ("imu", "protocol", args.imu_protocol),
                                 ("imu", "rate_hz", args.imu_rate_hz),
@@ -117,6 +116,10 @@ def run(args) -> int:
         tau_s=args.tau_s, settle_s=args.settle_s, unit=unit or "SN-UNKNOWN", operator=args.operator,
         local_g_m_s2=args.local_g or STANDARD_GRAVITY_M_S2,
         stabilisation=Stabilisation(args.stab_rate, args.stab_window_s, args.stab_hold_s, args.stab_timeout_s))
+    if dmm_cfg is not None:
+        if args.emulate or args.imu_port or args.imu_protocol or args.imu_rate_hz:
+            raise InputError(f"{args.instruments}: [dmm] (an analog unit) takes no IMU options and no --emulate")
+        return _run_voltmeter(args, out, plan, cfg, dmm_cfg, settings)
     try:
         imu, bench, chamber = open_instruments(cfg)
         settings.output_unit = imu_metadata(imu).get("output_unit", settings.output_unit)
@@ -149,4 +152,54 @@ def run(args) -> int:
                 "(x, y, z)")
     if emulator is not None:
         out.say(f"the emulator's frames: {fates_text(emulator.summary()['fates'])}")
+    return 0
+
+
+def _run_voltmeter(args, out, plan, cfg, dmm_cfg, settings) -> int:
+    """``--instruments`` with ``[dmm]`` and no ``[imu]``: an analog unit, voltages from the meter(s),
+    temperatures from the chamber's PV (hardware.capture.capture_voltmeter)."""
+    from ..hardware.capture import CaptureError, capture_voltmeter, open_bench
+    from ..hardware.drivers.bench import BenchError
+    from ..hardware.drivers.chamber import open_chamber
+    from ..hardware.drivers.dmm import DmmError, open_voltmeter
+
+    missing = [s for s in ("bench", "chamber") if not cfg[s].get("port")]
+    if missing:
+        raise InputError(f"{args.instruments}: no port given for: {', '.join(missing)}")
+    time_scale = float(dmm_cfg.pop("time_scale", 1.0))
+    settings.output_unit = "V"
+    try:
+        voltmeter = open_voltmeter(dmm_cfg)
+    except DmmError as exc:
+        raise InputError(str(exc)) from None
+    try:
+        bench = open_bench(cfg["bench"])
+        try:
+            c = dict(cfg["chamber"])
+            if "driver" not in c:
+                c.setdefault("baudrate", 19200)
+            chamber = open_chamber(c)
+        except BaseException:
+            bench.close()
+            raise
+        profile = getattr(bench, "profile", None)
+        if profile is not None:
+            settings.bench_name = f"two-axis bench, {profile.name}"
+        try:
+            report = capture_voltmeter(args.out, plan=plan, setpoints_C=float_list(args.setpoints),
+                                       voltmeter=voltmeter, bench=bench, chamber=chamber, settings=settings,
+                                       time_scale=time_scale, progress=_progress_bar(out))
+        except (CaptureError, BenchError, DmmError) as exc:
+            raise InputError(str(exc)) from None
+        finally:
+            bench.close()
+            chamber.close()
+    finally:
+        voltmeter.close()
+    r = report
+    out.say(f"wrote {r.csv_path}: {r.visits_done} of {r.visits_total} visits done, "
+            f"{r.visits_done - r.visits_done_before} of them in this session (session {r.session}), "
+            f"in {r.wall_seconds:.1f} s")
+    out.say(f"the voltmeter: {r.accepted_samples} readings in this session, {r.redone_visits} visits redone; "
+            "temperatures are the chamber's PV")
     return 0

@@ -72,7 +72,7 @@ def build_emulator(args, directory, prefix: str = ""):
         faults.stalls = tuple(faults.stalls) + _windows(g("stall"))
     return emulate(directory, preset=g("preset"), effects=name_list(g("effects")), Q_V2s=g("Q"),
                    protocol=g("protocol"), timing=timing, faults=faults, seed=g("seed"),
-                   bench_profile=g("bench_profile"))
+                   bench_profile=g("bench_profile"), dmm=bool(getattr(args, "dmm", False)))
 
 
 def register(sub) -> None:
@@ -83,6 +83,10 @@ def register(sub) -> None:
                     "(a capture config) and truth.json in DIR. Runs until Ctrl-C or --duration.")
     p.add_argument("dir", help="directory for the port symlinks, ports.toml and truth.json")
     p.add_argument("--duration", type=float, default=None, help="stop after this many wall seconds")
+    p.add_argument("--dmm", action="store_true",
+                   help="an analog unit: one emulated Keysight 34465A per axis (SCPI on ptys dmm_x, dmm_y, dmm_z) "
+                        "instead of the IMU; instruments.toml then has [dmm] with the ASRL/dev/pts/N::INSTR "
+                        "resources for pyvisa-py")
     add_emulator_options(p)
     add_output_options(p)
     p.set_defaults(func=run)
@@ -108,7 +112,9 @@ def run(args) -> int:
     em = build_emulator(args, args.dir)
     em.start()
     bench_kind = f"bench, profile {em.bench_profile_ref}" if em.bench_server is not None else "bench, SCPI"
-    out.say(f"emulating on {em.ports['imu']} (IMU, {em.protocol}), {em.ports['bench']} ({bench_kind}), "
+    unit_kind = (f"{', '.join(em.ports[f'dmm_{a}'] for a in 'xyz')} (34465A voltmeters, SCPI)" if em.dmm
+                 else f"{em.ports['imu']} (IMU, {em.protocol})")
+    out.say(f"emulating on {unit_kind}, {em.ports['bench']} ({bench_kind}), "
           f"{em.ports['chamber']} (chamber, Modbus RTU slave 1); clock x{em.timing.time_scale:g}")
     out.say(f"the capture config is {em.directory / 'ports.toml'} (or --instruments "
             f"{em.directory / 'instruments.toml'}) and the truth {em.directory / 'truth.json'}")

@@ -238,7 +238,8 @@ class Emulator:
 
     def __init__(self, directory, truth: Optional[Truth] = None, protocol: str = "nmea",
                  timing: Optional[EmulatorTiming] = None, faults: Optional[FaultPlan] = None,
-                 seed: int = 0, keep_log: bool = False, chamber_slave: int = 1, bench_profile=None):
+                 seed: int = 0, keep_log: bool = False, chamber_slave: int = 1, bench_profile=None,
+                 dmm: bool = False, dmm_mains_hz: float = 50.0):
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=True)
         self.truth = truth or preset_truth()
@@ -275,6 +276,15 @@ class Emulator:
         self._threads: list[threading.Thread] = []
         self._mono0 = None
         self.ports = {k: str(self.directory / k) for k in ("imu", "bench", "chamber")}
+        # an analog unit read by one emulated 34465A per axis (Emulated34465A) instead of an IMU
+        self.dmm = bool(dmm)
+        self.dmm_mains_hz = float(dmm_mains_hz)
+        self.dmm_meters: dict = {}
+        if self.dmm:
+            for i, a in enumerate("xyz"):
+                self.ports[f"dmm_{a}"] = str(self.directory / f"dmm_{a}")
+                self.dmm_meters[a] = Emulated34465A(a, i, self.physics, self.now_s, self.timing.time_scale,
+                                                    mains_hz=self.dmm_mains_hz, seed=seed + 10 + i)
 
     # -- clock -------------------------------------------------------------------------
     def now_s(self) -> float:
@@ -288,7 +298,14 @@ class Emulator:
     def start(self) -> "Emulator":
         self._ptys = {k: _Pty(Path(v)) for k, v in self.ports.items()}
         self._mono0 = time.monotonic()
-        for name, target in (("imu", self._run_imu), ("bench", self._run_bench), ("chamber", self._run_chamber)):
+        if self.dmm:
+            self.write_instruments()       # the voltmeters' resources name the ptys' /dev/pts/N
+        runners = [("bench", self._run_bench), ("chamber", self._run_chamber)]
+        if self.dmm:     # the analog unit: voltmeters, no IMU stream
+            runners += [(f"dmm_{a}", (lambda a=a: self._run_dmm(a))) for a in self.dmm_meters]
+        else:
+            runners.insert(0, ("imu", self._run_imu))
+        for name, target in runners:
             th = threading.Thread(target=target, daemon=True, name=f"emulator-{name}")
             th.start()
             self._threads.append(th)
@@ -333,7 +350,16 @@ class Emulator:
         from ..io.atomic import atomic_write_text
 
         path = Path(path) if path else self.directory / "instruments.toml"
-        imu = (f'[imu]\ndriver = "{self.protocol}"\nport = {_toml_str(self.ports["imu"])}\n'
+        if self.dmm:
+            # pyvisa-py opens a serial line as ASRL<device path>::INSTR; the pty's own /dev/pts/N
+            res = ", ".join(f'{a} = {_toml_str("ASRL" + os.path.realpath(self.ports[f"dmm_{a}"]) + "::INSTR")}'
+                            for a in self.dmm_meters)
+            imu = (f'[dmm]\ndriver = "scpi"\nmodel = "34465A"\nresources = {{ {res} }}\nrange_V = 10\n'
+                   f'nplc = 10\nmains_hz = {self.dmm_mains_hz:g}\n'
+                   f'time_scale = {self.timing.time_scale:g}   # the emulator\'s compressed clock; 1 for a real meter\n')
+        else:
+            imu = None
+        imu = imu or (f'[imu]\ndriver = "{self.protocol}"\nport = {_toml_str(self.ports["imu"])}\n'
                f'rate_hz = {self.timing.rate_hz:g}\n')
         bench = (f'[bench]\ndriver = "template"\nprofile = {_toml_str(self.bench_profile_ref)}\n'
                  if self.bench_server is not None else '[bench]\ndriver = "scpi"\n')
@@ -549,6 +575,27 @@ class Emulator:
         self._bench_error = '-113,"Undefined header"'
         return None
 
+    # -- voltmeters (34465A SCPI, one per axis) ---------------------------------------
+    def _run_dmm(self, axis: str) -> None:
+        port = self._ptys[f"dmm_{axis}"]
+        meter = self.dmm_meters[axis]
+        buf = b""
+        while not self._stop.is_set():
+            if not port.wait_readable(0.02):
+                continue
+            try:
+                buf += os.read(port.master, 4096)
+            except (BlockingIOError, OSError):
+                continue
+            while b"\n" in buf:
+                line, buf = buf.split(b"\n", 1)
+                reply = meter.answer(line.decode("ascii", "replace").strip(), self._stop)
+                if reply is not None:
+                    try:
+                        os.write(port.master, (reply + "\n").encode("ascii"))
+                    except OSError:
+                        pass
+
     # -- chamber (Modbus RTU slave) ----------------------------------------------------
     def _run_chamber(self) -> None:
         port = self._ptys["chamber"]
@@ -617,6 +664,105 @@ class Emulator:
             self.physics.set_setpoint(t, value)
             return req[:6]
         return bytes((req[0], fc | 0x80, 1))
+
+
+class Emulated34465A:
+    """A Keysight 34465A on one output of the emulated analog unit: the SCPI dialogue of
+    drivers/dmm.py (``*IDN?``, ``*CLS``, ``CONF:VOLT:DC <range>``, ``VOLT:DC:NPLC <n>``,
+    ``SYST:ERR?``, ``SAMP:COUN <n>``, ``READ?``; LF-terminated). Anything else puts
+    ``-113,"Undefined header"`` in the error queue; a bad value ``-222,"Data out of range"``.
+
+    ``READ?`` integrates ``n`` readings of ``nplc / mains_hz`` instrument seconds each from the
+    moment it arrives, answers after that time (on the emulator's clock) and gives the unit's
+    output (``Model.predict`` through :class:`UnitPhysics`, as the IMU outputs) plus white noise
+    of the integration time (variance ``Q / (nplc / mains_hz)``); ``+9.9E+37`` beyond the range.
+    ``windows`` keeps, per ``READ?``, (t0, t1, noiseless mean of the readings, mean of the
+    readings): the truth a test compares a visit with."""
+
+    NPLC = (0.02, 0.06, 0.2, 1.0, 10.0, 100.0)
+    RANGES = (0.1, 1.0, 10.0, 100.0, 1000.0)
+
+    def __init__(self, axis: str, index: int, physics: "UnitPhysics", now, time_scale: float,
+                 mains_hz: float = 50.0, seed: int = 0):
+        self.axis, self.index, self.physics, self.now = axis, index, physics, now
+        self.time_scale, self.mains_hz = float(time_scale), float(mains_hz)
+        self.rng = np.random.default_rng(seed)
+        self.idn = f"Keysight Technologies,34465A,EMU000{index + 1},A.03.01-03.15-03.01-00.52-03-02"
+        self.range_V, self.nplc, self.count = 10.0, 10.0, 1
+        self.errors: list = []
+        self.commands: list = []
+        self.windows: list = []
+
+    def outputs(self, t) -> np.ndarray:
+        """The unit's noiseless output of this axis (V) at instrument times ``t``."""
+        ph = self.physics
+        t = np.asarray(t, float)
+        n = len(t)
+        with ph.lock:
+            _, unit, rate = ph._thermal(t)
+            a1, a2 = ph._angles(t)
+            e1, e2, wob = ph._errors
+            branch = BRANCH[ph.direction]
+        tm = ph.timing
+        sensor = sensor_temperatures(unit, tm.self_heating_C, t, tm.self_heating_time_constant_s)
+        cov = Covariates(axis1=np.radians(a1), axis2=np.radians(a2),
+                         temp=tuple(sensor[:, i] for i in range(3)), temp_rate=(rate, rate, rate),
+                         branch=np.full(n, branch), time_s=t, axis1_error=e1, axis2_error=e2, wobble=wob)
+        w = np.broadcast_arrays(*ph.model.predict(ph.p, cov, ph.gravity_g))[self.index]
+        return np.asarray(w, float)
+
+    def answer(self, cmd: str, stop=None) -> Optional[str]:
+        self.commands.append(cmd)
+        head, _, arg = cmd.partition(" ")
+        head, arg = head.upper(), arg.strip()
+        if head == "*IDN?":
+            return self.idn
+        if head == "*CLS":
+            self.errors.clear()
+            return None
+        if head == "SYST:ERR?":
+            return self.errors.pop(0) if self.errors else '+0,"No error"'
+        try:
+            if head == "CONF:VOLT:DC":
+                if arg.upper() != "AUTO":
+                    r = float(arg)
+                    if not any(math.isclose(r, a) for a in self.RANGES):
+                        raise ValueError
+                    self.range_V = r
+                return None
+            if head == "VOLT:DC:NPLC":
+                v = float(arg)
+                if not any(math.isclose(v, a) for a in self.NPLC):
+                    raise ValueError
+                self.nplc = v
+                return None
+            if head == "SAMP:COUN":
+                c = int(arg)
+                if not 1 <= c <= 1_000_000:
+                    raise ValueError
+                self.count = c
+                return None
+        except ValueError:
+            self.errors.append('-222,"Data out of range"')
+            return None
+        if head == "READ?":
+            return self._read(stop)
+        self.errors.append('-113,"Undefined header"')
+        return None
+
+    def _read(self, stop) -> str:
+        dt = self.nplc / self.mains_hz                 # one reading's integration time
+        t0 = self.now()
+        times = t0 + (np.arange(self.count) + 0.5) * dt
+        t1 = t0 + self.count * dt
+        while self.now() < t1 and not (stop is not None and stop.is_set()):    # the meter integrates
+            time.sleep(min(0.01, max(0.0, (t1 - self.now()) / self.time_scale)))
+        true = self.outputs(times)
+        q = self.physics.truth.noise.Q_V2s
+        v = true + self.rng.normal(0.0, math.sqrt(q / dt), len(times))
+        self.windows.append((t0, t1, float(true.mean()), float(v.mean())))
+        v = np.where(np.abs(v) > 1.2 * self.range_V, 9.9e37, v)
+        return ",".join(f"{x:+.9E}" for x in v)
 
 
 def _toml_str(text: str) -> str:
@@ -717,12 +863,14 @@ def emulate(directory, *, preset: str = "ak18-quartz", effects: Optional[Sequenc
             Q_V2s: float = 3e-9, sigma_position_arcsec: float = 0.0, sigma_wobble_arcsec: float = 0.0,
             unit: str = "SN-EMU-0001", protocol: str = "nmea", timing: Optional[EmulatorTiming] = None,
             faults: Optional[FaultPlan] = None, seed: int = 0, keep_log: bool = False,
-            bench_profile=None) -> Emulator:
+            bench_profile=None, dmm: bool = False) -> Emulator:
     """An :class:`Emulator` of a preset unit (``triadcal emulate``), not yet started; its
     truth is saved as ``truth.json``, the capture config as ``ports.toml`` and the instruments
     file as ``instruments.toml`` in ``directory``. ``bench_profile`` (a shipped profile's name
     such as ``"esp301"`` or a TOML path) plays the bench by that command-template profile
-    instead of the SCPI-style one."""
+    instead of the SCPI-style one. ``dmm``: an analog unit read by one emulated 34465A per
+    axis (:class:`Emulated34465A`) in place of the IMU; ``instruments.toml`` then has ``[dmm]``
+    and is rewritten by :meth:`Emulator.start` with the ptys' device paths."""
     from ..models.effects import DEFAULT_EFFECTS
 
     noise = NoiseModel(Q_V2s=Q_V2s, sigma_position_arcsec=sigma_position_arcsec,
@@ -730,7 +878,7 @@ def emulate(directory, *, preset: str = "ak18-quartz", effects: Optional[Sequenc
                        sample_rate_hz=(timing or EmulatorTiming()).rate_hz)
     truth = preset_truth(preset, DEFAULT_EFFECTS if effects is None else effects, noise=noise, unit=unit)
     em = Emulator(directory, truth=truth, protocol=protocol, timing=timing, faults=faults, seed=seed,
-                  keep_log=keep_log, bench_profile=bench_profile)
+                  keep_log=keep_log, bench_profile=bench_profile, dmm=dmm)
     truth.save(em.directory / "truth.json")
     em.write_config()
     return em

@@ -258,11 +258,28 @@ class ScpiDmm(_ScpiMeter):
                               f"{self.resource_name} READ?")
 
 
+def samples_for_tau(tau_s: float, nplc: float, mains_hz: float, readings_per_sample: int = 1) -> int:
+    """The sample count of an averaging window of ``tau_s`` seconds: each reading integrates
+    ``nplc / mains_hz`` s, so ``n = round(tau_s * mains_hz / (nplc * readings_per_sample))``, at
+    least 2 (``readings_per_sample`` 3 for a scanner's sweep of x, y, z). The count fixes the
+    integration time; the meter's own overhead (auto-zero, up to about twice as long) makes
+    the window last longer than ``tau_s`` in real time."""
+    n = int(round(float(tau_s) * float(mains_hz) / (float(nplc) * readings_per_sample)))
+    return max(2, n)
+
+
 class VoltmeterReadout(ABC):
     """Per-axis voltage statistics of one averaging window."""
 
     @abstractmethod
     def measure(self, n: int) -> VoltageAverage: ...
+
+    @abstractmethod
+    def samples_for(self, tau_s: float) -> int:
+        """``SAMP:COUN`` (or ``TRIG:COUN``) for an averaging window of ``tau_s`` (:func:`samples_for_tau`)."""
+
+    def describe(self) -> str:
+        return type(self).__name__
 
     def close(self) -> None:
         pass
@@ -284,6 +301,15 @@ class AxisVoltmeters(VoltmeterReadout):
 
     def measure(self, n: int) -> VoltageAverage:
         return VoltageAverage({a: stats(self.meters[a].read(n)) for a in AXES})
+
+    def samples_for(self, tau_s: float) -> int:
+        m = self.meters["x"]
+        return samples_for_tau(tau_s, m.nplc, m.mains_hz)
+
+    def describe(self) -> str:
+        m = self.meters["x"]
+        return (f"one {m.model} per axis ({', '.join(self.meters[a].resource_name for a in AXES)}), "
+                f"range {m.range} V, NPLC {m.nplc:g} at {m.mains_hz:g} Hz mains, read one after the other")
 
     def close(self) -> None:
         for m in self.meters.values():
@@ -326,6 +352,13 @@ class ScpiScanner(_ScpiMeter, VoltmeterReadout):
         v = parse_readings(self.query("READ?", timeout_s=self._read_timeout(3 * n)), 3 * n,
                            f"{self.resource_name} READ?").reshape(n, 3)
         return VoltageAverage({a: stats(v[:, i]) for i, a in enumerate(self.scan_order)})
+
+    def samples_for(self, tau_s: float) -> int:
+        return samples_for_tau(tau_s, self.nplc, self.mains_hz, readings_per_sample=3)
+
+    def describe(self) -> str:
+        return (f"{self.model} scanning {self.channel_list} ({self.resource_name}), range {self.range} V, "
+                f"NPLC {self.nplc:g} at {self.mains_hz:g} Hz mains")
 
 
 def open_voltmeter(cfg: Mapping, rm=None) -> VoltmeterReadout:
