@@ -227,6 +227,33 @@ def _max_temperature_rate(temps: deque, window_s: float, now: float) -> Optional
     return float(np.max(np.abs(slope)))
 
 
+def _open_session(out, state_path, plan, setpoints_C, directions, labels, settings):
+    """The capture state of the folder (resume) or a new one, the rows already captured, and a
+    new session recorded (written atomically before anything moves): ``(state, rows,
+    done_before, session)``. A folder that holds another campaign (plan, setpoints, tau, unit)
+    is refused naming what differs."""
+    identity = {"plan": {k: list(v) for k, v in plan.items()}, "setpoints_C": setpoints_C,
+                "tau_s": settings.tau_s, "unit": settings.unit}
+    if state_path.exists():
+        try:
+            state = read_json(state_path)
+            require_format(state, "triadcal.capture", 1, str(state_path), "a capture state file", "capture state")
+        except ValueError as exc:
+            raise CaptureError(str(exc)) from None
+        for key, value in identity.items():
+            if state.get(key) != value:
+                raise CaptureError(f"{out} holds a campaign with a different {key} ({state.get(key)!r}, "
+                                   f"now {value!r}); resume with the same settings or choose another --out")
+    else:
+        state = {"format": "triadcal.capture", "version": 1, **identity, "sessions": []}
+    rows = _read_rows(out / CSV_NAME, labels, setpoints_C, directions)
+    done_before = len(rows)
+    session = len(state["sessions"]) + 1
+    state["sessions"].append({"session": session, "started_wall": time.time(), "visits_before": done_before})
+    atomic_write_json(state_path, state)
+    return state, rows, done_before, session
+
+
 def capture(out_dir, *, plan: Mapping[str, tuple], setpoints_C: Sequence[float],
             imu: ImuReadout, bench: Bench, chamber: Chamber,
             settings: Optional[CaptureSettings] = None,
@@ -270,25 +297,8 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
 
     # -- state: what the directory already holds --------------------------------------
     state_path = out / STATE_NAME
-    identity = {"plan": {k: list(v) for k, v in plan.items()}, "setpoints_C": setpoints_C,
-                "tau_s": settings.tau_s, "unit": settings.unit}
-    if state_path.exists():
-        try:
-            state = read_json(state_path)
-            require_format(state, "triadcal.capture", 1, str(state_path), "a capture state file", "capture state")
-        except ValueError as exc:
-            raise CaptureError(str(exc)) from None
-        for key, value in identity.items():
-            if state.get(key) != value:
-                raise CaptureError(f"{out} holds a campaign with a different {key} ({state.get(key)!r}, "
-                                   f"now {value!r}); resume with the same settings or choose another --out")
-    else:
-        state = {"format": "triadcal.capture", "version": 1, **identity, "sessions": []}
-    rows = _read_rows(out / CSV_NAME, labels, setpoints_C, directions)
-    done_before = len(rows)
-    session = len(state["sessions"]) + 1
-    state["sessions"].append({"session": session, "started_wall": time.time(), "visits_before": done_before})
-    atomic_write_json(state_path, state)
+    state, rows, done_before, session = _open_session(out, state_path, plan, setpoints_C, directions, labels,
+                                                      settings)
 
     raw = RawStore(out / RAW_NAME)
     events = EventLog(out / EVENTS_NAME)
@@ -483,25 +493,8 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
         time.sleep(max(0.0, instrument_s) / time_scale)
 
     state_path = out / STATE_NAME
-    identity = {"plan": {k: list(v) for k, v in plan.items()}, "setpoints_C": setpoints_C,
-                "tau_s": settings.tau_s, "unit": settings.unit}
-    if state_path.exists():
-        try:
-            state = read_json(state_path)
-            require_format(state, "triadcal.capture", 1, str(state_path), "a capture state file", "capture state")
-        except ValueError as exc:
-            raise CaptureError(str(exc)) from None
-        for key, value in identity.items():
-            if state.get(key) != value:
-                raise CaptureError(f"{out} holds a campaign with a different {key} ({state.get(key)!r}, "
-                                   f"now {value!r}); resume with the same settings or choose another --out")
-    else:
-        state = {"format": "triadcal.capture", "version": 1, **identity, "sessions": []}
-    rows = _read_rows(out / CSV_NAME, labels, setpoints_C, directions)
-    done_before = len(rows)
-    session = len(state["sessions"]) + 1
-    state["sessions"].append({"session": session, "started_wall": time.time(), "visits_before": done_before})
-    atomic_write_json(state_path, state)
+    state, rows, done_before, session = _open_session(out, state_path, plan, setpoints_C, directions, labels,
+                                                      settings)
     events = EventLog(out / EVENTS_NAME)
     crit = settings.stabilisation
     stab_text = crit.describe().replace("every accelerometer temperature", "the chamber's PV")
