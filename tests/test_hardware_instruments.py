@@ -268,3 +268,18 @@ def test_a_plan_outside_the_soft_limits_is_refused_before_the_campaign(tmp_path)
     assert "position PX (-90, 0)" in r.stderr and "soft limits [-5, 365]" in r.stderr
     assert not any(c.startswith(("1PA", "2PA")) for c in em.bench_server.commands)
     assert not (tmp_path / "run" / "capture.json").exists()
+
+
+def test_an_imu_without_temperature_is_refused_before_anything_moves(tmp_path):
+    """MIP's set 0x80 has no instantaneous temperature: the stabilisation could never pass, so the
+    capture refuses at once instead of timing out."""
+    from triadcal.hardware.capture import CaptureError, capture
+    from triadcal.hardware.protocols import TEMPERATURE_NONE
+
+    class NoTemperature:
+        protocol, temperature = "mip", TEMPERATURE_NONE
+
+    with pytest.raises(CaptureError, match="gives no temperature"):
+        capture(tmp_path / "run", plan={"P01": (0.0, 0.0)}, setpoints_C=[20.0], imu=NoTemperature(),
+                bench=object(), chamber=object())
+    assert not (tmp_path / "run" / "capture.json").exists()

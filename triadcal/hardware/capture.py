@@ -284,6 +284,14 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
     if not plan or not setpoints_C:
         raise InputError("a campaign needs at least one bench position and one setpoint")
     directions = Schedule(setpoints_C=setpoints_C).directions()
+    from .protocols import TEMPERATURE_NONE
+
+    if getattr(imu, "temperature", None) == TEMPERATURE_NONE:
+        # the stabilisation waits for the unit's own temperatures: with none it would wait forever
+        raise CaptureError(f"the IMU ({getattr(imu, 'protocol', 'this protocol')}) gives no temperature, and the "
+                           "capture waits for the unit's own temperatures to settle before each setpoint; use an "
+                           "IMU output that carries one (VectorNav VNIMU, Xsens 0x0810) or an analog unit through "
+                           "[dmm] (the chamber's PV)")
     commanded = getattr(bench, "commanded", None)     # a bench with soft limits checks the plan first
     if commanded is not None:
         for label, (a1, a2) in plan.items():
