@@ -129,6 +129,10 @@ def fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, o
     from ..io.bench_csv import read_bench_csv
     from .select import pair_mask, pairs
 
+    from .manifest import is_manifest
+
+    if is_manifest(input_path):
+        return fit_manifest_part(input_path, out_dir, part, n_parts)
     sha = sha256_of(input_path)
     records = []
     try:
@@ -162,6 +166,43 @@ def fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, o
         result.save(path)
         records.append({**rec, "action": "fitted", "seconds": time.perf_counter() - t0,
                         "result": result.to_dict()})
+    return records
+
+
+def fit_manifest_part(manifest: str, out_dir: str, part: int, n_parts: int) -> list:
+    """The task for a manifest of raw recordings: its entries ``part, part + n_parts, ...`` fitted
+    with ``fit-raw`` (:func:`triadcal.estimation.raw.fit_raw`), each result written as soon as it
+    is fitted, skipped when its result records the same recording (SHA-256)."""
+    from ..estimation.raw import fit_raw
+    from .manifest import read_manifest
+
+    try:
+        entries = read_manifest(manifest)[part::n_parts]
+    except InputError as exc:
+        return [{"unit": "", "state": "", "input": str(manifest), "path": "", "action": "error",
+                 "status": "refused", "error": str(exc)}]
+    records = []
+    for e in entries:
+        sha = sha256_of(e.path)
+        path = result_path(out_dir, e.serial, e.state)
+        rec = {"unit": e.serial, "state": e.state, "input": str(e.path), "path": str(path)}
+        done = _existing(path, sha)
+        if done is not None:
+            records.append({**rec, "action": "skipped", "result": done})
+            continue
+        t0 = time.perf_counter()
+        try:
+            out = fit_raw(str(e.path), e.rate_hz, columns=e.columns, unit=e.unit, poses=e.poses, labels=e.labels,
+                          local_g_m_s2=e.local_g_m_s2, serial=e.serial)
+        except InputError as exc:
+            records.append({**rec, "action": "error", "status": "refused", "error": str(exc)})
+            continue
+        result = out.result
+        result.extra["batch"] = {"input": str(e.path), "input_sha256": sha, "state": e.state, "date": "",
+                                 "lab": "", "manifest": str(manifest)}
+        path.parent.mkdir(parents=True, exist_ok=True)
+        result.save(path)
+        records.append({**rec, "action": "fitted", "seconds": time.perf_counter() - t0, "result": result.to_dict()})
     return records
 
 

@@ -1,0 +1,91 @@
+"""Raw recordings in a batch: a manifest (TOML) names each recording and how to read it, so
+``triadcal batch`` fits them with ``fit-raw`` beside the bench campaigns (docs/fleet.md).
+
+    [[recording]]
+    path = "unit7.csv"            # relative to the manifest
+    serial = "SN-0007"
+    state = "initial"             # default "initial"
+    rate_hz = 100.0
+    unit = "m/s2"                 # m/s2 | g | counts (the readings' unit)
+    poses = "unknown"             # known | unknown
+    columns = ["ax", "ay", "az"]  # optional
+    labels = "part"               # optional: a label column naming the poses (known poses)
+    local_g_m_s2 = 9.81           # optional
+
+Every key is checked when the manifest is read; an unknown one is refused with the manifest,
+the entry and the key named."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+from ..errors import InputError
+
+KEYS = {"path": str, "serial": str, "state": str, "rate_hz": float, "unit": str, "poses": str, "columns": list,
+        "labels": str, "local_g_m_s2": float}
+REQUIRED = ("path", "serial", "rate_hz", "unit", "poses")
+
+
+@dataclass(frozen=True)
+class RawEntry:
+    path: Path
+    serial: str
+    state: str
+    rate_hz: float
+    unit: str
+    poses: str
+    columns: Optional[tuple] = None
+    labels: Optional[str] = None
+    local_g_m_s2: float = 9.81
+
+
+def is_manifest(path) -> bool:
+    return str(path).lower().endswith(".toml")
+
+
+def read_manifest(path) -> list:
+    """The entries of a manifest, validated (see the module)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    unknown = [k for k in data if k != "recording"]
+    if unknown or not isinstance(data.get("recording"), list) or not data["recording"]:
+        raise InputError(f"{path}: a manifest holds [[recording]] entries only"
+                         + (f"; unknown: {', '.join(unknown)}" if unknown else ""))
+    out = []
+    for i, e in enumerate(data["recording"], start=1):
+        where = f"{path}: recording {i}"
+        bad = [k for k in e if k not in KEYS]
+        if bad:
+            raise InputError(f"{where}: unknown key {bad[0]!r}; known: {', '.join(KEYS)}")
+        missing = [k for k in REQUIRED if k not in e]
+        if missing:
+            raise InputError(f"{where}: {', '.join(missing)} missing")
+        for k, v in e.items():
+            typ = KEYS[k]
+            if typ is float and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0):
+                raise InputError(f"{where}: {k} must be a positive number, got {v!r}")
+            if typ is str and not isinstance(v, str):
+                raise InputError(f"{where}: {k} must be a string, got {v!r}")
+            if typ is list and not (isinstance(v, list) and len(v) == 3 and all(isinstance(c, str) for c in v)):
+                raise InputError(f"{where}: columns must be a list of three column names, got {v!r}")
+        if e["unit"] not in ("m/s2", "g", "counts"):
+            raise InputError(f"{where}: unit {e['unit']!r}; choose m/s2, g or counts")
+        if e["poses"] not in ("known", "unknown"):
+            raise InputError(f"{where}: poses {e['poses']!r}; choose known or unknown")
+        rec = (path.parent / e["path"]).resolve()
+        if not rec.is_file():
+            raise InputError(f"{where}: {e['path']}: no such file (paths are relative to the manifest)")
+        out.append(RawEntry(rec, e["serial"], e.get("state", "initial"), float(e["rate_hz"]), e["unit"], e["poses"],
+                            tuple(e["columns"]) if "columns" in e else None, e.get("labels"),
+                            float(e.get("local_g_m_s2", 9.81))))
+    return out
