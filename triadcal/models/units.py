@@ -30,6 +30,7 @@ TO_INTERNAL = {
     "ug/degC2": UG,
     "ug/g2": UG,
     "ug/h": UG / 3600.0,
+    "arcsec/h": ARCSEC / 3600.0,
     "min": 60.0,
     "1": 1.0,
 }

@@ -41,9 +41,9 @@ FORMAT = "triadcal.compensation"
 VERSION = 1
 FORMATS = ("json", "csv", "c-header")
 #: effects a table of temperature can represent (bench terms are not properties of the unit)
-TABLE_EFFECTS = ("bench_tilt", "bench_nonorthogonality", "angle_tempco", "angle_tempco2", "scale_tempco",
+TABLE_EFFECTS = ("bench_tilt", "tilt_drift", "bench_nonorthogonality", "angle_tempco", "angle_tempco2", "scale_tempco",
                  "scale_tempco2", "bias_tempco", "bias_tempco2", "hysteresis", "thermal_lag")
-BENCH_EFFECTS = ("bench_tilt", "bench_nonorthogonality")
+BENCH_EFFECTS = ("bench_tilt", "tilt_drift", "bench_nonorthogonality")
 #: interior points per interval for the interpolation bound
 INTERP_POINTS = 33
 

@@ -18,10 +18,11 @@ from .thermal import AngleTempco, BiasTempco, ScaleTempco
 from .thermal2 import AngleTempco2, BiasTempco2, ScaleTempco2
 from .thermal_lag import ThermalLag
 from .tilt import BenchTilt
+from .tilt_drift import TiltDrift
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls
-    for cls in (BenchTilt, BenchNonorthogonality, ThermalLag, AngleTempco, AngleTempco2, Hysteresis, ScaleTempco, ScaleTempco2,
+    for cls in (BenchTilt, TiltDrift, BenchNonorthogonality, ThermalLag, AngleTempco, AngleTempco2, Hysteresis, ScaleTempco, ScaleTempco2,
                 BiasTempco, BiasTempco2, BiasDrift, ScaleNonlinearity, ScaleAsymmetry)
 }
 NOISE_EFFECTS = ("position_error", "heavy_tails")

@@ -114,7 +114,7 @@ BUDGET_GROUPS = ("Orientation angles", "Scale factors", "Biases")
 
 
 def _group(name: str) -> str:
-    if name.startswith("tilt_"):
+    if name.startswith("tilt_") or name == "bench_nonorth":
         return GROUPS[6]
     if name.endswith("_tempco"):
         return GROUPS[3]
