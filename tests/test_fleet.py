@@ -236,3 +236,18 @@ def test_history_add_show_noop_verdict_plot(tmp_path, capsys):
     assert main(["history", "--add", str(r1), "--lab", str(lab), "--quiet"]) == 0
     assert (tmp_path / "fromlab.sqlite").exists()
     assert main(["history", "SN-NONE", "--db", str(db)]) == 1
+
+
+def test_batch_on_a_running_scheduler_given_its_address(fleet_csv, tmp_path, client):
+    """The --scheduler path: a Client of the address of a running scheduler (here the module's
+    LocalCluster's), not a cluster of the batch's own; the same numbers as fitting one by one."""
+    address = client.scheduler.address
+    out = tmp_path / "remote"
+    rep = batch([str(fleet_csv)], out, scheduler=address, html=False)
+    assert rep.n_fitted == 6 and rep.n_errors == 0
+    c = read_bench_csv(fleet_csv)
+    ref = fit(c.select(c.unit == "SN-0003"))
+    got = read_json(out / "results" / "SN-0003__initial.json")
+    got.pop("batch", None)
+    assert comparable(got) == comparable(ref.to_dict())
+    assert client.status == "running"                 # the batch closed its own client, not the cluster
