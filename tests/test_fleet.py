@@ -174,10 +174,9 @@ def test_killed_batch_loses_nothing_and_rerun_completes(tmp_path):
     p = subprocess.Popen([TRIADCAL, "batch", str(data), "--out", str(out), "--no-progress", "--quiet"],
                          env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.time() + 90
+        # wait for the event (the first result file), failing only if the batch exits first
         while not list((out / "results").glob("*.json")) if (out / "results").exists() else True:
             assert p.poll() is None, "the batch ended before any result was written"
-            assert time.time() < deadline
             time.sleep(0.05)
     finally:
         os.killpg(p.pid, signal.SIGKILL)       # the batch, its cluster and workers (one process group)

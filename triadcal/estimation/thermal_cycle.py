@@ -324,13 +324,11 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
 def plot_cycle(cycle: ThermalCycle, path) -> None:
     """Each axis's output against temperature (heating and cooling coloured) with its best form,
     and the residuals of a line and of the best form against time."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure      # no pyplot: no backend, no global state
 
     k = len(cycle.axes)
-    fig, ax = plt.subplots(k, 2, figsize=(11, 3.2 * k), squeeze=False)
+    fig = Figure(figsize=(11, 3.2 * k))
+    ax = fig.subplots(k, 2, squeeze=False)
     for i, a in enumerate(cycle.axes):
         y = cycle.y[:, i]
         for b, c, lab in ((-1.0, "tab:red", "heating"), (1.0, "tab:blue", "cooling"), (0.0, "0.6", "still")):
@@ -352,4 +350,3 @@ def plot_cycle(cycle: ThermalCycle, path) -> None:
 
     with atomic_path(path, ".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)

@@ -119,9 +119,7 @@ def fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, o
     """The task: read one bench CSV, fit its (unit, state) pairs ``part, part + n_parts, ...``
     that have no result yet, write each result as soon as it is fitted; return one record per
     pair: ``{"unit", "state", "input", "path", "action": "fitted" | "skipped" | "error", ...}``."""
-    for k, v in WORKER_ENV.items():
-        os.environ.setdefault(k, v)
-    try:
+    try:          # one BLAS thread for the fits, without touching the process's environment
         from threadpoolctl import threadpool_limits
     except ImportError:          # pragma: no cover - threadpoolctl comes with scipy's stack
         threadpool_limits = None
@@ -258,9 +256,7 @@ def start_client(scheduler: Optional[str] = None, workers: int = 2, processes: b
         return Client(scheduler), None
     if workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
-    for k, v in WORKER_ENV.items():
-        os.environ.setdefault(k, v)
-    kw = {"env": dict(WORKER_ENV)} if processes else {}
+    kw = {"env": dict(WORKER_ENV)} if processes else {}   # the workers' own environment, not ours
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=processes,
                            dashboard_address=None, **kw)
     return Client(cluster), cluster

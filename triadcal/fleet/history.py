@@ -167,10 +167,7 @@ def history_text(serial: str, calibrations) -> str:
 
 def plot_history(serial: str, calibrations, path) -> None:
     """Each angle against the calibration date with its error bar (k = 1), one panel per angle."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure      # no pyplot: no backend, no global state
 
     from ..io.atomic import atomic_path
 
