@@ -87,8 +87,9 @@ def test_planted_contaminated_interval_is_named_and_found():
     d = diagnose(recording(seed=2, contaminate_mg=3.0))
     doc = d.doc
     assert doc["verdict"]["term"] == "contaminated_interval"
-    # outside the v1 effect vocabulary: the schema's field says unexplained, the term is in verdict.term
-    assert doc["verdict"]["effect"] == "unexplained" and "verdict.term" in doc["verdict"]["reason"]
+    # every raw candidate is in the diagnosis vocabulary: the schema's field names it
+    assert doc["verdict"]["effect"] == "contaminated_interval"
+    assert_valid(json.loads(json.dumps(doc)), "triadcal.diagnosis")
     c = d.candidate("contaminated_interval")
     assert c["full_fit"]["dropped_interval"] == 8            # the 8th interval (index 7) was knocked
     assert 8 in doc["raw"]["standing_out"]

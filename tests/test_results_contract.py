@@ -128,7 +128,8 @@ def test_the_enumerations_of_the_schemas_are_those_of_the_code():
     assert sorted(d["model_effect"]["enum"]) == sorted(EFFECTS)
     assert sorted(d["gates"]["properties"]["config"]["required"]) == sorted(DEFAULT_CONFIG.to_dict())
     dd = SCHEMAS["triadcal.diagnosis"]["$defs"]
-    assert sorted(dd["effect"]["enum"]) == sorted(VOCABULARY)
+    from triadcal.judgement.raw_diagnosis import CANDIDATES as RAW_CANDIDATES
+    assert sorted(dd["effect"]["enum"]) == sorted(set(VOCABULARY) | set(RAW_CANDIDATES))
     assert sorted(dd["slice"]["properties"]["family"]["enum"]) == sorted(set(FAMILIES) | {"axis"})
     assert SCHEMAS["triadcal.comparison"]["$defs"]["verdict"]["enum"] == list(VERDICTS)
     # the statuses the doc lists in prose are the schema's

@@ -45,8 +45,6 @@ RATIO_MAX = 1.2          # chi2/dof above which a significant gap is also materi
 SHRINK_SE = 2.0          # a held-out shrink counts when mean(d) > SHRINK_SE x SE(d)
 ROBUST_Z = 3.5           # an interval stands out when |modified z| of its residual exceeds this
 CANDIDATES = ("scale_nonlinearity", "cross_coupling", "g_dependent_misalignment", "contaminated_interval")
-#: the effect vocabulary of triadcal.diagnosis version 1 (docs/results-json.md) that a raw term can carry
-V1_EFFECTS = ("scale_nonlinearity",)
 UG = 1e6
 
 
@@ -243,16 +241,15 @@ def diagnose_intervals(d: IntervalData, *, source=None, fit_status=None, poses=N
 
     schema_cands = []
     for c in cands:
-        if c["term"] in V1_EFFECTS:
-            e = {"effect": c["term"], "rank": len(schema_cands) + 1, "testable": c["testable"],
-                 "score": c.get("held_out", {}).get("z"), "reason": c.get("reason", "")}
-            if c["testable"]:
-                e["gap_before"] = {"chi2_dof": gap["chi2_dof"]}
-                e["gap_after"] = {"chi2_dof": c["full_fit"]["chi2_dof"]}
-                e["new_parameters"] = c["full_fit"]["new_parameters"]
-            if not e["reason"]:
-                del e["reason"]
-            schema_cands.append(e)
+        e = {"effect": c["term"], "rank": len(schema_cands) + 1, "testable": c["testable"],
+             "score": c.get("held_out", {}).get("z"), "reason": c.get("reason", "")}
+        if c["testable"]:
+            e["gap_before"] = {"chi2_dof": gap["chi2_dof"]}
+            e["gap_after"] = {"chi2_dof": c["full_fit"]["chi2_dof"]}
+            e["new_parameters"] = c["full_fit"]["new_parameters"]
+        if not e["reason"]:
+            del e["reason"]
+        schema_cands.append(e)
     ranked = sorted(cands, key=lambda c: -(c.get("held_out", {}).get("mean_d", -math.inf) if c["testable"]
                                            else -math.inf))
     for i, c in enumerate(ranked):
@@ -401,16 +398,9 @@ def _verdict(gap, tested, sig, n, dof0, rms_ug, floor_ug) -> dict:
     if best.get("indistinguishable_from"):
         v["evidence"] += ("; held out, not better than " + ", ".join(best["indistinguishable_from"])
                           + " by 2 SE, which has more parameters")
-    if best["term"] in V1_EFFECTS:
-        v["effect"] = best["term"]
-    else:
-        v["effect"] = "unexplained"
-        v["reason"] = (f"named by the raw diagnosis as {best['term']} (verdict.term), a name outside the effect "
-                       f"vocabulary of triadcal.diagnosis version 1")
+    v["effect"] = best["term"]
     if len(sig) > 1:
-        v["runner_up_term"] = sig[1]["term"]
-        if sig[1]["term"] in V1_EFFECTS:
-            v["runner_up"] = sig[1]["term"]
+        v["runner_up_term"] = v["runner_up"] = sig[1]["term"]
     return v
 
 
