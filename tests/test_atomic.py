@@ -122,3 +122,22 @@ def test_written_files_get_the_mode_of_an_ordinary_open(tmp_path):
         os.umask(old)
     mode = stat.S_IMODE((tmp_path / "a.txt").stat().st_mode)
     assert mode == stat.S_IMODE((tmp_path / "b.txt").stat().st_mode) == 0o644
+
+
+def test_an_event_log_torn_by_a_kill_is_ended_and_the_next_session_starts_on_its_own_line(tmp_path):
+    from triadcal.hardware.storage import EventLog, read_events
+    path = tmp_path / "events.jsonl"
+    log = EventLog(path)
+    log.write("session_start", session=1)
+    log.close()
+    with open(path, "a", encoding="utf-8") as fh:     # what a SIGKILL in the middle of a write leaves
+        fh.write('{"wall_time": 1.0, "kind": "vis')
+    log = EventLog(path)
+    log.write("session_start", session=2)
+    log.close()
+    lines = path.read_text(encoding="utf-8").splitlines()
+    assert lines[1] == '{"wall_time": 1.0, "kind": "vis'           # the torn line is kept, ended
+    kinds = [e["kind"] for e in read_events(path)]
+    assert kinds == ["session_start", "torn_line", "session_start"]
+    torn = read_events(path)[1]
+    assert torn["line"] == 2 and torn["n_bytes"] == len('{"wall_time": 1.0, "kind": "vis')

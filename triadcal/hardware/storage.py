@@ -107,7 +107,23 @@ class EventLog:
 
     def __init__(self, path):
         self.path = Path(path)
+        torn = self._torn_tail()
         self._fh = open(self.path, "a", encoding="utf-8")
+        if torn is not None:
+            # a kill in the middle of a write left a last line without its newline: end it there,
+            # so this session's records start on lines of their own, and say so
+            self._fh.write("\n")
+            self.write("torn_line", line=torn[0], n_bytes=torn[1])
+
+    def _torn_tail(self):
+        """(line number, bytes) of a last line that has no newline, or None."""
+        try:
+            data = self.path.read_bytes()
+        except FileNotFoundError:
+            return None
+        if not data or data.endswith(b"\n"):
+            return None
+        return data.count(b"\n") + 1, len(data) - (data.rfind(b"\n") + 1)
 
     def write(self, kind: str, **fields) -> None:
         rec = {"wall_time": time.time(), "kind": kind, **fields}
