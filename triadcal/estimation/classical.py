@@ -315,7 +315,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                       "variance of a mean taken as Q_eff / tau_s")
     else:
         sigma = sd_sigma
-        noise_desc = "sd_*/sqrt(n_samples) of each visit (output noise only; bench positioning errors not included)"
+        noise_desc = f"{campaign.output_sigma_method()} (output noise only; bench positioning errors not included)"
 
     # -- eq. 2 per block with exact linear propagation ------------------------------------
     qnames = _quantity_names()

@@ -8,6 +8,13 @@ windows, weighted by the number of terms at each tau; Q is the weighted mean of
 ``sigma^2(tau) * tau`` over the shortest averaging times (m = 1, 2, 4 samples), where
 white noise dominates; the bias instability is the floor of the deviation divided by
 0.664 (IEEE Std 952), an upper bound when the curve is still falling at the longest tau.
+
+Per-visit uncertainty (docs/hardware.md, "Per-visit uncertainty from the noise"): the pooled
+curve is fitted with the IEEE Std 952 power-law model ``sigma^2(tau) = Q/tau + B_f^2 + R tau/3``
+(:func:`fit_power_law`, non-negative least squares weighted by each point's confidence), and
+:meth:`NoiseEstimate.visit_uncertainty` evaluates the variance of each visit's mean about the
+campaign's mean from that model and the visits' times
+(:func:`triadcal.models.noise_processes.visit_mean_variance`).
 """
 
 from __future__ import annotations
@@ -35,6 +42,12 @@ class NoiseEstimate:
     n_samples: int
     rate_hz: float
     details: dict = field(default_factory=dict)
+    #: per axis the fitted power-law terms (Q unit^2 s, B_f^2 unit^2, R unit^2/s) and their
+    #: standard errors (:func:`fit_power_law`); empty when not fitted
+    power_law: tuple = ()
+    power_law_se: tuple = ()
+    #: the longest tau of the pooled curve (s): the model is extrapolated beyond it
+    longest_tau_s: float = 0.0
 
     @property
     def Q_mean_V2s(self) -> float:
@@ -49,7 +62,79 @@ class NoiseEstimate:
                                              + ("" if self.floor_reached[i] else " (upper bound)"))
         md["noise_method"] = (f"overlapping Allan deviation (allantools) over {self.n_windows} recording "
                               f"windows, {self.n_samples} samples at {self.rate_hz:.6g} Hz")
+        if self.power_law:
+            md["u_w_method"] = self.u_w_method()
         return md
+
+    def u_w_method(self) -> str:
+        """The ``u_w_method`` metadata line: how the ``u_w_*`` columns were made, with the terms."""
+        terms = "; ".join(f"{a}: Q {q:.4g}, B_f {np.sqrt(bf2):.4g}, R {r:.4g}"
+                          for a, (q, bf2, r) in zip("xyz", self.power_law))
+        return ("variance of each visit mean about the campaign mean from the IEEE 952 power-law fit "
+                "sigma^2(tau) = Q/tau + B_f^2 + R tau/3 of the pooled Allan variance (tau "
+                f"{self.taus_s[0]:.3g}-{self.longest_tau_s:.3g} s, extrapolated beyond) and the visit times "
+                f"(Barnes B2); {terms}")
+
+    def visit_uncertainty(self, time_s, tau_s) -> np.ndarray:
+        """Standard uncertainty of each visit's mean output (n, 3), output unit: the square root
+        of :func:`~triadcal.models.noise_processes.visit_mean_variance` with this estimate's
+        power-law terms per axis, at the visits' centres ``time_s`` and windows ``tau_s``."""
+        from ..models.noise_processes import visit_mean_variance
+
+        if not self.power_law:
+            raise InputError("this noise estimate has no power-law fit")
+        return np.stack([np.sqrt(visit_mean_variance(time_s, tau_s, *self.power_law[i])) for i in range(3)],
+                        axis=1)
+
+
+#: a non-white term is kept only when its estimate exceeds this many standard errors
+TERM_SIGNIFICANCE = 3.0
+
+
+def fit_power_law(taus_s, avar, edf) -> tuple:
+    """``(Q, B_f^2, R), (se_Q, se_Bf2, se_R)`` of the IEEE Std 952-1997 (Annex C) model
+    ``sigma^2(tau) = Q/tau + B_f^2 + R tau/3`` fitted to an Allan-variance curve.
+
+    Non-negative least squares (scipy ``nnls``), each point weighted by its confidence: an
+    Allan variance estimated with ``edf`` equivalent degrees of freedom has the relative
+    standard error ``sqrt(2/edf)``, so the residual of point k is divided by
+    ``avar_k sqrt(2/edf_k)`` — first with the measured ``avar_k``, then once more with the fitted
+    curve's value (a point that came out low must not weigh more). The standard errors come from the weighted normal equations of the
+    terms kept, scaled by the fit's chi^2/dof when above 1. The white term is always kept; the
+    flicker and random-walk terms only when their estimate exceeds ``TERM_SIGNIFICANCE`` (3)
+    standard errors (and while the curve has more points than terms), else they are 0: a term
+    the curve does not show is not extrapolated."""
+    from scipy.optimize import nnls
+
+    taus = np.asarray(taus_s, float)
+    y = np.asarray(avar, float)
+    rel = np.sqrt(2.0 / np.maximum(np.asarray(edf, float), 1.0))
+    A_full = np.stack([1.0 / taus, np.ones_like(taus), taus / 3.0], axis=1)
+    keep = [0, 1, 2]
+    while True:
+        sig = y * rel
+        A = A_full[:, keep] / sig[:, None]
+        x, _ = nnls(A, y / sig)
+        # once more with the weights of the fitted curve (a low point must not weigh more)
+        model = A_full[:, keep] @ x
+        if np.all(model > 0):
+            sig = model * rel
+            A = A_full[:, keep] / sig[:, None]
+            x, _ = nnls(A, y / sig)
+        dof = len(y) - len(keep)
+        chi2 = float(np.sum((A @ x - y / sig) ** 2))
+        cov = np.linalg.pinv(A.T @ A) * max(1.0, chi2 / dof if dof > 0 else 1.0)
+        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        weak = [k for j, k in enumerate(keep) if k != 0 and (dof <= 0 or x[j] <= TERM_SIGNIFICANCE * se[j])]
+        if not weak:
+            break
+        # drop the weakest (smallest t) non-white term and refit
+        t = {k: x[keep.index(k)] / max(se[keep.index(k)], 1e-300) for k in weak}
+        keep.remove(min(t, key=t.get))
+    terms, errs = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+    for j, k in enumerate(keep):
+        terms[k], errs[k] = float(x[j]), float(se[j])
+    return tuple(terms), tuple(errs)
 
 
 def allan_noise(windows: Sequence[np.ndarray], rate_hz: float) -> NoiseEstimate:
@@ -62,6 +147,9 @@ def allan_noise(windows: Sequence[np.ndarray], rate_hz: float) -> NoiseEstimate:
     taus = ms / rate_hz
     avar = np.zeros((3, len(ms)))
     weight = np.zeros((3, len(ms)))
+    # equivalent dof of the pooled points: the count of non-overlapping pairs of m-sample
+    # means in each window (a lower bound for the overlapping estimator; IEEE 1139)
+    edf = np.array([sum(max(len(w) // m - 1, 0) for w in windows) for m in ms], float)
     for w in windows:
         for i in range(3):
             t_used, dev, _, ns = allantools.oadev(w[:, i], rate=rate_hz, data_type="freq", taus=taus)
@@ -71,7 +159,7 @@ def allan_noise(windows: Sequence[np.ndarray], rate_hz: float) -> NoiseEstimate:
             avar[i, idx] += np.asarray(ns)[ok] * np.asarray(dev)[ok] ** 2
             weight[i, idx] += np.asarray(ns)[ok]
     good = weight.min(axis=0) > 0
-    avar, weight, taus = avar[:, good] / weight[:, good], weight[:, good], taus[good]
+    avar, weight, taus, edf = avar[:, good] / weight[:, good], weight[:, good], taus[good], edf[good]
     adev = np.sqrt(avar)
     short = taus <= 4.0 / rate_hz
     Q = tuple(float(np.sum(weight[i, short] * avar[i, short] * taus[short]) / np.sum(weight[i, short]))
@@ -79,5 +167,7 @@ def allan_noise(windows: Sequence[np.ndarray], rate_hz: float) -> NoiseEstimate:
     k_min = np.argmin(adev, axis=1)
     bi = tuple(float(adev[i, k_min[i]] / 0.664) for i in range(3))
     floor = tuple(bool(k_min[i] < len(taus) - 1) for i in range(3))
+    fits = [fit_power_law(taus, avar[i], edf) for i in range(3)]
     return NoiseEstimate(Q, bi, floor, taus, adev, len(windows), int(sum(len(w) for w in windows)),
-                         float(rate_hz))
+                         float(rate_hz), power_law=tuple(f[0] for f in fits),
+                         power_law_se=tuple(f[1] for f in fits), longest_tau_s=float(taus[-1]))

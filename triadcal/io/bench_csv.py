@@ -23,10 +23,12 @@ from .numbers import MAX_READING, NumberError, parse_number
 
 REQUIRED = ("unit", "setpoint_C", "direction", "time_s", "position", "axis1_deg", "axis2_deg",
             "tau_s", "w_x", "w_y", "w_z", "t_x", "t_y", "t_z")
-OPTIONAL = ("cycle", "sd_x", "sd_y", "sd_z", "n_samples", "state")
+OPTIONAL = ("cycle", "sd_x", "sd_y", "sd_z", "n_samples", "state", "u_w_x", "u_w_y", "u_w_z")
+#: per-visit standard uncertainty of the mean outputs (docs/bench-csv.md, "u_w_*")
+U_W = ("u_w_x", "u_w_y", "u_w_z")
 COLUMNS = REQUIRED + OPTIONAL
 FLOATS = ("setpoint_C", "time_s", "axis1_deg", "axis2_deg", "tau_s",
-          "w_x", "w_y", "w_z", "t_x", "t_y", "t_z", "sd_x", "sd_y", "sd_z")
+          "w_x", "w_y", "w_z", "t_x", "t_y", "t_z", "sd_x", "sd_y", "sd_z", "u_w_x", "u_w_y", "u_w_z")
 
 
 class BenchCSVError(InputError):
@@ -64,6 +66,17 @@ RANGES = {
     "w_z": (-MAX_READING, MAX_READING, False),
     "sd_x": (0.0, MAX_READING, False), "sd_y": (0.0, MAX_READING, False), "sd_z": (0.0, MAX_READING, False),
 }
+#: accepted range of the optional ``u_w_*`` columns: a standard uncertainty that weights the fit
+#: is positive (0 would be an infinite weight); kept apart from RANGES, whose columns every
+#: campaign file of the property tests holds
+U_W_RANGE = (0.0, MAX_READING, True)
+
+
+def column_range(name: str) -> tuple:
+    """``(low, high, low_open)`` of a numeric column."""
+    return U_W_RANGE if name in U_W else RANGES[name]
+
+
 #: local gravity accepted without ``# local_g_override = true`` (m/s^2): the range on Earth's
 #: surface is 9.78 (equator) to 9.83 (poles), with a margin for altitude and anomalies
 LOCAL_G_RANGE_M_S2 = (9.76, 9.84)
@@ -118,7 +131,7 @@ def _float_column(path, name, strings, line_numbers):
         for s_, ln in zip(strings, line_numbers):
             check_field(path, int(ln), name, s_)
         raise AssertionError("unreachable: a field failed as a column but passed alone")  # pragma: no cover
-    low, high, low_open = RANGES[name]
+    low, high, low_open = column_range(name)
     bad = ~np.isfinite(v) | (v > high) | ((v <= low) if low_open else (v < low))
     if bad.any():
         i = int(np.argmax(bad))
@@ -149,11 +162,11 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
     for r in REQUIRED:
         if r not in seen:
             raise BenchCSVError(path, header_line, r, "required column is missing from the header")
-    for group in (("sd_x", "sd_y", "sd_z"),):
+    for group in (("sd_x", "sd_y", "sd_z"), U_W):
         present = [c for c in group if c in seen]
         if present and len(present) != len(group):
             missing = [c for c in group if c not in seen][0]
-            raise BenchCSVError(path, header_line, missing, "sd_x, sd_y, sd_z come together")
+            raise BenchCSVError(path, header_line, missing, f"{', '.join(group)} come together")
     if ("n_samples" in seen) != ("sd_x" in seen):
         raise BenchCSVError(path, header_line, "n_samples" if "sd_x" in seen else "sd_x",
                             "sd_* and n_samples come together (their ratio is the uncertainty of the mean)")
@@ -185,7 +198,7 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
     _check_kelvin(path, strings, lnum)
     cols: dict = {}
     for h in header:
-        if h in RANGES:
+        if h in RANGES or h in U_W:
             cols[h] = _float_column(path, h, strings[h], lnum)
         elif h in COLUMNS:
             cols[h] = [check_field(path, int(ln), h, v) for v, ln in zip(strings[h], lnum)]
@@ -199,6 +212,7 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
     opt_cycle = arr("cycle", int) if "cycle" in cols else np.zeros(n, int)
     state = np.array(cols["state"], dtype=object).astype(str) if "state" in cols else np.full(n, "initial")
     sd = np.stack([arr(c) for c in ("sd_x", "sd_y", "sd_z")], axis=1) if "sd_x" in cols else None
+    u_w = np.stack([arr(c) for c in U_W], axis=1) if "u_w_x" in cols else None
     campaign = Campaign(
         unit=np.array(cols["unit"]).astype(str), setpoint_C=arr("setpoint_C"),
         direction=np.array(cols["direction"]).astype(str), time_s=arr("time_s"),
@@ -208,7 +222,7 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
         t=np.stack([arr(c) for c in ("t_x", "t_y", "t_z")], axis=1),
         cycle=opt_cycle, state=state, sd=sd,
         n_samples=arr("n_samples", int) if "n_samples" in cols else None,
-        metadata=metadata, source=path, lines=lnum,
+        metadata=metadata, source=path, lines=lnum, u_w=u_w,
         extra={h: np.array(cols[h]).astype(str) for h in header if h not in COLUMNS})
     check_output_unit(campaign, meta_line.get("output_unit", header_line))
     return campaign
@@ -291,8 +305,8 @@ def check_field(path: str, line: int, column: str, value: str):
         if column == "cycle":
             return 0
         raise BenchCSVError(path, line, column, "empty field")
-    if column in RANGES:
-        low, high, low_open = RANGES[column]
+    if column in RANGES or column in U_W:
+        low, high, low_open = column_range(column)
         try:
             return parse_number(value, low=low, high=high, low_open=low_open, what=column)
         except NumberError as exc:
@@ -321,6 +335,8 @@ def format_bench_csv(c: Campaign) -> str:
     cols = list(REQUIRED) + ["cycle", "state"]
     if c.sd is not None and c.n_samples is not None:
         cols += ["sd_x", "sd_y", "sd_z", "n_samples"]
+    if c.u_w is not None:
+        cols += list(U_W)
     cols += list(c.extra)
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(cols)
@@ -333,6 +349,8 @@ def csv_value(c: Campaign, col: str, i: int) -> str:
     xyz = {"x": 0, "y": 1, "z": 2}
     if col in c.extra:
         return str(c.extra[col][i])
+    if col in U_W:
+        return repr(float(c.u_w[i, xyz[col[-1]]]))
     if col[:2] in ("w_", "t_") or col.startswith("sd_"):
         arr = {"w": c.w, "t": c.t, "sd": c.sd}[col.split("_")[0]]
         return repr(float(arr[i, xyz[col[-1]]]))

@@ -76,6 +76,9 @@ class Campaign:
     #: the hysteresis branch of each visit when not the direction's +-1/0: a play hysteresis's
     #: continuous branch (:func:`triadcal.models.effects.hysteresis.play_branch`); not written to files
     branch_values: Optional[np.ndarray] = None
+    #: standard uncertainty of each mean output (n, 3), output unit, from the data's own noise
+    #: (bench CSV ``u_w_x u_w_y u_w_z``; how it was made: metadata ``u_w_method``)
+    u_w: Optional[np.ndarray] = None
 
     def __post_init__(self):
         n = len(self.time_s)
@@ -85,6 +88,8 @@ class Campaign:
                 raise InputError(f"campaign field {name} has {len(getattr(self, name))} entries, expected {n}")
         if self.w.shape != (n, 3) or self.t.shape != (n, 3):
             raise InputError("campaign fields w and t must have shape (n_visits, 3)")
+        if self.u_w is not None and np.shape(self.u_w) != (n, 3):
+            raise InputError("campaign field u_w must have shape (n_visits, 3)")
 
     # -- basic facts ---------------------------------------------------------------
     @property
@@ -150,10 +155,23 @@ class Campaign:
         return up_axis_label(self.axis1_deg, self.axis2_deg)
 
     def output_sigma(self) -> Optional[np.ndarray]:
-        """Standard uncertainty of each mean output from ``sd_*`` and ``n_samples``, or None."""
+        """Standard uncertainty of each mean output: ``u_w`` (the data's own noise, flicker and
+        bias instability included) when present, else ``sd_*/sqrt(n_samples)`` (white noise
+        only), else None. :meth:`output_sigma_method` says which."""
+        if self.u_w is not None:
+            return np.asarray(self.u_w, float)
         if self.sd is None or self.n_samples is None:
             return None
         return self.sd / np.sqrt(self.n_samples)[:, None]
+
+    def output_sigma_method(self) -> Optional[str]:
+        """Where :meth:`output_sigma` comes from, in words (None when it is None)."""
+        if self.u_w is not None:
+            how = self.metadata.get("u_w_method")
+            return "u_w_* of each visit" + (f" ({how})" if how else " (method not stated)")
+        if self.sd is None or self.n_samples is None:
+            return None
+        return "sd_*/sqrt(n_samples) of each visit"
 
     def covariates(self) -> Covariates:
         rate = self.temperature_rate()
@@ -175,4 +193,4 @@ class Campaign:
                        t=self.t[idx], cycle=self.cycle[idx], state=self.state[idx],
                        sd=t(self.sd), n_samples=t(self.n_samples), lines=t(self.lines),
                        metadata=dict(self.metadata), extra={k: v[idx] for k, v in self.extra.items()},
-                       branch_values=t(self.branch_values))
+                       branch_values=t(self.branch_values), u_w=t(self.u_w))
