@@ -17,7 +17,15 @@ the project (docs/model.md, docs/bench-csv.md):
   whose off-diagonal elements are the angles ``Ca_ab``;
 * linear thermal terms about T0 = 20 degC with each accelerometer's own sensor ``t_a``:
   ``Ca_ab(T) = Ca_ab + c_ab (t_a - T0)``, ``K_a(T) = K_a (1 + k_a (t_a - T0))`` (k in
-  ppm/degC, a relative factor), ``S_a(T) = S_a + s_a (t_a - T0)`` (s in ug/degC).
+  ppm/degC, a relative factor), ``S_a(T) = S_a + s_a (t_a - T0)`` (s in ug/degC); when the
+  truth holds them, quadratic and cubic terms (``*_tempco2``, ``*_tempco3``: per degC^2 and
+  degC^3, K's a relative factor too), evaluated here as a polynomial by Horner's rule;
+* a hysteresis of the angles ``Ca_ab += h_ab * b`` (``Ca_ab_hysteresis`` = h in arcsec, the
+  saturated loop's half-width, (cooling - heating)/2), with ``b`` from :class:`Backlash`, a
+  mechanical backlash written as a state machine on the unit's temperature path (the unit soaks
+  at each setpoint, so the path between two setpoints is monotone): ``offset`` (b = +-1 from
+  the last move, 0 before any), ``play`` (one backlash of half-width r) or ``pi`` (a weighted
+  sum of backlashes of several half-widths, normalised so that the saturated loop is h).
 
 Reporting units of the returned truth (as the project's parameter table): K in g/V, S in g,
 angles in arcsec, ``Ca_ab_tempco`` in arcsec/degC, ``K_a_tempco`` in ppm/degC,
@@ -84,6 +92,58 @@ def _directions(setpoints):
     return out
 
 
+class Backlash:
+    """A gear with slack 2r driven by the temperature: the follower keeps its position until the
+    driver touches one of its two faces, then is pushed along. ``state`` says which face is in
+    contact ('free', 'lower' after a rise, 'upper' after a fall); the branch of the visit is the
+    follower's offset from the driver in units of r: -1 after a rise has taken up the slack, +1
+    after a fall, in between otherwise."""
+
+    def __init__(self, half_width_C: float, T_start: float, start: str = "mid"):
+        self.r = float(half_width_C)
+        self.follower = {"mid": T_start, "heating": T_start - self.r, "cooling": T_start + self.r}[start]
+        self.state = {"mid": "free", "heating": "lower", "cooling": "upper"}[start]
+
+    def move_to(self, T: float) -> float:
+        gap = T - self.follower
+        if gap >= self.r:                       # the driver's upper face pushes the follower up
+            self.follower, self.state = T - self.r, "lower"
+        elif gap <= -self.r:                    # the lower face pushes it down
+            self.follower, self.state = T + self.r, "upper"
+        elif self.state != "free" and abs(gap) < self.r:
+            self.state = "free"
+        return (self.follower - T) / self.r
+
+
+def hysteresis_branch(path_C, form: str, half_widths_C=(), weights=(), start: str = "mid"):
+    """Branch of each point of a temperature path (degC, in time order) for the forms above."""
+    path = [float(v) for v in path_C]
+    if form == "offset":
+        out, last = [], 0.0
+        for k, T in enumerate(path):
+            if k and T > path[k - 1]:
+                last = -1.0
+            elif k and T < path[k - 1]:
+                last = 1.0
+            out.append(last)
+        return np.array(out)
+    if form == "play":
+        half_widths_C, weights = half_widths_C[:1], (1.0,)
+    elif form != "pi":
+        raise ValueError(form)
+    gears = [Backlash(r, path[0], start) for r in half_widths_C]
+    total = float(sum(weights))
+    return np.array([sum(w * g.move_to(T) for w, g in zip(weights, gears)) / total for T in path])
+
+
+def _poly(c0, dT, *coefficients):
+    """c0 + c1 dT + c2 dT^2 + ... by Horner's rule."""
+    acc = 0.0
+    for c in reversed(coefficients):
+        acc = (acc + c) * dT
+    return c0 + acc
+
+
 def _ca_matrix(angles_rad: dict) -> np.ndarray:
     """Ca with unit rows; ``angles_rad[ab]`` is the off-diagonal element (row a, column b)."""
     C = np.zeros((3, 3))
@@ -99,7 +159,7 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
                       n_samples=3000, sigma_position_arcsec=0.0, sigma_wobble_arcsec=0.0,
                       encoder_zero_arcsec=(0.0, 0.0), axes_nonorthogonality_arcsec=0.0,
                       fixture_arcsec=(0.0, 0.0, 0.0), tilt_arcsec=(0.0, 0.0),
-                      local_g_m_s2=9.80665, true_g_m_s2=None, unit="SN-IND-0001") -> tuple[str, dict]:
+                      local_g_m_s2=9.80665, true_g_m_s2=None, unit="SN-IND-0001", hysteresis=None) -> tuple[str, dict]:
     """CSV text of a bench campaign (12 positions at every setpoint) and the true parameters.
 
     ``rng``: a ``numpy.random.Generator`` (used for the default truth, the temperature
@@ -112,6 +172,10 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
     direction in the base frame). Random per visit: ``e1, e2 ~ N(0, sigma_position_arcsec)`` and
     a wobble ``~ N(0, sigma_wobble_arcsec)``. The mean output of each visit gets white noise of
     SD ``noise_sd / sqrt(n_samples)``; ``sd_*`` columns say ``noise_sd``.
+
+    ``hysteresis``: None, or ``{"form": "offset"|"play"|"pi", "half_widths_C": [...], "weights":
+    [...], "start": "mid"|"heating"|"cooling"}`` with ``Ca_ab_hysteresis`` in the truth; the
+    branch follows the setpoint path (the unit soaked at each setpoint).
 
     The returned truth dict holds the unit's parameters (reporting units) plus ``tilt_x`` and
     ``tilt_y`` (arcsec).
@@ -152,15 +216,25 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
     R_fix = Rotation.from_rotvec(np.asarray(fixture_arcsec, float) * ARCSEC_RAD).as_matrix()
     G = G @ R_fix                                                # rows: (R_fix^T G)^T = G^T R_fix
 
+    if hysteresis is None:
+        branch = np.zeros(n)
+    else:
+        branch = hysteresis_branch(sp, hysteresis["form"], hysteresis.get("half_widths_C", ()),
+                                   hysteresis.get("weights", ()), hysteresis.get("start", "mid"))
+
+    def coefs(name):
+        return [truth.get(f"{name}_tempco", 0.0), truth.get(f"{name}_tempco2", 0.0), truth.get(f"{name}_tempco3", 0.0)]
+
     W = np.empty((n, 3))
     for k in range(n):
         dT = temps[k] - T0_C
-        ang = {ab: (truth[f"Ca_{ab}"] + truth.get(f"Ca_{ab}_tempco", 0.0) * dT[AXES.index(ab[0])]) * ARCSEC_RAD
+        ang = {ab: (_poly(truth[f"Ca_{ab}"], dT[AXES.index(ab[0])], *coefs(f"Ca_{ab}"))
+                    + truth.get(f"Ca_{ab}_hysteresis", 0.0) * branch[k]) * ARCSEC_RAD
                for ab in ANGLES}
         Ca = _ca_matrix(ang)
-        K = np.array([truth[f"K_{a}"] * (1.0 + truth.get(f"K_{a}_tempco", 0.0) * 1e-6 * dT[i])
+        K = np.array([truth[f"K_{a}"] * (1.0 + 1e-6 * _poly(0.0, dT[i], *coefs(f"K_{a}")))
                       for i, a in enumerate(AXES)])
-        S = np.array([truth[f"S_{a}"] + truth.get(f"S_{a}_tempco", 0.0) * 1e-6 * dT[i]
+        S = np.array([truth[f"S_{a}"] + 1e-6 * _poly(0.0, dT[i], *coefs(f"S_{a}"))
                       for i, a in enumerate(AXES)])
         W[k] = (Ca @ G[k] + S) / K
     W += rng.normal(0.0, noise_sd / math.sqrt(n_samples), size=W.shape)
@@ -178,4 +252,160 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
         lines.append(",".join(row))
     truth.setdefault("tilt_x", float(tilt_arcsec[0]))
     truth.setdefault("tilt_y", float(tilt_arcsec[1]))
+    return "\n".join(lines) + "\n", truth
+
+
+# ------------------------------------------------------------------------------------------
+# thermal lag of the element and warm-up after power-on, by explicit Euler integration of the
+# heat equations (not the project's lag or warm-up functions)
+# ------------------------------------------------------------------------------------------
+def euler_thermal_history(program, *, tau_chamber_min=5.0, tau_housing_min=20.0, tau_element_min=5.0,
+                          dt_s=0.5, start_C=None):
+    """Air, housing and element temperatures on a grid of ``dt_s`` (explicit Euler)::
+
+        dA/dt = (P(t) - A)/tau_c,  dH/dt = (A - H)/tau_h,  dE/dt = (H - E)/tau_e
+
+    ``program(t)`` is the chamber's programmed temperature (degC); all three start at rest at
+    ``program(0)`` (or ``start_C``). Returns ``(t, air, housing, element)``."""
+    t_end = program.duration_s
+    n = int(math.ceil(t_end / dt_s)) + 1
+    t = np.arange(n) * dt_s
+    P = program(t)
+    a = h = e = float(P[0] if start_C is None else start_C)
+    ka, kh, ke = dt_s / (60.0 * tau_chamber_min), dt_s / (60.0 * tau_housing_min), dt_s / (60.0 * tau_element_min)
+    A, H, E = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(n):
+        A[k], H[k], E[k] = a, h, e
+        # one explicit Euler step of the three equations (all from the values at step k)
+        a, h, e = a + ka * (P[k] - a), h + kh * (a - h), e + ke * (h - e)
+    return t, A, H, E
+
+
+class RampProgram:
+    """Piecewise-linear program through ``points_C`` at ``rate_C_per_min`` (a hold of ``hold_min`` at
+    each interior turn), then ``tail_min`` held at the last point."""
+
+    def __init__(self, points_C=(20.0, -40.0, 70.0, 20.0), rate_C_per_min=1.0, hold_min=0.0, tail_min=0.0):
+        ts, vs = [0.0], [float(points_C[0])]
+        for k, v in enumerate(points_C[1:], start=1):
+            ts.append(ts[-1] + abs(v - vs[-1]) / rate_C_per_min * 60.0)
+            vs.append(float(v))
+            if hold_min > 0 and k < len(points_C) - 1:
+                ts.append(ts[-1] + hold_min * 60.0)
+                vs.append(float(v))
+        ts.append(ts[-1] + tail_min * 60.0)
+        vs.append(vs[-1])
+        self.ts, self.vs = np.array(ts), np.array(vs)
+        self.duration_s = float(self.ts[-1])
+        self.stepped = False
+
+    def __call__(self, t):
+        return np.interp(t, self.ts, self.vs)
+
+
+class StepProgram:
+    """Setpoint steps: ``soak_min`` at each, then the visits of the 12 positions (``visit_s`` each)."""
+
+    def __init__(self, setpoints_C=(20.0, 50.0, 80.0, 50.0, 20.0, -10.0, -40.0, -10.0, 20.0), soak_min=120.0,
+                 visit_s=50.0):
+        self.setpoints = [float(s) for s in setpoints_C]
+        self.block_s = soak_min * 60.0 + len(POSITIONS) * visit_s
+        self.soak_s = soak_min * 60.0
+        self.duration_s = self.block_s * len(self.setpoints)
+        self.stepped = True
+
+    def __call__(self, t):
+        k = np.clip((np.asarray(t, float) // self.block_s).astype(int), 0, len(self.setpoints) - 1)
+        return np.array(self.setpoints)[k]
+
+
+def simulate_lag_campaign(rng, *, program=None, tau_element_min=5.0, location="housing", tau_housing_min=20.0,
+                          tau_chamber_min=5.0, warmup=None, truth=None, tau_s=30.0, move_s=20.0, noise_sd=5e-4,
+                          n_samples=3000, temp_noise_C=0.01, dt_s=0.5, unit="SN-IND-LAG") -> tuple[str, dict]:
+    """CSV text of a campaign whose thermal terms follow the sensing element, lagging its
+    thermometer, and the true parameters (reporting units, plus ``thermal_lag`` and
+    ``thermal_lag_housing`` in min).
+
+    The heat equations are integrated by :func:`euler_thermal_history`. ``location``: where the
+    thermometer sits, ``"housing"`` (it reads H; the element lags it by ``tau_element_min``) or
+    ``"air"`` (it reads A; housing and element lag behind). ``program``: :class:`RampProgram`
+    (visits back to back, default) or :class:`StepProgram` (12 visits after each soak).
+    ``warmup``: ``(db_ug (3,), tau_w_min)`` adds ``db exp(-t/tau_w)`` to each bias, ``t`` from
+    power-on at ``time_s = 0``. Each visit's outputs and readings are means over its averaging
+    window of the integrated states."""
+    program = program or RampProgram()
+    truth = dict(default_truth(rng) if truth is None else truth)
+    t, A, H, E = euler_thermal_history(program, tau_chamber_min=tau_chamber_min, tau_housing_min=tau_housing_min,
+                                       tau_element_min=tau_element_min, dt_s=dt_s)
+    reading = H if location == "housing" else A
+    labels = list(POSITIONS)
+    # window starts
+    if program.stepped:
+        starts = np.array([b * program.block_s + program.soak_s + k * (move_s + tau_s) + move_s
+                           for b in range(len(program.setpoints)) for k in range(len(labels))])
+        sp = np.repeat(program.setpoints, len(labels))
+        dirs = np.repeat(_directions(program.setpoints), len(labels))
+        pos = np.tile(labels, len(program.setpoints))
+    else:
+        per = move_s + tau_s
+        nv = int((program.duration_s - tau_s) // per)
+        starts = np.arange(nv) * per + move_s
+        starts = starts[starts + tau_s <= program.duration_s]
+        mid = starts + tau_s / 2
+        slope = np.interp(mid + 1.0, t, reading) - np.interp(mid - 1.0, t, reading)
+        dirs = np.where(slope > 0, "heating", np.where(slope < 0, "cooling", "none"))
+        # the program leg's target as the setpoint: consecutive visits of one leg form one block
+        leg = np.clip(np.searchsorted(program.ts, mid, side="right"), 1, len(program.ts) - 1)
+        sp = program.vs[leg]
+        pos = np.array([labels[k % len(labels)] for k in range(len(starts))])
+    n = len(starts)
+
+    def window_mean(x):
+        out = np.empty(n)
+        for k, s in enumerate(starts):
+            m = (t >= s) & (t <= s + tau_s)
+            out[k] = float(np.mean(x[m]))
+        return out
+
+    Ew = window_mean(E)
+    Rw = window_mean(reading)
+    time_s = starts + tau_s / 2
+    a1 = np.array([POSITIONS[p][0] for p in pos])
+    a2 = np.array([POSITIONS[p][1] for p in pos])
+    Rx = Rotation.from_euler("x", np.radians(a2)[:, None]).as_matrix()
+    Rz = Rotation.from_euler("z", np.radians(a1)[:, None]).as_matrix()
+    G = np.einsum("nji,j->ni", Rx @ Rz @ MOUNT, np.array([0.0, 0.0, 1.0]))
+    decay = np.zeros(n)
+    db = np.zeros(3)
+    if warmup is not None:
+        db = np.asarray(warmup[0], float)
+        decay = window_mean(np.exp(-t / (60.0 * warmup[1])))
+    W = np.empty((n, 3))
+    for k in range(n):
+        dT = Ew[k] - T0_C
+        ang = {ab: (truth[f"Ca_{ab}"] + truth.get(f"Ca_{ab}_tempco", 0.0) * dT) * ARCSEC_RAD for ab in ANGLES}
+        Ca = _ca_matrix(ang)
+        K = np.array([truth[f"K_{a}"] * (1.0 + truth.get(f"K_{a}_tempco", 0.0) * 1e-6 * dT) for a in AXES])
+        S = np.array([truth[f"S_{a}"] + truth.get(f"S_{a}_tempco", 0.0) * 1e-6 * dT for a in AXES])
+        S = S + db * 1e-6 * decay[k]
+        W[k] = (Ca @ G[k] + S) / K
+    W += rng.normal(0.0, noise_sd / math.sqrt(n_samples), size=W.shape)
+    temps = Rw[:, None] + rng.normal(0.0, temp_noise_C, size=(n, 3))
+
+    lines = ["# generator = tests/independent_bench.py (Euler heat equations)",
+             "# bench = independent simulated two-axis bench",
+             "# local_g_m_s2 = 9.80665",
+             "# output_unit = V",
+             ",".join(COLUMNS)]
+    for k in range(n):
+        row = [unit, repr(float(sp[k])), str(dirs[k]), repr(float(time_s[k])), str(pos[k]),
+               repr(float(a1[k])), repr(float(a2[k])), repr(float(tau_s)),
+               *(repr(float(v)) for v in W[k]), *(repr(float(v)) for v in temps[k]),
+               "0", "initial", *([repr(float(noise_sd))] * 3), str(int(n_samples))]
+        lines.append(",".join(row))
+    truth["thermal_lag"] = float(tau_element_min)
+    truth["thermal_lag_housing"] = float(tau_housing_min)
+    if warmup is not None:
+        truth.update({f"S_{a}_warmup": float(v) for a, v in zip(AXES, db)})
+        truth["S_warmup_tau"] = float(warmup[1])
     return "\n".join(lines) + "\n", truth

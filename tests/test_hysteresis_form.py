@@ -102,3 +102,93 @@ def test_play_branch_limits():
     assert np.all(np.abs(wide[1:]) < 1.0) and np.any(wide > 0)
     with pytest.raises(ValueError):
         play_branch(T, 0.0)
+
+
+# -- Prandtl-Ishlinskii (issue 17, item 1) ------------------------------------------------------
+def _own_pi(setpoints, widths, weights):
+    """The test's own PI branch: its own relay play of each width, weighted and normalised."""
+    return sum(w * _own_play(setpoints, r) for r, w in zip(widths, weights)) / sum(weights)
+
+
+def test_pi_branch_is_the_weighted_sum_of_plays():
+    from triadcal.models.effects.hysteresis import pi_branch
+    from triadcal.models.thermal_history import play_operator, prandtl_ishlinskii
+
+    T = np.array([20.0, 35, 55, 70, 55, 35, 20, 5, -10, -25, -40, -25, -10, 5, 20])
+    b = pi_branch(T, [3.0, 30.0], [0.25, 0.75])
+    assert np.allclose(b, _own_pi(T, [3.0, 30.0], [0.25, 0.75]), atol=1e-12)
+    assert np.all(np.abs(b) <= 1.0) and np.allclose(pi_branch(T, [10.0], [2.0]), play_branch(T, 10.0))
+    # the PI operator: h b = sum_i p_i (F_ri[T] - T) with p_i = h w_i / (r_i sum w)
+    h, r, w = 7.0, np.array([3.0, 30.0]), np.array([0.25, 0.75])
+    p = h * w / (r * w.sum())
+    assert np.allclose(h * b, prandtl_ishlinskii(T, r, p) - p.sum() * T, atol=1e-12)
+    assert np.allclose(prandtl_ishlinskii(T, [5.0], [1.0]), play_operator(T, 5.0))
+    with pytest.raises(ValueError):
+        pi_branch(T, [3.0, 30.0], [-0.1, 1.1])
+    with pytest.raises(ValueError):
+        prandtl_ishlinskii(T, [3.0], [-1.0])
+
+
+def _pi_campaign(widths, weights, seed):
+    truth, c = api.simulate(effects=EFFECTS[:-1], seed=seed)
+    order = np.argsort(c.time_s, kind="stable")
+    sp = c.setpoint_C[order]
+    changes = np.flatnonzero(np.r_[True, np.diff(sp) != 0])
+    b_sp = _own_pi(sp[changes], widths, weights)
+    b = np.empty(c.n_visits)
+    b[order] = b_sp[np.searchsorted(changes, np.arange(len(sp)), side="right") - 1]
+    a1, a2 = np.radians(c.axis1_deg), np.radians(c.axis2_deg)
+    G = np.stack([np.sin(a1) * np.sin(a2), np.cos(a2), -np.cos(a1) * np.sin(a2)], axis=1)
+    w = c.w.copy()
+    for i, a in enumerate("xyz"):
+        for j, bb in enumerate("xyz"):
+            if a != bb:
+                w[:, i] += 3 * H[a + bb] * ARCSEC * b * G[:, j] / truth.parameters[f"K_{a}"]
+    from dataclasses import replace
+
+    return truth, replace(c, w=w)
+
+
+def test_a_pi_hysteresis_is_chosen_over_one_play_and_the_angles_come_right():
+    """Plays of 3 and 30 degC, equal weights, h three times the AK-18 preset's (the A-18's size)."""
+    truth, c = _pi_campaign([3.0, 30.0], [0.5, 0.5], seed=7)
+    res, _, _, used = fit_hysteresis_form(c, EFFECTS, "auto")
+    h = res.fit["hysteresis"]
+    assert h["form"] == "pi", (h["criterion"], h["criterion_pi"])
+    assert h["chi2_play"] - h["chi2_pi"] > 9.21 and h["chi2_offset"] > h["chi2_play"]
+    assert 0.8 < res.fit["chi2_dof"] < 1.25
+    for ab, v in H.items():
+        p = res.parameters[f"Ca_{ab}_hysteresis"]
+        assert abs(p.value - 3 * v) < 3.5 * p.u, (ab, p.value, p.u)
+        q = res.parameters[f"Ca_{ab}"]
+        assert abs(q.value - truth.parameters[f"Ca_{ab}"]) < 3.5 * q.u
+
+
+def test_play_data_keep_the_play_and_the_profile_matches_the_exact_fit():
+    from triadcal.estimation import hysteresis_form as hf
+    from triadcal.estimation.joint import fit_joint
+
+    _, c, _ = _play_campaign(10.0, 1)
+    res, *_ = fit_hysteresis_form(c, EFFECTS, "auto")
+    assert res.fit["hysteresis"]["form"] == "play", res.fit["hysteresis"]["criterion_pi"]
+    # the one-step profile against the full nonlinear refit, at a few candidates
+    off = fit_joint(c, EFFECTS, return_problem=True)
+    prof = hf._Profile(c, off, EFFECTS)
+    play, pi = hf._profiles(prof, (3.0, 10.0, 30.0), True)
+    for p in play[::4]:
+        exact = hf._chi2(fit_joint(hf.with_play(c, p["half_width_C"], p["start"]), EFFECTS, return_problem=True))
+        assert abs(p["chi2"] - exact) < 0.05, (p, exact)
+    for p in pi[::20]:
+        exact = hf._chi2(fit_joint(hf.with_pi(c, p["half_widths_C"], p["weights"], p["start"]), EFFECTS,
+                                   return_problem=True))
+        assert abs(p["chi2"] - exact) < 0.05, (p, exact)
+
+
+def test_pi_form_refusals():
+    from triadcal.errors import InputError
+
+    _, c = api.simulate(effects=EFFECTS, seed=4)
+    with pytest.raises(InputError, match="pi form"):
+        fit_hysteresis_form(c, EFFECTS, "pi", half_width_C=5.0)
+    with pytest.raises(InputError, match="choose one of"):
+        fit_hysteresis_form(c, EFFECTS, "preisach")

@@ -314,12 +314,68 @@ def _gate_signs(params: Mapping) -> GateOutcome:
     return GateOutcome("signs", True, "unphysical_term", "every sign-constrained term is >= 0 within 2u")
 
 
+#: thermal time constants and their accepted range (min): name -> what it is. A lag or a warm-up
+#: shorter than 0.5 min is not resolved by visits of tens of seconds, and one longer than 300 min
+#: (5 h) exceeds any soak or ramp leg of a campaign: a value outside is not a measured time
+#: constant (a lag forced onto data without one, or a negative lag of sensors that lead)
+TIME_CONSTANTS = {"thermal_lag": "the sensing elements' thermal time constant",
+                  "thermal_lag_housing": "the housing's thermal time constant behind the chamber air",
+                  "S_warmup_tau": "the time constant of the bias warm-up after power-on",
+                  "K_warmup_tau": "the time constant of the scale-factor warm-up after power-on"}
+TIME_CONSTANT_RANGE_MIN = (0.5, 300.0)
+
+
+def _gate_time_constants(params: Mapping) -> GateOutcome:
+    """Every time constant of :data:`TIME_CONSTANTS` within [0.5, 300] min, whatever its u (a value
+    already negative beyond 2u is the ``signs`` gate's refusal and not repeated here)."""
+    lo, hi = TIME_CONSTANT_RANGE_MIN
+    present = {n: (_value(p), _u(p)) for n, p in params.items() if n in TIME_CONSTANTS}
+    if not present:
+        return GateOutcome("time_constants", None, "unphysical_term", "no thermal time constant in the result")
+    bad = []
+    for n, (v, u) in present.items():
+        uu = u if u is not None and math.isfinite(u) else 0.0
+        if v is None or not math.isfinite(v):
+            continue                                   # the finite gate's business
+        if n in NON_NEGATIVE and v + 2 * uu < 0:
+            continue                                   # the signs gate refuses it
+        if not lo <= v <= hi:
+            bad.append(f"{n} = {v:.4g} +- {uu:.2g} {_unit(params[n]) or 'min'} is outside [{lo:g}, {hi:g}] min "
+                       f"({TIME_CONSTANTS[n]}: " + ("not a positive time constant resolved by the visits; refit "
+                       "without the term" if v < lo else "longer than any campaign can measure") + ")")
+    if bad:
+        return GateOutcome("time_constants", False, "unphysical_term", "; ".join(bad), float(len(bad)),
+                           f"{lo:g} <= tau <= {hi:g} min")
+    return GateOutcome("time_constants", True, "unphysical_term",
+                       f"every thermal time constant within [{lo:g}, {hi:g}] min")
+
+
+def _gate_time_constants_determined(params: Mapping) -> GateOutcome:
+    """A time constant of :data:`TIME_CONSTANTS` within its range whose standard uncertainty exceeds
+    its value is not measured (a warm-up that decayed before the first visit, a lag the data do not
+    show); one outside the range is the ``time_constants`` gate's refusal, not repeated here."""
+    loose = {n: (_value(p), _u(p)) for n, p in params.items() if n in TIME_CONSTANTS and _value(p) is not None
+             and _u(p) is not None and math.isfinite(_u(p)) and math.isfinite(_value(p)) and _u(p) > abs(_value(p))
+             and TIME_CONSTANT_RANGE_MIN[0] <= _value(p) <= TIME_CONSTANT_RANGE_MIN[1]}   # else refused by range
+    if not any(n in params for n in TIME_CONSTANTS):
+        return GateOutcome("time_constants_determined", None, "unidentifiable", "no thermal time constant in the result")
+    if not loose:
+        return GateOutcome("time_constants_determined", True, "unidentifiable",
+                           "every thermal time constant is determined (u below its value)")
+    txt = "; ".join(f"{n} = {v:.4g} +- {u:.3g} min" for n, (v, u) in loose.items())
+    return GateOutcome("time_constants_determined", False, "unidentifiable",
+                       f"not determined by the data (u larger than the value): {txt}; the term is not in the data "
+                       "(a warm-up over before the first visit, a lag the record does not show): refit without it",
+                       float(len(loose)), "u <= |value|")
+
+
 def result_gates(parameters: Mapping, *, output_unit: Optional[str] = None, local_g_m_s2: Optional[float] = None,
                  config: GateConfig = DEFAULT_CONFIG) -> list[GateOutcome]:
     """The gates that a result can be checked on by itself: finite values, K, angles, angles
     so uncertain that they are not measured, and terms whose physics fixes their sign."""
     return [_gate_finite(parameters), _gate_scale(parameters, output_unit, local_g_m_s2, config),
-            _gate_angles(parameters, config), _gate_determined(parameters, config), _gate_signs(parameters)]
+            _gate_angles(parameters, config), _gate_determined(parameters, config), _gate_signs(parameters),
+            _gate_time_constants(parameters), _gate_time_constants_determined(parameters)]
 
 
 # ------------------------------------------------------------------------------------------
@@ -444,6 +500,8 @@ def answer_gates(parameters: Mapping, evidence: FitEvidence, *, output_unit: Opt
     out = [_gate_finite(parameters), _gate_converged(evidence), _gate_degenerate(evidence, config),
            _gate_identifiable(evidence, config), _gate_determined(parameters, config), _gate_improved(evidence),
            _gate_scale(parameters, output_unit, local_g_m_s2, config), _gate_angles(parameters, config),
+           *(o for o in (_gate_signs(parameters), _gate_time_constants(parameters),
+                         _gate_time_constants_determined(parameters)) if o.passed is not None),
            _gate_gof(evidence, config)]
     out.extend(evidence.extra)
     return out

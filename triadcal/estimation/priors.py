@@ -2,7 +2,7 @@
 
 :func:`default_priors` gives every parameter an independent normal :class:`Prior` centred
 on its nominal value with SD ``PRIOR_WIDTH x typical``, truncated to physical bounds
-(K > 0, the answer gates' angle bound, |tilt| < 0.5 rad, thermal lag >= 0);
+(K > 0, the answer gates' angle bound, |tilt| < 0.5 rad, every thermal time constant >= 0);
 :func:`prior_arrays` and :func:`draw_parameters` serve the sampler and SBC.
 Derivation/design: docs/posterior.md (Decisions and why: Priors).
 """
@@ -18,7 +18,7 @@ import numpy as np
 
 from ..models.model import Model
 from ..models.units import ARCSEC, TO_INTERNAL
-from .gates import DEFAULT_CONFIG
+from .gates import DEFAULT_CONFIG, TIME_CONSTANTS
 
 #: prior standard deviation in units of the parameter's typical spread among units
 PRIOR_WIDTH = 10.0
@@ -75,8 +75,8 @@ def default_priors(model: Model, width: float = PRIOR_WIDTH,
             b = DEFAULT_CONFIG.angle_bound_arcsec * ARCSEC / TO_INTERNAL[s.unit]
             low, high, reason = -b, b, ("the answer gates' bound on an orientation angle "
                                         f"(|angle| <= {DEFAULT_CONFIG.angle_bound_arcsec:g} arcsec)")
-        elif s.name == "thermal_lag":
-            low, reason = 0.0, "a time constant is not negative (the element lags its sensor)"
+        elif s.name in TIME_CONSTANTS:
+            low, reason = 0.0, f"a time constant is not negative ({TIME_CONSTANTS[s.name]})"
         elif s.name in ("tilt_x", "tilt_y"):
             b = HALF_RADIAN / TO_INTERNAL[s.unit]
             low, high, reason = -b, b, "the gravity direction stays a unit vector (|tilt| < 0.5 rad)"

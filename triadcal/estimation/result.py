@@ -228,6 +228,8 @@ class CalibrationResult:
         temperatures. Thermal terms are evaluated at the reading's temperature, on the
         mid-line of the hysteresis loop (the branch of a reading is not known); a
         second-order or asymmetric transfer is inverted by its effect (Effect.inverse_transfer).
+        A warm-up after power-on (``bias_warmup``, ``scale_warmup``) is taken as settled: its
+        offsets are not applied (the time since power-on of a reading is not an input here).
         """
         w = np.atleast_2d(np.asarray(w, float))
         T = np.asarray(temperature_C, float)
@@ -236,7 +238,9 @@ class CalibrationResult:
         missing = [n for n in model.names if n not in self.parameters]
         if missing:
             raise InputError(f"result lacks parameters {missing} of its own model {model!r}")
-        p = model.to_internal({n: self.parameters[n].value for n in model.names})
+        settled = {s.name for s in model.parameters
+                   if s.effect in ("bias_warmup", "scale_warmup") and not s.name.endswith("_tau")}
+        p = model.to_internal({n: 0.0 if n in settled else self.parameters[n].value for n in model.names})
         zeros = np.zeros(len(w))
         cov = Covariates(axis1=zeros, axis2=zeros, temp=tuple(T[:, i] for i in range(3)),
                          temp_rate=(zeros, zeros, zeros), branch=zeros, time_s=zeros)

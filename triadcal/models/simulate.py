@@ -241,8 +241,13 @@ def _angles(values):
 
 def _preset(K, S, angles, tempco, hyst, K_tc, S_tc, K2, asym, drift, lag_min, tilt_arcsec, tilt_beta_deg,
             tempco2=(0.004, -0.003, 0.0035, -0.004, 0.003, 0.0025), K_tc2=(0.05, -0.04, 0.06),
-            S_tc2=(0.05, -0.04, 0.06)):
+            S_tc2=(0.05, -0.04, 0.06), tempco3=(2e-5, -1.5e-5, 1.8e-5, -2e-5, 1.5e-5, 1.2e-5),
+            K_tc3=(2e-4, -1.5e-4, 2.5e-4), S_tc3=(2e-4, -1.5e-4, 2.5e-4)):
     p = {}
+    for ab, v in _angles(tempco3).items():
+        p[f"Ca_{ab}_tempco3"] = v
+    for a, k3c, s3c in zip("xyz", K_tc3, S_tc3):
+        p.update({f"K_{a}_tempco3": k3c, f"S_{a}_tempco3": s3c})
     for ab, v in _angles(tempco2).items():
         p[f"Ca_{ab}_tempco2"] = v
     for a, k2c, s2c in zip("xyz", K_tc2, S_tc2):
@@ -290,6 +295,19 @@ PRESETS: dict[str, dict] = {
 }
 
 
+#: warm-up after power-on (bias_warmup, scale_warmup; models/effects/warmup.py): the offset at
+#: power-on (ug, ppm) and its time constant (min). MEMS vendors quote 1-5 mg settling in 2-10 min
+#: for a silicon unit; a quartz pendulous unit warms by a few tenths of a mg
+_WARMUP = {"ak18-quartz": ((300.0, -200.0, 250.0), 4.0, (20.0, -15.0, 25.0), 4.0),
+           "a18-silicon": ((2500.0, -1800.0, 3000.0), 6.0, (150.0, -120.0, 200.0), 6.0)}
+for _name, (_db, _tau_b, _dk, _tau_k) in _WARMUP.items():
+    for _a, _b, _k in zip("xyz", _db, _dk):
+        PRESETS[_name].setdefault(f"S_{_a}_warmup", _b)
+        PRESETS[_name].setdefault(f"K_{_a}_warmup", _k)
+    PRESETS[_name].setdefault("S_warmup_tau", _tau_b)
+    PRESETS[_name].setdefault("K_warmup_tau", _tau_k)
+
+
 def preset_truth(name: str = "ak18-quartz", effects: Sequence[str] = DEFAULT_EFFECTS,
                  noise: Optional[NoiseModel] = None, unit: str = "SN-SIM-0001", **overrides) -> Truth:
     """A :class:`Truth` from a preset, keeping the parameters of the chosen effects.
@@ -321,11 +339,37 @@ def thermal_history(schedule: Schedule, times: np.ndarray, setpoint_start: np.nd
                          schedule.chamber_time_constant_s, schedule.unit_time_constant_s)
 
 
+def lagged_element_history(schedule, times, step_starts, tau_s: float, location: str, self_heating_C):
+    """Thermometer readings and element temperatures (n, 3) at ``times`` for a thermal lag over the
+    whole history (docs/model.md, "Thermal lag: where the thermometer sits"): the element lags the
+    unit's housing by ``tau_s`` (:func:`~triadcal.models.effects.thermal_lag.element_temperature` on
+    the unit's temperature on a 5 s grid), and the thermometer reads the housing (``"housing"``, with
+    the sensors' self-heating) or the chamber air (``"air"``: the housing then lags the air by the
+    schedule's ``unit_time_constant_s``)."""
+    from .effects.thermal_lag import LOCATIONS, element_temperature
+
+    if location not in LOCATIONS:
+        raise InputError(f"unknown thermometer location {location!r}; choose one of {', '.join(LOCATIONS)}")
+    times = np.asarray(times, float)
+    grid = np.arange(0.0, float(times.max()) + 10.0, 5.0)
+    if isinstance(schedule, RampSchedule):
+        chamber, unit, _ = ramp_history(schedule, grid)
+    else:
+        chamber, unit, _ = thermal_history(schedule, grid, np.asarray(step_starts, float),
+                                           np.asarray(schedule.setpoints_C, float))
+    element = np.interp(times, grid, element_temperature(grid, unit, tau_s, "housing"))
+    reading = np.interp(times, grid, unit if location == "housing" else chamber)
+    heat = self_heating_C if location == "housing" else (0.0, 0.0, 0.0)
+    return sensor_temperatures(reading, heat), sensor_temperatures(element, self_heating_C)
+
+
 def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
                       schedule: Optional[Schedule] = None, seed: int = 0,
-                      state: str = "initial") -> Campaign:
+                      state: str = "initial", thermal_lag_location: Optional[str] = None) -> Campaign:
     """Simulate a bench campaign; the same seed gives the same campaign. ``schedule``: a stepped
-    :class:`Schedule` (default) or a continuous :class:`RampSchedule`."""
+    :class:`Schedule` (default) or a continuous :class:`RampSchedule`. ``thermal_lag_location``
+    (``"housing"`` or ``"air"``): with ``thermal_lag`` among the truth's effects, the element lags
+    over the whole history (:func:`lagged_element_history`) instead of the model's rate form."""
     plan = dict(DEFAULT_PLAN if plan is None else plan)
     schedule = schedule or Schedule()
     rng = np.random.default_rng(seed)
@@ -357,10 +401,17 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
                                                np.array(schedule.setpoints_C, float))
         sensor_T = sensor_temperatures(unit_T, schedule.self_heating_C)
     branch = np.array([BRANCH[d] for d in dirs])
+    model_T = sensor_T
+    if thermal_lag_location is not None and "thermal_lag" in truth.effects:
+        tau_lag = float(truth.parameters["thermal_lag"]) * 60.0
+        sensor_T, model_T = lagged_element_history(schedule, np.asarray(times, float),
+                                                   None if isinstance(schedule, RampSchedule) else starts,
+                                                   tau_lag, thermal_lag_location, schedule.self_heating_C)
+        unit_rate = np.zeros(len(labels))      # the rate form is inert: the element's temperature is given
 
     cov = Covariates(
         axis1=np.radians(a1), axis2=np.radians(a2),
-        temp=tuple(sensor_T[:, i] for i in range(3)),
+        temp=tuple(model_T[:, i] for i in range(3)),
         temp_rate=tuple(unit_rate for _ in range(3)),
         branch=branch, time_s=times,
         axis1_error=rng.normal(0.0, noise.sigma_position_arcsec * ARCSEC, n),

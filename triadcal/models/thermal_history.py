@@ -1,5 +1,5 @@
 """Operators on a measured temperature history: the sensing element's first-order lag behind its
-sensor, and the play (backlash) operator of a hysteresis. Pure numpy functions of the sampled
+sensor, the play (backlash) operator of a hysteresis and the Prandtl-Ishlinskii sum of plays. Pure numpy functions of the sampled
 history, used by the thermal-cycle analysis of real recordings (``triadcal thermal-cycle``) and
 written once here (docs/model.md, "A real chamber cycle").
 """
@@ -62,3 +62,42 @@ def play_operator(x, half_width: float, start=None) -> np.ndarray:
         prev = lo if prev < lo else (hi if prev > hi else prev)
         out.append(prev)
     return np.array(out)
+
+
+def prandtl_ishlinskii(x, half_widths, weights, start=None) -> np.ndarray:
+    """The Prandtl-Ishlinskii operator: a weighted sum of plays (Brokate & Sprekels 1996, ch. 2;
+    Kuhnen 2003)::
+
+        y_k = sum_i w_i F_{r_i}[x]_k,        w_i >= 0
+
+    with ``F_r`` the play of half-width ``r_i`` (:func:`play_operator`). Its loops are those of a
+    Preisach model whose density lies on the lines alpha - beta = 2 r_i; with nonnegative weights
+    every loop is traversed counterclockwise in (x, y) and the operator is rate independent,
+    with the wiping-out memory of its plays. ``start``: one initial state ``y_0`` per play (a
+    sequence), or one for all (each clipped to its play's band; default ``x_0``). Negative weights
+    are refused (the loops would cross).
+    """
+    r = [float(v) for v in half_widths]
+    w = [float(v) for v in weights]
+    if len(r) != len(w) or not r:
+        raise ValueError("a Prandtl-Ishlinskii operator needs as many weights as plays, and at least one")
+    if any(v < 0 for v in w):
+        raise ValueError("the weights of a Prandtl-Ishlinskii operator must be >= 0")
+    starts = list(start) if isinstance(start, (list, tuple, np.ndarray)) else [start] * len(r)
+    x = np.asarray(x, float)
+    return sum(wi * play_operator(x, ri, s) for wi, ri, s in zip(w, r, starts))
+
+
+def two_stage_lag(t_s, T, tau1_s: float, tau2_s: float, start=None) -> np.ndarray:
+    """Temperature at the end of two first-order stages in series behind the measured ``T``
+    (e.g. chamber air -> housing -> sensing element)::
+
+        dT_1/dt = (T - T_1) / tau1,     dT_2/dt = (T_1 - T_2) / tau2
+
+    :func:`first_order_lag` applied twice (each stage ramp-invariant between samples; exact for
+    the first stage, accurate to O((dt/tau)^2) for the second, whose input is no longer linear
+    between samples). The two stages commute (linear, time-invariant): the order of ``tau1``
+    and ``tau2`` does not change the result, so data cannot tell which stage is which.
+    ``start``: both stages at ``start`` (default: at rest with ``T``).
+    """
+    return first_order_lag(t_s, first_order_lag(t_s, T, tau1_s, start), tau2_s, start)

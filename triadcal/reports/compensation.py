@@ -12,9 +12,16 @@ firmware does not know the branch, and the loop's half-width per angle is stated
 - Uncertainty at a grid point: ``u(q(T)) = sqrt(g C g^T)``, ``g = dq(T)/dtheta`` by central
   differences of the model in the parameters, ``C`` the result's covariance (combined with the
   lab's systematic errors when the result was fitted with ``--lab``).
-- Interpolation bound of the interval ``[T_i, T_i+1]``: ``max |q(T) - lin(T)|`` over 33
-  points of the interval (for a quadratic term exactly ``Delta^2 |q''| / 8``; 0 for a linear
-  thermal model).
+- Interpolation bound of the interval ``[T_i, T_i+1]`` of width Delta: for q twice
+  differentiable, the chord's error is ``q(T) - lin(T) = -q''(xi) (T - T_i)(T_i+1 - T) / 2`` for
+  some xi in the interval (Rolle applied twice to ``q - lin - k (T - T_i)(T - T_i+1)``), and
+  ``(T - T_i)(T_i+1 - T) <= Delta^2 / 4``, so ``|q - lin| <= Delta^2 max|q''| / 8``. The thermal
+  model is a polynomial of order <= 3 in T (linear, quadratic and cubic tempcos; K a factor
+  ``1 + k1 dT + k2 dT^2 + k3 dT^3``), so q'' is linear in T and its maximum modulus over the
+  interval is at an end: the bound is ``Delta^2 max(|q''(T_i)|, |q''(T_i+1)|) / 8``, with q''
+  by the central second difference of the model, exact for a cubic. It is the exact maximum
+  error for a quadratic term (q'' constant), a bound within a factor 2 of it for a cubic, and 0
+  for a linear model. A model of higher order in T is refused.
 
 The model terms a table of T alone cannot hold are refused by name: a time-dependent bias,
 a nonlinear or asymmetric scale, which act on W or time, not on T.
@@ -42,10 +49,9 @@ VERSION = 1
 FORMATS = ("json", "csv", "c-header")
 #: effects a table of temperature can represent (bench terms are not properties of the unit)
 TABLE_EFFECTS = ("bench_tilt", "tilt_drift", "bench_nonorthogonality", "angle_tempco", "angle_tempco2", "scale_tempco",
-                 "scale_tempco2", "bias_tempco", "bias_tempco2", "hysteresis", "thermal_lag")
+                 "scale_tempco2", "bias_tempco", "bias_tempco2", "hysteresis", "thermal_lag", "angle_tempco3",
+                 "scale_tempco3", "bias_tempco3")
 BENCH_EFFECTS = ("bench_tilt", "tilt_drift", "bench_nonorthogonality")
-#: interior points per interval for the interpolation bound
-INTERP_POINTS = 33
 
 
 @dataclass
@@ -222,6 +228,7 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
 
     check_result_for_use(result, f"result of {result.unit}")
     other = [e for e in result.effects if e not in TABLE_EFFECTS]
+    # (every effect of TABLE_EFFECTS is a polynomial of order <= 3 in T: the interpolation bound's premise)
     if other:
         raise InputError(f"the model holds {', '.join(other)}, which act on the outputs or on time, not on the "
                          "temperature alone: a compensation table of T cannot represent them (refit without them, "
@@ -268,13 +275,15 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
         G.append((qp - qm) / (2 * h))
     G = np.stack(G, axis=2)                              # (n grid, 12 quantities, n params)
     u = np.sqrt(np.maximum(np.einsum("gqi,ij,gqj->gq", G, C, G), 0.0))
-    # interpolation bound per interval [T_i, T_i+1]
+    # interpolation bound per interval [T_i, T_i+1]: Delta^2 max|q''| / 8, q'' linear in T (module)
+    def flat(T):
+        return np.concatenate([x.reshape(len(T), -1) for x in at(x0, T)], axis=1)
+
+    e = 1.0                                              # degC; the second difference is exact for a cubic
+    q2 = (flat(grid + e) - 2.0 * flat(grid) + flat(grid - e)) / (e * e)          # (n grid, 12)
     interp = np.zeros((len(grid), 12))
     for i in range(len(grid) - 1):
-        t = np.linspace(grid[i], grid[i + 1], INTERP_POINTS)
-        q = np.concatenate([x.reshape(len(t), -1) for x in at(x0, t)], axis=1)
-        lin = q[0] + (q[-1] - q[0]) * ((t - t[0]) / (t[-1] - t[0]))[:, None]
-        interp[i] = np.max(np.abs(q - lin), axis=0)
+        interp[i] = (grid[i + 1] - grid[i]) ** 2 * np.maximum(np.abs(q2[i]), np.abs(q2[i + 1])) / 8.0
     # rounding of the evaluation (1e-16 of K) is not an interpolation error: below 1e-12 of the
     # quantity's scale it is 0 (a linear thermal model interpolates exactly)
     scale = np.maximum(1.0, np.abs(np.concatenate([K, S, A], axis=1)).max(axis=0))

@@ -185,7 +185,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     for c in testable[:top]:
         if c.effect == "position_error":
             st = _fit_position_error(full, campaign, base, names, sigma, noise.known)
-            var_scale, nu, k_extra, new_names = st.var_scale, math.inf, 1, []
+            var_scale, nu, new_names = st.var_scale, math.inf, []
             ll = _loglik_total(st, var_scale=var_scale)
             lr_p = 0.5 * float(stats.chi2.sf(max(2 * (ll - base_ll), 0.0), 1))
         elif c.effect == "heavy_tails":

@@ -34,9 +34,13 @@ SIGNATURE = {"bench_tilt": ("up", "up_x_setpoint", "up_x_direction"),
              "angle_tempco2": ("up_x_setpoint", "setpoint", "time"),
              "scale_tempco2": ("up_x_setpoint", "setpoint", "time"),
              "bias_tempco2": ("setpoint", "up_x_setpoint", "time"),
+             "angle_tempco3": ("up_x_setpoint", "setpoint", "time"),
+             "scale_tempco3": ("up_x_setpoint", "setpoint", "time"),
+             "bias_tempco3": ("setpoint", "up_x_setpoint", "time"),
              "hysteresis": ("up_x_direction", "direction"),
              "thermal_lag": ("since_change", "direction", "up_x_direction", "setpoint"),
              "bias_drift": ("time", "setpoint"),
+             "bias_warmup": ("time", "since_change"), "scale_warmup": ("time", "up_x_setpoint"),
              "scale_nonlinearity": ("up",), "scale_asymmetry": ("up",),
              "position_error": FAMILIES, "heavy_tails": ()}
 
@@ -134,7 +138,6 @@ def _slice_tests(campaign, state: FitState, to_ug: np.ndarray, sigma: np.ndarray
             lab = a if family == "axis" else label
             horizontal = bool(np.all(gnom[vis, i] < 0.2))
             unit = "arcsec" if horizontal else "ug"
-            conv = to_ug[i] * (1e-6 / ARCSEC if horizontal else 1.0)   # normalised -> unit, per sigma
             sig = float(np.sqrt(np.mean((sigma[vis, i] * state.s) ** 2)))
             Qs = Q[idx]
             # offset: a = 1 on the slice

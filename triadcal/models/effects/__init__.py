@@ -16,14 +16,16 @@ from .hysteresis import Hysteresis
 from .nonlinearity import ScaleNonlinearity
 from .thermal import AngleTempco, BiasTempco, ScaleTempco
 from .thermal2 import AngleTempco2, BiasTempco2, ScaleTempco2
+from .thermal3 import AngleTempco3, BiasTempco3, ScaleTempco3
 from .thermal_lag import ThermalLag
 from .tilt import BenchTilt
 from .tilt_drift import TiltDrift
+from .warmup import BiasWarmup, ScaleWarmup
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls
-    for cls in (BenchTilt, TiltDrift, BenchNonorthogonality, ThermalLag, AngleTempco, AngleTempco2, Hysteresis, ScaleTempco, ScaleTempco2,
-                BiasTempco, BiasTempco2, BiasDrift, ScaleNonlinearity, ScaleAsymmetry)
+    for cls in (BenchTilt, TiltDrift, BenchNonorthogonality, ThermalLag, AngleTempco, AngleTempco2, AngleTempco3, Hysteresis, ScaleTempco, ScaleTempco2,
+                ScaleTempco3, BiasTempco, BiasTempco2, BiasTempco3, BiasDrift, BiasWarmup, ScaleWarmup, ScaleNonlinearity, ScaleAsymmetry)
 }
 NOISE_EFFECTS = ("position_error", "heavy_tails")
 VOCABULARY = tuple(EFFECTS) + NOISE_EFFECTS

@@ -57,6 +57,34 @@ def play_branch(temperature_C, half_width_C: float, start: str = "mid"):
 PLAY_STARTS = ("mid", "heating", "cooling")
 
 
+def pi_branch(temperature_C, half_widths_C, weights, start: str = "mid"):
+    """The branch of each visit for a Prandtl-Ishlinskii hysteresis: a weighted sum of plays of
+    half-widths ``r_i`` (degC) on the temperature history (Brokate & Sprekels 1996, *Hysteresis
+    and Phase Transitions*, ch. 2; Kuhnen 2003, *Modeling, identification and compensation of
+    complex hysteretic nonlinearities: a modified Prandtl-Ishlinskii approach*, Eur. J. Control 9(4), 407-418), normalised so that the
+    saturated loop has half-width ``h`` as for the other forms::
+
+        b = sum_i w_i (play(T, r_i) - T) / r_i  /  sum_i w_i        in [-1, 1],  w_i >= 0
+
+    ``angle = mid-line + h b`` is then the PI operator ``angle = a0 + c T + sum_i p_i F_{r_i}[T]``
+    (:func:`triadcal.models.thermal_history.prandtl_ishlinskii`) with density
+    ``p_i = h w_i / (r_i sum w)`` and the linear tempco ``c`` taking up ``sum p_i T``: a loop whose
+    branches meet smoothly where the temperature turns (the narrow plays saturate after a small
+    step, the wide ones only after a long sweep), which one play cannot draw. One play is the
+    case of a single nonzero weight; the offset form the limit of every ``r_i -> 0``. ``start``:
+    the unknown state before the record, common to the plays (``mid``, ``heating`` or
+    ``cooling``, as :func:`play_branch`)."""
+    import numpy as np
+
+    r = [float(v) for v in half_widths_C]
+    w = np.asarray(weights, float)
+    if len(r) != w.size or not r:
+        raise ValueError("a Prandtl-Ishlinskii hysteresis needs one weight per play, and at least one play")
+    if np.any(w < 0) or not w.sum() > 0:
+        raise ValueError("the weights of a Prandtl-Ishlinskii hysteresis must be >= 0 and not all 0")
+    return sum(wi * play_branch(temperature_C, ri, start) for wi, ri in zip(w, r)) / w.sum()
+
+
 def branch_offset(half_width, branch):
     """Offset of the branch from the mid-line: ``h * b`` (b = +1 cooling, -1 heating, 0 none)."""
     return half_width * branch
