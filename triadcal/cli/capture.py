@@ -20,8 +20,15 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="campaign directory")
     p.add_argument("--plan", default="default",
                    help="'default' (the 12-position plan) or a CSV file position,axis1_deg,axis2_deg")
-    p.add_argument("--setpoints", required=True, help="chamber setpoints in degC, in order, e.g. 20,70,-40")
-    p.add_argument("--tau-s", type=float, default=30.0, help="averaging time per position, s (default 30)")
+    p.add_argument("--setpoints", help="chamber setpoints in degC, in order, e.g. 20,70,-40 (or --ramp)")
+    p.add_argument("--ramp", metavar="RAMP_PLAN.json",
+                   help="continuous ramp instead of setpoints: the ramp plan of 'triadcal plan --ramp'; the chamber "
+                        "follows its program while the bench cycles through its positions, recording back to back, "
+                        "no soak (docs/hardware.md, 'Continuous ramp capture')")
+    p.add_argument("--ramp-step-s", type=float, default=10.0, metavar="S",
+                   help="with --ramp: write the program's value as the setpoint every S program seconds (default 10)")
+    p.add_argument("--tau-s", type=float, default=None,
+                   help="averaging time per position, s (default 30; with --ramp, the plan's)")
     p.add_argument("--settle-s", type=float, default=5.0, help="wait after in-position, s (default 5)")
     p.add_argument("--unit", default=None, help="serial number of the unit (default SN-UNKNOWN, or the emulator's)")
     p.add_argument("--operator", default="")
@@ -84,6 +91,19 @@ def run(args) -> int:
     from ..models.units import STANDARD_GRAVITY_M_S2
 
     out = output(args)
+    if (args.setpoints is None) == (args.ramp is None):
+        raise InputError("give the chamber's program: --setpoints (stepped) or --ramp RAMP_PLAN.json (continuous)")
+    ramp = None
+    if args.ramp is not None:
+        from ..hardware.ramp_capture import read_ramp_plan
+
+        ramp = read_ramp_plan(args.ramp)
+        if args.plan != "default":
+            raise InputError(f"--ramp: the positions come from the ramp plan {args.ramp}; do not give --plan")
+        if args.tau_s is not None and args.tau_s != ramp.tau_s:
+            raise InputError(f"--tau-s {args.tau_s:g}: the ramp plan {args.ramp} says tau_s = {ramp.tau_s:g} s")
+        args.tau_s = ramp.tau_s
+    args.tau_s = 30.0 if args.tau_s is None else args.tau_s
     plan = DEFAULT_PLAN if args.plan == "default" else plan_from_csv(args.plan)
     if args.config and args.instruments:
         raise InputError("give --config (a ports file) or --instruments (an instruments file), not both")
@@ -119,6 +139,9 @@ def run(args) -> int:
     if dmm_cfg is not None:
         if args.emulate or args.imu_port or args.imu_protocol or args.imu_rate_hz:
             raise InputError(f"{args.instruments}: [dmm] (an analog unit) takes no IMU options and no --emulate")
+        if ramp is not None:
+            raise InputError(f"{args.instruments}: --ramp needs an IMU with temperatures ([imu]); an analog unit "
+                             "through [dmm] is captured at --setpoints")
         return _run_voltmeter(args, out, plan, cfg, dmm_cfg, settings)
     try:
         imu, bench, chamber = open_instruments(cfg)
@@ -127,9 +150,15 @@ def run(args) -> int:
         if profile is not None:
             settings.bench_name = f"two-axis bench, {profile.name}"
         try:
-            report = capture(args.out, plan=plan, setpoints_C=float_list(args.setpoints), imu=imu, bench=bench,
-                             chamber=chamber, settings=settings, progress=_progress_bar(out),
-                             extra_metadata=extra)
+            if ramp is not None:
+                from ..hardware.ramp_capture import capture_ramp
+
+                report = capture_ramp(args.out, plan=ramp, imu=imu, bench=bench, chamber=chamber, settings=settings,
+                                      step_s=args.ramp_step_s, progress=_progress_bar(out), extra_metadata=extra)
+            else:
+                report = capture(args.out, plan=plan, setpoints_C=float_list(args.setpoints), imu=imu, bench=bench,
+                                 chamber=chamber, settings=settings, progress=_progress_bar(out),
+                                 extra_metadata=extra)
         except (CaptureError, BenchError) as exc:
             raise InputError(str(exc)) from None      # one line, exit 1: the campaign cannot go on
         finally:

@@ -348,33 +348,8 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
             if (k + 1) * len(labels) <= len(rows):
                 continue
             # -- chamber and stabilisation --
-            chamber.set_setpoint_C(sp)
-            events.write("setpoint", index=k, setpoint_C=sp)
-            run.phase, run.visit_tag = "soak", f"s{k:03d}"
-            run.temps.clear()
-            crit = settings.stabilisation
-            t_start = run.now
-            stable_since = None
-            last_note = 0.0
-            while True:
-                run.pump()
-                rate = _max_temperature_rate(run.temps, crit.window_s, run.now)
-                if rate is not None and rate * 60.0 < crit.rate_C_per_min:
-                    stable_since = run.now if stable_since is None else stable_since
-                    if run.now - stable_since >= crit.hold_s:
-                        break
-                else:
-                    stable_since = None
-                if run.now - t_start > crit.timeout_s:
-                    raise CaptureError(f"setpoint {sp:g} degC: not stable after {crit.timeout_s:g} s "
-                                       f"({crit.describe()}); last rate "
-                                       f"{'unknown' if rate is None else f'{rate * 60:.3g} degC/min'}")
-                if time.monotonic() - last_note > 0.25:
-                    last_note = time.monotonic()
-                    notify({"event": "soak", "done": len(rows), "total": total, "setpoint_C": sp,
-                            "rate_C_per_min": None if rate is None else rate * 60.0,
-                            "chamber_C": _safe(chamber.temperature_C)})
-            events.write("stable", index=k, setpoint_C=sp, after_s=run.now - t_start)
+            soak(run, chamber, events, settings, k, sp, f"s{k:03d}", f"setpoint {sp:g} degC", notify,
+                 len(rows), total)
 
             for j, label in enumerate(labels):
                 if k * len(labels) + j < len(rows):
@@ -597,13 +572,16 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
                     raise CaptureError(f"position {label} at {sp:g} degC: the voltmeter failed "
                                        f"{settings.max_attempts} times (see {EVENTS_NAME})")
                 T = 0.5 * (T0 + T1)
+                # the event log is this path's raw record: the visit is on disk (fsync'd) before the
+                # CSV row makes it count, as the IMU path syncs its samples first; a process killed
+                # in between leaves an event that no row names, and the visit is made again
+                events.write("visit", index=len(rows) + 1, tag=tag, n_samples=avg.n_samples,
+                             w=avg.w.tolist(), sd=avg.sd.tolist(), chamber_C=[T0, T1])
                 rows.append({"unit": settings.unit, "setpoint_C": sp, "direction": direction, "time_s": 0.5 * (t0 + t1),
                              "position": label, "axis1_deg": a1, "axis2_deg": a2, "tau_s": settings.tau_s,
                              "w": avg.w, "t": np.array([T, T, T]), "sd": avg.sd, "n_samples": avg.n_samples,
                              "raw_visit": tag})
                 atomic_write_text(out / CSV_NAME, format_bench_csv(_campaign(rows, metadata)))
-                events.write("visit", index=len(rows), tag=tag, n_samples=avg.n_samples,
-                             w=avg.w.tolist(), sd=avg.sd.tolist(), chamber_C=[T0, T1])
                 notify({"event": "visit", "done": len(rows), "total": total, "setpoint_C": sp,
                         "position": label})
         notify({"event": "done", "done": len(rows), "total": total})
@@ -618,6 +596,37 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
         events.close()
         atomic_write_json(out / REPORT_NAME, report.to_dict())
     return report
+
+
+def soak(run: "_Runner", chamber, events: EventLog, settings: CaptureSettings, index: int, sp: float, tag: str,
+         what: str, notify, done: int, total: int) -> None:
+    """Set the chamber to ``sp`` degC and wait until the unit's temperatures meet the
+    stabilisation rule (events ``setpoint`` and ``stable``); ``what`` names the step in the error
+    raised when the rule's timeout passes first."""
+    chamber.set_setpoint_C(sp)
+    events.write("setpoint", index=index, setpoint_C=sp)
+    run.phase, run.visit_tag = "soak", tag
+    run.temps.clear()
+    crit = settings.stabilisation
+    t_start, stable_since, last_note = run.now, None, 0.0
+    while True:
+        run.pump()
+        rate = _max_temperature_rate(run.temps, crit.window_s, run.now)
+        if rate is not None and rate * 60.0 < crit.rate_C_per_min:
+            stable_since = run.now if stable_since is None else stable_since
+            if run.now - stable_since >= crit.hold_s:
+                break
+        else:
+            stable_since = None
+        if run.now - t_start > crit.timeout_s:
+            raise CaptureError(f"{what}: not stable after {crit.timeout_s:g} s ({crit.describe()}); last rate "
+                               f"{'unknown' if rate is None else f'{rate * 60:.3g} degC/min'}")
+        if time.monotonic() - last_note > 0.25:
+            last_note = time.monotonic()
+            notify({"event": "soak", "done": done, "total": total, "setpoint_C": sp,
+                    "rate_C_per_min": None if rate is None else rate * 60.0,
+                    "chamber_C": _safe(chamber.temperature_C)})
+    events.write("stable", index=index, setpoint_C=sp, after_s=run.now - t_start)
 
 
 def _safe(fn):
@@ -689,6 +698,9 @@ def _campaign(rows: list, metadata: dict) -> Campaign:
         t=np.array([r["t"] for r in rows], float).reshape(n, 3),
         cycle=np.zeros(n, int), state=np.full(n, "initial"),
         sd=np.array([r["sd"] for r in rows], float).reshape(n, 3), n_samples=col("n_samples", int),
+        # u_w_* once every row has one (written by _campaign_noise at the end of the campaign)
+        u_w=(np.array([r["u_w"] for r in rows], float).reshape(n, 3)
+             if rows and all(r.get("u_w") is not None for r in rows) else None),
         metadata=dict(metadata), extra={"raw_visit": col("raw_visit", object).astype(str)})
 
 
@@ -712,7 +724,8 @@ def _read_rows(path: Path, labels: list, setpoints: list, directions: list) -> l
         rows.append({"unit": c.unit[i], "setpoint_C": c.setpoint_C[i], "direction": c.direction[i],
                      "time_s": c.time_s[i], "position": c.position[i], "axis1_deg": c.axis1_deg[i],
                      "axis2_deg": c.axis2_deg[i], "tau_s": c.tau_s[i], "w": c.w[i], "t": c.t[i],
-                     "sd": c.sd[i], "n_samples": int(c.n_samples[i]), "raw_visit": c.extra["raw_visit"][i]})
+                     "sd": c.sd[i], "n_samples": int(c.n_samples[i]), "raw_visit": c.extra["raw_visit"][i],
+                     "u_w": None if c.u_w is None else c.u_w[i]})
     return rows
 
 
@@ -734,9 +747,14 @@ def _campaign_noise(raw_path: Path, rows: list, rate_hz: Optional[float]) -> Opt
             return None
         rate_hz = 1.0 / float(np.median(dt))
     try:
-        return allan_noise(windows, rate_hz)
+        est = allan_noise(windows, rate_hz)
     except ValueError:
         return None
+    # per-visit standard uncertainty from the power-law fit and the visit times (u_w_* columns)
+    u = est.visit_uncertainty([r["time_s"] for r in rows], [r["tau_s"] for r in rows])
+    for r, u_i in zip(rows, u):
+        r["u_w"] = u_i
+    return est
 
 
 def load_port_config(path) -> dict:

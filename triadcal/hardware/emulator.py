@@ -96,7 +96,19 @@ class EmulatorTiming:
 class UnitPhysics:
     """The unit on the bench in the chamber, as functions of instrument time (thread-safe)."""
 
-    def __init__(self, truth: Truth, timing: EmulatorTiming, seed: int = 0):
+    def __init__(self, truth: Truth, timing: EmulatorTiming, seed: int = 0, flicker_Bf_V: float = 0.0):
+        """``flicker_Bf_V``: flicker (1/f, bias instability) output noise added in :meth:`sample`,
+        given by its Allan-deviation floor B_f = 0.664 B (V; 0: white noise only)."""
+        self.flicker_Bf_V = float(flicker_Bf_V)
+        self._flicker: Optional[np.ndarray] = None
+        if self.flicker_Bf_V > 0:
+            # one periodic 1/f record (models/noise_processes.flicker_noise: it wraps without a jump)
+            # of 2^20 samples at the timing's rate, indexed by instrument time in sample()
+            from ..models.noise_processes import flicker_noise
+
+            frng = np.random.default_rng([seed, 952])
+            self._flicker = np.stack([flicker_noise(2 ** 20, timing.rate_hz, self.flicker_Bf_V ** 2, frng)
+                                      for _ in range(3)], axis=1)
         self.truth = truth
         self.timing = timing
         self.model = truth.model()
@@ -107,30 +119,59 @@ class UnitPhysics:
         T0 = timing.start_C
         # thermal segment: since t0, setpoint sp, chamber c0 and unit u0 at t0
         self._seg = (0.0, T0, T0, T0)
+        # the recent segments, oldest first: a sample of a time before the last setpoint change
+        # (the IMU thread computes its frames a tick after their times) takes the segment then in force
+        self._segs: list = [self._seg]
         self.setpoint_C = T0
         self._last_sp: Optional[float] = None
         self.direction = "none"
+        # from the first change of setpoint on, the hysteresis branch follows the unit's own
+        # temperature (heating while it rises): see set_setpoint
+        self._branch_follows_unit = False
         # bench: a move from (a0) at t0 to (a1) arriving at t_arrive, in position at t_ready
         self._move = (0.0, (0.0, 0.0), (0.0, 0.0), 0.0, 0.0)
         self._errors = self._draw_bench_errors()
 
     # -- thermal ----------------------------------------------------------------------
     def _thermal(self, t):
+        """Chamber, unit (degC) and the unit's rate (degC/s) at instrument times ``t`` (increasing):
+        the two first-order lags of models/thermal_environment, in closed form since the last
+        setpoint, so a setpoint written every few seconds (a ramp program) is followed exactly.
+        Once the branch follows the unit (:meth:`set_setpoint`), it is set here from the sign of
+        the unit's rate at the latest of ``t`` (unchanged where the rate is 0)."""
+        t = np.asarray(t, float)
         t0, sp, c0, u0 = self._seg
-        return two_lag_step(np.asarray(t, float) - t0, sp, c0, u0,
-                            self.timing.chamber_time_constant_s, self.timing.unit_time_constant_s)
+        if len(self._segs) > 1 and np.min(t, initial=t0) < t0:
+            seg = np.array(self._segs)
+            k = np.clip(np.searchsorted(seg[:, 0], t, side="right") - 1, 0, len(seg) - 1)
+            t0, sp, c0, u0 = seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3]
+        out = two_lag_step(t - t0, sp, c0, u0,
+                           self.timing.chamber_time_constant_s, self.timing.unit_time_constant_s)
+        if self._branch_follows_unit:
+            rate = np.ravel(out[2])
+            if len(rate) and rate[-1] != 0.0:
+                self.direction = "heating" if rate[-1] > 0 else "cooling"
+        return out
 
     def chamber_C(self, t: float) -> float:
         with self.lock:
             return float(self._thermal(t)[0])
 
     def set_setpoint(self, t: float, sp: float) -> None:
-        """Command the chamber at instrument time ``t``; the hysteresis branch follows the
-        direction of the change (as :meth:`Schedule.directions`)."""
+        """Command the chamber at instrument time ``t``. The hysteresis branch: ``none`` at the
+        first setpoint (the unit has soaked at ambient, as :meth:`Schedule.directions`); at the
+        first change, the direction of the change; from then on, the direction in which the unit's
+        own temperature moves (heating while it rises, as :class:`RampSchedule` labels a visit),
+        which on a stepped campaign is the direction of the last change once the unit has turned,
+        and on a ramp program (a setpoint written every few seconds) trails the program's turns
+        as the unit does."""
         with self.lock:
             c, u, _ = self._thermal(t)
-            self._seg = (t, float(sp), float(c), float(u))
+            self._seg = (float(t), float(sp), float(c), float(u))
+            self._segs = self._segs[-255:] + [self._seg]
             self.direction = direction_after(self.direction, self._last_sp, float(sp))
+            if self._last_sp is not None and float(sp) != self._last_sp:
+                self._branch_follows_unit = True
             self._last_sp = float(sp)
             self.setpoint_C = float(sp)
 
@@ -180,6 +221,9 @@ class UnitPhysics:
         w = np.stack(np.broadcast_arrays(*self.model.predict(self.p, cov, self.gravity_g)), axis=1)
         noise = self.truth.noise
         w = w + self.rng.normal(0.0, math.sqrt(noise.Q_V2s * (rate_hz or tm.rate_hz)), (n, 3))
+        if self._flicker is not None:          # flicker: continuous across calls (indexed by time)
+            k = np.floor(t * tm.rate_hz).astype(np.int64) % len(self._flicker)
+            w = w + self._flicker[k]
         temps = sensor + self.rng.normal(0.0, noise.temp_noise_C, (n, 3))
         return w, temps
 
@@ -839,10 +883,10 @@ class TemplateBenchServer:
                 self.physics.move(t, *self._target)
                 return None
             if name in ("stop", "home"):
+                # this axis only: stops where it is, or heads for the controller's zero; the
+                # other axis keeps its own target (two HOME lines home both axes)
                 pos, _, _ = self.physics.bench_state(t)
-                self._target = list(pos)
-                if name == "home":
-                    self._target[i] = -ax.offset / ax.scale
+                self._target[i] = -ax.offset / ax.scale if name == "home" else pos[i]
                 self.physics.move(t, *self._target)
                 return None
             if name == "position":

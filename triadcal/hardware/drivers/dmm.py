@@ -136,6 +136,15 @@ def parse_readings(text: str, expected: Optional[int] = None, what: str = "READ?
     return values
 
 
+def _is_readings(text: str) -> bool:
+    """True for a line of comma-separated numbers (a READ? answer), never for an ``*IDN?`` answer."""
+    try:
+        [float(p) for p in text.split(",")]
+    except ValueError:
+        return False
+    return True
+
+
 def _resource_manager(backend: str):
     import pyvisa
 
@@ -160,6 +169,9 @@ class _ScpiMeter:
         self._res = None
         self.sent: list = []           # every command written, in order
         self.idn = ""
+        self.stale_answers = 0         # answers of a previous client dropped at open
+        self.late_answers = 0          # answers of a timed-out query dropped before the next one
+        self._late: Optional[tuple] = None   # (command, timeout_s) of a query that timed out
 
     # -- transport ----------------------------------------------------------------------
     def open(self):
@@ -175,6 +187,13 @@ class _ScpiMeter:
         self._res.write_termination = "\n"
         self._res.timeout = int(self.timeout_s * 1000)
         self.idn = self.query("*IDN?").strip()
+        # a meter still answering a READ? of a client that died (a capture killed mid-window)
+        # sends those readings before the answer to *IDN?: they are dropped, not taken for it
+        for _ in range(3):
+            if not _is_readings(self.idn):
+                break
+            self.stale_answers += 1
+            self.idn = self._read_line("*IDN?").strip()
         if self.check_idn and self.model not in self.idn:
             raise DmmError(f"voltmeter {self.resource_name} is {self.idn!r}, not a {self.model}")
         self.configure()
@@ -188,6 +207,8 @@ class _ScpiMeter:
             raise DmmError(f"voltmeter {self.resource_name}: {command!r} failed: {exc}") from None
 
     def query(self, command: str, timeout_s: Optional[float] = None) -> str:
+        if self._late is not None:
+            self._resync()
         self.sent.append(command)
         old = self._res.timeout
         try:
@@ -195,9 +216,44 @@ class _ScpiMeter:
                 self._res.timeout = int(timeout_s * 1000)
             return self._res.query(command)
         except Exception as exc:   # noqa: BLE001
+            # the answer may still come (a READ? slower than its timeout): it must not be taken
+            # for the answer to the next query, so the next query resynchronises first
+            self._late = (command, self._res.timeout / 1000.0)
             raise DmmError(f"voltmeter {self.resource_name}: {command!r} got no answer: {exc}") from None
         finally:
             self._res.timeout = old
+
+    def _resync(self) -> None:
+        """After a query that timed out: ask ``*IDN?`` and drop every line before its answer (the
+        late answer, or its remainder), waiting as long as that query could take. The meter
+        works through its input in order, so what follows belongs to the next query."""
+        command, wait_s = self._late
+        self._late = None
+        self.sent.append("*IDN?")
+        old = self._res.timeout
+        try:
+            self._res.timeout = int(max(wait_s, self.timeout_s) * 1000)
+            self._res.write("*IDN?")
+            for dropped in range(4):
+                if self._res.read().strip() == self.idn:
+                    self.late_answers += dropped
+                    return
+        except Exception as exc:   # noqa: BLE001
+            self._late = (command, wait_s)
+            raise DmmError(f"voltmeter {self.resource_name}: lost step after {command!r} timed out, and "
+                           f"*IDN? did not bring it back: {exc}") from None
+        finally:
+            self._res.timeout = old
+        self._late = (command, wait_s)
+        raise DmmError(f"voltmeter {self.resource_name}: lost step after {command!r} timed out: *IDN? was "
+                       f"not answered with {self.idn!r}")
+
+    def _read_line(self, after: str) -> str:
+        try:
+            return self._res.read()
+        except Exception as exc:   # noqa: BLE001
+            raise DmmError(f"voltmeter {self.resource_name}: no answer to {after!r} after dropping a "
+                           f"previous client's readings: {exc}") from None
 
     def check_errors(self, after: str) -> None:
         text = self.query("SYST:ERR?").strip()

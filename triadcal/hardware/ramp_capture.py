@@ -1,0 +1,596 @@
+"""Continuous-ramp capture (``triadcal capture --ramp PLAN``): the chamber follows a ramp program
+while the bench cycles through the positions, recording back to back, with no soak.
+
+The program is a ramp plan of ``triadcal plan --ramp`` (:class:`~triadcal.planning.ramp.RampPlan`):
+piecewise linear through ``program_C`` at ``rate_C_per_min``, holding ``hold_s`` at every interior
+turning point. It runs on the campaign's side, not the controller's: every ``step_s`` seconds of
+the program the capture writes the program's present value as the chamber's setpoint (rounded to
+0.1 degC; the program's first move as soon as it shows in that resolution), so any chamber driver
+that takes a setpoint runs a ramp (a Watlow F4 or an Espec has its own ramp programs, but each in
+its own dialect; a moving setpoint is what all of them take), and the chamber's air follows it with
+its own time constant.
+
+Sequence: the first program temperature is written and the unit is left to settle there (the
+stepped capture's criterion on the unit's own temperatures, :class:`~triadcal.hardware.capture.
+Stabilisation`; a ramp program starts from rest), then the program starts and visits follow back
+to back (:func:`triadcal.hardware.capture._visit`: move, in position, ``settle_s``, window of
+``tau_s``) in the plan's position order, cycling, until the program's end; a visit started before
+the end is completed while the chamber holds the last value.
+
+Each visit is a bench CSV row: the window's means (``w``, ``t``, ``sd``, ``n_samples``), its
+middle as ``time_s`` (campaign time), the position, and the two labels a ramp campaign carries
+(as the simulator's :class:`~triadcal.models.simulate.RampSchedule`): ``setpoint_C`` the target of
+the program's leg at the window's middle, ``direction`` the sign of the unit's rate over the window
+(``heating`` on a rise: the ramp as the unit sees it; :func:`window_rates`, :func:`visit_direction`).
+A window whose outputs are not those of a unit at rest (:func:`not_stationary`: the bench still
+moving) or in which the unit's temperature turned (:func:`turned_within`: both hysteresis branches
+in one visit) is recorded again at the same position. Extra columns: ``raw_visit`` (the samples of
+the row in the raw store) and ``program_C`` (the program's value at the window's middle). The fit
+takes each visit's rate from the readings (``Campaign.temperature_rate``) and the element's lag with
+``thermal_lag``.
+
+Storage and resume are the stepped capture's (:mod:`triadcal.hardware.capture`): an exclusive
+folder lock, every accepted sample appended to ``raw/imu_samples.csv`` (flushed every batch,
+fsync'd before a visit counts), ``campaign.csv`` rewritten atomically after every visit, the
+events in ``raw/events.jsonl`` (fsync'd each), the identity in ``capture.json`` (format
+``triadcal.ramp_capture``, so neither kind of capture resumes the other's folder). Every setpoint
+written is an event ``ramp_setpoint`` with its program time; a new run resumes the program where
+the last one wrote it (the chamber has held that setpoint meanwhile, as a controller does when its
+host goes away) and the visits at the next position of the cycle, without a new soak.
+
+Over 500 lines because the plan file's checks, the program, the visit's quality checks and the
+campaign's loop with its resume are one capture; the visit itself, the storage and the noise are
+capture.py's.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from .. import __version__
+from ..errors import InputError
+from ..io.atomic import atomic_write_json, atomic_write_text, read_json
+from ..io.bench_csv import BenchCSVError, format_bench_csv, read_bench_csv
+from ..io.formats import require_format
+from ..planning.ramp import RAMP_FORMAT, RampPlan, load_plan
+from .capture import (CSV_NAME, EVENTS_NAME, RAW_NAME, REPORT_NAME, STATE_NAME, CaptureError, CaptureReport,
+                      CaptureSettings, _campaign, _campaign_noise, _Runner, _visit, soak,
+                      imu_metadata)
+from .drivers.bench import Bench, BenchError
+from .drivers.chamber import Chamber
+from .drivers.imu import ImuReadout, StreamThread
+from .noise import NoiseEstimate
+from .storage import EventLog, FolderLocked, RawStore, folder_lock, read_events
+
+RAMP_STATE_FORMAT = "triadcal.ramp_capture"
+#: program seconds between two setpoints written (a real chamber: 10 s is 0.17 degC at 1 degC/min)
+DEFAULT_STEP_S = 10.0
+#: the setpoint register's resolution (every driver takes tenths of a degree)
+SETPOINT_RESOLUTION_C = 0.1
+
+
+# -- the plan file ----------------------------------------------------------------------------
+
+def read_ramp_plan(path) -> RampPlan:
+    """The ramp plan file of ``triadcal plan --ramp`` (``triadcal.ramp_plan`` version 1), each field
+    checked with an error naming the file and the field; built by
+    :func:`triadcal.planning.ramp.load_plan`. A stepped plan (``triadcal.plan``) is refused, saying so."""
+    d = read_json(path)
+    if isinstance(d, dict) and d.get("format") == "triadcal.plan":
+        raise InputError(f"{path}: a stepped plan (format 'triadcal.plan'); capture --ramp takes a ramp plan "
+                         f"({RAMP_FORMAT!r}, written by 'triadcal plan --ramp'); run a stepped plan with --setpoints")
+    require_format(d, RAMP_FORMAT, 1, str(path), "a ramp plan", "ramp plan")
+
+    def number(key, value, *, low=-math.inf, high=math.inf, strict_low=False, where=None):
+        name = where or key
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise InputError(f"{path}: field {name}: expected a finite number, got {value!r}")
+        if value < low or (strict_low and value == low) or value > high:
+            rng = f"> {low:g}" if strict_low else f">= {low:g}"
+            if math.isfinite(high):
+                rng += f" and <= {high:g}"
+            raise InputError(f"{path}: field {name}: {value!r} out of range (must be {rng})")
+        return float(value)
+
+    for key in ("program_C", "rate_C_per_min", "tau_s", "positions"):
+        if key not in d:
+            raise InputError(f"{path}: field {key} is missing (a ramp plan needs program_C, rate_C_per_min, "
+                             "tau_s and positions)")
+    prog = d["program_C"]
+    if not isinstance(prog, list) or len(prog) < 2:
+        raise InputError(f"{path}: field program_C: expected a list of at least two temperatures (degC), "
+                         f"got {prog!r}")
+    values = [number("program_C", v, low=-273.15, high=1000.0, where=f"program_C[{k}]") for k, v in enumerate(prog)]
+    for k in range(1, len(values)):
+        if values[k] == values[k - 1]:
+            raise InputError(f"{path}: field program_C[{k}]: {values[k]:g} degC repeats program_C[{k - 1}] "
+                             "(a leg must change the temperature; use hold_s for a pause)")
+    number("rate_C_per_min", d["rate_C_per_min"], low=0.0, strict_low=True, high=100.0)
+    number("tau_s", d["tau_s"], low=0.0, strict_low=True)
+    for key in ("hold_s", "move_s"):
+        if key in d:
+            number(key, d[key], low=0.0)
+    pos = d["positions"]
+    if not isinstance(pos, list) or not pos:
+        raise InputError(f"{path}: field positions: expected a non-empty list of {{label, axis1_deg, axis2_deg}}")
+    seen = set()
+    for k, p in enumerate(pos):
+        if not isinstance(p, dict):
+            raise InputError(f"{path}: field positions[{k}]: expected an object {{label, axis1_deg, axis2_deg}}, "
+                             f"got {p!r}")
+        for key in ("label", "axis1_deg", "axis2_deg"):
+            if key not in p:
+                raise InputError(f"{path}: field positions[{k}].{key} is missing")
+        if not isinstance(p["label"], str) or not p["label"].strip():
+            raise InputError(f"{path}: field positions[{k}].label: expected a non-empty text, got {p['label']!r}")
+        if p["label"] in seen:
+            raise InputError(f"{path}: field positions[{k}].label: {p['label']!r} appears twice")
+        seen.add(p["label"])
+        for key in ("axis1_deg", "axis2_deg"):
+            number(key, p[key], low=-360.0, high=360.0, where=f"positions[{k}].{key}")
+    plan = load_plan(path)
+    if not isinstance(plan, RampPlan):      # pragma: no cover - the format was checked above
+        raise InputError(f"{path}: not a ramp plan")
+    return plan
+
+
+# -- the program ------------------------------------------------------------------------------
+
+@dataclass
+class RampProgram:
+    """The chamber program of a ramp plan as a function of program time (s): its value (linear
+    between knots, held after the end), the target of the current leg and the duration."""
+
+    knot_s: np.ndarray
+    knot_C: np.ndarray
+
+    @classmethod
+    def of(cls, plan: RampPlan) -> "RampProgram":
+        kt, kv = plan.schedule().knots()
+        return cls(np.asarray(kt, float), np.asarray(kv, float))
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.knot_s[-1])
+
+    def value(self, p: float) -> float:
+        return float(np.interp(p, self.knot_s, self.knot_C))
+
+    def target(self, p: float) -> float:
+        """The temperature the leg running at program time ``p`` goes to (as the simulator labels a
+        visit's ``setpoint_C``); a hold's target is its own temperature; after the end, the last."""
+        seg = int(np.clip(np.searchsorted(self.knot_s, p, side="right"), 1, len(self.knot_s) - 1))
+        return float(self.knot_C[seg])
+
+
+#: seconds of temperature readings before a window that its direction is judged on (with the window)
+DIRECTION_SPAN_S = 150.0
+
+
+def window_rates(history, t0: float, t1: float, span_s: float = DIRECTION_SPAN_S) -> dict:
+    """Rates (degC/s) of the mean temperature reading over the window ``[t0, t1]``, each with its
+    standard error, from a least-squares quadratic through the readings of ``[t0 - span_s, t1]``
+    (``history``: (time_s, mean reading) pairs of every accepted frame, in any phase): ``mean``
+    (the slope at the middle, which is the window's mean rate), ``start`` and ``end`` (at t0 and t1).
+    Standard errors are infinite with fewer than 8 readings."""
+    nothing = {"mean": 0.0, "mean_se": math.inf, "start": 0.0, "start_se": math.inf, "end": 0.0,
+               "end_se": math.inf}
+    if not len(history):
+        return nothing
+    h = np.asarray(history, float)
+    h = h[(h[:, 0] >= t0 - span_s) & (h[:, 0] <= t1)]
+    if len(h) < 8:
+        return nothing
+    x = h[:, 0] - 0.5 * (t0 + t1)
+    X = np.stack([np.ones_like(x), x, x * x], axis=1)
+    coef, *_ = np.linalg.lstsq(X, h[:, 1], rcond=None)
+    res = h[:, 1] - X @ coef
+    s2 = float(res @ res) / max(len(h) - 3, 1)
+    try:
+        cov = s2 * np.linalg.inv(X.T @ X)
+    except np.linalg.LinAlgError:
+        return nothing
+    half = 0.5 * (t1 - t0)
+    out = {"mean": float(coef[1]), "mean_se": float(math.sqrt(max(cov[1, 1], 0.0)))}
+    for key, sign in (("start", -1.0), ("end", 1.0)):
+        g = np.array([0.0, 1.0, 2.0 * sign * half])          # d/dx of (1, x, x^2) at the end
+        out[key] = float(g @ coef)
+        out[key + "_se"] = float(math.sqrt(max(g @ cov @ g, 0.0)))
+    return out
+
+
+def turned_within(rates: dict) -> bool:
+    """True when the unit's temperature clearly turned during the window: its rates at the start and
+    at the end have opposite signs, each 2 standard errors from 0. Such a window holds both
+    branches of the hysteresis, which one visit's label cannot describe."""
+    return (rates["start"] * rates["end"] < 0 and abs(rates["start"]) > 2.0 * rates["start_se"]
+            and abs(rates["end"]) > 2.0 * rates["end_se"])
+
+
+def visit_direction(slope: float, se: float, previous: str) -> str:
+    """``heating`` / ``cooling`` by the sign of the window's rate when it is 3 standard errors from
+    0; otherwise the previous visit's (at a ramp's start: its first leg's, the way the unit, at
+    rest there, starts to move; at a turn: the branch the unit is on until its turn shows)."""
+    if abs(slope) > 3.0 * se:
+        return "heating" if slope > 0 else "cooling"
+    return previous
+
+
+def not_stationary(frames, previous_sd) -> Optional[str]:
+    """Why a recording window's outputs are not those of a unit at rest (the bench still moving
+    when the window began, a knock), or None. Per axis: a sample farther than 10 noise SDs from
+    the window's median, the noise SD taken from successive differences (1.4826 MAD / sqrt 2,
+    blind to the slow drift of a ramp); or an SD above 3 times the median SD of the recent visits
+    (``previous_sd``, when there are 3 or more). A ramp's drift within a window (a few 1e-5 g) is
+    far below either."""
+    if len(frames) < 4:
+        return None
+    w = np.array([f.w for f in frames], float)
+    d = np.diff(w, axis=0)
+    noise = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2.0)
+    dev = np.max(np.abs(w - np.median(w, axis=0)), axis=0)
+    for i, a in enumerate("xyz"):
+        if noise[i] > 0 and dev[i] > 10.0 * noise[i]:
+            return f"w_{a} strays {dev[i] / noise[i]:.0f} noise SDs from the window's median"
+    if len(previous_sd) >= 3:
+        ref = np.median(np.asarray(previous_sd, float), axis=0)
+        sd = w.std(axis=0, ddof=1)
+        for i, a in enumerate("xyz"):
+            if ref[i] > 0 and sd[i] > 3.0 * ref[i]:
+                return f"sd of w_{a} {sd[i]:.3g} is {sd[i] / ref[i]:.1f} times the recent visits' median"
+    return None
+
+
+class _TeeStream:
+    """The reader thread's queue as the runner sees it, keeping ``(time_s, mean reading)`` of every
+    frame for the directions (the last ``keep_s`` instrument seconds)."""
+
+    def __init__(self, stream: StreamThread, keep_s: float = 4 * DIRECTION_SPAN_S):
+        self.stream, self.keep_s = stream, keep_s
+        self.history: deque = deque()
+
+    def get(self, timeout: float):
+        batch = self.stream.get(timeout)
+        for f in batch:
+            self.history.append((f.time_s, float(np.mean(f.t))))
+        if batch:
+            end = batch[-1].time_s
+            while self.history and self.history[0][0] < end - self.keep_s:
+                self.history.popleft()
+        return batch
+
+
+class _RampRunner(_Runner):
+    """The stepped capture's frame pump, which also runs the chamber program: while the program
+    runs, each pump writes the program's value as the setpoint once ``step_s`` of program time
+    has passed since the last write (and logs it as ``ramp_setpoint``, fsync'd: the resume point)."""
+
+    def __init__(self, *args, chamber: Chamber, program: RampProgram, step_s: float, offset_of, **kw):
+        super().__init__(*args, **kw)
+        self.chamber, self.program, self.step_s = chamber, program, float(step_s)
+        self.offset_of = offset_of
+        self.running = False
+        self.p0 = 0.0            # program time at instrument time t0
+        self.t0 = 0.0
+        self.last_p: Optional[float] = None      # program time of the last setpoint written
+        self.last_sp: Optional[float] = None
+        self.chamber_errors = 0
+        self.writes = 0                          # setpoints written since the program (re)started
+        self.last_window: Optional[list] = None    # the frames of the last recording window
+
+    def program_s(self, now: Optional[float] = None) -> float:
+        now = self.now if now is None else now
+        return self.p0 + (now - self.t0) if self.running else self.p0
+
+    def start_program(self, p0: float) -> None:
+        self.p0, self.t0, self.running, self.last_p = float(p0), float(self.now), True, None
+        self.writes = 0
+        self.write_setpoint()
+
+    def setpoint_at(self, p: float) -> float:
+        """The program's value at program time ``p`` in the setpoint's resolution."""
+        return round(round(self.program.value(p) / SETPOINT_RESOLUTION_C) * SETPOINT_RESOLUTION_C, 1)
+
+    def write_setpoint(self) -> None:
+        p = min(self.program_s(), self.program.duration_s)
+        sp = self.setpoint_at(p)
+        try:
+            if sp != self.last_sp:
+                self.chamber.set_setpoint_C(sp)
+        except OSError as exc:            # ChamberError, minimalmodbus and serial errors: try again next step
+            self.chamber_errors += 1
+            self.events.write("chamber_error", program_s=p, setpoint_C=sp, error=str(exc))
+            if self.chamber_errors >= 20:
+                raise CaptureError(f"the chamber refused or missed 20 setpoints of the ramp program in a row: {exc}; "
+                                   "run the same command again to resume") from None
+            self.last_p = p
+            return
+        self.last_p, self.last_sp, self.chamber_errors = p, sp, 0
+        self.writes += 1
+        self.events.write("ramp_setpoint", program_s=p, setpoint_C=sp, time_s=self.now + self.offset_of())
+
+    def pump(self, timeout: float = 0.02) -> int:
+        before = self.now
+        n = super().pump(timeout)
+        if self.running and before is not None and self.now is not None and self.now < before:
+            self.t0 -= before - self.now       # the instrument's clock restarted: the program does not rewind
+        if self.window is not None:
+            self.last_window = self.window[2]
+        if self.running and self.now is not None and (self.last_p is None or self.last_p < self.program.duration_s):
+            p = self.program_s()
+            due = self.last_p is None or p - self.last_p >= self.step_s
+            if not due and self.writes == 1:
+                # the program's first move goes out as soon as the setpoint's resolution shows it: the
+                # chamber leaves the start temperature when the program does, not a step later
+                due = self.setpoint_at(min(p, self.program.duration_s)) != self.last_sp
+            if due:
+                self.write_setpoint()
+        return n
+
+
+# -- the campaign -----------------------------------------------------------------------------
+
+def _identity(plan: RampPlan, settings: CaptureSettings) -> dict:
+    return {"program_C": [float(v) for v in plan.program_C], "rate_C_per_min": float(plan.rate_C_per_min),
+            "hold_s": float(plan.hold_s),
+            "positions": [[k, float(a), float(b)] for k, (a, b) in plan.positions.items()],   # in cycle order
+            "tau_s": float(settings.tau_s), "unit": settings.unit}
+
+
+def _open_ramp_session(out: Path, plan: RampPlan, settings: CaptureSettings, labels: list):
+    """The ramp capture state of ``out`` (resume) or a new one, the rows already captured and a
+    new session recorded: ``(state, rows, done_before, session)``. A folder holding a stepped
+    capture or another ramp campaign is refused naming what differs."""
+    state_path = out / STATE_NAME
+    identity = _identity(plan, settings)
+    if state_path.exists():
+        try:
+            state = read_json(state_path)
+            if isinstance(state, dict) and state.get("format") == "triadcal.capture":
+                raise CaptureError(f"{out} holds a stepped capture (format 'triadcal.capture'); a ramp capture "
+                                   "cannot resume it: choose another --out")
+            require_format(state, RAMP_STATE_FORMAT, 1, str(state_path), "a ramp capture state file",
+                           "ramp capture state")
+        except InputError as exc:
+            raise CaptureError(str(exc)) from None
+        for key, value in identity.items():
+            if state.get(key) != value:
+                raise CaptureError(f"{out} holds a ramp campaign with a different {key} ({state.get(key)!r}, "
+                                   f"now {value!r}); resume with the same plan and settings or choose another --out")
+    else:
+        state = {"format": RAMP_STATE_FORMAT, "version": 1, **identity, "sessions": []}
+    rows = _read_ramp_rows(out / CSV_NAME, labels)
+    done_before = len(rows)
+    session = len(state["sessions"]) + 1
+    state["sessions"].append({"session": session, "started_wall": time.time(), "visits_before": done_before})
+    atomic_write_json(state_path, state)
+    return state, rows, done_before, session
+
+
+def _read_ramp_rows(path: Path, labels: list) -> list:
+    """Completed visits of an existing campaign.csv, checked against the cycle of positions."""
+    if not path.exists():
+        return []
+    try:
+        c = read_bench_csv(path)
+    except BenchCSVError as exc:
+        raise CaptureError(f"cannot resume: {exc}") from None
+    if "raw_visit" not in c.extra or "program_C" not in c.extra or c.sd is None:
+        raise CaptureError(f"cannot resume: {path} was not written by triadcal capture --ramp "
+                           "(no raw_visit or program_C column)")
+    rows = []
+    for i in range(c.n_visits):
+        want = labels[i % len(labels)]
+        if c.position[i] != want:
+            raise CaptureError(f"cannot resume: {path} line {c.lines[i]} holds {c.position[i]} where the cycle of "
+                               f"positions has {want}")
+        rows.append({"unit": c.unit[i], "setpoint_C": c.setpoint_C[i], "direction": c.direction[i],
+                     "time_s": c.time_s[i], "position": c.position[i], "axis1_deg": c.axis1_deg[i],
+                     "axis2_deg": c.axis2_deg[i], "tau_s": c.tau_s[i], "w": c.w[i], "t": c.t[i],
+                     "sd": c.sd[i], "n_samples": int(c.n_samples[i]), "raw_visit": c.extra["raw_visit"][i],
+                     "program_C": float(c.extra["program_C"][i])})
+    return rows
+
+
+def _ramp_campaign(rows: list, metadata: dict):
+    c = _campaign(rows, metadata)
+    c.extra["program_C"] = np.array([f"{r['program_C']:.3f}" for r in rows], dtype=object).astype(str)
+    return c
+
+
+def capture_ramp(out_dir, *, plan: RampPlan, imu: ImuReadout, bench: Bench, chamber: Chamber,
+                 settings: Optional[CaptureSettings] = None, step_s: float = DEFAULT_STEP_S,
+                 progress: Optional[Callable[[dict], None]] = None,
+                 extra_metadata: Optional[dict] = None) -> CaptureReport:
+    """Run (or resume) the ramp ``plan`` into ``out_dir`` (``triadcal capture --ramp``); see the module
+    docstring. ``settings.tau_s`` is the plan's dwell (set from the plan when the settings are not
+    given); ``settings.stabilisation`` applies once, at the program's first temperature.
+    ``progress`` is called as by :func:`triadcal.hardware.capture.capture` (events 'start', 'soak',
+    'move', 'record', 'visit', 'done'; ``setpoint_C`` is the program's present value)."""
+    settings = settings or CaptureSettings(tau_s=float(plan.tau_s))
+    if not math.isclose(float(settings.tau_s), float(plan.tau_s)):
+        raise InputError(f"the ramp plan's tau_s is {plan.tau_s:g} s; the capture's {settings.tau_s:g} s differs")
+    if not step_s > 0:
+        raise InputError(f"the ramp's setpoint step must be > 0 s, not {step_s!r}")
+    try:
+        with folder_lock(out_dir, "capture"):
+            return _capture_ramp(Path(out_dir), plan, imu, bench, chamber, settings, float(step_s),
+                                 progress, extra_metadata)
+    except FolderLocked as exc:
+        raise CaptureError(str(exc)) from None
+
+
+def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, extra_metadata) -> CaptureReport:
+    from .protocols import TEMPERATURE_NONE
+
+    wall0 = time.monotonic()
+    (out / "raw").mkdir(parents=True, exist_ok=True)
+    positions = {str(k): (float(v[0]), float(v[1])) for k, v in plan.positions.items()}
+    labels = list(positions)
+    program = RampProgram.of(plan)
+    if getattr(imu, "temperature", None) == TEMPERATURE_NONE:
+        raise CaptureError(f"the IMU ({getattr(imu, 'protocol', 'this protocol')}) gives no temperature: a ramp "
+                           "capture labels each visit by the unit's temperatures and the fit takes their rate")
+    commanded = getattr(bench, "commanded", None)
+    if commanded is not None:
+        for label, (a1, a2) in positions.items():
+            try:
+                commanded(a1, a2)
+            except BenchError as exc:
+                raise CaptureError(f"position {label} ({a1:g}, {a2:g}) of the plan: {exc}") from None
+    total = int(plan.n_visits)          # the plan's count (20 s moves); the bench's own moves decide
+    notify = progress or (lambda ev: None)
+
+    state, rows, done_before, session = _open_ramp_session(out, plan, settings, labels)
+    state_path = out / STATE_NAME
+    previous = [e for e in read_events(out / EVENTS_NAME) if e.get("kind") == "ramp_setpoint"]
+    raw = RawStore(out / RAW_NAME)
+    events = EventLog(out / EVENTS_NAME)
+    ramp_text = (":".join(f"{v:g}" for v in plan.program_C) + f" degC at {plan.rate_C_per_min:g} degC/min, "
+                 f"hold {plan.hold_s:g} s")
+    events.write("session_start", session=session, visits_done=done_before, total=total, ramp=ramp_text,
+                 stabilisation=settings.stabilisation.describe())
+    imu.open()
+    stream = StreamThread(imu)
+    stream.start()
+    offset_box = {"offset": float(state.get("time_offset_s", 0.0) or 0.0)}
+    tee = _TeeStream(stream)
+    run = _RampRunner(tee, raw, events, session, settings, chamber=chamber, program=program, step_s=step_s,
+                      offset_of=lambda: offset_box["offset"])
+    redone = 0
+    first_start = state["sessions"][0]["started_wall"]
+    metadata = {
+        "generator": f"triadcal {__version__} capture --ramp",
+        "date": time.strftime("%Y-%m-%d", time.gmtime(first_start)),
+        "bench": settings.bench_name,
+        "local_g_m_s2": repr(settings.local_g_m_s2),
+        "output_unit": settings.output_unit,
+        **{k: v for k, v in imu_metadata(imu).items() if k != "output_unit" or settings.output_unit == "V"},
+        "raw_samples": RAW_NAME,
+        "ramp": ramp_text,
+        "ramp_setpoint": (f"the program's value written as the chamber's setpoint every {step_s:g} s of the "
+                          f"program ({SETPOINT_RESOLUTION_C:g} degC resolution); program_C is its value at the "
+                          "window's middle"),
+        "ramp_labels": ("setpoint_C: the target of the program's leg at the window's middle; direction: the sign "
+                        "of the unit's rate over the window (a least-squares quadratic through the mean "
+                        f"temperature reading over the window and the {DIRECTION_SPAN_S:g} s before), when 3 "
+                        "standard errors from 0, else the previous visit's"),
+        "stabilisation": "at the program's first temperature only: " + settings.stabilisation.describe(),
+        "settle_s": f"{settings.settle_s:g}",
+        **({"plan": plan.name} if plan.name else {}),
+        **({"operator": settings.operator} if settings.operator else {}),
+        **(extra_metadata or {}),
+    }
+    noise_est: Optional[NoiseEstimate] = None
+    try:
+        run.wait_first_frame()
+        offset = state.get("time_offset_s")
+        last_end = max((r["time_s"] + r["tau_s"] / 2 for r in rows), default=0.0)
+        if previous:
+            last_end = max(last_end, max(float(e.get("time_s", 0.0)) for e in previous))
+        if offset is None or run.now + offset < last_end:
+            offset = last_end - run.now
+            state["time_offset_s"] = offset
+            atomic_write_json(state_path, state)
+        offset_box["offset"] = offset
+        notify({"event": "start", "done": done_before, "total": total})
+
+        if previous:       # the program ran: go on from the last setpoint written, no new soak
+            p_resume = max(float(e["program_s"]) for e in previous)
+            events.write("ramp_resume", program_s=p_resume, setpoint_C=program.value(p_resume))
+            run.start_program(p_resume)
+        else:              # a ramp program starts from rest at its first temperature
+            sp0 = float(program.knot_C[0])
+            soak(run, chamber, events, settings, 0, sp0, "r-start", f"the ramp's first temperature {sp0:g} degC",
+                 notify, len(rows), total)
+            events.write("ramp_start", program_s=0.0, time_s=run.now + offset)
+            run.start_program(0.0)
+
+        while run.program_s() < program.duration_s:
+            i = len(rows)
+            label = labels[i % len(labels)]
+            a1, a2 = positions[label]
+            info = {"done": i, "total": max(total, i + 1), "setpoint_C": program.value(run.program_s()),
+                    "position": label}
+            for attempt in range(1, settings.max_attempts + 1):
+                tag = f"r{i:04d}-{label}-{session}.{attempt}"
+                run.last_window = None
+                row = _visit(run, bench, events, settings, tag, a1, a2, notify, info)
+                if row is not None:
+                    why = not_stationary(run.last_window or [], [r["sd"] for r in rows[-12:]])
+                    if why is None:
+                        mid = row["mid_instrument_s"]
+                        rates = window_rates(tee.history, mid - settings.tau_s / 2, mid + settings.tau_s / 2)
+                        if not turned_within(rates) or attempt == settings.max_attempts:
+                            break
+                        why = (f"the unit's temperature turned within the window (rate {rates['start'] * 60:+.3g} "
+                               f"then {rates['end'] * 60:+.3g} degC/min): both hysteresis branches in one visit")
+                    events.write("visit_redone", tag=tag, why=why)
+                redone += 1
+            else:
+                raise CaptureError(f"visit {i + 1} ({label}) of the ramp: too few samples in "
+                                   f"{settings.max_attempts} attempts (see {EVENTS_NAME})")
+            raw.sync()       # every sample of the visit is on disk before the visit counts
+            mid = row.pop("mid_instrument_s")
+            p_mid = run.program_s(mid)
+            rates = window_rates(tee.history, mid - settings.tau_s / 2, mid + settings.tau_s / 2)
+            slope, se = rates["mean"], rates["mean_se"]
+            first_leg = "heating" if program.knot_C[1] > program.knot_C[0] else "cooling"
+            direction = visit_direction(slope, se, rows[-1]["direction"] if rows else first_leg)
+            row.update(unit=settings.unit, setpoint_C=program.target(p_mid), direction=direction, position=label,
+                       axis1_deg=a1, axis2_deg=a2, tau_s=settings.tau_s, raw_visit=tag,
+                       program_C=program.value(min(p_mid, program.duration_s)))
+            row["time_s"] = mid + offset
+            rows.append(row)
+            atomic_write_text(out / CSV_NAME, format_bench_csv(_ramp_campaign(rows, metadata)))
+            events.write("visit", index=len(rows), tag=tag, n_samples=row["n_samples"], program_s=p_mid,
+                         program_C=row["program_C"], slope_C_per_min=slope * 60.0,
+                         slope_se_C_per_min=se * 60.0 if math.isfinite(se) else None, direction=direction)
+            notify({"event": "visit", "done": len(rows), "total": max(total, len(rows)),
+                    "setpoint_C": row["program_C"], "position": label})
+        if run.last_p is None or run.last_p < program.duration_s:
+            run.write_setpoint()          # the program's last value: the chamber holds it
+        run.running = False
+        run.phase, run.visit_tag = "idle", ""
+        events.write("ramp_end", program_s=program.duration_s, visits=len(rows))
+        noise_est = _campaign_noise(out / RAW_NAME, rows, run.rate_hz)
+        if noise_est is not None:
+            metadata.update(noise_est.metadata())
+        if rows:
+            atomic_write_text(out / CSV_NAME, format_bench_csv(_ramp_campaign(rows, metadata)))
+        notify({"event": "done", "done": len(rows), "total": len(rows)})
+    finally:
+        stream.stop()
+        try:                      # frames read but not yet pumped are stored too
+            run.running = False
+            run.phase, run.visit_tag, run.window = "idle", "", None
+            while run.pump(0.0):
+                pass
+        except (CaptureError, RuntimeError):
+            pass
+        raw.close()
+        ps, ls = imu.parser_stats, imu.link_stats
+        report = CaptureReport(
+            out_dir=str(out), csv_path=str(out / CSV_NAME), session=session, visits_total=max(total, len(rows)),
+            visits_done_before=done_before, visits_done=len(rows), accepted_samples=run.accepted,
+            duplicate_frames=run.duplicates, missing_frames=run.missing, corrupted_frames=ps.corrupted,
+            garbage_bytes=ps.garbage_bytes, reconnects=ls.reconnects, disconnects=ls.disconnects,
+            stalls=ls.stalls, redone_visits=redone,
+            noise=None if noise_est is None else {
+                "Q_V2s": list(noise_est.Q_V2s), "bias_instability_V": list(noise_est.bias_instability_V),
+                "floor_reached": list(noise_est.floor_reached), "taus_s": noise_est.taus_s.tolist(),
+                "adev_V": noise_est.adev.tolist()},
+            wall_seconds=time.monotonic() - wall0)
+        for t, text in ls.events:
+            events.write("link", text=text, at_wall=t)
+        events.write("session_end", **{k: v for k, v in report.to_dict().items() if k != "noise"})
+        events.close()
+        atomic_write_json(out / REPORT_NAME, report.to_dict())
+    return report
