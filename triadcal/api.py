@@ -53,7 +53,7 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
         reference_temperature_C: float = 20.0, loss: str = "l2", strict: bool = False,
         json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0, lab=None,
         hysteresis_form: str = "offset", hysteresis_half_width_C: Optional[float] = None,
-        bench_errors_from_replicates: bool = False, thermal_order: str = "1"):
+        bench_errors_from_replicates: bool = False, thermal_order: str = "1", thermal_lag_form: str = "rate"):
     """Calibrate from a campaign (``triadcal fit``): ``data`` is a bench CSV path, a
     :class:`~triadcal.models.campaign.Campaign`, or None for the built-in example.
     ``angle_bound_arcsec``: the answer gates' bound on an orientation angle (arcsec).
@@ -66,10 +66,19 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     replicated visits (:func:`triadcal.estimation.joint.bench_errors_from_replicates`) instead of
     taking them from the lab file (the result's ``fit.bench_errors.source`` says which).
     ``thermal_order``: ``1`` (the effects as given), ``2`` (every linear tempco's quadratic term
-    added) or ``auto`` (the quadratic terms the data support, :mod:`triadcal.estimation.thermal_order`).
+    added), ``3`` (quadratic and cubic terms added) or ``auto`` (the order 1-3 the data support per
+    family, :mod:`triadcal.estimation.thermal_order`).
+    ``effects`` may name the noise effects: ``position_error`` (the bench's random errors estimated
+    from the residuals as a variance component) and ``heavy_tails`` (the Student-t likelihood);
+    :mod:`triadcal.estimation.noise_effects`.
+    ``thermal_lag_form``: ``rate`` (the ``thermal_lag`` effect as listed: ``T - tau dT/dt``, for
+    short lags), ``housing`` or ``air`` (the element's lag estimated from the temperature history,
+    the thermometer on the housing or in the chamber air;
+    :func:`triadcal.estimation.thermal_lag_form.fit_thermal_lag`).
     ``hysteresis_form``: ``offset`` (the branches a constant offset apart), ``play`` (a play
-    hysteresis of half-width ``hysteresis_half_width_C`` degC, profiled when None) or ``auto``
-    (chosen by the data; :mod:`triadcal.estimation.hysteresis_form`).
+    hysteresis of half-width ``hysteresis_half_width_C`` degC, profiled when None), ``pi`` (a
+    Prandtl-Ishlinskii sum of two plays, profiled) or ``auto`` (chosen by the data;
+    :mod:`triadcal.estimation.hysteresis_form`).
     Returns a :class:`~triadcal.estimation.result.CalibrationResult` whose ``status`` is
     ``ok`` only when every answer gate passed (docs/statuses.md)."""
     from .estimation.gates import GateConfig
@@ -106,26 +115,59 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             from .models.model import Model
 
             bench = from_replicates(campaign, Model(effects, reference_temperature_C))
-        kwargs = dict(reference_temperature_C=reference_temperature_C, loss=loss,
+        from .estimation.noise_effects import resolve_noise_effects
+
+        noise_fx = resolve_noise_effects(campaign, effects, bench_errors=bench, loss=loss,
+                                         reference_temperature_C=reference_temperature_C, gates=gates)
+        effects = noise_fx["effects"]
+        kwargs = dict(reference_temperature_C=reference_temperature_C, loss=noise_fx["loss"], nu=noise_fx["nu"],
                       unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates,
-                      bench_errors=bench, systematics=systematics)
+                      bench_errors=noise_fx["bench_errors"], systematics=systematics)
         order_block = None
+        initial_effects = effects
         if thermal_order != "1":
             from .estimation.thermal_order import choose_thermal_order
 
             effects, order_block = choose_thermal_order(
                 campaign, effects, thermal_order, **{k: v for k, v in kwargs.items() if k != "return_problem"})
+        if thermal_lag_form not in ("rate", "housing", "air"):
+            raise InputError(f"unknown thermal lag form {thermal_lag_form!r}: choose rate, housing or air")
+        if thermal_lag_form != "rate":
+            if hysteresis_form != "offset" or hysteresis_half_width_C is not None or thermal_order != "1" \
+                    or netcdf_path is not None:
+                raise InputError(f"--thermal-lag-form {thermal_lag_form} is fitted with the offset hysteresis, "
+                                 "linear tempcos and no --netcdf (not combined with --hysteresis-form, "
+                                 "--hysteresis-width, --thermal-order or --netcdf)")
+            from .estimation.thermal_lag_form import fit_thermal_lag
+
+            kwargs.pop("return_problem")
+            result = fit_thermal_lag(campaign, effects, thermal_lag_form, **kwargs)
+            result.notes.extend(noise_fx["notes"] + ([added] if added else []))
+            result.extra.update(noise_fx["extra"])
+            if json_path is not None:
+                result.save(json_path)
+            return result
         if hysteresis_form == "offset" and hysteresis_half_width_C is None:
             result, problem, solution = fit_joint(campaign, effects, **kwargs)
         else:
             from .estimation.hysteresis_form import fit_hysteresis_form
 
             kwargs.pop("return_problem")
+            given, form_used = campaign, "play" if hysteresis_form == "offset" else hysteresis_form
             result, problem, solution, campaign = fit_hysteresis_form(
-                campaign, effects, "play" if hysteresis_form == "offset" else hysteresis_form,
-                hysteresis_half_width_C, **kwargs)
+                given, effects, form_used, hysteresis_half_width_C, **kwargs)
+            if order_block is not None and order_block["order"] == "auto" and campaign is not given:
+                # the order was chosen with the offset form; chosen again on the form's branches
+                # (an unmodelled play or PI must not be taken up by a higher tempco), then the form
+                again, block = choose_thermal_order(campaign, initial_effects, "auto", **kwargs)
+                if again != effects:
+                    effects, order_block = again, dict(block, rechosen_with_hysteresis_form=True)
+                    result, problem, solution, campaign = fit_hysteresis_form(
+                        given, effects, form_used, hysteresis_half_width_C, **kwargs)
         if added:
             result.notes.append(added)
+        result.notes.extend(noise_fx["notes"])
+        result.extra.update(noise_fx["extra"])
         if order_block is not None:
             result.fit["thermal_order"] = order_block
             result.notes.append("thermal order: " + (", ".join(order_block["added"]) or "linear") + " ("

@@ -6,7 +6,7 @@ from ..errors import InputError
 
 import sys
 
-from ..models.effects import DEFAULT_EFFECTS, EFFECTS
+from ..models.effects import DEFAULT_EFFECTS, EFFECTS, NOISE_EFFECTS
 from ._common import add_output_options, name_list, output
 
 
@@ -23,7 +23,8 @@ def register(sub) -> None:
                    help="mechanical state to fit when the file holds several")
     p.add_argument("--method", choices=("classical", "joint"), default="joint")
     p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS),
-                   help=f"effects of the joint model, from: {', '.join(EFFECTS)}; default: "
+                   help=f"effects of the joint model, from: {', '.join(EFFECTS)}, and the noise effects "
+                        f"{', '.join(NOISE_EFFECTS)} (a variance component / the Student-t likelihood); default: "
                         f"{','.join(DEFAULT_EFFECTS)} (the thermal-campaign model: bench tilt, linear "
                         "tempcos of angles, scale factors and biases, hysteresis of the angles)")
     p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
@@ -45,13 +46,20 @@ def register(sub) -> None:
     p.add_argument("--bench-errors-from-replicates", action="store_true",
                    help="estimate the bench's random positioning and wobble errors from the plan's replicated "
                         "visits (one position visited twice or more at a setpoint) instead of the lab file's")
-    p.add_argument("--thermal-order", choices=("1", "2", "auto"), default="1",
-                   help="order of the tempcos: 1 (linear, default), 2 (quadratic terms added), auto (the quadratic "
-                        "terms the data support: likelihood ratio at 99 %% per family); docs/model.md")
-    p.add_argument("--hysteresis-form", choices=("offset", "play", "auto"), default="offset",
+    p.add_argument("--thermal-order", choices=("1", "2", "3", "auto"), default="1",
+                   help="order of the tempcos: 1 (linear, default), 2 (quadratic terms added), 3 (quadratic and "
+                        "cubic terms added), auto (the order 1-3 the data support per family: likelihood ratio at "
+                        "99 %%, cubic tested first); docs/model.md")
+    p.add_argument("--hysteresis-form", choices=("offset", "play", "pi", "auto"), default="offset",
                    help="form of the angles' hysteresis: offset (the branches a constant offset apart, default), "
-                        "play (a backlash of half-width r on the temperature history, r profiled), auto (chosen by "
-                        "the data: likelihood ratio at 99 %%); docs/model.md")
+                        "play (a backlash of half-width r on the temperature history, r profiled), pi (a "
+                        "Prandtl-Ishlinskii sum of two plays, widths and weight profiled), auto (chosen by "
+                        "the data: nested likelihood ratios at 99 %%); docs/model.md")
+    p.add_argument("--thermal-lag-form", choices=("rate", "housing", "air"), default="rate",
+                   help="with a ramp or a continuously logged record: the element's thermal lag estimated from "
+                        "the temperature history, the thermometer on the housing (one stage, thermal_lag, min) or "
+                        "in the chamber air (two stages, thermal_lag_housing and thermal_lag); default rate: the "
+                        "thermal_lag effect's T - tau dT/dt, for short lags only; docs/model.md")
     p.add_argument("--hysteresis-width", type=float, default=None, metavar="DEGC",
                    help="the play's half-width r in degC (fixed instead of profiled)")
     p.add_argument("--joint-units", action="store_true",
@@ -82,7 +90,8 @@ def run(args) -> int:
                  strict=args.strict, json_path=args.json, netcdf_path=args.netcdf,
                  angle_bound_arcsec=args.angle_bound_arcsec, lab=args.lab,
                  hysteresis_form=args.hysteresis_form, hysteresis_half_width_C=args.hysteresis_width,
-                 bench_errors_from_replicates=args.bench_errors_from_replicates, thermal_order=args.thermal_order)
+                 bench_errors_from_replicates=args.bench_errors_from_replicates, thermal_order=args.thermal_order,
+                 thermal_lag_form=args.thermal_lag_form)
     out.say(summary_text(result))
     if args.json:
         out.say(f"result written to {args.json}")

@@ -87,13 +87,14 @@ def with_bench_errors(campaign: Campaign, model: Model, noise: "NoiseSource",
 
 
 def noise_of(campaign: Campaign) -> NoiseSource:
-    """Weights of the fit: ``sd_*/sqrt(n_samples)`` where present, else ``sqrt(Q/tau)`` from a
+    """Weights of the fit: ``u_w_*`` (the data's own noise) or ``sd_*/sqrt(n_samples)`` where
+    present (:meth:`Campaign.output_sigma`), else ``sqrt(Q/tau)`` from a
     ``Q_V2s`` metadata line, else ``1/sqrt(tau)`` relative weights with the scale estimated."""
     s = campaign.output_sigma()
     why = ""
     if s is not None:
         if np.all(s > 0):
-            return NoiseSource(s, True, "sd_*/sqrt(n_samples) of each visit")
+            return NoiseSource(s, True, campaign.output_sigma_method())
         why = "; sd_* is zero in some visits, so it cannot weight the fit"
     elif "Q_V2s" in campaign.metadata and float(campaign.metadata["Q_V2s"]) > 0:
         Q = float(campaign.metadata["Q_V2s"])
@@ -222,14 +223,29 @@ def null_space_problems(J: np.ndarray, names: Sequence[str], rtol: float = 1e-8)
 
 
 def robust_weights(r: np.ndarray, loss: str, nu: float = 4.0, c: float = 1.345) -> np.ndarray:
-    """IRLS weights of normalised residuals for a robust loss (Huber with c, Student-t with nu)."""
+    """IRLS weights ``psi(r)/r`` of normalised residuals for a robust loss: Huber with ``c``, or
+    the Student-t of ``nu`` dof scaled to unit variance (the residuals are normalised by the
+    output noise's SD), ``psi(r) = (nu + 1) r / (nu - 2 + r^2)`` (the MLE's score; for
+    ``nu <= 2``, which has no variance, the standard t's ``nu + r^2``)."""
     if loss == "l2":
         return np.ones_like(r)
     if loss == "huber":
         a = np.abs(r)
         return np.where(a <= c, 1.0, c / np.maximum(a, 1e-300))
     if loss == "student_t":
-        return (nu + 1.0) / (nu + r * r)
+        return (nu + 1.0) / ((nu - 2.0 if nu > 2.0 else nu) + r * r)
+    raise InputError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+
+
+def robust_psi_slope(r: np.ndarray, loss: str, nu: float = 4.0, c: float = 1.345) -> np.ndarray:
+    """``psi'(r)`` of :func:`robust_weights`' loss (for the sandwich covariance)."""
+    if loss == "l2":
+        return np.ones_like(r)
+    if loss == "huber":
+        return (np.abs(r) <= c).astype(float)
+    if loss == "student_t":
+        a = nu - 2.0 if nu > 2.0 else nu
+        return (nu + 1.0) * (a - r * r) / (a + r * r) ** 2
     raise InputError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
 
 
@@ -387,9 +403,12 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     sw = np.sqrt(sol.weights)
     cov = scaled_covariance(sol.J * sw[:, None])
     if loss != "l2":
-        # robust loss: residual variance of the weighted residuals (Huber's proposal 2 style)
-        s2 = float(np.sum(sol.weights * sol.r ** 2)) / max(dof, 1)
-        cov = cov * max(s2, 1e-300) if not noise.known else cov * max(1.0, s2)
+        # robust loss: the M-estimator's sandwich covariance in Huber's form (Huber 1981, eq. 7.6.10
+        # without its small-sample factor), (J^T J)^-1 * [sum psi^2 / (n - p)] / mean(psi')^2 -- the
+        # spread the estimate has whatever the residuals' distribution, not the one the loss assumes
+        psi = sol.weights * sol.r
+        slope = float(np.mean(robust_psi_slope(sol.r, loss, nu)))
+        cov = scaled_covariance(sol.J) * (float(np.sum(psi ** 2)) / max(dof, 1)) / max(slope, 1e-3) ** 2
     elif not noise.known:
         cov = cov * chi2_dof
     u_a = np.sqrt(np.diag(cov))

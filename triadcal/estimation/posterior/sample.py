@@ -75,6 +75,10 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     the joint fit (:func:`~triadcal.estimation.joint.with_bench_errors`). ``systematics``: the
     lab's systematic errors (:func:`triadcal.uncertainty.typeb.systematic_sources`),
     propagated through the least squares and combined with the posterior's SD in each ``u``.
+    ``effects`` may name the noise effects (:mod:`triadcal.estimation.noise_effects`):
+    ``position_error`` (the bench's random errors estimated from the residuals and held there, a
+    plug-in variance component) and ``heavy_tails`` (the unit-variance Student-t likelihood, its
+    dof held at the profile-likelihood value).
     """
     gates = gates or DEFAULT_CONFIG
     if moves not in MOVES:
@@ -82,18 +86,24 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     campaign = _load(data)
     from ...uncertainty.typeb import effects_with_lab
 
-    effects, added = effects_with_lab(effects, systematics)
+    from ..noise_effects import resolve_noise_effects
+
     t_start = time.perf_counter()
+    noise_fx = resolve_noise_effects(campaign, effects, bench_errors=bench_errors,
+                                     reference_temperature_C=reference_temperature_C, gates=gates)
+    effects, bench_errors, nu = noise_fx["effects"], noise_fx["bench_errors"], noise_fx["nu"]
+    nu = nu if noise_fx["loss"] == "student_t" else math.inf
+    effects, added = effects_with_lab(effects, systematics)
     if least_squares is None:
         least_squares = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
                                   return_problem=True, gates=gates, bench_errors=bench_errors,
-                                  systematics=systematics)
+                                  systematics=systematics, loss=noise_fx["loss"], nu=noise_fx["nu"])
     ls, ls_problem, ls_sol = least_squares
     model = Model(effects, reference_temperature_C)
     pri = default_priors(model, overrides=priors)
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     sigma = noise.sigma
-    notes = [added] if added else []
+    notes = ([added] if added else []) + noise_fx["notes"]
     if not noise.known:
         chi2_dof = ls.fit.get("chi2_dof")
         if not (chi2_dof and np.isfinite(chi2_dof)):
@@ -110,12 +120,13 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     d = len(model.names)
     W = int(n_walkers or 2 * d)
     W += W % 2
-    target = LogPosterior(campaign, model, sigma, pri, x_map, Lc, block=W // 2)
+    target = LogPosterior(campaign, model, sigma, pri, x_map, Lc, block=W // 2, nu=nu)
     run = run_sampler(target, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
                       seed=seed, moves=moves, progress=progress, max_saved_draws=max_saved_draws)
     total_seconds = time.perf_counter() - t_start
     result = _result(campaign, model, problem, pri, ls, run, notes, total_seconds, ess, rhat_max, tau_factor, max_steps,
                      gates)
+    result.extra.update(noise_fx["extra"])
     if json_path is not None:
         result.save(json_path)
     if posterior_path is not None:

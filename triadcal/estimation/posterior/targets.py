@@ -24,9 +24,11 @@ from ..result import Z95
 from .compile import _compile
 
 
-def _visit_functions(model: Model):
+def _visit_functions(model: Model, nu: float = math.inf):
     """Per-visit pointwise ``-1/2 r^2`` (3 axes) of eq. 1, symbolic in the parameters
-    (reporting units) and the visit's covariates, observation and inverse sigma."""
+    (reporting units) and the visit's covariates, observation and inverse sigma; with a finite
+    ``nu`` the unit-variance Student-t kernel ``-(nu+1)/2 log(1 + r^2 / ((nu-2)))`` instead
+    (``heavy_tails``, :func:`triadcal.models.effects.heavy_tails.logpdf` without its constant)."""
     npar = len(model.names)
     x = ca.SX.sym("x", npar)
     c = ca.SX.sym("c", len(COVARIATES))
@@ -38,6 +40,8 @@ def _visit_functions(model: Model):
                      branch=c[8], time_s=c[9])
     w = ca.vertcat(*model.predict(p, cov, g))
     r = (wo - w) * isg
+    if math.isfinite(nu):
+        return ca.Function("visit_loglik", [x, c, g, wo, isg], [-0.5 * (nu + 1.0) * ca.log1p(r * r / (nu - 2.0))])
     return ca.Function("visit_loglik", [x, c, g, wo, isg], [-0.5 * r * r])
 
 
@@ -50,8 +54,11 @@ class LogPosterior:
     """
 
     def __init__(self, campaign: Campaign, model: Model, sigma: np.ndarray, priors: Mapping[str, Prior],
-                 x0: np.ndarray, L: np.ndarray, block: int):
+                 x0: np.ndarray, L: np.ndarray, block: int, nu: float = math.inf):
+        from ...models.effects.heavy_tails import logpdf
+
         self.model = model
+        self.nu = float(nu)
         self.names = model.names
         self.d = len(self.names)
         self.n = campaign.n_visits
@@ -65,8 +72,8 @@ class LogPosterior:
         self.sigma = np.asarray(sigma, float)
         self.args = [ca.DM(self.x0), ca.DM(self.L), ca.DM(C), campaign.gravity_g, ca.DM(campaign.w.T),
                      ca.DM(1.0 / self.sigma.T), ca.DM(mu), ca.DM(1.0 / sd)]
-        self.log_norm = -np.log(self.sigma * math.sqrt(2 * math.pi))    # (n, 3)
-        key = (model.effect_names, model.reference_temperature_C, self.n, self.block)
+        self.log_norm = float(logpdf(0.0, self.nu)) - np.log(self.sigma)    # (n, 3)
+        key = (model.effect_names, model.reference_temperature_C, self.n, self.block, self.nu)
         self.f_lp, self.compiled = _compile(("lp",) + key, self._build_lp)
         self._f_pw = None
         self.evaluations = 0
@@ -79,7 +86,7 @@ class LogPosterior:
         return Z, syms
 
     def _build_lp(self) -> ca.Function:
-        visit = _visit_functions(self.model)
+        visit = _visit_functions(self.model, self.nu)
         Z, (x0, L, C, g, W, IS, mu, isd) = self._symbols()
         xs = ca.MX.sym("x", self.d)
         ll = ca.sum2(ca.sum1(visit.map(self.n, "serial")(xs, C, g, W, IS)))
@@ -90,7 +97,7 @@ class LogPosterior:
         return ca.Function("triadcal_logpost", [Z, x0, L, C, g, W, IS, mu, isd], [out])
 
     def _build_pw(self) -> ca.Function:
-        visit = _visit_functions(self.model)
+        visit = _visit_functions(self.model, self.nu)
         Z, (x0, L, C, g, W, IS, mu, isd) = self._symbols()
         xs = ca.MX.sym("x", self.d)
         pw = ca.vec(visit.map(self.n, "serial")(xs, C, g, W, IS))    # visit-major: 3 per visit
@@ -129,10 +136,11 @@ class LogPosterior:
         return lp
 
     def pointwise(self, z: np.ndarray) -> np.ndarray:
-        """Pointwise log-likelihood ``log N(w_obs | w_model, sigma)`` per draw, visit and axis:
+        """Pointwise log-likelihood ``log N(w_obs | w_model, sigma)`` (or the unit-variance
+        Student-t of ``nu`` dof) per draw, visit and axis:
         shape (m, n, 3)."""
         if self._f_pw is None:
-            key = (self.model.effect_names, self.model.reference_temperature_C, self.n, self.block)
+            key = (self.model.effect_names, self.model.reference_temperature_C, self.n, self.block, self.nu)
             self._f_pw, _ = _compile(("pw",) + key, self._build_pw)
         v = self._blocks(self._f_pw, z)              # (3 n, m)
         return v.T.reshape(-1, self.n, 3) + self.log_norm[None]

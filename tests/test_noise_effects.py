@@ -1,0 +1,163 @@
+"""The noise effects are one command away from their refit (issue 18, item 2):
+``fit --effects ...,position_error`` estimates the bench's random positioning error as a variance
+component (REML from the residuals) and ``fit --effects ...,heavy_tails`` fits the Student-t
+likelihood with its dof by profile likelihood.
+
+Campaigns come from ``tests/independent_bench.py`` (scipy rotations, its own random bench errors
+per visit), not from the project's simulator; the heavy-tailed noise is drawn here with numpy.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from independent_bench import simulate_campaign
+from triadcal.errors import InputError
+from triadcal.estimation.joint import BenchErrors, fit_joint
+from triadcal.estimation.noise_effects import (fit_with_noise_effects, heavy_tails_dof,
+                                               reml_variance_component, split_effects)
+from triadcal.io.bench_csv import read_bench_csv
+
+EFFECTS = ["bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco"]
+ANGLES = ("Ca_xy", "Ca_xz", "Ca_yx", "Ca_yz", "Ca_zx", "Ca_zy")
+
+
+def _campaign(tmp_path, seed, sigma_position_arcsec=0.0, name="c.csv"):
+    rng = np.random.default_rng(seed)
+    text, truth = simulate_campaign(rng, sigma_position_arcsec=sigma_position_arcsec,
+                                    sigma_wobble_arcsec=0.4 * sigma_position_arcsec, tilt_arcsec=(20.0, -10.0))
+    path = tmp_path / name
+    path.write_text(text)
+    return path, truth
+
+
+def test_reml_equation_solved_as_derived_by_hand():
+    # c = 1, h = 0, s^2 = 1 everywhere: the score sum(r^2 - v)/v^2 = 0 gives v = mean(r^2), tau = v - 1,
+    # and I(tau) = n / (2 v^2)
+    r = np.array([1.5, -2.0, 0.5, 2.5, -1.0, 1.0])
+    tau, u = reml_variance_component(r, np.ones(6), np.ones(6), np.zeros(6))
+    v = float(np.mean(r ** 2))
+    assert tau == pytest.approx(v - 1.0, rel=1e-9)
+    assert u == pytest.approx(math.sqrt(2.0 * v ** 2 / 6.0), rel=1e-9)
+    # leverage h = 1/2 halves the expected r^2: v = mean(r^2) / (1 - h)
+    tau_h, _ = reml_variance_component(r, np.ones(6), np.ones(6), np.full(6, 0.5))
+    assert tau_h == pytest.approx(2.0 * v - 1.0, rel=1e-9)
+    # residuals smaller than the known noise: the component is 0, not negative
+    assert reml_variance_component(0.1 * r, np.ones(6), np.ones(6), np.zeros(6))[0] == 0.0
+
+
+def test_split_effects():
+    assert split_effects(["bench_tilt", "position_error", "angle_tempco", "heavy_tails"]) == (
+        ["bench_tilt", "angle_tempco"], ["position_error", "heavy_tails"])
+
+
+@pytest.mark.parametrize("sigma_true", [5.0, 10.0])
+def test_position_error_is_estimated_and_closes_the_gap(tmp_path, sigma_true):
+    path, truth = _campaign(tmp_path, 0, sigma_true)
+    c = read_bench_csv(path)
+    plain = fit_joint(c, EFFECTS)
+    r = fit_with_noise_effects(c, EFFECTS + ["position_error"])
+    pe = r.extra["position_error"]["position_error_sigma"]
+    # the bench errors of the independent bench are there: without them chi2/dof is far above 1
+    assert plain.fit["chi2_dof"] > 3.0
+    assert abs(pe["value"] - sigma_true) < 3.0 * pe["u"], pe
+    assert pe["unit"] == "arcsec" and r.extra["noise_effects"] == ["position_error"]
+    # chi2/dof back in the band of its dof (3 x 60 obs - ~25 parameters: sd sqrt(2/155) = 0.11)
+    assert abs(r.fit["chi2_dof"] - 1.0) < 0.35, r.fit["chi2_dof"]
+    assert r.status == "ok"
+    z = [(r.parameters[k].value - truth[k]) / r.parameters[k].u for k in ANGLES]
+    assert max(abs(v) for v in z) < 3.5, z
+    assert "estimated from the residuals" in r.fit.get("noise", "") + json.dumps(r.to_dict())
+
+
+def test_position_error_on_a_perfect_bench_is_consistent_with_zero(tmp_path):
+    path, _ = _campaign(tmp_path, 1, 0.0)
+    r = fit_with_noise_effects(read_bench_csv(path), EFFECTS + ["position_error"])
+    pe = r.extra["position_error"]["position_error_sigma"]
+    assert pe["value"] < 3.0 * pe["u"] + 1e-9, pe
+
+
+def test_position_error_conflicts_and_missing_noise_are_refused(tmp_path):
+    path, _ = _campaign(tmp_path, 2, 5.0)
+    c = read_bench_csv(path)
+    with pytest.raises(InputError, match="choose one"):
+        fit_with_noise_effects(c, EFFECTS + ["position_error"], bench_errors=BenchErrors(5.0, 2.0))
+    bare = replace(c, sd=None, n_samples=None, u_w=None, metadata={k: v for k, v in c.metadata.items()
+                                                                   if k != "Q_V2s"})
+    with pytest.raises(InputError, match="no output noise"):
+        fit_with_noise_effects(bare, EFFECTS + ["position_error"])
+
+
+def _student_campaign(tmp_path, seed, nu):
+    """The independent bench with (almost) no noise of its own, plus unit-variance Student-t noise
+    of SD sigma on every mean output (numpy's generator)."""
+    rng = np.random.default_rng(seed)
+    text, truth = simulate_campaign(rng, noise_sd=1e-9, n_samples=3000, tilt_arcsec=(20.0, -10.0))
+    path = tmp_path / f"t{seed}.csv"
+    path.write_text(text)
+    c = read_bench_csv(path)
+    sigma = 2e-5
+    e = rng.standard_t(nu, size=c.w.shape) * math.sqrt((nu - 2.0) / nu) if math.isfinite(nu) else \
+        rng.normal(size=c.w.shape)
+    return replace(c, w=c.w + sigma * e, sd=np.full(c.w.shape, sigma * math.sqrt(3000.0))), truth
+
+
+def test_heavy_tails_fits_the_student_likelihood_with_a_small_dof(tmp_path):
+    c, truth = _student_campaign(tmp_path, 3, 2.5)
+    nu, ll = heavy_tails_dof(c, EFFECTS)
+    assert nu <= 5.0 and ll[nu] > ll[math.inf] + 5.0, (nu, ll)
+    r = fit_with_noise_effects(c, EFFECTS + ["heavy_tails"])
+    assert any("Student-t likelihood" in n for n in r.notes)
+    assert r.extra["noise_effects"] == ["heavy_tails"]
+
+
+def test_heavy_tails_on_normal_noise_keeps_a_large_dof(tmp_path):
+    c, _ = _student_campaign(tmp_path, 4, math.inf)
+    nu, _ = heavy_tails_dof(c, EFFECTS)
+    assert nu >= 20.0, nu
+
+
+def test_heavy_tails_with_another_loss_is_refused(tmp_path):
+    c, _ = _student_campaign(tmp_path, 5, 3.0)
+    with pytest.raises(InputError, match="huber"):
+        fit_with_noise_effects(c, EFFECTS + ["heavy_tails"], loss="huber")
+
+
+def test_fit_command_takes_the_noise_effects(tmp_path):
+    path, _ = _campaign(tmp_path, 0, 5.0)
+    out = tmp_path / "r.json"
+    r = subprocess.run([sys.executable, "-m", "triadcal.cli", "fit", str(path), "--method", "joint", "--effects",
+                        ",".join(EFFECTS + ["position_error"]), "--json", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    assert doc["status"] == "ok"
+    assert "position_error: the bench's random errors estimated from the residuals" in r.stderr
+    assert doc["fit"]["chi2_dof"] < 1.4
+
+
+@pytest.mark.parametrize("noise_effect", [pytest.param("heavy_tails", marks=pytest.mark.slow), "position_error"])
+def test_sample_takes_the_noise_effects(tmp_path, noise_effect):
+    from triadcal.estimation.posterior import sample
+
+    if noise_effect == "heavy_tails":
+        c, truth = _student_campaign(tmp_path, 6, 2.5)
+    else:
+        path, truth = _campaign(tmp_path, 0, 5.0)
+        c = read_bench_csv(path)
+    effects = EFFECTS + [noise_effect]
+    r, run = sample(c, effects, ess=300, seed=1, return_run=True)
+    assert r.extra["noise_effects"] == [noise_effect]
+    assert run.target.nu < 10.0 if noise_effect == "heavy_tails" else run.target.nu == math.inf
+    lsq = fit_with_noise_effects(c, effects)
+    # the posterior and the least squares of the same likelihood agree on the angles within their u
+    for k in ANGLES:
+        assert abs(r.parameters[k].value - lsq.parameters[k].value) < 0.5 * lsq.parameters[k].u + 0.2, k
+        assert 0.7 < r.parameters[k].u / lsq.parameters[k].u < 1.4, (k, r.parameters[k].u, lsq.parameters[k].u)

@@ -1,0 +1,193 @@
+"""The noise effects as options of the fit: ``fit --effects ...,position_error`` and
+``fit --effects ...,heavy_tails`` (issue 18: every name the diagnosis can answer is one command
+away from its refit).
+
+``position_error`` is a variance component, not a mean term: the bench's random positioning and
+wobble errors add ``sigma_1^2 c_i`` to the variance of each mean output, with ``c_i`` the
+sensitivity of eq. 4 of the seed paper
+(:func:`triadcal.models.effects.position_error.bench_variance` per arcsec^2, wobble at
+``wobble_ratio`` of the positioning error). ``sigma_1`` is estimated from the residuals by
+restricted maximum likelihood (REML, Patterson & Thompson 1971) in its usual linearised form:
+with ``v_i = s_i^2 + tau c_i`` (``s_i`` the output noise of the data, ``tau = sigma_1^2``) and
+``h_i`` the leverage of observation ``i`` in the weighted fit, the REML score equation is
+
+    sum_i c_i (r_i^2 - (1 - h_i) v_i) / v_i^2 = 0,
+
+solved for ``tau >= 0``, alternating with the refit of the mean on the new weights. Its standard
+uncertainty is from the expected information ``I(tau) = 1/2 sum_i (1 - h_i) c_i^2 / v_i^2``;
+``u(sigma_1) = u(tau) / (2 sigma_1)`` (delta method). The result is the lab file's bench errors
+with the source "estimated from the residuals": a residual misfit of the mean model is absorbed
+into it, which is why the diagnosis lets a noise candidate win only when no structure is left.
+
+``heavy_tails`` is the Student-t likelihood of the fit (``loss = "student_t"``), its dof ``nu``
+chosen by profile likelihood of the unit-variance Student-t
+(:func:`triadcal.models.effects.heavy_tails.logpdf`) over a grid at the least-squares fit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from ..errors import InputError
+from ..models.effects import NOISE_EFFECTS
+from ..models.effects import heavy_tails as ht
+from ..models.model import Model
+from .joint import WOBBLE_TO_POSITION, BenchErrors, fit_joint, noise_of
+
+#: Student-t dof tried by the profile likelihood of ``heavy_tails``
+NU_GRID = (2.2, 2.5, 3.0, 3.5, 4.0, 5.0, 7.0, 10.0, 20.0, 50.0)
+
+
+def split_effects(effects: Sequence[str]) -> tuple[list, list]:
+    """(mean effects, noise effects) of a list of effect names."""
+    effects = list(effects)
+    return [e for e in effects if e not in NOISE_EFFECTS], [e for e in effects if e in NOISE_EFFECTS]
+
+
+def reml_variance_component(r: np.ndarray, s2: np.ndarray, c: np.ndarray, h: np.ndarray) -> tuple[float, float]:
+    """``(tau, u(tau))`` solving the linearised REML equation of the module docstring for the
+    variance component ``tau >= 0`` multiplying the sensitivities ``c`` (all arrays of one shape:
+    residuals ``r``, known variances ``s2``, leverages ``h``)."""
+    r2, s2, c, q = (np.asarray(a, float).reshape(-1) for a in (np.square(r), s2, c, 1.0 - np.asarray(h)))
+
+    def score(tau):
+        v = s2 + tau * c
+        return float(np.sum(c * (r2 - q * v) / v ** 2))
+
+    if score(0.0) <= 0.0:
+        tau = 0.0
+    else:
+        hi = max(float(np.max(r2 / np.maximum(c, 1e-300))), 1e-12)
+        while score(hi) > 0.0:
+            hi *= 10.0
+        tau = optimize.brentq(score, 0.0, hi, xtol=1e-14 * hi, rtol=1e-12)
+    v = s2 + tau * c
+    info = 0.5 * float(np.sum(q * c ** 2 / v ** 2))
+    return tau, (1.0 / math.sqrt(info) if info > 0 else math.inf)
+
+
+@dataclass(frozen=True)
+class PositionErrorEstimate:
+    """sigma_1 (arcsec) estimated from the residuals, with its standard uncertainty."""
+
+    sigma_position_arcsec: float
+    u_arcsec: float
+    rounds: int
+    bench_errors: BenchErrors
+
+    def to_dict(self) -> dict:
+        return {"position_error_sigma": {"value": self.sigma_position_arcsec, "u": self.u_arcsec,
+                                         "unit": "arcsec"},
+                "method": "REML from the residuals, alternating with the refit of the mean",
+                "rounds": self.rounds}
+
+
+def _all_values(result, model: Model) -> dict:
+    fixed = result.extra.get("fixed", {})
+    return {n: (result.parameters[n].value if n in result.parameters
+                else fixed.get(n, {}).get("value", model.spec[n].nominal)) for n in model.names}
+
+
+def position_error_from_residuals(campaign, effects: Sequence[str], *, reference_temperature_C: float = 20.0,
+                                  wobble_ratio: float = WOBBLE_TO_POSITION, rounds: int = 5,
+                                  **fit_kw) -> PositionErrorEstimate:
+    """The bench's positioning error sigma_1 by REML from the residuals of the joint fit of
+    ``effects`` (module docstring); needs the output noise in the data (sd_*/u_w_* or Q_V2s)."""
+    from ..models.effects.position_error import bench_variance
+
+    noise = noise_of(campaign)
+    if not noise.known:
+        raise InputError(f"{campaign.source or 'campaign'}: position_error is a variance added to the output noise, "
+                         "but the data give no output noise (no sd_*/n_samples or u_w_* columns, no Q_V2s "
+                         "metadata): the two cannot be told apart")
+    model = Model(effects, reference_temperature_C)
+    s2 = noise.sigma ** 2
+    s1, u1, be, done = 0.0, math.inf, None, 0
+    for done in range(1, rounds + 1):
+        result, problem, sol = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
+                                         bench_errors=be, return_problem=True, **fit_kw)
+        r = sol.r.reshape(-1, 3) * problem.sigma
+        J = sol.J
+        A = np.linalg.pinv(J.T @ J)
+        h = np.einsum("ij,jk,ik->i", J, A, J).reshape(-1, 3)
+        p = model.to_internal(_all_values(result, model))
+        c = bench_variance(model, p, campaign.covariates(), campaign.gravity_g, 1.0, wobble_ratio)
+        tau, u_tau = reml_variance_component(r, s2, c, h)
+        new = math.sqrt(tau)
+        u1 = u_tau / (2.0 * new) if new > 0 else math.sqrt(u_tau)
+        converged = abs(new - s1) <= 1e-3 * max(new, 1e-3)
+        s1 = new
+        be = BenchErrors(s1, wobble_ratio * s1,
+                         source=(f"estimated from the residuals (position_error: REML, sigma_1 = {s1:.3g} +- "
+                                 f"{u1:.2g} arcsec; wobble taken as {wobble_ratio:g} of the positioning error)"))
+        if converged:
+            break
+    return PositionErrorEstimate(s1, u1, done, be)
+
+
+def heavy_tails_dof(campaign, effects: Sequence[str], *, reference_temperature_C: float = 20.0,
+                    **fit_kw) -> tuple[float, dict]:
+    """Student-t dof of the normalised residuals by profile likelihood over :data:`NU_GRID`
+    (``inf`` kept when the normal is likelier), and the log likelihood at each."""
+    noise = noise_of(campaign)
+    result, problem, sol = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
+                                     return_problem=True, **fit_kw)
+    z = np.asarray(sol.r, float)
+    if not noise.known:
+        z = z / max(float(np.sqrt(np.mean(z ** 2))), 1e-300)
+    ll = {nu: float(np.sum(ht.logpdf(z, nu))) for nu in NU_GRID}
+    ll[math.inf] = float(np.sum(ht.logpdf(z, math.inf)))
+    nu = max(ll, key=ll.get)
+    return nu, ll
+
+
+def resolve_noise_effects(campaign, effects: Sequence[str], *, bench_errors: Optional[BenchErrors] = None,
+                          loss: str = "l2", nu: float = 4.0, **fit_kw) -> dict:
+    """What the noise effects among ``effects`` turn into for ``fit_joint``: ``effects`` (the mean
+    effects), ``bench_errors`` (``position_error``: a variance component estimated from the
+    residuals), ``loss`` and ``nu`` (``heavy_tails``: the Student-t likelihood, its dof by profile
+    likelihood), ``notes`` and ``extra`` for the result. Conflicts are refused: the lab's (or the
+    replicates') bench errors with ``position_error``, another robust loss with ``heavy_tails``."""
+    mean, noise_fx = split_effects(effects)
+    out = {"effects": mean, "bench_errors": bench_errors, "loss": loss, "nu": nu, "notes": [], "extra": {}}
+    if not noise_fx:
+        return out
+    out["extra"]["noise_effects"] = list(noise_fx)
+    if "heavy_tails" in noise_fx:
+        if loss != "l2":
+            raise InputError(f"heavy_tails is the Student-t likelihood: it cannot be combined with --loss {loss}")
+        nu_hat, _ = heavy_tails_dof(campaign, mean, **fit_kw)
+        if math.isinf(nu_hat):
+            out["notes"].append("heavy_tails: the profile likelihood prefers the normal (no dof of the grid "
+                                f"{', '.join(f'{g:g}' for g in NU_GRID)} is likelier); fitted by least squares")
+        else:
+            out["loss"], out["nu"] = "student_t", nu_hat
+            out["notes"].append(f"heavy_tails: Student-t likelihood, dof nu = {nu_hat:g} by profile likelihood over "
+                                f"{', '.join(f'{g:g}' for g in NU_GRID)}")
+    if "position_error" in noise_fx:
+        if bench_errors is not None:
+            raise InputError("position_error estimates the bench's random errors from the residuals, but they are "
+                             f"also given ({bench_errors.source}): choose one")
+        pe = position_error_from_residuals(campaign, mean, loss=out["loss"], nu=out["nu"], **fit_kw)
+        out["bench_errors"] = pe.bench_errors
+        out["extra"]["position_error"] = pe.to_dict()
+        out["notes"].append(f"position_error: the bench's random errors estimated from the residuals, sigma_1 = "
+                            f"{pe.sigma_position_arcsec:.3g} +- {pe.u_arcsec:.2g} arcsec (REML); a misfit of the "
+                            "mean model would be absorbed here too: check the diagnosis")
+    return out
+
+
+def fit_with_noise_effects(campaign, effects: Sequence[str], *, bench_errors: Optional[BenchErrors] = None,
+                           loss: str = "l2", nu: float = 4.0, **kw):
+    """``fit_joint`` with the noise effects among ``effects`` resolved by
+    :func:`resolve_noise_effects`."""
+    r = resolve_noise_effects(campaign, effects, bench_errors=bench_errors, loss=loss, nu=nu, **kw)
+    result = fit_joint(campaign, r["effects"], bench_errors=r["bench_errors"], loss=r["loss"], nu=r["nu"], **kw)
+    result.notes.extend(r["notes"])
+    result.extra.update(r["extra"])
+    return result
