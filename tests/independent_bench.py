@@ -26,6 +26,13 @@ the project (docs/model.md, docs/bench-csv.md):
   at each setpoint, so the path between two setpoints is monotone): ``offset`` (b = +-1 from
   the last move, 0 before any), ``play`` (one backlash of half-width r) or ``pi`` (a weighted
   sum of backlashes of several half-widths, normalised so that the saturated loop is h).
+* when the truth holds them, IEEE Std 1293's third-order and cross-axis terms on the sensed
+  components ``s = Ca G`` (row by row, all from the same ``s``): ``K3_a`` (ug/g3) adds
+  ``K3 s_a^3``, ``Kc_ab`` (ug/g2) adds ``Kc s_a s_b``, and ``Ca_ab_g2`` (arcsec/g2) tilts row ``a``
+  of ``Ca`` itself: the row is rebuilt as a unit vector with the angle ``Ca_ab + Ca_ab_g2 s_a^2``
+  and dotted with ``G`` again (an angle, not the project's product form);
+* ``positions``: any set of bench positions (label -> (axis1_deg, axis2_deg)), e.g.
+  :data:`OBLIQUE_POSITIONS`, the 12 above plus 12 with gravity along a face diagonal.
 
 Reporting units of the returned truth (as the project's parameter table): K in g/V, S in g,
 angles in arcsec, ``Ca_ab_tempco`` in arcsec/degC, ``K_a_tempco`` in ppm/degC,
@@ -51,6 +58,19 @@ POSITIONS = {
     "P05": (90.0, 90.0), "P06": (270.0, 270.0), "P07": (270.0, 90.0), "P08": (90.0, 270.0),
     "P09": (180.0, 90.0), "P10": (0.0, 270.0), "P11": (0.0, 90.0), "P12": (180.0, 270.0),
 }
+
+#: 12 more positions with gravity along a face diagonal of the IMU frame (two axes at 45 deg),
+#: the angles of ``triadcal plan --positions 24``; tests check with this module's own rotations
+#: that gravity lies where the comment says
+DIAGONAL_POSITIONS = {
+    "D01": (90.0, 45.0), "D02": (90.0, 225.0),     # +X+Y, -X-Y
+    "D03": (135.0, 90.0), "D04": (135.0, 270.0),   # +X+Z, -X-Z
+    "D05": (0.0, 315.0), "D06": (0.0, 135.0),      # +Y+Z, -Y-Z
+    "D07": (90.0, 135.0), "D08": (90.0, 315.0),    # +X-Y, -X+Y
+    "D09": (45.0, 90.0), "D10": (45.0, 270.0),     # +X-Z, -X+Z
+    "D11": (0.0, 45.0), "D12": (0.0, 225.0),       # +Y-Z, -Y+Z
+}
+OBLIQUE_POSITIONS = {**POSITIONS, **DIAGONAL_POSITIONS}
 
 #: IMU frame -> platform frame at zero bench angles (IMU Y up along axis 1, X along axis 2)
 MOUNT = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -155,12 +175,36 @@ def _ca_matrix(angles_rad: dict) -> np.ndarray:
     return C
 
 
+def _nonlinear_response(Ca, angles_rad, G, truth):
+    """What the three sensing elements respond to: ``Ca G`` plus, when the truth holds them, the
+    third-order term ``K3_a s_a^3``, the cross-coupling ``Kc_ab s_a s_b`` and the g-dependent
+    misalignment as a tilted row of Ca (see the module docstring); ``s = Ca G``."""
+    s = Ca @ G
+    out = s.copy()
+    for i, a in enumerate(AXES):
+        out[i] += truth.get(f"K3_{a}", 0.0) * 1e-6 * s[i] ** 3
+        tilted = dict(angles_rad)
+        moved = False
+        for j, b in enumerate(AXES):
+            if j == i:
+                continue
+            out[i] += truth.get(f"Kc_{a}{b}", 0.0) * 1e-6 * s[i] * s[j]
+            m = truth.get(f"Ca_{a}{b}_g2", 0.0)
+            if m:
+                tilted[a + b] = angles_rad[a + b] + m * ARCSEC_RAD * s[i] ** 2
+                moved = True
+        if moved:
+            out[i] += _ca_matrix(tilted)[i] @ G - s[i]
+    return out
+
+
 def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), tau_s=30.0, noise_sd=5e-4,
                       n_samples=3000, sigma_position_arcsec=0.0, sigma_wobble_arcsec=0.0,
                       encoder_zero_arcsec=(0.0, 0.0), axes_nonorthogonality_arcsec=0.0,
                       fixture_arcsec=(0.0, 0.0, 0.0), tilt_arcsec=(0.0, 0.0),
-                      local_g_m_s2=9.80665, true_g_m_s2=None, unit="SN-IND-0001", hysteresis=None) -> tuple[str, dict]:
-    """CSV text of a bench campaign (12 positions at every setpoint) and the true parameters.
+                      local_g_m_s2=9.80665, true_g_m_s2=None, unit="SN-IND-0001", hysteresis=None,
+                      positions=None) -> tuple[str, dict]:
+    """CSV text of a bench campaign (12 positions at every setpoint, or ``positions``) and the true parameters.
 
     ``rng``: a ``numpy.random.Generator`` (used for the default truth, the temperature
     readings, the bench's random errors and the output noise, in that order).
@@ -184,15 +228,16 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
     g_true = local_g_m_s2 if true_g_m_s2 is None else true_g_m_s2
     setpoints = [float(s) for s in setpoints_C]
     dirs = _directions(setpoints)
-    labels = list(POSITIONS)
+    plan = dict(POSITIONS if positions is None else positions)
+    labels = list(plan)
     n = len(setpoints) * len(labels)
 
     # schedule: 2 h soak per setpoint, 50 s per visit
     sp = np.repeat(setpoints, len(labels))
     direction = np.repeat(dirs, len(labels))
     pos = np.tile(labels, len(setpoints))
-    a1_cmd = np.tile([POSITIONS[p][0] for p in labels], len(setpoints))
-    a2_cmd = np.tile([POSITIONS[p][1] for p in labels], len(setpoints))
+    a1_cmd = np.tile([plan[p][0] for p in labels], len(setpoints))
+    a2_cmd = np.tile([plan[p][1] for p in labels], len(setpoints))
     time_s = np.array([7200.0 * (1 + k // len(labels)) + 8000.0 * (k // len(labels)) + 50.0 * (k % len(labels))
                        for k in range(n)])
     temps = sp[:, None] + rng.normal(0.0, 0.01, size=(n, 3))     # t_x t_y t_z
@@ -236,7 +281,7 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
                       for i, a in enumerate(AXES)])
         S = np.array([truth[f"S_{a}"] + 1e-6 * _poly(0.0, dT[i], *coefs(f"S_{a}"))
                       for i, a in enumerate(AXES)])
-        W[k] = (Ca @ G[k] + S) / K
+        W[k] = (_nonlinear_response(Ca, ang, G[k], truth) + S) / K
     W += rng.normal(0.0, noise_sd / math.sqrt(n_samples), size=W.shape)
 
     lines = ["# generator = tests/independent_bench.py",

@@ -199,7 +199,36 @@ def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]
     if "bias_drift" in eff and np.ptp(campaign.time_s) <= 0:
         for a in AXES:
             problems[f"S_{a}_drift"] = "bias drift needs visits at different times"
+    if eff & {"scale_cubic", "cross_coupling", "g_dependent_misalignment"}:
+        problems.update(_oblique_problems(campaign, eff))
     return problems
+
+
+#: a nominal gravity component counts as oblique (neither along nor across an axis) within these
+OBLIQUE_RANGE = (0.1, 0.9)
+
+
+def _oblique_problems(campaign: Campaign, eff) -> dict[str, str]:
+    """The third-order and cross-axis terms (models/effects/cross_axis.py) need poses with gravity
+    between sensing axes: where every pose has one axis along gravity, ``a^3 = a`` (K3 is the scale
+    factor) and the products ``a_a a_b`` vanish (docs/model.md, "Nonlinear and cross-axis terms")."""
+    g = np.abs(nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3))
+    lo, hi = OBLIQUE_RANGE
+    oblique = (g > lo) & (g < hi)
+    hint = ("every pose of this plan has each sensing axis along or across gravity; it needs oblique poses "
+            "(gravity between two sensing axes: triadcal plan --positions 18|24)")
+    out = {}
+    for i, a in enumerate(AXES):
+        if "scale_cubic" in eff and not oblique[:, i].any():
+            out[f"K3_{a}"] = f"a^3 = a along or across gravity, so K3 is part of the scale factor: {hint}"
+    for ab in ANGLE_NAMES:
+        i, j = AXES.index(ab[0]), AXES.index(ab[1])
+        both = (oblique[:, i] & oblique[:, j]).any()
+        if "cross_coupling" in eff and not both:
+            out[f"Kc_{ab}"] = f"the product a_{ab[0]} a_{ab[1]} vanishes on every pose: {hint}"
+        if "g_dependent_misalignment" in eff and not both:
+            out[f"Ca_{ab}_g2"] = f"the product a_{ab[0]}^2 a_{ab[1]} vanishes on every pose: {hint}"
+    return out
 
 
 def null_space_problems(J: np.ndarray, names: Sequence[str], rtol: float = 1e-8) -> dict[str, str]:

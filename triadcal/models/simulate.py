@@ -308,6 +308,22 @@ for _name, (_db, _tau_b, _dk, _tau_k) in _WARMUP.items():
     PRESETS[_name].setdefault("K_warmup_tau", _tau_k)
 
 
+#: third-order and cross-axis terms of IEEE Std 1293 (scale_cubic, cross_coupling,
+#: g_dependent_misalignment; models/effects/cross_axis.py): K3 in ug/g3, Kc in ug/g2 (xy, xz, yx, yz,
+#: zx, zy), the g-dependent misalignment in arcsec/g2. A pendulous quartz unit holds them to tens of
+#: ug; a MEMS unit's K3 is 50-200 ug/g3 and its cross-coupling 100-500 ug/g2
+_CROSS_AXIS = {"ak18-quartz": ((15.0, -10.0, 12.0), (30.0, -20.0, 25.0, -15.0, 20.0, -30.0),
+                               (3.0, -2.0, 2.5, -3.0, 2.0, 1.5)),
+               "a18-silicon": ((120.0, -80.0, 150.0), (250.0, -180.0, 300.0, -220.0, 200.0, -260.0),
+                               (20.0, -15.0, 18.0, -22.0, 16.0, 12.0))}
+for _name, (_k3, _kc, _m) in _CROSS_AXIS.items():
+    for _a, _v in zip("xyz", _k3):
+        PRESETS[_name].setdefault(f"K3_{_a}", _v)
+    for _ab, _c, _g in zip(("xy", "xz", "yx", "yz", "zx", "zy"), _kc, _m):
+        PRESETS[_name].setdefault(f"Kc_{_ab}", _c)
+        PRESETS[_name].setdefault(f"Ca_{_ab}_g2", _g)
+
+
 def preset_truth(name: str = "ak18-quartz", effects: Sequence[str] = DEFAULT_EFFECTS,
                  noise: Optional[NoiseModel] = None, unit: str = "SN-SIM-0001", **overrides) -> Truth:
     """A :class:`Truth` from a preset, keeping the parameters of the chosen effects.

@@ -32,6 +32,8 @@ TO_INTERNAL = {
     "ug/degC2": UG,
     "ug/degC3": UG,
     "ug/g2": UG,
+    "ug/g3": UG,
+    "arcsec/g2": ARCSEC,
     "ug/h": UG / 3600.0,
     "arcsec/h": ARCSEC / 3600.0,
     "min": 60.0,

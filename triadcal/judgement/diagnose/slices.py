@@ -42,6 +42,8 @@ SIGNATURE = {"bench_tilt": ("up", "up_x_setpoint", "up_x_direction"),
              "bias_drift": ("time", "setpoint"),
              "bias_warmup": ("time", "since_change"), "scale_warmup": ("time", "up_x_setpoint"),
              "scale_nonlinearity": ("up",), "scale_asymmetry": ("up",),
+             # third-order and cross-axis terms: offsets of the oblique poses (slice up=oblique)
+             "scale_cubic": ("up",), "cross_coupling": ("up",), "g_dependent_misalignment": ("up",),
              "position_error": FAMILIES, "heavy_tails": ()}
 
 

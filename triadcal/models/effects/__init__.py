@@ -12,6 +12,7 @@ from .asymmetry import ScaleAsymmetry
 from .base import Effect
 from .bench_geometry import BenchNonorthogonality
 from .bias_drift import BiasDrift
+from .cross_axis import CrossCoupling, GDependentMisalignment, ScaleCubic
 from .hysteresis import Hysteresis
 from .nonlinearity import ScaleNonlinearity
 from .thermal import AngleTempco, BiasTempco, ScaleTempco
@@ -25,7 +26,8 @@ from .warmup import BiasWarmup, ScaleWarmup
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls
     for cls in (BenchTilt, TiltDrift, BenchNonorthogonality, ThermalLag, AngleTempco, AngleTempco2, AngleTempco3, Hysteresis, ScaleTempco, ScaleTempco2,
-                ScaleTempco3, BiasTempco, BiasTempco2, BiasTempco3, BiasDrift, BiasWarmup, ScaleWarmup, ScaleNonlinearity, ScaleAsymmetry)
+                ScaleTempco3, BiasTempco, BiasTempco2, BiasTempco3, BiasDrift, BiasWarmup, ScaleWarmup, ScaleNonlinearity, ScaleAsymmetry,
+                ScaleCubic, CrossCoupling, GDependentMisalignment)
 }
 NOISE_EFFECTS = ("position_error", "heavy_tails")
 VOCABULARY = tuple(EFFECTS) + NOISE_EFFECTS
