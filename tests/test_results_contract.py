@@ -129,7 +129,8 @@ def test_the_enumerations_of_the_schemas_are_those_of_the_code():
     assert sorted(d["gates"]["properties"]["config"]["required"]) == sorted(DEFAULT_CONFIG.to_dict())
     dd = SCHEMAS["triadcal.diagnosis"]["$defs"]
     from triadcal.judgement.raw_diagnosis import CANDIDATES as RAW_CANDIDATES
-    assert sorted(dd["effect"]["enum"]) == sorted(set(VOCABULARY) | set(RAW_CANDIDATES))
+    from triadcal.judgement.diagnose import FORM_CANDIDATES
+    assert sorted(dd["effect"]["enum"]) == sorted(set(VOCABULARY) | set(RAW_CANDIDATES) | set(FORM_CANDIDATES))
     assert sorted(dd["slice"]["properties"]["family"]["enum"]) == sorted(set(FAMILIES) | {"axis"})
     assert SCHEMAS["triadcal.comparison"]["$defs"]["verdict"]["enum"] == list(VERDICTS)
     # the statuses the doc lists in prose are the schema's

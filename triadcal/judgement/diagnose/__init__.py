@@ -7,6 +7,7 @@ its JSON) and run (the entry point :func:`diagnose`).
 """
 
 from .candidates import (  # noqa: F401
+    FORM_CANDIDATES,
     _cross_group,
     _effect_params,
     _fit_heavy_tails,

@@ -174,3 +174,198 @@ def _cross_group(campaign, noise, effects_names, names, T0, x_start_full, noise_
         r = pte.residuals(st.x_full) / st.s
         total += float(np.sum(-0.5 * r * r))
     return total
+
+
+# ----------------------------------------------------------------------------------
+# form candidates: refit-only (issue 17 item 5; docs/diagnosis.md "Form candidates")
+# ----------------------------------------------------------------------------------
+#: candidates that are forms of a registered effect fitted in estimation/ (not effects of the
+#: joint model): the play and Prandtl-Ishlinskii hysteresis (hysteresis_form.py) and the lag over
+#: the temperature history (thermal_lag_form.py). They have no score test at the fitted point (their
+#: nonlinear parameters r, start, tau are not columns of the full Jacobian): each is refitted and
+#: ranked by its refit's likelihood gain with its parameter count stated.
+FORM_CANDIDATES = ("hysteresis_play", "hysteresis_pi", "thermal_lag_history")
+#: level of the nested likelihood ratio a form must pass over its simpler form to be named
+FORM_LEVEL = 0.99
+#: temperature coefficients through which a lag of the element acts
+_TEMPCO_EFFECTS = ("angle_tempco", "scale_tempco", "bias_tempco", "angle_tempco2", "scale_tempco2",
+                   "bias_tempco2", "angle_tempco3", "scale_tempco3", "bias_tempco3")
+
+
+def _problem_on(full: JointProblem, campaign: Campaign) -> JointProblem:
+    """The compiled full problem with the covariates of ``campaign`` (same visits, another branch
+    vector or temperature record): no recompilation."""
+    import copy
+
+    p = copy.copy(full)
+    p.campaign = campaign
+    rate = campaign.temperature_rate()
+    p.cov_matrix = np.vstack([np.radians(campaign.axis1_deg), np.radians(campaign.axis2_deg),
+                              campaign.t.T, rate.T, campaign.branch, campaign.time_s])
+    return p
+
+
+def _nested(chi2_small: float, chi2_big: float, k: int, n_obs: int, noise_known: bool, what: str):
+    """The larger form over the smaller: likelihood ratio at FORM_LEVEL with ``k`` extra parameters
+    (known noise), else AIC lower by more than the hysteresis-form module's margin."""
+    from ...estimation.hysteresis_form import AIC_MARGIN
+
+    if noise_known:
+        thr = float(stats.chi2.ppf(FORM_LEVEL, k))
+        stat = chi2_small - chi2_big
+        return bool(stat > thr), (f"{what} = {stat:.4g} against {thr:.3g} (chi2 with {k} dof at "
+                                  f"{100 * FORM_LEVEL:g} %)")
+    daic = n_obs * math.log(chi2_small / n_obs) - (n_obs * math.log(max(chi2_big, 1e-300) / n_obs) + 2.0 * k)
+    return bool(daic > AIC_MARGIN), f"AIC falls by {daic:.4g} ({what}; named when > {AIC_MARGIN:g}, noise estimated)"
+
+
+def _untestable(names, reason):
+    from .results import Candidate
+    return [Candidate(n, False, reason, refit_only=True) for n in names]
+
+
+def _hysteresis_forms(campaign, full, model, names, base: FitState, noise_known: bool, T0: float, want):
+    """Candidates ``hysteresis_play`` (and ``hysteresis_pi``): the branch of every visit from the
+    temperature history through a play of half-width r (or a PI sum of two plays), r, the start
+    state (and the PI's second width and weight) profiled by ``fit_hysteresis_form``, then the
+    model refitted on that branch vector with the diagnosis's weights."""
+    from ...errors import InputError, TriadcalError
+    from ...estimation.hysteresis_form import fit_hysteresis_form, with_pi, with_play
+    from .results import Candidate
+
+    model = tuple(model)
+    eff = model + (() if "hysteresis" in model else ("hysteresis",))
+    hp = _effect_params(full.model, "hysteresis")
+    if "hysteresis" in model:
+        h_names = [n for n in hp if n in names]
+    else:
+        design = identifiability_problems(campaign, Model(eff, T0))
+        h_names = [n for n in hp if n not in design]
+        if not h_names:
+            return _untestable(want, "invisible on this design: " + design[hp[0]])
+    if not h_names:
+        return _untestable(want, "the model's hysteresis is not estimated on this design")
+    try:
+        res, _, _, _ = fit_hysteresis_form(campaign, eff, form="pi" if "hysteresis_pi" in want else "play",
+                                           reference_temperature_C=T0)
+    except InputError as e:
+        return _untestable(want, str(e))
+    except (TriadcalError, ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError) as e:  # never sink it
+        return _untestable(want, f"the form's fit failed on these data ({type(e).__name__}: {e})")
+    block = res.fit["hysteresis"]
+    new_h = [n for n in h_names if n not in names]
+    names_f = list(names) + new_h
+    off = base if not new_h else _fit(full, names_f, base.x_full, noise_known)
+    effects_opt = ",".join(e for e in EFFECTS if e in eff)
+    out = []
+    r, start = block["half_width_C"], block["start"]
+    play = _fit(_problem_on(full, with_play(campaign, r, start)), names_f, off.x_full, noise_known)
+    ok_play, crit_play = _nested(off.chi2, play.chi2, 2, play.r.size, noise_known,
+                                 "chi2_offset - chi2_play")
+    play.extra_params = {"hysteresis_half_width_C": {"value": float(r), "unit": "degC"}}
+    c = Candidate("hysteresis_play", True, k=len(new_h) + 2, refit_only=True, params=new_h)
+    c.form = {"state": play, "profiled": ["half_width_C", "start"], "simpler": "hysteresis (offset form)",
+              "chi2_simpler": off.chi2, "nested_passes": ok_play, "criterion": crit_play,
+              "details": {"half_width_C": r, "start": start,
+                          "half_width_interval_C": block.get("half_width_interval_C"),
+                          "at_grid_edge": block.get("at_grid_edge")},
+              "fit_options": f"--effects {effects_opt} --hysteresis-form play"}
+    if "hysteresis_play" in want:
+        out.append(c)
+    if "hysteresis_pi" in want:
+        pi = _fit(_problem_on(full, with_pi(campaign, block["pi_half_widths_C"], block["pi_weights"],
+                                            block["pi_start"])), names_f, off.x_full, noise_known)
+        if ok_play:
+            ok_pi, crit_pi = _nested(play.chi2, pi.chi2, 2, pi.r.size, noise_known, "chi2_play - chi2_pi")
+        else:
+            ok_pi, crit_pi = _nested(off.chi2, pi.chi2, 4, pi.r.size, noise_known, "chi2_offset - chi2_pi")
+        pi.extra_params = {"hysteresis_pi_half_width_1_C": {"value": float(block["pi_half_widths_C"][0]), "unit": "degC"},
+                           "hysteresis_pi_half_width_2_C": {"value": float(block["pi_half_widths_C"][1]), "unit": "degC"},
+                           "hysteresis_pi_weight_2": {"value": float(block["pi_weights"][1]), "unit": "1"}}
+        cp = Candidate("hysteresis_pi", True, k=len(new_h) + 4, refit_only=True, params=new_h)
+        cp.form = {"state": pi, "profiled": ["half_width_1_C", "half_width_2_C", "weight", "start"],
+                   "simpler": "hysteresis_play" if ok_play else "hysteresis (offset form)",
+                   "chi2_simpler": play.chi2 if ok_play else off.chi2, "nested_passes": ok_pi,
+                   "criterion": crit_pi,
+                   "details": {"half_widths_C": block["pi_half_widths_C"], "weights": block["pi_weights"],
+                               "start": block["pi_start"]},
+                   "fit_options": f"--effects {effects_opt} --hysteresis-form pi"}
+        out.append(cp)
+    return out
+
+
+def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_known: bool, T0: float):
+    """Candidate ``thermal_lag_history``: the thermal terms at the element's temperature, the record
+    passed through one (thermometer on the housing) or two (in the air) first-order stages; the time
+    constants profiled by ``fit_thermal_lag`` for each location, the model refitted at the element's
+    temperature with the diagnosis's weights, and the location with the lower chi^2 kept (the air's
+    two stages only when they lower it by more than the 99 % point of chi^2 with 1 dof)."""
+    from ...errors import InputError, TriadcalError
+    from ...estimation.thermal_lag_form import fit_thermal_lag, record_gaps, with_element_temperature
+    from .results import Candidate
+
+    name = "thermal_lag_history"
+    model = tuple(model)
+    design = identifiability_problems(campaign, Model(model + ("thermal_lag",), T0))
+    if "thermal_lag" in design:
+        return _untestable([name], "invisible on this design: " + design["thermal_lag"])
+    if not any(e in model for e in _TEMPCO_EFFECTS):
+        return _untestable([name], "the lag acts only through temperature coefficients: add a tempco to the "
+                                   "model to test it")
+    gaps = record_gaps(campaign)
+    if len(gaps):
+        return _untestable([name], f"the thermometer's record has {len(gaps)} gap(s) of up to {gaps.max():.0f} min "
+                                   "(soaks no visit records): the element's history through them is unknown; "
+                                   "the rate form (thermal_lag) is the candidate on this design")
+    effects = tuple(e for e in model if e != "thermal_lag")
+    names_h = [n for n in names if full.model.spec[n].effect != "thermal_lag"]
+    x0 = base.x_full.copy()
+    for n in _effect_params(full.model, "thermal_lag"):
+        x0[full.index[n]] = 0.0
+    fits = {}
+    for loc in ("housing", "air"):
+        if loc == "air" and noise_known and fits:
+            st_h = fits["housing"][0]
+            if stats.chi2.sf(st_h.chi2, max(st_h.dof - 1, 1)) >= 0.01:
+                break       # one stage closes the gap: the air's second stage is not looked for
+        try:
+            res = fit_thermal_lag(campaign, effects, loc, reference_temperature_C=T0)
+        except (TriadcalError, ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError) as e:
+            if not fits:
+                return _untestable([name], str(e) if isinstance(e, InputError) else
+                                   f"the form's fit failed on these data ({type(e).__name__}: {e})")
+            continue
+        blk = res.fit["thermal_lag"]
+        te, th = float(blk["tau_min"]), float(blk["tau_housing_min"] or 0.0)
+        st = _fit(_problem_on(full, with_element_temperature(campaign, te, loc, th)), names_h, x0, noise_known)
+        st.extra_params = {"thermal_lag_history_tau_min": {"value": te, "unit": "min"}}
+        if loc == "air":
+            st.extra_params["thermal_lag_history_tau_housing_min"] = {"value": th, "unit": "min"}
+        fits[loc] = (st, te, th)
+    thr1 = float(stats.chi2.ppf(FORM_LEVEL, 1))
+    loc = "housing"
+    if "air" in fits and fits["housing"][0].chi2 - fits["air"][0].chi2 > (thr1 if noise_known else 2.0):
+        loc = "air"
+    st, te, th = fits[loc]
+    why_loc = (f"thermometer location {loc}: chi2 housing {fits['housing'][0].chi2:.4g}"
+               + (f", air {fits['air'][0].chi2:.4g} (air kept only when lower by > {thr1:.3g})" if "air" in fits else ""))
+    n_tau = 2 if loc == "air" else 1
+    rate_in_model = "thermal_lag" in model
+    if rate_in_model:
+        rate_state = base
+    else:
+        rate_names = [n for n in _effect_params(full.model, "thermal_lag")]
+        rate_state = _fit(full, list(names) + rate_names, base.x_full, noise_known)
+    # history over the rate form: they are not nested (both 1 time constant for the housing); the
+    # history form is named only when it beats the rate form by the 99 % point of chi^2(1)
+    ok, crit = _nested(rate_state.chi2, st.chi2, max(n_tau - 1, 1), st.r.size, noise_known,
+                       "chi2_rate_form - chi2_history")
+    c = Candidate(name, True, k=max(n_tau - (1 if rate_in_model else 0), 1), refit_only=True, params=[])
+    c.form = {"state": st, "profiled": ["tau_min"] + (["tau_housing_min"] if loc == "air" else []),
+              "simpler": "thermal_lag (rate form T - tau dT/dt)", "chi2_simpler": rate_state.chi2,
+              "nested_passes": ok, "criterion": crit,
+              "details": {"location": loc, "tau_min": te, "tau_housing_min": th if loc == "air" else None,
+                          "location_choice": why_loc,
+                          "chi2_by_location": {k: v[0].chi2 for k, v in fits.items()}},
+              "fit_options": f"--effects {','.join(e for e in EFFECTS if e in effects)} --thermal-lag-form {loc}"}
+    return [c]

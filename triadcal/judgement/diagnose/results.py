@@ -65,6 +65,10 @@ class Candidate:
     refit: Optional[dict] = None     # evidence of the refit (None when not refitted)
     rank: int = 0
     params: list = field(default_factory=list)   # its parameters the design can determine
+    #: a form candidate (FORM_CANDIDATES): no score test, ranked by its refit only
+    refit_only: bool = False
+    #: a form candidate's prepared refit (state, nested criterion, fit options); not in the JSON
+    form: Optional[dict] = None
 
     @property
     def score_p(self) -> float:
@@ -74,6 +78,9 @@ class Candidate:
         d = {"effect": self.effect, "rank": self.rank, "testable": self.testable,
              "score": _f(self.score), "score_dof": self.k, "score_p_value": _f(self.score_p),
              "score_log10_p": _f(self.score_logp / math.log(10))}
+        if self.refit_only:
+            # no score test at the fitted point: score_dof is the refit's parameter count
+            d.update({"score": None, "score_p_value": None, "score_log10_p": None, "refit_only": True})
         if self.reason:
             d["reason"] = self.reason
         if self.refit:
@@ -142,7 +149,11 @@ METHODS_TEXT = {
     "which": "score (Lagrange multiplier) test at the fitted point with the new parameters at 0; the top "
              "candidates refitted: likelihood ratio, PSIS-LOO elpd (arviz.loo) from Laplace draws of the LS "
              "covariance with linearised residuals, prediction across heating/cooling branches; ranked by "
-             "delta elpd among the refitted, then by score p-value",
+             "delta elpd among the refitted, then by score p-value; form candidates (hysteresis_play, "
+             "hysteresis_pi, thermal_lag_history) have no score test: always refitted (r, start, tau profiled "
+             "by the estimation/ form fits), their LR with the profiled parameters counted, delta elpd less "
+             "one per profiled parameter, named only when they beat their simpler form (offset hysteresis, "
+             "rate-form lag) by the nested likelihood ratio at 99 %",
 }
 
 

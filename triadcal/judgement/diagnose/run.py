@@ -25,16 +25,19 @@ from ...estimation.joint import (
     start_values,
 )
 from .candidates import (
+    FORM_CANDIDATES,
     _cross_group,
     _effect_params,
     _fit_heavy_tails,
     _fit_position_error,
+    _hysteresis_forms,
     _kurtosis_logp,
     _loglik_total,
     _loo,
     _pe_sensitivity,
     _position_score,
     _score_mean,
+    _thermal_lag_history,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .results import ALPHA, Candidate, Diagnosis, _f
@@ -62,10 +65,13 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         raise InputError(f"unknown model effect(s) {unknown}; choose from {', '.join(EFFECTS)}")
     if len(campaign.units) != 1 or len(set(campaign.state.tolist())) != 1:
         raise InputError("diagnose takes one unit in one mechanical state (select one with Campaign.select)")
-    cands = [c for c in (candidates if candidates is not None else VOCABULARY) if c not in model]
-    bad = [c for c in cands if c not in VOCABULARY]
+    cands = [c for c in (candidates if candidates is not None else VOCABULARY + FORM_CANDIDATES) if c not in model]
+    bad = [c for c in cands if c not in VOCABULARY + FORM_CANDIDATES]
     if bad:
-        raise InputError(f"unknown candidate effect(s) {bad}; the vocabulary is {', '.join(VOCABULARY)}")
+        raise InputError(f"unknown candidate effect(s) {bad}; the vocabulary is "
+                         f"{', '.join(VOCABULARY + FORM_CANDIDATES)}")
+    form_cands = [c for c in cands if c in FORM_CANDIDATES]
+    cands = [c for c in cands if c not in FORM_CANDIDATES]
     T0 = reference_temperature_C
     notes = []
     noise = noise_of(campaign)
@@ -144,6 +150,13 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             logp = float(stats.f.logsf(S / k, k, max(base.dof - k, 1)))
         cand_objs.append(Candidate(c, True, k=k, score=S, score_logp=logp, params=usable))
 
+    # -- form candidates (refit-only: no score test; docs/diagnosis.md "Form candidates") ----------
+    hyst_forms = [c for c in form_cands if c.startswith("hysteresis_")]
+    if hyst_forms:
+        cand_objs += _hysteresis_forms(campaign, full, model, names, base, noise.known, T0, hyst_forms)
+    if "thermal_lag_history" in form_cands:
+        cand_objs += _thermal_lag_history(campaign, full, model, names, base, noise.known, T0)
+
     # -- gap -------------------------------------------------------------------------
     gap_tests = {}
     if noise.known and base.dof > 0:
@@ -152,7 +165,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     if z.size >= 20:
         gap_tests["kurtosis"] = float(math.exp(_kurtosis_logp(z)[1]))
     for c in cand_objs:
-        if c.testable and c.effect != "heavy_tails":
+        if c.testable and c.effect != "heavy_tails" and not c.refit_only:
             gap_tests[f"score:{c.effect}"] = c.score_p
     keys = list(gap_tests)
     adj = _holm([gap_tests[k] for k in keys]) if keys else []
@@ -174,6 +187,12 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
 
     # -- refit the top candidates ------------------------------------------------------
     testable = sorted([c for c in cand_objs if c.testable], key=lambda c: c.score_logp)
+    scored = [c for c in testable if not c.refit_only]
+    to_refit = scored[:top]
+    # the rate-form lag is refitted whenever the history form is, so that the two can be compared
+    if any(c.effect == "thermal_lag_history" for c in testable):
+        to_refit += [c for c in scored[top:] if c.effect == "thermal_lag"]
+    to_refit += [c for c in testable if c.refit_only]
     elpd0, se0, pw0, k0 = _loo(base, n_draws, rng)
     if k0 > 0.7:
         notes.append(f"base model: Pareto k up to {k0:.2f} > 0.7, the PSIS-LOO elpd is unreliable")
@@ -182,8 +201,20 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     base_val = base.value(full)
     cross0 = _cross_group(campaign, noise, model, names, T0, base.x_full, noise.known) if cross_group else None
     n_sig_before = sum(1 for s in slices if s.p_adjusted < alpha)
-    for c in testable[:top]:
-        if c.effect == "position_error":
+    for c in to_refit:
+        form = c.form
+        if form is not None:
+            st = form["state"]
+            new_names, var_scale, nu = list(c.params), None, math.inf
+            k_lr = max(c.k, 1)
+            if noise.known:
+                ll = _loglik_total(st)
+                lr_p = float(stats.chi2.sf(max(base.chi2 - st.chi2, 0.0), k_lr))
+            else:
+                ll = base_ll + 0.5 * st.r.size * math.log(base.chi2 / max(st.chi2, 1e-300))
+                F = (base.chi2 - st.chi2) / k_lr / (st.chi2 / max(st.dof - len(form["profiled"]), 1))
+                lr_p = float(stats.f.sf(max(F, 0.0), k_lr, max(st.dof - len(form["profiled"]), 1)))
+        elif c.effect == "position_error":
             st = _fit_position_error(full, campaign, base, names, sigma, noise.known)
             var_scale, nu, new_names = st.var_scale, math.inf, []
             ll = _loglik_total(st, var_scale=var_scale)
@@ -208,6 +239,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         elpd, se, pw, kmax = _loo(st, n_draws, rng, var_scale=var_scale, nu=nu)
         diff = pw - pw0
         d_elpd, d_se = float(diff.sum()), float(math.sqrt(diff.size) * np.std(diff))
+        if form is not None:
+            # the Laplace draws hold the linear parameters only: the profiled ones (r, start, tau)
+            # cost one elpd each (their AIC/2), so that a form is not favoured by its search
+            d_elpd -= len(form["profiled"])
         # slice statistics after: residuals standardised by the fitted noise model (for a
         # Student-t, its normal scores Phi^-1(F_t(r)): Gaussian when the noise model holds)
         r_after = st.r / (np.sqrt(var_scale) if var_scale is not None else 1.0)
@@ -220,7 +255,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             sl_after = _slice_tests(campaign, st_for_slices, to_ug, sigma, 0, rng)
             n_sig_after = sum(1 for s in sl_after if s.p_adjusted < alpha)
         chi2_after = float(np.sum(r_after ** 2) * st.s ** 2)
-        dof_after = st.r.size - len(st.names) - (1 if c.effect in NOISE_EFFECTS else 0)
+        dof_after = (st.r.size - len(st.names) - (1 if c.effect in NOISE_EFFECTS else 0)
+                     - (len(form["profiled"]) if form is not None else 0))
         rms_after = float(np.sqrt(np.mean((st.r * st.s) ** 2 * sig_ug.reshape(-1) ** 2)))
         # parameter shifts in units of their uncertainty
         after_val = st.value(full)
@@ -230,7 +266,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                   for n in names}
         worst = max(shifts, key=lambda n: abs(shifts[n]["in_u"] or 0.0)) if shifts else None
         cross = None
-        if cross_group and c.effect not in NOISE_EFFECTS:
+        if cross_group and c.effect not in NOISE_EFFECTS and form is None:
             cg = _cross_group(campaign, noise, model + (c.effect,), names + new_names, T0, base.x_full,
                               noise.known)
             cross = None if cg is None or cross0 is None else cg - cross0
@@ -247,11 +283,18 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             "new_parameters": ({n: {"value": after_val.get(n, float(st.x_full[full.index[n]])),
                                     "u": float(math.sqrt(max(st.cov[st.names.index(n), st.names.index(n)], 0))),
                                     "unit": unit_of(n)} for n in new_names}
-                               if new_names else dict(st.extra_params)),
+                               if new_names else {}) | (dict(st.extra_params) if (form or not new_names) else {}),
             "parameter_shifts": {n: {k: _f(v) if not isinstance(v, str) else v for k, v in s.items()}
                                  for n, s in shifts.items()},
             "largest_shift": ({"parameter": worst, "in_u": _f(shifts[worst]["in_u"])} if worst else None),
         }
+        if form is not None:
+            refit["form"] = {"refit_only": True, "n_parameters": int(c.k), "profiled": list(form["profiled"]),
+                             "delta_elpd_penalty": len(form["profiled"]), "simpler_form": form["simpler"],
+                             "chi2_simpler": _f(form["chi2_simpler"]), "chi2": _f(st.chi2),
+                             "beats_simpler": bool(form["nested_passes"]), "criterion": form["criterion"],
+                             "fit_options": form["fit_options"],
+                             **{k: v for k, v in form["details"].items()}}
         c.refit = refit
         if kmax > 0.7:
             notes.append(f"{c.effect}: Pareto k up to {kmax:.2f} > 0.7, the PSIS-LOO elpd is unreliable "
@@ -271,7 +314,9 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     else:
         def improves(c):
             return (c.refit["lr_p_value"] is not None and c.refit["lr_p_value"] < alpha
-                    and c.refit["delta_elpd"] > 0)
+                    and c.refit["delta_elpd"] > 0
+                    # a form is named only when it beats its simpler form (nested LR at 99 %)
+                    and (c.form is None or c.form["nested_passes"]))
 
         def structure_left(c):
             n = c.refit["gap_after"].get("significant_slices")
@@ -282,11 +327,24 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         # never decides it (a missing term then reads as scatter)
         eligible = [c for c in refitted if improves(c) and not (c.effect in NOISE_EFFECTS and structure_left(c))]
         absorbed = [c for c in refitted if improves(c) and c.effect in NOISE_EFFECTS and structure_left(c)]
+        # (a form candidate is eligible only when it beats its simpler form: improves())
         if eligible:
             best = eligible[0]
             verdict = {"effect": best.effect,
                        "evidence": f"score p = {best.score_p:.3g}, LR p = {best.refit['lr_p_value']:.3g}, "
                                    f"delta elpd = {best.refit['delta_elpd']:.1f} +- {best.refit['delta_elpd_se']:.1f}"}
+            if best.form is not None:
+                fm = best.refit["form"]
+                verdict["evidence"] = (
+                    f"refit-only form candidate (no score test at the fitted point): delta loglik = "
+                    f"{best.refit['delta_loglik']:.1f} with {best.k} parameter(s) ({', '.join(fm['profiled'])} "
+                    f"profiled), LR p = {best.refit['lr_p_value']:.3g}, delta elpd = {best.refit['delta_elpd']:.1f} "
+                    f"+- {best.refit['delta_elpd_se']:.1f} (less {fm['delta_elpd_penalty']} for the profiled); over "
+                    f"{fm['simpler_form']}: {fm['criterion']}"
+                    + (f"; {fm['location_choice']}, tau = {fm['tau_min']:.3g} min" if "location_choice" in fm else "")
+                    + (f"; r = {fm['half_width_C']:g} degC from the {fm['start']} state" if "half_width_C" in fm else "")
+                    + f"; reproduce with: triadcal fit DATA.csv {fm['fit_options']}")
+                verdict["fit_options"] = fm["fit_options"]
             after = best.refit["gap_after"]
             if noise.known and after.get("chi2_dof") is not None:
                 dof_a = int(best.refit.get("dof_after") or 0)
