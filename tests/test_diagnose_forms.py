@@ -127,7 +127,7 @@ def test_clean_data_with_the_offset_hysteresis_stay_none(seed, tmp_path):
     assert not cands["thermal_lag_history"]["testable"] and "gap" in cands["thermal_lag_history"]["reason"]
 
 
-@pytest.mark.parametrize("tau", [20.0, 60.0])
+@pytest.mark.parametrize("tau", [20.0, pytest.param(60.0, marks=pytest.mark.slow)])
 def test_lag_behind_the_housing_on_a_ramp_is_named_thermal_lag_history(tau):
     c, model = lag_campaign(3, tau)
     d = diagnose(c, model, **OPTS)

@@ -95,6 +95,7 @@ def test_wrong_mechanism_is_flagged_by_chi2(tmp_path):
     assert rate.status != "ok" and rate.fit["chi2_dof"] > 3
 
 
+@pytest.mark.slow          # 9 s: with the slow tests (the quick suite's 10-minute budget)
 def test_housing_data_fitted_with_two_stages_drop_the_extra_stage(tmp_path):
     """The air form holds the housing form (a stage of zero): on housing data its second stage
     goes to the bottom of the search and the gate refuses it, naming the number."""
