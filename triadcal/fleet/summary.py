@@ -180,10 +180,7 @@ def _png(fig) -> str:
 def render_html(rows, names, tolerances=None) -> str:
     """A self-contained page: counts, flagged units, one histogram per parameter (units whose
     status is ok; outliers in red, tolerance limits dashed) as inline PNG, and the table."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure     # a Figure renders without choosing a backend
 
     esc = html.escape
     ok = [r for r in rows if r["status"] == "ok"]

@@ -390,23 +390,8 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
         except (CaptureError, RuntimeError):
             pass
         raw.close()
-        ps, ls = imu.parser_stats, imu.link_stats
-        report = CaptureReport(
-            out_dir=str(out), csv_path=str(out / CSV_NAME), session=session, visits_total=total,
-            visits_done_before=done_before, visits_done=len(rows), accepted_samples=run.accepted,
-            duplicate_frames=run.duplicates, missing_frames=run.missing, corrupted_frames=ps.corrupted,
-            garbage_bytes=ps.garbage_bytes, reconnects=ls.reconnects, disconnects=ls.disconnects,
-            stalls=ls.stalls, redone_visits=redone,
-            noise=None if noise_est is None else {
-                "Q_V2s": list(noise_est.Q_V2s), "bias_instability_V": list(noise_est.bias_instability_V),
-                "floor_reached": list(noise_est.floor_reached), "taus_s": noise_est.taus_s.tolist(),
-                "adev_V": noise_est.adev.tolist()},
-            wall_seconds=time.monotonic() - wall0)
-        for t, text in ls.events:
-            events.write("link", text=text, at_wall=t)
-        events.write("session_end", **{k: v for k, v in report.to_dict().items() if k != "noise"})
-        events.close()
-        atomic_write_json(out / REPORT_NAME, report.to_dict())
+        report = finish_session(out, imu, run, events, session, total, done_before, len(rows), redone, noise_est,
+                                wall0)
     return report
 
 
@@ -595,6 +580,30 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
         events.write("session_end", **{k: v for k, v in report.to_dict().items() if k != "noise"})
         events.close()
         atomic_write_json(out / REPORT_NAME, report.to_dict())
+    return report
+
+
+def finish_session(out: Path, imu, run: "_Runner", events: EventLog, session: int, total: int, done_before: int,
+                   done: int, redone: int, noise_est: Optional[NoiseEstimate], wall0: float) -> CaptureReport:
+    """The session's counters as a :class:`CaptureReport`: the link's events and ``session_end``
+    in the event log (which it closes), and the report file ``REPORT_NAME``."""
+    ps, ls = imu.parser_stats, imu.link_stats
+    report = CaptureReport(
+        out_dir=str(out), csv_path=str(out / CSV_NAME), session=session, visits_total=total,
+        visits_done_before=done_before, visits_done=done, accepted_samples=run.accepted,
+        duplicate_frames=run.duplicates, missing_frames=run.missing, corrupted_frames=ps.corrupted,
+        garbage_bytes=ps.garbage_bytes, reconnects=ls.reconnects, disconnects=ls.disconnects,
+        stalls=ls.stalls, redone_visits=redone,
+        noise=None if noise_est is None else {
+            "Q_V2s": list(noise_est.Q_V2s), "bias_instability_V": list(noise_est.bias_instability_V),
+            "floor_reached": list(noise_est.floor_reached), "taus_s": noise_est.taus_s.tolist(),
+            "adev_V": noise_est.adev.tolist()},
+        wall_seconds=time.monotonic() - wall0)
+    for t, text in ls.events:
+        events.write("link", text=text, at_wall=t)
+    events.write("session_end", **{k: v for k, v in report.to_dict().items() if k != "noise"})
+    events.close()
+    atomic_write_json(out / REPORT_NAME, report.to_dict())
     return report
 
 

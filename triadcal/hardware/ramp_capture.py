@@ -60,8 +60,8 @@ from ..io.atomic import atomic_write_json, atomic_write_text, read_json
 from ..io.bench_csv import BenchCSVError, format_bench_csv, read_bench_csv
 from ..io.formats import require_format
 from ..planning.ramp import RAMP_FORMAT, RampPlan, load_plan
-from .capture import (CSV_NAME, EVENTS_NAME, RAW_NAME, REPORT_NAME, STATE_NAME, CaptureError, CaptureReport,
-                      CaptureSettings, _campaign, _campaign_noise, _Runner, _visit, soak,
+from .capture import (CSV_NAME, EVENTS_NAME, RAW_NAME, STATE_NAME, CaptureError, CaptureReport,
+                      CaptureSettings, _campaign, _campaign_noise, _Runner, _visit, finish_session, soak,
                       imu_metadata)
 from .drivers.bench import Bench, BenchError
 from .drivers.chamber import Chamber
@@ -576,21 +576,6 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
         except (CaptureError, RuntimeError):
             pass
         raw.close()
-        ps, ls = imu.parser_stats, imu.link_stats
-        report = CaptureReport(
-            out_dir=str(out), csv_path=str(out / CSV_NAME), session=session, visits_total=max(total, len(rows)),
-            visits_done_before=done_before, visits_done=len(rows), accepted_samples=run.accepted,
-            duplicate_frames=run.duplicates, missing_frames=run.missing, corrupted_frames=ps.corrupted,
-            garbage_bytes=ps.garbage_bytes, reconnects=ls.reconnects, disconnects=ls.disconnects,
-            stalls=ls.stalls, redone_visits=redone,
-            noise=None if noise_est is None else {
-                "Q_V2s": list(noise_est.Q_V2s), "bias_instability_V": list(noise_est.bias_instability_V),
-                "floor_reached": list(noise_est.floor_reached), "taus_s": noise_est.taus_s.tolist(),
-                "adev_V": noise_est.adev.tolist()},
-            wall_seconds=time.monotonic() - wall0)
-        for t, text in ls.events:
-            events.write("link", text=text, at_wall=t)
-        events.write("session_end", **{k: v for k, v in report.to_dict().items() if k != "noise"})
-        events.close()
-        atomic_write_json(out / REPORT_NAME, report.to_dict())
+        report = finish_session(out, imu, run, events, session, max(total, len(rows)), done_before, len(rows),
+                                redone, noise_est, wall0)
     return report
