@@ -25,7 +25,7 @@ from triadcal.cli import main
 from triadcal.hardware.capture import (CSV_NAME, RAW_NAME, CaptureSettings, Stabilisation, load_port_config,
                                        open_instruments)
 from triadcal.hardware.emulator import EmulatorTiming, emulate
-from triadcal.hardware.ramp_capture import RampProgram, capture_ramp, read_ramp_plan
+from triadcal.hardware.ramp_capture import RampProgram, capture_ramp, read_ramp_plan, turned_within, window_rates
 from triadcal.hardware.storage import read_events
 from test_hardware_capture import check_visits_against_raw  # the stepped capture's own check
 from triadcal.io.bench_csv import read_bench_csv
@@ -288,3 +288,34 @@ def test_ramp_and_setpoints_exclude_each_other_and_the_folder_kinds_do_not_mix(t
         {"format": "triadcal.capture", "version": 1, "sessions": []}))
     with pytest.raises(CaptureError, match="holds a stepped capture"):
         capture_ramp(tmp_path / "s", plan=read_ramp_plan(path), imu=None, bench=None, chamber=None)
+
+
+def _readings(times, temps, rng, sd=0.006):
+    return np.c_[times, temps + rng.normal(0.0, sd, times.size)]
+
+
+def test_a_window_on_the_turn_at_the_program_start_is_a_turn():
+    """The program's first window as a loaded run recorded it (by hand, 2026-11-25): the readings
+    still rose with the electronics' self-heating (+0.005 degC/min at the window's start, 22 SE)
+    while the chamber had begun to cool, and turned near the window's end (end rate -0.8 SE);
+    labelled by its mean rate (heating), that window gave |z| 23 in the fit (chi2/dof 5.5). The
+    rule of both rates 2 SE from 0 let it through. Made here with numpy: a parabola with its vertex
+    10 s before the window's end, 2 Hz readings, sd 0.006 degC (three sensors' mean), 200 draws: a
+    turn is seen whenever the end's noisy rate has the other sign (about 3/4 of the draws; the
+    rest put 10 s of 120 on the other branch); a steady ramp never, a plateau about 0.3 %. 100 draws."""
+    rng = np.random.default_rng(1)
+    t = np.arange(500.0, 800.0, 0.5)
+    vertex = 770.0
+    curv = -0.0055 / 60.0 / (2 * (vertex - 650.0))          # +0.0055 degC/min at the window's start
+
+    def rates(temps):
+        return window_rates(_readings(t, temps, rng), 650.0, 780.0)
+
+    turns = [rates(20.27 + curv * (t - vertex) ** 2) for _ in range(100)]
+    assert all(r["start"] > 3 * r["start_se"] for r in turns)
+    seen = sum(turned_within(r) for r in turns)
+    # P(end rate estimated < 0) = Phi(E/SE) ~ 0.75 here; 55 is below the mean by 4.6 binomial SDs
+    assert seen >= 55, seen
+    assert not any(turned_within(rates(20.0 - (t - 500.0) / 60.0)) for _ in range(20))     # 1 degC/min
+    fired = sum(turned_within(rates(np.full(t.size, 20.0))) for _ in range(100))
+    assert fired <= 4          # expected ~0.3 % of 100; P(> 4) < 1e-3 for a binomial(100, 0.005)
