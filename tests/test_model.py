@@ -608,3 +608,14 @@ def test_quadratic_tempcos_by_hand():
     assert np.allclose(K, (1.0 + 5e-6, 2.0 * (1.0 + 2e-5), 1.0 + 4.5e-5))
     S = BiasTempco2().bias({f"S_{a}_tempco2": 0.05 * UG for a in "xyz"}, None, dT, (0.0, 0.0, 0.0))
     assert np.allclose(np.array(S) / UG, (5.0, 20.0, 45.0))
+
+
+def test_self_heating_rate_is_the_derivative_of_the_sensor_temperatures():
+    from triadcal.models.thermal_environment import self_heating_rate, sensor_temperatures
+
+    heat, tau, t, h = (0.30, 0.35, 0.25), 300.0, np.array([0.0, 100.0, 661.5, 3000.0]), 1e-3
+    numeric = (sensor_temperatures(np.zeros(4), heat, t + h, tau) - sensor_temperatures(np.zeros(4), heat, t - h, tau)) / (2 * h)
+    assert np.allclose(self_heating_rate(heat, t, tau), numeric, rtol=1e-6, atol=1e-12)
+    assert np.all(self_heating_rate(heat, t, 0.0) == 0.0)           # tau = 0: at once, no rate
+    # at 661.5 s (the end of the example ramp's soak) the readings still rise by 0.0068 degC/min
+    assert 60 * self_heating_rate(heat, [661.5], tau).mean() == pytest.approx(60 * 0.3 * np.exp(-661.5 / 300) / 300, rel=1e-9)
