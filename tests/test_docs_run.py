@@ -87,6 +87,9 @@ INPUTS = {
     "s40g.json": _FIT_AFTER, "s20.json": _FIT_AFTER, "s40.json": _FIT_AFTER, "v20.json": _FIT_AFTER,
     # comparisons (compare --json), which `certificate` turns into a drift report
     "drift.json": _COMPARE, "comparison.json": _COMPARE,
+    # a digital unit's campaign, its outputs rounded to an LSB of 2.5 sample sigmas (docs/model.md)
+    "DIGITAL.csv": ("run", ["simulate", "-o", "{out}", "--effects",
+                            "bench_tilt,angle_tempco,scale_tempco,bias_tempco,quantisation", "--seed", "1"]),
 }
 # values that stand for a number in a synopsis
 VALUES = {"HZ": "100"}
@@ -124,14 +127,6 @@ NOT_RUN = {
     "triadcal batch data/*.csv --out fleet --scheduler": "needs a running Dask scheduler at the address; "
                                             "the same batch runs on a LocalCluster (docs/fleet.md)",
     "duplicates --change": "a developer tool of the environment, not part of triadcal",
-    # the planned 3.1 h ramp of docs/hardware.md at a compressed clock: the fit's chi2/dof depends on the
-    # machine's load there (6.1 once in CI at x600, and a failure at x120), so the doc block runs the
-    # plan only; the same capture and fit run through real ptys in tests/test_ramp_capture.py
-    # (quick: recovered within 3u; slow: 6 seeds, SD of z 1.03)
-    "triadcal capture --emulate --ramp ramp.json": "timing-dependent at a compressed clock (see the comment "
-                                                   "above); tested by tests/test_ramp_capture.py",
-    "triadcal fit RUN/campaign.csv --method joint --effects bench_tilt,angle_tempco,scale_tempco,bias_tempco,"
-    "hysteresis,thermal_lag": "fits the ramp capture above, which is not run here",
     "triadcal capture --config examples/data/ports.toml": "needs the real instruments on the serial ports of "
                                             "examples/data/ports.toml; the same capture runs "
                                             "against the emulator (capture --emulate, hardware.md)",

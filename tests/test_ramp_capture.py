@@ -124,7 +124,7 @@ def test_ramp_capture_through_the_emulator_fits_and_recovers_the_unit(tmp_path):
     # the fit with thermal_lag recovers the emulated unit
     truth = em.truth
     r = fit(c, effects=EFFECTS)
-    assert r.status == "ok"
+    assert r.status == "ok", (r.status, r.fit.get("chi2_dof"), r.notes)
     z = {n: (r.parameters[n].value - v) / r.parameters[n].u for n, v in truth.parameters.items()}
     assert set(z) == set(truth.parameters)
     for n in (*ANGLES, "thermal_lag"):

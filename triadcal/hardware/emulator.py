@@ -26,7 +26,7 @@ import numpy as np
 from ..models.effects.hysteresis import BRANCH, direction_after
 from ..models.model import Covariates
 from ..models.simulate import NoiseModel, Schedule, Truth, preset_truth
-from ..models.thermal_environment import self_heating_rate, sensor_temperatures, two_lag_step
+from ..models.thermal_environment import sensor_temperatures, two_lag_step
 from ..models.units import ARCSEC, STANDARD_GRAVITY_M_S2
 from .drivers.chamber import REG_PV, REG_SP, REG_STATUS
 from .protocols import Frame, get_protocol
@@ -149,13 +149,8 @@ class UnitPhysics:
                            self.timing.chamber_time_constant_s, self.timing.unit_time_constant_s)
         if self._branch_follows_unit:
             rate = np.ravel(out[2])
-            if len(rate):
-                # the element's rate, which the readings show: the unit's and the self-heating's
-                tm = self.timing
-                last = float(rate[-1]) + float(np.mean(self_heating_rate(
-                    tm.self_heating_C, np.ravel(t)[-1:], tm.self_heating_time_constant_s)))
-                if last != 0.0:
-                    self.direction = "heating" if last > 0 else "cooling"
+            if len(rate) and rate[-1] != 0.0:
+                self.direction = "heating" if rate[-1] > 0 else "cooling"
         return out
 
     def chamber_C(self, t: float) -> float:
@@ -220,10 +215,8 @@ class UnitPhysics:
             e1, e2, wob = self._errors
             branch = BRANCH[self.direction]
         sensor = sensor_temperatures(unit, tm.self_heating_C, t, tm.self_heating_time_constant_s)
-        srate = np.asarray(rate, float).reshape(-1, 1) + self_heating_rate(tm.self_heating_C, t,
-                                                                           tm.self_heating_time_constant_s)
         cov = Covariates(axis1=np.radians(a1), axis2=np.radians(a2),
-                         temp=tuple(sensor[:, i] for i in range(3)), temp_rate=tuple(srate[:, i] for i in range(3)),
+                         temp=tuple(sensor[:, i] for i in range(3)), temp_rate=(rate, rate, rate),
                          branch=np.full(n, branch), time_s=t, axis1_error=e1, axis2_error=e2, wobble=wob)
         w = np.stack(np.broadcast_arrays(*self.model.predict(self.p, cov, self.gravity_g)), axis=1)
         noise = self.truth.noise
@@ -756,10 +749,8 @@ class Emulated34465A:
             branch = BRANCH[ph.direction]
         tm = ph.timing
         sensor = sensor_temperatures(unit, tm.self_heating_C, t, tm.self_heating_time_constant_s)
-        srate = np.asarray(rate, float).reshape(-1, 1) + self_heating_rate(tm.self_heating_C, t,
-                                                                           tm.self_heating_time_constant_s)
         cov = Covariates(axis1=np.radians(a1), axis2=np.radians(a2),
-                         temp=tuple(sensor[:, i] for i in range(3)), temp_rate=tuple(srate[:, i] for i in range(3)),
+                         temp=tuple(sensor[:, i] for i in range(3)), temp_rate=(rate, rate, rate),
                          branch=np.full(n, branch), time_s=t, axis1_error=e1, axis2_error=e2, wobble=wob)
         w = np.broadcast_arrays(*ph.model.predict(ph.p, cov, ph.gravity_g))[self.index]
         return np.asarray(w, float)

@@ -67,21 +67,6 @@ def sensor_temperatures(unit_C, self_heating_C, time_s=None, time_constant_s: fl
     return np.asarray(unit_C, float)[:, None] + heat
 
 
-def self_heating_rate(self_heating_C, time_s, time_constant_s: float = 0.0):
-    """Rates (n, 3) in degC/s of the self-heating term of :func:`sensor_temperatures`, its time
-    derivative::
-
-        d/dt [dT_i (1 - exp(-t / tau))] = dT_i exp(-t / tau) / tau        (tau = 0: 0)
-
-    The sensors read the element; their rate is the unit's plus this (the emulator's hysteresis
-    branch and thermal lag follow the rate the readings show)."""
-    heat = np.asarray(self_heating_C, float)[None, :]
-    t = np.atleast_1d(np.asarray(time_s, float))
-    if time_constant_s <= 0:
-        return np.zeros((t.size, heat.shape[1]))
-    return heat * (np.exp(-t / time_constant_s) / time_constant_s)[:, None]
-
-
 def two_lag_ramp(x, start, slope, chamber0, unit0, tau_c, tau_u):
     """Chamber and unit temperatures and the unit's rate ``x`` seconds into a linear ramp of the
     chamber's program ``r(x) = start + slope x`` (slope in degC/s; ``slope = 0`` is
