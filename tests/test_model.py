@@ -397,7 +397,7 @@ def test_parameter_names_and_units_follow_results_json():
         assert model.spec[f"S_{a}_tempco"].unit == "ug/degC"
     assert set(EFFECTS) | set(NOISE_EFFECTS) == {
         "bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis", "scale_nonlinearity",
-        "thermal_lag", "bias_drift", "scale_asymmetry", "position_error", "heavy_tails",
+        "thermal_lag", "bias_drift", "scale_asymmetry", "position_error", "heavy_tails", "flicker_noise",
         "angle_tempco2", "scale_tempco2", "bias_tempco2", "bench_nonorthogonality", "tilt_drift",
         "angle_tempco3", "scale_tempco3", "bias_tempco3", "bias_warmup", "scale_warmup",
         "scale_cubic", "cross_coupling", "g_dependent_misalignment"}
@@ -609,13 +609,3 @@ def test_quadratic_tempcos_by_hand():
     S = BiasTempco2().bias({f"S_{a}_tempco2": 0.05 * UG for a in "xyz"}, None, dT, (0.0, 0.0, 0.0))
     assert np.allclose(np.array(S) / UG, (5.0, 20.0, 45.0))
 
-
-def test_self_heating_rate_is_the_derivative_of_the_sensor_temperatures():
-    from triadcal.models.thermal_environment import self_heating_rate, sensor_temperatures
-
-    heat, tau, t, h = (0.30, 0.35, 0.25), 300.0, np.array([0.0, 100.0, 661.5, 3000.0]), 1e-3
-    numeric = (sensor_temperatures(np.zeros(4), heat, t + h, tau) - sensor_temperatures(np.zeros(4), heat, t - h, tau)) / (2 * h)
-    assert np.allclose(self_heating_rate(heat, t, tau), numeric, rtol=1e-6, atol=1e-12)
-    assert np.all(self_heating_rate(heat, t, 0.0) == 0.0)           # tau = 0: at once, no rate
-    # at 661.5 s (the end of the example ramp's soak) the readings still rise by 0.0068 degC/min
-    assert 60 * self_heating_rate(heat, [661.5], tau).mean() == pytest.approx(60 * 0.3 * np.exp(-661.5 / 300) / 300, rel=1e-9)

@@ -19,11 +19,15 @@ def simulate(output=None, *, truth_path=None, preset: str = "ak18-quartz",
              schedule: Optional[Schedule] = None, Q_V2s: float = 3e-9,
              sigma_position_arcsec: Optional[float] = None, sigma_wobble_arcsec: Optional[float] = None,
              heavy_tails_dof: Optional[float] = None, unit: str = "SN-SIM-0001", seed: int = 0,
-             plan=None):
+             plan=None, flicker_Bf: Optional[float] = None, quantisation_lsb: Optional[float] = None):
     """Simulate a campaign (``triadcal simulate``); returns ``(truth, campaign)``.
 
     ``effects`` may include the noise effects ``position_error`` (defaults sigma_1 = 5",
-    sigma_2 = 2" as in the paper's eq. 4 example) and ``heavy_tails`` (Student-t, 3 dof).
+    sigma_2 = 2" as in the paper's eq. 4 example), ``heavy_tails`` (Student-t, 3 dof) and
+    ``flicker_noise`` (1/f noise of Allan floor ``flicker_Bf``, output unit; default 3e-6 V, about
+    3 ug for the presets). ``quantisation`` rounds every sample to the LSB ``quantisation_lsb``
+    (output unit; default 2.5 sqrt(Q f_s), f_s = 100 Hz): the visit means get the expected rounding
+    error (:class:`~triadcal.models.simulate.NoiseModel`, docs/model.md).
     """
     effects = list(effects)
     pos = "position_error" in effects
@@ -31,7 +35,13 @@ def simulate(output=None, *, truth_path=None, preset: str = "ak18-quartz",
         Q_V2s=Q_V2s,
         sigma_position_arcsec=sigma_position_arcsec if sigma_position_arcsec is not None else (5.0 if pos else 0.0),
         sigma_wobble_arcsec=sigma_wobble_arcsec if sigma_wobble_arcsec is not None else (2.0 if pos else 0.0),
-        heavy_tails_dof=heavy_tails_dof if heavy_tails_dof is not None else (3.0 if "heavy_tails" in effects else None))
+        heavy_tails_dof=heavy_tails_dof if heavy_tails_dof is not None else (3.0 if "heavy_tails" in effects else None),
+        flicker_Bf=flicker_Bf if flicker_Bf is not None else (3e-6 if "flicker_noise" in effects else 0.0),
+        # quantisation: an LSB q (output unit); default 2.5 sample SDs sqrt(Q f_s), where the rounding
+        # error is 2 visit SDs (docs/model.md, Quantisation of a digital output)
+        quantisation_lsb=quantisation_lsb if quantisation_lsb is not None else (
+            2.5 * (Q_V2s * 100.0) ** 0.5 if "quantisation" in effects else None))
+    effects = [e for e in effects if e != "quantisation"]
     truth = preset_truth(preset, [e for e in effects if e not in NOISE_EFFECTS], noise=noise, unit=unit,
                          **(parameters or {}))
     campaign = simulate_campaign(truth, plan=plan, schedule=schedule, seed=seed)
@@ -53,7 +63,8 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
         reference_temperature_C: float = 20.0, loss: str = "l2", strict: bool = False,
         json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0, lab=None,
         hysteresis_form: str = "offset", hysteresis_half_width_C: Optional[float] = None,
-        bench_errors_from_replicates: bool = False, thermal_order: str = "1", thermal_lag_form: str = "rate"):
+        bench_errors_from_replicates: bool = False, thermal_order: str = "1", thermal_lag_form: str = "rate",
+        quantisation_lsb: Optional[float] = None):
     """Calibrate from a campaign (``triadcal fit``): ``data`` is a bench CSV path, a
     :class:`~triadcal.models.campaign.Campaign`, or None for the built-in example.
     ``angle_bound_arcsec``: the answer gates' bound on an orientation angle (arcsec).
@@ -79,6 +90,9 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     hysteresis of half-width ``hysteresis_half_width_C`` degC, profiled when None), ``pi`` (a
     Prandtl-Ishlinskii sum of two plays, profiled) or ``auto`` (chosen by the data;
     :mod:`triadcal.estimation.hysteresis_form`).
+    ``effects`` may name ``quantisation`` (a digital output rounded to an LSB q, one for the three
+    outputs, in the output unit): q is ``quantisation_lsb`` when given (which implies the term), else
+    profiled; :mod:`triadcal.estimation.quantisation_form`, ``fit.quantisation`` in the result.
     Returns a :class:`~triadcal.estimation.result.CalibrationResult` whose ``status`` is
     ``ok`` only when every answer gate passed (docs/statuses.md)."""
     from .estimation.gates import GateConfig
@@ -88,6 +102,13 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     gates = GateConfig(angle_bound_arcsec=angle_bound_arcsec)
 
     campaign = data if isinstance(data, Campaign) else read_bench_csv(example_path() if data is None else data)
+    quantised = "quantisation" in effects or quantisation_lsb is not None
+    effects = [e for e in effects if e != "quantisation"]
+    if quantised and (method != "joint" or thermal_lag_form != "rate" or hysteresis_form != "offset"
+                      or hysteresis_half_width_C is not None):
+        raise InputError("quantisation is fitted by the joint method with the offset hysteresis and the rate-form "
+                         "lag (not with --method classical, --hysteresis-form, --hysteresis-width or "
+                         "--thermal-lag-form)")
     if method == "classical":
         from .estimation.classical import fit_classical
 
@@ -123,6 +144,8 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
         kwargs = dict(reference_temperature_C=reference_temperature_C, loss=noise_fx["loss"], nu=noise_fx["nu"],
                       unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates,
                       bench_errors=noise_fx["bench_errors"], systematics=systematics)
+        if noise_fx.get("whitening") is not None:      # flicker_noise: GLS on the fitted covariance
+            kwargs["whitening"] = noise_fx["whitening"]
         order_block = None
         initial_effects = effects
         if thermal_order != "1":
@@ -147,7 +170,12 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             if json_path is not None:
                 result.save(json_path)
             return result
-        if hysteresis_form == "offset" and hysteresis_half_width_C is None:
+        if quantised:
+            from .estimation.quantisation_form import fit_quantisation
+
+            result, problem, solution = fit_quantisation(campaign, effects, quantisation_lsb, **{
+                k: v for k, v in kwargs.items() if k != "return_problem"})
+        elif hysteresis_form == "offset" and hysteresis_half_width_C is None:
             result, problem, solution = fit_joint(campaign, effects, **kwargs)
         else:
             from .estimation.hysteresis_form import fit_hysteresis_form

@@ -22,7 +22,9 @@ def register(sub) -> None:
                    help=f"effects of the fitted model, from: {', '.join(EFFECTS)}; 'none' for eq. 1 only "
                         f"(default: {','.join(DEFAULT_EFFECTS)})")
     p.add_argument("--candidates", default=None,
-                   help=f"effects to test (default: every effect of {', '.join(VOCABULARY)} not in the model)")
+                   help=f"effects to test (default: every effect of {', '.join(VOCABULARY)} not in the model, and "
+                        "the refit-only forms hysteresis_play, hysteresis_pi, thermal_lag_history and quantisation: "
+                        "a digital output's LSB q profiled, docs/diagnosis.md)")
     p.add_argument("--unit", default=None, help="serial number to diagnose when the file holds several")
     p.add_argument("--state", default=None, help="mechanical state to diagnose when the file holds several")
     p.add_argument("--top", type=int, default=3, help="number of candidates to refit (default 3)")

@@ -24,7 +24,10 @@ def register(sub) -> None:
     p.add_argument("--method", choices=("classical", "joint"), default="joint")
     p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS),
                    help=f"effects of the joint model, from: {', '.join(EFFECTS)}, and the noise effects "
-                        f"{', '.join(NOISE_EFFECTS)} (a variance component / the Student-t likelihood); default: "
+                        f"{', '.join(NOISE_EFFECTS)} (a variance component / the Student-t likelihood / 1/f noise: B_f by REML, the "
+                        "mean by GLS), and quantisation "
+                        "(a digital output rounded to an LSB q: the expected visit-mean error, q profiled or "
+                        "--quantisation-lsb); default: "
                         f"{','.join(DEFAULT_EFFECTS)} (the thermal-campaign model: bench tilt, linear "
                         "tempcos of angles, scale factors and biases, hysteresis of the angles)")
     p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
@@ -60,6 +63,9 @@ def register(sub) -> None:
                         "the temperature history, the thermometer on the housing (one stage, thermal_lag, min) or "
                         "in the chamber air (two stages, thermal_lag_housing and thermal_lag); default rate: the "
                         "thermal_lag effect's T - tau dT/dt, for short lags only; docs/model.md")
+    p.add_argument("--quantisation-lsb", type=float, default=None, metavar="Q",
+                   help="the LSB q of a digital output in the file's output unit (one for the three outputs), fixed "
+                        "instead of profiled; implies --effects ...,quantisation (docs/model.md, Quantisation)")
     p.add_argument("--hysteresis-width", type=float, default=None, metavar="DEGC",
                    help="the play's half-width r in degC (fixed instead of profiled)")
     p.add_argument("--joint-units", action="store_true",
@@ -91,7 +97,7 @@ def run(args) -> int:
                  angle_bound_arcsec=args.angle_bound_arcsec, lab=args.lab,
                  hysteresis_form=args.hysteresis_form, hysteresis_half_width_C=args.hysteresis_width,
                  bench_errors_from_replicates=args.bench_errors_from_replicates, thermal_order=args.thermal_order,
-                 thermal_lag_form=args.thermal_lag_form)
+                 thermal_lag_form=args.thermal_lag_form, quantisation_lsb=args.quantisation_lsb)
     out.say(summary_text(result))
     if args.json:
         out.say(f"result written to {args.json}")

@@ -30,6 +30,7 @@ noise estimated from the residuals, a larger form is chosen when it lowers AIC b
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import Optional, Sequence
 
@@ -53,6 +54,21 @@ LR_THRESHOLD = float(stats.chi2.ppf(LEVEL, 2))
 LR_THRESHOLD_PI_OFFSET = float(stats.chi2.ppf(LEVEL, 4))
 #: AIC margin of a larger form with the noise estimated
 AIC_MARGIN = 10.0
+
+
+def nested_criterion(chi2_small: float, chi2_big: float, k: int, n_obs: int, noise_known: bool, what: str,
+                     level: float = LEVEL, aic_margin: float = AIC_MARGIN) -> tuple:
+    """The larger of two nested models over the smaller: with known noise the likelihood ratio
+    ``chi2_small - chi2_big`` against the ``level`` point of chi^2 with ``k`` dof; with the noise
+    estimated, the AIC lower by more than ``aic_margin``. Returns ``(passes, text)``, the text naming
+    the statistic ``what``. Used by every refit-only form (play, PI, lag history, quantisation)."""
+    if noise_known:
+        thr = float(stats.chi2.ppf(level, k))
+        stat = chi2_small - chi2_big
+        return bool(stat > thr), (f"{what} = {stat:.4g} against {thr:.3g} (chi2 with {k} dof at "
+                                  f"{100 * level:g} %)")
+    daic = n_obs * math.log(chi2_small / n_obs) - (n_obs * math.log(max(chi2_big, 1e-300) / n_obs) + 2.0 * k)
+    return bool(daic > aic_margin), f"AIC falls by {daic:.4g} ({what}; named when > {aic_margin:g}, noise estimated)"
 
 
 def visit_temperature(campaign: Campaign) -> np.ndarray:

@@ -109,13 +109,17 @@ class JointProblem:
 
     ``x`` is the parameter vector in reporting units (order of ``names``); the
     residuals are ``(W_obs - W_model) / sigma`` for every visit and axis, shape (3 n,).
-    Parameters in ``fixed`` are held at the given values (reporting units).
+    Parameters in ``fixed`` are held at the given values (reporting units). ``output_map``: None, or
+    a function of the model outputs ``W`` (n, 3) returning ``(e, de/dW)`` added to them after eq. 1
+    (the quantisation of a digital output, :mod:`triadcal.estimation.quantisation_form`).
     """
 
-    def __init__(self, campaign: Campaign, model: Model, sigma: np.ndarray, fixed: Optional[dict] = None):
+    def __init__(self, campaign: Campaign, model: Model, sigma: np.ndarray, fixed: Optional[dict] = None,
+                 output_map=None):
         self.campaign = campaign
         self.model = model
         self.fixed = dict(fixed or {})
+        self.output_map = output_map
         self.names = tuple(n for n in model.names if n not in self.fixed)
         self.index = {n: i for i, n in enumerate(self.names)}
         self.sigma = np.asarray(sigma, float)
@@ -141,13 +145,17 @@ class JointProblem:
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         """Model outputs (n, 3) at ``x``."""
-        return np.asarray(self._predict(x, self.cov_matrix, self.gravity_g)).T
+        w = np.asarray(self._predict(x, self.cov_matrix, self.gravity_g)).T
+        return w if self.output_map is None else w + self.output_map(w)[0]
 
     def residuals_and_jacobian(self, x: np.ndarray):
         w, J = self._mapped(x, self.cov_matrix, self.gravity_g)
         w = np.asarray(w).T                                   # (n, 3)
         J = np.asarray(J).reshape(3, self.n, len(self.names))  # columns of visit k: k*npar..
         J = J.transpose(1, 0, 2)                              # (n, 3, npar)
+        if self.output_map is not None:
+            e, de = self.output_map(w)
+            w, J = w + e, J * (1.0 + de)[:, :, None]
         r = (self.campaign.w - w) / self.sigma
         Jr = -J / self.sigma[:, :, None]
         return r.reshape(-1), Jr.reshape(-1, len(self.names))
@@ -355,8 +363,16 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
               reference_temperature_C: float = 20.0, loss: str = "l2", nu: float = 4.0,
               fix: Optional[dict] = None, unidentifiable: str = "fix", max_iter: int = 100,
               return_problem: bool = False, gates: GateConfig = DEFAULT_CONFIG,
-              bench_errors: Optional[BenchErrors] = None, systematics: Sequence = ()):
+              bench_errors: Optional[BenchErrors] = None, systematics: Sequence = (), output_map=None,
+              whitening=None):
     """Fit the joint model to a campaign (``triadcal fit --method joint``).
+
+    ``whitening``: correlated output noise (``flicker_noise``): an
+    :class:`~triadcal.estimation.flicker_noise.AxisWhitening` applied to the normalised residuals and
+    the Jacobian, so the fit is generalised least squares on the full covariance.
+
+    ``output_map``: a map of the model outputs applied after eq. 1 (:class:`JointProblem`; the
+    quantisation of a digital output, :func:`triadcal.estimation.quantisation_form.fit_quantisation`).
 
     ``systematics``: the lab's systematic errors
     (:func:`triadcal.uncertainty.typeb.systematic_sources`), propagated to every parameter by
@@ -395,7 +411,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     fixed = dict(fix or {})
     start = start_values(campaign, model)
     # the null space is probed always, with the terms the design cannot determine held
-    probe = JointProblem(campaign, model, noise.sigma, {**fixed, **{k: model.spec[k].nominal for k in problems}})
+    probe = JointProblem(campaign, model, noise.sigma, {**fixed, **{k: model.spec[k].nominal for k in problems}},
+                         output_map=output_map)
     # probe at a generic point: effect terms at their typical size, so that terms whose
     # sensitivity is a product (e.g. thermal lag x tempco) are not judged at zero
     x0 = np.array([start[n] if model.spec[n].effect == "core" else model.spec[n].typical
@@ -417,7 +434,11 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
             f"{campaign.source or 'campaign'}: {3 * campaign.n_visits} observations ({campaign.n_visits} visits x 3 axes) "
             f"for {n_free} free parameters of the model {', '.join(model.effect_names) or '(core only)'}: "
             "a fit needs more observations than parameters (use a full campaign, or fewer --effects)")
-    problem = JointProblem(campaign, model, noise.sigma, fixed)
+    problem = JointProblem(campaign, model, noise.sigma, fixed, output_map=output_map)
+    if whitening is not None:
+        from .flicker_noise import WhitenedProblem
+
+        problem = WhitenedProblem(problem, whitening)
     x0 = np.array([start[n] for n in problem.names])
     t0 = time.perf_counter()
     r0 = problem.residuals(x0)

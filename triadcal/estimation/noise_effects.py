@@ -154,7 +154,8 @@ def resolve_noise_effects(campaign, effects: Sequence[str], *, bench_errors: Opt
     likelihood), ``notes`` and ``extra`` for the result. Conflicts are refused: the lab's (or the
     replicates') bench errors with ``position_error``, another robust loss with ``heavy_tails``."""
     mean, noise_fx = split_effects(effects)
-    out = {"effects": mean, "bench_errors": bench_errors, "loss": loss, "nu": nu, "notes": [], "extra": {}}
+    out = {"effects": mean, "bench_errors": bench_errors, "loss": loss, "nu": nu, "notes": [], "extra": {},
+           "whitening": None}
     if not noise_fx:
         return out
     out["extra"]["noise_effects"] = list(noise_fx)
@@ -179,6 +180,18 @@ def resolve_noise_effects(campaign, effects: Sequence[str], *, bench_errors: Opt
         out["notes"].append(f"position_error: the bench's random errors estimated from the residuals, sigma_1 = "
                             f"{pe.sigma_position_arcsec:.3g} +- {pe.u_arcsec:.2g} arcsec (REML); a misfit of the "
                             "mean model would be absorbed here too: check the diagnosis")
+    if "flicker_noise" in noise_fx:
+        from .flicker_noise import flicker_from_residuals
+
+        fl, _ = flicker_from_residuals(campaign, mean, bench_errors=out["bench_errors"], loss=out["loss"],
+                                       nu=out["nu"], **fit_kw)
+        out["whitening"] = fl.whitening
+        out["extra"]["flicker_noise"] = fl.to_dict()
+        out["notes"].append("flicker_noise: 1/f noise floor B_f per output by REML, mean by GLS (residuals whitened "
+                            "with the covariance of the visit means), B_f = " + ", ".join(
+                                f"{a} {b * k:.3g} +- {u * k:.2g} ug" for a, b, u, k in
+                                zip("xyz", fl.Bf, fl.u_Bf, fl.to_ug))
+                            + "; u of the parameters from the GLS; the biases are the campaign's mean bias")
     return out
 
 
@@ -187,7 +200,8 @@ def fit_with_noise_effects(campaign, effects: Sequence[str], *, bench_errors: Op
     """``fit_joint`` with the noise effects among ``effects`` resolved by
     :func:`resolve_noise_effects`."""
     r = resolve_noise_effects(campaign, effects, bench_errors=bench_errors, loss=loss, nu=nu, **kw)
-    result = fit_joint(campaign, r["effects"], bench_errors=r["bench_errors"], loss=r["loss"], nu=r["nu"], **kw)
+    result = fit_joint(campaign, r["effects"], bench_errors=r["bench_errors"], loss=r["loss"], nu=r["nu"],
+                       whitening=r["whitening"], **kw)
     result.notes.extend(r["notes"])
     result.extra.update(r["extra"])
     return result

@@ -171,7 +171,13 @@ class NoiseModel:
     random error of each bench axis per visit (sigma_1); ``sigma_wobble_arcsec`` wobble of
     axis 1 per visit (sigma_2); ``heavy_tails_dof`` draws the averaged output noise from a
     Student-t with that many degrees of freedom and the same standard deviation (the
-    ``heavy_tails`` effect; None for Gaussian).
+    ``heavy_tails`` effect; None for Gaussian). ``flicker_Bf`` (output unit, 0 = off) is the
+    Allan-deviation floor of independent flicker (1/f) noise on each output (the
+    ``flicker_noise`` effect): the visit means get errors drawn from ``N(0, B_f^2 C)``, ``C`` the
+    covariance of their deviations from the campaign mean
+    (:func:`triadcal.models.effects.flicker_noise.centred_covariance`, from the visits' times
+    and windows), from a generator of its own derived from the seed, so the other draws (and a
+    campaign without flicker) are unchanged.
     """
 
     Q_V2s: float = 3e-9
@@ -180,6 +186,10 @@ class NoiseModel:
     sigma_wobble_arcsec: float = 0.0
     temp_noise_C: float = 0.01
     heavy_tails_dof: Optional[float] = None
+    flicker_Bf: float = 0.0
+    #: LSB of a digital output (output unit; None = not quantised): the visit means get the
+    #: expected quantisation error (:mod:`triadcal.models.effects.quantisation`)
+    quantisation_lsb: Optional[float] = None
 
     def output_sigma(self, tau_s):
         """Standard deviation of a mean over ``tau_s``: sqrt(Q / tau) (white noise)."""
@@ -210,7 +220,8 @@ class Truth:
             "local_g_m_s2": self.local_g_m_s2,
             "parameters": {n: {"value": float(self.parameters.get(n, model.spec[n].nominal)),
                                "unit": model.spec[n].unit} for n in model.names},
-            "noise": asdict(self.noise),
+            "noise": {k: v for k, v in asdict(self.noise).items()
+                      if not (k in ("flicker_Bf", "quantisation_lsb") and not v)},     # absent when off: old truths unchanged
         }
 
     @classmethod
@@ -445,11 +456,28 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
         eps = rng.standard_t(nu, size=(n, 3)) * np.sqrt((nu - 2) / nu)
     else:
         eps = rng.standard_normal((n, 3))
+    q_lsb = noise.quantisation_lsb
+    if q_lsb:
+        # quantisation (docs/model.md "Quantisation"): the visit mean of N samples rounded to q has
+        # the expectation w_true + e(w_true; q, sigma_sample), e the characteristic-function series;
+        # its scatter is that of the rounded samples, V/N with V their variance at w_true
+        # (quantisation.rounded_variance; about sigma_sample^2 + q^2/12, Sheppard)
+        from .effects.quantisation import expected_error, rounded_variance
+
+        s_sample = np.sqrt(noise.Q_V2s * noise.sample_rate_hz)
+        var_q = rounded_variance(w_true, float(q_lsb), s_sample)
+        w_true = w_true + expected_error(w_true, float(q_lsb), s_sample)
+        sigma = sigma * np.sqrt(var_q) / s_sample
     w = w_true + sigma * eps
+    if noise.flicker_Bf and noise.flicker_Bf > 0:
+        from .effects.flicker_noise import draw_visit_errors
+
+        frng = np.random.default_rng(None if seed is None else [int(seed), 0xF11C4E5])
+        w = w + draw_visit_errors(np.asarray(times, float), tau, float(noise.flicker_Bf) ** 2, frng)
     t_read = sensor_T + rng.normal(0.0, noise.temp_noise_C, (n, 3))
 
     n_samples = np.maximum(1, np.round(tau * noise.sample_rate_hz)).astype(int)
-    sd_raw = np.sqrt(noise.Q_V2s * noise.sample_rate_hz)
+    sd_raw = np.sqrt(noise.Q_V2s * noise.sample_rate_hz) if not q_lsb else np.sqrt(var_q)
     sd = sd_raw * np.sqrt(rng.chisquare(np.maximum(n_samples - 1, 1)[:, None], (n, 3))
                           / np.maximum(n_samples - 1, 1)[:, None])
 
@@ -461,6 +489,8 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
         "output_unit": "V",
         "Q_V2s": repr(noise.Q_V2s),
     }
+    if q_lsb:
+        metadata["quantisation_lsb"] = repr(float(q_lsb))
     if isinstance(schedule, RampSchedule):
         metadata["ramp"] = (":".join(f"{v:g}" for v in schedule.program_C) + f" degC at "
                             f"{schedule.rate_C_per_min:g} degC/min, hold {schedule.hold_s:g} s")

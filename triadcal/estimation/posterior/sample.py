@@ -94,6 +94,8 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     effects, bench_errors, nu = noise_fx["effects"], noise_fx["bench_errors"], noise_fx["nu"]
     nu = nu if noise_fx["loss"] == "student_t" else math.inf
     effects, added = effects_with_lab(effects, systematics)
+    if noise_fx.get("whitening") is not None:      # flicker_noise: estimation/flicker_noise.py
+        return _sample_flicker(campaign, effects, noise_fx, added, locals())
     if least_squares is None:
         least_squares = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
                                   return_problem=True, gates=gates, bench_errors=bench_errors,
@@ -132,6 +134,29 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     if posterior_path is not None:
         write_inference_data(posterior_path, campaign, run, result)
     return (result, run) if return_run else result
+
+
+def _sample_flicker(campaign, effects, noise_fx, added, kw):
+    """``sample`` with ``flicker_noise``: the posterior of the whitened (GLS) residuals, B_f held at
+    its REML value (:func:`triadcal.estimation.flicker_noise.posterior_target`)."""
+    from ..flicker_noise import posterior_target
+
+    ls = fit_joint(campaign, effects, reference_temperature_C=kw["reference_temperature_C"], return_problem=True,
+                   gates=kw["gates"], bench_errors=noise_fx["bench_errors"], systematics=kw["systematics"],
+                   whitening=noise_fx["whitening"])
+    target = posterior_target(campaign, effects, ls, noise_fx["whitening"], kw["priors"],
+                              kw["reference_temperature_C"])
+    notes = ([added] if added else []) + noise_fx["notes"] + [
+        "flicker_noise: the likelihood has the full covariance of the visit means (residuals whitened per output), "
+        "B_f held at its REML value (plug-in)"]
+    result, run = sample_target(target, ess=kw["ess"], rhat_max=kw["rhat_max"], tau_factor=kw["tau_factor"],
+                                max_steps=kw["max_steps"], n_walkers=kw["n_walkers"], seed=kw["seed"],
+                                moves=kw["moves"], progress=kw["progress"], posterior_path=kw["posterior_path"],
+                                max_saved_draws=kw["max_saved_draws"], notes=notes)
+    result.extra.update(noise_fx["extra"])
+    if kw["json_path"] is not None:
+        result.save(kw["json_path"])
+    return (result, run) if kw["return_run"] else result
 
 
 def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float = 1.01, tau_factor: float = 50.0,

@@ -184,7 +184,7 @@ def _cross_group(campaign, noise, effects_names, names, T0, x_start_full, noise_
 #: the temperature history (thermal_lag_form.py). They have no score test at the fitted point (their
 #: nonlinear parameters r, start, tau are not columns of the full Jacobian): each is refitted and
 #: ranked by its refit's likelihood gain with its parameter count stated.
-FORM_CANDIDATES = ("hysteresis_play", "hysteresis_pi", "thermal_lag_history")
+FORM_CANDIDATES = ("hysteresis_play", "hysteresis_pi", "thermal_lag_history", "quantisation")  # quantisation.py
 #: level of the nested likelihood ratio a form must pass over its simpler form to be named
 FORM_LEVEL = 0.99
 #: temperature coefficients through which a lag of the element acts
@@ -206,17 +206,10 @@ def _problem_on(full: JointProblem, campaign: Campaign) -> JointProblem:
 
 
 def _nested(chi2_small: float, chi2_big: float, k: int, n_obs: int, noise_known: bool, what: str):
-    """The larger form over the smaller: likelihood ratio at FORM_LEVEL with ``k`` extra parameters
-    (known noise), else AIC lower by more than the hysteresis-form module's margin."""
-    from ...estimation.hysteresis_form import AIC_MARGIN
+    """The larger form over the smaller at FORM_LEVEL (:func:`~triadcal.estimation.hysteresis_form.nested_criterion`)."""
+    from ...estimation.hysteresis_form import nested_criterion
 
-    if noise_known:
-        thr = float(stats.chi2.ppf(FORM_LEVEL, k))
-        stat = chi2_small - chi2_big
-        return bool(stat > thr), (f"{what} = {stat:.4g} against {thr:.3g} (chi2 with {k} dof at "
-                                  f"{100 * FORM_LEVEL:g} %)")
-    daic = n_obs * math.log(chi2_small / n_obs) - (n_obs * math.log(max(chi2_big, 1e-300) / n_obs) + 2.0 * k)
-    return bool(daic > AIC_MARGIN), f"AIC falls by {daic:.4g} ({what}; named when > {AIC_MARGIN:g}, noise estimated)"
+    return nested_criterion(chi2_small, chi2_big, k, n_obs, noise_known, what, level=FORM_LEVEL)
 
 
 def _untestable(names, reason):

@@ -122,6 +122,11 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 cand_objs.append(Candidate(c, True, k=1, score=sc[0] ** 2 * (1 if sc[0] > 0 else -1),
                                            score_logp=sc[1]))
             continue
+        if c == "flicker_noise":
+            from .flicker import flicker_candidate
+
+            cand_objs.append(flicker_candidate(campaign, base, sigma, noise.known))
+            continue
         if c == "heavy_tails":
             z = base.r / np.sqrt(np.clip(1.0 - h, 1e-6, None))
             if z.size < 20:
@@ -156,6 +161,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         cand_objs += _hysteresis_forms(campaign, full, model, names, base, noise.known, T0, hyst_forms)
     if "thermal_lag_history" in form_cands:
         cand_objs += _thermal_lag_history(campaign, full, model, names, base, noise.known, T0)
+    if "quantisation" in form_cands:
+        from .quantisation import quantisation_candidates
+
+        cand_objs += quantisation_candidates(campaign, full, model, names, base, noise.known)
 
     # -- gap -------------------------------------------------------------------------
     gap_tests = {}
@@ -188,7 +197,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     # -- refit the top candidates ------------------------------------------------------
     testable = sorted([c for c in cand_objs if c.testable], key=lambda c: c.score_logp)
     scored = [c for c in testable if not c.refit_only]
-    to_refit = scored[:top]
+    # flicker_noise takes no --top slot (a time-correlated misfit of the mean, e.g. a thermal lag,
+    # scores high on it too): refitted besides the top when its score is significant (flicker.py)
+    to_refit = [c for c in scored if c.effect != "flicker_noise"][:top]
+    to_refit += [c for c in scored if c.effect == "flicker_noise" and c.score_p < alpha]
     # the rate-form lag is refitted whenever the history form is, so that the two can be compared
     if any(c.effect == "thermal_lag_history" for c in testable):
         to_refit += [c for c in scored[top:] if c.effect == "thermal_lag"]
@@ -214,8 +226,13 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 ll = base_ll + 0.5 * st.r.size * math.log(base.chi2 / max(st.chi2, 1e-300))
                 F = (base.chi2 - st.chi2) / k_lr / (st.chi2 / max(st.dof - len(form["profiled"]), 1))
                 lr_p = float(stats.f.sf(max(F, 0.0), k_lr, max(st.dof - len(form["profiled"]), 1)))
-        elif c.effect == "position_error":
-            st = _fit_position_error(full, campaign, base, names, sigma, noise.known)
+        elif c.effect in ("position_error", "flicker_noise"):
+            if c.effect == "flicker_noise":
+                from .flicker import fit_flicker
+
+                st = fit_flicker(full, campaign, base, names, sigma)
+            else:
+                st = _fit_position_error(full, campaign, base, names, sigma, noise.known)
             var_scale, nu, new_names = st.var_scale, math.inf, []
             ll = _loglik_total(st, var_scale=var_scale)
             lr_p = 0.5 * float(stats.chi2.sf(max(2 * (ll - base_ll), 0.0), 1))
@@ -346,16 +363,40 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     + f"; reproduce with: triadcal fit DATA.csv {fm['fit_options']}")
                 verdict["fit_options"] = fm["fit_options"]
             after = best.refit["gap_after"]
+            chi2_open = False
             if noise.known and after.get("chi2_dof") is not None:
                 dof_a = int(best.refit.get("dof_after") or 0)
                 p_after = float(stats.chi2.sf(after["chi2_dof"] * dof_a, dof_a)) if dof_a > 0 else None
-                verdict["gap_closed"] = bool(p_after is not None and p_after >= alpha
-                                             and not (after.get("significant_slices") or 0))
+                chi2_open = p_after is None or p_after < alpha
+                verdict["gap_closed"] = bool(not chi2_open and not (after.get("significant_slices") or 0))
                 if not verdict["gap_closed"]:
                     verdict["remaining"] = (f"the gap stays significant after adding {best.effect} (chi2/dof "
                                             f"{after['chi2_dof']:.3g}, {after.get('significant_slices')} slice(s) "
                                             f"still significant): more is missing; refit with {best.effect} and "
                                             "diagnose again")
+            elif after.get("significant_slices"):
+                verdict["gap_closed"] = False
+                verdict["remaining"] = (f"{after['significant_slices']} slice(s) stay significant after adding "
+                                        f"{best.effect}: more is missing; refit with {best.effect} and diagnose again")
+            if chi2_open:
+                # an effect is named only when the gap after it lies in the acceptance band (issue 18 item 1:
+                # with known noise, the chi2 after its refit within the noise at alpha): a candidate that
+                # shrinks the gap without closing it is the best partial answer, not the answer -- the
+                # missing effect may be outside the vocabulary (left-out validation: 96 of 176 campaigns
+                # named a wrong effect with the gap open). Slices still significant with the chi2 closed
+                # leave the name, with gap_closed false and what remains (a marginal slice after the right
+                # effect's refit: 2 of 10 campaigns of tests/test_cross_axis_effects.py)
+                partial = dict(verdict)
+                verdict = {"effect": "unexplained", "best_partial": best.effect,
+                           "reason": (f"significant gap that no candidate closes: the best, {best.effect} "
+                                      f"({partial['evidence']}), leaves it open: {partial['remaining']}"),
+                           "evidence": partial["evidence"], "gap_closed": False, "remaining": partial["remaining"],
+                           "where": [{"family": x.family, "slice": x.slice, "axis": x.axis, "test": x.test,
+                                      "p_adjusted": _f(x.p_adjusted)}
+                                     for x in sorted((x for x in slices if x.p_adjusted < alpha),
+                                                     key=lambda x: x.p_adjusted)[:5]]}
+                if "fit_options" in partial:
+                    verdict["fit_options"] = partial["fit_options"]
             others = [c for c in refitted if c is not best]
             if others:
                 second = others[0]

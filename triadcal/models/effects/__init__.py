@@ -29,7 +29,7 @@ EFFECTS: dict[str, type[Effect]] = {
                 ScaleTempco3, BiasTempco, BiasTempco2, BiasTempco3, BiasDrift, BiasWarmup, ScaleWarmup, ScaleNonlinearity, ScaleAsymmetry,
                 ScaleCubic, CrossCoupling, GDependentMisalignment)
 }
-NOISE_EFFECTS = ("position_error", "heavy_tails")
+NOISE_EFFECTS = ("position_error", "heavy_tails", "flicker_noise")
 VOCABULARY = tuple(EFFECTS) + NOISE_EFFECTS
 
 #: the model a metrologist uses for a thermal campaign on a tilted bench

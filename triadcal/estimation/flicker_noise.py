@@ -1,0 +1,316 @@
+"""The ``flicker_noise`` effect in the fit: B_f^2 by REML, the mean by generalised least squares.
+
+Model (:mod:`triadcal.models.effects.flicker_noise`): the visit means of output ``a`` have the
+covariance ``V_a = diag(sigma_a^2) + B_a^2 C`` (``sigma`` the data's white noise, ``C`` the
+covariance per unit ``B_f^2`` of the deviations of the visit means from the campaign mean; the
+outputs independent). In the normalised residuals of the fit (divided by ``sigma``) it is
+``I + tau_a G_a`` with ``G_a = C / (sigma_a sigma_a')`` and ``tau_a = B_a^2`` (output unit^2).
+
+**Mean (GLS).** The fit machinery takes diagonal weights, so the residuals and the Jacobian of
+each output are whitened with the Cholesky factor of ``I + tau_a G_a`` in time order
+(:class:`AxisWhitening`; ``r~ = L^-1 r``: each whitened residual is the standardised one-step
+prediction error of its visit given the earlier ones). Least squares on the whitened problem
+is GLS on the full covariance, and ``(J~' J~)^-1`` its covariance.
+
+**Variance (REML).** ``tau`` maximises the restricted likelihood (Patterson & Thompson 1971) of
+the linearised problem, by Fisher scoring with the step halved until the REML log-likelihood
+rises and ``tau`` projected on ``tau >= 0``: with ``P = V^-1 - V^-1 X (X' V^-1 X)^-1 X' V^-1``
+
+    U_k = 1/2 (r' P G_k P r - tr(P G_k)),    I_kl = 1/2 tr(P G_k P G_l),
+
+computed in the whitened space per output (``M_a = L_a^-1 G_a L_a^-T``, ``Q`` an orthonormal basis
+of the whitened Jacobian: ``tr(P G_a) = tr(M_a) - tr(Q_a' M_a Q_a)``). It alternates with the GLS
+refit of the mean (at most ``rounds``, until ``B_f`` moves by less than 0.1 %). ``u(tau)`` is
+from the inverse expected information at the estimate (at ``tau = 0`` too: the boundary is not
+treated specially; the diagnosis's LR uses the 1/2 chi2_0 + 1/2 chi2_1 mixture).
+
+**Choice.** ``per_axis=True`` (the fit's default): one ``B_f`` per output (three accelerometers,
+three floors); ``per_axis=False`` one common ``B_f`` (the diagnosis: one added variance, one score).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+from scipy import linalg
+
+from ..errors import InputError
+from ..models.effects.flicker_noise import centred_covariance
+
+
+def normalised_components(campaign, sigma: np.ndarray) -> list:
+    """``G_a = C / (sigma_a sigma_a')`` per output (three N x N), C per unit B_f^2."""
+    C = centred_covariance(campaign.time_s, campaign.tau_s, 1.0)
+    return [C / np.outer(sigma[:, a], sigma[:, a]) for a in range(sigma.shape[1])]
+
+
+class AxisWhitening:
+    """``L_a^-1`` per output of ``V_a = I + tau_a G_a`` (normalised units), applied in time order
+    to vectors/matrices whose rows are visit-major (visit i, output a at row 3 i + a)."""
+
+    def __init__(self, G: Sequence[np.ndarray], tau: Sequence[float], time_s):
+        self.tau = np.asarray(tau, float)
+        self.order = np.argsort(np.asarray(time_s, float), kind="stable")
+        self.n = len(self.order)
+        self.L = []
+        for Ga, ta in zip(G, self.tau):
+            V = np.eye(self.n) + ta * Ga[np.ix_(self.order, self.order)]
+            self.L.append(np.linalg.cholesky(V))
+
+    def diag(self) -> np.ndarray:
+        """``L_a,ii`` per visit and output (n, 3): the one-step prediction SD in sigma units."""
+        out = np.empty((self.n, len(self.L)))
+        for a, L in enumerate(self.L):
+            out[self.order, a] = np.diag(L)
+        return out
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        """``L^-1 x`` for ``x`` of shape (3n,) or (3n, p)."""
+        x = np.asarray(x, float)
+        k = len(self.L)
+        shaped = x.reshape(self.n, k, -1)
+        out = np.empty_like(shaped)
+        for a, L in enumerate(self.L):
+            out[self.order, a] = linalg.solve_triangular(L, shaped[self.order, a], lower=True)
+        return out.reshape(x.shape)
+
+    def logdet(self) -> float:
+        return float(sum(2.0 * np.sum(np.log(np.diag(L))) for L in self.L))
+
+
+class WhitenedProblem:
+    """A :class:`~triadcal.estimation.joint.JointProblem` (or anything with ``residuals`` and
+    ``residuals_and_jacobian``) whose normalised residuals and Jacobian are whitened by
+    ``whitening`` (GLS); ``raw`` is the problem itself, every other attribute is its own."""
+
+    def __init__(self, problem, whitening: AxisWhitening):
+        self.raw = problem
+        self.whitening = whitening
+
+    def __getattr__(self, name):
+        return getattr(self.raw, name)
+
+    def residuals_and_jacobian(self, x):
+        r, J = self.raw.residuals_and_jacobian(x)
+        return self.whitening.apply(r), self.whitening.apply(J)
+
+    def residuals(self, x):
+        return self.whitening.apply(self.raw.residuals(x))
+
+
+def _orthobasis(X):
+    d = np.linalg.norm(X, axis=0)
+    keep = d > 0
+    Q, R = np.linalg.qr(X[:, keep] / d[keep])
+    dg = np.abs(np.diag(R))
+    ok = dg > 1e-10 * max(dg.max(), 1e-300)
+    # log det(X' X) / 2 of the kept columns: R's diagonal and the column scales
+    return Q[:, ok], float(np.sum(np.log(dg[ok])) + np.sum(np.log(d[keep][ok])))
+
+
+def reml_pieces(r, J, G, tau, time_s, groups, return_trace: bool = False):
+    """REML log-likelihood (up to a constant), score and expected information of the components
+    ``groups`` (list of lists of outputs sharing one tau) at ``tau`` (per output, (3,)), for the
+    linearised problem of normalised residuals ``r`` (3n,) and Jacobian ``J`` (3n, p)."""
+    W = AxisWhitening(G, tau, time_s)
+    rt, Xt = W.apply(r), W.apply(J)
+    Q, logdetR = _orthobasis(Xt)
+    e = rt - Q @ (Q.T @ rt)
+    n, k = W.n, len(W.L)
+    ll = -0.5 * (W.logdet() + 2.0 * logdetR + float(e @ e))
+    Qa = [Q.reshape(n, k, -1)[:, a][W.order] for a in range(k)]      # rows in time order
+    ea = [e.reshape(n, k)[:, a][W.order] for a in range(k)]
+    M, QMQ, tr_pg, quad = [], [], [], []
+    for a in range(k):
+        L = W.L[a]
+        Ga = G[a][np.ix_(W.order, W.order)]
+        A = linalg.solve_triangular(L, Ga, lower=True)
+        Ma = linalg.solve_triangular(L, A.T, lower=True)             # L^-1 G L^-T (symmetric)
+        Ma = 0.5 * (Ma + Ma.T)
+        M.append(Ma)
+        QMQ.append(Qa[a].T @ Ma @ Qa[a])
+        tr_pg.append(float(np.trace(Ma) - np.trace(QMQ[a])))
+        quad.append(float(ea[a] @ Ma @ ea[a]))
+    m = len(groups)
+    U = np.array([0.5 * sum(quad[a] - tr_pg[a] for a in g) for g in groups])
+    info = np.zeros((m, m))
+    for i, gi in enumerate(groups):
+        for j, gj in enumerate(groups):
+            s = 0.0
+            for a in gi:
+                for b in gj:
+                    if a == b:
+                        Ma = M[a]
+                        MQ = Ma @ Qa[a]
+                        s += float(np.sum(Ma * Ma) - 2.0 * np.sum(MQ * MQ))
+                    s += float(np.sum(QMQ[a] * QMQ[b].T))
+            info[i, j] = 0.5 * s
+    if return_trace:                      # tr(P G_k) per group: the null mean of r' P G_k P r
+        return ll, U, info, np.array([sum(tr_pg[a] for a in g) for g in groups])
+    return ll, U, info
+
+
+def reml_tau(r, J, G, time_s, groups, tau0=None, max_iter: int = 50):
+    """``(tau per output (3,), u per group, info)`` maximising the REML likelihood (module docstring)."""
+    k = len(G)
+    t = np.zeros(len(groups)) if tau0 is None else np.array([tau0[g[0]] for g in groups], float)
+
+    def expand(tg):
+        out = np.zeros(k)
+        for g, v in zip(groups, tg):
+            out[list(g)] = v
+        return out
+
+    ll, U, info = reml_pieces(r, J, G, expand(t), time_s, groups)
+    for _ in range(max_iter):
+        try:
+            step = np.linalg.solve(info, U)
+        except np.linalg.LinAlgError:
+            step = U / np.maximum(np.diag(info), 1e-300)
+        moved = False
+        for _h in range(30):
+            t_new = np.maximum(t + step, 0.0)
+            ll_new, U_new, info_new = reml_pieces(r, J, G, expand(t_new), time_s, groups)
+            if ll_new >= ll - 1e-10 * abs(ll):
+                moved = True
+                break
+            step = step / 2.0
+        if not moved:
+            break
+        # converged: tau moves by < 1e-5 of itself (B_f by 5e-6) or the likelihood by < 1e-6
+        done = np.all(np.abs(t_new - t) <= 1e-5 * np.maximum(np.abs(t_new), 1e-300)) or abs(ll_new - ll) < 1e-6
+        t, ll, U, info = t_new, ll_new, U_new, info_new
+        if done:
+            break
+    try:
+        cov = np.linalg.inv(info)
+        u = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    except np.linalg.LinAlgError:
+        u = np.full(len(groups), math.inf)
+    return expand(t), u, info, ll
+
+
+@dataclass
+class FlickerEstimate:
+    """B_f^2 per output (output unit^2) by REML with its u, and the whitening of the GLS fit."""
+
+    Bf2: np.ndarray                 # (3,), output unit^2
+    u_Bf2: np.ndarray               # (3,)
+    per_axis: bool
+    output_unit: str
+    to_ug: np.ndarray               # output unit -> ug per axis (|K| 1e6)
+    rounds: int
+    whitening: Optional[AxisWhitening] = field(default=None, repr=False)
+
+    @property
+    def Bf(self) -> np.ndarray:
+        return np.sqrt(np.clip(self.Bf2, 0.0, None))
+
+    @property
+    def u_Bf(self) -> np.ndarray:
+        """Delta method ``u(tau) / (2 B_f)``; ``sqrt(u(tau))`` at ``B_f = 0``."""
+        bf = self.Bf
+        return np.where(bf > 0, self.u_Bf2 / (2.0 * np.where(bf > 0, bf, 1.0)), np.sqrt(self.u_Bf2))
+
+    def to_dict(self) -> dict:
+        from ..models.sensor import AXES
+
+        axes = AXES if self.per_axis else ("common",)
+        idx = range(3) if self.per_axis else (0,)
+        return {"flicker_Bf": {a: {"value": float(self.Bf[i]), "u": float(self.u_Bf[i]), "unit": self.output_unit,
+                                   "value_ug": float(self.Bf[i] * self.to_ug[i]),
+                                   "u_ug": float(self.u_Bf[i] * self.to_ug[i])} for a, i in zip(axes, idx)},
+                "flicker_Bf2": {a: {"value": float(self.Bf2[i]), "u": float(self.u_Bf2[i]),
+                                    "unit": f"{self.output_unit}^2"} for a, i in zip(axes, idx)},
+                "method": ("REML of the flicker floor B_f^2 (Allan-deviation floor of 1/f noise) "
+                           + ("per output" if self.per_axis else "common to the outputs")
+                           + ", alternating with the GLS refit of the mean (residuals whitened per output with "
+                             "the Cholesky factor of diag(sigma^2) + B_f^2 C in time order)"),
+                "rounds": self.rounds}
+
+
+def flicker_from_residuals(campaign, effects: Sequence[str], *, per_axis: bool = True, rounds: int = 6,
+                           reference_temperature_C: float = 20.0, **fit_kw):
+    """REML of B_f^2 with the GLS refit of the joint fit of ``effects`` (module docstring).
+    Returns ``(FlickerEstimate, result)``: ``result`` the GLS fit at the estimate."""
+    from .joint import fit_joint, noise_of
+
+    if fit_kw.get("loss", "l2") != "l2":
+        raise InputError(f"flicker_noise is fitted by generalised least squares: it cannot be combined with "
+                         f"--loss {fit_kw.get('loss')} or heavy_tails")
+    noise = noise_of(campaign)
+    if not noise.known:
+        raise InputError(f"{campaign.source or 'campaign'}: flicker_noise is a covariance added to the output "
+                         "noise, but the data give no output noise (no sd_*/n_samples or u_w_* columns, no Q_V2s "
+                         "metadata): the two cannot be told apart")
+    if campaign.n_visits < 4:
+        raise InputError("flicker_noise needs at least 4 visits at different times")
+    G = None
+    groups = [[0], [1], [2]] if per_axis else [[0, 1, 2]]
+    tau = np.zeros(3)
+    whitening, done = None, 0
+    u = np.zeros(len(groups))
+    for done in range(1, rounds + 1):
+        result, problem, sol = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
+                                         return_problem=True, whitening=whitening, **fit_kw)
+        # residuals and Jacobian normalised by sigma only (un-whiten: r = L r~)
+        raw = getattr(problem, "raw", problem)
+        if G is None:       # the fit's own sigma (with the bench's errors when they are given)
+            G = normalised_components(campaign, raw.sigma)
+        r_raw, J_raw = raw.residuals_and_jacobian(sol.x)
+        new, u, _, _ = reml_tau(r_raw, J_raw, G, campaign.time_s, groups, tau0=tau)
+        converged = np.all(np.abs(np.sqrt(new) - np.sqrt(tau)) <= 1e-3 * np.maximum(np.sqrt(new), 1e-300))
+        tau = new
+        whitening = AxisWhitening(G, tau, campaign.time_s)
+        if converged and done > 1:
+            break
+    result, problem, sol = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
+                                     return_problem=True, whitening=whitening, **fit_kw)
+    K = np.array([abs(result.parameters[f"K_{a}"].value) if f"K_{a}" in result.parameters else 1.0
+                  for a in "xyz"])
+    u3 = np.array([u[0]] * 3) if not per_axis else np.asarray(u)
+    est = FlickerEstimate(tau, u3, per_axis, campaign.output_unit, K * 1e6, done, whitening)
+    return est, result
+
+
+def posterior_target(campaign, effects: Sequence[str], least_squares, whitening: AxisWhitening, priors=None,
+                     reference_temperature_C: float = 20.0):
+    """A :class:`~triadcal.estimation.posterior.targets.ResidualTarget` of the joint model whose
+    residuals are whitened per output (``sample --effects ...,flicker_noise``): the likelihood is
+    the Gaussian of the full covariance ``diag(sigma^2) + B_f^2 C`` with ``B_f`` held at its REML
+    value (a plug-in, as ``position_error``'s variance). ``least_squares``: the GLS fit
+    ``(result, problem, solution)`` of :func:`~triadcal.estimation.joint.fit_joint`."""
+    import casadi as ca
+
+    from ..models.model import Model
+    from .joint import parameter_unit, scaled_covariance
+    from .posterior.targets import ResidualTarget
+    from .priors import default_priors
+
+    ls, problem, sol = least_squares
+    raw = getattr(problem, "raw", problem)
+    model = Model(effects, reference_temperature_C)
+    pri = default_priors(model, overrides=priors)
+    names = tuple(raw.names)
+    x = ca.MX.sym("x", len(names))
+    w = raw._predict(x, ca.DM(raw.cov_matrix), raw.gravity_g)              # 3 x n
+    r = (ca.DM(campaign.w.T) - w) / ca.DM(raw.sigma.T)
+    n = campaign.n_visits
+    rows = []
+    for a in range(3):
+        # L_a^-1 in time order, as a matrix on the visits' own order
+        Linv = linalg.solve_triangular(whitening.L[a], np.eye(n), lower=True)
+        full = np.empty((n, n))
+        full[np.ix_(whitening.order, whitening.order)] = Linv
+        rows.append(ca.mtimes(ca.DM(full), r[a, :].T).T)
+    rw = ca.vec(ca.vertcat(*rows))                                          # visit-major, as the fit
+    f = ca.Function("flicker_whitened_residuals", [x], [rw])
+    sigma = (raw.sigma * whitening.diag()).reshape(-1)                      # one-step prediction SDs
+    return ResidualTarget(
+        name="joint_flicker_gls", residual=f, data=(), names=names,
+        units=tuple(parameter_unit(model, nm, campaign.output_unit) for nm in names),
+        priors={nm: pri[nm] for nm in names}, x_ls=np.asarray(sol.x, float), cov_ls=scaled_covariance(sol.J),
+        sigma=sigma, unit_serial=str(campaign.units[0]))

@@ -1,0 +1,235 @@
+"""Quantisation of a digital unit's output: the expected error of a visit mean.
+
+A digital unit reports each sample rounded to its LSB ``q`` (mid-tread rounding,
+``Q(y) = q round(y / q)``). A visit mean of N such samples of a signal ``x`` with Gaussian
+sample noise of SD ``sigma`` has the expectation (Widrow & Kollar, *Quantization Noise*,
+Cambridge University Press 2008, ch. 4-5: the characteristic-function series; the noise's
+characteristic function multiplies the k-th Fourier mode of the sawtooth ``Q(x) - x`` by
+``exp(-2 pi^2 k^2 sigma^2 / q^2)``):
+
+    E[Q(x + n)] - x = sum_{k>=1} (q / (pi k)) (-1)^k exp(-2 pi^2 k^2 sigma^2 / q^2) sin(2 pi k x / q)
+
+a periodic error in ``x`` of period ``q``: up to ``q/2`` (the sawtooth ``Q(x) - x``) when
+sigma << q, damped to ``(q/pi) exp(-2 pi^2 sigma^2/q^2)`` when sigma is comparable to q, and
+below 1e-8 q once sigma > 1.5 q. The sign and the form are checked against a brute-force numpy
+average of rounded Gaussian samples in ``tests/test_quantisation.py``. The series is truncated
+where its terms fall below ``1e-12 q`` (:func:`n_terms`). When that needs more than
+:data:`LATTICE_ABOVE` terms (sigma below about q/5) the same expectation is evaluated exactly as the
+sum over the codes, ``sum_m q m [Phi((q m + q/2 - x)/sigma) - Phi((q m - q/2 - x)/sigma)] - x``
+(codes within 10 sigma), which then needs a few terms where the series needs hundreds.
+
+Units: ``x``, ``q`` and ``sigma`` in the output unit of the campaign (V, counts, ...); one LSB
+common to the three outputs (one converter), ``quantisation_lsb`` in the result.
+
+**Why this is not an :class:`~.base.Effect` of ``EFFECTS``** (the brief's first option):
+
+- it acts on the output itself, after eq. 1 (``W -> W + e(W)``), where the Effect interface has
+  no hook (its last one, ``transfer``, acts on the acceleration before K and S);
+- it needs the per-sample noise sigma of every visit and axis, which is not a covariate of the
+  model (:class:`~triadcal.models.model.Covariates`), but a property of the data (``sd_*``) or of
+  the simulator's noise (``Q`` and the sample rate);
+- its one parameter has no least-squares column: the error is ``O(exp(-2 pi^2 sigma^2/q^2))``,
+  so its derivative at ``q = 0`` vanishes (and the expression is 0/0 there in CasADi), and every
+  effect of ``EFFECTS`` enters the diagnosis's full problem as columns of the Jacobian at 0.
+
+So ``quantisation`` is a named term outside ``EFFECTS`` (:data:`NAME`), like the noise effects:
+the simulator adds :func:`expected_error` to the visit means (``NoiseModel.quantisation_lsb``),
+the joint fit applies it as an output map of the compiled problem
+(:mod:`triadcal.estimation.quantisation_form`, ``fit --effects ...,quantisation``), and the
+diagnosis profiles q (:mod:`triadcal.judgement.diagnose.quantisation`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+NAME = "quantisation"
+UNIT = "output unit"
+description = ("quantisation of a digital output to an LSB q: the expected error of a visit mean, "
+               "periodic in the output with period q, damped by the sample noise")
+#: relative size of the last term kept: terms below TOL * q are dropped
+TOL = 1e-12
+#: most terms of the series evaluated (sigma < q / 1000)
+MAX_TERMS = 1000
+
+
+def n_terms(q: float, sigma) -> int:
+    """Terms needed so that the dropped ones are below ``TOL q``: the smallest K with
+    ``exp(-2 pi^2 K^2 s^2 / q^2) < TOL`` for the smallest ``s`` of ``sigma`` (the term is that
+    over ``pi K``, so the bound holds), at most MAX_TERMS."""
+    s = float(np.min(np.asarray(sigma, float)))
+    if q <= 0:
+        return 0
+    a = 2.0 * math.pi ** 2 * (s / q) ** 2
+    if a <= 0:
+        return MAX_TERMS
+    # exp(-a K^2) < TOL already bounds the term (the 1/(pi K) only helps): the smallest such K
+    return int(min(MAX_TERMS, max(1, math.ceil(math.sqrt(-math.log(TOL) / a)))))
+
+
+def _lattice(x, q: float, s, derivative: bool):
+    """The same expectation summed over the codes ``q m`` (``P(m) = Phi(b_m) - Phi(a_m)``, codes
+    within 10 sigma + 1): exact, and far fewer terms than the series when sigma << q."""
+    from scipy.special import ndtr
+
+    xf = x.reshape(-1, 1)
+    sf = np.where(s > 0, s, 1e-300).reshape(-1, 1)
+    half = int(math.ceil(10.0 * float(np.max(s)) / q)) + 1
+    base = np.round(xf / q)
+    m = base + np.arange(-half, half + 1)[None, :]
+    hi, lo = (q * m + q / 2 - xf) / sf, (q * m - q / 2 - xf) / sf
+    d = q * (m - base)                                   # codes relative to the nearest: precision
+    r = xf - q * base                                    # x relative to the nearest code
+    if derivative:
+        dens = (np.exp(-0.5 * lo * lo) - np.exp(-0.5 * hi * hi)) / (math.sqrt(2 * math.pi) * sf)
+        return (np.sum(d * dens, axis=1) - 1.0).reshape(x.shape)
+    return (np.sum(d * (ndtr(hi) - ndtr(lo)), axis=1) - r[:, 0]).reshape(x.shape)
+
+
+#: above this many series terms the expectation is summed over the codes instead (sigma < ~q/5)
+LATTICE_ABOVE = 8
+
+
+def _series(x, q: float, sigma, derivative: bool):
+    x = np.asarray(x, float)
+    s = np.broadcast_to(np.asarray(sigma, float), x.shape)
+    if q <= 0 or x.size == 0:
+        return np.zeros_like(x)
+    K = n_terms(q, s)
+    if K > LATTICE_ABOVE:
+        return _lattice(x.ravel(), q, s.ravel(), derivative).reshape(x.shape)
+    phase = ((2.0 * math.pi / q) * np.mod(x, q)).reshape(-1, 1)     # mod q: exact phase for |x| >> q
+    c = (-2.0 * (math.pi * s / q) ** 2).reshape(-1, 1)
+    out = np.zeros(x.size)
+    for k0 in range(1, K + 1, 256):                                 # blocks of terms: bounded memory
+        k = np.arange(k0, min(k0 + 256, K + 1), dtype=float)
+        sign = np.where(k % 2 == 1, -1.0, 1.0)
+        damp = np.exp(c * k * k) * sign
+        if derivative:
+            out += np.sum(2.0 * damp * np.cos(phase * k), axis=1)
+        else:
+            out += np.sum((q / (math.pi * k)) * damp * np.sin(phase * k), axis=1)
+    return out.reshape(x.shape)
+
+
+def expected_error(x, q: float, sigma):
+    """``E[Q(x + n)] - x`` for mid-tread rounding to ``q`` of ``x`` plus N(0, sigma^2) noise
+    (the equation of the module docstring; arrays broadcast, output unit)."""
+    return _series(x, float(q), sigma, derivative=False)
+
+
+def expected_error_slope(x, q: float, sigma):
+    """``d/dx`` of :func:`expected_error` (dimensionless): ``sum 2 (-1)^k exp(...) cos(2 pi k x/q)``."""
+    return _series(x, float(q), sigma, derivative=True)
+
+
+def rounded_variance(x, q: float, sigma):
+    """Variance of one rounded sample ``Q(x + n)``, n ~ N(0, sigma^2), by the sum over the codes
+    ``q m`` with probabilities ``Phi((q m + q/2 - x)/sigma) - Phi((q m - q/2 - x)/sigma)`` (exact up to
+    codes beyond 10 sigma; output unit squared). Sheppard's ``sigma^2 + q^2/12`` is its mean over x
+    when sigma is comparable to q; at a given x it differs by a term periodic in x."""
+    from scipy.special import ndtr
+
+    x = np.asarray(x, float)
+    s = np.broadcast_to(np.asarray(sigma, float), x.shape).reshape(-1, 1)
+    if q <= 0:
+        return np.broadcast_to(s.reshape(x.shape) ** 2, x.shape).copy()
+    xf = x.reshape(-1, 1)
+    half = int(math.ceil(10.0 * float(np.max(s)) / q)) + 1
+    base = np.round(xf / q)
+    m = base + np.arange(-half, half + 1)[None, :]                 # codes around each x
+    ss = np.where(s > 0, s, 1e-300)
+    p = ndtr((q * m + q / 2 - xf) / ss) - ndtr((q * m - q / 2 - xf) / ss)
+    d = q * (m - base)                                              # codes relative to the nearest: precision
+    mean = np.sum(p * d, axis=1, keepdims=True)
+    return (np.sum(p * (d - mean) ** 2, axis=1)).reshape(x.shape)
+
+
+def sigma_from_sample_sd(sd, x, q: float):
+    """The per-sample SD before rounding from the SDs of the rounded samples of several visits at
+    their visit means ``x`` (arrays (n,) for one output, or (n, k) for k outputs at once, giving k
+    values): the sigma whose :func:`rounded_variance` at the signals (``x - e(x)`` solved by
+    fixed-point steps: the mean is pulled toward the nearest code) averaged over the visits equals
+    the mean of ``sd^2`` (bisection to 1e-4; 0 when even sigma = 0 leaves more than that mean;
+    Sheppard's ``sd^2 - q^2/12`` where sd^2 > 1.5 q^2, the two then agreeing to 3e-9 q^2). At most
+    ~200 visits are used (every k-th: the mean variance, not each visit's)."""
+    x = np.asarray(x, float)
+    one = x.ndim == 1
+    x = x.reshape(x.shape[0], -1)
+    step = max(1, x.shape[0] // 200)
+    x = x[::step]
+    sd2 = np.mean(np.asarray(sd, float).reshape(-1, x.shape[1])[::step] ** 2, axis=0)
+    out = np.sqrt(np.clip(sd2 - q * q / 12.0, 0.0, None)) if q > 0 else np.sqrt(sd2)
+    todo = (sd2 <= 1.5 * q * q) if q > 0 else np.zeros(sd2.shape, bool)
+    if np.any(todo):
+        xs, target = x[:, todo], sd2[todo]
+
+        def f(sig):
+            xt = xs
+            for _ in range(3):
+                xt = xs - expected_error(xt, q, sig[None, :])
+            return np.mean(rounded_variance(xt, q, sig[None, :]), axis=0) - target
+
+        lo, hi = np.zeros(target.shape), np.sqrt(target) + q
+        zero = f(lo) >= 0
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            below = f(mid) < 0
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+            if np.all(hi - lo < 1e-4 * hi):
+                break
+        out[todo] = np.where(zero, 0.0, 0.5 * (lo + hi))
+    return float(out[0]) if one else out
+
+
+def sample_sigma(sd, q: float):
+    """Per-sample SD of the noise before rounding from the SD of rounded samples: Sheppard's
+    correction ``sigma^2 = sd^2 - q^2/12`` (exact up to terms of the order of the error above),
+    clipped at 0 (sigma << q: the samples are all one code)."""
+    sd = np.asarray(sd, float)
+    return np.sqrt(np.clip(sd * sd - q * q / 12.0, 0.0, None))
+
+
+def resolution_lsb(values, n_samples=None, n_differences: int = 30):
+    """The LSB implied by the data's own resolution, or None: visit means of N samples rounded to
+    q are multiples of q/N, so ``N w`` are multiples of q. q is found as the approximate greatest
+    common divisor of the ``n_differences`` smallest gaps between the sorted ``N |w|`` (small
+    multiples of q, so Euclid on floats stays accurate; remainders below 1e-9 of the largest value
+    count as 0), refined by least squares over every value, and accepted only when every
+    ``N w / q`` is within 1e-6 of an integer and q is above 1e-9 of the largest |N w| (not the
+    float resolution of the file)."""
+    v = np.asarray(values, float)
+    if n_samples is not None:
+        v = v * np.asarray(n_samples, float).reshape(-1, *([1] * (v.ndim - 1)))
+    v = np.sort(np.abs(v[np.isfinite(v)].ravel()))
+    if v.size < 3 or v[-1] <= 0:
+        return None
+    big = float(v[-1])
+    tol = 1e-9 * big
+    d = np.diff(v)
+    d = np.sort(d[d > tol])[:n_differences]
+    if d.size < 2:
+        return None
+
+    def gcd(a, b):
+        for _ in range(200):
+            if b <= tol:
+                return a
+            a, b = b, math.fmod(a, b)
+        return None
+
+    g = float(d[0])
+    for i, val in enumerate(d[1:], 2):
+        g = gcd(max(g, val), min(g, val))
+        if g is None or g <= tol:
+            return None
+        m = np.round(d[:i] / g)
+        g = float(np.sum(d[:i] * m) / np.sum(m * m))
+    for _ in range(2):
+        m = np.round(v / g)
+        g = float(np.sum(v * m) / np.sum(m * m))
+    if np.max(np.abs(v / g - np.round(v / g))) > 1e-6:
+        return None
+    return g
