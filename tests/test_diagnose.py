@@ -1,8 +1,8 @@
 """Tests of the diagnosis (triadcal diagnose / validate-diagnosis).
 
 Statistical claims are checked by simulation with fixed seeds; the thresholds are the
-issue's requirements (>= 90 % named first, <= 5 % false alarms, chi2/dof after in
-[0.8, 1.2]), not tuned values.
+issue's requirements, not tuned values. The validation over every effect (two magnitudes, the
+left-out mode) is tests/test_diagnosis_validation.py.
 """
 
 from __future__ import annotations
@@ -18,8 +18,7 @@ import numpy as np
 import pytest
 
 from triadcal.judgement.diagnose import FORM_CANDIDATES, diagnose
-from triadcal.judgement.diagnosis_validation import (CONDITIONS, VALIDATION_PLAN, VALIDATION_SOAK_S,
-                                                      scenario, validate)
+from triadcal.judgement.diagnosis_validation import VALIDATION_PLAN, VALIDATION_SOAK_S, scenario
 from triadcal.models.campaign import Campaign, up_axis_label
 from triadcal.models.effects import VOCABULARY
 from triadcal.models.effects import heavy_tails as ht
@@ -206,32 +205,22 @@ def test_cli_validate_diagnosis_writes_table_and_plot(tmp_path):
     assert np.array(doc["confusion"]).sum() == 2
 
 
-# -- slow: the validation of the issue ---------------------------------------------------------
-@pytest.mark.slow
-def test_validation_names_the_withheld_effect(tmp_path):
-    res = validate(seeds=20, processes=2)
-    from triadcal.reports.diagnosis import write_validation
-    write_validation(res, tmp_path)
-    print("\n" + res.table())
-    s = res.summary
-    assert set(s) == set(CONDITIONS)
-    assert s["clean"]["false_alarm_rate"] <= 0.05
-    for e in CONDITIONS[1:]:
-        assert s[e]["ranked_first_rate"] >= 0.90, (e, s[e])
-        assert s[e]["correct_rate"] >= 0.90, (e, s[e])
-        lo, hi = s[e]["chi2_dof_after_range"]
-        assert 0.8 <= lo and hi <= 1.2, (e, s[e])
+# -- slow: the validation of the issue is tests/test_diagnosis_validation.py ----------------------
+# (test_validation_in_vocabulary_and_left_out: two magnitudes, the left-out mode, binomial bounds;
+# it replaces the 20-seed in-vocabulary test that was here, at the same CI cost)
 
 
 def test_a_noise_effect_never_absorbs_a_structured_gap(example):
     """The example campaign diagnosed with no thermal terms (--model none): position_error has
     the largest elpd (it widens the noise until the misfit looks like scatter), but slices keep
-    structure after its refit, so it is not named; a thermal term is, with the word that the
-    gap stays open after it (more is missing)."""
+    structure after its refit, so it is not named; a thermal term shrinks the gap most but leaves
+    it open, so it is the best partial answer of an 'unexplained' verdict (more is missing: an
+    effect is named only when the gap after it is within the noise)."""
     d = diagnose(example, model=())
     pe = next(c for c in d.candidates if c.effect == "position_error")
     assert pe.refit and pe.refit["gap_after"]["significant_slices"] > 0
-    assert d.verdict_effect not in ("position_error", "heavy_tails", None)
+    assert d.verdict_effect == "unexplained"
+    assert d.verdict["best_partial"] not in ("position_error", "heavy_tails", None)
     assert d.verdict.get("gap_closed") is False and "more is missing" in d.verdict["remaining"]
 
 

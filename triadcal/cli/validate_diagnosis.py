@@ -14,11 +14,20 @@ def register(sub) -> None:
         "validate-diagnosis", help="validate the diagnosis on simulated campaigns with a withheld effect",
         description="For each effect of the vocabulary (and clean data), simulate campaigns with it at a "
                     "realistic magnitude, fit the thermal-campaign model without it, diagnose, and count "
-                    "how often the verdict names it. Writes the confusion matrix as a table "
-                    "(confusion.txt), a plot (confusion.png) and every row (validation.json).")
+                    "how often the verdict names it. With --left-out each campaign is diagnosed a second "
+                    "time with the effect (and the candidates that explain the same data) left out of the "
+                    "candidates: the right verdict is then 'unexplained'. Writes the confusion matrices as a "
+                    "table (confusion.txt), a plot (confusion.png) and every row (validation.json).")
     p.add_argument("--seeds", type=int, default=20, help="campaigns per effect (default 20)")
     p.add_argument("--effects", default=None,
                    help="comma-separated conditions (default: clean and every effect of the vocabulary)")
+    p.add_argument("--magnitudes", default="1",
+                   help="comma-separated magnitudes of the withheld effect, 1 = the preset's realistic one "
+                        "(its parameters times m; position_error: the sigmas times m; heavy_tails: nu = 3/m). "
+                        "Default 1; the full validation uses 1,0.5")
+    p.add_argument("--left-out", action="store_true",
+                   help="also diagnose each campaign with the effect and its group left out of the candidates "
+                        "(right verdict: unexplained)")
     p.add_argument("--preset", default="ak18-quartz", help="unit preset (default ak18-quartz)")
     p.add_argument("--processes", type=int, default=2, help="worker processes (default 2)")
     p.add_argument("--out", default="diagnosis-validation", metavar="DIR",
@@ -34,21 +43,36 @@ def run(args) -> int:
 
     if args.seeds < 1:
         raise InputError("--seeds must be at least 1")
+    try:
+        magnitudes = tuple(float(m) for m in name_list(args.magnitudes))
+    except ValueError:
+        raise InputError(f"--magnitudes takes comma-separated numbers, not {args.magnitudes!r}") from None
+    if not magnitudes or not all(0 < m < float("inf") for m in magnitudes):
+        raise InputError(f"--magnitudes must be positive numbers, not {args.magnitudes!r}")
 
     out = output(args)
 
     def progress(row):
         if out.progress:
-            print(f"{row['effect']:>20}, seed {row['seed']}: the diagnosis names {row['verdict']}", file=sys.stderr,
-                  flush=True)
+            lo = row.get("left_out_verdict")
+            print(f"{row['condition']:>24}, seed {row['seed']}: the diagnosis names {row['verdict']}"
+                  + (f"; with it left out: {lo}" if lo is not None else ""), file=sys.stderr, flush=True)
 
     res = validate(seeds=args.seeds, effects=name_list(args.effects) if args.effects else None,
-                   processes=args.processes, preset=args.preset, progress=progress)
+                   processes=args.processes, preset=args.preset, progress=progress, magnitudes=magnitudes,
+                   left_out=args.left_out)
     paths = write_validation(res, args.out)
     out.say(res.table())
     fa = res.summary.get("clean", {}).get("false_alarm_rate")
     if fa is not None:
         out.say(f"false alarms on clean data: {fa:.0%}")
+    if args.left_out:
+        lo = [c for c in res.left_out_conditions if c in res.summary]
+        wrong = {c: res.summary[c]["left_out_verdicts"] for c in lo if res.summary[c]["left_out_named_rate"] > 0}
+        out.say(f"left out: 'unexplained' in {sum(res.confusion(left_out=True)[:, res.labels.index('unexplained')])}"
+                f" of {int(res.confusion(left_out=True).sum())} diagnoses"
+                + ("; a candidate was named instead in " + "; ".join(f"{c}: {v}" for c, v in wrong.items())
+                   if wrong else ""))
     out.say(f"{len(res.rows)} diagnoses in {res.seconds:.0f} s; the table is in {paths['table']}, the plot in "
             f"{paths['plot']} and every row in {paths['json']}")
     return 0

@@ -86,18 +86,13 @@ def candidates_figure(diagnosis):
     return fig
 
 
-@styled
-def confusion_figure(validation):
-    """Confusion matrix of a validation (rows: withheld effect, columns: verdict), as rates."""
-    plt = _mpl()
-    M = validation.confusion().astype(float)
+def _confusion_panel(ax, M, labels, conditions, title):
     R = M / np.maximum(M.sum(axis=1, keepdims=True), 1)
-    fig, ax = plt.subplots(figsize=(9.0, 6.5))
-    im = ax.imshow(R, cmap="Blues", vmin=0, vmax=1)
-    ax.set_xticks(range(len(validation.labels)))
-    ax.set_xticklabels(validation.labels, rotation=45, ha="right")
-    ax.set_yticks(range(len(validation.conditions)))
-    ax.set_yticklabels(validation.conditions)
+    im = ax.imshow(R, cmap="Blues", vmin=0, vmax=1, aspect="auto")
+    ax.set_xticks(range(len(labels)))
+    ax.set_xticklabels(labels, rotation=45, ha="right")
+    ax.set_yticks(range(len(conditions)))
+    ax.set_yticklabels(conditions)
     for i in range(M.shape[0]):
         for j in range(M.shape[1]):
             if M[i, j]:
@@ -105,8 +100,32 @@ def confusion_figure(validation):
                         color="white" if R[i, j] > 0.5 else "black", fontsize=8)
     ax.set_xlabel("verdict of the diagnosis")
     ax.set_ylabel("effect withheld from the fit")
-    ax.set_title(f"diagnosis validation: {validation.seeds} seeds per row")
-    fig.colorbar(im, ax=ax, fraction=0.04, label="rate")
+    ax.set_title(title)
+    return im
+
+
+@styled
+def confusion_figure(validation):
+    """Confusion matrix of a validation (rows: withheld effect, columns: verdict), as rates; with
+    the left-out mode a second panel: the verdicts with the effect's group left out of the
+    candidates (right verdict: 'unexplained')."""
+    plt = _mpl()
+    left_out = bool(getattr(validation, "left_out", False))
+    n_rows = len(validation.conditions)
+    height = max(6.5, 0.22 * n_rows + 3.0)
+    if left_out:
+        fig, axes = plt.subplots(1, 2, figsize=(18.0, height))
+    else:
+        fig, ax = plt.subplots(figsize=(9.0, height))
+        axes = [ax]
+    im = _confusion_panel(axes[0], validation.confusion().astype(float), validation.labels, validation.conditions,
+                          f"in vocabulary: {validation.seeds} seeds per row")
+    if left_out:
+        _confusion_panel(axes[1], validation.confusion(left_out=True).astype(float), validation.labels,
+                         validation.left_out_conditions,
+                         f"left out (effect and its group not candidates): {validation.seeds} seeds per row")
+    fig.suptitle("diagnosis validation")
+    fig.colorbar(im, ax=axes, fraction=0.03, label="rate")
     return fig
 
 
@@ -289,7 +308,9 @@ def write_html_report(diagnosis, path, campaign=None) -> None:
 
 
 def write_validation(validation, out_dir) -> dict:
-    """Write the validation's table (text), confusion matrix (PNG) and rows (JSON) into ``out_dir``."""
+    """Write the validation's table (text), confusion matrix (PNG) and rows (JSON) into ``out_dir``;
+    with the left-out mode the table and the plot hold both blocks and the JSON both matrices
+    (``confusion``, ``confusion_left_out``)."""
     import os
 
     os.makedirs(out_dir, exist_ok=True)
