@@ -199,3 +199,15 @@ def test_validation_left_out_is_unexplained(ci_validation):
     assert not confident, confident
     assert unexplained >= binomial_floor(n_all), (unexplained, n_all)
     assert not failures, failures
+
+
+def test_left_out_mode_on_clean_data_alone_writes_its_files(tmp_path):
+    """Only clean data with --left-out (the README's command, reduced by the doc harness): nothing is
+    left out, the table says so, and the files are written (it was an internal error: max() of an
+    empty sequence)."""
+    res = validate(seeds=1, effects=("clean",), processes=1, left_out=True)
+    assert res.left_out_conditions == () and "nothing was left out" in res.table()
+    from triadcal.reports.diagnosis import write_validation
+    paths = write_validation(res, tmp_path)
+    assert open(paths["plot"], "rb").read()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert json.loads(open(paths["json"]).read())["confusion_left_out"] == []

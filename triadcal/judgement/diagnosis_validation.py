@@ -213,6 +213,8 @@ class ValidationResult:
     def _block(self, left_out: bool) -> list:
         conds = self.left_out_conditions if left_out else self.conditions
         M = self.confusion(left_out)
+        if not conds:           # e.g. only clean data: nothing is left out
+            return ["(no effect condition: nothing was left out)"] if left_out else []
         short = [lab[:9] for lab in self.labels]
         w = max(len(c) for c in conds) + 1
         tail = ("   unexpl.  named, gap open  named, gap closed  left out with it" if left_out

@@ -110,7 +110,7 @@ def confusion_figure(validation):
     the left-out mode a second panel: the verdicts with the effect's group left out of the
     candidates (right verdict: 'unexplained')."""
     plt = _mpl()
-    left_out = bool(getattr(validation, "left_out", False))
+    left_out = bool(getattr(validation, "left_out", False)) and bool(validation.left_out_conditions)
     n_rows = len(validation.conditions)
     height = max(6.5, 0.22 * n_rows + 3.0)
     if left_out:
