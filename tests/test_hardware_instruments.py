@@ -225,16 +225,13 @@ def test_capture_through_an_instruments_file_end_to_end(tmp_path):
         plan = tmp_path / "plan.csv"
         plan.write_text("position,axis1_deg,axis2_deg\nP01,0,0\nP05,90,90\n")
         out = tmp_path / "run"
-        t0 = time.monotonic()
         r = subprocess.run(CLI + ["capture", "--instruments", str(inst), "--setpoints", "20", "--out", str(out),
                                   "--plan", str(plan), "--tau-s", "20", "--settle-s", "2", "--stab-window-s", "30",
                                   "--stab-hold-s", "30", "--unit", "SN-EMU-0001", "--no-progress"],
-                           capture_output=True, text=True, timeout=60)
-        wall = time.monotonic() - t0
+                           capture_output=True, text=True, timeout=60)     # a hang fails, not a slow machine
     finally:
         em.stop()
     assert r.returncode == 0, r.stderr
-    assert wall < 30
     assert "VNWRG,07,20" in em.imu_device.commands                 # rate_hz from the file configured the IMU
     assert {"1PA0.0000", "2PA0.0000", "1PA90.0000", "2PA90.0000"} <= set(em.bench_server.commands)
     assert em.modbus_requests > 0

@@ -323,6 +323,12 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     for i, c in enumerate(order, 1):
         c.rank = i
     # -- verdict ------------------------------------------------------------------------
+    def where_of(tests):
+        """The verdict's ``where``: up to five significant slices, most significant first."""
+        sig = sorted((x for x in tests if x.p_adjusted < alpha), key=lambda x: x.p_adjusted)[:5]
+        return [{"family": x.family, "slice": x.slice, "axis": x.axis, "test": x.test,
+                 "p_adjusted": _f(x.p_adjusted)} for x in sig]
+
     verdict = {"effect": None}
     if not significant:
         verdict["reason"] = f"no significant gap (smallest Holm-adjusted p = {min(gap_adj.values(), default=1.0):.3g} >= {alpha:g})"
@@ -391,10 +397,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                            "reason": (f"significant gap that no candidate closes: the best, {best.effect} "
                                       f"({partial['evidence']}), leaves it open: {partial['remaining']}"),
                            "evidence": partial["evidence"], "gap_closed": False, "remaining": partial["remaining"],
-                           "where": [{"family": x.family, "slice": x.slice, "axis": x.axis, "test": x.test,
-                                      "p_adjusted": _f(x.p_adjusted)}
-                                     for x in sorted((x for x in slices if x.p_adjusted < alpha),
-                                                     key=lambda x: x.p_adjusted)[:5]]}
+                           "where": where_of(slices)}
                 if "fit_options" in partial:
                     verdict["fit_options"] = partial["fit_options"]
             others = [c for c in refitted if c is not best]
@@ -403,7 +406,6 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 verdict["runner_up"] = second.effect
                 verdict["delta_elpd_to_runner_up"] = best.refit["delta_elpd"] - second.refit["delta_elpd"]
         else:
-            where = sorted((x for x in slices if x.p_adjusted < alpha), key=lambda x: x.p_adjusted)[:5]
             verdict = {"effect": "unexplained",
                        "reason": ("significant, structured gap that no candidate closes"
                                   + (f": {', '.join(c.effect for c in absorbed)} would absorb it as noise, but "
@@ -411,8 +413,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                                      "slice(s) keep structure after that refit, so a term outside the vocabulary "
                                      "(or a model without the needed terms) is the likelier cause" if absorbed else
                                      ": no candidate of the vocabulary improves the fit significantly")),
-                       "where": [{"family": x.family, "slice": x.slice, "axis": x.axis, "test": x.test,
-                                  "p_adjusted": _f(x.p_adjusted)} for x in where]}
+                       "where": where_of(slices)}
     fit = {"chi2_dof": _f(base.chi2_dof), "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
