@@ -198,8 +198,8 @@ def _verdict_text(d) -> tuple[str, str]:
         if isinstance(dd, (int, float)) and dd >= 0:
             evidence += f" ({_num(dd, '{:.1f}')} elpd behind)"
         elif isinstance(dd, (int, float)):
-            evidence += (f" ({_num(-dd, '{:.1f}')} elpd ahead, but a noise effect cannot be named while slices "
-                         "keep structure after its refit)")
+            evidence += (f" ({_num(-dd, '{:.1f}')} elpd ahead, but a noise effect cannot be named while slices or generic "
+                         "families keep structure after its refit)")
     return str(effect), evidence
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 from scipy import stats
@@ -62,6 +62,19 @@ class FitState:
     var_scale: Optional[np.ndarray] = None   # per-observation variance factor (position_error)
     nu: float = math.inf                     # Student-t dof (heavy_tails)
     extra_params: dict = field(default_factory=dict)
+    #: the noise model's whitening of columns in normalised units (``flicker_noise``: ``L^-1``);
+    #: None: divided by ``sqrt(var_scale)`` when that is set, else as they are
+    whiten: Optional[Callable] = None
+
+    def whitened(self, B: np.ndarray) -> np.ndarray:
+        """Columns ``B`` (normalised units, rows as ``r``) on the scale of the standardised residuals
+        the noise model makes of ``r`` (``r / sqrt(var_scale)``, or the GLS-whitened ones)."""
+        B = B / self.s
+        if self.whiten is not None:
+            return self.whiten(B)
+        if self.var_scale is not None:
+            return B / np.sqrt(self.var_scale)[:, None]
+        return B
 
     @property
     def chi2_dof(self) -> float:

@@ -112,7 +112,7 @@ def fit_flicker(full, campaign, base: FitState, names, sigma: np.ndarray) -> Fit
     chi2 = float(rw @ rw)
     dof = rw.size - len(names)
     state = FitState(tuple(names), x_full, rw * Ld, Jw * Ld[:, None], scaled_covariance(Jw), chi2, dof, 1.0,
-                     sol.converged, var_scale=Ld ** 2)
+                     sol.converged, var_scale=Ld ** 2, whiten=whitening.apply)
     K = np.array([abs(x_full[full.index[f"K_{a}"]]) for a in "xyz"])
     bf2 = float(tau[0])
     bf = math.sqrt(bf2)

@@ -1,0 +1,98 @@
+"""The generic structure tests of the diagnosis (judgement/diagnose/generic.py).
+
+The null distribution is checked on a hand-made linear-Gaussian problem (no simulator, no model
+code: residuals of a least-squares fit of random noise on the example campaign's bias and scale
+columns), where the score statistic of each family is exactly chi2 with the projected rank as
+dof; the detection on outputs changed with numpy is in tests/test_diagnose.py
+(test_an_effect_outside_the_vocabulary_is_unexplained_not_noise) and the guard it gives the
+verdict in the left-out validation (tests/test_diagnosis_validation.py, docs/diagnosis.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from triadcal.judgement.diagnose.fitting import _hat_q
+from triadcal.judgement.diagnose.generic import FAMILIES, generic_basis, generic_tests
+from triadcal.judgement.diagnose.candidates import _nominal_g
+
+N_DRAWS = 120
+
+
+def _core_columns(campaign, sigma):
+    """Bias and scale of each output (the part of eq. 1 linear in them), normalised units."""
+    n = campaign.n_visits
+    g = np.asarray(_nominal_g(campaign), float).reshape(n, 3)
+    J = np.zeros((n, 3, 6))
+    for a in range(3):
+        J[:, a, 2 * a] = 1.0 / sigma[:, a]
+        J[:, a, 2 * a + 1] = g[:, a] / sigma[:, a]
+    return J.reshape(3 * n, 6)
+
+
+def test_every_family_is_chi2_with_its_rank_under_the_linear_null(example):
+    """Residuals of a linear least-squares fit of pure noise: S of each family ~ chi2(k) exactly.
+    In the first draws S equals the independent formula r' B~ pinv(B~) r (B~ the family's columns
+    minus their projection on the fit's span, by lstsq) and k its rank; over 120 draws the mean
+    of S is k within 4 standard errors (sqrt(2k/120)) and the p-values pass a
+    Kolmogorov-Smirnov test of uniformity at 0.001; with estimated noise (the F form) too."""
+    rng = np.random.default_rng(20261125)
+    n = example.n_visits
+    sigma = np.tile(rng.uniform(0.5, 2.0, size=3), (n, 1))      # unequal per-output noise
+    basis = generic_basis(example, sigma)
+    assert set(basis) == set(FAMILIES)
+    J = _core_columns(example, sigma)
+    Q = _hat_q(J)
+    S = {f: [] for f in FAMILIES}
+    p = {f: [] for f in FAMILIES}
+    p_est = {f: [] for f in FAMILIES}
+    k_of = {}
+    dof = 3 * n - J.shape[1]
+    for i in range(N_DRAWS):
+        e = rng.standard_normal(3 * n)
+        r = e - Q @ (Q.T @ e)
+        if i < 3:
+            for f, t in generic_tests(basis, r, J, True, dof, Q).items():
+                Bt = basis[f] - J @ np.linalg.lstsq(J, basis[f], rcond=None)[0]
+                coef = np.linalg.lstsq(Bt, r, rcond=1e-9)[0]
+                assert np.isclose(t["S"], float(r @ (Bt @ coef)), rtol=1e-8), f
+                assert t["k"] == np.linalg.matrix_rank(Bt, tol=1e-6 * np.linalg.norm(Bt, 2)), f
+                assert np.isclose(t["p_value"], stats.chi2.sf(t["S"], t["k"]), rtol=1e-8), f
+        for f, t in generic_tests(basis, r, J, True, dof, Q).items():
+            S[f].append(t["S"])
+            p[f].append(t["p_value"])
+            k_of[f] = t["k"]
+        s = np.sqrt(r @ r / dof)                                  # estimated noise: r / s, as the fits do
+        for f, t in generic_tests(basis, r / s, J / s, False, dof, Q).items():
+            p_est[f].append(t["p_value"])
+    # the example campaign has one branch per setpoint block and no drift of its own: every family
+    # keeps columns outside the bias/scale span
+    assert set(k_of) == set(FAMILIES)
+    for f in FAMILIES:
+        k = k_of[f]
+        assert abs(np.mean(S[f]) - k) < 4 * np.sqrt(2 * k / N_DRAWS), (f, k, np.mean(S[f]))
+        assert stats.kstest(p[f], "uniform").pvalue > 1e-3, f
+        assert stats.kstest(p_est[f], "uniform").pvalue > 1e-3, f
+
+
+def test_a_pattern_in_the_model_span_costs_nothing_and_one_outside_it_is_found(example):
+    """A bias and scale error (in the fitted span) leaves S = 0 up to rounding; a cubic temperature
+    dependence of the z bias, 3 noise SDs at the range's ends (no noise added), is found by the
+    temperature family with p < 1e-6."""
+    n = example.n_visits
+    sigma = np.ones((n, 3))
+    basis = generic_basis(example, sigma)
+    J = _core_columns(example, sigma)
+    Q = _hat_q(J)
+    r_span = J @ np.arange(1.0, 7.0)
+    r_span = r_span - Q @ (Q.T @ r_span)
+    for t in generic_tests(basis, r_span, J, True, 3 * n - 6, Q).values():
+        assert t["S"] < 1e-12
+    T = example.t.mean(axis=1)
+    u = (2 * T - (T.max() + T.min())) / (T.max() - T.min())
+    bump = np.zeros((n, 3))
+    bump[:, 2] = 3.0 * u ** 3
+    r = bump.reshape(-1) - Q @ (Q.T @ bump.reshape(-1))
+    out = generic_tests(basis, r, J, True, 3 * n - 6, Q)
+    assert out["temperature"]["p_value"] < 1e-6
