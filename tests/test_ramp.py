@@ -85,13 +85,19 @@ def test_unit_follows_the_program_within_the_steady_state_error():
     assert np.max(np.abs(dev)) <= lag + s_rate * sched.tau_s / 2 + 5 * 0.01
     # the unit sees less than the program's range: it trails the turns
     assert -30.0 < c.t.min() < -20.0 and 60.0 < c.t.max() < 75.0
-    # directions: the unit's own (heating while its temperature rises), and the readings' rate
-    # (central differences within a block, as the fit takes it) follows the true rate
+    # directions: the unit's own (heating while its temperature rises); the rate the fit takes is the
+    # campaign's dTdt_C_per_min, the window's exact mean rate (the rate at its middle within the
+    # curvature of a 30 s window); the central differences of the readings follow the true rate too
     _, _, true_rate = ramp_history(sched, c.time_s)
     heat = c.direction == "heating"
     assert np.all(true_rate[heat] > 0) and np.all(true_rate[c.direction == "cooling"] < 0)
     assert set(c.direction) == {"heating", "cooling"}
-    est = c.temperature_rate().mean(axis=1)
+    _, u0, _ = ramp_history(sched, c.time_s - sched.tau_s / 2)
+    _, u1, _ = ramp_history(sched, c.time_s + sched.tau_s / 2)
+    np.testing.assert_allclose(c.dTdt_C_per_min, (u1 - u0) / sched.tau_s * 60.0, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(c.temperature_rate(), np.repeat(c.dTdt_C_per_min[:, None] / 60.0, 3, axis=1))
+    assert np.max(np.abs(c.temperature_rate()[:, 0] - true_rate)) < 1e-3 * s_rate
+    est = c.central_difference_rate().mean(axis=1)
     inner = np.abs(true_rate) > 0.3 * s_rate
     assert np.median(np.abs(est[inner] - true_rate[inner])) < 0.02 * s_rate
     assert c.metadata["ramp"].startswith("20:-40:85:20 degC at 1 degC/min")

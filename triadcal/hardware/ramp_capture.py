@@ -25,9 +25,10 @@ the program's leg at the window's middle, ``direction`` the sign of the unit's r
 A window whose outputs are not those of a unit at rest (:func:`not_stationary`: the bench still
 moving) or in which the unit's temperature turned (:func:`turned_within`: both hysteresis branches
 in one visit) is recorded again at the same position. Extra columns: ``raw_visit`` (the samples of
-the row in the raw store) and ``program_C`` (the program's value at the window's middle). The fit
-takes each visit's rate from the readings (``Campaign.temperature_rate``) and the element's lag with
-``thermal_lag``.
+the row in the raw store) and ``program_C`` (the program's value at the window's middle); and bench
+CSV's optional ``dTdt_C_per_min``, the unit's rate over the window measured from the window's raw
+readings (:func:`visit_rate`), which the fit takes as each visit's rate (``Campaign.temperature_rate``)
+for the element's lag (``thermal_lag``) instead of central differences of the visit means.
 
 Storage and resume are the stepped capture's (:mod:`triadcal.hardware.capture`): an exclusive
 folder lock, every accepted sample appended to ``raw/imu_samples.csv`` (flushed every batch,
@@ -204,6 +205,30 @@ def window_rates(history, t0: float, t1: float, span_s: float = DIRECTION_SPAN_S
         out[key] = float(g @ coef)
         out[key + "_se"] = float(math.sqrt(max(g @ cov @ g, 0.0)))
     return out
+
+
+def visit_rate(frames) -> float:
+    """The rate (degC/s) of the unit's temperature over a visit's window that its row carries
+    (bench CSV ``dTdt_C_per_min``, the fit's ``dT/dt`` for ``thermal_lag``): the slope of the
+    least-squares line through the mean temperature reading of the window's frames (``f.time_s``,
+    mean of ``f.t``); 0 with fewer than 2 frames.
+
+    The visit's mean output holds the window's mean rate (the mean of ``T - tau dT/dt`` over the
+    window is the mean reading minus ``tau`` times ``(T(t1) - T(t0)) / (t1 - t0)``), which the line's
+    slope is, without bias, for any temperature that is quadratic over the window, whatever the
+    chamber's and the unit's time constants. The direction's quadratic (:func:`window_rates`, with
+    the 150 s before the window) is less noisy but not unbiased: on the tests' fast unit (300 s,
+    600 s) its slope was 0.5 % steep and thermal_lag 0.6 SD short (docs/hardware.md)."""
+    pts = np.array([(f.time_s, float(np.mean(f.t))) for f in frames or ()], float).reshape(-1, 2)
+    if len(pts) < 2 or not np.ptp(pts[:, 0]) > 0:
+        return 0.0
+    x = pts[:, 0] - pts[:, 0].mean()
+    return float(x @ (pts[:, 1] - pts[:, 1].mean()) / (x @ x))
+
+
+#: how ``dTdt_C_per_min`` is measured (metadata ``dTdt_method`` of a ramp capture's campaign.csv)
+DTDT_METHOD = ("slope of the least-squares line through the mean temperature reading of the window's samples "
+               "(the window's mean rate), degC/min, the rate of all three t_*")
 
 
 def turned_within(rates: dict) -> bool:
@@ -401,13 +426,19 @@ def _read_ramp_rows(path: Path, labels: list) -> list:
                      "time_s": c.time_s[i], "position": c.position[i], "axis1_deg": c.axis1_deg[i],
                      "axis2_deg": c.axis2_deg[i], "tau_s": c.tau_s[i], "w": c.w[i], "t": c.t[i],
                      "sd": c.sd[i], "n_samples": int(c.n_samples[i]), "raw_visit": c.extra["raw_visit"][i],
-                     "program_C": float(c.extra["program_C"][i])})
+                     "program_C": float(c.extra["program_C"][i]),
+                     "dTdt_C_per_min": None if c.dTdt_C_per_min is None else float(c.dTdt_C_per_min[i])})
     return rows
 
 
 def _ramp_campaign(rows: list, metadata: dict):
     c = _campaign(rows, metadata)
     c.extra["program_C"] = np.array([f"{r['program_C']:.3f}" for r in rows], dtype=object).astype(str)
+    # the measured rate once every row has one (a folder begun by a capture without it keeps the
+    # fit's central differences)
+    if rows and all(r.get("dTdt_C_per_min") is not None for r in rows):
+        c.dTdt_C_per_min = np.array([r["dTdt_C_per_min"] for r in rows], float)
+        c.metadata["dTdt_method"] = DTDT_METHOD
     return c
 
 
@@ -548,17 +579,19 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
             p_mid = run.program_s(mid)
             rates = window_rates(tee.history, mid - settings.tau_s / 2, mid + settings.tau_s / 2)
             slope, se = rates["mean"], rates["mean_se"]
+            dTdt = visit_rate(run.last_window)
             first_leg = "heating" if program.knot_C[1] > program.knot_C[0] else "cooling"
             direction = visit_direction(slope, se, rows[-1]["direction"] if rows else first_leg)
             row.update(unit=settings.unit, setpoint_C=program.target(p_mid), direction=direction, position=label,
                        axis1_deg=a1, axis2_deg=a2, tau_s=settings.tau_s, raw_visit=tag,
-                       program_C=program.value(min(p_mid, program.duration_s)))
+                       program_C=program.value(min(p_mid, program.duration_s)), dTdt_C_per_min=dTdt * 60.0)
             row["time_s"] = mid + offset
             rows.append(row)
             atomic_write_text(out / CSV_NAME, format_bench_csv(_ramp_campaign(rows, metadata)))
             events.write("visit", index=len(rows), tag=tag, n_samples=row["n_samples"], program_s=p_mid,
                          program_C=row["program_C"], slope_C_per_min=slope * 60.0,
-                         slope_se_C_per_min=se * 60.0 if math.isfinite(se) else None, direction=direction)
+                         slope_se_C_per_min=se * 60.0 if math.isfinite(se) else None, direction=direction,
+                         dTdt_C_per_min=dTdt * 60.0)
             notify({"event": "visit", "done": len(rows), "total": max(total, len(rows)),
                     "setpoint_C": row["program_C"], "position": label})
         if run.last_p is None or run.last_p < program.duration_s:

@@ -23,12 +23,16 @@ from .numbers import MAX_READING, NumberError, parse_number
 
 REQUIRED = ("unit", "setpoint_C", "direction", "time_s", "position", "axis1_deg", "axis2_deg",
             "tau_s", "w_x", "w_y", "w_z", "t_x", "t_y", "t_z")
-OPTIONAL = ("cycle", "sd_x", "sd_y", "sd_z", "n_samples", "state", "u_w_x", "u_w_y", "u_w_z")
+OPTIONAL = ("cycle", "sd_x", "sd_y", "sd_z", "n_samples", "state", "u_w_x", "u_w_y", "u_w_z",
+            "dTdt_C_per_min")
 #: per-visit standard uncertainty of the mean outputs (docs/bench-csv.md, "u_w_*")
 U_W = ("u_w_x", "u_w_y", "u_w_z")
+#: per-visit measured rate of the unit's temperature, degC/min (docs/bench-csv.md, "dTdt_C_per_min")
+DTDT = "dTdt_C_per_min"
 COLUMNS = REQUIRED + OPTIONAL
 FLOATS = ("setpoint_C", "time_s", "axis1_deg", "axis2_deg", "tau_s",
-          "w_x", "w_y", "w_z", "t_x", "t_y", "t_z", "sd_x", "sd_y", "sd_z", "u_w_x", "u_w_y", "u_w_z")
+          "w_x", "w_y", "w_z", "t_x", "t_y", "t_z", "sd_x", "sd_y", "sd_z", "u_w_x", "u_w_y", "u_w_z",
+          "dTdt_C_per_min")
 
 
 class BenchCSVError(InputError):
@@ -70,11 +74,16 @@ RANGES = {
 #: is positive (0 would be an infinite weight); kept apart from RANGES, whose columns every
 #: campaign file of the property tests holds
 U_W_RANGE = (0.0, MAX_READING, True)
+#: accepted range of the optional ``dTdt_C_per_min`` (degC/min): a ramp plan's rate is at most
+#: 100 degC/min (planning/ramp.py), and no chamber changes a unit's temperature faster
+DTDT_RANGE = (-100.0, 100.0, False)
+#: the optional numeric columns, each with its range, kept apart from RANGES (see U_W_RANGE)
+OPTIONAL_RANGES = {**{c: U_W_RANGE for c in U_W}, DTDT: DTDT_RANGE}
 
 
 def column_range(name: str) -> tuple:
     """``(low, high, low_open)`` of a numeric column."""
-    return U_W_RANGE if name in U_W else RANGES[name]
+    return OPTIONAL_RANGES[name] if name in OPTIONAL_RANGES else RANGES[name]
 
 
 #: local gravity accepted without ``# local_g_override = true`` (m/s^2): the range on Earth's
@@ -198,7 +207,7 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
     _check_kelvin(path, strings, lnum)
     cols: dict = {}
     for h in header:
-        if h in RANGES or h in U_W:
+        if h in RANGES or h in OPTIONAL_RANGES:
             cols[h] = _float_column(path, h, strings[h], lnum)
         elif h in COLUMNS:
             cols[h] = [check_field(path, int(ln), h, v) for v, ln in zip(strings[h], lnum)]
@@ -223,6 +232,7 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
         cycle=opt_cycle, state=state, sd=sd,
         n_samples=arr("n_samples", int) if "n_samples" in cols else None,
         metadata=metadata, source=path, lines=lnum, u_w=u_w,
+        dTdt_C_per_min=arr(DTDT) if DTDT in cols else None,
         extra={h: np.array(cols[h]).astype(str) for h in header if h not in COLUMNS})
     check_output_unit(campaign, meta_line.get("output_unit", header_line))
     return campaign
@@ -305,7 +315,7 @@ def check_field(path: str, line: int, column: str, value: str):
         if column == "cycle":
             return 0
         raise BenchCSVError(path, line, column, "empty field")
-    if column in RANGES or column in U_W:
+    if column in RANGES or column in OPTIONAL_RANGES:
         low, high, low_open = column_range(column)
         try:
             return parse_number(value, low=low, high=high, low_open=low_open, what=column)
@@ -337,6 +347,8 @@ def format_bench_csv(c: Campaign) -> str:
         cols += ["sd_x", "sd_y", "sd_z", "n_samples"]
     if c.u_w is not None:
         cols += list(U_W)
+    if c.dTdt_C_per_min is not None:
+        cols.append(DTDT)
     cols += list(c.extra)
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(cols)
@@ -351,6 +363,8 @@ def csv_value(c: Campaign, col: str, i: int) -> str:
         return str(c.extra[col][i])
     if col in U_W:
         return repr(float(c.u_w[i, xyz[col[-1]]]))
+    if col == DTDT:
+        return repr(float(c.dTdt_C_per_min[i]))
     if col[:2] in ("w_", "t_") or col.startswith("sd_"):
         arr = {"w": c.w, "t": c.t, "sd": c.sd}[col.split("_")[0]]
         return repr(float(arr[i, xyz[col[-1]]]))

@@ -79,6 +79,10 @@ class Campaign:
     #: standard uncertainty of each mean output (n, 3), output unit, from the data's own noise
     #: (bench CSV ``u_w_x u_w_y u_w_z``; how it was made: metadata ``u_w_method``)
     u_w: Optional[np.ndarray] = None
+    #: measured rate of the unit's temperature over each visit (n,), degC/min (bench CSV
+    #: ``dTdt_C_per_min``; how it was measured: metadata ``dTdt_method``); when present,
+    #: :meth:`temperature_rate` takes it instead of central differences of the visit means
+    dTdt_C_per_min: Optional[np.ndarray] = None
 
     def __post_init__(self):
         n = len(self.time_s)
@@ -90,6 +94,8 @@ class Campaign:
             raise InputError("campaign fields w and t must have shape (n_visits, 3)")
         if self.u_w is not None and np.shape(self.u_w) != (n, 3):
             raise InputError("campaign field u_w must have shape (n_visits, 3)")
+        if self.dTdt_C_per_min is not None and np.shape(self.dTdt_C_per_min) != (n,):
+            raise InputError("campaign field dTdt_C_per_min must have shape (n_visits,)")
 
     # -- basic facts ---------------------------------------------------------------
     @property
@@ -137,9 +143,22 @@ class Campaign:
     def temperature_rate(self) -> np.ndarray:
         """Rate of change of each temperature sensor (degC/s), shape (n, 3).
 
-        Central differences against ``time_s`` within each setpoint block (one-sided at its
-        ends); zero for a block with a single visit.
+        The measured rate of each visit when the campaign has one (``dTdt_C_per_min``, the rate
+        of the unit's temperature reading over the visit's window, e.g. from the raw readings by
+        ``capture --ramp``), the same for the three sensors (they sit on one unit and share its
+        thermal history; see docs/bench-csv.md). Otherwise central differences of the visit means
+        against ``time_s`` within each setpoint block (one-sided at its ends); zero for a block
+        with a single visit.
         """
+        if self.dTdt_C_per_min is not None:
+            r = np.asarray(self.dTdt_C_per_min, float) / 60.0
+            return np.repeat(r[:, None], 3, axis=1)
+        return self.central_difference_rate()
+
+    def central_difference_rate(self) -> np.ndarray:
+        """Rate of each temperature sensor (degC/s, (n, 3)) from central differences of the visit
+        means within each setpoint block (one-sided at its ends; zero for a single visit): the
+        rate :meth:`temperature_rate` falls back to when the campaign has no measured rate."""
         rate = np.zeros_like(self.t)
         blocks = self.setpoint_blocks
         for b in np.unique(blocks):
@@ -193,4 +212,5 @@ class Campaign:
                        t=self.t[idx], cycle=self.cycle[idx], state=self.state[idx],
                        sd=t(self.sd), n_samples=t(self.n_samples), lines=t(self.lines),
                        metadata=dict(self.metadata), extra={k: v[idx] for k, v in self.extra.items()},
-                       branch_values=t(self.branch_values), u_w=t(self.u_w))
+                       branch_values=t(self.branch_values), u_w=t(self.u_w),
+                       dTdt_C_per_min=t(self.dTdt_C_per_min))

@@ -80,7 +80,9 @@ class RampSchedule:
     during it (``heating`` on a rise, ``cooling`` on a fall: the ramp as the unit sees it, which
     trails the program's turns by the lags) and with the target of the program's current leg as
     its ``setpoint_C``, so a bench CSV block (consecutive visits of equal setpoint and direction)
-    is one leg, within which the fit takes the rate of the readings (central differences).
+    is one leg. Each visit carries the exact mean rate of its readings over the window
+    (``dTdt_C_per_min``, as ``capture --ramp`` writes the measured one), which the fit takes as
+    the rate for ``thermal_lag``.
     """
 
     program_C: Sequence[float] = (20.0, -40.0, 85.0, 20.0)
@@ -429,12 +431,24 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
         sensor_T = sensor_temperatures(unit_T, schedule.self_heating_C)
     branch = np.array([BRANCH[d] for d in dirs])
     model_T = sensor_T
+    # a ramp's measured rate (bench CSV dTdt_C_per_min, as capture --ramp writes it): the exact mean
+    # rate of the readings over each window; the simulator draws no per-sample readings, so there is
+    # no reading noise to put in it (a capture's: 0.001 degC/min rms on 120 s windows, 0.01 on 20 s;
+    # docs/hardware.md)
+    dTdt = unit_rate * 60.0 if isinstance(schedule, RampSchedule) else None
     if thermal_lag_location is not None and "thermal_lag" in truth.effects:
         tau_lag = float(truth.parameters["thermal_lag"]) * 60.0
         sensor_T, model_T = lagged_element_history(schedule, np.asarray(times, float),
                                                    None if isinstance(schedule, RampSchedule) else starts,
                                                    tau_lag, thermal_lag_location, schedule.self_heating_C)
         unit_rate = np.zeros(len(labels))      # the rate form is inert: the element's temperature is given
+        if dTdt is not None:                   # the readings are the housing's or the air's: their rate
+            half = np.asarray(taus, float) / 2.0
+            r0, _ = lagged_element_history(schedule, np.asarray(times, float) - half, None, tau_lag,
+                                           thermal_lag_location, schedule.self_heating_C)
+            r1, _ = lagged_element_history(schedule, np.asarray(times, float) + half, None, tau_lag,
+                                           thermal_lag_location, schedule.self_heating_C)
+            dTdt = (r1 - r0).mean(axis=1) / (2.0 * half) * 60.0
 
     cov = Covariates(
         axis1=np.radians(a1), axis2=np.radians(a2),
@@ -494,8 +508,10 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
     if isinstance(schedule, RampSchedule):
         metadata["ramp"] = (":".join(f"{v:g}" for v in schedule.program_C) + f" degC at "
                             f"{schedule.rate_C_per_min:g} degC/min, hold {schedule.hold_s:g} s")
+        metadata["dTdt_method"] = ("exact: the mean rate of the readings over each window from the simulator's "
+                                   "thermal model (no per-sample readings are simulated, so no reading noise)")
     return Campaign(
         unit=np.full(n, truth.unit), setpoint_C=np.array(sp_c, float), direction=np.array(dirs),
         time_s=times, position=np.array(labels), axis1_deg=np.array(a1, float),
         axis2_deg=np.array(a2, float), tau_s=tau, w=w, t=t_read, cycle=np.zeros(n, int),
-        state=np.full(n, state), sd=sd, n_samples=n_samples, metadata=metadata)
+        state=np.full(n, state), sd=sd, n_samples=n_samples, metadata=metadata, dTdt_C_per_min=dTdt)
