@@ -287,7 +287,12 @@ def html_report(diagnosis, campaign=None) -> str:
             f"{_num(b['residual_rms_ug'])} &rarr; {_num(a['residual_rms_ug'])} ug (noise floor "
             f"{_num(a['noise_floor_ug'])} ug); elpd {_num(b['elpd_loo'], '{:.1f}')} &rarr; "
             f"{_num(a['elpd_loo'], '{:.1f}')}; significant slices {_count(b.get('significant_slices'))} &rarr; "
-            f"{_count(a.get('significant_slices'))}.</p>"
+            f"{_count(a.get('significant_slices'))}; "
+            + (("smooth structure left (generic families, Holm p): " + e(", ".join(
+                f"{f} {_num(a['generic'][f].get('p_holm'), '{:.2g}')}" for f in a.get("generic_structure") or [])))
+               if a.get("generic_structure") else "no generic family significant after it"
+               if a.get("generic") else "generic families not tested")
+            + ".</p>"
             "<p>New parameters: " + e(", ".join(
                 f"{n} = {_num(p['value'])}" + (f" +- {_num(p['u'])}" if p.get('u') is not None else "")
                 + f" {p.get('unit', '')}"

@@ -141,8 +141,10 @@ class Diagnosis:
 
 METHODS_TEXT = {
     "gap": "chi2 of the normalised residuals vs chi2(n_obs - n_par) with known noise; Anscombe-Glynn "
-           "kurtosis test (one-sided) of leverage-standardised residuals; score test of every candidate; "
-           "significant when any rejects after Holm's correction at alpha (family-wise)",
+           "kurtosis test (one-sided) of leverage-standardised residuals; score test of every candidate and "
+           "of five generic families of smooth mean terms (temperature, time, orientation even/odd, branch: "
+           "judgement/diagnose/generic.py); significant when any rejects after Holm's correction at alpha "
+           "(family-wise)",
     "where": "slices x output axis, tests of offset (mean), trend (slope in time) and excess chi2 with exact "
              "null moments of the linearised fit (hat matrix; excess chi2 by Satterthwaite's scaled chi2); "
              "Holm's correction over all tests; posterior predictive p of the slice chi2 from Laplace draws",
@@ -154,6 +156,11 @@ METHODS_TEXT = {
              "by the estimation/ form fits), their LR with the profiled parameters counted, delta elpd less "
              "one per profiled parameter, named only when they beat their simpler form (offset hysteresis, "
              "rate-form lag) by the nested likelihood ratio at 99 %",
+    "verdict": "the best refitted candidate is named when its LR p < alpha and delta elpd > 0, the chi2 after "
+               "it is within the noise at alpha (known noise) and no generic family is significant after it "
+               "(Holm over the families, on the residuals standardised by its noise model); a noise candidate "
+               "also needs no significant slice after it; a candidate that shrinks the gap without closing "
+               "it is the best partial answer of an 'unexplained' verdict",
 }
 
 
