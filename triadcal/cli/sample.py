@@ -6,7 +6,7 @@ from ..errors import InputError
 
 import sys
 
-from ..models.effects import DEFAULT_EFFECTS, EFFECTS
+from ..models.effects import DEFAULT_EFFECTS, EFFECTS, NOISE_EFFECTS
 from ._common import add_output_options, name_list, output
 
 
@@ -23,9 +23,15 @@ def register(sub) -> None:
     p.add_argument("--state", default=None, metavar="NAME",
                    help="mechanical state to sample when the file holds several")
     p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS),
-                   help=f"effects of the joint model, from: {', '.join(EFFECTS)}; default: {','.join(DEFAULT_EFFECTS)}")
+                   help=f"effects of the joint model, from: {', '.join(EFFECTS)}, the noise effects "
+                        f"{', '.join(NOISE_EFFECTS)}, and quantisation (a digital output rounded to an LSB q: the "
+                        "least-squares fit with the term first, q given or profiled, then the posterior with q and "
+                        f"the per-sample sigma held at the fit's values); default: {','.join(DEFAULT_EFFECTS)}")
     p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
                    help="reference temperature of the thermal model, degC (default 20)")
+    p.add_argument("--quantisation-lsb", type=float, default=None, metavar="Q",
+                   help="the LSB q of a digital output in the file's output unit (one for the three outputs), fixed "
+                        "instead of profiled; implies --effects ...,quantisation (docs/model.md, Quantisation)")
     p.add_argument("--ess", type=float, default=2000, help="bulk and tail ESS requested for every parameter (default 2000)")
     p.add_argument("--max-steps", type=int, default=20000,
                    help="stop after this many steps even if not converged (default 20000)")
@@ -78,7 +84,8 @@ def run(args) -> int:
                         progress=progress, json_path=args.json, posterior_path=args.posterior,
                         gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec),
                         bench_errors=bench_errors_of(lab) if lab else None,
-                        systematics=systematic_sources(lab, campaign.output_unit) if lab else ())
+                        systematics=systematic_sources(lab, campaign.output_unit) if lab else (),
+                        quantisation_lsb=args.quantisation_lsb)
     finally:
         if bar is not None:
             bar.close()

@@ -15,6 +15,7 @@ import numpy as np
 
 from ...models.campaign import Campaign
 from ...models.effects import DEFAULT_EFFECTS
+from ...models.effects.quantisation import NAME as NAME_QUANTISATION
 from ...models.model import Model
 from ..gates import DEFAULT_CONFIG, GateConfig
 from ..joint import (
@@ -57,7 +58,7 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
            json_path=None, posterior_path=None, max_saved_draws: int = MAX_SAVED_DRAWS,
            return_run: bool = False, least_squares: Optional[tuple] = None,
            gates: Optional[GateConfig] = None, bench_errors: Optional[BenchErrors] = None,
-           systematics: Sequence = ()):
+           systematics: Sequence = (), quantisation_lsb: Optional[float] = None):
     """Posterior of every parameter of the joint model (``triadcal sample``).
 
     ``data``: a bench CSV v1 path or a :class:`Campaign`. ``ess``: requested bulk and
@@ -79,6 +80,12 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     ``position_error`` (the bench's random errors estimated from the residuals and held there, a
     plug-in variance component) and ``heavy_tails`` (the unit-variance Student-t likelihood, its
     dof held at the profile-likelihood value).
+    ``effects`` may name ``quantisation`` (a digital output rounded to an LSB q, one for the three
+    outputs, output unit; ``quantisation_lsb`` given implies it): the least-squares fit with the term
+    (:func:`~triadcal.estimation.quantisation_form.fit_quantisation`, q given or profiled) runs first,
+    then the posterior of the model's parameters with the outputs ``W + e(W; q, sigma)``
+    (:func:`~triadcal.models.effects.quantisation.error_expression`), q and the per-sample sigma held
+    at the fit's values (a plug-in, stated in the notes); ``fit.quantisation`` in the result.
     """
     gates = gates or DEFAULT_CONFIG
     if moves not in MOVES:
@@ -89,14 +96,28 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     from ..noise_effects import resolve_noise_effects
 
     t_start = time.perf_counter()
+    quantised = NAME_QUANTISATION in effects or quantisation_lsb is not None
+    effects = [e for e in effects if e != NAME_QUANTISATION]
+    if quantisation_lsb is not None:
+        quantisation_lsb = _positive_lsb(quantisation_lsb)
     noise_fx = resolve_noise_effects(campaign, effects, bench_errors=bench_errors,
                                      reference_temperature_C=reference_temperature_C, gates=gates)
     effects, bench_errors, nu = noise_fx["effects"], noise_fx["bench_errors"], noise_fx["nu"]
     nu = nu if noise_fx["loss"] == "student_t" else math.inf
     effects, added = effects_with_lab(effects, systematics)
     if noise_fx.get("whitening") is not None:      # flicker_noise: estimation/flicker_noise.py
+        if quantised:
+            raise InputError("sample: quantisation and flicker_noise are not sampled together (the quantised output "
+                             "model is not written for the whitened residuals); drop one of them")
         return _sample_flicker(campaign, effects, noise_fx, added, locals())
-    if least_squares is None:
+    if least_squares is None and quantised:
+        from ..quantisation_form import fit_quantisation
+
+        least_squares = fit_quantisation(campaign, effects, quantisation_lsb,
+                                         reference_temperature_C=reference_temperature_C, gates=gates,
+                                         bench_errors=bench_errors, systematics=systematics, loss=noise_fx["loss"],
+                                         nu=noise_fx["nu"])
+    elif least_squares is None:
         least_squares = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
                                   return_problem=True, gates=gates, bench_errors=bench_errors,
                                   systematics=systematics, loss=noise_fx["loss"], nu=noise_fx["nu"])
@@ -114,7 +135,17 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
         sigma = sigma * math.sqrt(chi2_dof)
         notes.append(f"output noise not in the data: held at its least-squares estimate ({noise.description}, "
                      f"chi2/dof = {chi2_dof:.3g}); the posterior does not include the uncertainty of the noise level")
-    problem = JointProblem(campaign, model, sigma)
+    quantisation = _held_quantisation(campaign, ls) if quantised else None
+    if quantisation is not None:
+        from ..quantisation_form import output_map
+
+        q, s_sample = quantisation
+        notes.append(f"quantisation: the LSB q = {q:.6g} {campaign.output_unit} and the per-sample sigma "
+                     + ", ".join(f"{v:.3g}" for v in np.broadcast_to(s_sample, (3,))) + f" {campaign.output_unit} "
+                     "held at the least-squares fit's values (plug-in): the posterior is that of the model's "
+                     "parameters given them, without their uncertainty")
+    problem = JointProblem(campaign, model, sigma,
+                           output_map=None if quantisation is None else output_map(*quantisation))
     ls_values = dict(zip(ls_problem.names, ls_sol.x))
     x_start = np.array([ls_values.get(n, pri[n].mean) for n in model.names])
     x_map, C = laplace_approximation(problem, pri, x_start)
@@ -122,18 +153,48 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     d = len(model.names)
     W = int(n_walkers or 2 * d)
     W += W % 2
-    target = LogPosterior(campaign, model, sigma, pri, x_map, Lc, block=W // 2, nu=nu)
+    target = LogPosterior(campaign, model, sigma, pri, x_map, Lc, block=W // 2, nu=nu, quantisation=quantisation)
     run = run_sampler(target, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
                       seed=seed, moves=moves, progress=progress, max_saved_draws=max_saved_draws)
     total_seconds = time.perf_counter() - t_start
     result = _result(campaign, model, problem, pri, ls, run, notes, total_seconds, ess, rhat_max, tau_factor, max_steps,
                      gates)
     result.extra.update(noise_fx["extra"])
+    if quantisation is not None:
+        result.fit["quantisation"] = dict(ls.fit["quantisation"], held_in_posterior=True,
+                                          posterior="q and sigma_sample held at these values (plug-in)")
     if json_path is not None:
         result.save(json_path)
     if posterior_path is not None:
         write_inference_data(posterior_path, campaign, run, result)
     return (result, run) if return_run else result
+
+
+def _positive_lsb(q) -> float:
+    """``--quantisation-lsb`` as a float, or an InputError naming the option."""
+    try:
+        v = float(q)
+    except (TypeError, ValueError):
+        raise InputError(f"--quantisation-lsb must be a positive number in the output unit, got {q!r}") from None
+    if not (v > 0 and math.isfinite(v)):
+        raise InputError(f"--quantisation-lsb must be a positive number in the output unit, got {q!r}")
+    return v
+
+
+def _held_quantisation(campaign, ls):
+    """``(q, sigma_sample)`` of the least-squares fit with the quantisation term (its
+    ``fit.quantisation`` block; sigma per visit and axis as the fit used it)."""
+    from ..quantisation_form import sample_sigma_of
+
+    block = ls.fit.get("quantisation")
+    if not block:
+        raise InputError("sample with quantisation: the least-squares fit given has no fit.quantisation block "
+                         "(fit it with fit_quantisation, or let sample fit it)")
+    q = float(block["lsb"])
+    s, why = sample_sigma_of(campaign, q)
+    if s is None:
+        raise InputError(f"{campaign.source or 'campaign'}: {why}")
+    return q, np.asarray(s, float)
 
 
 def _sample_flicker(campaign, effects, noise_fx, added, kw):

@@ -24,11 +24,15 @@ from ..result import Z95
 from .compile import _compile
 
 
-def _visit_functions(model: Model, nu: float = math.inf):
+def _visit_functions(model: Model, nu: float = math.inf, quantisation: Optional[tuple] = None):
     """Per-visit pointwise ``-1/2 r^2`` (3 axes) of eq. 1, symbolic in the parameters
     (reporting units) and the visit's covariates, observation and inverse sigma; with a finite
     ``nu`` the unit-variance Student-t kernel ``-(nu+1)/2 log(1 + r^2 / ((nu-2)))`` instead
-    (``heavy_tails``, :func:`triadcal.models.effects.heavy_tails.logpdf` without its constant)."""
+    (``heavy_tails``, :func:`triadcal.models.effects.heavy_tails.logpdf` without its constant).
+    ``quantisation``: None, or the structure ``(form, count)`` of the expected quantisation error
+    (:func:`triadcal.models.effects.quantisation.form_of`): the model outputs are then
+    ``W + e(W; q, sigma_sample)`` (:func:`~triadcal.models.effects.quantisation.error_expression`),
+    and the function takes two more inputs, the visit's per-sample SDs (3) and the LSB q."""
     npar = len(model.names)
     x = ca.SX.sym("x", npar)
     c = ca.SX.sym("c", len(COVARIATES))
@@ -39,10 +43,17 @@ def _visit_functions(model: Model, nu: float = math.inf):
     cov = Covariates(axis1=c[0], axis2=c[1], temp=(c[2], c[3], c[4]), temp_rate=(c[5], c[6], c[7]),
                      branch=c[8], time_s=c[9])
     w = ca.vertcat(*model.predict(p, cov, g))
+    inputs = [x, c, g, wo, isg]
+    if quantisation is not None:
+        from ...models.effects.quantisation import error_expression
+
+        sq, q = ca.SX.sym("sigma_sample", 3), ca.SX.sym("q")
+        w = w + error_expression(w, q, sq, *quantisation)
+        inputs += [sq, q]
     r = (wo - w) * isg
     if math.isfinite(nu):
-        return ca.Function("visit_loglik", [x, c, g, wo, isg], [-0.5 * (nu + 1.0) * ca.log1p(r * r / (nu - 2.0))])
-    return ca.Function("visit_loglik", [x, c, g, wo, isg], [-0.5 * r * r])
+        return ca.Function("visit_loglik", inputs, [-0.5 * (nu + 1.0) * ca.log1p(r * r / (nu - 2.0))])
+    return ca.Function("visit_loglik", inputs, [-0.5 * r * r])
 
 
 class LogPosterior:
@@ -51,10 +62,15 @@ class LogPosterior:
     ``__call__`` takes an (m, d) array of walkers and returns (m,) log-posteriors;
     :meth:`pointwise` gives the pointwise log-likelihood per visit and axis (with the
     Gaussian normalisation), for LOO.
+
+    ``quantisation``: None, or ``(q, sigma_sample)``, the LSB of a digital output and the per-sample
+    SDs (3,) or (n, 3), both held fixed: the model outputs are then ``W + e(W; q, sigma_sample)``, the
+    expected visit-mean error of the rounding (:mod:`triadcal.models.effects.quantisation`).
     """
 
     def __init__(self, campaign: Campaign, model: Model, sigma: np.ndarray, priors: Mapping[str, Prior],
-                 x0: np.ndarray, L: np.ndarray, block: int, nu: float = math.inf):
+                 x0: np.ndarray, L: np.ndarray, block: int, nu: float = math.inf,
+                 quantisation: Optional[tuple] = None):
         from ...models.effects.heavy_tails import logpdf
 
         self.model = model
@@ -72,9 +88,17 @@ class LogPosterior:
         self.sigma = np.asarray(sigma, float)
         self.args = [ca.DM(self.x0), ca.DM(self.L), ca.DM(C), campaign.gravity_g, ca.DM(campaign.w.T),
                      ca.DM(1.0 / self.sigma.T), ca.DM(mu), ca.DM(1.0 / sd)]
+        self.quantisation_form = None
+        if quantisation is not None:
+            from ...models.effects.quantisation import form_of
+
+            q, s_sample = float(quantisation[0]), np.broadcast_to(np.asarray(quantisation[1], float), (self.n, 3))
+            self.quantisation_form = form_of(q, s_sample)
+            self.args += [ca.DM(np.ascontiguousarray(s_sample.T)), q]
         self.log_norm = float(logpdf(0.0, self.nu)) - np.log(self.sigma)    # (n, 3)
-        key = (model.effect_names, model.reference_temperature_C, self.n, self.block, self.nu)
-        self.f_lp, self.compiled = _compile(("lp",) + key, self._build_lp)
+        self._key = (model.effect_names, model.reference_temperature_C, self.n, self.block, self.nu,
+                     self.quantisation_form)
+        self.f_lp, self.compiled = _compile(("lp",) + self._key, self._build_lp)
         self._f_pw = None
         self.evaluations = 0
 
@@ -83,28 +107,30 @@ class LogPosterior:
         Z = ca.MX.sym("z", d, m)
         syms = [ca.MX.sym("x0", d), ca.MX.sym("L", d, d), ca.MX.sym("cov", len(COVARIATES), n), ca.MX.sym("g"),
                 ca.MX.sym("w_obs", 3, n), ca.MX.sym("inv_sigma", 3, n), ca.MX.sym("mu", d), ca.MX.sym("inv_sd", d)]
-        return Z, syms
+        # quantisation: the per-sample SDs (3 x n) and the LSB q, after the others
+        extra = [ca.MX.sym("sigma_sample", 3, n), ca.MX.sym("q")] if self.quantisation_form is not None else []
+        return Z, syms, extra
 
     def _build_lp(self) -> ca.Function:
-        visit = _visit_functions(self.model, self.nu)
-        Z, (x0, L, C, g, W, IS, mu, isd) = self._symbols()
+        visit = _visit_functions(self.model, self.nu, self.quantisation_form)
+        Z, (x0, L, C, g, W, IS, mu, isd), extra = self._symbols()
         xs = ca.MX.sym("x", self.d)
-        ll = ca.sum2(ca.sum1(visit.map(self.n, "serial")(xs, C, g, W, IS)))
+        ll = ca.sum2(ca.sum1(visit.map(self.n, "serial")(xs, C, g, W, IS, *extra)))
         lprior = -0.5 * ca.sumsqr((xs - mu) * isd)
-        walker = ca.Function("walker_logpost", [xs, C, g, W, IS, mu, isd], [ll + lprior])
+        walker = ca.Function("walker_logpost", [xs, C, g, W, IS, mu, isd, *extra], [ll + lprior])
         X = ca.repmat(x0, 1, self.block) + ca.mtimes(L, Z)
-        out = walker.map(self.block, "serial")(X, C, g, W, IS, mu, isd)
-        return ca.Function("triadcal_logpost", [Z, x0, L, C, g, W, IS, mu, isd], [out])
+        out = walker.map(self.block, "serial")(X, C, g, W, IS, mu, isd, *extra)
+        return ca.Function("triadcal_logpost", [Z, x0, L, C, g, W, IS, mu, isd, *extra], [out])
 
     def _build_pw(self) -> ca.Function:
-        visit = _visit_functions(self.model, self.nu)
-        Z, (x0, L, C, g, W, IS, mu, isd) = self._symbols()
+        visit = _visit_functions(self.model, self.nu, self.quantisation_form)
+        Z, (x0, L, C, g, W, IS, mu, isd), extra = self._symbols()
         xs = ca.MX.sym("x", self.d)
-        pw = ca.vec(visit.map(self.n, "serial")(xs, C, g, W, IS))    # visit-major: 3 per visit
-        walker = ca.Function("walker_pointwise", [xs, C, g, W, IS], [pw])
+        pw = ca.vec(visit.map(self.n, "serial")(xs, C, g, W, IS, *extra))    # visit-major: 3 per visit
+        walker = ca.Function("walker_pointwise", [xs, C, g, W, IS, *extra], [pw])
         X = ca.repmat(x0, 1, self.block) + ca.mtimes(L, Z)
-        out = walker.map(self.block, "serial")(X, C, g, W, IS)
-        return ca.Function("triadcal_pointwise", [Z, x0, L, C, g, W, IS, mu, isd], [out])
+        out = walker.map(self.block, "serial")(X, C, g, W, IS, *extra)
+        return ca.Function("triadcal_pointwise", [Z, x0, L, C, g, W, IS, mu, isd, *extra], [out])
 
     def to_x(self, z: np.ndarray) -> np.ndarray:
         """Whitened -> reporting units; ``z`` (..., d)."""
@@ -140,8 +166,7 @@ class LogPosterior:
         Student-t of ``nu`` dof) per draw, visit and axis:
         shape (m, n, 3)."""
         if self._f_pw is None:
-            key = (self.model.effect_names, self.model.reference_temperature_C, self.n, self.block, self.nu)
-            self._f_pw, _ = _compile(("pw",) + key, self._build_pw)
+            self._f_pw, _ = _compile(("pw",) + self._key, self._build_pw)
         v = self._blocks(self._f_pw, z)              # (3 n, m)
         return v.T.reshape(-1, self.n, 3) + self.log_norm[None]
 

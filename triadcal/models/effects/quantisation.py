@@ -35,8 +35,12 @@ common to the three outputs (one converter), ``quantisation_lsb`` in the result.
 So ``quantisation`` is a named term outside ``EFFECTS`` (:data:`NAME`), like the noise effects:
 the simulator adds :func:`expected_error` to the visit means (``NoiseModel.quantisation_lsb``),
 the joint fit applies it as an output map of the compiled problem
-(:mod:`triadcal.estimation.quantisation_form`, ``fit --effects ...,quantisation``), and the
-diagnosis profiles q (:mod:`triadcal.judgement.diagnose.quantisation`).
+(:mod:`triadcal.estimation.quantisation_form`, ``fit --effects ...,quantisation``), the posterior
+adds it to the outputs of its compiled log-likelihood with q and sigma held at the fit's values
+(``sample --effects ...,quantisation``), and the diagnosis profiles q
+(:mod:`triadcal.judgement.diagnose.quantisation`). The expression is written once,
+:func:`error_expression`, on numpy arrays (:func:`expected_error`, :func:`expected_error_slope`) and
+on CasADi symbols alike.
 """
 
 from __future__ import annotations
@@ -69,27 +73,96 @@ def n_terms(q: float, sigma) -> int:
     return int(min(MAX_TERMS, max(1, math.ceil(math.sqrt(-math.log(TOL) / a)))))
 
 
-def _lattice(x, q: float, s, derivative: bool):
-    """The same expectation summed over the codes ``q m`` (``P(m) = Phi(b_m) - Phi(a_m)``, codes
-    within 10 sigma + 1): exact, and far fewer terms than the series when sigma << q."""
-    from scipy.special import ndtr
-
-    xf = x.reshape(-1, 1)
-    sf = np.where(s > 0, s, 1e-300).reshape(-1, 1)
-    half = int(math.ceil(10.0 * float(np.max(s)) / q)) + 1
-    base = np.round(xf / q)
-    m = base + np.arange(-half, half + 1)[None, :]
-    hi, lo = (q * m + q / 2 - xf) / sf, (q * m - q / 2 - xf) / sf
-    d = q * (m - base)                                   # codes relative to the nearest: precision
-    r = xf - q * base                                    # x relative to the nearest code
-    if derivative:
-        dens = (np.exp(-0.5 * lo * lo) - np.exp(-0.5 * hi * hi)) / (math.sqrt(2 * math.pi) * sf)
-        return (np.sum(d * dens, axis=1) - 1.0).reshape(x.shape)
-    return (np.sum(d * (ndtr(hi) - ndtr(lo)), axis=1) - r[:, 0]).reshape(x.shape)
-
-
 #: above this many series terms the expectation is summed over the codes instead (sigma < ~q/5)
 LATTICE_ABOVE = 8
+
+
+def form_of(q: float, sigma) -> tuple[str, int]:
+    """How :func:`error_expression` evaluates the expectation at the LSB ``q`` for per-sample SDs
+    ``sigma`` (numbers; all of them at once, as one expression serves every visit and output):
+    ``("series", K)`` with the K terms of :func:`n_terms` for the smallest sigma, or, when that is
+    more than :data:`LATTICE_ABOVE` (sigma below about q/5), ``("lattice", h)``: the codes within
+    ``h = ceil(10 max(sigma) / q) + 1`` of the nearest one; ``("none", 0)`` when ``q <= 0``."""
+    q = float(q)
+    if q <= 0:
+        return "none", 0
+    K = n_terms(q, sigma)
+    if K > LATTICE_ABOVE:
+        return "lattice", int(math.ceil(10.0 * float(np.max(np.asarray(sigma, float))) / q)) + 1
+    return "series", K
+
+
+def error_expression(x, q, sigma, form: str, count: int, derivative: bool = False):
+    """``E[Q(x + n)] - x`` (or its ``d/dx`` with ``derivative``), elementwise, on numpy arrays or on
+    CasADi symbols alike: the one expression behind :func:`expected_error` (numpy) and the posterior's
+    likelihood (``sample --effects ...,quantisation``, CasADi). ``x`` the output, ``q`` the LSB,
+    ``sigma`` the per-sample SD (same shape as ``x`` or broadcastable; any of them may be symbolic);
+    ``form, count`` from :func:`form_of` at the numeric q and sigma (the expression's structure must
+    be fixed before it is built). With ``r = x - q floor(x/q + 1/2)`` (x about its nearest code: the
+    phase stays exact for |x| >> q, and ``dr/dx = 1``):
+
+    series (sigma >~ q/5), the characteristic-function series of the module docstring truncated at K::
+
+        e = sum_{k=1..K} (q / (pi k)) (-1)^k exp(-2 pi^2 k^2 sigma^2 / q^2) sin(2 pi k r / q)
+        de/dx = sum_{k=1..K} 2 (-1)^k exp(-2 pi^2 k^2 sigma^2 / q^2) cos(2 pi k r / q)
+
+    lattice (sigma <~ q/5), the sum over the codes ``q j`` (relative to the nearest), ``|j| <= h``,
+    ``Phi(b) - Phi(a) = (erf(b/sqrt 2) - erf(a/sqrt 2)) / 2``::
+
+        e = sum_j q j [Phi((q j + q/2 - r)/sigma) - Phi((q j - q/2 - r)/sigma)] - r
+        de/dx = sum_j q j [phi((q j - q/2 - r)/sigma) - phi((q j + q/2 - r)/sigma)] / sigma - 1
+
+    (sigma = 0 is taken as 1e-300: the sawtooth ``q round(x/q) - x``)."""
+    from ..ops import is_symbolic
+
+    if is_symbolic(x, q, sigma):
+        import casadi as ca
+
+        floor, sin, cos, exp, erf = ca.floor, ca.sin, ca.cos, ca.exp, ca.erf
+        s = ca.fmax(sigma, 1e-300)
+    else:
+        from scipy.special import erf
+
+        floor, sin, cos, exp = np.floor, np.sin, np.cos, np.exp
+        x = np.asarray(x, float)
+        s = np.broadcast_to(np.asarray(sigma, float), x.shape)
+        s = np.where(s > 0, s, 1e-300)
+    if form == "none":
+        return 0.0 * x
+    r = x - q * floor(x / q + 0.5)
+    out = 0.0
+    if form == "series":
+        # sin/cos(k theta) by the angle-addition recurrence and exp(c k^2) by products (one sin, one
+        # cos and one exp per element, not K of each: the posterior evaluates this per walker and visit)
+        theta = (2.0 * math.pi / q) * r
+        s1, c1 = sin(theta), cos(theta)
+        sk, ck = s1, c1
+        E = exp(-2.0 * (math.pi * s / q) ** 2)
+        E2 = E * E
+        damp, ratio = E, E * E2                  # exp(c k^2) at k = 1; exp(c (2k + 1)) to the next
+        for k in range(1, int(count) + 1):
+            if k > 1:
+                sk, ck = sk * c1 + ck * s1, ck * c1 - sk * s1
+                damp, ratio = damp * ratio, ratio * E2
+            sign = -1.0 if k % 2 else 1.0
+            out = out + (2.0 * sign * damp * ck if derivative else (sign * q / (math.pi * k)) * damp * sk)
+        return out
+    if form != "lattice":
+        raise ValueError(f"unknown form {form!r}: series, lattice or none")
+    h = int(count)
+    # the code boundaries b_m = (q m - r)/sigma at m = j -+ 1/2 are shared by neighbouring codes j
+    b = [(q * (j + 0.5) - r) / s for j in range(-h - 1, h + 1)]           # b[i] is the upper one of j = i - h - 1
+    if derivative:
+        f = [exp(-0.5 * v * v) for v in b]
+        for j in range(-h, h + 1):
+            if j:
+                out = out + (q * j) * (f[j + h] - f[j + h + 1]) / (math.sqrt(2.0 * math.pi) * s)
+        return out - 1.0
+    f = [erf(v / math.sqrt(2.0)) for v in b]
+    for j in range(-h, h + 1):
+        if j:                                    # the nearest code contributes q j = 0
+            out = out + (0.5 * q * j) * (f[j + h + 1] - f[j + h])
+    return out - r
 
 
 def _series(x, q: float, sigma, derivative: bool):
@@ -97,21 +170,8 @@ def _series(x, q: float, sigma, derivative: bool):
     s = np.broadcast_to(np.asarray(sigma, float), x.shape)
     if q <= 0 or x.size == 0:
         return np.zeros_like(x)
-    K = n_terms(q, s)
-    if K > LATTICE_ABOVE:
-        return _lattice(x.ravel(), q, s.ravel(), derivative).reshape(x.shape)
-    phase = ((2.0 * math.pi / q) * np.mod(x, q)).reshape(-1, 1)     # mod q: exact phase for |x| >> q
-    c = (-2.0 * (math.pi * s / q) ** 2).reshape(-1, 1)
-    out = np.zeros(x.size)
-    for k0 in range(1, K + 1, 256):                                 # blocks of terms: bounded memory
-        k = np.arange(k0, min(k0 + 256, K + 1), dtype=float)
-        sign = np.where(k % 2 == 1, -1.0, 1.0)
-        damp = np.exp(c * k * k) * sign
-        if derivative:
-            out += np.sum(2.0 * damp * np.cos(phase * k), axis=1)
-        else:
-            out += np.sum((q / (math.pi * k)) * damp * np.sin(phase * k), axis=1)
-    return out.reshape(x.shape)
+    form, count = form_of(q, s)
+    return np.asarray(error_expression(x, q, s, form, count, derivative), float).reshape(x.shape)
 
 
 def expected_error(x, q: float, sigma):
