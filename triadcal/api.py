@@ -138,8 +138,13 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             bench = from_replicates(campaign, Model(effects, reference_temperature_C))
         from .estimation.noise_effects import resolve_noise_effects
 
+        qmap = {}
+        if quantised:
+            from .estimation.quantisation_form import noise_effects_map
+
+            qmap = noise_effects_map(campaign, effects, quantisation_lsb)
         noise_fx = resolve_noise_effects(campaign, effects, bench_errors=bench, loss=loss,
-                                         reference_temperature_C=reference_temperature_C, gates=gates)
+                                         reference_temperature_C=reference_temperature_C, gates=gates, **qmap)
         effects = noise_fx["effects"]
         kwargs = dict(reference_temperature_C=reference_temperature_C, loss=noise_fx["loss"], nu=noise_fx["nu"],
                       unidentifiable="refuse" if strict else "fix", return_problem=True, gates=gates,

@@ -100,15 +100,20 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     effects = [e for e in effects if e != NAME_QUANTISATION]
     if quantisation_lsb is not None:
         quantisation_lsb = _positive_lsb(quantisation_lsb)
+    if quantised and "flicker_noise" in effects:
+        raise InputError("sample: quantisation and flicker_noise are not sampled together (the quantised output "
+                         "model is not written for the whitened residuals); drop one of them")
+    qmap = {}
+    if quantised:
+        from ..quantisation_form import noise_effects_map
+
+        qmap = noise_effects_map(campaign, effects, quantisation_lsb)
     noise_fx = resolve_noise_effects(campaign, effects, bench_errors=bench_errors,
-                                     reference_temperature_C=reference_temperature_C, gates=gates)
+                                     reference_temperature_C=reference_temperature_C, gates=gates, **qmap)
     effects, bench_errors, nu = noise_fx["effects"], noise_fx["bench_errors"], noise_fx["nu"]
     nu = nu if noise_fx["loss"] == "student_t" else math.inf
     effects, added = effects_with_lab(effects, systematics)
     if noise_fx.get("whitening") is not None:      # flicker_noise: estimation/flicker_noise.py
-        if quantised:
-            raise InputError("sample: quantisation and flicker_noise are not sampled together (the quantised output "
-                             "model is not written for the whitened residuals); drop one of them")
         return _sample_flicker(campaign, effects, noise_fx, added, locals())
     if least_squares is None and quantised:
         from ..quantisation_form import fit_quantisation
