@@ -17,3 +17,34 @@ def example():
     from triadcal.io.bench_csv import read_bench_csv
 
     return read_bench_csv(example_path())
+
+
+@pytest.fixture(scope="session")
+def emulated_capture(tmp_path_factory):
+    """One `triadcal capture --emulate` of the 12-position plan at 20 degC (bench tilt, self-heating
+    of 60 s, seed 3), run once for the tests that read it: test_hardware_capture.py fits it and checks
+    its rows against the raw file, test_results_contract.py checks its files against the contract.
+    Read-only for them: the folder it wrote (capture.csv, raw, capture.json, emulator_truth.json)."""
+    import subprocess
+    import sys
+
+    work = tmp_path_factory.mktemp("emulated-capture")
+    out = work / "campaign"
+    env = dict(os.environ, OMP_NUM_THREADS="1", XDG_CACHE_HOME=str(work / "xdg"), MPLBACKEND="Agg")
+    r = subprocess.run([sys.executable, "-m", "triadcal", "capture", "--emulate", "--out", str(out),
+                        "--setpoints", "20", "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2",
+                        "--stab-window-s", "30", "--stab-hold-s", "30", "--emulate-effects", "bench_tilt",
+                        "--emulate-self-heating-tau-s", "60", "--emulate-seed", "3", "--no-progress"],
+                       cwd=work, env=env, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+@pytest.fixture(scope="session")
+def cli_reports(tmp_path_factory):
+    """Every report of tests/test_reports_render.py made once through the CLI (make_reports there):
+    the certificate, refusal and drift reports, and the diagnosis pages (with their stdout) of a
+    campaign with the bias drift withheld and of a clean one."""
+    from test_reports_render import make_reports
+
+    return make_reports(tmp_path_factory.mktemp("reports"))

@@ -210,11 +210,14 @@ def raw_cases(rng) -> list:
     out = [_raw_case("raw-valid", lines, "any"),
            _raw_case("raw-offset-binary", ["ax,ay,az"] + [",".join(str(int(v) + 32768) for v in ln.split(","))
                                                            for ln in lines[1:]], "any")]
+    # a bad number is refused wherever it stands: these cases mutate the first 2000 rows of the
+    # recording (not all of its ~16000, which the reader parses at ~0.2 s a case before it refuses)
+    short = lines[:2001]
     for k in range(40):
-        i = int(rng.integers(1, len(lines)))
+        i = int(rng.integers(1, len(short)))
         col = int(rng.integers(3))
         bad = ["abc", "nan", "inf", "1e300", "", "-1e300", "0x10", "1,2"][k % 8]
-        l2 = list(lines)
+        l2 = list(short)
         f = l2[i].split(",")
         f[col] = bad
         l2[i] = ",".join(f)

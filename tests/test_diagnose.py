@@ -176,20 +176,17 @@ def _run_cli(*args, cwd):
                           capture_output=True, text=True)
 
 
-def test_cli_diagnose_writes_json_and_html(tmp_path):
-    from triadcal.io.bench_csv import write_bench_csv
-
-    c, model = validation_campaign("bias_drift", 5)
-    write_bench_csv(c, tmp_path / "camp.csv")
-    out = _run_cli("diagnose", "camp.csv", "--model", ",".join(model), "--json", "d.json", "--html", "d.html",
-                   "--draws", "200", cwd=tmp_path)
-    assert out.returncode == 0, out.stderr
-    assert "verdict: bias_drift" in out.stdout
-    doc = json.loads((tmp_path / "d.json").read_text())
+def test_cli_diagnose_writes_json_and_html(cli_reports, tmp_path):
+    """The command end to end: the run of conftest.py's cli_reports (the validation campaign with the
+    bias drift withheld, seed 5, five candidates, 200 draws: the page tests of
+    tests/test_reports_render.py read the same run), and a refused model effect."""
+    d = cli_reports["dir"]
+    assert "verdict: bias_drift" in cli_reports["stdout"]["diagnosis"]
+    doc = json.loads((d / "diagnosis.json").read_text())
     assert doc["verdict"]["effect"] == "bias_drift"
-    page = (tmp_path / "d.html").read_text()
+    page = (d / "diagnosis.html").read_text()
     assert page.count("data:image/png;base64,") >= 3 and "bias_drift" in page
-    bad = _run_cli("diagnose", "camp.csv", "--model", "warp_drive", "--json", "x.json", cwd=tmp_path)
+    bad = _run_cli("diagnose", str(d / "diagnosis.csv"), "--model", "warp_drive", "--json", "x.json", cwd=tmp_path)
     assert bad.returncode == 1 and "unknown model effect" in bad.stderr
 
 

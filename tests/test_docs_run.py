@@ -127,15 +127,6 @@ NOT_RUN = {
     "triadcal batch data/*.csv --out fleet --scheduler": "needs a running Dask scheduler at the address; "
                                             "the same batch runs on a LocalCluster (docs/fleet.md)",
     "duplicates --change": "a developer tool of the environment, not part of triadcal",
-    # the planned 3.1 h ramp of docs/hardware.md at a compressed clock: since the turn rule (2026-11-25)
-    # its fit gave chi2/dof 0.92-1.27 in six runs by hand and 1.40 (p = 0.00029, refused) in CI: the
-    # excess over 1 is not explained, so the doc block runs the plan only; the same capture and fit
-    # run through real ptys in tests/test_ramp_capture.py (quick: within 3u; slow: 6 seeds)
-    "triadcal capture --emulate --ramp ramp.json": "its fit's chi2/dof is 0.9-1.4 at a compressed clock, "
-                                                   "the gate refuses the tail (see the comment above); "
-                                                   "tested by tests/test_ramp_capture.py",
-    "triadcal fit RUN/campaign.csv --method joint --effects bench_tilt,angle_tempco,scale_tempco,bias_tempco,"
-    "hysteresis,thermal_lag": "fits the ramp capture above, which is not run here",
     "triadcal capture --config examples/data/ports.toml": "needs the real instruments on the serial ports of "
                                             "examples/data/ports.toml; the same capture runs "
                                             "against the emulator (capture --emulate, hardware.md)",

@@ -34,16 +34,12 @@ def check_visits_against_raw(out_dir, campaign):
     return raw
 
 
-def test_emulator_capture_fit_recovers_truth_within_4u(tmp_path):
+def test_emulator_capture_fit_recovers_truth_within_4u(tmp_path, emulated_capture):
+    """`triadcal capture --emulate` (the conftest's emulated_capture, shared with the contract test:
+    12 positions at 20 degC, bench tilt, self-heating 60 s, seed 3), then `triadcal fit` of it."""
     joint = pytest.importorskip("triadcal.estimation.joint", reason="needs the joint fit (fit_joint)")
     assert hasattr(joint, "fit_joint")
-    out = tmp_path / "campaign"
-    r = subprocess.run(CLI + ["capture", "--emulate", "--out", str(out), "--setpoints", "20",
-                              "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2", "--stab-window-s", "30",
-                              "--stab-hold-s", "30", "--emulate-effects", "bench_tilt", "--emulate-self-heating-tau-s", "60",
-                              "--emulate-seed", "3", "--no-progress"],
-                       capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
+    out = emulated_capture
     c = read_bench_csv(out / CSV_NAME)
     assert list(c.position) == list(DEFAULT_PLAN)          # one row per position, in order
     assert float(c.metadata["Q_V2s"]) == pytest.approx(3e-9, rel=0.2)

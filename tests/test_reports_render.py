@@ -22,6 +22,7 @@ import struct
 import subprocess
 import sys
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from html.parser import HTMLParser
 from pathlib import Path
 from types import SimpleNamespace
@@ -61,45 +62,74 @@ def _cli(*args, cwd, status=0):
     return r
 
 
-@pytest.fixture(scope="module")
-def reports(tmp_path_factory):
-    """Paths of every report (HTML and PDF) and of the JSON each reports."""
+def _certificates(d):
+    """Certificate of the example joint fit, with its data (residual and angle plots), and the
+    refusal report (exit status 3) of the same fit, had its estimator not converged."""
     from triadcal.api import example_path
-    from triadcal.io.bench_csv import write_bench_csv
 
-    d = tmp_path_factory.mktemp("reports")
-    # certificate of the example joint fit, with its data (residual and angle plots)
     _cli("fit", "--example", "--method", "joint", "--json", "result.json", cwd=d)
     _cli("certificate", "result.json", "--data", example_path(), "--html", "certificate.html",
          "--pdf", "certificate.pdf", "--date", ISSUE_DATE, cwd=d)
-    # the refusal report (exit status 3) of the same fit, had its estimator not converged
     doc = json.loads((d / "result.json").read_text())
     (d / "not_converged.json").write_text(json.dumps(dict(doc, status="not_converged")))
     _cli("certificate", "not_converged.json", "--html", "refusal.html", "--pdf", "refusal.pdf", "--date",
          ISSUE_DATE, cwd=d, status=3)
-    # drift report: two fitted campaigns of one unit, the second with Ca_xy moved by ~18"
+
+
+def _drift(d):
+    """Drift report: two fitted campaigns of one unit, the second with Ca_xy moved by ~18 arcsec."""
     for i, extra in ((1, ()), (2, ("--set", "Ca_xy=330"))):
         _cli("simulate", "-o", f"s{i}.csv", "--seed", i, *extra, cwd=d)
         _cli("fit", f"s{i}.csv", "--json", f"s{i}.json", cwd=d)
     _cli("compare", "s1.json", "s2.json", "--tolerance", "10arcsec", "--json", "comparison.json", cwd=d)
     _cli("certificate", "comparison.json", "--html", "drift.html", "--pdf", "drift.pdf", "--date", ISSUE_DATE,
          cwd=d)
+
+
+def _diagnosis(d, name, model):
+    # five candidates (a mean term among them, the noise ones): the page is what is tested here,
+    # and each candidate of the whole vocabulary costs its score and refit (test_diagnose.py)
+    return _cli("diagnose", f"{name}.csv", "--model", ",".join(model), "--json", f"{name}.json",
+         "--html", f"{name}.html", "--draws", "200",
+         "--candidates", "bias_drift,scale_nonlinearity,tilt_drift,position_error,heavy_tails", cwd=d)
+
+
+def make_reports(d: Path) -> dict:
+    """Every report (HTML and PDF) made through the CLI in ``d``: the folder, the JSON each
+    reports, and the stdout of each diagnosis (conftest.py's session fixture cli_reports, which
+    other modules may read too: the diagnosis of the withheld bias drift is a CLI run of its own).
+
+    The four chains of CLI runs (the certificates; the drift report's fits and comparison; each
+    diagnosis) share no file, so they run at the same time, each in a thread that waits for its
+    subprocesses: the same commands and files as one after the other, on the cores a serial test
+    run leaves idle."""
+    from triadcal.io.bench_csv import write_bench_csv
+
     # diagnosis pages: a campaign with the bias drift withheld from the model, and a clean one
     sys.path.insert(0, str(Path(__file__).parent))
     try:
         from test_diagnose import validation_campaign
     finally:
         sys.path.pop(0)
+    models = {}
     for name, effect, seed in (("diagnosis", "bias_drift", 5), ("diagnosis_clean", "clean", 3)):
-        campaign, model = validation_campaign(effect, seed)
+        campaign, models[name] = validation_campaign(effect, seed)
         write_bench_csv(campaign, d / f"{name}.csv")
-        # five candidates (a mean term among them, the noise ones): the page is what is tested here,
-        # and each candidate of the whole vocabulary costs its score and refit (test_diagnose.py)
-        _cli("diagnose", f"{name}.csv", "--model", ",".join(model), "--json", f"{name}.json",
-             "--html", f"{name}.html", "--draws", "200",
-             "--candidates", "bias_drift,scale_nonlinearity,tilt_drift,position_error,heavy_tails", cwd=d)
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        jobs = [pool.submit(_certificates, d), pool.submit(_drift, d)]
+        diagnoses = {name: pool.submit(_diagnosis, d, name, model) for name, model in models.items()}
+        for job in jobs:
+            job.result()                                # re-raises a failed command's assertion
+        stdout = {name: job.result().stdout for name, job in diagnoses.items()}
     return {"dir": d, "json": {"certificate": d / "result.json", "drift": d / "comparison.json",
-                               "diagnosis": d / "diagnosis.json", "diagnosis_clean": d / "diagnosis_clean.json"}}
+                               "diagnosis": d / "diagnosis.json", "diagnosis_clean": d / "diagnosis_clean.json"},
+            "stdout": stdout}
+
+
+@pytest.fixture(scope="module")
+def reports(cli_reports):
+    """Paths of every report (HTML and PDF) and of the JSON each reports (make_reports)."""
+    return cli_reports
 
 
 # -- headless Chromium over the DevTools protocol (--remote-debugging-pipe: fd 3 in, fd 4 out) ------
@@ -155,13 +185,17 @@ class Chromium:
                 return m.get("result", {})
             self.events.append(m)
 
-    def wait_for(self, method: str) -> dict:
+    def wait_for(self, method: str, session: str | None = None) -> dict:
+        """The next event ``method`` (of the page attached as ``session``, when given)."""
+        def wanted(m):
+            return m.get("method") == method and (session is None or m.get("sessionId") == session)
+
         for i, m in enumerate(self.events):
-            if m.get("method") == method:
+            if wanted(m):
                 return self.events.pop(i)
         while True:
             m = self._message()
-            if m.get("method") == method:
+            if wanted(m):
                 return m
             self.events.append(m)
 
@@ -201,17 +235,17 @@ def console_errors(events) -> list:
     return errors
 
 
-def render(html_path: Path, screenshot: Path) -> dict:
-    """Load a page in headless Chromium: its console errors, its images, its text; a screenshot."""
-    browser = Chromium()
+def render(html_path: Path, screenshot: Path, browser: Chromium) -> dict:
+    """Load a page in a new tab of headless Chromium: its console errors, its images, its text; a
+    screenshot. Each page has its own tab (target) and session: only that session's events count."""
+    target = browser.send("Target.createTarget", url="about:blank")["targetId"]
     try:
-        page = next(t for t in browser.send("Target.getTargets")["targetInfos"] if t["type"] == "page")
-        s = browser.send("Target.attachToTarget", targetId=page["targetId"], flatten=True)["sessionId"]
+        s = browser.send("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
         for domain in ("Page", "Runtime", "Log"):
             browser.send(f"{domain}.enable", session=s)
         browser.events.clear()
         browser.send("Page.navigate", session=s, url=html_path.resolve().as_uri())
-        browser.wait_for("Page.loadEventFired")
+        browser.wait_for("Page.loadEventFired", session=s)
 
         def js(expression):
             return browser.send("Runtime.evaluate", session=s, expression=expression,
@@ -221,18 +255,29 @@ def render(html_path: Path, screenshot: Path) -> dict:
         text = js("document.body.innerText")
         png = base64.b64decode(browser.send("Page.captureScreenshot", session=s, format="png")["data"])
         screenshot.write_bytes(png)
-        return {"errors": console_errors(browser.events), "images": images, "text": text, "png": screenshot}
+        events = [m for m in browser.events if m.get("sessionId") == s]
+        return {"errors": console_errors(events), "images": images, "text": text, "png": screenshot}
     finally:
-        browser.close()
+        browser.send("Target.closeTarget", targetId=target)
+        browser.events.clear()
 
 
 @pytest.fixture(scope="module")
-def rendered(reports):
+def browser():
+    """One headless Chromium for the module (its start and stop cost more than a page); each page
+    is loaded in its own tab (render)."""
     if CHROMIUM is None:
         pytest.skip("headless Chromium is not installed (`apt-get install chromium`)")
+    b = Chromium()
+    yield b
+    b.close()
+
+
+@pytest.fixture(scope="module")
+def rendered(reports, browser):
     shots = reports["dir"] / "screenshots"
     shots.mkdir()
-    return {name: render(reports["dir"] / f"{name}.html", shots / f"{name}.png") for name in HTML_REPORTS}
+    return {name: render(reports["dir"] / f"{name}.html", shots / f"{name}.png", browser) for name in HTML_REPORTS}
 
 
 # -- reading the reports back without a browser -----------------------------------------------------
@@ -308,14 +353,14 @@ def test_the_browser_shows_no_python_repr(rendered, name, request):
 
 
 @needs_chromium
-def test_the_browser_helper_sees_console_errors_failed_resources_and_exceptions(tmp_path):
+def test_the_browser_helper_sees_console_errors_failed_resources_and_exceptions(tmp_path, browser):
     """The check above is only worth something if it fails on a broken page."""
     page = tmp_path / "broken.html"
     page.write_text("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>x</title></head><body>"
                     "<p>text</p><img alt='gone' src='missing.png'>"
                     "<script>console.log('harmless log line'); console.error('boom'); undefinedFunction();</script>"
                     "</body></html>", encoding="utf-8")
-    out = render(page, tmp_path / "broken.png")
+    out = render(page, tmp_path / "broken.png", browser)
     joined = " ".join(out["errors"])
     assert len(out["errors"]) == 3, out["errors"]
     assert "boom" in joined and "undefinedFunction" in joined and "missing.png" in joined

@@ -13,10 +13,7 @@ from __future__ import annotations
 
 import copy
 import json
-import os
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -282,29 +279,14 @@ def test_sbc_summary_follows_the_contract(work):
     assert_valid(load(out), "triadcal.sbc")
 
 
-def _cli_env(cwd):
-    return dict(os.environ, OMP_NUM_THREADS="1", XDG_CACHE_HOME=str(cwd / "xdg"), MPLBACKEND="Agg")
+# the contract of validate-diagnosis's validation.json: tests/test_diagnosis_validation.py
+# (test_cli_magnitudes_and_left_out, the CLI run with two conditions and --left-out)
 
 
-def test_diagnosis_validation_follows_the_contract(work):
-    # in this process, one worker, one condition diagnosed twice (--left-out): the contract of the file,
-    # not the validation (the CLI through a subprocess with two conditions is test_diagnose.py's)
-    out = work / "v"
-    assert main(["validate-diagnosis", "--seeds", "1", "--effects", "scale_asymmetry", "--left-out",
-                 "--processes", "1", "--out", str(out), "--quiet"]) == 0
-    assert_valid(load(out / "validation.json"), "triadcal.diagnosis_validation")
-
-
-def test_capture_state_and_emulator_truth_follow_the_contract(work):
-    out = work / "capture"
-    p = subprocess.run([sys.executable, "-m", "triadcal", "capture", "--emulate", "--out", str(out),
-                        "--setpoints", "20", "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2",
-                        "--stab-window-s", "30", "--stab-hold-s", "30", "--emulate-effects", "bench_tilt",
-                        "--emulate-seed", "3", "--no-progress"], cwd=work, env=_cli_env(work),
-                       capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    assert_valid(load(out / "capture.json"), "triadcal.capture")
-    assert_valid(load(out / "emulator_truth.json"), "triadcal.truth")
+def test_capture_state_and_emulator_truth_follow_the_contract(emulated_capture):
+    # the conftest's `triadcal capture --emulate` run (shared with test_hardware_capture.py)
+    assert_valid(load(emulated_capture / "capture.json"), "triadcal.capture")
+    assert_valid(load(emulated_capture / "emulator_truth.json"), "triadcal.truth")
 
 
 # -- the check can fail ------------------------------------------------------------------------
