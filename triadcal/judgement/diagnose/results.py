@@ -159,7 +159,8 @@ METHODS_TEXT = {
     "verdict": "the best refitted candidate is named when its LR p < alpha and delta elpd > 0, the chi2 after "
                "it is within the noise at alpha (known noise) and no generic family is significant after it "
                "(Holm over the families, on the residuals standardised by its noise model); a noise candidate "
-               "also needs no significant slice after it; a candidate that shrinks the gap without closing "
+               "also needs no significant slice after it, and flicker_noise no generic family explaining the "
+               "gap better by AIC (-S + 2k < -2 delta loglik + 2); a candidate that shrinks the gap without closing "
                "it is the best partial answer of an 'unexplained' verdict",
 }
 
