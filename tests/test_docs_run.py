@@ -111,8 +111,12 @@ REDUCED = {
 # --setpoints to reduce; its block is slow anyway)
 NOT_REDUCED_WITH = {"capture": "--ramp"}
 # and commands of 10 s and more (a thermal cycle's ten forms x folds, a dask cluster's start, a
-# plan's search over hundreds of designs): run with the slow tests, to keep the quick ones quick
-SLOW_SUBCOMMANDS = {"validate", "validate-diagnosis", "capture", "emulate", "thermal-cycle", "batch", "plan"}
+# plan's search over hundreds of designs): run with the slow tests, to keep the quick ones quick;
+# also the blocks that issue certificates (HTML and PDF after fits of the inputs) and compare
+# calibrations (fits of both), 15-30 s each in CI: their commands are tested quick by
+# tests/test_certificate.py and tests/test_compare.py (CI-10: the quick suite took 656 s)
+SLOW_SUBCOMMANDS = {"validate", "validate-diagnosis", "capture", "emulate", "thermal-cycle", "batch", "plan",
+                    "certificate", "compare"}
 # exit codes other than 0 that a doc implies, keyed by (doc, command's first words)
 EXPECTED_EXIT: dict = {}
 # commands not run, by their first words, each with the reason

@@ -67,7 +67,11 @@ def test_faults_lose_no_accepted_sample_and_are_counted(tmp_path, protocol):
     try:
         imu, bench, chamber = open_instruments(load_port_config(em.directory / "ports.toml"))
         plan = {k: DEFAULT_PLAN[k] for k in ("P01", "P02", "P05", "P06", "P09", "P10")}
-        settings = CaptureSettings(tau_s=30.0, settle_s=2.0, stabilisation=FAST_STAB, unit="SN-EMU-0001")
+        # the stall (300 s of the emulator's time) outlasts the default 3 attempts of a visit (~32 s
+        # each): a visit begun as it starts was given up, which happened or not with the wall clock
+        # (CI-10: P02, "too few samples in 3 attempts"); 12 attempts outlast it whenever it falls
+        settings = CaptureSettings(tau_s=30.0, settle_s=2.0, stabilisation=FAST_STAB, unit="SN-EMU-0001",
+                                   max_attempts=12)
         report = capture(tmp_path / "out", plan=plan, setpoints_C=[20.0], imu=imu, bench=bench,
                          chamber=chamber, settings=settings)
         bench.close()

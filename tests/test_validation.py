@@ -55,6 +55,7 @@ def test_small_sbc_runs_and_plots(tmp_path):
     assert img[..., :3].std() > 0.05                  # really drawn, not blank
 
 
+@pytest.mark.slow   # 3 campaigns sampled through the CLI (~30 s in CI); the SBC machinery is quick above
 def test_cli_validate_small(tmp_path):
     p = subprocess.run([sys.executable, "-m", "triadcal", "validate", "--campaigns", "3", "--ranks", "9",
                         "--processes", "1", "--ess", "300", "--json", "s.json", "--plot", "s.png", "--no-progress"],
