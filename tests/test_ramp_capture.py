@@ -175,7 +175,10 @@ def test_ramp_captures_over_seeds_recover_the_unit(tmp_path):
     for seed in (11, 12, 13, 14, 15, 16):
         (tmp_path / str(seed)).mkdir()
         r, z = _capture_and_fit(tmp_path / str(seed), seed)
-        assert r.status == "ok"
+        # CI-11 (2026-11-25): one seed refused by the goodness-of-fit gate (model_mismatch), not seen in
+        # a rerun (6 seeds: chi2/dof 0.91-1.13) nor in the helper's runs; the message now says which seed
+        # and the fit's chi2/dof and visits, to find the capture that does it
+        assert r.status == "ok", (seed, r.status, r.fit.get("chi2_dof"), r.fit.get("n_obs"), r.notes[-3:])
         assert all(abs(z[n]) < 3.5 for n in (*ANGLES, "thermal_lag")), (seed, z)
         zs.extend(z.values())
         chi2.append(r.fit["chi2_dof"])
