@@ -93,6 +93,17 @@ def output_map(q: float, sigma):
     return f
 
 
+def positive_lsb(q) -> float:
+    """``--quantisation-lsb`` as a float, or an InputError naming the option (fit, sample)."""
+    try:
+        v = float(q)
+    except (TypeError, ValueError):
+        raise InputError(f"--quantisation-lsb must be a positive number in the output unit, got {q!r}") from None
+    if not (v > 0 and math.isfinite(v)):
+        raise InputError(f"--quantisation-lsb must be a positive number in the output unit, got {q!r}")
+    return v
+
+
 def noise_effects_map(campaign, effects: Sequence[str], lsb: Optional[float]):
     """The output map the noise effects among ``effects`` are estimated with when the output is
     quantised (``{"output_map": ...}`` for ``resolve_noise_effects``; ``{}`` without noise effects).
@@ -112,12 +123,11 @@ def noise_effects_map(campaign, effects: Sequence[str], lsb: Optional[float]):
         raise InputError(f"quantisation with {', '.join(noise)}: give --quantisation-lsb (the LSB in the output "
                          f"unit). The noise effect is estimated from the residuals of the fit with the rounding "
                          "term, which needs q; with q profiled it would absorb the rounding's misfit")
-    if not (lsb > 0 and math.isfinite(lsb)):
-        raise InputError(f"--quantisation-lsb must be a positive number in the output unit, got {lsb!r}")
-    s, why = sample_sigma_of(campaign, float(lsb))
+    lsb = positive_lsb(lsb)
+    s, why = sample_sigma_of(campaign, lsb)
     if s is None:
         raise InputError(f"{campaign.source or 'campaign'}: {why}")
-    return {"output_map": output_map(float(lsb), s)}
+    return {"output_map": output_map(lsb, s)}
 
 
 def q_grid(campaign, extra=()) -> np.ndarray:
@@ -210,9 +220,7 @@ def fit_quantisation(campaign, effects: Sequence[str], lsb: Optional[float] = No
         raise InputError(f"{campaign.source or 'campaign'}: {s_source}")
     profile = None
     if lsb is not None:
-        if not (lsb > 0 and math.isfinite(lsb)):
-            raise InputError(f"--quantisation-lsb must be a positive number in the output unit, got {lsb!r}")
-        q, how = float(lsb), "given"
+        q, how = positive_lsb(lsb), "given"
     else:
         grid = q_grid(campaign, [q_stated] if q_stated else [])
         x_full = np.array(sol0.x, float)

@@ -16,6 +16,7 @@ import numpy as np
 from ...models.campaign import Campaign
 from ...models.effects import DEFAULT_EFFECTS
 from ...models.effects.quantisation import NAME as NAME_QUANTISATION
+from ..quantisation_form import positive_lsb
 from ...models.model import Model
 from ..gates import DEFAULT_CONFIG, GateConfig
 from ..joint import (
@@ -99,7 +100,7 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     quantised = NAME_QUANTISATION in effects or quantisation_lsb is not None
     effects = [e for e in effects if e != NAME_QUANTISATION]
     if quantisation_lsb is not None:
-        quantisation_lsb = _positive_lsb(quantisation_lsb)
+        quantisation_lsb = positive_lsb(quantisation_lsb)
     if quantised and "flicker_noise" in effects:
         raise InputError("sample: quantisation and flicker_noise are not sampled together (the quantised output "
                          "model is not written for the whitened residuals); drop one of them")
@@ -173,17 +174,6 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     if posterior_path is not None:
         write_inference_data(posterior_path, campaign, run, result)
     return (result, run) if return_run else result
-
-
-def _positive_lsb(q) -> float:
-    """``--quantisation-lsb`` as a float, or an InputError naming the option."""
-    try:
-        v = float(q)
-    except (TypeError, ValueError):
-        raise InputError(f"--quantisation-lsb must be a positive number in the output unit, got {q!r}") from None
-    if not (v > 0 and math.isfinite(v)):
-        raise InputError(f"--quantisation-lsb must be a positive number in the output unit, got {q!r}")
-    return v
 
 
 def _held_quantisation(campaign, ls):
