@@ -79,7 +79,9 @@ def test_ramp_capture_through_the_emulator_fits_and_recovers_the_unit(tmp_path):
     check_visits_against_raw(out, c)
     labels = list(DEFAULT_PLAN)
     assert list(c.position) == [labels[i % 12] for i in range(c.n_visits)]     # cycling, no soak
-    assert c.n_visits == report.visits_done > 40          # 72-86 seen (fewer when the machine is loaded)
+    # how many visits fit in the program follows the wall clock (72-86 seen, fewer when the machine is
+    # loaded): asserted only that the positions were cycled through at least once, not a speed
+    assert c.n_visits == report.visits_done >= len(labels)
     assert np.all(np.diff(c.time_s) > 0)
     assert float(c.metadata["Q_V2s"]) == pytest.approx(3e-9, rel=0.2)
     assert c.metadata["ramp"].startswith("20:-10:50:20 degC at 1.5 degC/min")
