@@ -71,6 +71,8 @@ def run(args) -> int:
         wrong = {c: res.summary[c]["left_out_verdicts"] for c in lo if res.summary[c]["left_out_named_rate"] > 0}
         out.say(f"left out: 'unexplained' in {sum(res.confusion(left_out=True)[:, res.labels.index('unexplained')])}"
                 f" of {int(res.confusion(left_out=True).sum())} diagnoses"
+                f" ({sum(round(res.summary[c]['unexplained_rate_when_detected'] * res.summary[c]['left_out_detected_n']) for c in lo if res.summary[c]['left_out_detected_n'])}"
+                f" of the {sum(res.summary[c]['left_out_detected_n'] for c in lo)} whose in-vocabulary diagnosis found the gap)"
                 + ("; a candidate was named instead in " + "; ".join(f"{c}: {v}" for c, v in wrong.items())
                    if wrong else ""))
     out.say(f"{len(res.rows)} diagnoses in {res.seconds:.0f} s; the table is in {paths['table']}, the plot in "

@@ -302,6 +302,13 @@ def summarise(rows, conditions) -> dict:
                     r["left_out_verdict"] not in (UNEXPLAINED, NONE) and r.get("left_out_gap_closed") is not False
                     for r in lo])),
                 "left_out_verdicts": {v: verdicts.count(v) for v in sorted(set(verdicts))},
+                # the campaigns where the effect was detectable at all: its in-vocabulary diagnosis
+                # found a significant gap (with its own score test among the gap's tests); a left-out
+                # 'none' elsewhere is an effect below what any test here sees, not a wrong answer
+                "left_out_detected_n": int(sum(bool(r["gap_significant"]) for r in lo)),
+                "unexplained_rate_when_detected": (float(np.mean([
+                    r["left_out_verdict"] == UNEXPLAINED for r in lo if r["gap_significant"]]))
+                    if any(r["gap_significant"] for r in lo) else None),
                 "left_out_median_seconds": float(np.median([r["left_out_seconds"] for r in lo])),
             })
         out[c] = s

@@ -181,6 +181,10 @@ def _verdict_text(d) -> tuple[str, str]:
     if effect == "unexplained":
         where = "; ".join(f"{w.get('family')} {w.get('slice')} ({w.get('axis')}, {w.get('test')})"
                           for w in v.get("where") or [])
+        if v.get("ambiguous_with"):
+            return (f"unexplained: {v.get('best_partial')} closes the gap but the data cannot tell it from "
+                    + ", ".join(str(x) for x in v["ambiguous_with"]),
+                    str(v.get("reason") or "") + (f"; where: {where}" if where else ""))
         return ("unexplained: a structured gap no candidate effect closes",
                 str(v.get("reason") or "") + (f"; where: {where}" if where else ""))
     cand = next((c for c in d.candidates if c.effect == effect), None)

@@ -118,31 +118,85 @@ def _loglik_total(state: FitState, var_scale=None, nu=math.inf) -> float:
     return float(np.sum(_loglik_pointwise(state.r, var_scale, nu))) - state.r.size * math.log(state.s)
 
 
+def _pe_blocks(full: JointProblem, campaign: Campaign, x_full, sigma, weights=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """Covariance of each visit's three normalised residuals per arcsec^2 of positioning error,
+    (n, 3, 3) (``position_error.covariance_blocks`` with ``weights`` for the errors of axis 1,
+    axis 2 and the wobble, divided by sigma_a sigma_b)."""
+    model = full.model
+    p = model.to_internal(dict(zip(model.names, x_full)))
+    C = pe.covariance_blocks(model, p, campaign.covariates(), campaign.gravity_g, weights=weights)
+    sig = np.broadcast_to(np.asarray(sigma, float), (C.shape[0], 3))
+    return C / (sig[:, :, None] * sig[:, None, :])
+
+
+class BlockWhitening:
+    """``L_i^-1`` per visit of ``V_i = L_i L_i^T`` (3 x 3, normalised units), applied to vectors or
+    matrices whose rows are visit-major (visit i, output a at row 3 i + a)."""
+
+    def __init__(self, V: np.ndarray):
+        self.L = np.linalg.cholesky(V)
+        self.n = V.shape[0]
+
+    def diag(self) -> np.ndarray:
+        return np.diagonal(self.L, axis1=1, axis2=2).copy()
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, float)
+        shaped = x.reshape(self.n, 3, -1)
+        return np.linalg.solve(self.L, shaped).reshape(x.shape)
+
+
 def _fit_position_error(full, campaign, base: FitState, names, sigma, noise_known):
-    """ML of the positioning-error variance (and of the noise scale when it is estimated),
-    alternating with the mean refitted on the new weights (3 rounds)."""
-    x = base.x_full
-    tau, state, var_scale = 0.0, base, np.ones(base.r.size)
+    """ML of the positioning-error variances -- the two bench axes' ``sigma_1^2`` and the wobble's
+    ``sigma_2^2`` (eq. 4) -- and of the noise scale when it is estimated, with the full 3 x 3
+    covariance of each visit's outputs, ``V_i = s^2 I + sigma_1^2 C1_i + sigma_2^2 C2_i`` (``C1``, ``C2``
+    from :func:`_pe_blocks`), alternating with the GLS refit of the mean (3 rounds).
+
+    The state holds the whitened residuals as flicker's does (``r = L^-1 r_raw * diag(L)``,
+    ``var_scale = diag(L)^2``), so that the Gaussian log-likelihood of ``r / sqrt(var_scale)`` with
+    ``-log diag(L)`` is the exact one and the tests after the refit see standardised residuals. (A
+    diagonal variance made those tests anti-conservative: one bench error moves a visit's outputs
+    together; one common sigma for the three errors left a pattern in the scatter that the variance
+    family found at the validation's 5"/2".)"""
+    from ...estimation.flicker_noise import WhitenedProblem
+    from ...estimation.joint import levenberg_marquardt, scaled_covariance
+    from .fitting import _Subset
+
+    sub = _Subset(full, names, base.x_full)
+    x = base.x_full[sub.cols].copy()
+    taus, log_s2, sol, whitening = np.array([1e-4, 1e-4]), 2 * math.log(base.s), None, None
+    eye = np.eye(3)[None]
     for _ in range(3):
-        w = _pe_sensitivity(full, campaign, x, sigma)     # added variance per arcsec^2, sigma units
-        r2 = full.residuals(x) ** 2                       # raw, normalised by sigma only
+        C1 = _pe_blocks(full, campaign, sub.embed(x), sigma, (1.0, 1.0, 0.0))
+        C2 = _pe_blocks(full, campaign, sub.embed(x), sigma, (0.0, 0.0, 1.0))
+        r_raw = full.residuals(sub.embed(x)).reshape(-1, 3)
 
         def nll(theta):
-            log_s2, log_tau = (0.0, theta[0]) if noise_known else theta
-            v = math.exp(log_s2) + math.exp(log_tau) * w
-            return 0.5 * float(np.sum(r2 / v + np.log(v)))
-        t0 = [math.log(max(tau, 1e-4))] if noise_known else [2 * math.log(base.s), math.log(max(tau, 1e-4))]
-        res = optimize.minimize(nll, t0, method="Nelder-Mead", options={"xatol": 1e-4, "fatol": 1e-6})
-        log_s2, log_tau = (0.0, res.x[0]) if noise_known else res.x
-        tau = math.exp(log_tau) if log_tau > -12 else 0.0
-        var_scale = 1.0 + tau * w / math.exp(log_s2)        # variance relative to s^2
-        state = _fit(full, names, x, noise_known, scale=np.sqrt(var_scale))
-        x = state.x_full
-    # keep the residuals normalised by the measurement noise only; var_scale carries the rest
-    root = np.sqrt(var_scale)
-    state.r, state.J = state.r * root, state.J * root[:, None]
-    state.var_scale = var_scale
-    state.extra_params = {"position_error_sigma": {"value": math.sqrt(tau), "unit": "arcsec"}}
+            ls2, lt = (0.0, theta) if noise_known else (theta[0], theta[1:])
+            t = np.exp(lt)
+            V = math.exp(ls2) * eye + t[0] * C1 + t[1] * C2
+            sign, logdet = np.linalg.slogdet(V)
+            q = np.einsum("na,na->n", r_raw, np.linalg.solve(V, r_raw[:, :, None])[:, :, 0])
+            return 0.5 * float(np.sum(q + logdet))
+        t0 = np.log(np.maximum(taus, 1e-4))
+        t0 = t0 if noise_known else np.concatenate([[log_s2], t0])
+        res = optimize.minimize(nll, t0, method="Nelder-Mead",
+                                options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 600})
+        log_s2, lt = (0.0, res.x) if noise_known else (res.x[0], res.x[1:])
+        taus = np.where(lt > -12, np.exp(lt), 0.0)
+        V = eye + (taus[0] * C1 + taus[1] * C2) / math.exp(log_s2)     # relative to s^2
+        whitening = BlockWhitening(V)
+        sol = levenberg_marquardt(WhitenedProblem(sub, whitening), x, max_iter=60)
+        x = sol.x
+    rw, Jw = sol.r, sol.J
+    chi2 = float(rw @ rw)
+    dof = rw.size - len(names)
+    s = 1.0 if noise_known else math.sqrt(chi2 / max(dof, 1))
+    Ld = whitening.diag().reshape(-1)
+    state = FitState(tuple(names), sub.embed(x), rw / s * Ld, Jw / s * Ld[:, None], scaled_covariance(Jw) * s * s,
+                     chi2, dof, s, sol.converged, var_scale=Ld ** 2, whiten=whitening.apply)
+    state.extra_params = {"position_error_sigma": {"value": math.sqrt(taus[0]), "unit": "arcsec"},
+                          "position_error_wobble_sigma": {"value": math.sqrt(taus[1]), "unit": "arcsec"}}
     return state
 
 

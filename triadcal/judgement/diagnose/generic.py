@@ -50,27 +50,49 @@ def _scaled(x: np.ndarray) -> np.ndarray:
     return (2.0 * x - (hi + lo)) / (hi - lo)
 
 
-def generic_basis(campaign: Campaign, sigma: np.ndarray) -> dict:
-    """The families' columns in normalised units: ``{family: (3n, k) array}`` (module docstring);
-    ``sigma`` the outputs' noise SD (n, 3) or (3,), the residuals' divisor."""
+def per_output_terms(campaign: Campaign) -> dict:
+    """Each family's terms as functions of the visit: ``{family: (F (n, k), labels, diag)}``;
+    ``diag[i]`` is the axis ``j`` a term is indexed by (``g_j^2``, ``|g_j|``, ``u g_j``, ...), else None."""
     n = campaign.n_visits
     g = np.asarray(_nominal_g(campaign), float).reshape(n, 3)
     one_g = np.column_stack([np.ones(n), g])                      # 1, g_x, g_y, g_z
     u = _scaled(np.mean(np.asarray(campaign.t, float), axis=1))
     s = _scaled(np.asarray(campaign.time_s, float))
     d = np.array([{"heating": 1.0, "cooling": -1.0}.get(x, 0.0) for x in campaign.direction])
-    per_output = {
-        "temperature": np.column_stack([p[:, None] * one_g for p in (u, u ** 2, u ** 3)]),
-        "time": np.column_stack([p[:, None] * one_g for p in (s, s ** 2)]),
-        "orientation_even": np.column_stack([g ** 2, np.abs(g), g[:, [0]] * g[:, [1]], g[:, [0]] * g[:, [2]],
-                                             g[:, [1]] * g[:, [2]]]),
-        "orientation_odd": np.column_stack([g * np.abs(g), g ** 3] + [g[:, [j]] ** 2 * g[:, [k]] for j in range(3)
-                                                                       for k in range(3) if j != k]),
-        "direction": d[:, None] * one_g,
+    ax = "xyz"
+    og_lab = ["", "g_x", "g_y", "g_z"]
+    og_diag = [None, 0, 1, 2]
+
+    def times_one_g(vals, names):
+        F = np.column_stack([p[:, None] * one_g for p in vals])
+        labels = [f"{v}" + (f" {o}" if o else "") for v in names for o in og_lab]
+        return F, labels, og_diag * len(vals)
+
+    pairs = [(0, 1), (0, 2), (1, 2)]
+    odd_pairs = [(j, k) for j in range(3) for k in range(3) if j != k]
+    return {
+        "temperature": times_one_g((u, u ** 2, u ** 3), ("u", "u^2", "u^3")),
+        "time": times_one_g((s, s ** 2), ("s", "s^2")),
+        "orientation_even": (
+            np.column_stack([g ** 2, np.abs(g)] + [g[:, [j]] * g[:, [k]] for j, k in pairs]),
+            [f"g_{a}^2" for a in ax] + [f"|g_{a}|" for a in ax] + [f"g_{ax[j]} g_{ax[k]}" for j, k in pairs],
+            [0, 1, 2, 0, 1, 2, None, None, None]),
+        "orientation_odd": (
+            np.column_stack([g * np.abs(g), g ** 3] + [g[:, [j]] ** 2 * g[:, [k]] for j, k in odd_pairs]),
+            [f"g_{a}|g_{a}|" for a in ax] + [f"g_{a}^3" for a in ax]
+            + [f"g_{ax[j]}^2 g_{ax[k]}" for j, k in odd_pairs],
+            [0, 1, 2, 0, 1, 2] + [None] * len(odd_pairs)),
+        "direction": (d[:, None] * one_g, [("d " + o).strip() for o in og_lab], og_diag),
     }
+
+
+def generic_basis(campaign: Campaign, sigma: np.ndarray) -> dict:
+    """The families' columns in normalised units: ``{family: (3n, k) array}`` (module docstring);
+    ``sigma`` the outputs' noise SD (n, 3) or (3,), the residuals' divisor."""
+    n = campaign.n_visits
     sig = np.broadcast_to(np.asarray(sigma, float), (n, 3))
     out = {}
-    for fam, F in per_output.items():
+    for fam, (F, _, _) in per_output_terms(campaign).items():
         k = F.shape[1]
         B = np.zeros((n, 3, 3 * k))
         for a in range(3):
@@ -79,26 +101,57 @@ def generic_basis(campaign: Campaign, sigma: np.ndarray) -> dict:
     return out
 
 
+#: each family's blocks of terms (indices of its per-output terms, ``per_output_terms``): a pattern
+#: concentrated in one block (a cubic in temperature, |g| alone) is tested on that block's columns
+#: too, where its chi2 has fewer dof
+SUB_BLOCKS = {
+    "temperature": (range(0, 4), range(4, 8), range(8, 12)),      # u, u^2, u^3 times (1, g)
+    "time": (range(0, 4), range(4, 8)),                            # s, s^2 times (1, g)
+    "orientation_even": (range(0, 3), range(3, 6), range(6, 9)),  # g_j^2, |g_j|, g_j g_k
+    "orientation_odd": (range(0, 3), range(3, 6), range(6, 12)),  # g_j|g_j|, g_j^3, g_j^2 g_k
+}
+
+
+def _one_test(r, B, Q, noise_known, dof):
+    sc = _score_mean(_R(r), B, Q)
+    if sc is None:
+        return None
+    S, k = sc
+    if noise_known:
+        logp = _chi2_logsf(S, k)
+    else:
+        rest = max(float(r @ r) - S, 1e-300)
+        d2 = max(dof - k, 1)
+        logp = float(stats.f.logsf((S / k) / (rest / d2), k, d2))
+    return float(S), int(k), float(math.exp(logp))
+
+
 def generic_tests(basis: dict, r: np.ndarray, J: np.ndarray, noise_known: bool, dof: int,
                   Q: Optional[np.ndarray] = None) -> dict:
     """p-value of each family's score test at a fit with standardised residuals ``r`` (3n,) and
-    Jacobian ``J`` (same scaling); ``{family: {"S", "k", "p_value"}}`` (families with no column
-    outside the fit's span are left out). With the noise estimated, ``S / k`` against
-    ``(r'r - S) / (dof - k)`` as F."""
+    Jacobian ``J`` (same scaling); ``{family: {"S", "k", "p_value", "p_full"}}`` (families with no
+    column outside the fit's span are left out). With the noise estimated, ``S / k`` against
+    ``(r'r - S) / (dof - k)`` as F. ``S``, ``k`` and ``p_full`` are the whole family's test;
+    ``p_value`` is Bonferroni's over it and its ``SUB_BLOCKS`` (m + 1 tests: ``min(1, (m + 1) min p)``),
+    a valid level-alpha test of the family that keeps the power of a block's fewer dof."""
     Q = _hat_q(J) if Q is None else Q
     out = {}
     for fam, B in basis.items():
-        sc = _score_mean(_R(r), B, Q)
-        if sc is None:
+        full = _one_test(r, B, Q, noise_known, dof)
+        if full is None:
             continue
-        S, k = sc
-        if noise_known:
-            logp = _chi2_logsf(S, k)
-        else:
-            rest = max(float(r @ r) - S, 1e-300)
-            d2 = max(dof - k, 1)
-            logp = float(stats.f.logsf((S / k) / (rest / d2), k, d2))
-        out[fam] = {"S": float(S), "k": int(k), "p_value": float(math.exp(logp))}
+        S, k, p = full
+        ps = [p]
+        blocks = SUB_BLOCKS.get(fam, ())
+        if blocks:
+            per = B.shape[1] // 3
+            for blk in blocks:
+                cols = [a * per + i for a in range(3) for i in blk]
+                t = _one_test(r, B[:, cols], Q, noise_known, dof)
+                if t is not None:
+                    ps.append(t[2])
+        p_fam = min(1.0, len(ps) * min(ps)) if len(ps) > 1 else p
+        out[fam] = {"S": S, "k": k, "p_value": p_fam, "p_full": p}
     return out
 
 
@@ -107,3 +160,45 @@ class _R:
 
     def __init__(self, r):
         self.r = np.asarray(r, float)
+
+
+def variance_basis(campaign: Campaign) -> np.ndarray:
+    """Columns of the ``variance`` family, (3n, 15): per output, the products ``g_j g_k`` (j <= k) of
+    the nominal gravity components, less one (``sum_j g_j^2`` is the output's intercept where
+    ``|g| = 1``), each column on its own output. A bench error rotates gravity in the sensor frame:
+    the variance it adds to an output is a quadratic form in ``g`` (``position_error``), so a
+    per-visit excess of scatter that depends on the pose shows here."""
+    n = campaign.n_visits
+    g = np.asarray(_nominal_g(campaign), float).reshape(n, 3)
+    prods = np.column_stack([g[:, j] * g[:, k] for j in range(3) for k in range(j, 3)])[:, 1:]
+    B = np.zeros((n, 3, 3 * prods.shape[1]))
+    for a in range(3):
+        B[:, a, a * prods.shape[1]:(a + 1) * prods.shape[1]] = prods
+    return B.reshape(3 * n, -1)
+
+
+def variance_test(z: np.ndarray, h: np.ndarray, basis: np.ndarray) -> Optional[dict]:
+    """Koenker's studentised Breusch-Pagan test of the standardised residuals ``z`` (3n,) for a
+    variance that follows ``basis`` (:func:`variance_basis`); ``h`` the fit's leverages (the null
+    mean of ``z_i^2`` is ``1 - h_i``, so ``z_i^2 / (1 - h_i)`` is regressed). ``N R^2`` of that
+    regression against one intercept per output is chi2 with the basis' rank as dof under
+    homoscedasticity, for any distribution of the noise with a finite fourth moment (Koenker 1981,
+    J. Econometrics 17, 107-112): a Student-t's heavy tails do not trigger it. None when the
+    design has no pose that varies."""
+    z = np.asarray(z, float)
+    N = z.size
+    y = (z * z / np.clip(1.0 - np.asarray(h, float), 1e-6, None)).reshape(-1, 3)
+    y = (y - y.mean(axis=0)).reshape(-1)
+    B = basis.reshape(-1, 3, basis.shape[1])
+    B = (B - B.mean(axis=0)).reshape(N, -1)
+    norms = np.linalg.norm(B, axis=0)
+    keep = norms > 1e-9 * max(float(norms.max(initial=0.0)), 1e-300)
+    if not keep.any() or float(y @ y) <= 0:
+        return None
+    U, sv, _ = np.linalg.svd(B[:, keep] / norms[keep], full_matrices=False)
+    k = int(np.sum(sv > 1e-8 * sv[0]))
+    if k == 0:
+        return None
+    proj = U[:, :k].T @ y
+    S = N * float(proj @ proj) / float(y @ y)
+    return {"S": S, "k": k, "p_value": float(math.exp(_chi2_logsf(S, k)))}

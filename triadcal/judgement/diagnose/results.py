@@ -160,7 +160,9 @@ METHODS_TEXT = {
                "it is within the noise at alpha (known noise) and no generic family is significant after it "
                "(Holm over the families, on the residuals standardised by its noise model); a noise candidate "
                "also needs no significant slice after it, and flicker_noise no generic family explaining the "
-               "gap better by AIC (-S + 2k < -2 delta loglik + 2); a candidate that shrinks the gap without closing "
+               "gap better by AIC (-S + 2k < -2 delta loglik + 2); a mean candidate must beat every rival (other "
+               "refitted candidates, single generic terms) by the encompassing test at alpha, else 'unexplained' "
+               "with ambiguous_with; a candidate that shrinks the gap without closing "
                "it is the best partial answer of an 'unexplained' verdict",
 }
 

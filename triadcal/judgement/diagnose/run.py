@@ -40,7 +40,8 @@ from .candidates import (
     _thermal_lag_history,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
-from .generic import generic_basis, generic_tests
+from .generic import generic_basis, generic_tests, per_output_terms, variance_basis, variance_test
+from .rivals import generic_rivals, unbeaten_rivals
 from .results import ALPHA, Candidate, Diagnosis, _f
 from .slices import _family_tests, _holm, _slice_tests
 
@@ -196,6 +197,11 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                              base.dof, Q)
     for fam, t in generic0.items():
         gap_tests[f"generic:{fam}"] = t["p_value"]
+    # a scatter that depends on the pose (positioning errors): Koenker's test of the variance
+    vbasis = variance_basis(campaign)
+    var0 = variance_test(base.r, h, vbasis)
+    if var0 is not None:
+        gap_tests["generic:variance"] = var0["p_value"]
     keys = list(gap_tests)
     adj = _holm([gap_tests[k] for k in keys]) if keys else []
     gap_adj = dict(zip(keys, (float(a) for a in adj)))
@@ -255,7 +261,11 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 st = _fit_position_error(full, campaign, base, names, sigma, noise.known)
             var_scale, nu, new_names = st.var_scale, math.inf, []
             ll = _loglik_total(st, var_scale=var_scale)
-            lr_p = 0.5 * float(stats.chi2.sf(max(2 * (ll - base_ll), 0.0), 1))
+            lr = max(2 * (ll - base_ll), 0.0)
+            # variances on the boundary (Self & Liang 1987): 1/2 chi2_0 + 1/2 chi2_1 for flicker's one;
+            # 1/4 chi2_0 + 1/2 chi2_1 + 1/4 chi2_2 for position_error's two (bench axes, wobble)
+            lr_p = (0.5 * float(stats.chi2.sf(lr, 1)) + 0.25 * float(stats.chi2.sf(lr, 2))
+                    if c.effect == "position_error" else 0.5 * float(stats.chi2.sf(lr, 1)))
         elif c.effect == "heavy_tails":
             st = _fit_heavy_tails(base)
             var_scale, nu, new_names = None, st.nu, []
@@ -289,13 +299,18 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                                  if var_scale is not None else 1.0), st.cov, st.chi2, st.dof, st.s, st.converged)
         gen = generic_tests({f: st.whitened(B) for f, B in gbasis.items()}, r_after, st_for_slices.J,
                             noise.known, st.dof)
+        Q_after = _hat_q(st_for_slices.J)
+        var_after = variance_test(r_after, np.sum(Q_after * Q_after, axis=1), vbasis)
+        if var_after is not None:
+            gen["variance"] = var_after
         gen_holm = dict(zip(gen, _holm([t["p_value"] for t in gen.values()]))) if gen else {}
         n_sig_after = None
         if slices_after:
             sl_after = _slice_tests(campaign, st_for_slices, to_ug, sigma, 0, rng)
             n_sig_after = sum(1 for s in sl_after if s.p_adjusted < alpha)
         chi2_after = float(np.sum(r_after ** 2) * st.s ** 2)
-        dof_after = (st.r.size - len(st.names) - (1 if c.effect in NOISE_EFFECTS else 0)
+        dof_after = (st.r.size - len(st.names) - (len(st.extra_params) if c.effect == "position_error" else
+                                                  1 if c.effect in NOISE_EFFECTS else 0)
                      - (len(form["profiled"]) if form is not None else 0))
         rms_after = float(np.sqrt(np.mean((st.r * st.s) ** 2 * sig_ug.reshape(-1) ** 2)))
         # parameter shifts in units of their uncertainty
@@ -321,6 +336,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                           "residual_rms_ug": rms_after, "noise_floor_ug": floor_ug, "elpd_loo": elpd,
                           "significant_slices": n_sig_after,
                           "generic": {f: {"S": _f(t["S"]), "k": t["k"], "p_value": _f(t["p_value"]),
+                                          **({"p_full": _f(t["p_full"])} if "p_full" in t else {}),
                                           "p_holm": _f(float(gen_holm[f]))} for f, t in gen.items()},
                           "generic_structure": [f for f in gen if gen_holm[f] < alpha]},
             "new_parameters": ({n: {"value": after_val.get(n, float(st.x_full[full.index[n]])),
@@ -380,6 +396,31 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 return []
             aic_noise = -2.0 * c.refit["delta_loglik"] + 2.0
             return [f for f, t in generic0.items() if -t["S"] + 2.0 * t["k"] < aic_noise]
+
+        def _ambiguity(best, refitted):
+            """``unexplained`` when ``best`` does not beat a rival by the encompassing test (rivals.py):
+            the data cannot tell it from another refitted candidate or from a smooth term outside the
+            list; None when it beats them all."""
+            cols = lambda c: Jfull[:, [full.index[n] for n in c.params]]  # noqa: E731
+            rivals = {c.effect: cols(c) for c in refitted
+                      if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS}
+            sig_rows = np.broadcast_to(np.asarray(sigma, float), (campaign.n_visits, 3))
+            rivals.update(generic_rivals(per_output_terms(campaign), sig_rows, base.whitened))
+            lost = unbeaten_rivals(base.r, Q, cols(best), rivals, noise.known, base.dof, alpha)
+            if not lost:
+                return None
+            named = [x for x in lost if x[0] in EFFECTS]
+            shown = (named + [x for x in lost if x[0] not in EFFECTS])[:4]
+            txt = "; ".join(f"{lab} (adding {best.effect} to it: S = {S:.3g} on {k} dof, p = {p:.3g})"
+                            for lab, S, k, p in shown)
+            return {"effect": "unexplained", "best_partial": best.effect,
+                    "ambiguous_with": [x[0] for x in shown],
+                    "reason": (f"{best.effect} closes the gap but does not beat "
+                               f"{len(lost)} rival(s) on this design: {txt}; the data cannot tell "
+                               f"{best.effect} from them (encompassing test at alpha = {alpha:g}, "
+                               "docs/diagnosis.md \"Rivals\")"),
+                    "evidence": verdict["evidence"], "gap_closed": True,
+                    "where": where_of(slices)}
 
         for c in refitted:
             if c.effect == "flicker_noise" and noise.known:
@@ -451,6 +492,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                            "where": where_of(slices)}
                 if "fit_options" in partial:
                     verdict["fit_options"] = partial["fit_options"]
+            if not gap_open and best.form is None and best.params and best.effect not in NOISE_EFFECTS:
+                amb = _ambiguity(best, refitted)
+                if amb:
+                    verdict = amb
             others = [c for c in refitted if c is not best]
             if others:
                 second = others[0]

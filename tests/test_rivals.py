@@ -1,0 +1,90 @@
+"""The encompassing test that a named effect must pass against its rivals (diagnose/rivals.py),
+on a hand-made linear problem (no simulator, no model of this project): base columns 1 and x,
+a second-order term x^2 (the "candidate") and an asymmetry |x| (the "rival") on a grid of x in
+[-1, 1]; unit noise. The test statistic's law is known: with the candidate true at amplitude
+b, S(c | base + t) is noncentral chi2(1, lambda) with lambda = b^2 |c_perp|^2, c_perp the
+candidate's column after projection off span(1, x, |x|). Its rate of "not beaten" must match
+that law's P(S < chi2_1 quantile at alpha) within a binomial band.
+"""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from triadcal.judgement.diagnose.fitting import _hat_q
+from triadcal.judgement.diagnose.rivals import SAME_TERM_FRACTION, encompassing, unbeaten_rivals
+
+ALPHA = 0.01
+X = np.linspace(-1.0, 1.0, 41)
+BASE = np.column_stack([np.ones_like(X), X])
+C = (X ** 2)[:, None]
+T = np.abs(X)[:, None]
+
+
+def _residual(y):
+    Q = _hat_q(BASE)
+    return y - Q @ (Q.T @ y), Q
+
+
+def _lambda(b):
+    A = np.column_stack([BASE, T])
+    Q = _hat_q(A)
+    cp = C[:, 0] - Q @ (Q.T @ C[:, 0])
+    return b * b * float(cp @ cp)
+
+
+def test_the_alias_of_the_truth_is_not_beaten_and_an_unrelated_term_is():
+    rng = np.random.default_rng(7)
+    y = 30.0 * np.abs(X) + rng.standard_normal(X.size)          # the truth is the rival |x|
+    r, Q = _residual(y)
+    S, k, p = encompassing(r, Q, C, T, True, X.size - 2)
+    assert k == 1 and p >= ALPHA, (S, p)                          # x^2 adds nothing beyond |x|
+    y = 30.0 * X ** 2 + rng.standard_normal(X.size)              # the truth is x^2; rival x^3
+    r, Q = _residual(y)
+    S, k, p = encompassing(r, Q, C, (X ** 3)[:, None], True, X.size - 2)
+    assert p < 1e-6, (S, p)
+
+
+def test_a_rival_in_the_candidates_span_or_the_base_span_is_no_rival():
+    r, Q = _residual(np.random.default_rng(1).standard_normal(X.size))
+    assert encompassing(r, Q, C, 3.0 * C + 1e-4 * T, True, 39) is None      # c written another way
+    assert encompassing(r, Q, C, (2.0 - X)[:, None], True, 39) is None      # inside the base span
+    # a group holding the candidate's own column besides others explains the data by the candidate
+    assert encompassing(r, Q, C, np.column_stack([X ** 3, 2.0 * C[:, 0]]), True, 39) is None
+    assert SAME_TERM_FRACTION < 0.1
+    got = unbeaten_rivals(r, Q, C, {"same": 2.0 * C, "base": BASE[:, [1]]}, True, 39, ALPHA)
+    assert got == []
+
+
+@pytest.mark.parametrize("b", [0.0, 4.0, 8.0])
+def test_not_beaten_rate_follows_the_noncentral_chi2(b):
+    """Over 1000 seeds with the candidate x^2 true at amplitude b: the rate at which |x| is not
+    beaten equals P(ncx2(1, lambda) < chi2_1 quantile) (lambda = 0: 1 - alpha) within 4.5
+    binomial SD."""
+    lam = _lambda(b)
+    crit = stats.chi2.isf(ALPHA, 1)
+    expect = stats.ncx2.cdf(crit, 1, lam) if lam > 0 else stats.chi2.cdf(crit, 1)
+    rng = np.random.default_rng(2026)
+    n = 1000
+    lost = 0
+    for _ in range(n):
+        y = b * X ** 2 + rng.standard_normal(X.size)
+        r, Q = _residual(y)
+        lost += bool(unbeaten_rivals(r, Q, C, {"|x|": T}, True, X.size - 2, ALPHA))
+    sd = np.sqrt(expect * (1 - expect) / n)
+    assert abs(lost / n - expect) <= 4.5 * sd + 1e-9, (b, lam, lost / n, expect)
+
+
+def test_estimated_noise_uses_the_f_form():
+    """With the noise estimated (F form) the null rate of "beaten" is alpha as well: 1000 seeds of
+    data with neither term, noise SD 3 (the F statistic is scale-free)."""
+    rng = np.random.default_rng(11)
+    n, beaten = 1000, 0
+    for _ in range(n):
+        y = 3.0 * rng.standard_normal(X.size)
+        r, Q = _residual(y)
+        r = r / np.sqrt(float(r @ r) / (X.size - 2))
+        res = encompassing(r, Q, C, T, False, X.size - 2)
+        beaten += res[2] < ALPHA
+    sd = np.sqrt(ALPHA * (1 - ALPHA) / n)
+    assert abs(beaten / n - ALPHA) <= 4.5 * sd, beaten / n
