@@ -160,6 +160,7 @@ def test_recovered_within_3u_and_named(tmp_path, effect):
     assert sum(v == effect for v in named) >= 9, named
 
 
+@pytest.mark.slow   # (CI time: clean -> none is quick in tests/test_diagnose.py)
 def test_clean_oblique_data_name_none_of_them(tmp_path):
     named = [diagnose(bench(tmp_path, None, 100 + s)[0], BASE, n_draws=50, cross_group=False,
                       seed=1).verdict.get("effect") for s in range(10)]

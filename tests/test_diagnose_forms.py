@@ -66,7 +66,7 @@ def _cand(d, name):
 
 
 # -- quick ----------------------------------------------------------------------------------------
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])  # seed 1: slow (CI time)
 def test_play_hysteresis_of_10_degC_is_named_not_blamed_on_noise(seed):
     c, model = hysteresis_campaign(seed, "play", 10.0)
     d = diagnose(c, model, **OPTS)
@@ -91,14 +91,14 @@ def test_play_hysteresis_of_10_degC_is_named_not_blamed_on_noise(seed):
     assert "--hysteresis-form play" in d.verdict["evidence"] and "refit-only" in d.verdict["evidence"]
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])  # seed 1: slow (CI time)
 def test_play_hysteresis_of_30_degC_is_named(seed):
     c, model = hysteresis_campaign(seed, "play", 30.0)
     d = diagnose(c, model, **OPTS)
     assert d.verdict_effect == "hysteresis_play", (d.verdict, d.ranked()[:4])
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])  # seed 1: slow (CI time)
 def test_quadratic_angle_tempco_is_named_angle_tempco2_not_a_form(seed):
     c, model = hysteresis_campaign(seed, "offset", quadratic_xy=0.004)
     d = diagnose(c, model, **OPTS)
@@ -106,7 +106,7 @@ def test_quadratic_angle_tempco_is_named_angle_tempco2_not_a_form(seed):
     assert not _cand(d, "hysteresis_play").refit["form"]["beats_simpler"]
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])  # seed 1: slow (CI time)
 def test_clean_data_with_the_offset_hysteresis_stay_none(seed, tmp_path):
     c, model = hysteresis_campaign(seed, "offset")
     d = diagnose(c, model, **OPTS)

@@ -172,17 +172,26 @@ def _fit_position_error(full, campaign, base: FitState, names, sigma, noise_know
         r_raw = full.residuals(sub.embed(x)).reshape(-1, 3)
 
         def nll(theta):
+            # log-variances held in [-30, 30] (the simplex's expansions may step far: exp overflows)
+            theta = np.clip(theta, -30.0, 30.0)
             ls2, lt = (0.0, theta) if noise_known else (theta[0], theta[1:])
             t = np.exp(lt)
             V = math.exp(ls2) * eye + t[0] * C1 + t[1] * C2
             sign, logdet = np.linalg.slogdet(V)
-            q = np.einsum("na,na->n", r_raw, np.linalg.solve(V, r_raw[:, :, None])[:, :, 0])
-            return 0.5 * float(np.sum(q + logdet))
+            if not np.all(sign > 0):
+                return math.inf
+            try:
+                q = np.einsum("na,na->n", r_raw, np.linalg.solve(V, r_raw[:, :, None])[:, :, 0])
+            except np.linalg.LinAlgError:
+                return math.inf
+            val = 0.5 * float(np.sum(q + logdet))
+            return val if math.isfinite(val) else math.inf
         t0 = np.log(np.maximum(taus, 1e-4))
         t0 = t0 if noise_known else np.concatenate([[log_s2], t0])
         res = optimize.minimize(nll, t0, method="Nelder-Mead",
                                 options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 600})
-        log_s2, lt = (0.0, res.x) if noise_known else (res.x[0], res.x[1:])
+        x_opt = np.clip(res.x, -30.0, 30.0)
+        log_s2, lt = (0.0, x_opt) if noise_known else (x_opt[0], x_opt[1:])
         taus = np.where(lt > -12, np.exp(lt), 0.0)
         V = eye + (taus[0] * C1 + taus[1] * C2) / math.exp(log_s2)     # relative to s^2
         whitening = BlockWhitening(V)
