@@ -122,6 +122,7 @@ def test_vectornav_watlow_f4_esp301_campaign_is_captured_and_its_fit_recovers_th
 
 
 # -- (b) the analog unit: one 34465A per axis --------------------------------------------------
+@pytest.mark.slow   # (the quick suite's 10-minute budget; still in CI)
 def test_analog_unit_one_dmm_per_axis_watlow_f4_esp301_and_its_fit_recovers_the_unit(tmp_path):
     timing = EmulatorTiming(time_scale=600.0, self_heating_time_constant_s=0.0)
     em = emulate(tmp_path / "emu", effects=["bench_tilt"], timing=timing, seed=22, dmm=True,
@@ -253,6 +254,7 @@ class EmulatedScanner:
         self.pty.close()
 
 
+@pytest.mark.slow   # (the quick suite's 10-minute budget; still in CI)
 def test_analog_unit_through_one_dmm_with_a_scanner_card(tmp_path):
     """x on channel 102, y on 103, z on 101: the scanner sweeps 101, 102, 103 (z, x, y), so an
     axis read from the wrong column would move gravity to another axis and the fit would fail."""
@@ -533,6 +535,7 @@ def test_the_docs_python_example_runs_as_printed():
     assert lines[3] == "(-12.5, 0.0)"
 
 
+@pytest.mark.slow   # (the quick suite's 10-minute budget; still in CI)
 def test_a_campaign_through_the_lab_table_profile_recovers_the_unit(tmp_path):
     """The instruments file names the doc's profile relative to itself (as the doc says); the
     12-position plan goes through counts, the offset, the reversed axis and the wrap (270 deg
