@@ -97,19 +97,34 @@ class PtyPair:
             os.close(s)
 
 
-class LagModel:
-    """The test's own thermal model: PV follows SP, stepped by a thread every 10 ms."""
+class ManualClock:
+    """A clock the test advances (``advance``): the thermal models follow it, not the wall clock,
+    so what a test reads does not depend on the machine's load."""
 
-    def __init__(self, pv=23.0, tau_s=0.4):
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+    def advance(self, dt: float) -> None:
+        self.t += dt
+
+
+class LagModel:
+    """The test's own thermal model: PV follows SP, stepped by a thread every 10 ms on ``clock``."""
+
+    def __init__(self, pv=23.0, tau_s=0.4, clock=time.monotonic):
         self.pv, self.sp, self.tau_s = pv, pv, tau_s
+        self.clock = clock
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True)
         self._t.start()
 
     def _run(self):
-        last = time.monotonic()
+        last = self.clock()
         while not self._stop.wait(0.01):
-            now = time.monotonic()
+            now = self.clock()
             self.pv += (self.sp - self.pv) * (1 - math.exp(-(now - last) / self.tau_s))
             last = now
 
@@ -191,7 +206,7 @@ def start_pymodbus(model: str, port: str, lag: LagModel, stopbits: int):
 def pymodbus_chamber(request):
     model, stopbits = request.param
     pair = PtyPair()
-    lag = LagModel()
+    lag = LagModel(clock=ManualClock())
     received, stop = start_pymodbus(model, pair.paths[1], lag, stopbits)
     try:
         yield model, stopbits, pair, lag, received
@@ -201,7 +216,9 @@ def pymodbus_chamber(request):
         pair.close()
 
 
-def wait_until(fn, timeout_s=5.0):
+def wait_until(fn, timeout_s=30.0):
+    """Poll ``fn`` every 20 ms; the timeout only guards against a hang (the models follow a
+    ManualClock that ``fn`` advances, so the number of polls needed does not depend on the load)."""
     t_end = time.monotonic() + timeout_s
     while time.monotonic() < t_end:
         if fn():
@@ -222,7 +239,8 @@ def test_watlow_drivers_against_pymodbus_server(pymodbus_chamber):
         assert lag.sp == 25.0 and chamber.setpoint_C() == 25.0
         # PV follows the set point with the model's lag: rising, never beyond it, then there
         seen = [chamber.temperature_C()]
-        assert wait_until(lambda: seen.append(chamber.temperature_C()) or seen[-1] >= 24.95)
+        assert wait_until(lambda: lag.clock.advance(0.05) or seen.append(chamber.temperature_C())
+                          or seen[-1] >= 24.95)
         assert all(b >= a - 0.05 for a, b in zip(seen, seen[1:])) and max(seen) <= 25.0 + 1e-6
         assert seen[0] < 24.9                                   # it was read on the way, not jumped
         chamber.set_setpoint_C(-40.5)
@@ -261,7 +279,8 @@ def test_f4t_word_order_high_first_is_configurable():
 
 @pytest.mark.parametrize("model", ["f4", "f4t"])
 def test_watlow_emulator_with_minimalmodbus_driver_lag_and_errors(model):
-    lag = FirstOrderLag(20.0, tau_s=30.0, time_scale=150.0)       # tau 0.2 s of wall time
+    clock = ManualClock()
+    lag = FirstOrderLag(20.0, tau_s=30.0, time_scale=150.0, clock=clock)   # tau 0.2 s of the test's clock
     with WatlowEmulator(lag, model=model, range_C=(-70.0, 180.0)) as em:
         chamber = open_chamber(em.config())
         try:
@@ -269,7 +288,7 @@ def test_watlow_emulator_with_minimalmodbus_driver_lag_and_errors(model):
             chamber.set_setpoint_C(60.0)
             first = chamber.temperature_C()
             assert 20.0 <= first < 59.0
-            assert wait_until(lambda: chamber.temperature_C() > 59.9, 5.0)
+            assert wait_until(lambda: clock.advance(0.05) or chamber.temperature_C() > 59.9)
             with pytest.raises(ChamberError, match="refused by the controller"):
                 chamber.set_setpoint_C(250.0)                # outside 602/603 (2774/2776): exception 3
             assert chamber.setpoint_C() == pytest.approx(60.0)
@@ -290,7 +309,8 @@ def test_watlow_emulator_with_minimalmodbus_driver_lag_and_errors(model):
 # -- Espec ASCII -------------------------------------------------------------------------
 @pytest.mark.parametrize("address", [None, 1])
 def test_espec_driver_against_emulator(address):
-    lag = FirstOrderLag(23.0, tau_s=30.0, time_scale=100.0)
+    clock = ManualClock()
+    lag = FirstOrderLag(23.0, tau_s=30.0, time_scale=100.0, clock=clock)
     with EspecEmulator(lag, address=address, upper_C=100.0, lower_C=-50.0, mode="STANDBY") as em:
         chamber = open_chamber(em.config())
         assert isinstance(chamber, EspecChamber)
@@ -300,7 +320,7 @@ def test_espec_driver_against_emulator(address):
             chamber.set_setpoint_C(25.0)
             assert chamber.mode() == "CONSTANT"             # started, so the set point takes effect
             assert chamber.setpoint_C() == 25.0 and chamber.limits_C() == (100.0, -50.0)
-            assert wait_until(lambda: chamber.temperature_C() >= 24.9, 5.0)
+            assert wait_until(lambda: clock.advance(0.05) or chamber.temperature_C() >= 24.9)
             mon = chamber.monitor()
             assert mon["mode"] == "CONSTANT" and mon["alarms"] == 0 and mon["humidity_pct"] is None
             with pytest.raises(EspecCommandError) as err:
