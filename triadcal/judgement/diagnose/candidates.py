@@ -159,8 +159,8 @@ def _fit_position_error(full, campaign, base: FitState, names, sigma, noise_know
     together; one common sigma for the three errors left a pattern in the scatter that the variance
     family found at the validation's 5"/2".)"""
     from ...estimation.flicker_noise import WhitenedProblem
-    from ...estimation.joint import levenberg_marquardt, scaled_covariance
-    from .fitting import _Subset
+    from ...estimation.joint import levenberg_marquardt
+    from .fitting import _Subset, whitened_state
 
     sub = _Subset(full, names, base.x_full)
     x = base.x_full[sub.cols].copy()
@@ -197,13 +197,7 @@ def _fit_position_error(full, campaign, base: FitState, names, sigma, noise_know
         whitening = BlockWhitening(V)
         sol = levenberg_marquardt(WhitenedProblem(sub, whitening), x, max_iter=60)
         x = sol.x
-    rw, Jw = sol.r, sol.J
-    chi2 = float(rw @ rw)
-    dof = rw.size - len(names)
-    s = 1.0 if noise_known else math.sqrt(chi2 / max(dof, 1))
-    Ld = whitening.diag().reshape(-1)
-    state = FitState(tuple(names), sub.embed(x), rw / s * Ld, Jw / s * Ld[:, None], scaled_covariance(Jw) * s * s,
-                     chi2, dof, s, sol.converged, var_scale=Ld ** 2, whiten=whitening.apply)
+    state = whitened_state(names, sub.embed(x), sol, whitening, noise_known)
     state.extra_params = {"position_error_sigma": {"value": math.sqrt(taus[0]), "unit": "arcsec"},
                           "position_error_wobble_sigma": {"value": math.sqrt(taus[1]), "unit": "arcsec"}}
     return state

@@ -101,6 +101,20 @@ def _fit(full: JointProblem, names, x_start: np.ndarray, noise_known: bool, scal
                     var_scale=None if scale is None else np.asarray(scale) ** 2)
 
 
+def whitened_state(names, x_full: np.ndarray, sol, whitening, noise_known: bool) -> FitState:
+    """The :class:`FitState` of a GLS fit (``sol``: residuals and Jacobian whitened by
+    ``whitening.apply``, whose factor's diagonal is ``whitening.diag()``): ``r = r_w diag(L)``,
+    ``var_scale = diag(L)^2``, so that ``r / sqrt(var_scale)`` are the whitened residuals and the
+    Gaussian log-likelihood of the sequential (Cholesky) decomposition is exact with ``-log diag(L)``."""
+    rw, Jw = sol.r, sol.J
+    chi2 = float(rw @ rw)
+    dof = rw.size - len(names)
+    s = 1.0 if noise_known else math.sqrt(chi2 / max(dof, 1))
+    Ld = np.asarray(whitening.diag(), float).reshape(-1)
+    return FitState(tuple(names), x_full, rw / s * Ld, Jw / s * Ld[:, None], scaled_covariance(Jw) * s * s, chi2, dof, s,
+                    sol.converged, var_scale=Ld ** 2, whiten=whitening.apply)
+
+
 def _chol(C):
     """A square root of a covariance (eigen-decomposition: tolerant of near-singular ones)."""
     w, V = np.linalg.eigh((C + C.T) / 2)

@@ -40,8 +40,8 @@ import numpy as np
 from scipy import stats
 
 from ...estimation.flicker_noise import AxisWhitening, WhitenedProblem, normalised_components, reml_tau
-from ...estimation.joint import levenberg_marquardt, scaled_covariance
-from .fitting import FitState, _chi2_logsf, _Subset
+from ...estimation.joint import levenberg_marquardt
+from .fitting import FitState, _chi2_logsf, _Subset, whitened_state
 from .results import Candidate
 
 ROUNDS = 3
@@ -107,12 +107,7 @@ def fit_flicker(full, campaign, base: FitState, names, sigma: np.ndarray) -> Fit
         sol = levenberg_marquardt(WhitenedProblem(sub, whitening), x, max_iter=60)
         x = sol.x
     x_full = sub.embed(x)
-    rw, Jw = sol.r, sol.J
-    Ld = whitening.diag().reshape(-1)
-    chi2 = float(rw @ rw)
-    dof = rw.size - len(names)
-    state = FitState(tuple(names), x_full, rw * Ld, Jw * Ld[:, None], scaled_covariance(Jw), chi2, dof, 1.0,
-                     sol.converged, var_scale=Ld ** 2, whiten=whitening.apply)
+    state = whitened_state(names, x_full, sol, whitening, True)
     K = np.array([abs(x_full[full.index[f"K_{a}"]]) for a in "xyz"])
     bf2 = float(tau[0])
     bf = math.sqrt(bf2)

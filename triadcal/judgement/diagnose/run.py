@@ -297,9 +297,9 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             r_after = ht.normal_scores(r_after, nu)
         st_for_slices = FitState(st.names, st.x_full, r_after, st.J / (np.sqrt(var_scale)[:, None]
                                  if var_scale is not None else 1.0), st.cov, st.chi2, st.dof, st.s, st.converged)
-        gen = generic_tests({f: st.whitened(B) for f, B in gbasis.items()}, r_after, st_for_slices.J,
-                            noise.known, st.dof)
         Q_after = _hat_q(st_for_slices.J)
+        gen = generic_tests({f: st.whitened(B) for f, B in gbasis.items()}, r_after, st_for_slices.J,
+                            noise.known, st.dof, Q_after)
         var_after = variance_test(r_after, np.sum(Q_after * Q_after, axis=1), vbasis)
         if var_after is not None:
             gen["variance"] = var_after
