@@ -109,7 +109,7 @@ def run(args) -> int:
         raise InputError("give --config (a ports file) or --instruments (an instruments file), not both")
     cfg = load_port_config(args.config) if args.config else load_instruments(args.instruments) \
         if args.instruments else {}
-    # [dmm] without [imu]: an analog unit read by a voltmeter (hardware.capture.capture_voltmeter)
+    # [dmm] without [imu]: an analog unit read by a voltmeter (hardware.voltmeter_capture.capture_voltmeter)
     dmm_cfg = dict(cfg["dmm"]) if "dmm" in cfg and "imu" not in cfg else None
     cfg = {k: dict(cfg.get(k, {})) for k in ("imu", "bench", "chamber")}
     for section, key, value in (("imu", "port", args.imu_port), ("imu", "protocol", args.imu_protocol),
@@ -186,8 +186,9 @@ def run(args) -> int:
 
 def _run_voltmeter(args, out, plan, cfg, dmm_cfg, settings) -> int:
     """``--instruments`` with ``[dmm]`` and no ``[imu]``: an analog unit, voltages from the meter(s),
-    temperatures from the chamber's PV (hardware.capture.capture_voltmeter)."""
-    from ..hardware.capture import CaptureError, capture_voltmeter, open_bench
+    temperatures from the chamber's PV (hardware.voltmeter_capture.capture_voltmeter)."""
+    from ..hardware.capture import CaptureError, open_bench
+    from ..hardware.voltmeter_capture import capture_voltmeter
     from ..hardware.drivers.bench import BenchError
     from ..hardware.drivers.chamber import open_chamber
     from ..hardware.drivers.dmm import DmmError, open_voltmeter

@@ -1,7 +1,7 @@
 """Power-law output noise: Allan variance, scatter of visit means, a flicker (1/f) generator.
 
 Pure functions (no I/O) shared by the capture's noise estimate (:mod:`triadcal.hardware.noise`),
-the emulator (:class:`triadcal.hardware.emulator.UnitPhysics`) and the tests. The noise of a
+the emulator (:class:`triadcal.hardware.emulator_physics.UnitPhysics`) and the tests. The noise of a
 raw output ``y(t)`` is the IEEE Std 952-1997 (Annex C) power-law model, one term per process:
 
 * white noise of intensity ``Q`` (output unit^2 s; velocity random walk): one-sided PSD
