@@ -48,3 +48,15 @@ def cli_reports(tmp_path_factory):
     from test_reports_render import make_reports
 
     return make_reports(tmp_path_factory.mktemp("reports"))
+
+
+# Tests that run emulated hardware on the wall clock (a capture through ptys, a dask cluster's start)
+# are marked `wallclock`: CI runs the slow statistical tests on two workers (pytest-xdist) and these
+# alone, one at a time, so that no other test competes with their clock (.ci/run).
+WALLCLOCK_FILES = ("test_hardware_", "test_instruments_end_to_end.py", "test_ramp_capture.py", "test_fleet.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.path.name.startswith(WALLCLOCK_FILES):
+            item.add_marker(pytest.mark.wallclock)

@@ -117,6 +117,8 @@ NOT_REDUCED_WITH = {"capture": "--ramp"}
 # tests/test_certificate.py and tests/test_compare.py (CI-10: the quick suite took 656 s)
 SLOW_SUBCOMMANDS = {"validate", "validate-diagnosis", "capture", "emulate", "thermal-cycle", "batch", "plan",
                     "certificate", "compare"}
+# commands that run emulated hardware or a dask cluster on the wall clock (tests/conftest.py)
+WALLCLOCK_SUBCOMMANDS = {"capture", "emulate", "batch"}
 # exit codes other than 0 that a doc implies, keyed by (doc, command's first words)
 EXPECTED_EXIT: dict = {}
 # commands not run, by their first words, each with the reason
@@ -217,6 +219,8 @@ def _blocks():
             run = [c for c in cmds if _is_triadcal(c) and _not_run_reason(c) is None]
             slow = any(len(c) > 1 and c[1] in SLOW_SUBCOMMANDS for c in run)
             marks = [pytest.mark.slow] if slow else []
+            if any(len(c) > 1 and c[1] in WALLCLOCK_SUBCOMMANDS for c in run):
+                marks.append(pytest.mark.wallclock)
             items.append(pytest.param(_rel(doc), line, cmds, marks=marks, id=f"{_rel(doc)}:{line}"))
     return items
 
