@@ -39,6 +39,7 @@ from scipy import linalg
 
 from ..errors import InputError
 from ..models.effects.flicker_noise import centred_covariance
+from .whitening import WhitenedProblem  # noqa: F401  (re-exported: written in whitening.py)
 
 
 def normalised_components(campaign, sigma: np.ndarray) -> list:
@@ -80,25 +81,19 @@ class AxisWhitening:
     def logdet(self) -> float:
         return float(sum(2.0 * np.sum(np.log(np.diag(L))) for L in self.L))
 
+    def casadi_apply(self, r):
+        """``L^-1`` applied to CasADi residuals ``r`` (3 x n, the outputs by visit): the whitened
+        residuals visit-major, as :meth:`apply` orders them."""
+        import casadi as ca
 
-class WhitenedProblem:
-    """A :class:`~triadcal.estimation.joint.JointProblem` (or anything with ``residuals`` and
-    ``residuals_and_jacobian``) whose normalised residuals and Jacobian are whitened by
-    ``whitening`` (GLS); ``raw`` is the problem itself, every other attribute is its own."""
-
-    def __init__(self, problem, whitening: AxisWhitening):
-        self.raw = problem
-        self.whitening = whitening
-
-    def __getattr__(self, name):
-        return getattr(self.raw, name)
-
-    def residuals_and_jacobian(self, x):
-        r, J = self.raw.residuals_and_jacobian(x)
-        return self.whitening.apply(r), self.whitening.apply(J)
-
-    def residuals(self, x):
-        return self.whitening.apply(self.raw.residuals(x))
+        rows = []
+        for a, L in enumerate(self.L):
+            # L_a^-1 in time order, as a matrix on the visits' own order
+            Linv = linalg.solve_triangular(L, np.eye(self.n), lower=True)
+            full = np.empty((self.n, self.n))
+            full[np.ix_(self.order, self.order)] = Linv
+            rows.append(ca.mtimes(ca.DM(full), r[a, :].T).T)
+        return ca.vec(ca.vertcat(*rows))
 
 
 def _orthobasis(X):
@@ -278,39 +273,9 @@ def flicker_from_residuals(campaign, effects: Sequence[str], *, per_axis: bool =
 
 def posterior_target(campaign, effects: Sequence[str], least_squares, whitening: AxisWhitening, priors=None,
                      reference_temperature_C: float = 20.0):
-    """A :class:`~triadcal.estimation.posterior.targets.ResidualTarget` of the joint model whose
-    residuals are whitened per output (``sample --effects ...,flicker_noise``): the likelihood is
-    the Gaussian of the full covariance ``diag(sigma^2) + B_f^2 C`` with ``B_f`` held at its REML
-    value (a plug-in, as ``position_error``'s variance). ``least_squares``: the GLS fit
-    ``(result, problem, solution)`` of :func:`~triadcal.estimation.joint.fit_joint`."""
-    import casadi as ca
+    """``sample --effects ...,flicker_noise``: the posterior of the residuals whitened per output,
+    ``B_f`` held at its REML value (:func:`triadcal.estimation.whitening.gls_posterior_target`)."""
+    from .whitening import gls_posterior_target
 
-    from ..models.model import Model
-    from .joint import parameter_unit, scaled_covariance
-    from .posterior.targets import ResidualTarget
-    from .priors import default_priors
-
-    ls, problem, sol = least_squares
-    raw = getattr(problem, "raw", problem)
-    model = Model(effects, reference_temperature_C)
-    pri = default_priors(model, overrides=priors)
-    names = tuple(raw.names)
-    x = ca.MX.sym("x", len(names))
-    w = raw._predict(x, ca.DM(raw.cov_matrix), raw.gravity_g)              # 3 x n
-    r = (ca.DM(campaign.w.T) - w) / ca.DM(raw.sigma.T)
-    n = campaign.n_visits
-    rows = []
-    for a in range(3):
-        # L_a^-1 in time order, as a matrix on the visits' own order
-        Linv = linalg.solve_triangular(whitening.L[a], np.eye(n), lower=True)
-        full = np.empty((n, n))
-        full[np.ix_(whitening.order, whitening.order)] = Linv
-        rows.append(ca.mtimes(ca.DM(full), r[a, :].T).T)
-    rw = ca.vec(ca.vertcat(*rows))                                          # visit-major, as the fit
-    f = ca.Function("flicker_whitened_residuals", [x], [rw])
-    sigma = (raw.sigma * whitening.diag()).reshape(-1)                      # one-step prediction SDs
-    return ResidualTarget(
-        name="joint_flicker_gls", residual=f, data=(), names=names,
-        units=tuple(parameter_unit(model, nm, campaign.output_unit) for nm in names),
-        priors={nm: pri[nm] for nm in names}, x_ls=np.asarray(sol.x, float), cov_ls=scaled_covariance(sol.J),
-        sigma=sigma, unit_serial=str(campaign.units[0]))
+    return gls_posterior_target(campaign, effects, least_squares, whitening, priors, reference_temperature_C,
+                                name="joint_flicker_gls")

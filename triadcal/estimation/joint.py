@@ -86,6 +86,29 @@ def with_bench_errors(campaign: Campaign, model: Model, noise: "NoiseSource",
                        "arcsec) as variance components")
 
 
+def _bench_whitening(campaign: Campaign, model: Model, noise: "NoiseSource", bench: BenchErrors, whitening,
+                     notes: list):
+    """The whitening of the fit when the bench's errors correlate a visit's outputs (oblique poses:
+    :func:`triadcal.estimation.whitening.bench_whitening`, at the start values as
+    :func:`with_bench_errors`); ``whitening`` itself when they do not, or when another whitening
+    (flicker_noise's) is given, with a note."""
+    from .whitening import bench_whitening
+
+    start = start_values(campaign, model)
+    p = model.to_internal({n: start.get(n, model.spec[n].nominal) for n in model.names})
+    bw = bench_whitening(model, p, campaign, noise_of(campaign).sigma, noise.sigma,
+                         bench.sigma_position_arcsec, bench.sigma_wobble_arcsec)
+    if bw is None:
+        return whitening
+    if whitening is not None:
+        notes.append("the bench's errors correlate the outputs of the oblique poses, but with flicker_noise's "
+                     "whitening only their variances are modelled (diagonal)")
+        return whitening
+    notes.append("the bench's errors move a visit's outputs together on the oblique poses: generalised least "
+                 "squares with the full 3 x 3 covariance of each visit's outputs")
+    return bw
+
+
 def noise_of(campaign: Campaign) -> NoiseSource:
     """Weights of the fit: ``u_w_*`` (the data's own noise) or ``sd_*/sqrt(n_samples)`` where
     present (:meth:`Campaign.output_sigma`), else ``sqrt(Q/tau)`` from a
@@ -299,7 +322,10 @@ class Solution:
 
 def scaled_covariance(J: np.ndarray) -> np.ndarray:
     """``(J^T J)^-1`` computed on unit-norm columns (parameters differ by 10 orders of
-    magnitude), pseudo-inverse for a rank-deficient ``J``."""
+    magnitude), pseudo-inverse for a rank-deficient ``J``; NaN where ``J`` is not finite (a solver
+    that ended where the model is not defined: the answer gates then refuse the result)."""
+    if not np.all(np.isfinite(J)):
+        return np.full((J.shape[1], J.shape[1]), np.nan)
     d = np.linalg.norm(J, axis=0)
     d[d == 0] = 1.0
     return np.linalg.pinv((J / d).T @ (J / d)) / np.outer(d, d)
@@ -401,6 +427,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     model = Model(effects, reference_temperature_C)
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     notes = []
+    if bench_errors is not None:
+        whitening = _bench_whitening(campaign, model, noise, bench_errors, whitening, notes)
     if bench_errors is None and not systematics:
         notes.append("uncertainties are Type A only: the bench's own errors (positioning, wobble) are not in "
                      "them; give them with --lab LAB.toml ([bench] sigma_position_arcsec, sigma_wobble_arcsec)")
@@ -436,7 +464,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
             "a fit needs more observations than parameters (use a full campaign, or fewer --effects)")
     problem = JointProblem(campaign, model, noise.sigma, fixed, output_map=output_map)
     if whitening is not None:
-        from .flicker_noise import WhitenedProblem
+        from .whitening import WhitenedProblem
 
         problem = WhitenedProblem(problem, whitening)
     x0 = np.array([start[n] for n in problem.names])

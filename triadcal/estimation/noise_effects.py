@@ -3,21 +3,20 @@
 away from its refit).
 
 ``position_error`` is a variance component, not a mean term: the bench's random positioning and
-wobble errors add ``sigma_1^2 c_i`` to the variance of each mean output, with ``c_i`` the
-sensitivity of eq. 4 of the seed paper
-(:func:`triadcal.models.effects.position_error.bench_variance` per arcsec^2, wobble at
-``wobble_ratio`` of the positioning error). ``sigma_1`` is estimated from the residuals by
-restricted maximum likelihood (REML, Patterson & Thompson 1971) in its usual linearised form:
-with ``v_i = s_i^2 + tau c_i`` (``s_i`` the output noise of the data, ``tau = sigma_1^2``) and
-``h_i`` the leverage of observation ``i`` in the weighted fit, the REML score equation is
-
-    sum_i c_i (r_i^2 - (1 - h_i) v_i) / v_i^2 = 0,
-
-solved for ``tau >= 0``, alternating with the refit of the mean on the new weights. Its standard
-uncertainty is from the expected information ``I(tau) = 1/2 sum_i (1 - h_i) c_i^2 / v_i^2``;
-``u(sigma_1) = u(tau) / (2 sigma_1)`` (delta method). The result is the lab file's bench errors
-with the source "estimated from the residuals": a residual misfit of the mean model is absorbed
-into it, which is why the diagnosis lets a noise candidate win only when no structure is left.
+wobble errors add ``tau C_i`` to the covariance of visit ``i``'s three mean outputs, with ``C_i`` the
+3 x 3 block of eq. 4 of the seed paper per arcsec^2 of positioning error
+(:func:`triadcal.models.effects.position_error.covariance_blocks`, wobble at ``wobble_ratio`` of
+the positioning error; diagonal when gravity lies along one sensing axis, not on oblique poses) and
+``tau = sigma_1^2``. ``tau`` is estimated by restricted maximum likelihood (REML, Patterson &
+Thompson 1971) of the linearised problem (:func:`reml_block_component`; with diagonal blocks it is
+the score equation ``sum_i c_i (r_i^2 - (1 - h_i) v_i) / v_i^2 = 0`` of
+:func:`reml_variance_component`, ``v_i = s_i^2 + tau c_i`` and ``h_i`` the leverages of the weighted
+fit), alternating with the refit of the mean on the new covariance (GLS on oblique poses,
+:func:`triadcal.estimation.whitening.bench_whitening`). Its standard uncertainty is from the expected
+information, ``u(sigma_1) = u(tau) / (2 sigma_1)`` (delta method). The result is the lab file's
+bench errors with the source "estimated from the residuals": a residual misfit of the mean model is
+absorbed into it, which is why the diagnosis lets a noise candidate win only when no structure is
+left. (The diagnosis's refit estimates the two variances, bench axes and wobble, separately.)
 
 ``heavy_tails`` is the Student-t likelihood of the fit (``loss = "student_t"``), its dof ``nu``
 chosen by profile likelihood of the unit-variance Student-t
@@ -71,6 +70,52 @@ def reml_variance_component(r: np.ndarray, s2: np.ndarray, c: np.ndarray, h: np.
     return tau, (1.0 / math.sqrt(info) if info > 0 else math.inf)
 
 
+def reml_block_component(r: np.ndarray, X: np.ndarray, G: np.ndarray) -> tuple[float, float]:
+    """``(tau, u(tau))``: the REML estimate of ``tau >= 0`` in ``V = I + tau G`` with ``G`` block-diagonal
+    over visits, (n, 3, 3), for the linearised problem of residuals ``r`` (3n,) and Jacobian ``X``
+    (3n, p), both normalised by the known noise. With ``P = V^-1 - V^-1 X (X' V^-1 X)^-1 X' V^-1`` the
+    score and the expected information are (Patterson & Thompson 1971; Harville 1977, eqs. 4.3, 4.5)
+
+        U = 1/2 (r' P G P r - tr(P G)),    I = 1/2 tr(P G P G),
+
+    computed in the space whitened by ``V``'s blocks (``M = L^-1 G L^-T``, ``Q`` an orthonormal basis of
+    the whitened ``X``, ``e`` the whitened residual off ``Q``: ``r' P G P r = e' M e``,
+    ``tr(P G) = tr M - tr(Q' M Q)``, ``tr(P G P G) = tr M^2 - 2 tr(Q' M^2 Q) + ||Q' M Q||^2``); ``U = 0``
+    solved by Brent's method. With diagonal blocks it is :func:`reml_variance_component` with the
+    leverages of the weighted fit."""
+    from .flicker_noise import _orthobasis
+    from .whitening import BlockWhitening
+
+    G = np.asarray(G, float)
+    n = G.shape[0]
+    eye = np.eye(3)[None]
+
+    def pieces(tau):
+        W = BlockWhitening(eye + tau * G)
+        Q, _ = _orthobasis(W.apply(X))
+        rt = W.apply(r)
+        e = rt - Q @ (Q.T @ rt)
+        M = np.linalg.solve(W.L, np.swapaxes(np.linalg.solve(W.L, G), 1, 2))      # L^-1 G L^-T (symmetric)
+        Q3, e3 = Q.reshape(n, 3, -1), e.reshape(n, 3)
+        QMQ = np.einsum("nak,nab,nbl->kl", Q3, M, Q3)
+        score = 0.5 * (float(np.einsum("na,nab,nb->", e3, M, e3)) - float(np.trace(M, axis1=1, axis2=2).sum())
+                       + float(np.trace(QMQ)))
+        M2 = M @ M
+        info = 0.5 * (float(np.trace(M2, axis1=1, axis2=2).sum())
+                      - 2.0 * float(np.einsum("nak,nab,nbk->", Q3, M2, Q3)) + float(np.sum(QMQ * QMQ)))
+        return score, info
+
+    if pieces(0.0)[0] <= 0.0:
+        tau = 0.0
+    else:
+        hi = 1.0 / max(float(np.max(np.trace(G, axis1=1, axis2=2))), 1e-300)
+        while pieces(hi)[0] > 0.0:
+            hi *= 10.0
+        tau = optimize.brentq(lambda t: pieces(t)[0], 0.0, hi, xtol=1e-12 * hi, rtol=1e-10)
+    info = pieces(tau)[1]
+    return tau, (1.0 / math.sqrt(info) if info > 0 else math.inf)
+
+
 @dataclass(frozen=True)
 class PositionErrorEstimate:
     """sigma_1 (arcsec) estimated from the residuals, with its standard uncertainty."""
@@ -98,7 +143,7 @@ def position_error_from_residuals(campaign, effects: Sequence[str], *, reference
                                   **fit_kw) -> PositionErrorEstimate:
     """The bench's positioning error sigma_1 by REML from the residuals of the joint fit of
     ``effects`` (module docstring); needs the output noise in the data (sd_*/u_w_* or Q_V2s)."""
-    from ..models.effects.position_error import bench_variance
+    from .whitening import bench_blocks
 
     noise = noise_of(campaign)
     if not noise.known:
@@ -106,18 +151,17 @@ def position_error_from_residuals(campaign, effects: Sequence[str], *, reference
                          "but the data give no output noise (no sd_*/n_samples or u_w_* columns, no Q_V2s "
                          "metadata): the two cannot be told apart")
     model = Model(effects, reference_temperature_C)
-    s2 = noise.sigma ** 2
+    s = noise.sigma
     s1, u1, be, done = 0.0, math.inf, None, 0
     for done in range(1, rounds + 1):
         result, problem, sol = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
                                          bench_errors=be, return_problem=True, **fit_kw)
-        r = sol.r.reshape(-1, 3) * problem.sigma
-        J = sol.J
-        A = np.linalg.pinv(J.T @ J)
-        h = np.einsum("ij,jk,ik->i", J, A, J).reshape(-1, 3)
+        raw = getattr(problem, "raw", problem)       # not whitened (the fit is GLS on oblique poses)
+        r, X = raw.residuals_and_jacobian(sol.x)
+        scale = (np.asarray(raw.sigma, float) / s).reshape(-1)      # normalised by the data's noise only
         p = model.to_internal(_all_values(result, model))
-        c = bench_variance(model, p, campaign.covariates(), campaign.gravity_g, 1.0, wobble_ratio)
-        tau, u_tau = reml_variance_component(r, s2, c, h)
+        G = bench_blocks(model, p, campaign, s, (1.0, 1.0, wobble_ratio ** 2))
+        tau, u_tau = reml_block_component(r * scale, X * scale[:, None], G)
         new = math.sqrt(tau)
         u1 = u_tau / (2.0 * new) if new > 0 else math.sqrt(u_tau)
         converged = abs(new - s1) <= 1e-3 * max(new, 1e-3)

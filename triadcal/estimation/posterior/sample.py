@@ -128,6 +128,8 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
                                   return_problem=True, gates=gates, bench_errors=bench_errors,
                                   systematics=systematics, loss=noise_fx["loss"], nu=noise_fx["nu"])
     ls, ls_problem, ls_sol = least_squares
+    # the bench's errors correlate the outputs of oblique poses: the fit was GLS (joint._bench_whitening)
+    whitening = getattr(ls_problem, "whitening", None)
     model = Model(effects, reference_temperature_C)
     pri = default_priors(model, overrides=priors)
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
@@ -152,6 +154,12 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
                      "parameters given them, without their uncertainty")
     problem = JointProblem(campaign, model, sigma,
                            output_map=None if quantisation is None else output_map(*quantisation))
+    if whitening is not None:
+        from ..whitening import WhitenedProblem
+
+        problem = WhitenedProblem(problem, whitening)
+        notes.append("the bench's errors: the likelihood has the full 3 x 3 covariance of each visit's outputs "
+                     "(oblique poses), as the least squares")
     ls_values = dict(zip(ls_problem.names, ls_sol.x))
     x_start = np.array([ls_values.get(n, pri[n].mean) for n in model.names])
     x_map, C = laplace_approximation(problem, pri, x_start)
@@ -159,7 +167,8 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     d = len(model.names)
     W = int(n_walkers or 2 * d)
     W += W % 2
-    target = LogPosterior(campaign, model, sigma, pri, x_map, Lc, block=W // 2, nu=nu, quantisation=quantisation)
+    target = LogPosterior(campaign, model, sigma, pri, x_map, Lc, block=W // 2, nu=nu, quantisation=quantisation,
+                          whitening=whitening)
     run = run_sampler(target, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
                       seed=seed, moves=moves, progress=progress, max_saved_draws=max_saved_draws)
     total_seconds = time.perf_counter() - t_start
@@ -195,16 +204,22 @@ def _held_quantisation(campaign, ls):
 def _sample_flicker(campaign, effects, noise_fx, added, kw):
     """``sample`` with ``flicker_noise``: the posterior of the whitened (GLS) residuals, B_f held at
     its REML value (:func:`triadcal.estimation.flicker_noise.posterior_target`)."""
-    from ..flicker_noise import posterior_target
-
     ls = fit_joint(campaign, effects, reference_temperature_C=kw["reference_temperature_C"], return_problem=True,
                    gates=kw["gates"], bench_errors=noise_fx["bench_errors"], systematics=kw["systematics"],
                    whitening=noise_fx["whitening"])
-    target = posterior_target(campaign, effects, ls, noise_fx["whitening"], kw["priors"],
-                              kw["reference_temperature_C"])
-    notes = ([added] if added else []) + noise_fx["notes"] + [
+    return _sample_gls(campaign, effects, ls, noise_fx["whitening"], noise_fx, added, kw, [
         "flicker_noise: the likelihood has the full covariance of the visit means (residuals whitened per output), "
-        "B_f held at its REML value (plug-in)"]
+        "B_f held at its REML value (plug-in)"], name="joint_flicker_gls")
+
+
+def _sample_gls(campaign, effects, ls, whitening, noise_fx, added, kw, gls_notes, name="joint_gls"):
+    """The posterior of the residuals whitened as the least-squares fit ``ls`` whitened them
+    (:func:`triadcal.estimation.whitening.gls_posterior_target`)."""
+    from ..whitening import gls_posterior_target
+
+    target = gls_posterior_target(campaign, effects, ls, whitening, kw["priors"], kw["reference_temperature_C"],
+                                  name=name)
+    notes = ([added] if added else []) + noise_fx["notes"] + list(gls_notes)
     result, run = sample_target(target, ess=kw["ess"], rhat_max=kw["rhat_max"], tau_factor=kw["tau_factor"],
                                 max_steps=kw["max_steps"], n_walkers=kw["n_walkers"], seed=kw["seed"],
                                 moves=kw["moves"], progress=kw["progress"], posterior_path=kw["posterior_path"],

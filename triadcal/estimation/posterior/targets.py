@@ -24,7 +24,8 @@ from ..result import Z95
 from .compile import _compile
 
 
-def _visit_functions(model: Model, nu: float = math.inf, quantisation: Optional[tuple] = None):
+def _visit_functions(model: Model, nu: float = math.inf, quantisation: Optional[tuple] = None,
+                     whitened: bool = False):
     """Per-visit pointwise ``-1/2 r^2`` (3 axes) of eq. 1, symbolic in the parameters
     (reporting units) and the visit's covariates, observation and inverse sigma; with a finite
     ``nu`` the unit-variance Student-t kernel ``-(nu+1)/2 log(1 + r^2 / ((nu-2)))`` instead
@@ -32,7 +33,10 @@ def _visit_functions(model: Model, nu: float = math.inf, quantisation: Optional[
     ``quantisation``: None, or the structure ``(form, count)`` of the expected quantisation error
     (:func:`triadcal.models.effects.quantisation.form_of`): the model outputs are then
     ``W + e(W; q, sigma_sample)`` (:func:`~triadcal.models.effects.quantisation.error_expression`),
-    and the function takes two more inputs, the visit's per-sample SDs (3) and the LSB q."""
+    and the function takes two more inputs, the visit's per-sample SDs (3) and the LSB q.
+    ``whitened``: the visit's normalised residuals are multiplied by ``L_i^-1`` (one more input, 9
+    numbers, column-major), the inverse Cholesky factor of their 3 x 3 covariance (the bench's errors
+    on oblique poses, :func:`triadcal.estimation.whitening.bench_whitening`)."""
     npar = len(model.names)
     x = ca.SX.sym("x", npar)
     c = ca.SX.sym("c", len(COVARIATES))
@@ -51,6 +55,10 @@ def _visit_functions(model: Model, nu: float = math.inf, quantisation: Optional[
         w = w + error_expression(w, q, sq, *quantisation)
         inputs += [sq, q]
     r = (wo - w) * isg
+    if whitened:
+        lw = ca.SX.sym("whiten", 9)
+        inputs.append(lw)
+        r = ca.mtimes(ca.reshape(lw, 3, 3), r)
     if math.isfinite(nu):
         return ca.Function("visit_loglik", inputs, [-0.5 * (nu + 1.0) * ca.log1p(r * r / (nu - 2.0))])
     return ca.Function("visit_loglik", inputs, [-0.5 * r * r])
@@ -70,7 +78,7 @@ class LogPosterior:
 
     def __init__(self, campaign: Campaign, model: Model, sigma: np.ndarray, priors: Mapping[str, Prior],
                  x0: np.ndarray, L: np.ndarray, block: int, nu: float = math.inf,
-                 quantisation: Optional[tuple] = None):
+                 quantisation: Optional[tuple] = None, whitening=None):
         from ...models.effects.heavy_tails import logpdf
 
         self.model = model
@@ -96,8 +104,15 @@ class LogPosterior:
             self.quantisation_form = form_of(q, s_sample)
             self.args += [ca.DM(np.ascontiguousarray(s_sample.T)), q]
         self.log_norm = float(logpdf(0.0, self.nu)) - np.log(self.sigma)    # (n, 3)
+        self.whitened = whitening is not None
+        if self.whitened:
+            # per visit L_i^-1 (column-major, 9 x n); the density of the whitened residual of output a is
+            # conditional on the visit's earlier outputs, its scale sigma_a L_i,aa
+            Linv = np.linalg.inv(whitening.L)
+            self.args += [ca.DM(np.ascontiguousarray(np.swapaxes(Linv, 1, 2).reshape(self.n, 9).T))]
+            self.log_norm = self.log_norm - np.log(whitening.diag())
         self._key = (model.effect_names, model.reference_temperature_C, self.n, self.block, self.nu,
-                     self.quantisation_form)
+                     self.quantisation_form, self.whitened)
         self.f_lp, self.compiled = _compile(("lp",) + self._key, self._build_lp)
         self._f_pw = None
         self.evaluations = 0
@@ -109,10 +124,12 @@ class LogPosterior:
                 ca.MX.sym("w_obs", 3, n), ca.MX.sym("inv_sigma", 3, n), ca.MX.sym("mu", d), ca.MX.sym("inv_sd", d)]
         # quantisation: the per-sample SDs (3 x n) and the LSB q, after the others
         extra = [ca.MX.sym("sigma_sample", 3, n), ca.MX.sym("q")] if self.quantisation_form is not None else []
+        if self.whitened:
+            extra.append(ca.MX.sym("whiten", 9, n))
         return Z, syms, extra
 
     def _build_lp(self) -> ca.Function:
-        visit = _visit_functions(self.model, self.nu, self.quantisation_form)
+        visit = _visit_functions(self.model, self.nu, self.quantisation_form, self.whitened)
         Z, (x0, L, C, g, W, IS, mu, isd), extra = self._symbols()
         xs = ca.MX.sym("x", self.d)
         ll = ca.sum2(ca.sum1(visit.map(self.n, "serial")(xs, C, g, W, IS, *extra)))
@@ -123,7 +140,7 @@ class LogPosterior:
         return ca.Function("triadcal_logpost", [Z, x0, L, C, g, W, IS, mu, isd, *extra], [out])
 
     def _build_pw(self) -> ca.Function:
-        visit = _visit_functions(self.model, self.nu, self.quantisation_form)
+        visit = _visit_functions(self.model, self.nu, self.quantisation_form, self.whitened)
         Z, (x0, L, C, g, W, IS, mu, isd), extra = self._symbols()
         xs = ca.MX.sym("x", self.d)
         pw = ca.vec(visit.map(self.n, "serial")(xs, C, g, W, IS, *extra))    # visit-major: 3 per visit

@@ -118,39 +118,11 @@ def _loglik_total(state: FitState, var_scale=None, nu=math.inf) -> float:
     return float(np.sum(_loglik_pointwise(state.r, var_scale, nu))) - state.r.size * math.log(state.s)
 
 
-def _pe_blocks(full: JointProblem, campaign: Campaign, x_full, sigma, weights=(1.0, 1.0, 1.0)) -> np.ndarray:
-    """Covariance of each visit's three normalised residuals per arcsec^2 of positioning error,
-    (n, 3, 3) (``position_error.covariance_blocks`` with ``weights`` for the errors of axis 1,
-    axis 2 and the wobble, divided by sigma_a sigma_b)."""
-    model = full.model
-    p = model.to_internal(dict(zip(model.names, x_full)))
-    C = pe.covariance_blocks(model, p, campaign.covariates(), campaign.gravity_g, weights=weights)
-    sig = np.broadcast_to(np.asarray(sigma, float), (C.shape[0], 3))
-    return C / (sig[:, :, None] * sig[:, None, :])
-
-
-class BlockWhitening:
-    """``L_i^-1`` per visit of ``V_i = L_i L_i^T`` (3 x 3, normalised units), applied to vectors or
-    matrices whose rows are visit-major (visit i, output a at row 3 i + a)."""
-
-    def __init__(self, V: np.ndarray):
-        self.L = np.linalg.cholesky(V)
-        self.n = V.shape[0]
-
-    def diag(self) -> np.ndarray:
-        return np.diagonal(self.L, axis1=1, axis2=2).copy()
-
-    def apply(self, x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, float)
-        shaped = x.reshape(self.n, 3, -1)
-        return np.linalg.solve(self.L, shaped).reshape(x.shape)
-
-
 def _fit_position_error(full, campaign, base: FitState, names, sigma, noise_known):
     """ML of the positioning-error variances -- the two bench axes' ``sigma_1^2`` and the wobble's
     ``sigma_2^2`` (eq. 4) -- and of the noise scale when it is estimated, with the full 3 x 3
     covariance of each visit's outputs, ``V_i = s^2 I + sigma_1^2 C1_i + sigma_2^2 C2_i`` (``C1``, ``C2``
-    from :func:`_pe_blocks`), alternating with the GLS refit of the mean (3 rounds).
+    from :func:`~triadcal.estimation.whitening.bench_blocks`), alternating with the GLS refit of the mean (3 rounds).
 
     The state holds the whitened residuals as flicker's does (``r = L^-1 r_raw * diag(L)``,
     ``var_scale = diag(L)^2``), so that the Gaussian log-likelihood of ``r / sqrt(var_scale)`` with
@@ -158,8 +130,8 @@ def _fit_position_error(full, campaign, base: FitState, names, sigma, noise_know
     diagonal variance made those tests anti-conservative: one bench error moves a visit's outputs
     together; one common sigma for the three errors left a pattern in the scatter that the variance
     family found at the validation's 5"/2".)"""
-    from ...estimation.flicker_noise import WhitenedProblem
     from ...estimation.joint import levenberg_marquardt
+    from ...estimation.whitening import BlockWhitening, WhitenedProblem, bench_blocks
     from .fitting import _Subset, whitened_state
 
     sub = _Subset(full, names, base.x_full)
@@ -167,8 +139,9 @@ def _fit_position_error(full, campaign, base: FitState, names, sigma, noise_know
     taus, log_s2, sol, whitening = np.array([1e-4, 1e-4]), 2 * math.log(base.s), None, None
     eye = np.eye(3)[None]
     for _ in range(3):
-        C1 = _pe_blocks(full, campaign, sub.embed(x), sigma, (1.0, 1.0, 0.0))
-        C2 = _pe_blocks(full, campaign, sub.embed(x), sigma, (0.0, 0.0, 1.0))
+        p_int = full.model.to_internal(dict(zip(full.model.names, sub.embed(x))))
+        C1 = bench_blocks(full.model, p_int, campaign, sigma, (1.0, 1.0, 0.0))
+        C2 = bench_blocks(full.model, p_int, campaign, sigma, (0.0, 0.0, 1.0))
         r_raw = full.residuals(sub.embed(x)).reshape(-1, 3)
 
         def nll(theta):

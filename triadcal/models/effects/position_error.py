@@ -87,7 +87,8 @@ def bench_variance(model, p, cov, gravity_g, sigma_position_arcsec: float, sigma
 
         var_b(W) = sigma_1^2 [(dW/de_1)^2 + (dW/de_2)^2] + sigma_2^2 (dW/de_w)^2
 
-    The errors act through a rotation of gravity, to first order on one output each, so the
-    per-visit covariance across outputs is taken as diagonal (docs/model.md)."""
+    The diagonal of :func:`covariance_blocks`: on a pose with gravity along one sensing axis each
+    error moves one output and the blocks are diagonal; on an oblique pose they are not, and the
+    fit whitens with the full blocks (:func:`triadcal.estimation.whitening.bench_whitening`)."""
     s1, s2 = float(sigma_position_arcsec), float(sigma_wobble_arcsec)
     return sensitivity_arcsec2(model, p, cov, gravity_g, weights=(s1 * s1, s1 * s1, s2 * s2))
