@@ -1,0 +1,166 @@
+"""The noise of the mean outputs, the weights of every fit: the data's own noise (:func:`noise_of`)
+plus the bench's random positioning and wobble errors (seed paper, eq. 4) stated by the lab
+(:class:`BenchErrors`, :func:`with_bench_errors`) or estimated from the plan's replicates
+(:func:`bench_errors_from_replicates`). On oblique poses the bench's errors correlate a visit's
+outputs and the fit whitens by the full 3 x 3 blocks (:func:`_bench_whitening`,
+:mod:`triadcal.estimation.whitening`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from ..errors import InputError
+from ..models.campaign import Campaign
+from ..models.model import Model
+
+
+def _start_internal(campaign: Campaign, model: Model) -> np.ndarray:
+    """The model's parameters at the fit's start values (internal units): the bench's sensitivities
+    depend on K and the angles only at second order."""
+    from .joint import start_values
+
+    start = start_values(campaign, model)
+    return model.to_internal({n: start.get(n, model.spec[n].nominal) for n in model.names})
+
+
+@dataclass
+class NoiseSource:
+    """Standard deviation of each mean output and where it came from."""
+
+    sigma: np.ndarray          # (n, 3), output unit
+    known: bool                # True: from the data (sd_*/n or Q); False: relative weights only
+    description: str
+
+
+@dataclass(frozen=True)
+class BenchErrors:
+    """The bench's random errors per visit, stated by the lab (r.m.s., arcsec): positioning of
+    each axis (sigma_1 of eq. 4) and wobble of axis 1 (sigma_2)."""
+
+    sigma_position_arcsec: float
+    sigma_wobble_arcsec: float
+    source: str = "lab file"
+
+
+def with_bench_errors(campaign: Campaign, model: Model, noise: "NoiseSource",
+                      bench: Optional[BenchErrors]) -> "NoiseSource":
+    """The noise of each mean output with the bench's random errors added as variance components
+    (:func:`triadcal.models.effects.position_error.bench_variance`, evaluated at the start
+    values: the sensitivities depend on K and the angles only at second order). The output
+    noise must be known (sd_* or Q_V2s): an absolute bench variance cannot be added to relative
+    weights."""
+    if bench is None:
+        return noise
+    if bench.sigma_position_arcsec < 0 or bench.sigma_wobble_arcsec < 0:
+        raise InputError("the bench's positioning and wobble SDs must be >= 0 arcsec")
+    if not noise.known:
+        raise InputError(f"{campaign.source or 'campaign'}: the bench's errors ({bench.source}) add to a known "
+                         "output noise, but the data give none (no sd_*/n_samples columns, no Q_V2s metadata)")
+    from ..models.effects.position_error import bench_variance
+
+    p = _start_internal(campaign, model)
+    var_b = bench_variance(model, p, campaign.covariates(), campaign.gravity_g,
+                           bench.sigma_position_arcsec, bench.sigma_wobble_arcsec)
+    return NoiseSource(np.sqrt(noise.sigma ** 2 + var_b), True,
+                       f"{noise.description}, plus the bench's random errors per visit ({bench.source}: "
+                       f"positioning {bench.sigma_position_arcsec:g} arcsec, wobble {bench.sigma_wobble_arcsec:g} "
+                       "arcsec) as variance components")
+
+
+def _bench_whitening(campaign: Campaign, model: Model, noise: "NoiseSource", bench: BenchErrors, whitening,
+                     notes: list):
+    """The whitening of the fit when the bench's errors correlate a visit's outputs (oblique poses:
+    :func:`triadcal.estimation.whitening.bench_whitening`, at the start values as
+    :func:`with_bench_errors`); ``whitening`` itself when they do not, or when another whitening
+    (flicker_noise's) is given, with a note."""
+    from .whitening import bench_whitening
+
+    p = _start_internal(campaign, model)
+    bw = bench_whitening(model, p, campaign, noise_of(campaign).sigma, noise.sigma,
+                         bench.sigma_position_arcsec, bench.sigma_wobble_arcsec)
+    if bw is None:
+        return whitening
+    if whitening is not None:
+        notes.append("the bench's errors correlate the outputs of the oblique poses, but with flicker_noise's "
+                     "whitening only their variances are modelled (diagonal)")
+        return whitening
+    notes.append("the bench's errors move a visit's outputs together on the oblique poses: generalised least "
+                 "squares with the full 3 x 3 covariance of each visit's outputs")
+    return bw
+
+
+def noise_of(campaign: Campaign) -> NoiseSource:
+    """Weights of the fit: ``u_w_*`` (the data's own noise) or ``sd_*/sqrt(n_samples)`` where
+    present (:meth:`Campaign.output_sigma`), else ``sqrt(Q/tau)`` from a
+    ``Q_V2s`` metadata line, else ``1/sqrt(tau)`` relative weights with the scale estimated."""
+    s = campaign.output_sigma()
+    why = ""
+    if s is not None:
+        if np.all(s > 0):
+            return NoiseSource(s, True, campaign.output_sigma_method())
+        why = "; sd_* is zero in some visits, so it cannot weight the fit"
+    elif "Q_V2s" in campaign.metadata and float(campaign.metadata["Q_V2s"]) > 0:
+        Q = float(campaign.metadata["Q_V2s"])
+        return NoiseSource(np.repeat(np.sqrt(Q / campaign.tau_s)[:, None], 3, axis=1), True,
+                           f"white noise Q = {Q:g} (output unit)^2 s from the file's metadata, sqrt(Q/tau_s)")
+    return NoiseSource(np.repeat((1.0 / np.sqrt(campaign.tau_s))[:, None], 3, axis=1), False,
+                       "estimated from the residuals (weights 1/sqrt(tau_s))" + why)
+
+
+
+#: the paper's example ratio of the wobble to the positioning error (eq. 4: 2" / 5"), used when
+#: the bench's errors are estimated from replicates and the lab states no wobble of its own
+WOBBLE_TO_POSITION = 0.4
+
+
+def replicate_groups(campaign: Campaign) -> list:
+    """Visits that repeat one bench position at one setpoint on one branch and cycle (same axis
+    angles): index arrays of the groups with at least two visits."""
+    keys = {}
+    for i, k in enumerate(zip(np.round(campaign.axis1_deg, 6), np.round(campaign.axis2_deg, 6),
+                              campaign.setpoint_C, campaign.direction, campaign.cycle)):
+        keys.setdefault(k, []).append(i)
+    return [np.array(v) for v in keys.values() if len(v) >= 2]
+
+
+def bench_errors_from_replicates(campaign: Campaign, model: Model, wobble_ratio: float = WOBBLE_TO_POSITION
+                                 ) -> BenchErrors:
+    """The bench's random positioning error estimated from the plan's replicates (method of
+    moments): within a group of visits of one position at one setpoint, the outputs scatter by
+    the output noise plus the bench's errors, ``var(W_a) = s_a^2 + sigma_1^2 c_a`` with ``c_a``
+    the sensitivity of eq. 4 (:func:`~triadcal.models.effects.position_error.bench_variance` per
+    arcsec^2, wobble at ``wobble_ratio`` sigma_1), so
+
+        sigma_1^2 = sum_g,a [(n_g - 1) (S_g,a^2 - mean s_a^2)] / sum_g,a [(n_g - 1) mean c_a]
+
+    (S^2 the group's sample variance), clipped at 0. Needs the output noise (sd_* or Q_V2s) and at
+    least 5 groups; the source says how many groups and visits it came from."""
+    noise = noise_of(campaign)
+    if not noise.known:
+        raise InputError(f"{campaign.source or 'campaign'}: estimating the bench's errors from replicates needs the "
+                         "output noise in the data (sd_*/n_samples columns or Q_V2s)")
+    groups = replicate_groups(campaign)
+    if len(groups) < 5:
+        raise InputError(f"{campaign.source or 'campaign'}: {len(groups)} groups of replicated visits (one position "
+                         "visited twice or more at one setpoint): at least 5 are needed to estimate the bench's errors; "
+                         "state them in the lab file instead ([bench] sigma_position_arcsec, sigma_wobble_arcsec)")
+    from ..models.effects.position_error import bench_variance
+
+    p = _start_internal(campaign, model)
+    c = bench_variance(model, p, campaign.covariates(), campaign.gravity_g, 1.0, wobble_ratio)   # per arcsec^2
+    num = den = 0.0
+    for g in groups:
+        k = len(g) - 1
+        S2 = np.var(campaign.w[g], axis=0, ddof=1)
+        num += float(np.sum(k * (S2 - np.mean(noise.sigma[g] ** 2, axis=0))))
+        den += float(np.sum(k * np.mean(c[g], axis=0)))
+    s1 = math.sqrt(max(num / den, 0.0)) if den > 0 else 0.0
+    n_vis = int(sum(len(g) for g in groups))
+    return BenchErrors(s1, wobble_ratio * s1, source=(f"estimated from the replicates of the plan ({len(groups)} "
+                                                      f"groups, {n_vis} visits; wobble taken as {wobble_ratio:g} of "
+                                                      "the positioning error)"))
