@@ -17,7 +17,9 @@ covariates are those the simulator builds (:func:`triadcal.models.simulate.simul
 same thermal history), the residual Jacobian is the joint fit's
 (:class:`triadcal.estimation.joint.JointProblem`) at the preset unit's parameter values, each
 visit's output variance is ``Q / tau_s`` plus the lab's random bench errors
-(:func:`triadcal.models.effects.position_error.bench_variance`), so ``C_A = (J^T W J)^-1``;
+(:func:`triadcal.models.effects.position_error.bench_variance`), so ``C_A = (J^T W J)^-1``; on
+oblique poses, where the bench's errors correlate a visit's outputs, ``W`` is the inverse of each
+visit's full 3 x 3 covariance (``covariance_blocks``), as in the fit's GLS;
 the lab's systematic errors add ``C_B`` (:func:`triadcal.uncertainty.typeb.propagate`, the
 fit's own algebra) and ``U = 2 sqrt(diag(C_A + C_B))``.
 """
@@ -189,6 +191,9 @@ class Design:
     sources: list
     values: dict
     problems: dict
+    #: the bench's full 3 x 3 covariance per visit (n, 3, 3; output unit^2) when it correlates a visit's
+    #: outputs (oblique poses; the fit is then GLS on it, estimation/whitening.py), else None
+    bench_blocks: Optional[np.ndarray] = None
 
 
 def _model_and_sources(effects, lab, output_unit="V"):
@@ -208,7 +213,8 @@ def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, prese
     :class:`triadcal.planning.ramp.RampPlan` (its visits as simulated, repetitions 1)."""
     from ..estimation.joint import JointProblem, identifiability_problems, null_space_problems, parameter_unit
     from ..io.lab import bench_errors_of
-    from ..models.effects.position_error import bench_variance
+    from ..estimation.whitening import NEGLIGIBLE_CORRELATION
+    from ..models.effects.position_error import bench_variance, covariance_blocks
     from ..uncertainty.typeb import data_change
 
     model, effects, sources = _model_and_sources(effects, lab)
@@ -234,10 +240,17 @@ def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, prese
     bench = bench_errors_of(lab) if lab is not None else None
     var_b = (bench_variance(model, p_int, cov, campaign.gravity_g, bench.sigma_position_arcsec,
                             bench.sigma_wobble_arcsec) if bench is not None else np.zeros((campaign.n_visits, 3)))
+    blocks = None
+    if bench is not None:
+        s1, s2 = bench.sigma_position_arcsec, bench.sigma_wobble_arcsec
+        C = covariance_blocks(model, p_int, cov, campaign.gravity_g, weights=(s1 * s1, s1 * s1, s2 * s2))
+        d = np.sqrt(np.maximum(np.diagonal(C, axis1=1, axis2=2), 1e-300))
+        off = np.abs(C / (d[:, :, None] * d[:, None, :]) - np.eye(3)[None])
+        blocks = C if float(np.max(off)) > NEGLIGIBLE_CORRELATION else None
     w = prob.predict(x)
     F = [data_change(s, model, p_int, cov, campaign.gravity_g, w, "V") for s in sources]
     units = {n: parameter_unit(model, n, "V") for n in prob.names}
-    return Design(plan, prob.names, units, J, np.asarray(var_b), F, sources, values, problems)
+    return Design(plan, prob.names, units, J, np.asarray(var_b), F, sources, values, problems, blocks)
 
 
 def predict(d: Design, Q_V2s: float, tau_s: Optional[float] = None, repetitions: Optional[int] = None) -> dict:
@@ -245,8 +258,17 @@ def predict(d: Design, Q_V2s: float, tau_s: Optional[float] = None, repetitions:
     ``{"names", "u_a", "u", "U", "cov"}`` (reporting units; U = 2 u)."""
     tau = d.plan.tau_s if tau_s is None else tau_s
     reps = d.plan.repetitions if repetitions is None else repetitions
-    sigma = np.sqrt(Q_V2s / tau + d.var_bench).reshape(-1)
-    Jw = d.J / sigma[:, None]
+    if d.bench_blocks is None:
+        sigma = np.sqrt(Q_V2s / tau + d.var_bench).reshape(-1)
+        Jw = d.J / sigma[:, None]
+        Fw = [F.reshape(-1) / sigma for F in d.F]
+    else:
+        # GLS, as the fit on oblique poses: J and F whitened by each visit's Cholesky factor of
+        # Q/tau I + C_bench
+        n = d.bench_blocks.shape[0]
+        L = np.linalg.cholesky(d.bench_blocks + (Q_V2s / tau) * np.eye(3)[None])
+        Jw = np.linalg.solve(L, d.J.reshape(n, 3, -1)).reshape(d.J.shape)
+        Fw = [np.linalg.solve(L, F.reshape(n, 3, 1)).reshape(-1) for F in d.F]
     s = np.sqrt(np.sum(Jw ** 2, axis=0))
     s[s == 0] = 1.0
     A = (Jw / s)
@@ -254,8 +276,8 @@ def predict(d: Design, Q_V2s: float, tau_s: Optional[float] = None, repetitions:
     C_a = C_one / reps
     C = C_a.copy()
     if d.sources:
-        for src, F in zip(d.sources, d.F):
-            c = -C_one @ (Jw.T @ (F.reshape(-1) / sigma))     # the fit's sensitivity, reps-invariant
+        for src, F in zip(d.sources, Fw):
+            c = -C_one @ (Jw.T @ F)                           # the fit's sensitivity, reps-invariant
             C += np.outer(c, c) * src.u ** 2
     u_a = np.sqrt(np.diag(C_a))
     u = np.sqrt(np.diag(C))
