@@ -419,7 +419,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
 
         p_hat = model.to_internal({**{n: float(v) for n, v in zip(problem.names, sol.x)}, **fixed})
         tb = propagate(systematics, model, p_hat, campaign.covariates(), campaign.gravity_g, campaign.w,
-                       sol.J, noise.sigma, problem.names, campaign.output_unit, sol.weights, u_a)
+                       sol.J, noise.sigma, problem.names, campaign.output_unit, sol.weights, u_a,
+                       whiten=None if whitening is None else whitening.apply)
         type_a = "fit: output noise" + (", bench's random errors per visit" if bench_errors is not None else "")
         dof_a = None if noise.known else float(dof)
         budgets = {n: tb.budget(n, units_of[n], float(ua), dof_a, type_a) for n, ua in zip(problem.names, u_a)}

@@ -71,6 +71,24 @@ class StackedProblem:
         return np.concatenate([p.residuals(self.unit_x(x, k)) for k, p in enumerate(self.problems)])
 
 
+def _stacked_whiten(problems):
+    """The stacked fit's whitening of normalised residuals: each unit's own (GLS on oblique poses,
+    :func:`~triadcal.estimation.joint.fit_joint`) on its rows; None when no unit's fit whitens."""
+    ws = [getattr(p, "whitening", None) for p in problems]
+    if all(w is None for w in ws):
+        return None
+    rows = [3 * p.n for p in problems]
+
+    def apply(x):
+        out, start = [], 0
+        for w, n in zip(ws, rows):
+            part = x[start:start + n]
+            out.append(part if w is None else w.apply(part))
+            start += n
+        return np.concatenate(out)
+    return apply
+
+
 def _stacked_type_b(sources, model, problems, stacked, sol, subs, noises, units):
     """The lab's systematic errors through the stacked fit: ``c = -(J^T J)^-1 J^T (F/sigma)`` with
     ``J`` the stacked Jacobian and ``F`` the stacked data change: for a source of the bench or the
@@ -104,7 +122,7 @@ def _stacked_type_b(sources, model, problems, stacked, sol, subs, noises, units)
             F[start:start + rows[k]] = unit_change(src, k)
             changes.append(F)
             out_sources.append(_replace(src, source=f"{src.source} ({u})"))
-    c = np.array([sensitivities(sol.J, sigma, F, sol.weights) for F in changes])
+    c = np.array([sensitivities(sol.J, sigma, F, sol.weights, _stacked_whiten(problems)) for F in changes])
     return TypeB(out_sources, stacked.names, c)
 
 

@@ -136,14 +136,18 @@ def data_change(source: SystematicSource, model, p: dict, cov, gravity_g: float,
     return (at(h) - at(-h)) / (2.0 * h)
 
 
-def sensitivities(jacobian: np.ndarray, sigma: np.ndarray, F: np.ndarray, weights: Optional[np.ndarray] = None
-                  ) -> np.ndarray:
+def sensitivities(jacobian: np.ndarray, sigma: np.ndarray, F: np.ndarray, weights: Optional[np.ndarray] = None,
+                  whiten=None) -> np.ndarray:
     """``c = -(J^T J)^-1 J^T (F/sigma)`` for the fit's residual Jacobian ``J`` (3n x p, of
     ``(W - f)/sigma``, robust weights applied by the caller or given as ``weights``): the
-    shift of each free parameter (reporting units) per unit of the source."""
+    shift of each free parameter (reporting units) per unit of the source. ``whiten``: the fit's
+    whitening of the normalised residuals (GLS: the bench's errors on oblique poses, flicker), when
+    ``J`` is the whitened Jacobian; ``F/sigma`` is whitened the same way."""
     from ..estimation.joint import scaled_covariance
 
     rhs = (F / sigma).reshape(-1)
+    if whiten is not None:
+        rhs = whiten(rhs)
     J = jacobian
     if weights is not None:
         sw = np.sqrt(weights)
@@ -180,10 +184,11 @@ class TypeB:
 
 def propagate(sources: Sequence[SystematicSource], model, p: dict, cov, gravity_g: float, w: np.ndarray,
               jacobian: np.ndarray, sigma: np.ndarray, names: Sequence[str], output_unit: str = "V",
-              weights: Optional[np.ndarray] = None, type_a_u: Optional[np.ndarray] = None) -> TypeB:
-    """Sensitivities of the free parameters ``names`` to every source (see the module)."""
-    c = np.array([sensitivities(jacobian, sigma, data_change(s, model, p, cov, gravity_g, w, output_unit), weights)
-                  for s in sources]).reshape(len(sources), len(names))
+              weights: Optional[np.ndarray] = None, type_a_u: Optional[np.ndarray] = None, whiten=None) -> TypeB:
+    """Sensitivities of the free parameters ``names`` to every source (see the module); ``whiten``
+    as :func:`sensitivities`."""
+    c = np.array([sensitivities(jacobian, sigma, data_change(s, model, p, cov, gravity_g, w, output_unit), weights,
+                                whiten) for s in sources]).reshape(len(sources), len(names))
     if not np.all(np.isfinite(c)):
         raise InputError("the sensitivities of the parameters to the lab's systematic errors are not finite")
     # a source that does not reach a parameter gives c at the rounding level of the difference
