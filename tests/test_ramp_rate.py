@@ -92,6 +92,9 @@ def test_the_fit_takes_the_measured_rate(silicon):
     assert doubled.parameters["thermal_lag"].value == pytest.approx(lag.value / 2.0, rel=1e-3)
     assert measured.fit["chi2_dof"] < 1.2 < 1.5 < central.fit["chi2_dof"], (measured.fit["chi2_dof"],
                                                                           central.fit["chi2_dof"])
+    # the result says which rate it used
+    assert measured.fit["temperature_rate"].startswith("measured per visit")
+    assert central.fit["temperature_rate"].startswith("central differences")
 
 
 def test_visit_rate_is_the_windows_mean_rate():

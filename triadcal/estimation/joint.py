@@ -456,6 +456,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
            "systematic_errors": ([{"source": t.source, "key": t.key, "u": t.u, "unit": t.unit,
                                    "distribution": t.distribution, "equipment": t.equipment} for t in systematics]
                                  if systematics else None)}
+    if "thermal_lag" in model.effect_names:
+        fit["temperature_rate"] = campaign.temperature_rate_method()
     if not noise.known:
         # weights were 1/sqrt(tau): the residual variance estimates the white-noise intensity Q
         fit["Q_estimate"] = chi2_dof if dof > 0 else None

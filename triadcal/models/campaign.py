@@ -155,6 +155,14 @@ class Campaign:
             return np.repeat(r[:, None], 3, axis=1)
         return self.central_difference_rate()
 
+    def temperature_rate_method(self) -> str:
+        """How :meth:`temperature_rate` gets the rates: measured per visit (with the file's
+        ``dTdt_method`` metadata when it has one) or central differences of the visit means."""
+        if self.dTdt_C_per_min is not None:
+            how = self.metadata.get("dTdt_method")
+            return "measured per visit (bench CSV dTdt_C_per_min" + (f": {how})" if how else ")")
+        return "central differences of the visit means within each setpoint block (one-sided at its ends)"
+
     def central_difference_rate(self) -> np.ndarray:
         """Rate of each temperature sensor (degC/s, (n, 3)) from central differences of the visit
         means within each setpoint block (one-sided at its ends; zero for a single visit): the
