@@ -261,3 +261,20 @@ def test_bench_errors_larger_than_the_data_show_are_said():
     r = fit_joint(campaign, bench_errors=BenchErrors(5.0, 2.0))
     assert r.fit["chi2_dof"] < 0.7
     assert any("scatter less than the output noise plus the lab's bench errors" in n for n in r.notes)
+
+
+def test_a_stuck_output_is_refused_naming_the_file_and_the_column(example, tmp_path):
+    """A channel that reads one value in every visit, while the plan turns its axis through 2 g,
+    is refused before the fit (it started the fit at K = 2e16 g/V, which ended in a non-finite
+    Jacobian). The file is written with the project's writer and the value put in by hand."""
+    import copy
+
+    from triadcal.errors import InputError
+    from triadcal.io.bench_csv import read_bench_csv
+
+    c = copy.deepcopy(example)
+    c.w[:, 1] = 0.25
+    path = tmp_path / "stuck.csv"
+    write_bench_csv(c, path)
+    with pytest.raises(InputError, match=r"stuck\.csv: w_y is 0\.25 V in every one of the \d+ visits.*stuck"):
+        fit_joint(read_bench_csv(path))

@@ -106,6 +106,21 @@ class JointProblem:
         return ((self.campaign.w - self.predict(x)) / self.sigma).reshape(-1)
 
 
+def stuck_outputs(campaign: Campaign) -> None:
+    """Refuse an output column that holds one value in every visit although the plan turns its
+    axis through at least 1 g of gravity (nominal): a stuck or disconnected channel, which carries
+    no gravity and would start the fit at an infinite scale factor."""
+    G = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg)
+    for i, a in enumerate(AXES):
+        col = campaign.w[:, i]
+        if campaign.n_visits > 1 and np.ptp(G[:, i]) >= 1.0 and np.all(col == col[0]):
+            raise InputError(f"{campaign.source or 'campaign'}: w_{a} is {float(col[0]):g} {campaign.output_unit} "
+                             "in every one "
+                             f"of the {campaign.n_visits} visits, although the positions turn its axis through "
+                             f"{np.ptp(G[:, i]):.2g} g: a stuck or disconnected channel (check the column and the unit's "
+                             "output)")
+
+
 def start_values(campaign: Campaign, model: Model) -> dict:
     """Start of the iteration from a per-axis linear fit of the outputs on the nominal
     gravity (eq. 1 with a level, perfect bench): ``W_a = (Ca_a . G + S_a) / K_a``."""
@@ -343,6 +358,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         raise InputError(f"{campaign.source or 'campaign'}: a fit takes one unit in one mechanical state; "
                          f"found units {units} and states {sorted(set(campaign.state.tolist()))} "
                          "(select one, e.g. with Campaign.select)")
+    stuck_outputs(campaign)
     model = Model(effects, reference_temperature_C)
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     notes = []
