@@ -363,3 +363,35 @@ def test_type_b_sensitivities_of_a_gls_fit_are_its_refit_shifts():
         raw = sensitivities(sol.J, problem.sigma, F)[[problem.names.index(n) for n in CORE]]
         worst_unwhitened = max(worst_unwhitened, float(np.max(np.abs(raw - shift) / u)) / scale)
     assert worst_unwhitened > 0.05
+
+
+def test_whitened_posterior_target_is_the_multivariate_normal_of_each_visit():
+    """The compiled posterior target with the bench's blocks (oblique poses): its pointwise
+    log-likelihood summed over a visit's three outputs equals scipy's multivariate normal density of
+    the visit's outputs with covariance diag(sigma) V_i diag(sigma), to 1e-9; and the block whitening
+    turns V into the identity."""
+    from scipy import stats
+
+    from triadcal.estimation.posterior.targets import LogPosterior
+    from triadcal.estimation.priors import default_priors
+    from triadcal.models.model import Model
+
+    c, _ = _oblique(2)
+    r, problem, sol = fit_joint(c, ["bench_tilt"], bench_errors=BenchErrors(20.0, 8.0), return_problem=True)
+    w = problem.whitening
+    n = c.n_visits
+    # L^-1 V L^-T = I per visit, with L^-1 applied by the whitening to visit-major columns
+    half = w.apply(np.swapaxes(w.V, 1, 2).reshape(3 * n, 3))                  # rows of L^-1 V^T
+    whole = w.apply(np.swapaxes(half.reshape(n, 3, 3), 1, 2).reshape(3 * n, 3))
+    assert np.allclose(whole.reshape(n, 3, 3), np.eye(3)[None], atol=1e-10)
+    assert np.max(np.abs(w.V - np.eye(3)[None])) > 0.3                      # outputs correlated
+    model = Model(("bench_tilt",))
+    x0 = np.array([r.parameters[nm].value for nm in model.names])
+    sigma = problem.raw.sigma
+    lp = LogPosterior(c, model, sigma, default_priors(model), x0, np.eye(len(x0)), block=2, whitening=w)
+    pw = lp.pointwise(np.zeros((1, len(x0))))[0].sum(axis=1)               # per visit
+    mean = problem.raw.predict(x0)
+    for i in range(0, n, 5):
+        cov = sigma[i][:, None] * w.V[i] * sigma[i][None, :]
+        want = stats.multivariate_normal(mean[i], cov).logpdf(c.w[i])
+        assert pw[i] == pytest.approx(want, rel=0, abs=1e-9), i

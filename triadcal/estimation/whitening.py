@@ -48,20 +48,6 @@ class BlockWhitening:
         shaped = x.reshape(self.n, 3, -1)
         return np.linalg.solve(self.L, shaped).reshape(x.shape)
 
-    def logdet(self) -> float:
-        return float(2.0 * np.sum(np.log(np.diagonal(self.L, axis1=1, axis2=2))))
-
-    def casadi_apply(self, r):
-        """``L^-1`` applied to CasADi residuals ``r`` (3 x n, the outputs by visit), visit-major: a
-        sparse block-diagonal matrix of the blocks' inverses."""
-        import casadi as ca
-        from scipy import sparse
-
-        Linv = np.linalg.inv(self.L)
-        M = sparse.block_diag(list(Linv), format="csc")
-        D = ca.DM(ca.Sparsity(M.shape[0], M.shape[1], M.indptr.tolist(), M.indices.tolist()), M.data)
-        return ca.mtimes(D, ca.vec(r))
-
 
 class WhitenedProblem:
     """A :class:`~triadcal.estimation.joint.JointProblem` (or anything with ``residuals`` and
@@ -116,8 +102,9 @@ def bench_whitening(model, p, campaign, sigma_data: np.ndarray, sigma_total: np.
 def gls_posterior_target(campaign, effects, least_squares, whitening, priors=None,
                          reference_temperature_C: float = 20.0, name: str = "joint_gls"):
     """A :class:`~triadcal.estimation.posterior.targets.ResidualTarget` of the joint model whose
-    residuals are whitened by ``whitening`` (:class:`BlockWhitening`, the bench's errors on oblique
-    poses, or :class:`~triadcal.estimation.flicker_noise.AxisWhitening`, ``flicker_noise``): the
+    residuals are whitened by ``whitening`` (one with ``casadi_apply``:
+    :class:`~triadcal.estimation.flicker_noise.AxisWhitening`, ``flicker_noise``; the bench's blocks
+    on oblique poses go into the compiled per-visit target instead, ``LogPosterior(whitening=...)``): the
     likelihood is the Gaussian of the full covariance, its variance components held at the values of
     the least-squares fit (a plug-in). ``least_squares``: the GLS fit ``(result, problem, solution)``
     of :func:`~triadcal.estimation.joint.fit_joint`."""
