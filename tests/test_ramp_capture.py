@@ -25,7 +25,8 @@ from triadcal.cli import main
 from triadcal.hardware.capture import (CSV_NAME, RAW_NAME, CaptureSettings, Stabilisation, load_port_config,
                                        open_instruments)
 from triadcal.hardware.emulator import EmulatorTiming, emulate
-from triadcal.hardware.ramp_capture import RampProgram, capture_ramp, read_ramp_plan, turned_within, window_rates
+from triadcal.hardware.ramp_capture import (RampProgram, capture_ramp, read_ramp_plan, turned_within, visit_direction,
+                                            window_rates)
 from triadcal.hardware.storage import read_events
 from test_hardware_capture import check_visits_against_raw  # the stepped capture's own check
 from triadcal.io.bench_csv import read_bench_csv
@@ -364,3 +365,17 @@ def test_the_program_writes_its_first_move_at_once():
     assert 2.0 <= p[1] <= 6.0                   # the first frame whose value rounds to 19.9
     assert p[2] == pytest.approx(p[1] + 30.0)   # then the step rule
     assert written[2] == pytest.approx(20.0 - 1.5 * p[2] / 60.0, abs=0.05)
+
+
+def test_a_rate_below_the_settled_rate_keeps_the_branch():
+    """The first visit of a CI run's ramp (CI-15, the docs/hardware.md block): the readings crept up
+    by 0.0028 degC/min (SE 0.0004, z = 7: the electronics' self-heating) while the program began
+    to cool; labelled heating, that visit took the wrong hysteresis branch and the fit was refused
+    (chi2/dof 5.76; 1.12 with the visit labelled cooling). Below the rate at which the capture counts
+    the unit as settled (0.01 degC/min) a significant rate keeps the previous label."""
+    at_rest = Stabilisation().rate_C_per_min / 60.0
+    slope, se = 0.0028 / 60.0, 0.0004 / 60.0
+    assert visit_direction(slope, se, "cooling", at_rest=at_rest) == "cooling"
+    assert visit_direction(slope, se, "cooling") == "heating"                  # the rule of before
+    assert visit_direction(-0.0208 / 60.0, 0.0003 / 60.0, "heating", at_rest=at_rest) == "cooling"
+    assert visit_direction(0.5 / 60.0, 0.4 / 60.0, "cooling", at_rest=at_rest) == "cooling"   # within 3 SE

@@ -245,11 +245,16 @@ def turned_within(rates: dict) -> bool:
     return bool(s * e < 0 and max(abs(s) / rates["start_se"], abs(e) / rates["end_se"]) > 3.0)
 
 
-def visit_direction(slope: float, se: float, previous: str) -> str:
+def visit_direction(slope: float, se: float, previous: str, at_rest: float = 0.0) -> str:
     """``heating`` / ``cooling`` by the sign of the window's rate when it is 3 standard errors from
-    0; otherwise the previous visit's (at a ramp's start: its first leg's, the way the unit, at
-    rest there, starts to move; at a turn: the branch the unit is on until its turn shows)."""
-    if abs(slope) > 3.0 * se:
+    0 and faster than ``at_rest`` (same unit as ``slope``: the rate below which the capture counts
+    the unit as settled, ``Stabilisation.rate_C_per_min``); otherwise the previous visit's (at a
+    ramp's start: its first leg's, the way the unit, at rest there, starts to move; at a turn: the
+    branch the unit is on until its turn shows). A rate that is significant but below ``at_rest`` is
+    no move of the element: at the program's start the readings still creep up by ~0.001 degC/min
+    with the electronics' self-heating, many SE at 2 Hz, while the chamber is about to cool; labelled
+    ``heating`` by it, the first visit of a CI run's ramp took the wrong branch (|z| 22 in the fit)."""
+    if abs(slope) > 3.0 * se and abs(slope) > at_rest:
         return "heating" if slope > 0 else "cooling"
     return previous
 
@@ -518,7 +523,7 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
         "ramp_labels": ("setpoint_C: the target of the program's leg at the window's middle; direction: the sign "
                         "of the unit's rate over the window (a least-squares quadratic through the mean "
                         f"temperature reading over the window and the {DIRECTION_SPAN_S:g} s before), when 3 "
-                        "standard errors from 0, else the previous visit's"),
+                        "standard errors from 0 and faster than the settled rate, else the previous visit's"),
         "stabilisation": "at the program's first temperature only: " + settings.stabilisation.describe(),
         "settle_s": f"{settings.settle_s:g}",
         **({"plan": plan.name} if plan.name else {}),
@@ -581,7 +586,8 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
             slope, se = rates["mean"], rates["mean_se"]
             dTdt = visit_rate(run.last_window)
             first_leg = "heating" if program.knot_C[1] > program.knot_C[0] else "cooling"
-            direction = visit_direction(slope, se, rows[-1]["direction"] if rows else first_leg)
+            direction = visit_direction(slope, se, rows[-1]["direction"] if rows else first_leg,
+                                        at_rest=settings.stabilisation.rate_C_per_min / 60.0)
             row.update(unit=settings.unit, setpoint_C=program.target(p_mid), direction=direction, position=label,
                        axis1_deg=a1, axis2_deg=a2, tau_s=settings.tau_s, raw_visit=tag,
                        program_C=program.value(min(p_mid, program.duration_s)), dTdt_C_per_min=dTdt * 60.0)
