@@ -103,13 +103,43 @@ def generic_basis(campaign: Campaign, sigma: np.ndarray) -> dict:
 
 #: each family's blocks of terms (indices of its per-output terms, ``per_output_terms``): a pattern
 #: concentrated in one block (a cubic in temperature, |g| alone) is tested on that block's columns
-#: too, where its chi2 has fewer dof
+#: too, where its chi2 has fewer dof. Each block is tested split by the output a term lands on
+#: (``block_columns``): on the output of its own axis (``u g_a`` on output a: a scale; ``g_a^2``:
+#: K2; ``g_a^2 g_b``: a g-dependent misalignment of axis a), on another output (``u g_b`` on output
+#: a: an angle; ``g_b^2`` on a), or, for the terms of no axis (``u``), alone (a bias)
 SUB_BLOCKS = {
     "temperature": (range(0, 4), range(4, 8), range(8, 12)),      # u, u^2, u^3 times (1, g)
     "time": (range(0, 4), range(4, 8)),                            # s, s^2 times (1, g)
     "orientation_even": (range(0, 3), range(3, 6), range(6, 9)),  # g_j^2, |g_j|, g_j g_k
     "orientation_odd": (range(0, 3), range(3, 6), range(6, 12)),  # g_j|g_j|, g_j^3, g_j^2 g_k
 }
+_PAIRS = ((0, 1), (0, 2), (1, 2))
+_ODD_PAIRS = tuple((j, k) for j in range(3) for k in range(3) if j != k)
+_TIMES_ONE_G = (None, {0}, {1}, {2})
+#: the axes each per-output term belongs to (``per_output_terms``' order; None: no axis)
+OWN_AXES = {
+    "temperature": _TIMES_ONE_G * 3,
+    "time": _TIMES_ONE_G * 2,
+    "orientation_even": ({0}, {1}, {2}, {0}, {1}, {2}) + tuple(set(p) for p in _PAIRS),
+    "orientation_odd": ({0}, {1}, {2}, {0}, {1}, {2}) + tuple({j} for j, _ in _ODD_PAIRS),
+}
+
+
+def block_columns(fam: str, per: int) -> list:
+    """Column lists of a family's sub-blocks in its basis (output ``a``'s term ``i`` is column
+    ``a * per + i``): each block of ``SUB_BLOCKS`` split into the terms on their own axis' output,
+    on another output, and the terms of no axis (``SUB_BLOCKS``' comment)."""
+    own = OWN_AXES.get(fam)
+    out = []
+    for blk in SUB_BLOCKS.get(fam, ()):
+        groups = {"own": [], "other": [], "none": []}
+        for a in range(3):
+            for i in blk:
+                axes = own[i] if own is not None else None
+                kind = "none" if axes is None else ("own" if a in axes else "other")
+                groups[kind].append(a * per + i)
+        out.extend(cols for cols in groups.values() if cols)
+    return out
 
 
 def _one_test(r, B, Q, noise_known, dof):
@@ -142,11 +172,8 @@ def generic_tests(basis: dict, r: np.ndarray, J: np.ndarray, noise_known: bool, 
             continue
         S, k, p = full
         ps = [p]
-        blocks = SUB_BLOCKS.get(fam, ())
-        if blocks:
-            per = B.shape[1] // 3
-            for blk in blocks:
-                cols = [a * per + i for a in range(3) for i in blk]
+        if fam in SUB_BLOCKS:
+            for cols in block_columns(fam, B.shape[1] // 3):
                 t = _one_test(r, B[:, cols], Q, noise_known, dof)
                 if t is not None:
                     ps.append(t[2])

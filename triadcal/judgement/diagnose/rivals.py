@@ -18,7 +18,14 @@ on every output, and the "diagonal" term (``|g_a|``, ``g_a^2``, ``u g_a`` ... on
 candidate that closes the gap in its place rarely beats the term that is the true effect's shape.
 A rival with a column within the span of the base model and ``c`` (the same term written another
 way: ``g_a^2`` for K2; ``g_x^3`` on every output for K3 holds K3's x column) is no rival and is
-skipped: it explains the data by ``c`` itself; so is one within the base span.
+skipped: it explains the data by ``c`` itself; so is one within the base span. "The same term"
+is judged on a reference design too (``reference_poses``: the same visits at 64 poses drawn
+uniformly over the sphere): a rival within span(base, c) on the campaign but not on the reference
+is another function that coincides with ``c`` at the campaign's poses -- an alias of the design,
+not ``c`` itself -- and ``c`` does not beat it (S = 0). On a tumble test whose poses put every axis
+along or across gravity (g_a in {-1, 0, 1}) ``K2 g_a^2`` and the asymmetry ``|g_a|`` are the same
+columns; naming either there is a coin toss (a 12-pose campaign with an asymmetry was named K2),
+so the verdict is ``unexplained`` with both named as ambiguous.
 
 Linearised at the base fit (the score tests' point): with ``Q`` an orthonormal basis of the base
 Jacobian, ``T`` the rival's columns made orthogonal to it, ``r`` the standardised base residuals,
@@ -40,6 +47,18 @@ from .generic import _R
 #: are ``c`` itself written another way (e.g. g_a^2 for K2: misalignment of milliradians
 #: makes them differ by ~1e-3); a genuine alias such as |g_a| for K2 differs by ~0.2
 SAME_TERM_FRACTION = 0.03
+#: on the reference design a rival within span(base, c) on the campaign is "c written another way"
+#: only when its part outside span(base, c) stays below this fraction; |g_a| against K2's g_a^2
+#: over the sphere leaves ~0.2, the same term written another way ~1e-3
+ALIAS_FRACTION = 0.1
+#: poses of the reference design, (axis1_deg, axis2_deg): uniform over both bench axes, fixed seed
+REFERENCE_POSES = np.random.default_rng(20261126).uniform(0.0, 360.0, size=(64, 2))
+
+
+def reference_poses(n_visits: int) -> tuple:
+    """(axis1_deg, axis2_deg) of ``n_visits`` visits cycling through ``REFERENCE_POSES``."""
+    idx = np.arange(n_visits) % len(REFERENCE_POSES)
+    return REFERENCE_POSES[idx, 0].copy(), REFERENCE_POSES[idx, 1].copy()
 
 
 def _orth(Q: np.ndarray, T: np.ndarray, tol: float = 1e-6) -> np.ndarray:
@@ -55,14 +74,15 @@ def _orth(Q: np.ndarray, T: np.ndarray, tol: float = 1e-6) -> np.ndarray:
     return U[:, :rank]
 
 
-def _outside_fraction(Q: np.ndarray, T: np.ndarray) -> float:
-    """Smallest fraction of a (unit-normed, nonzero) column of ``T`` outside span(Q)."""
+def _fractions(Q: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Per column of ``T``: the fraction of its norm outside span(Q) (0 for a zero column)."""
     norms = np.linalg.norm(T, axis=0)
+    out = np.zeros(T.shape[1])
     keep = norms > 1e-12
-    if not keep.any():
-        return 0.0
-    T = T[:, keep] / norms[keep]
-    return float(np.min(np.linalg.norm(T - Q @ (Q.T @ T), axis=0)))
+    if keep.any():
+        Tk = T[:, keep] / norms[keep]
+        out[keep] = np.linalg.norm(Tk - Q @ (Q.T @ Tk), axis=0)
+    return out
 
 
 def generic_rivals(per_output: dict, sigma_rows: np.ndarray, whiten) -> dict:
@@ -100,16 +120,25 @@ def generic_rivals(per_output: dict, sigma_rows: np.ndarray, whiten) -> dict:
 
 
 def encompassing(r: np.ndarray, Q: np.ndarray, C: np.ndarray, T: np.ndarray, noise_known: bool,
-                 dof: int):
+                 dof: int, same_elsewhere=None):
     """Score test of ``c`` (columns ``C``) at the base + rival fit (columns ``T``), linearised at the
     base fit (``Q``, ``r``: module docstring). Returns ``None`` when the rival is no rival (within
-    the base span or within span(base, c)), else ``(S, k, p)``."""
+    the base span, or with a column within span(base, c) and -- when ``same_elsewhere`` is given --
+    the same term on the reference design too: ``same_elsewhere(columns)`` True for the columns
+    within span(base, c) but not within the base span alone), else ``(S, k, p)``; an alias of the
+    design (within span(base, c) here, another function elsewhere) gives ``(0.0, 0, 1.0)``. A column
+    within the base span (to ``SAME_TERM_FRACTION``) is the base's shape, no alias of ``c``."""
     QT = _orth(Q, T)
     if QT.shape[1] == 0:
         return None
     QC = np.column_stack([Q, _orth(Q, C)])
-    if _outside_fraction(QC, T) < SAME_TERM_FRACTION:
-        return None
+    within_c = _fractions(QC, T) < SAME_TERM_FRACTION
+    if within_c.any():
+        # columns within span(base, c) but not within the base span alone: c's own shape here
+        mine = np.flatnonzero(within_c & (_fractions(Q, T) >= SAME_TERM_FRACTION))
+        if same_elsewhere is None or mine.size == 0 or same_elsewhere(mine):
+            return None
+        return 0.0, 0, 1.0
     rt = r - QT @ (QT.T @ r)
     Qbt = np.column_stack([Q, QT])
     sc = _score_mean(_R(rt), C, Qbt)
@@ -125,11 +154,29 @@ def encompassing(r: np.ndarray, Q: np.ndarray, C: np.ndarray, T: np.ndarray, noi
     return float(S), int(k), float(math.exp(logp))
 
 
-def unbeaten_rivals(r, Q, C, rivals: dict, noise_known: bool, dof: int, alpha: float) -> list:
-    """The rivals ``c`` does not beat: ``[(label, S, k, p)]``, the least beaten first."""
+def unbeaten_rivals(r, Q, C, rivals: dict, noise_known: bool, dof: int, alpha: float,
+                    reference=None) -> list:
+    """The rivals ``c`` does not beat: ``[(label, S, k, p)]``, the least beaten first.
+
+    ``reference``: a callable giving ``(Q_ref, C_ref, rivals_ref)`` -- the base span, ``c``'s and
+    the rivals' columns on the reference design (``reference_poses``), called at most once and
+    only when a rival lies within span(base, c); None keeps every such rival skipped."""
     out = []
+    cache = {}
+
+    def same_elsewhere_of(label):
+        def same(columns):
+            if "ref" not in cache:
+                Qr, Cr, rivals_r = reference()
+                cache["ref"] = (np.column_stack([Qr, _orth(Qr, Cr)]), rivals_r)
+            QCr, rivals_r = cache["ref"]
+            Tr = rivals_r.get(label)
+            return Tr is None or bool(np.all(_fractions(QCr, Tr[:, columns]) < ALIAS_FRACTION))
+        return same
+
     for label, T in rivals.items():
-        res = encompassing(r, Q, C, T, noise_known, dof)
+        res = encompassing(r, Q, C, T, noise_known, dof,
+                           same_elsewhere_of(label) if reference is not None else None)
         if res is None:
             continue
         S, k, p = res

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from ...errors import InputError
 
+import dataclasses
 import math
 from typing import Optional, Sequence
 
@@ -36,12 +37,13 @@ from .candidates import (
     _loo,
     _pe_sensitivity,
     _position_score,
+    _problem_on,
     _score_mean,
     _thermal_lag_history,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .generic import generic_basis, generic_tests, per_output_terms, variance_basis, variance_test
-from .rivals import generic_rivals, unbeaten_rivals
+from .rivals import generic_rivals, reference_poses, unbeaten_rivals
 from .results import ALPHA, Candidate, Diagnosis, _f
 from .slices import _family_tests, _holm, _slice_tests
 
@@ -406,12 +408,29 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                       if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS}
             sig_rows = np.broadcast_to(np.asarray(sigma, float), (campaign.n_visits, 3))
             rivals.update(generic_rivals(per_output_terms(campaign), sig_rows, base.whitened))
-            lost = unbeaten_rivals(base.r, Q, cols(best), rivals, noise.known, base.dof, alpha)
+
+            def reference():
+                """The base span, ``best``'s and the rivals' columns on the reference design: the same
+                visits at the poses of ``reference_poses`` (rivals.py), to tell a term written another
+                way from a different function that coincides with ``best`` at this campaign's poses."""
+                a1, a2 = reference_poses(campaign.n_visits)
+                ref = dataclasses.replace(campaign, axis1_deg=a1, axis2_deg=a2)
+                _, Jr = _problem_on(full, ref).residuals_and_jacobian(base.x_full)
+                Jr = Jr / base.s
+                colr = lambda c: Jr[:, [full.index[n] for n in c.params]]  # noqa: E731
+                rr = {c.effect: colr(c) for c in refitted
+                      if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS}
+                rr.update(generic_rivals(per_output_terms(ref), sig_rows, lambda v: v / base.s))
+                return _hat_q(Jr[:, [full.index[n] for n in base.names]]), colr(best), rr
+
+            lost = unbeaten_rivals(base.r, Q, cols(best), rivals, noise.known, base.dof, alpha, reference)
             if not lost:
                 return None
             named = [x for x in lost if x[0] in EFFECTS]
             shown = (named + [x for x in lost if x[0] not in EFFECTS])[:4]
-            txt = "; ".join(f"{lab} (adding {best.effect} to it: S = {S:.3g} on {k} dof, p = {p:.3g})"
+            txt = "; ".join(f"{lab} (adding {best.effect} to it: S = {S:.3g} on {k} dof, p = {p:.3g})" if k else
+                            f"{lab} (the same columns as {best.effect} at this campaign's poses; other poses "
+                            "tell them apart)"
                             for lab, S, k, p in shown)
             return {"effect": "unexplained", "best_partial": best.effect,
                     "ambiguous_with": [x[0] for x in shown],
