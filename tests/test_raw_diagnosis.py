@@ -28,11 +28,12 @@ EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "mikoff_im
 
 
 def recording(seed=0, n_poses=40, k2_ug=0.0, contaminate_mg=0.0, outside_ug=0.0, noise_mg=1.0,
-              static_s=3.0, turn_s=1.0):
+              static_s=3.0, turn_s=1.0, asymmetry_ppm=0.0):
     """Readings in g of a triad with scale errors, biases and a non-orthogonality, turned by hand
     through ``n_poses`` random static poses. Planted:
 
     - ``k2_ug``: K2 of every axis, output_i += K2 a_i^2 (ug/g^2);
+    - ``asymmetry_ppm``: a scale asymmetry of every axis, output_i += e |a_i| (no raw candidate);
     - ``contaminate_mg``: interval 7 reads an extra offset of that size on every axis (a knock);
     - ``outside_ug``: output_z += c a_x a_y, a term that none of the candidates models.
     """
@@ -47,7 +48,7 @@ def recording(seed=0, n_poses=40, k2_ug=0.0, contaminate_mg=0.0, outside_ug=0.0,
     for k in range(n_poses):
         a = np.repeat(poses[k][None], n_st, axis=0)
         extra = np.zeros_like(a)
-        extra += k2_ug * 1e-6 * a ** 2
+        extra += k2_ug * 1e-6 * a ** 2 + asymmetry_ppm * 1e-6 * np.abs(a)
         extra[:, 2] += outside_ug * 1e-6 * a[:, 0] * a[:, 1]
         w = (a + extra) @ mix.T * scale + bias
         if k == 7:
@@ -70,13 +71,16 @@ def diagnose(rec):
 
 
 def test_planted_k2_is_named_with_its_held_out_shrink():
-    d = diagnose(recording(seed=1, k2_ug=800))
+    # 0.3 mg a sample: K2 beats its rival the asymmetry held out (at 1 mg the 40 poses cannot tell
+    # them apart: test_a_scale_asymmetry_is_never_named_k2)
+    d = diagnose(recording(seed=1, k2_ug=800, noise_mg=0.3))
     doc = d.doc
     assert doc["gap"]["significant"]
     assert doc["verdict"]["term"] == "scale_nonlinearity" and doc["verdict"]["effect"] == "scale_nonlinearity"
     c = d.candidate("scale_nonlinearity")
     assert c["significant"] and c["held_out"]["shrink_ug"] > 0.3 * c["held_out"]["rms_base_ug"]
     assert c["full_fit"]["closes_gap"]
+    assert all(r["versus_best"]["beaten"] for r in doc["raw"]["rivals"] if r["testable"])
     # the planted size comes back as its correction (-800 ug/g^2 on every axis, within 4 u)
     for name, p in c["full_fit"]["new_parameters"].items():
         assert abs(p["value"] + 800) < 4 * p["u"] + 50, (name, p)
@@ -115,6 +119,38 @@ def test_a_term_outside_the_candidates_is_unexplained_not_a_wrong_name():
     assert_valid(json.loads(json.dumps(doc)), "triadcal.diagnosis")
 
 
+@pytest.mark.parametrize("noise_mg", [1.0, 0.3])
+def test_a_scale_asymmetry_is_never_named_k2(noise_mg):
+    """An asymmetry e |a_i| (800 ppm) is no raw candidate; K2 a_i^2 closes most of its gap. Before
+    the rivals K2 was named for it in 11 of 12 seeds at 1 mg (a confident wrong answer). Now:
+    'unexplained', either with K2's gap left open or with scale_asymmetry among the rivals K2 does
+    not beat on held-out intervals."""
+    d = diagnose(recording(seed=1, asymmetry_ppm=800, noise_mg=noise_mg))
+    v = d.doc["verdict"]
+    assert v["effect"] == "unexplained" and v["best_partial"] == "scale_nonlinearity", v
+    assert "scale_asymmetry" in v.get("ambiguous_with", []) or not d.candidate("scale_nonlinearity")[
+        "full_fit"]["closes_gap"], v
+    assert_valid(json.loads(json.dumps(d.doc)), "triadcal.diagnosis")
+
+
+@pytest.mark.slow
+def test_k2_and_asymmetry_over_seeds():
+    """12 seeds each (numbers in docs/diagnosis.md): at 0.3 mg a sample K2 = 800 ug/g^2 is named in
+    at least 11 (measured 12); an asymmetry of 800 ppm at 1 mg and at 0.3 mg is never named, and at
+    1 mg K2 = 800 ug/g^2 is named or said to be ambiguous with the asymmetry, never anything else."""
+    named = sum(diagnose(recording(seed=s, k2_ug=800, noise_mg=0.3)).doc["verdict"]["effect"]
+                == "scale_nonlinearity" for s in range(1, 13))
+    assert named >= 11, named
+    for noise in (1.0, 0.3):
+        for s in range(1, 13):
+            v = diagnose(recording(seed=s, asymmetry_ppm=800, noise_mg=noise)).doc["verdict"]
+            assert v["effect"] == "unexplained", (noise, s, v)
+    for s in range(1, 13):
+        v = diagnose(recording(seed=s, k2_ug=800)).doc["verdict"]
+        assert v["effect"] == "scale_nonlinearity" or (
+            v["effect"] == "unexplained" and v.get("ambiguous_with") == ["scale_asymmetry"]), (s, v)
+
+
 def test_too_few_intervals_are_said_not_faked(tmp_path):
     rec = recording(seed=5, n_poses=9)
     out = fit_raw(rec, poses="unknown", local_g_m_s2=9.80665)
@@ -125,7 +161,7 @@ def test_too_few_intervals_are_said_not_faked(tmp_path):
 
 
 def test_cli_writes_the_diagnosis(tmp_path, capsys):
-    rec = recording(seed=1, k2_ug=800)
+    rec = recording(seed=1, k2_ug=800, noise_mg=0.3)
     path = tmp_path / "rec.csv"
     np.savetxt(path, rec.acc, delimiter=",", header="ax,ay,az", comments="", fmt="%.7f")
     rc = cli_main(["fit-raw", str(path), "--rate", "100", "--unit", "g", "--poses", "unknown", "--local-g",

@@ -15,11 +15,17 @@ real recordings").
   square of the gravity component along the axis, ``m_ij a_i^2`` (rad/g^2), so output ``i``
   gains ``m_ij a_i^2 a_j`` (even in ``a_i``: it does not change sign when the axis turns over,
   unlike a cross-coupling term).
+- rivals (``RIVALS``, not candidates: a named candidate must beat them held out):
+  ``scale_asymmetry`` ``e_i |a_i|``, ``scale_cubic`` ``K3_i a_i^3`` and ``odd_quadratic``
+  ``q_i a_i |a_i|`` on output ``i``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from ...models.effects.asymmetry import asymmetric
+from ...models.effects.cross_axis import third_order
 
 PAIRS = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
 _AX = "xyz"
@@ -57,12 +63,40 @@ def g_dependent_misalignment(a: np.ndarray, p: np.ndarray) -> np.ndarray:
     return out
 
 
+def scale_asymmetry(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``e_i |a_i|`` on each output (IEEE 1293's asymmetry, :func:`triadcal.models.effects.asymmetry.asymmetric`
+    less ``a``); ``p = (e_x, e_y, e_z)``, dimensionless."""
+    a = np.asarray(a, float)
+    return asymmetric(a, np.asarray(p, float)) - a
+
+
+def scale_cubic(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``K3_i a_i^3`` on each output (:func:`triadcal.models.effects.cross_axis.third_order` less ``a``);
+    ``p = (K3_x, K3_y, K3_z)`` in 1/g^2."""
+    a = np.asarray(a, float)
+    return third_order(a, np.asarray(p, float)) - a
+
+
+def odd_quadratic(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``q_i a_i |a_i|`` on each output: a second-order nonlinearity odd in the input (no model term
+    of the vocabulary; a rival shape only, 1/g)."""
+    a = np.asarray(a, float)
+    return np.asarray(p, float) * a * np.abs(a)
+
+
 #: name -> (function, parameter names, unit of the parameters)
 TERMS = {
     "scale_nonlinearity": (scale_nonlinearity, tuple(f"K2_{c}" for c in _AX), "ug/g2"),
     "cross_coupling": (cross_coupling, tuple(f"Kc_{_AX[i]}{_AX[j]}" for i, j in PAIRS), "ug/g2"),
     "g_dependent_misalignment": (g_dependent_misalignment,
                                  tuple(f"Ca_{_AX[i]}{_AX[j]}_g2" for i, j in PAIRS), "arcsec/g2"),
+}
+#: rivals of a named candidate (``raw_diagnosis``): terms outside the candidate list that a named
+#: candidate must beat on held-out intervals; name -> (function, number of parameters)
+RIVALS = {
+    "scale_asymmetry": (scale_asymmetry, 3),
+    "scale_cubic": (scale_cubic, 3),
+    "odd_quadratic": (odd_quadratic, 3),
 }
 BASE_NAMES = ("D_xx", "D_yy", "D_zz", "D_xy", "D_xz", "D_yz", "b_x", "b_y", "b_z")
 

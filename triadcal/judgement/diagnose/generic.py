@@ -162,8 +162,9 @@ def generic_tests(basis: dict, r: np.ndarray, J: np.ndarray, noise_known: bool, 
     Jacobian ``J`` (same scaling); ``{family: {"S", "k", "p_value", "p_full"}}`` (families with no
     column outside the fit's span are left out). With the noise estimated, ``S / k`` against
     ``(r'r - S) / (dof - k)`` as F. ``S``, ``k`` and ``p_full`` are the whole family's test;
-    ``p_value`` is Bonferroni's over it and its ``SUB_BLOCKS`` (m + 1 tests: ``min(1, (m + 1) min p)``),
-    a valid level-alpha test of the family that keeps the power of a block's fewer dof."""
+    ``p_value`` is Bonferroni's over it and its m sub-blocks (``block_columns``):
+    ``min(1, (m + 1) min p)``, a valid level-alpha test of the family that keeps the power of a
+    block's fewer dof."""
     Q = _hat_q(J) if Q is None else Q
     out = {}
     for fam, B in basis.items():
