@@ -28,6 +28,10 @@ def register(sub) -> None:
     p.add_argument("--left-out", action="store_true",
                    help="also diagnose each campaign with the effect and its group left out of the candidates "
                         "(right verdict: unexplained)")
+    p.add_argument("--second-mechanisms", action="store_true",
+                   help="the conditions are the effect families made by a second mechanism (hysteresis~2 ..., "
+                        "written with numpy, not with the model's terms: docs/diagnosis.md \"Second mechanisms\"); "
+                        "a verdict naming any effect of the family is right. --effects takes these names too")
     p.add_argument("--preset", default="ak18-quartz", help="unit preset (default ak18-quartz)")
     p.add_argument("--processes", type=int, default=2, help="worker processes (default 2)")
     p.add_argument("--out", default="diagnosis-validation", metavar="DIR",
@@ -58,7 +62,12 @@ def run(args) -> int:
             print(f"{row['condition']:>24}, seed {row['seed']}: the diagnosis names {row['verdict']}"
                   + (f"; with it left out: {lo}" if lo is not None else ""), file=sys.stderr, flush=True)
 
-    res = validate(seeds=args.seeds, effects=name_list(args.effects) if args.effects else None,
+    effects = name_list(args.effects) if args.effects else None
+    if args.second_mechanisms and effects is None:
+        from ..judgement.second_mechanisms import CONDITIONS
+
+        effects = list(CONDITIONS)
+    res = validate(seeds=args.seeds, effects=effects,
                    processes=args.processes, preset=args.preset, progress=progress, magnitudes=magnitudes,
                    left_out=args.left_out)
     paths = write_validation(res, args.out)
