@@ -197,3 +197,56 @@ def test_shared_real_recordings(case):
     # both have too few intervals for a held-out score: said, not faked
     assert doc["verdict"]["effect"] is None
     assert all(not c["testable"] for c in doc["raw"]["candidates"])
+
+
+def _with_temperature(rec, tempco_ug_per_C, profile):
+    """The recording with a bias of ``tempco`` (ug/degC, every axis) on the readings and its
+    per-sample temperature: ``profile`` 'cycle' (25 + 10 sin over 1.5 periods, so the temperature
+    is not a function of the time) or 'ramp' (20 -> 40 degC, monotonic in the time)."""
+    n = len(rec.acc)
+    s = np.arange(n) / n
+    T = 25.0 + 10.0 * np.sin(2 * np.pi * 1.5 * s) if profile == "cycle" else 20.0 + 20.0 * s
+    w = rec.acc + tempco_ug_per_C * 1e-6 * (T - 25.0)[:, None]
+    return RawRecording(w, RATE, "g", ("ax", "ay", "az"), source=rec.source), T
+
+
+def test_a_bias_tempco_is_named_when_the_temperature_is_given_and_not_a_function_of_time():
+    rec, T = _with_temperature(recording(seed=6, noise_mg=0.3), 30.0, "cycle")
+    out = fit_raw(rec, poses="unknown", local_g_m_s2=9.80665)
+    d = diagnose_raw(out, temperature=T)
+    v = d.doc["verdict"]
+    assert v["effect"] == "bias_tempco", v
+    p = d.candidate("bias_tempco")["full_fit"]["new_parameters"]
+    # the correction comes back as -30 ug/degC per axis, within 4 u (the planted bias is added to raw
+    # readings, which the calibration scales by ~1)
+    for name, q in p.items():
+        assert q["unit"] == "ug/degC" and abs(q["value"] + 30.0) < 4 * q["u"] + 2.0, (name, q)
+    assert_valid(json.loads(json.dumps(d.doc)), "triadcal.diagnosis")
+    # without the temperature the candidate is said untestable, and nothing is named for it
+    d0 = diagnose_raw(out)
+    c0 = d0.candidate("bias_tempco")
+    assert not c0["testable"] and "no temperature" in c0["reason"]
+    assert d0.doc["verdict"]["effect"] in ("unexplained", None), d0.doc["verdict"]
+
+
+def test_a_temperature_that_follows_the_time_cannot_be_told_from_a_drift():
+    """On a monotonic ramp a bias tempco and a bias drift are the same shape over the intervals:
+    the verdict is 'unexplained' with bias_drift among the rivals not beaten."""
+    rec, T = _with_temperature(recording(seed=6, noise_mg=0.3), 30.0, "ramp")
+    d = diagnose_raw(fit_raw(rec, poses="unknown", local_g_m_s2=9.80665), temperature=T)
+    v = d.doc["verdict"]
+    assert v["effect"] == "unexplained" and v["best_partial"] == "bias_tempco", v
+    assert "bias_drift" in v["ambiguous_with"], v
+
+
+def test_a_temperature_of_the_wrong_length_is_refused():
+    from triadcal.errors import InputError
+
+    rec = recording(seed=6)
+    out = fit_raw(rec, poses="unknown", local_g_m_s2=9.80665)
+    with pytest.raises(InputError, match="one temperature"):
+        diagnose_raw(out, temperature=np.zeros(len(rec.acc) - 5))
+    T = np.zeros(len(rec.acc))
+    T[17] = np.nan
+    with pytest.raises(InputError, match="sample 17"):
+        diagnose_raw(out, temperature=T)

@@ -197,3 +197,13 @@ def test_an_ambiguous_verdict_follows_the_contract_and_says_so():
     assert_valid(json.loads(json.dumps(d.to_dict())), "triadcal.diagnosis")
     line = next(x for x in summary_text(d).splitlines() if x.startswith("verdict"))
     assert "cannot tell it from" in line, line
+
+
+def test_a_zero_column_of_a_rival_neither_hides_nor_aliases_it():
+    """A rival group with a column that vanishes on the design (a term zero at every pose) is
+    judged by its other columns: beaten or not as they are, not skipped for the zero one."""
+    rng = np.random.default_rng(9)
+    r, Q = _residual(30.0 * X ** 2 + rng.standard_normal(X.size))
+    T2 = np.column_stack([np.zeros(X.size), (X ** 3)])
+    got = encompassing(r, Q, C, T2, True, X.size - 2)
+    assert got is not None and got[2] < 1e-6, got

@@ -43,6 +43,7 @@ from typing import Optional
 import numpy as np
 from scipy import stats
 
+from ..errors import InputError
 from ..estimation.raw import terms as T
 from ..models.sensor import calibrated_acceleration
 from ..models.units import STANDARD_GRAVITY_M_S2
@@ -52,7 +53,10 @@ ALPHA = 0.01
 RATIO_MAX = 1.2          # chi2/dof above which a significant gap is also material (gates' gof_ratio_max)
 SHRINK_SE = 2.0          # a held-out shrink counts when mean(d) > SHRINK_SE x SE(d)
 ROBUST_Z = 3.5           # an interval stands out when |modified z| of its residual exceeds this
-CANDIDATES = ("scale_nonlinearity", "cross_coupling", "g_dependent_misalignment", "contaminated_interval")
+CANDIDATES = ("scale_nonlinearity", "cross_coupling", "g_dependent_misalignment", "bias_tempco",
+              "contaminated_interval")
+#: rivals scored held out against a named candidate: the shapes of terms.RIVALS and a drifting bias
+RIVAL_NAMES = tuple(T.RIVALS) + ("bias_drift",)
 UG = 1e6
 
 
@@ -77,6 +81,14 @@ def interval_data(rawfit, temperature=None, batches: int = 10) -> IntervalData:
     from ..estimation.raw.unknown import result_matrices
 
     rec, det, res = rawfit.recording, rawfit.detection, rawfit.result
+    if temperature is not None:
+        temperature = np.asarray(temperature, float).reshape(-1)
+        if temperature.shape[0] != len(rec.acc):
+            raise InputError(f"the temperature has {temperature.shape[0]} samples, the recording "
+                             f"{rec.source or ''} {len(rec.acc)}: one temperature (degC) per sample is needed")
+        if not np.all(np.isfinite(temperature)):
+            bad = int(np.flatnonzero(~np.isfinite(temperature))[0])
+            raise InputError(f"temperature sample {bad} is not a finite number ({temperature[bad]!r} degC)")
     K, S, Ca = result_matrices(res)
     local = res.fit.get("local_g_m_s2") or res.extra.get("local_g_m_s2") or STANDARD_GRAVITY_M_S2
     A, sig, sd, n, s0, e0, t, lab, temp = [], [], [], [], [], [], [], [], []
@@ -94,7 +106,7 @@ def interval_data(rawfit, temperature=None, batches: int = 10) -> IntervalData:
         s0.append(iv.start), e0.append(iv.end), t.append((iv.start + iv.end - 1) / 2 / rec.rate_hz)
         lab.append(iv.label or "")
         if temperature is not None:
-            temp.append(float(np.mean(np.asarray(temperature, float)[iv.start:iv.end])))
+            temp.append(float(np.mean(temperature[iv.start:iv.end])))
     return IntervalData(np.array(A), np.array(sig), np.array(sd), np.array(n), np.array(s0), np.array(e0),
                         np.array(t), lab, float(local) / STANDARD_GRAVITY_M_S2,
                         np.array(temp) if temperature is not None else None)
@@ -103,9 +115,27 @@ def interval_data(rawfit, temperature=None, batches: int = 10) -> IntervalData:
 # --------------------------------------------------------------------------------------
 # fits on the gravity norm
 # --------------------------------------------------------------------------------------
-def _design(A: np.ndarray, term: Optional[str]) -> np.ndarray:
+def covariate(d: "IntervalData", name: str) -> Optional[np.ndarray]:
+    """The centred covariate of a covariate term (``terms.COVARIATE_TERMS``), None when the
+    recording has none (no temperature given)."""
+    which = T.COVARIATE_TERMS[name][0]
+    x = d.temperature_C if which == "temperature_C" else np.asarray(d.time_s, float) / 3600.0
+    if x is None:
+        return None
+    x = np.asarray(x, float)
+    return x - x.mean()
+
+
+def _design(d: "IntervalData", term: Optional[str]) -> np.ndarray:
+    A = d.A
     B = T.basis(T.linear_correction, A, len(T.BASE_NAMES))
-    if term in T.TERMS:
+    if term in T.COVARIATE_TERMS:
+        x = covariate(d, term)
+        Bx = np.zeros((len(A), 3, 3))
+        for i in range(3):
+            Bx[:, i, i] = x
+        B = np.concatenate([B, Bx], axis=-1)
+    elif term in T.TERMS:
         fn, names, _ = T.TERMS[term]
         B = np.concatenate([B, T.basis(fn, A, len(names))], axis=-1)
     elif term in T.RIVALS:
@@ -147,7 +177,7 @@ class _Model:
 
     def __init__(self, d: IntervalData, name: Optional[str]):
         self.d, self.name = d, name
-        self.B = _design(d.A, name)
+        self.B = _design(d, name)
         self.k = self.B.shape[-1] - len(T.BASE_NAMES)
         self.n_params = self.B.shape[-1]
 
@@ -293,6 +323,10 @@ def diagnose_intervals(d: IntervalData, *, source=None, fit_status=None, poses=N
 
 def _score(d: IntervalData, name: str, base: _Model, r0: np.ndarray, gap: dict) -> dict:
     n = len(d.sigma)
+    if name in T.COVARIATE_TERMS and covariate(d, name) is None:
+        return {"term": name, "n_parameters": 3, "testable": False, "significant": False,
+                "reason": "no temperature of the intervals: fit-raw reads none (the library's "
+                          "diagnose_raw(fit, temperature=per_sample_degC) takes one)"}
     m = _Model(d, name)
     out = {"term": name, "n_parameters": m.k if name != "contaminated_interval" else 0}
     if n < m.min_intervals():
@@ -335,8 +369,8 @@ def _score(d: IntervalData, name: str, base: _Model, r0: np.ndarray, gap: dict) 
     after = _chi2(r[keep], d.sigma[keep], int(keep.sum()) - m.n_params)
     full = {"chi2_dof": after["chi2_dof"], "p_value": after["p_value"], "closes_gap": not after["significant"],
             "residual_rms_ug": float(np.sqrt(np.mean(r[keep] ** 2))) * UG, "new_parameters": {}}
-    if name in T.TERMS:
-        _, names, unit = T.TERMS[name]
+    if name in T.TERMS or name in T.COVARIATE_TERMS:
+        _, names, unit = T.TERMS[name] if name in T.TERMS else T.COVARIATE_TERMS[name]
         J = _jacobian(d, m.B, p)
         try:
             cov = np.linalg.inv(J.T @ J) * max(after["chi2_dof"] or 1.0, 1.0)
@@ -359,7 +393,9 @@ def _rivals(d: IntervalData, base, r0, gap, best: dict) -> list:
     z^2 is smaller by more than SHRINK_SE paired standard errors (``versus_best``). A rival it does
     not beat explains the held-out intervals as well: the data cannot tell them apart."""
     out = []
-    for name in T.RIVALS:
+    for name in RIVAL_NAMES:
+        if name == best["term"]:
+            continue
         r = _score(d, name, base, r0, gap)
         r.pop("full_fit", None)
         if r["testable"]:
@@ -493,7 +529,7 @@ RULE = (f"leave-one-interval-out: each candidate (and the 9-parameter base corre
         f"is significant when the base fit's chi2 over the intervals has p < {ALPHA} and chi2/dof > {RATIO_MAX}. "
         f"Verdict: null when the gap is not significant; the significant candidate of the largest mean(d) when "
         f"its refit on every interval leaves no significant gap and its held-out z^2 beats that of every rival "
-        f"outside the candidates ({', '.join(T.RIVALS)}) by more than {SHRINK_SE:g} paired standard errors; "
+        f"outside the candidates ({', '.join(RIVAL_NAMES)}) by more than {SHRINK_SE:g} paired standard errors; "
         f"otherwise unexplained (ambiguous_with: the rivals it does not beat). An interval stands out "
         f"when the modified z (0.6745 (r - median)/MAD) of its residual exceeds {ROBUST_Z:g}.")
 

@@ -15,6 +15,9 @@ real recordings").
   square of the gravity component along the axis, ``m_ij a_i^2`` (rad/g^2), so output ``i``
   gains ``m_ij a_i^2 a_j`` (even in ``a_i``: it does not change sign when the axis turns over,
   unlike a cross-coupling term).
+- ``bias_tempco`` and ``bias_drift`` (``COVARIATE_TERMS``): ``p_i x`` on output ``i``, ``x`` the
+  interval's temperature or time about their mean; a candidate when the temperature is given,
+  and a rival of every candidate (a drifting bias), respectively.
 - rivals (``RIVALS``, not candidates: a named candidate must beat them held out):
   ``scale_asymmetry`` ``e_i |a_i|``, ``scale_cubic`` ``K3_i a_i^3`` and ``odd_quadratic``
   ``q_i a_i |a_i|`` on output ``i``.
@@ -91,6 +94,19 @@ TERMS = {
     "g_dependent_misalignment": (g_dependent_misalignment,
                                  tuple(f"Ca_{_AX[i]}{_AX[j]}_g2" for i, j in PAIRS), "arcsec/g2"),
 }
+def per_output(x: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``p_i x`` on each output ``i`` for a covariate ``x`` (n,) of the intervals: a bias linear in
+    the temperature (``x = T - mean T``, degC) or in the time (``x = t - mean t``, h)."""
+    return np.asarray(x, float)[:, None] * np.asarray(p, float)[None, :]
+
+
+#: terms of a covariate of the intervals, not of the acceleration: name -> (covariate, parameter
+#: names, unit); the covariate centred on its mean (the base's bias holds the mean)
+COVARIATE_TERMS = {
+    "bias_tempco": ("temperature_C", tuple(f"S_{c}_tempco" for c in _AX), "ug/degC"),
+    "bias_drift": ("time_h", tuple(f"S_{c}_drift" for c in _AX), "ug/h"),
+}
+
 #: rivals of a named candidate (``raw_diagnosis``): terms outside the candidate list that a named
 #: candidate must beat on held-out intervals; name -> (function, number of parameters)
 RIVALS = {
@@ -101,7 +117,7 @@ RIVALS = {
 BASE_NAMES = ("D_xx", "D_yy", "D_zz", "D_xy", "D_xz", "D_yz", "b_x", "b_y", "b_z")
 
 #: parameters of a term in g (or rad) -> the reporting unit of TERMS
-UNIT_FACTOR = {"ug/g2": 1e6, "arcsec/g2": 180 / np.pi * 3600}
+UNIT_FACTOR = {"ug/g2": 1e6, "arcsec/g2": 180 / np.pi * 3600, "ug/degC": 1e6, "ug/h": 1e6}
 
 
 def basis(term, a: np.ndarray, k: int) -> np.ndarray:

@@ -75,9 +75,10 @@ def _orth(Q: np.ndarray, T: np.ndarray, tol: float = 1e-6) -> np.ndarray:
 
 
 def _fractions(Q: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """Per column of ``T``: the fraction of its norm outside span(Q) (0 for a zero column)."""
+    """Per column of ``T``: the fraction of its norm outside span(Q); inf for a zero column, which
+    is no shape at all (neither within a span nor an alias of one)."""
     norms = np.linalg.norm(T, axis=0)
-    out = np.zeros(T.shape[1])
+    out = np.full(T.shape[1], np.inf)
     keep = norms > 1e-12
     if keep.any():
         Tk = T[:, keep] / norms[keep]
