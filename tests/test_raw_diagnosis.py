@@ -250,3 +250,28 @@ def test_a_temperature_of_the_wrong_length_is_refused():
     T[17] = np.nan
     with pytest.raises(InputError, match="sample 17"):
         diagnose_raw(out, temperature=T)
+
+
+def test_cli_reads_the_temperature_column_and_refuses_a_bad_field(tmp_path, capsys):
+    """fit-raw --temperature-column T --diagnose: the column reaches the diagnosis (bias_tempco is
+    named on a cycling temperature); a field that is not a number is refused with its line and
+    column; a column not in the header is refused."""
+    rec, T = _with_temperature(recording(seed=6, noise_mg=0.3), 30.0, "cycle")
+    path = tmp_path / "rec.csv"
+    np.savetxt(path, np.column_stack([rec.acc, T]), delimiter=",", header="ax,ay,az,T", comments="",
+               fmt="%.7f")
+    base = ["fit-raw", str(path), "--rate", "100", "--unit", "g", "--poses", "unknown", "--local-g", "9.80665",
+            "--json", str(tmp_path / "r.json"), "--diagnose", str(tmp_path / "d.json")]
+    assert cli_main(base + ["--temperature-column", "T"]) in (0, 3)
+    doc = json.loads((tmp_path / "d.json").read_text())
+    assert doc["verdict"]["effect"] == "bias_tempco", doc["verdict"]
+    assert_valid(doc, "triadcal.diagnosis")
+    lines = path.read_text().splitlines()
+    lines[500] = ",".join(lines[500].split(",")[:3] + ["warm"])
+    path.write_text("\n".join(lines) + "\n")
+    capsys.readouterr()
+    assert cli_main(base + ["--temperature-column", "T"]) == 1
+    err = capsys.readouterr().err
+    assert "rec.csv:501: column 'T'" in err and "warm" in err, err
+    assert cli_main(base + ["--temperature-column", "degC"]) == 1
+    assert "temperature column not in the header" in capsys.readouterr().err

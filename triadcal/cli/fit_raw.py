@@ -53,6 +53,9 @@ def register(sub) -> None:
                    help="answer gate: largest orientation angle accepted as 'ok', arcsec (default 3600 = 1 deg)")
     p.add_argument("--json", metavar="OUT", required=True, help="write the result (results-json v1)")
     p.add_argument("--bench-csv", metavar="OUT.csv", help="write the pose averages as bench CSV v1 (known poses)")
+    p.add_argument("--temperature-column", metavar="COLUMN", default=None,
+                   help="column with the unit's temperature in degC; with --diagnose the bias tempco is a "
+                        "candidate (docs/diagnosis.md, \"Diagnosing real recordings\")")
     p.add_argument("--diagnose", metavar="OUT.json",
                    help="after the fit, diagnose the static intervals (where the residual lies, which candidate "
                         "term shrinks it on held-out intervals) and write a triadcal.diagnosis JSON "
@@ -75,6 +78,7 @@ def run(args) -> int:
     try:
         out = fit_raw(args.data, args.rate, columns=name_list(args.columns) if args.columns else None,
                       unit=args.unit, poses=args.poses, labels=args.labels, intervals=args.intervals,
+                      temperature_column=args.temperature_column,
                       local_g_m_s2=args.local_g, placement_sd_deg=args.placement_sd_deg,
                       misalignment_sd_deg=args.misalignment_sd_deg,
                       counts_per_g=args.counts_per_g, serial=args.serial, window_s=args.static_window_s,

@@ -53,9 +53,17 @@ class RawRecording:
     metadata: dict = field(default_factory=dict)
     source: str = "<memory>"
     first_line: int = 1
+    #: the unit's temperature at each sample (degC), when a column of the file holds it
+    temperature_C: Optional[np.ndarray] = None
+    temperature_column: Optional[str] = None
 
     def __post_init__(self):
         self.acc = np.asarray(self.acc, float)
+        if self.temperature_C is not None:
+            self.temperature_C = np.asarray(self.temperature_C, float).reshape(-1)
+            if len(self.temperature_C) != len(self.acc):
+                raise InputError(f"{self.source}: {len(self.temperature_C)} temperatures for "
+                                 f"{len(self.acc)} samples")
         if self.acc.ndim != 2 or self.acc.shape[1] != 3:
             raise InputError(f"{self.source}: samples must have shape (n, 3), got {self.acc.shape}")
         if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
@@ -83,14 +91,15 @@ DELIMITERS = (",", "\t", ";")
 
 
 def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, unit: str = "counts",
-                 label_column: Optional[str] = None) -> RawRecording:
+                 label_column: Optional[str] = None, temperature_column: Optional[str] = None) -> RawRecording:
     """Read a raw recording (``triadcal fit-raw``).
 
     The header row is the first line that names all of ``columns`` (default: the first
     of ``acc_x,acc_y,acc_z`` / ``ax,ay,az`` / ``x,y,z`` found), separated by commas, tabs or
     semicolons (the header decides, the rows must follow it); lines before it are kept as
     metadata when they read ``key,value``. Every sample must be a finite number: a bad
-    field is refused with its line and column, nothing is dropped.
+    field is refused with its line and column, nothing is dropped. ``temperature_column``
+    (degC, optional) is read with the same rules into ``temperature_C``.
     """
     path = str(path)
     try:
@@ -122,6 +131,9 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
     if label_column is not None and label_column not in header:
         raise RawRecordingError(path, header_at + 1, label_column,
                                 f"label column not in the header (columns: {', '.join(header)})")
+    if temperature_column is not None and temperature_column not in header:
+        raise RawRecordingError(path, header_at + 1, temperature_column,
+                                f"temperature column not in the header (columns: {', '.join(header)})")
     metadata = {}
     for line in lines[:header_at]:
         parts = [p.strip() for p in line.split(",")]
@@ -138,8 +150,11 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
                                     f"the stated rate {rate_hz:g} Hz disagrees with the file's header ({fr:g} Hz); "
                                     "check which one is right (imucal issue #25)")
     offset = _line_start(path, header_at, bom)
-    acc, labels = _read_samples_fast(path, offset, header_at, header, cols, label_column, delim)
-    return RawRecording(acc, float(rate_hz), unit, cols, labels, label_column, metadata, path, header_at + 2)
+    read = cols + ((temperature_column,) if temperature_column is not None else ())
+    acc, labels = _read_samples_fast(path, offset, header_at, header, read, label_column, delim)
+    temp = acc[:, 3] if temperature_column is not None else None
+    return RawRecording(acc[:, :3], float(rate_hz), unit, cols, labels, label_column, metadata, path,
+                        header_at + 2, temp, temperature_column)
 
 
 def _line_start(path, k: int, bom: int) -> int:

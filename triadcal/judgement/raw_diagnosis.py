@@ -229,7 +229,10 @@ class RawDiagnosis:
 
 
 def diagnose_raw(rawfit, *, temperature=None, source: Optional[str] = None) -> RawDiagnosis:
-    """Diagnose the fit of a raw recording (:func:`triadcal.estimation.raw.fit_raw`'s ``RawFit``)."""
+    """Diagnose the fit of a raw recording (:func:`triadcal.estimation.raw.fit_raw`'s ``RawFit``);
+    ``temperature`` (degC per sample) defaults to the recording's temperature column, if read."""
+    if temperature is None:
+        temperature = getattr(rawfit.recording, "temperature_C", None)
     return diagnose_intervals(interval_data(rawfit, temperature), source=source or rawfit.recording.source,
                               fit_status=rawfit.result.status, poses=("known" if rawfit.campaign is not None
                                                                       else "unknown"))
@@ -325,8 +328,8 @@ def _score(d: IntervalData, name: str, base: _Model, r0: np.ndarray, gap: dict) 
     n = len(d.sigma)
     if name in T.COVARIATE_TERMS and covariate(d, name) is None:
         return {"term": name, "n_parameters": 3, "testable": False, "significant": False,
-                "reason": "no temperature of the intervals: fit-raw reads none (the library's "
-                          "diagnose_raw(fit, temperature=per_sample_degC) takes one)"}
+                "reason": "no temperature of the intervals: give fit-raw --temperature-column COLUMN "
+                          "(degC), or diagnose_raw(fit, temperature=per_sample_degC)"}
     m = _Model(d, name)
     out = {"term": name, "n_parameters": m.k if name != "contaminated_interval" else 0}
     if n < m.min_intervals():

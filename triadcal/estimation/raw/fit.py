@@ -95,7 +95,8 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
             serial: Optional[str] = None, window_s: float = 1.0, threshold: float = 4.0,
             min_duration_s: float = 2.0, json_path=None, bench_csv_path=None, sample: bool = False,
             posterior_path=None, priors=None, ess: float = 2000, seed: int = 0, max_steps: int = 20000,
-            progress=None, n_walkers: Optional[int] = None, gates: GateConfig = DEFAULT_CONFIG) -> RawFit:
+            progress=None, n_walkers: Optional[int] = None, gates: GateConfig = DEFAULT_CONFIG,
+            temperature_column: Optional[str] = None) -> RawFit:
     """Calibrate from a raw recording (``triadcal fit-raw``).
 
     ``data`` is a CSV path (read with :func:`triadcal.io.raw.read_raw_csv` at the stated
@@ -109,6 +110,8 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
     ``posterior``, the least-squares values under ``fit.least_squares``), ``posterior_path``
     receives the arviz InferenceData, ``priors`` overrides :func:`raw_priors` by name, ``ess``,
     ``seed``, ``max_steps``, ``progress`` as in :func:`triadcal.estimation.posterior.sample`.
+    ``temperature_column``: a column of the file with the unit's temperature (degC), kept on the
+    recording for the diagnosis (``diagnose_raw``); the calibration does not use it.
     """
     if posterior_path is not None and not sample:
         raise InputError("a posterior file needs sampling (--sample)")
@@ -121,7 +124,7 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
     else:
         if rate_hz is None:
             raise InputError("state the sample rate (--rate HZ): it cannot be guessed safely (imucal issue #25)")
-        rec = read_raw_csv(data, rate_hz, columns, unit, labels)
+        rec = read_raw_csv(data, rate_hz, columns, unit, labels, temperature_column)
     gravity_g = local_g_m_s2 / STANDARD_GRAVITY_M_S2
     serial = serial or (str(rec.source).rsplit("/", 1)[-1].rsplit(".", 1)[0])
     try:
