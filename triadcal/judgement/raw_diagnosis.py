@@ -131,10 +131,7 @@ def _design(d: "IntervalData", term: Optional[str]) -> np.ndarray:
     B = T.basis(T.linear_correction, A, len(T.BASE_NAMES))
     if term in T.COVARIATE_TERMS:
         x = covariate(d, term)
-        Bx = np.zeros((len(A), 3, 3))
-        for i in range(3):
-            Bx[:, i, i] = x
-        B = np.concatenate([B, Bx], axis=-1)
+        B = np.concatenate([B, np.stack([T.per_output(x, e) for e in np.eye(3)], axis=-1)], axis=-1)
     elif term in T.TERMS:
         fn, names, _ = T.TERMS[term]
         B = np.concatenate([B, T.basis(fn, A, len(names))], axis=-1)

@@ -170,20 +170,14 @@ def second_campaign(effect: str, seed: int, magnitude: float = 1.0, preset: str 
         b = play_branch(T.mean(axis=1), 8.0)
         ang = {ab: m * float(P[f"Ca_{ab}_hysteresis"]) * ARCSEC for ab in PAIRS}
         dA = _angle_offsets(_gravity(c), ang) * b[:, None]
-    elif effect in ("tilt_drift", "bench_tilt"):
-        if effect == "bench_tilt":
-            tx = np.full(n, m * float(P["tilt_x"]) * ARCSEC)
-            ty = np.full(n, m * float(P["tilt_y"]) * ARCSEC)
-        else:
-            settle = 1.0 - np.exp(-hours / (span_h / 3.0))
-            tx = float(P["tilt_x"]) * ARCSEC + m * 1.5 * span_h * ARCSEC * settle
-            ty = float(P["tilt_y"]) * ARCSEC - m * 1.0 * span_h * ARCSEC * settle
-            tx0 = np.full(n, float(P["tilt_x"]) * ARCSEC)
-            ty0 = np.full(n, float(P["tilt_y"]) * ARCSEC)
-            # the simulated campaign holds the constant tilt already: add the change only
-            dA = _gravity(c, _tilted(tx, ty)) - _gravity(c, _tilted(tx0, ty0))
-        if effect == "bench_tilt":
-            dA = _gravity(c, _tilted(tx, ty)) - _gravity(c)
+    elif effect == "bench_tilt":              # the simulated campaign has no tilt: add all of it
+        tilt = np.full(n, m * ARCSEC)
+        dA = _gravity(c, _tilted(tilt * float(P["tilt_x"]), tilt * float(P["tilt_y"]))) - _gravity(c)
+    elif effect == "tilt_drift":              # it holds the constant tilt already: add the change only
+        tx0, ty0 = float(P["tilt_x"]) * ARCSEC, float(P["tilt_y"]) * ARCSEC
+        settle = span_h * ARCSEC * (1.0 - np.exp(-hours / (span_h / 3.0)))
+        dA = (_gravity(c, _tilted(tx0 + m * 1.5 * settle, ty0 - m * 1.0 * settle))
+              - _gravity(c, _tilted(np.full(n, tx0), np.full(n, ty0))))
     elif effect == "bias_tempco":
         theta = 40.0
         x = (T - 20.0) / theta

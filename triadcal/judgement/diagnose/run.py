@@ -404,8 +404,9 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             the data cannot tell it from another refitted candidate or from a smooth term outside the
             list; None when it beats them all."""
             cols = lambda c: Jfull[:, [full.index[n] for n in c.params]]  # noqa: E731
-            rivals = {c.effect: cols(c) for c in refitted
-                      if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS}
+            named_rivals = [c for c in refitted
+                            if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS]
+            rivals = {c.effect: cols(c) for c in named_rivals}
             sig_rows = np.broadcast_to(np.asarray(sigma, float), (campaign.n_visits, 3))
             rivals.update(generic_rivals(per_output_terms(campaign), sig_rows, base.whitened))
 
@@ -418,8 +419,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 _, Jr = _problem_on(full, ref).residuals_and_jacobian(base.x_full)
                 Jr = Jr / base.s
                 colr = lambda c: Jr[:, [full.index[n] for n in c.params]]  # noqa: E731
-                rr = {c.effect: colr(c) for c in refitted
-                      if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS}
+                rr = {c.effect: colr(c) for c in named_rivals}
                 rr.update(generic_rivals(per_output_terms(ref), sig_rows, lambda v: v / base.s))
                 return _hat_q(Jr[:, [full.index[n] for n in base.names]]), colr(best), rr
 
