@@ -19,8 +19,12 @@ absorbed into it, which is why the diagnosis lets a noise candidate win only whe
 left. (The diagnosis's refit estimates the two variances, bench axes and wobble, separately.)
 
 ``heavy_tails`` is the Student-t likelihood of the fit (``loss = "student_t"``), its dof ``nu``
-chosen by profile likelihood of the unit-variance Student-t
-(:func:`triadcal.models.effects.heavy_tails.logpdf`) over a grid at the least-squares fit.
+and its scale (the t's SD in units of the noise model's) chosen by profile likelihood
+(:func:`triadcal.models.effects.heavy_tails.logpdf`, ``profile_scale``) over a grid at the
+least-squares fit. The fit's IRLS weights are those of the unit-scale t, and its covariance the
+M-estimator's sandwich, which holds whatever the scale; ``sample``'s Student-t likelihood has the
+fitted scale (the output noise's SD times it), so that contamination, which adds variance as well
+as tails, does not narrow the credible intervals.
 """
 
 from __future__ import annotations
@@ -175,19 +179,21 @@ def position_error_from_residuals(campaign, effects: Sequence[str], *, reference
 
 
 def heavy_tails_dof(campaign, effects: Sequence[str], *, reference_temperature_C: float = 20.0,
-                    **fit_kw) -> tuple[float, dict]:
-    """Student-t dof of the normalised residuals by profile likelihood over :data:`NU_GRID`
-    (``inf`` kept when the normal is likelier), and the log likelihood at each."""
+                    **fit_kw) -> tuple[float, dict, float]:
+    """``(nu, log likelihood at each dof, scale)``: the Student-t dof of the normalised residuals by
+    profile likelihood over :data:`NU_GRID` (``inf`` kept when the normal is likelier), the scale
+    profiled at each (:func:`triadcal.models.effects.heavy_tails.profile_scale`: the t's SD in units
+    of the noise model's, 1 when the noise model holds; contamination makes it larger)."""
     noise = noise_of(campaign)
     result, problem, sol = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
                                      return_problem=True, **fit_kw)
     z = np.asarray(sol.r, float)
     if not noise.known:
         z = z / max(float(np.sqrt(np.mean(z ** 2))), 1e-300)
-    ll = {nu: float(np.sum(ht.logpdf(z, nu))) for nu in NU_GRID}
-    ll[math.inf] = float(np.sum(ht.logpdf(z, math.inf)))
+    fits = {nu: ht.profile_scale(z, nu) for nu in NU_GRID + (math.inf,)}
+    ll = {nu: f[1] for nu, f in fits.items()}
     nu = max(ll, key=ll.get)
-    return nu, ll
+    return nu, ll, fits[nu][0]
 
 
 def resolve_noise_effects(campaign, effects: Sequence[str], *, bench_errors: Optional[BenchErrors] = None,
@@ -198,22 +204,26 @@ def resolve_noise_effects(campaign, effects: Sequence[str], *, bench_errors: Opt
     likelihood), ``notes`` and ``extra`` for the result. Conflicts are refused: the lab's (or the
     replicates') bench errors with ``position_error``, another robust loss with ``heavy_tails``."""
     mean, noise_fx = split_effects(effects)
-    out = {"effects": mean, "bench_errors": bench_errors, "loss": loss, "nu": nu, "notes": [], "extra": {},
-           "whitening": None}
+    out = {"effects": mean, "bench_errors": bench_errors, "loss": loss, "nu": nu, "t_scale": 1.0, "notes": [],
+           "extra": {}, "whitening": None}
     if not noise_fx:
         return out
     out["extra"]["noise_effects"] = list(noise_fx)
     if "heavy_tails" in noise_fx:
         if loss != "l2":
             raise InputError(f"heavy_tails is the Student-t likelihood: it cannot be combined with --loss {loss}")
-        nu_hat, _ = heavy_tails_dof(campaign, mean, **fit_kw)
+        nu_hat, _, scale = heavy_tails_dof(campaign, mean, **fit_kw)
+        out["extra"]["heavy_tails"] = {"dof": None if math.isinf(nu_hat) else nu_hat, "scale": scale,
+                                       "scale_unit": "1 (of the noise model's SD)"}
         if math.isinf(nu_hat):
             out["notes"].append("heavy_tails: the profile likelihood prefers the normal (no dof of the grid "
                                 f"{', '.join(f'{g:g}' for g in NU_GRID)} is likelier); fitted by least squares")
         else:
-            out["loss"], out["nu"] = "student_t", nu_hat
-            out["notes"].append(f"heavy_tails: Student-t likelihood, dof nu = {nu_hat:g} by profile likelihood over "
-                                f"{', '.join(f'{g:g}' for g in NU_GRID)}")
+            out["loss"], out["nu"], out["t_scale"] = "student_t", nu_hat, scale
+            out["notes"].append(f"heavy_tails: Student-t likelihood, dof nu = {nu_hat:g} and scale {scale:.3g} (of "
+                                "the noise model's SD) by profile likelihood over "
+                                f"{', '.join(f'{g:g}' for g in NU_GRID)}; the fit's covariance is the M-estimator's "
+                                "sandwich, whatever the scale; sample's likelihood has the scale")
     if "position_error" in noise_fx:
         if bench_errors is not None:
             raise InputError("position_error estimates the bench's random errors from the residuals, but they are "

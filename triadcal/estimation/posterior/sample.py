@@ -143,6 +143,10 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
         sigma = sigma * math.sqrt(chi2_dof)
         notes.append(f"output noise not in the data: held at its least-squares estimate ({noise.description}, "
                      f"chi2/dof = {chi2_dof:.3g}); the posterior does not include the uncertainty of the noise level")
+    if math.isfinite(nu) and noise_fx.get("t_scale", 1.0) != 1.0:
+        sigma = sigma * float(noise_fx["t_scale"])
+        notes.append(f"heavy_tails: the Student-t's SD is {noise_fx['t_scale']:.3g} times the output noise's "
+                     "(profile likelihood), held at that value (plug-in)")
     quantisation = _held_quantisation(campaign, ls) if quantised else None
     if quantisation is not None:
         from ..quantisation_form import output_map
