@@ -64,7 +64,7 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
         json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0, lab=None,
         hysteresis_form: str = "offset", hysteresis_half_width_C: Optional[float] = None,
         bench_errors_from_replicates: bool = False, thermal_order: str = "1", thermal_lag_form: str = "rate",
-        quantisation_lsb: Optional[float] = None):
+        quantisation_lsb: Optional[float] = None, bridge_gaps: bool = False):
     """Calibrate from a campaign (``triadcal fit``): ``data`` is a bench CSV path, a
     :class:`~triadcal.models.campaign.Campaign`, or None for the built-in example.
     ``angle_bound_arcsec``: the answer gates' bound on an orientation angle (arcsec).
@@ -85,7 +85,9 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     ``thermal_lag_form``: ``rate`` (the ``thermal_lag`` effect as listed: ``T - tau dT/dt``, for
     short lags), ``housing`` or ``air`` (the element's lag estimated from the temperature history,
     the thermometer on the housing or in the chamber air;
-    :func:`triadcal.estimation.thermal_lag_form.fit_thermal_lag`).
+    :func:`triadcal.estimation.thermal_lag_form.fit_thermal_lag`); ``bridge_gaps`` (with those two)
+    fills the record's gaps, the soaks of a stepped campaign, with a first-order approach profiled
+    with the lags (docs/model.md).
     ``hysteresis_form``: ``offset`` (the branches a constant offset apart), ``play`` (a play
     hysteresis of half-width ``hysteresis_half_width_C`` degC, profiled when None), ``pi`` (a
     Prandtl-Ishlinskii sum of two plays, profiled) or ``auto`` (chosen by the data;
@@ -160,6 +162,9 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
                 campaign, effects, thermal_order, **{k: v for k, v in kwargs.items() if k != "return_problem"})
         if thermal_lag_form not in ("rate", "housing", "air"):
             raise InputError(f"unknown thermal lag form {thermal_lag_form!r}: choose rate, housing or air")
+        if bridge_gaps and thermal_lag_form == "rate":
+            raise InputError("--bridge-gaps fills the temperature record's gaps for the history form: use it with "
+                             "--thermal-lag-form housing or air")
         if thermal_lag_form != "rate":
             if hysteresis_form != "offset" or hysteresis_half_width_C is not None or thermal_order != "1" \
                     or netcdf_path is not None:
@@ -169,7 +174,7 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             from .estimation.thermal_lag_form import fit_thermal_lag
 
             kwargs.pop("return_problem")
-            result = fit_thermal_lag(campaign, effects, thermal_lag_form, **kwargs)
+            result = fit_thermal_lag(campaign, effects, thermal_lag_form, bridge_gaps=bridge_gaps, **kwargs)
             result.notes.extend(noise_fx["notes"] + ([added] if added else []))
             result.extra.update(noise_fx["extra"])
             if json_path is not None:

@@ -63,6 +63,10 @@ def register(sub) -> None:
                         "the temperature history, the thermometer on the housing (one stage, thermal_lag, min) or "
                         "in the chamber air (two stages, thermal_lag_housing and thermal_lag); default rate: the "
                         "thermal_lag effect's T - tau dT/dt, for short lags only; docs/model.md")
+    p.add_argument("--bridge-gaps", action="store_true",
+                   help="with --thermal-lag-form housing or air on a stepped campaign read only at its visits: fill "
+                        "each gap of the temperature record (a soak) with a first-order approach whose time constant "
+                        "is profiled with the lags, instead of refusing the record (docs/model.md)")
     p.add_argument("--quantisation-lsb", type=float, default=None, metavar="Q",
                    help="the LSB q of a digital output in the file's output unit (one for the three outputs), fixed "
                         "instead of profiled; implies --effects ...,quantisation (docs/model.md, Quantisation)")
@@ -97,7 +101,8 @@ def run(args) -> int:
                  angle_bound_arcsec=args.angle_bound_arcsec, lab=args.lab,
                  hysteresis_form=args.hysteresis_form, hysteresis_half_width_C=args.hysteresis_width,
                  bench_errors_from_replicates=args.bench_errors_from_replicates, thermal_order=args.thermal_order,
-                 thermal_lag_form=args.thermal_lag_form, quantisation_lsb=args.quantisation_lsb)
+                 thermal_lag_form=args.thermal_lag_form, quantisation_lsb=args.quantisation_lsb,
+                 bridge_gaps=args.bridge_gaps)
     out.say(summary_text(result))
     if args.json:
         out.say(f"result written to {args.json}")

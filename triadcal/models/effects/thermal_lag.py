@@ -22,6 +22,19 @@ from the thermometer's record for the two mechanisms of :data:`LOCATIONS`:
   (second order: the element's response to a step of the air starts with zero slope).
 
 With the thermometer on the element itself there is no lag (leave the effect off).
+
+**Gaps of the record.** A stepped campaign read only at its visits does not record the soaks. A
+straight line across a gap says the thermometer moved evenly through it; after a setpoint step
+it moves at once and settles. :func:`bridge_record` fills each gap (from the last reading
+``T0`` before it to the first ``T1`` after it, ``D`` long) with a first-order approach that
+starts with the gap::
+
+    T(s) = T1 + (T0 - T1) (exp(-s / tau_b) - exp(-D / tau_b)) / (1 - exp(-D / tau_b)),  0 <= s <= D
+
+which reaches ``T1`` at the gap's end; ``tau_b`` -> 0 is a step at the gap's start and
+``tau_b`` -> inf the straight line (the chamber air behind a stepped setpoint: a first-order
+response of the chamber's time constant; a housing thermometer is a slower, second-order one,
+which one ``tau_b`` approximates).
 :func:`triadcal.estimation.thermal_lag_form.fit_thermal_lag` estimates the time constants from
 the record with the joint model, positive by construction (profiled in log tau).
 """
@@ -55,13 +68,43 @@ class ThermalLag(Effect):
         return tuple(lagged(dT[i], cov.temp_rate[i], p["thermal_lag"]) for i in range(3))
 
 
-def element_temperature(t_s, T, tau_s: float, location: str = "housing", tau_housing_s: float = 0.0):
+def bridge_record(t_s, T, tau_bridge_s: float, min_gap_s: float):
+    """``(times, values, kept)``: the record ``T`` ((n, k), at strictly increasing ``t_s``) with every
+    interval longer than ``min_gap_s`` filled by the first-order approach of the module docstring
+    (``tau_bridge_s``; points every ``tau_b / 4``, 8 to 200 per gap); ``kept`` the indices of the
+    original samples in the result."""
+    t = np.asarray(t_s, float)
+    X = np.asarray(T, float).reshape(len(t), -1)
+    if tau_bridge_s <= 0 or not np.isfinite(tau_bridge_s):
+        raise ValueError("the bridge's time constant must be positive and finite")
+    times, values, kept, count = [], [], [], 0
+    for i in range(len(t)):
+        kept.append(count)
+        count += 1
+        times.append(t[i:i + 1])
+        values.append(X[i:i + 1])
+        if i + 1 < len(t) and t[i + 1] - t[i] > min_gap_s:
+            D = float(t[i + 1] - t[i])
+            m = int(min(200, max(8, np.ceil(4.0 * D / tau_bridge_s))))
+            s = np.linspace(0.0, D, m + 1)[1:-1]
+            e = np.exp(-D / tau_bridge_s)
+            f = (np.exp(-s / tau_bridge_s) - e) / (1.0 - e) if e < 1.0 - 1e-12 else 1.0 - s / D
+            times.append(t[i] + s)
+            values.append(X[i + 1] + (X[i] - X[i + 1]) * f[:, None])
+            count += len(s)
+    # the original samples sit one after another when no gap follows them: their indices grow by one
+    return np.concatenate(times), np.concatenate(values), np.asarray(kept, int)
+
+
+def element_temperature(t_s, T, tau_s: float, location: str = "housing", tau_housing_s: float = 0.0,
+                        bridge=None):
     """Temperature of the sensing element from the thermometer's record ``T`` at times ``t_s``
     (s; any order, one column or ``(n, k)``): one first-order stage ``tau_s`` behind the record
     (``location="housing"``), or two stages, ``tau_housing_s`` then ``tau_s`` (``"air"``), each
     :mod:`triadcal.models.thermal_history`'s ramp-invariant lag, the element at rest with the
     record at the first sample. Times that repeat (several visits at one instant) keep the order
-    of the input."""
+    of the input. ``bridge``: ``(tau_bridge_s, min_gap_s)`` fills the record's gaps first
+    (:func:`bridge_record`); None: straight lines across them."""
     if location not in LOCATIONS:
         raise ValueError(f"unknown thermometer location {location!r}; choose one of {', '.join(LOCATIONS)}")
     t = np.asarray(t_s, float)
@@ -70,10 +113,15 @@ def element_temperature(t_s, T, tau_s: float, location: str = "housing", tau_hou
     ts = t[order]
     ts = ts + np.arange(len(ts)) * 1e-9 * (np.diff(ts, prepend=-np.inf) <= 0)   # strictly increasing
     cols = X[order].reshape(len(t), -1)
+    kept = None
+    if bridge is not None:
+        ts, cols, kept = bridge_record(ts, cols, float(bridge[0]), float(bridge[1]))
     out = np.empty_like(cols)
     for j in range(cols.shape[1]):
         out[:, j] = (first_order_lag(ts, cols[:, j], tau_s) if location == "housing" else
                      two_stage_lag(ts, cols[:, j], tau_housing_s, tau_s))
+    if kept is not None:
+        out = out[kept]
     res = np.empty_like(out)
     res[order] = out
     return res.reshape(X.shape)
