@@ -139,6 +139,27 @@ def test_lag_behind_the_housing_on_a_ramp_is_named_thermal_lag_history(tau):
     assert "location housing" in d.verdict["evidence"]
 
 
+def test_lag_behind_the_air_on_a_stepped_campaign_is_named_with_the_gaps_bridged():
+    """A stepped campaign read only at its visits (30 min soaks), the thermometer in the air, the
+    housing 20 min and the element 4 min behind it, the chamber 5 min behind its program (Euler heat
+    equations): the record's gaps are bridged (the air form), and the history form closes the gap
+    that the rate form leaves; its refit is one command away (`--bridge-gaps`)."""
+    from independent_bench import StepProgram
+
+    rng = np.random.default_rng(61)
+    t = default_truth(rng)
+    for ab in ANGLES:
+        t[f"Ca_{ab}_tempco"] = float(rng.uniform(0.5, 1.0)) * float(rng.choice([-1, 1]))
+    txt, _ = simulate_lag_campaign(rng, truth=t, tau_element_min=4.0, location="air", tau_housing_min=20.0,
+                                   tau_chamber_min=5.0, program=StepProgram(soak_min=30.0))
+    d = diagnose(parse_bench_csv(txt), LAG_MODEL, **OPTS)
+    assert d.verdict_effect == "thermal_lag_history", (d.verdict, d.ranked()[:4])
+    form = _cand(d, "thermal_lag_history").refit["form"]
+    assert form["location"] == "air" and form["beats_simpler"] and form["bridge_min"] is not None
+    assert "bridge_min" in form["profiled"] and d.verdict["fit_options"].endswith("--bridge-gaps")
+    assert d.verdict["gap_closed"]
+
+
 def test_a_short_lag_the_rate_form_explains_is_named_thermal_lag():
     """tau = 1 min: the rate form T - tau dT/dt is as good as the history (chi2 lower by < 6.63), so
     the simpler rate form is named, though the history ranks first by delta elpd."""

@@ -52,6 +52,11 @@ def test_left_out_groups_hold_the_forms_and_orders_of_the_effect():
     assert set(left_out_group("position_error")) == set(left_out_group("heavy_tails")) == noise_group
     assert left_out_group("scale_asymmetry") == ("scale_asymmetry",)     # separable by the oblique poses
     assert all(e in left_out_group(e) for e in LEFT_OUT_GROUPS)
+    # a verdict naming another form of the same effect is right in vocabulary; left out, every such
+    # form is removed with the effect, or the left-out mode could be 'right' by naming it
+    from triadcal.judgement.diagnosis_validation import SAME_EFFECT
+    assert SAME_EFFECT["thermal_lag"] == ("thermal_lag", "thermal_lag_history")
+    assert all(set(forms) <= set(left_out_group(e)) for e, forms in SAME_EFFECT.items())
 
 
 def test_left_out_mode_rows_confusion_and_json(tmp_path):

@@ -62,6 +62,12 @@ _FAMILIES = (
     ("bias_tempco", "bias_tempco2", "bias_tempco3"),
     ("position_error", "heavy_tails"),
 )
+#: the forms of one effect that name it (a first mechanism's verdict is right with either): the
+#: history form of the thermal lag is the rate form's exact solution (the rate form is its first
+#: order in tau), so on a campaign lagged over its whole history it may beat the rate form (by the
+#: 99 % point, candidates._thermal_lag_history) and names the same lag. The hysteresis forms are
+#: not here: a play is another law than the offset, not its exact form.
+SAME_EFFECT = {"thermal_lag": ("thermal_lag", "thermal_lag_history")}
 LEFT_OUT_GROUPS: dict = {}
 for _fam in _FAMILIES:
     for _e in _fam:
@@ -148,7 +154,8 @@ def run_case(effect: str, seed: int, preset: str = "ak18-quartz", n_draws: int =
         campaign = simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S),
                                      seed=seed)
     #: the verdicts that are right: the effect (none for clean), or any of its family for a second mechanism
-    right = sm.FAMILY[base_effect] if second else ((NONE,) if effect == "clean" else (effect,))
+    right = (sm.FAMILY[base_effect] if second else
+             (NONE,) if effect == "clean" else SAME_EFFECT.get(effect, (effect,)))
     t0, c0 = time.perf_counter(), time.process_time()
     d = diagnose(campaign, model, n_draws=n_draws, cross_group=cross_group, slices_after=False, top=top,
                  seed=seed)

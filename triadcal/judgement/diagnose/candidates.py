@@ -86,10 +86,9 @@ def _position_score(state: FitState, w: np.ndarray, h: np.ndarray, noise_known: 
 
 
 def _loglik_pointwise(r, var_scale=None, nu=math.inf):
-    """Pointwise log-likelihood of normalised residuals (up to a common constant)."""
-    if var_scale is not None:
-        return -0.5 * r * r / var_scale - 0.5 * np.log(var_scale) - 0.5 * np.log(2 * np.pi)
-    return ht.logpdf(r, nu)
+    """Pointwise log-likelihood of normalised residuals: normal (``nu = inf``) or Student-t, of
+    variance ``var_scale`` (per residual) or 1."""
+    return ht.logpdf(r, nu, 1.0 if var_scale is None else np.sqrt(var_scale))
 
 
 def _loo(state: FitState, n_draws: int, rng, var_scale=None, nu=math.inf):
@@ -177,12 +176,18 @@ def _fit_position_error(full, campaign, base: FitState, names, sigma, noise_know
 
 
 def _fit_heavy_tails(base: FitState):
-    """Student-t dof by profile likelihood with the least-squares mean (plug-in)."""
+    """Student-t dof and scale by profile likelihood at the least-squares mean (plug-in): for each
+    dof of the grid the scale's maximum (``heavy_tails.profile_scale``), the pair of the largest.
+    The scale is free, the noise model's variance is not held: contamination also adds variance
+    (models/effects/heavy_tails.py). ``var_scale`` carries the scale squared for every residual."""
     grid = np.array([2.2, 2.5, 3.0, 3.5, 4.0, 5.0, 7.0, 10.0, 20.0, 50.0])
-    ll = [float(np.sum(ht.logpdf(base.r, nu))) for nu in grid]
-    nu = float(grid[int(np.argmax(ll))])
+    fits = [ht.profile_scale(base.r, nu) for nu in grid]
+    i = int(np.argmax([ll for _, ll in fits]))
+    nu, scale = float(grid[i]), float(fits[i][0])
     state = FitState(base.names, base.x_full, base.r, base.J, base.cov, base.chi2, base.dof, base.s,
-                     base.converged, nu=nu, extra_params={"heavy_tails_dof": {"value": nu, "unit": "1"}})
+                     base.converged, var_scale=np.full(base.r.shape, scale * scale), nu=nu,
+                     extra_params={"heavy_tails_dof": {"value": nu, "unit": "1"},
+                                   "heavy_tails_scale": {"value": scale, "unit": "1 (of the noise model's SD)"}})
     return state
 
 
@@ -317,12 +322,19 @@ def _hysteresis_forms(campaign, full, model, names, base: FitState, noise_known:
     return out
 
 
-def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_known: bool, T0: float):
+def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_known: bool, T0: float,
+                         lag_indicated: bool = False):
     """Candidate ``thermal_lag_history``: the thermal terms at the element's temperature, the record
     passed through one (thermometer on the housing) or two (in the air) first-order stages; the time
     constants profiled by ``fit_thermal_lag`` for each location, the model refitted at the element's
     temperature with the diagnosis's weights, and the location with the lower chi^2 kept (the air's
-    two stages only when they lower it by more than the 99 % point of chi^2 with 1 dof)."""
+    two stages only when they lower it by more than the 99 % point of chi^2 with 1 dof).
+
+    A record with gaps (the soaks of a stepped campaign) is bridged (``fit_thermal_lag``'s
+    ``bridge_gaps``: a first-order approach through each gap, its time constant profiled too) when
+    a lag is indicated -- the rate form among the top candidates by score at p < alpha, or the rate
+    form in the model -- and the candidate is untestable otherwise (the bridged search costs 300-700
+    inner fits)."""
     from ...errors import InputError, TriadcalError
     from ...estimation.thermal_lag_form import fit_thermal_lag, record_gaps, with_element_temperature
     from .results import Candidate
@@ -336,23 +348,28 @@ def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_kno
         return _untestable([name], "the lag acts only through temperature coefficients: add a tempco to the "
                                    "model to test it")
     gaps = record_gaps(campaign)
-    if len(gaps):
+    bridge = bool(len(gaps))
+    if bridge and not (lag_indicated or "thermal_lag" in model):
         return _untestable([name], f"the thermometer's record has {len(gaps)} gap(s) of up to {gaps.max():.0f} min "
-                                   "(soaks no visit records): the element's history through them is unknown; "
-                                   "the rate form (thermal_lag) is the candidate on this design")
+                                   "(soaks no visit records) and the rate form is not a leading candidate: the "
+                                   "history through the gaps is not bridged; the rate form (thermal_lag) is the "
+                                   "candidate on this design")
     effects = tuple(e for e in model if e != "thermal_lag")
     names_h = [n for n in names if full.model.spec[n].effect != "thermal_lag"]
     x0 = base.x_full.copy()
     for n in _effect_params(full.model, "thermal_lag"):
         x0[full.index[n]] = 0.0
     fits = {}
-    for loc in ("housing", "air"):
+    # with gaps only the air's form is bridged (fit_thermal_lag): a housing's history through a soak
+    # is two stages, not the bridge's one
+    for loc in ("air",) if bridge else ("housing", "air"):
         if loc == "air" and noise_known and fits:
             st_h = fits["housing"][0]
             if stats.chi2.sf(st_h.chi2, max(st_h.dof - 1, 1)) >= 0.01:
                 break       # one stage closes the gap: the air's second stage is not looked for
         try:
-            res = fit_thermal_lag(campaign, effects, loc, reference_temperature_C=T0)
+            res = fit_thermal_lag(campaign, effects, loc, bridge_gaps=bridge and loc == "air",
+                                  reference_temperature_C=T0)
         except (TriadcalError, ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError) as e:
             if not fits:
                 return _untestable([name], str(e) if isinstance(e, InputError) else
@@ -360,19 +377,29 @@ def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_kno
             continue
         blk = res.fit["thermal_lag"]
         te, th = float(blk["tau_min"]), float(blk["tau_housing_min"] or 0.0)
-        st = _fit(_problem_on(full, with_element_temperature(campaign, te, loc, th)), names_h, x0, noise_known)
+        tb = blk["bridge"]["tau_min"] if blk.get("bridge") else None
+        st = _fit(_problem_on(full, with_element_temperature(campaign, te, loc, th, tb)), names_h, x0, noise_known)
         st.extra_params = {"thermal_lag_history_tau_min": {"value": te, "unit": "min"}}
         if loc == "air":
             st.extra_params["thermal_lag_history_tau_housing_min"] = {"value": th, "unit": "min"}
+        if tb is not None:
+            st.extra_params["thermal_lag_history_bridge_min"] = {"value": tb, "unit": "min"}
         fits[loc] = (st, te, th)
     thr1 = float(stats.chi2.ppf(FORM_LEVEL, 1))
-    loc = "housing"
-    if "air" in fits and fits["housing"][0].chi2 - fits["air"][0].chi2 > (thr1 if noise_known else 2.0):
+    loc = "housing" if "housing" in fits else "air"
+    if "air" in fits and "housing" in fits and fits["housing"][0].chi2 - fits["air"][0].chi2 > (thr1 if noise_known
+                                                                                                 else 2.0):
         loc = "air"
     st, te, th = fits[loc]
-    why_loc = (f"thermometer location {loc}: chi2 housing {fits['housing'][0].chi2:.4g}"
-               + (f", air {fits['air'][0].chi2:.4g} (air kept only when lower by > {thr1:.3g})" if "air" in fits else ""))
-    n_tau = 2 if loc == "air" else 1
+    if "housing" in fits:
+        why_loc = (f"thermometer location {loc}: chi2 housing {fits['housing'][0].chi2:.4g}"
+                   + (f", air {fits['air'][0].chi2:.4g} (air kept only when lower by > {thr1:.3g})"
+                      if "air" in fits else ""))
+    else:
+        why_loc = (f"thermometer location air: the record's gaps are bridged, which only the air's form is "
+                   f"(chi2 {fits['air'][0].chi2:.4g})")
+    n_tau = (2 if loc == "air" else 1) + (1 if bridge else 0)        # the bridge is profiled too
+    tb = st.extra_params.get("thermal_lag_history_bridge_min", {}).get("value")
     rate_in_model = "thermal_lag" in model
     if rate_in_model:
         rate_state = base
@@ -384,11 +411,13 @@ def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_kno
     ok, crit = _nested(rate_state.chi2, st.chi2, max(n_tau - 1, 1), st.r.size, noise_known,
                        "chi2_rate_form - chi2_history")
     c = Candidate(name, True, k=max(n_tau - (1 if rate_in_model else 0), 1), refit_only=True, params=[])
-    c.form = {"state": st, "profiled": ["tau_min"] + (["tau_housing_min"] if loc == "air" else []),
+    c.form = {"state": st, "profiled": (["tau_min"] + (["tau_housing_min"] if loc == "air" else [])
+                                        + (["bridge_min"] if bridge else [])),
               "simpler": "thermal_lag (rate form T - tau dT/dt)", "chi2_simpler": rate_state.chi2,
               "nested_passes": ok, "criterion": crit,
               "details": {"location": loc, "tau_min": te, "tau_housing_min": th if loc == "air" else None,
-                          "location_choice": why_loc,
+                          "bridge_min": tb, "location_choice": why_loc,
                           "chi2_by_location": {k: v[0].chi2 for k, v in fits.items()}},
-              "fit_options": f"--effects {','.join(e for e in EFFECTS if e in effects)} --thermal-lag-form {loc}"}
+              "fit_options": (f"--effects {','.join(e for e in EFFECTS if e in effects)} --thermal-lag-form {loc}"
+                              + (" --bridge-gaps" if bridge else ""))}
     return [c]

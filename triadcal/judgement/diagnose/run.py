@@ -177,7 +177,13 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     if hyst_forms:
         cand_objs += _hysteresis_forms(campaign, full, model, names, base, noise.known, T0, hyst_forms)
     if "thermal_lag_history" in form_cands:
-        cand_objs += _thermal_lag_history(campaign, full, model, names, base, noise.known, T0)
+        # a lag is indicated when the rate form is among the candidates refitted anyway (the top by
+        # score, flicker aside, as below) at p < alpha: the bridged history costs hundreds of fits,
+        # and a rate form far down the list (a tempco's gap scores on it too) does not call for it
+        ranked_now = sorted((c for c in cand_objs if c.testable and not c.refit_only and c.effect != "flicker_noise"),
+                            key=lambda c: c.score_logp)[:top]
+        lag_indicated = any(c.effect == "thermal_lag" and c.score_logp < math.log(alpha) for c in ranked_now)
+        cand_objs += _thermal_lag_history(campaign, full, model, names, base, noise.known, T0, lag_indicated)
     if "quantisation" in form_cands:
         from .quantisation import quantisation_candidates
 
@@ -270,9 +276,13 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     if c.effect == "position_error" else 0.5 * float(stats.chi2.sf(lr, 1)))
         elif c.effect == "heavy_tails":
             st = _fit_heavy_tails(base)
-            var_scale, nu, new_names = None, st.nu, []
-            ll = _loglik_total(st, nu=nu)
-            lr_p = 0.5 * float(stats.chi2.sf(max(2 * (ll - base_ll), 0.0), 1))
+            var_scale, nu, new_names = st.var_scale, st.nu, []
+            ll = _loglik_total(st, var_scale=var_scale, nu=nu)
+            lr = max(2 * (ll - base_ll), 0.0)
+            # nu on its boundary (inf) and, with the noise known, the scale free (1 under the null):
+            # 1/2 chi2_1 + 1/2 chi2_2 (Self & Liang 1987); with the noise estimated the scale replaces it
+            lr_p = (0.5 * float(stats.chi2.sf(lr, 1)) + 0.5 * float(stats.chi2.sf(lr, 2)) if noise.known
+                    else 0.5 * float(stats.chi2.sf(lr, 1)))
         else:
             new_names = list(c.params)
             st = _fit(full, names + new_names, base.x_full, noise.known)
@@ -312,6 +322,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             n_sig_after = sum(1 for s in sl_after if s.p_adjusted < alpha)
         chi2_after = float(np.sum(r_after ** 2) * st.s ** 2)
         dof_after = (st.r.size - len(st.names) - (len(st.extra_params) if c.effect == "position_error" else
+                                                  2 if c.effect == "heavy_tails" and noise.known else
                                                   1 if c.effect in NOISE_EFFECTS else 0)
                      - (len(form["profiled"]) if form is not None else 0))
         rms_after = float(np.sqrt(np.mean((st.r * st.s) ** 2 * sig_ug.reshape(-1) ** 2)))
