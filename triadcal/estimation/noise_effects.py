@@ -43,7 +43,7 @@ from ..models.model import Model
 from .joint import WOBBLE_TO_POSITION, BenchErrors, fit_joint, noise_of
 
 #: Student-t dof tried by the profile likelihood of ``heavy_tails``
-NU_GRID = (2.2, 2.5, 3.0, 3.5, 4.0, 5.0, 7.0, 10.0, 20.0, 50.0)
+NU_GRID = ht.NU_GRID
 
 
 def split_effects(effects: Sequence[str]) -> tuple[list, list]:
@@ -190,10 +190,8 @@ def heavy_tails_dof(campaign, effects: Sequence[str], *, reference_temperature_C
     z = np.asarray(sol.r, float)
     if not noise.known:
         z = z / max(float(np.sqrt(np.mean(z ** 2))), 1e-300)
-    fits = {nu: ht.profile_scale(z, nu) for nu in NU_GRID + (math.inf,)}
-    ll = {nu: f[1] for nu, f in fits.items()}
-    nu = max(ll, key=ll.get)
-    return nu, ll, fits[nu][0]
+    nu, scale, ll = ht.profile_dof(z, NU_GRID + (math.inf,))
+    return nu, ll, scale
 
 
 def resolve_noise_effects(campaign, effects: Sequence[str], *, bench_errors: Optional[BenchErrors] = None,

@@ -180,10 +180,7 @@ def _fit_heavy_tails(base: FitState):
     dof of the grid the scale's maximum (``heavy_tails.profile_scale``), the pair of the largest.
     The scale is free, the noise model's variance is not held: contamination also adds variance
     (models/effects/heavy_tails.py). ``var_scale`` carries the scale squared for every residual."""
-    grid = np.array([2.2, 2.5, 3.0, 3.5, 4.0, 5.0, 7.0, 10.0, 20.0, 50.0])
-    fits = [ht.profile_scale(base.r, nu) for nu in grid]
-    i = int(np.argmax([ll for _, ll in fits]))
-    nu, scale = float(grid[i]), float(fits[i][0])
+    nu, scale, _ = ht.profile_dof(base.r)
     state = FitState(base.names, base.x_full, base.r, base.J, base.cov, base.chi2, base.dof, base.s,
                      base.converged, var_scale=np.full(base.r.shape, scale * scale), nu=nu,
                      extra_params={"heavy_tails_dof": {"value": nu, "unit": "1"},

@@ -66,6 +66,18 @@ def profile_scale(z, nu: float) -> tuple[float, float]:
     return float(np.exp(res.x)), float(-res.fun)
 
 
+#: Student-t dof tried by the profile likelihood of ``heavy_tails`` (the fit's and the diagnosis's)
+NU_GRID = (2.2, 2.5, 3.0, 3.5, 4.0, 5.0, 7.0, 10.0, 20.0, 50.0)
+
+
+def profile_dof(z, grid=NU_GRID) -> tuple[float, float, dict]:
+    """``(nu, scale, {nu: log likelihood})``: the dof of ``grid`` with the largest likelihood, the
+    scale profiled at each (:func:`profile_scale`); the first of equal maxima."""
+    fits = {float(nu): profile_scale(z, float(nu)) for nu in grid}
+    nu = max(fits, key=lambda k: fits[k][1])
+    return nu, fits[nu][0], {k: f[1] for k, f in fits.items()}
+
+
 def normal_scores(z, nu: float, scale=1.0) -> np.ndarray:
     """``Phi^-1(F_t(z / scale))``: residuals mapped through the Student-t CDF (``nu`` dof, variance
     ``scale^2``) to the standard normal (standard normal when the residuals follow that Student-t)."""
