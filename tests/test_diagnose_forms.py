@@ -106,6 +106,59 @@ def test_quadratic_angle_tempco_is_named_angle_tempco2_not_a_form(seed):
     assert not _cand(d, "hysteresis_play").refit["form"]["beats_simpler"]
 
 
+def cubic_angle_campaign(seed: int):
+    """The offset hysteresis campaign (5-10 arcsec) with a cubic angle tempco of the validation
+    preset's magnitude on every angle (ak18-quartz: 1.2e-5 to 2e-5 arcsec/degC^3, about 3 arcsec at
+    -40 degC), evaluated by Horner's rule in the independent bench, not by the model's term."""
+    from triadcal.models.simulate import PRESETS
+
+    rng = np.random.default_rng(seed)
+    t = default_truth(rng)
+    for ab in ANGLES:
+        t[f"Ca_{ab}_hysteresis"] = float(rng.uniform(5, 10)) * float(rng.choice([-1, 1]))
+        t[f"Ca_{ab}_tempco3"] = float(PRESETS["ak18-quartz"][f"Ca_{ab}_tempco3"])
+    txt, truth = simulate_campaign(rng, truth=t, setpoints_C=SETPOINTS, hysteresis={"form": "offset"})
+    return parse_bench_csv(txt), MODEL
+
+
+#: the candidates with every order of the angle tempco left out (the validation's left-out group)
+NO_ANGLE_TEMPCO = tuple(c for c in VOCABULARY + FORM_CANDIDATES
+                        if c not in ("angle_tempco", "angle_tempco2", "angle_tempco3"))
+
+
+def _cubic_verdicts(seed):
+    c, model = cubic_angle_campaign(seed)
+    d = diagnose(c, model, **OPTS)
+    dl = diagnose(c, model, candidates=NO_ANGLE_TEMPCO, slices_after=True, **OPTS)
+    return d.verdict_effect, dl.verdict_effect, dl.gap["tests"]["generic:temperature"]["p_holm"]
+
+
+def test_a_cubic_angle_tempco_is_named_and_left_out_it_is_unexplained():
+    """In vocabulary the cubic is named; with the angle tempcos left out the temperature family
+    (a Taylor series about T0, generic.py) finds it: p_holm 1.6e-5 on this seed (0.009 with the
+    family centred on the campaign's mid-range, a hair under alpha)."""
+    named, left_out, p_holm = _cubic_verdicts(0)
+    assert named == "angle_tempco3"
+    assert left_out == "unexplained", p_holm
+    assert p_holm < 1e-3
+
+
+@pytest.mark.slow
+def test_cubic_angle_tempco_over_12_seeds():
+    """Seeds 0-11: named in vocabulary in at least 11 and left out ``unexplained`` in at least 9
+    (measured 12 and 11; the one left-out miss is ``none``, p_holm 0.07: the family's power). A
+    true rate of 95 % falls to 9 or fewer of 12 with probability 0.2 %; a candidate other than the
+    cubic is never named."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    with ProcessPoolExecutor(max_workers=2) as ex:
+        rows = list(ex.map(_cubic_verdicts, range(12)))
+    named = [r[0] for r in rows]
+    left = [r[1] for r in rows]
+    assert named.count("angle_tempco3") >= 11, rows
+    assert left.count("unexplained") >= 9, rows
+    assert set(named) <= {"angle_tempco3", None} and set(left) <= {"unexplained", None}, rows
+
+
 @pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])  # seed 1: slow (CI time)
 def test_clean_data_with_the_offset_hysteresis_stay_none(seed, tmp_path):
     c, model = hysteresis_campaign(seed, "offset")

@@ -4,9 +4,13 @@ A candidate answers "which effect"; these answer only "is any smooth pattern of 
 Each family is a set of columns added to every output ``a`` (visit ``i``, the normalised
 residual's row ``3 i + a``, divided by the output's noise SD ``sigma_ia`` as the residuals are):
 
-* ``temperature``: ``u, u^2, u^3`` times ``1, g_x, g_y, g_z``  (``u`` the visit's mean
-  temperature reading scaled to [-1, 1] over the campaign; ``g`` the nominal gravity components
-  in the sensor frame): a bias, scale or angle changing with temperature in any smooth way;
+* ``temperature``: ``u, u^2, u^3`` times ``1, g_x, g_y, g_z``  (``u = (T - T0) / max|T - T0|``,
+  ``T`` the visit's mean temperature reading, ``T0`` the model's reference temperature; ``g`` the
+  nominal gravity components in the sensor frame): a bias, scale or angle changing with
+  temperature in any smooth way. The powers are a Taylor series about the reference, as the
+  model's tempcos are: the whole family's span does not depend on the centre, but its blocks do,
+  and centred on the campaign's mid-range a cubic law about T0 was spread over the u^2 and u^3
+  blocks (p 1e-3 instead of its own 1e-5 on the validation's cubic angle tempco);
 * ``time``: ``s, s^2`` times ``1, g_x, g_y, g_z`` (``s`` the campaign time scaled to [-1, 1]):
   drifts of bias, scale or angle;
 * ``orientation_even``: ``g_j^2, |g_j|, g_j g_k`` (j < k): functions of the specific force even
@@ -50,13 +54,23 @@ def _scaled(x: np.ndarray) -> np.ndarray:
     return (2.0 * x - (hi + lo)) / (hi - lo)
 
 
-def per_output_terms(campaign: Campaign) -> dict:
+def _about(x: np.ndarray, x0: float) -> np.ndarray:
+    """``(x - x0) / max|x - x0|`` (zeros when x is constant at x0)."""
+    d = np.asarray(x, float) - float(x0)
+    top = float(np.max(np.abs(d))) if d.size else 0.0
+    return d / top if top > 0 else np.zeros_like(d)
+
+
+def per_output_terms(campaign: Campaign, T0: Optional[float] = None) -> dict:
     """Each family's terms as functions of the visit: ``{family: (F (n, k), labels, diag)}``;
-    ``diag[i]`` is the axis ``j`` a term is indexed by (``g_j^2``, ``|g_j|``, ``u g_j``, ...), else None."""
+    ``diag[i]`` is the axis ``j`` a term is indexed by (``g_j^2``, ``|g_j|``, ``u g_j``, ...), else None.
+    ``T0`` (°C) the model's reference temperature, the centre of ``u`` (module docstring); None:
+    the campaign's mid-range."""
     n = campaign.n_visits
     g = np.asarray(_nominal_g(campaign), float).reshape(n, 3)
     one_g = np.column_stack([np.ones(n), g])                      # 1, g_x, g_y, g_z
-    u = _scaled(np.mean(np.asarray(campaign.t, float), axis=1))
+    temp = np.mean(np.asarray(campaign.t, float), axis=1)
+    u = _scaled(temp) if T0 is None else _about(temp, T0)
     s = _scaled(np.asarray(campaign.time_s, float))
     d = np.array([{"heating": 1.0, "cooling": -1.0}.get(x, 0.0) for x in campaign.direction])
     ax = "xyz"
@@ -86,13 +100,14 @@ def per_output_terms(campaign: Campaign) -> dict:
     }
 
 
-def generic_basis(campaign: Campaign, sigma: np.ndarray) -> dict:
+def generic_basis(campaign: Campaign, sigma: np.ndarray, T0: Optional[float] = None) -> dict:
     """The families' columns in normalised units: ``{family: (3n, k) array}`` (module docstring);
-    ``sigma`` the outputs' noise SD (n, 3) or (3,), the residuals' divisor."""
+    ``sigma`` the outputs' noise SD (n, 3) or (3,), the residuals' divisor; ``T0`` as in
+    :func:`per_output_terms`."""
     n = campaign.n_visits
     sig = np.broadcast_to(np.asarray(sigma, float), (n, 3))
     out = {}
-    for fam, (F, _, _) in per_output_terms(campaign).items():
+    for fam, (F, _, _) in per_output_terms(campaign, T0).items():
         k = F.shape[1]
         B = np.zeros((n, 3, 3 * k))
         for a in range(3):

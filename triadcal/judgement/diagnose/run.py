@@ -200,7 +200,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         if c.testable and c.effect != "heavy_tails" and not c.refit_only:
             gap_tests[f"score:{c.effect}"] = c.score_p
     # smooth mean terms that no candidate names (generic.py): a missing term outside the list
-    gbasis = generic_basis(campaign, sigma)
+    gbasis = generic_basis(campaign, sigma, T0)
     generic0 = generic_tests({f: base.whitened(B) for f, B in gbasis.items()}, base.r, base.J, noise.known,
                              base.dof, Q)
     for fam, t in generic0.items():
@@ -419,7 +419,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                             if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS]
             rivals = {c.effect: cols(c) for c in named_rivals}
             sig_rows = np.broadcast_to(np.asarray(sigma, float), (campaign.n_visits, 3))
-            rivals.update(generic_rivals(per_output_terms(campaign), sig_rows, base.whitened))
+            rivals.update(generic_rivals(per_output_terms(campaign, T0), sig_rows, base.whitened))
 
             def reference():
                 """The base span, ``best``'s and the rivals' columns on the reference design: the same
@@ -431,7 +431,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 Jr = Jr / base.s
                 colr = lambda c: Jr[:, [full.index[n] for n in c.params]]  # noqa: E731
                 rr = {c.effect: colr(c) for c in named_rivals}
-                rr.update(generic_rivals(per_output_terms(ref), sig_rows, lambda v: v / base.s))
+                rr.update(generic_rivals(per_output_terms(ref, T0), sig_rows, lambda v: v / base.s))
                 return _hat_q(Jr[:, [full.index[n] for n in base.names]]), colr(best), rr
 
             lost = unbeaten_rivals(base.r, Q, cols(best), rivals, noise.known, base.dof, alpha, reference)
