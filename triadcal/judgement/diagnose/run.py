@@ -48,6 +48,13 @@ from .results import ALPHA, Candidate, Diagnosis, _f
 from .slices import _family_tests, _holm, _slice_tests
 
 
+def _top_by_score(cands, top: int) -> list:
+    """The ``top`` scored candidates by score p (``flicker_noise`` aside: it takes no slot, a
+    time-correlated misfit of the mean scores high on it too), the ones refitted anyway."""
+    scored = [c for c in cands if c.testable and not c.refit_only and c.effect != "flicker_noise"]
+    return sorted(scored, key=lambda c: c.score_logp)[:top]
+
+
 def _structure_left_txt(c) -> str:
     """What keeps structure after a candidate's refit: slices and generic families."""
     after = c.refit["gap_after"]
@@ -180,9 +187,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         # a lag is indicated when the rate form is among the candidates refitted anyway (the top by
         # score, flicker aside, as below) at p < alpha: the bridged history costs hundreds of fits,
         # and a rate form far down the list (a tempco's gap scores on it too) does not call for it
-        ranked_now = sorted((c for c in cand_objs if c.testable and not c.refit_only and c.effect != "flicker_noise"),
-                            key=lambda c: c.score_logp)[:top]
-        lag_indicated = any(c.effect == "thermal_lag" and c.score_logp < math.log(alpha) for c in ranked_now)
+        lag_indicated = any(c.effect == "thermal_lag" and c.score_logp < math.log(alpha)
+                            for c in _top_by_score(cand_objs, top))
         cand_objs += _thermal_lag_history(campaign, full, model, names, base, noise.known, T0, lag_indicated)
     if "quantisation" in form_cands:
         from .quantisation import quantisation_candidates
@@ -233,11 +239,11 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     scored = [c for c in testable if not c.refit_only]
     # flicker_noise takes no --top slot (a time-correlated misfit of the mean, e.g. a thermal lag,
     # scores high on it too): refitted besides the top when its score is significant (flicker.py)
-    to_refit = [c for c in scored if c.effect != "flicker_noise"][:top]
+    to_refit = _top_by_score(scored, top)
     to_refit += [c for c in scored if c.effect == "flicker_noise" and c.score_p < alpha]
     # the rate-form lag is refitted whenever the history form is, so that the two can be compared
     if any(c.effect == "thermal_lag_history" for c in testable):
-        to_refit += [c for c in scored[top:] if c.effect == "thermal_lag"]
+        to_refit += [c for c in scored if c.effect == "thermal_lag" and c not in to_refit]
     to_refit += [c for c in testable if c.refit_only]
     elpd0, se0, pw0, k0 = _loo(base, n_draws, rng)
     if k0 > 0.7:
