@@ -32,6 +32,12 @@ def register(sub) -> None:
                    help="the conditions are the effect families made by a second mechanism (hysteresis~2 ..., "
                         "written with numpy, not with the model's terms: docs/diagnosis.md \"Second mechanisms\"); "
                         "a verdict naming any effect of the family is right. --effects takes these names too")
+    p.add_argument("--detectability", action="store_true",
+                   help="instead of diagnosing: for each mean effect and magnitude, the noncentrality of its "
+                        "signal on the validation's design (seed 1000, noise-free) and the power of the most "
+                        "powerful test at alpha = 0.01 that knows the effect's exact shape (an upper bound on "
+                        "any rule's detection rate) and of the effect's own score test at Holm's first step; "
+                        "writes detectability.txt and detectability.json (docs/diagnosis.md, \"Detectability\")")
     p.add_argument("--preset", default="ak18-quartz", help="unit preset (default ak18-quartz)")
     p.add_argument("--processes", type=int, default=2, help="worker processes (default 2)")
     p.add_argument("--out", default="diagnosis-validation", metavar="DIR",
@@ -63,6 +69,8 @@ def run(args) -> int:
                   + (f"; with it left out: {lo}" if lo is not None else ""), file=sys.stderr, flush=True)
 
     effects = name_list(args.effects) if args.effects else None
+    if args.detectability:
+        return _detectability(args, effects, magnitudes, out)
     if args.second_mechanisms and effects is None:
         from ..judgement.second_mechanisms import CONDITIONS
 
@@ -86,4 +94,38 @@ def run(args) -> int:
                    if wrong else ""))
     out.say(f"{len(res.rows)} diagnoses in {res.seconds:.0f} s; the table is in {paths['table']}, the plot in "
             f"{paths['plot']} and every row in {paths['json']}")
+    return 0
+
+
+def _detectability(args, effects, magnitudes, out) -> int:
+    import json
+    from pathlib import Path
+
+    from ..judgement.detectability import detectability_table, format_table
+    from ..judgement.diagnosis_validation import CONDITIONS
+    from ..models.effects import NOISE_EFFECTS
+
+    if args.second_mechanisms:
+        raise InputError("--detectability measures the effects of the vocabulary, not the second mechanisms")
+    wanted = list(CONDITIONS) if effects is None else effects
+    mean = [e for e in wanted if e != "clean" and e not in NOISE_EFFECTS]
+    if not mean:
+        raise InputError(f"--detectability needs a mean effect among the conditions, not only {', '.join(wanted)} "
+                         "(clean data and the noise effects have no mean signal)")
+    skipped = [e for e in wanted if e not in mean]
+    if skipped:
+        print(f"note: skipped, no mean signal: {', '.join(skipped)}", file=sys.stderr)
+    rows = detectability_table(mean, magnitudes, preset=args.preset)
+    folder = Path(args.out)
+    folder.mkdir(parents=True, exist_ok=True)
+    table = format_table(rows)
+    (folder / "detectability.txt").write_text(table + "\n", encoding="utf-8")
+    doc = {"format": "triadcal.detectability", "version": 1,
+           "definition": "lambda_total: noncentrality (chi2 units) of the effect's signal after the fit; "
+                         "power_bound: Phi(sqrt(lambda_total) - z_(1-alpha)), the most powerful level-alpha test "
+                         "of the known signal; lambda_own, k_own: the effect's own score test; power_own: its "
+                         "chance to pass alpha / n_gap_tests", "rows": rows}
+    (folder / "detectability.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    out.say(table)
+    out.say(f"written: {folder / 'detectability.txt'}, {folder / 'detectability.json'}")
     return 0
