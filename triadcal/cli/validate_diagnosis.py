@@ -98,9 +98,9 @@ def run(args) -> int:
 
 
 def _detectability(args, effects, magnitudes, out) -> int:
-    import json
     from pathlib import Path
 
+    from ..io.atomic import atomic_write_json, atomic_write_text
     from ..judgement.detectability import detectability_table, format_table
     from ..judgement.diagnosis_validation import CONDITIONS
     from ..models.effects import NOISE_EFFECTS
@@ -119,13 +119,13 @@ def _detectability(args, effects, magnitudes, out) -> int:
     folder = Path(args.out)
     folder.mkdir(parents=True, exist_ok=True)
     table = format_table(rows)
-    (folder / "detectability.txt").write_text(table + "\n", encoding="utf-8")
+    atomic_write_text(folder / "detectability.txt", table + "\n")
     doc = {"format": "triadcal.detectability", "version": 1,
            "definition": "lambda_total: noncentrality (chi2 units) of the effect's signal after the fit; "
                          "power_bound: Phi(sqrt(lambda_total) - z_(1-alpha)), the most powerful level-alpha test "
                          "of the known signal; lambda_own, k_own: the effect's own score test; power_own: its "
                          "chance to pass alpha / n_gap_tests", "rows": rows}
-    (folder / "detectability.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    atomic_write_json(folder / "detectability.json", doc)
     out.say(table)
     out.say(f"written: {folder / 'detectability.txt'}, {folder / 'detectability.json'}")
     return 0
