@@ -203,7 +203,7 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
                       encoder_zero_arcsec=(0.0, 0.0), axes_nonorthogonality_arcsec=0.0,
                       fixture_arcsec=(0.0, 0.0, 0.0), tilt_arcsec=(0.0, 0.0),
                       local_g_m_s2=9.80665, true_g_m_s2=None, unit="SN-IND-0001", hysteresis=None,
-                      positions=None) -> tuple[str, dict]:
+                      positions=None, tilt_change=None) -> tuple[str, dict]:
     """CSV text of a bench campaign (12 positions at every setpoint, or ``positions``) and the true parameters.
 
     ``rng``: a ``numpy.random.Generator`` (used for the default truth, the temperature
@@ -213,7 +213,9 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
     (axis 1, axis 2) added to the commanded angles, ``axes_nonorthogonality_arcsec`` (a constant
     Ry between the axes), ``fixture_arcsec`` (rotation vector of the unit in its fixture about
     IMU x, y, z: ``G' = R_fix^T G``), ``tilt_arcsec`` (horizontal components of the gravity
-    direction in the base frame). Random per visit: ``e1, e2 ~ N(0, sigma_position_arcsec)`` and
+    direction in the base frame); ``tilt_change``: None, or a function of the visits' times (s, the
+    file's clock) returning the change of the two tilt components (arcsec, arrays), added to
+    ``tilt_arcsec`` (a bench that drifts or settles during the campaign). Random per visit: ``e1, e2 ~ N(0, sigma_position_arcsec)`` and
     a wobble ``~ N(0, sigma_wobble_arcsec)``. The mean output of each visit gets white noise of
     SD ``noise_sd / sqrt(n_samples)``; ``sd_*`` columns say ``noise_sd``.
 
@@ -255,9 +257,12 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
     Rz = Rotation.from_euler("z", ax1[:, None]).as_matrix()
     R_base_from_imu = Rx @ Ry @ Rz @ MOUNT                       # (n, 3, 3)
 
-    tx, ty = (v * ARCSEC_RAD for v in tilt_arcsec)
-    f_base = np.array([tx, ty, math.sqrt(1.0 - tx * tx - ty * ty)])
-    G = np.einsum("nji,j->ni", R_base_from_imu, f_base) * (g_true / G0)   # R^T f, in g
+    tx, ty = (np.full(n, v * ARCSEC_RAD) for v in tilt_arcsec)
+    if tilt_change is not None:
+        dx, dy = tilt_change(time_s)
+        tx, ty = tx + np.asarray(dx, float) * ARCSEC_RAD, ty + np.asarray(dy, float) * ARCSEC_RAD
+    f_base = np.column_stack([tx, ty, np.sqrt(1.0 - tx * tx - ty * ty)])          # (n, 3), per visit
+    G = np.einsum("nji,nj->ni", R_base_from_imu, f_base) * (g_true / G0)  # R^T f, in g
     R_fix = Rotation.from_rotvec(np.asarray(fixture_arcsec, float) * ARCSEC_RAD).as_matrix()
     G = G @ R_fix                                                # rows: (R_fix^T G)^T = G^T R_fix
 

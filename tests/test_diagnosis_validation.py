@@ -46,8 +46,9 @@ def test_left_out_groups_hold_the_forms_and_orders_of_the_effect():
     assert left_out_group("hysteresis") == ("hysteresis", "hysteresis_play", "hysteresis_pi")
     assert left_out_group("thermal_lag") == ("thermal_lag", "thermal_lag_history")
     assert set(left_out_group("angle_tempco2")) == {"angle_tempco", "angle_tempco2", "angle_tempco3"}
-    assert left_out_group("bench_tilt") == ("bench_tilt", "tilt_drift")
-    assert left_out_group("tilt_drift") == ("tilt_drift",)
+    assert left_out_group("bench_tilt") == ("bench_tilt", "tilt_drift", "tilt_settling")
+    assert left_out_group("tilt_drift") == ("tilt_drift", "tilt_settling")      # the two laws of one change
+    assert left_out_group("tilt_settling") == ("tilt_settling", "tilt_drift")
     noise_group = {"position_error", "heavy_tails"}
     assert set(left_out_group("position_error")) == set(left_out_group("heavy_tails")) == noise_group
     assert left_out_group("scale_asymmetry") == ("scale_asymmetry",)     # separable by the oblique poses

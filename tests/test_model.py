@@ -378,7 +378,7 @@ def test_tilt_changes_nothing_when_level():
 # -- vocabulary and parameters ----------------------------------------------------------
 
 ALLOWED_UNITS = {"arcsec", "arcsec/degC", "deg", "g", "g/V", "ppm", "ppm/degC", "ug", "ug/degC", "ug/g2",
-                 "ug/h", "arcsec/h", "min", "arcsec/degC2", "ppm/degC2", "ug/degC2", "arcsec/degC3", "ppm/degC3",
+                 "ug/h", "arcsec/h", "min", "h", "arcsec/degC2", "ppm/degC2", "ug/degC2", "arcsec/degC3", "ppm/degC3",
                  "ug/degC3", "ug/g3", "arcsec/g2"}
 
 
@@ -398,7 +398,7 @@ def test_parameter_names_and_units_follow_results_json():
     assert set(EFFECTS) | set(NOISE_EFFECTS) == {
         "bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis", "scale_nonlinearity",
         "thermal_lag", "bias_drift", "scale_asymmetry", "position_error", "heavy_tails", "flicker_noise",
-        "angle_tempco2", "scale_tempco2", "bias_tempco2", "bench_nonorthogonality", "tilt_drift",
+        "angle_tempco2", "scale_tempco2", "bias_tempco2", "bench_nonorthogonality", "tilt_drift", "tilt_settling",
         "angle_tempco3", "scale_tempco3", "bias_tempco3", "bias_warmup", "scale_warmup",
         "scale_cubic", "cross_coupling", "g_dependent_misalignment"}
     for ab in sensor.ANGLE_NAMES:

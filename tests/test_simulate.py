@@ -80,7 +80,7 @@ def assert_clean_failure(r, *fragments, code=1):
 def test_unknown_effect_fails_cleanly(tmp_path):
     out = tmp_path / "x.csv"
     r = cli("simulate", "-o", out, "--effects", "bench_tilt,warp_drive")
-    assert_clean_failure(r, "warp_drive", "bench_tilt, tilt_drift, bench_nonorthogonality, thermal_lag")
+    assert_clean_failure(r, "warp_drive", "bench_tilt, tilt_drift, tilt_settling, bench_nonorthogonality, thermal_lag")
     assert not out.exists()
 
 

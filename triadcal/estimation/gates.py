@@ -321,51 +321,64 @@ def _gate_signs(params: Mapping) -> GateOutcome:
 TIME_CONSTANTS = {"thermal_lag": "the sensing elements' thermal time constant",
                   "thermal_lag_housing": "the housing's thermal time constant behind the chamber air",
                   "S_warmup_tau": "the time constant of the bias warm-up after power-on",
-                  "K_warmup_tau": "the time constant of the scale-factor warm-up after power-on"}
+                  "K_warmup_tau": "the time constant of the scale-factor warm-up after power-on",
+                  "tilt_settle_tau": "the time constant of the bench's settling"}
 TIME_CONSTANT_RANGE_MIN = (0.5, 300.0)
+#: a time constant with another range, in its own unit: the bench's settling acts over the whole
+#: campaign (h): shorter than 3 min it is over before a setpoint's visits begin, longer than 100 h
+#: it is a drift no campaign of days tells from a constant rate (tilt_drift)
+TIME_CONSTANT_RANGES = {"tilt_settle_tau": (0.05, 100.0, "h")}
+
+
+def _tc_range(name: str) -> tuple:
+    """(lo, hi, unit) of a time constant of :data:`TIME_CONSTANTS`."""
+    return TIME_CONSTANT_RANGES.get(name, TIME_CONSTANT_RANGE_MIN + ("min",))
 
 
 def _gate_time_constants(params: Mapping) -> GateOutcome:
-    """Every time constant of :data:`TIME_CONSTANTS` within [0.5, 300] min, whatever its u (a value
-    already negative beyond 2u is the ``signs`` gate's refusal and not repeated here)."""
-    lo, hi = TIME_CONSTANT_RANGE_MIN
+    """Every time constant of :data:`TIME_CONSTANTS` within its range ([0.5, 300] min; the bench's
+    settling [0.05, 100] h), whatever its u (a value already negative beyond 2u is the ``signs``
+    gate's refusal and not repeated here)."""
     present = {n: (_value(p), _u(p)) for n, p in params.items() if n in TIME_CONSTANTS}
     if not present:
         return GateOutcome("time_constants", None, "unphysical_term", "no thermal time constant in the result")
     bad = []
     for n, (v, u) in present.items():
+        lo, hi, unit = _tc_range(n)
         uu = u if u is not None and math.isfinite(u) else 0.0
         if v is None or not math.isfinite(v):
             continue                                   # the finite gate's business
         if n in NON_NEGATIVE and v + 2 * uu < 0:
             continue                                   # the signs gate refuses it
         if not lo <= v <= hi:
-            bad.append(f"{n} = {v:.4g} +- {uu:.2g} {_unit(params[n]) or 'min'} is outside [{lo:g}, {hi:g}] min "
+            bad.append(f"{n} = {v:.4g} +- {uu:.2g} {_unit(params[n]) or unit} is outside [{lo:g}, {hi:g}] {unit} "
                        f"({TIME_CONSTANTS[n]}: " + ("not a positive time constant resolved by the visits; refit "
                        "without the term" if v < lo else "longer than any campaign can measure") + ")")
     if bad:
+        lo, hi = TIME_CONSTANT_RANGE_MIN
         return GateOutcome("time_constants", False, "unphysical_term", "; ".join(bad), float(len(bad)),
-                           f"{lo:g} <= tau <= {hi:g} min")
-    return GateOutcome("time_constants", True, "unphysical_term",
-                       f"every thermal time constant within [{lo:g}, {hi:g}] min")
+                           f"{lo:g} <= tau <= {hi:g} min (the bench's settling 0.05-100 h)")
+    return GateOutcome("time_constants", True, "unphysical_term", "every time constant within its range")
 
 
 def _gate_time_constants_determined(params: Mapping) -> GateOutcome:
     """A time constant of :data:`TIME_CONSTANTS` within its range whose standard uncertainty exceeds
     its value is not measured (a warm-up that decayed before the first visit, a lag the data do not
-    show); one outside the range is the ``time_constants`` gate's refusal, not repeated here."""
+    show, a settling the campaign cannot tell from a drift); one outside the range is the
+    ``time_constants`` gate's refusal, not repeated here."""
     loose = {n: (_value(p), _u(p)) for n, p in params.items() if n in TIME_CONSTANTS and _value(p) is not None
              and _u(p) is not None and math.isfinite(_u(p)) and math.isfinite(_value(p)) and _u(p) > abs(_value(p))
-             and TIME_CONSTANT_RANGE_MIN[0] <= _value(p) <= TIME_CONSTANT_RANGE_MIN[1]}   # else refused by range
+             and _tc_range(n)[0] <= _value(p) <= _tc_range(n)[1]}   # else refused by range
     if not any(n in params for n in TIME_CONSTANTS):
         return GateOutcome("time_constants_determined", None, "unidentifiable", "no thermal time constant in the result")
     if not loose:
         return GateOutcome("time_constants_determined", True, "unidentifiable",
                            "every thermal time constant is determined (u below its value)")
-    txt = "; ".join(f"{n} = {v:.4g} +- {u:.3g} min" for n, (v, u) in loose.items())
+    txt = "; ".join(f"{n} = {v:.4g} +- {u:.3g} {_tc_range(n)[2]}" for n, (v, u) in loose.items())
     return GateOutcome("time_constants_determined", False, "unidentifiable",
                        f"not determined by the data (u larger than the value): {txt}; the term is not in the data "
-                       "(a warm-up over before the first visit, a lag the record does not show): refit without it",
+                       "(a warm-up over before the first visit, a lag the record does not show, a settling the "
+                       "campaign cannot tell from a constant drift): refit without it",
                        float(len(loose)), "u <= |value|")
 
 

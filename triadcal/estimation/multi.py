@@ -31,7 +31,8 @@ from .joint import (BenchErrors, JointProblem, Solution, fit_joint, levenberg_ma
 from .result import CalibrationResult, ParameterValue
 
 #: parameters of the bench, shared by every unit mounted on it
-BENCH_PARAMETERS = ("tilt_x", "tilt_y", "tilt_x_drift", "tilt_y_drift", "bench_nonorth")
+BENCH_PARAMETERS = ("tilt_x", "tilt_y", "tilt_x_drift", "tilt_y_drift", "tilt_x_settle", "tilt_y_settle",
+                    "tilt_settle_tau", "bench_nonorth")
 
 
 class StackedProblem:

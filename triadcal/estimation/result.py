@@ -189,7 +189,8 @@ class CalibrationResult:
     # -- applying the calibration -------------------------------------------------
     def model(self) -> Model:
         """The model whose parameters this result holds (effects that act on the readings)."""
-        return Model([e for e in self.effects if e not in ("bench_tilt", "tilt_drift", "bench_nonorthogonality")],
+        return Model([e for e in self.effects if e not in ("bench_tilt", "tilt_drift", "tilt_settling",
+                                                         "bench_nonorthogonality")],
                      self.reference_temperature_C)
 
     def full_model(self) -> tuple[Model, dict]:

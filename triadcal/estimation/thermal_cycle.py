@@ -299,7 +299,7 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
     axes = [analyse_axis(t, T, y[:, i], c, unit, reference_temperature_C, folds, br) for i, c in enumerate(columns)]
     notes = ["one static pose: the output along each axis is W = (g_a + S_a(T)) / K_a(T); a thermal change of the "
              "scale factor and of the bias cannot be told apart, so the forms describe that output, not K and S",
-             f"noise floor: the SD of sample-to-sample differences / sqrt 2 (white part only); held-out RMS near it "
+             "noise floor: the SD of sample-to-sample differences / sqrt 2 (white part only); held-out RMS near it "
              "means the form leaves nothing but noise"]
     parts = []
     for a in axes:

@@ -21,7 +21,8 @@ Mechanisms (``m`` the magnitude; 1 is the preset's realistic size of the first m
 * ``tilt_drift~2`` -- the bench **settles**: its tilt changes by ``d (1 - exp(-t / tau_s))``,
   ``tau_s`` a third of the campaign, ``d`` the preset's drift rates (1.5, -1.0 arcsec/h) times
   the campaign's hours times ``m``, instead of a constant rate; gravity tilted in the base frame
-  (``kinematics.gravity_in_imu``), not the model's tilt term.
+  (``kinematics.gravity_in_imu``), not the model's tilt term; right: either law of the change
+  (``tilt_drift``, ``tilt_settling``).
 * ``bench_tilt~2`` -- the same constant tilt as the preset (52, 30 arcsec, times ``m``), made by
   tilting gravity in the base frame with numpy.
 * ``bias_tempco~2`` -- a bias curving **exponentially** with temperature,
@@ -57,7 +58,7 @@ SUFFIX = "~2"
 FAMILY = {
     "hysteresis": ("hysteresis", "hysteresis_play", "hysteresis_pi"),
     "thermal_lag": ("thermal_lag", "thermal_lag_history"),
-    "tilt_drift": ("tilt_drift",),
+    "tilt_drift": ("tilt_drift", "tilt_settling"),
     "bench_tilt": ("bench_tilt",),
     "bias_tempco": ("bias_tempco", "bias_tempco2", "bias_tempco3"),
     "bias_drift": ("bias_drift",),

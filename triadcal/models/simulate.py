@@ -281,6 +281,8 @@ def _preset(K, S, angles, tempco, hyst, K_tc, S_tc, K2, asym, drift, lag_min, ti
     p["bench_nonorth"] = 8.0
     # a base that settles by a few arcsec over a day-and-a-half campaign
     p["tilt_x_drift"], p["tilt_y_drift"] = 1.5, -1.0
+    # or a freshly mounted base that settles by 15", 10" with a time constant of 4 h
+    p["tilt_x_settle"], p["tilt_y_settle"], p["tilt_settle_tau"] = 15.0, -10.0, 4.0
     return p
 
 

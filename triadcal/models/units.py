@@ -37,5 +37,6 @@ TO_INTERNAL = {
     "ug/h": UG / 3600.0,
     "arcsec/h": ARCSEC / 3600.0,
     "min": 60.0,
+    "h": 3600.0,
     "1": 1.0,
 }

@@ -48,10 +48,10 @@ FORMAT = "triadcal.compensation"
 VERSION = 1
 FORMATS = ("json", "csv", "c-header")
 #: effects a table of temperature can represent (bench terms are not properties of the unit)
-TABLE_EFFECTS = ("bench_tilt", "tilt_drift", "bench_nonorthogonality", "angle_tempco", "angle_tempco2", "scale_tempco",
+TABLE_EFFECTS = ("bench_tilt", "tilt_drift", "tilt_settling", "bench_nonorthogonality", "angle_tempco", "angle_tempco2", "scale_tempco",
                  "scale_tempco2", "bias_tempco", "bias_tempco2", "hysteresis", "thermal_lag", "angle_tempco3",
                  "scale_tempco3", "bias_tempco3")
-BENCH_EFFECTS = ("bench_tilt", "tilt_drift", "bench_nonorthogonality")
+BENCH_EFFECTS = ("bench_tilt", "tilt_drift", "tilt_settling", "bench_nonorthogonality")
 
 
 @dataclass

@@ -187,6 +187,9 @@ def _verdict_text(d) -> tuple[str, str]:
                     str(v.get("reason") or "") + (f"; where: {where}" if where else ""))
         return ("unexplained: a structured gap no candidate effect closes",
                 str(v.get("reason") or "") + (f"; where: {where}" if where else ""))
+    if v.get("effects"):            # a series of one temperature coefficient: its own evidence
+        return (" + ".join(v["effects"]) + " (the orders of one temperature coefficient, together)",
+                str(v.get("evidence") or "") + (f"; {v['remaining']}" if v.get("remaining") else ""))
     cand = next((c for c in d.candidates if c.effect == effect), None)
     if cand is None or not cand.refit:
         return str(effect), str(v.get("evidence") or v.get("reason") or "")

@@ -31,7 +31,8 @@ ANGLES = tuple(f"Ca_{ab}" for ab in ANGLE_NAMES)
 
 
 #: properties of the bench, not of the unit: compared as a check, never judged
-BENCH_PARAMETERS = ("tilt_x", "tilt_y", "tilt_delta", "tilt_beta", "bench_nonorth", "tilt_x_drift", "tilt_y_drift")
+BENCH_PARAMETERS = ("tilt_x", "tilt_y", "tilt_delta", "tilt_beta", "bench_nonorth", "tilt_x_drift", "tilt_y_drift",
+                    "tilt_x_settle", "tilt_y_settle", "tilt_settle_tau")
 
 
 @dataclass

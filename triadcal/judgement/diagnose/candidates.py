@@ -213,10 +213,12 @@ def _cross_group(campaign, noise, effects_names, names, T0, x_start_full, noise_
 # ----------------------------------------------------------------------------------
 #: candidates that are forms of a registered effect fitted in estimation/ (not effects of the
 #: joint model): the play and Prandtl-Ishlinskii hysteresis (hysteresis_form.py) and the lag over
-#: the temperature history (thermal_lag_form.py). They have no score test at the fitted point (their
+#: the temperature history (thermal_lag_form.py); and the settling of the tilt, an effect of the
+#: model (models/effects/tilt_drift.py) refitted as a form of the linear drift it is nested over. They have no score test at the fitted point (their
 #: nonlinear parameters r, start, tau are not columns of the full Jacobian): each is refitted and
 #: ranked by its refit's likelihood gain with its parameter count stated.
-FORM_CANDIDATES = ("hysteresis_play", "hysteresis_pi", "thermal_lag_history", "quantisation")  # quantisation.py
+FORM_CANDIDATES = ("hysteresis_play", "hysteresis_pi", "thermal_lag_history", "quantisation",  # quantisation.py
+                   "tilt_settling")
 #: level of the nested likelihood ratio a form must pass over its simpler form to be named
 FORM_LEVEL = 0.99
 #: temperature coefficients through which a lag of the element acts
@@ -417,4 +419,69 @@ def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_kno
                           "chi2_by_location": {k: v[0].chi2 for k, v in fits.items()}},
               "fit_options": (f"--effects {','.join(e for e in EFFECTS if e in effects)} --thermal-lag-form {loc}"
                               + (" --bridge-gaps" if bridge else ""))}
+    return [c]
+
+
+#: the settling's time constants searched, as fractions of the campaign's span; the best is then
+#: refined with the time constant free
+SETTLING_GRID = (0.1, 0.2, 0.35, 0.6, 1.0, 2.0)
+
+
+def _tilt_settling(campaign, full, model, names, base: FitState, noise_known: bool, T0: float,
+                   drift_indicated: bool = False):
+    """Candidate ``tilt_settling``: the tilt changing as ``d (1 - exp(-t/tau_s))``
+    (models/effects/tilt_drift.py), a form of the linear drift (its limit tau_s -> inf). The time
+    constant is profiled over ``SETTLING_GRID`` times the campaign's span (the offsets ``d`` fitted
+    at each), then refined free from the best; named only when it beats the linear drift (refitted
+    here, or the base when ``tilt_drift`` is in the model) by the nested likelihood ratio at 99 %
+    (one parameter more). Untestable unless a drift is indicated (``tilt_drift`` among the top
+    candidates by score at p < alpha, or in the model): the profile costs eight fits."""
+    from .results import Candidate
+
+    name = "tilt_settling"
+    model = tuple(model)
+    if "bench_tilt" not in model:
+        return _untestable([name], "the settling of a tilt the model does not hold: add bench_tilt to the model")
+    if not (drift_indicated or "tilt_drift" in model):
+        return _untestable([name], "the tilt's drift is not a leading candidate: no change of the tilt in time to "
+                                   "tell a settling from")
+    sp = _effect_params(full.model, name)
+    design = identifiability_problems(campaign, Model(model + (name,), T0))
+    if any(n in design for n in sp):
+        return _untestable([name], "invisible on this design: " + next(design[n] for n in sp if n in design))
+    t = np.asarray(campaign.time_s, float)
+    span_h = float(t.max() - t.min()) / 3600.0
+    if not span_h > 0:
+        return _untestable([name], "the campaign has no duration")
+    d_names, tau = sp[:2], sp[2]
+    if "tilt_drift" in model:
+        simpler, simpler_txt, k_more = base, "the model's tilt_drift (a constant rate)", 3
+    else:
+        simpler = _fit(full, list(names) + _effect_params(full.model, "tilt_drift"), base.x_full, noise_known)
+        simpler_txt, k_more = "tilt_drift (a constant rate)", 1
+    profile = []
+    for f in SETTLING_GRID:
+        x = base.x_full.copy()
+        x[full.index[tau]] = f * span_h
+        st = _fit(full, list(names) + d_names, x, noise_known)
+        profile.append((st.chi2, f * span_h, st))
+    chi2_g, tau_g, st_g = min(profile, key=lambda z: z[0])
+    st = _fit(full, list(names) + list(sp), st_g.x_full, noise_known)
+    if not (math.isfinite(st.chi2) and st.chi2 <= chi2_g + 1e-6):     # the free refit lost its way: no answer
+        return _untestable([name], f"the refit with the time constant free did not converge from the profile's best "
+                                   f"({tau_g:.3g} h, chi2 {chi2_g:.6g})")
+    tau_h = abs(float(st.x_full[full.index[tau]]))
+    u_tau = float(math.sqrt(max(st.cov[st.names.index(tau), st.names.index(tau)], 0.0)))
+    ok, crit = _nested(simpler.chi2, st.chi2, k_more, st.r.size, noise_known,
+                       "chi2_drift - chi2_settling" if k_more == 1 else "chi2_base - chi2_settling")
+    st.extra_params = {}
+    c = Candidate(name, True, k=len(sp), refit_only=True, params=list(sp))
+    effects_opt = ",".join(e for e in EFFECTS if e in model + (name,))
+    c.form = {"state": st, "profiled": [], "simpler": simpler_txt, "chi2_simpler": simpler.chi2,
+              "nested_passes": ok, "criterion": crit,
+              "details": {"tau_h": tau_h, "tau_u_h": u_tau, "span_h": span_h,
+                          "profile_tau_h": [float(z[1]) for z in profile],
+                          "profile_chi2": [float(z[0]) for z in profile],
+                          "at_grid_edge": bool(tau_g in (SETTLING_GRID[0] * span_h, SETTLING_GRID[-1] * span_h))},
+              "fit_options": f"--effects {effects_opt}"}
     return [c]

@@ -163,7 +163,10 @@ METHODS_TEXT = {
                "gap better by AIC (-S + 2k < -2 delta loglik + 2); a mean candidate must beat every rival (other "
                "refitted candidates, single generic terms) by the encompassing test at alpha, else 'unexplained' "
                "with ambiguous_with; a candidate that shrinks the gap without closing "
-               "it is the best partial answer of an 'unexplained' verdict",
+               "it is the best partial answer of an 'unexplained' verdict, unless it is one order of a "
+               "temperature coefficient whose orders the model lacks refitted together (the series: nested LR "
+               "over the single order at alpha, higher delta elpd) close the gap and beat the rivals: then "
+               "'effects' lists the orders and 'effect' is the one of largest Wald chi2",
 }
 
 

@@ -40,6 +40,7 @@ from .candidates import (
     _problem_on,
     _score_mean,
     _thermal_lag_history,
+    _tilt_settling,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .generic import generic_basis, generic_tests, per_output_terms, variance_basis, variance_test
@@ -53,6 +54,37 @@ def _top_by_score(cands, top: int) -> list:
     time-correlated misfit of the mean scores high on it too), the ones refitted anyway."""
     scored = [c for c in cands if c.testable and not c.refit_only and c.effect != "flicker_noise"]
     return sorted(scored, key=lambda c: c.score_logp)[:top]
+
+
+#: the orders of one temperature coefficient, a Taylor series in (T - T0) (models/effects/thermal*.py)
+TEMPCO_SERIES = {q: (f"{q}_tempco", f"{q}_tempco2", f"{q}_tempco3") for q in ("angle", "scale", "bias")}
+
+
+def _series_members(effect: str, model, cand_objs) -> Optional[list]:
+    """The orders of ``effect``'s temperature coefficient that ``model`` lacks and whose candidates
+    are testable with parameters on this design, when ``effect`` is one of them and there are at
+    least two; else None."""
+    orders = next((o for o in TEMPCO_SERIES.values() if effect in o), None)
+    if orders is None:
+        return None
+    usable = {c.effect for c in cand_objs if c.testable and c.params and not c.refit_only}
+    members = [e for e in orders if e not in model and e in usable]
+    return members if effect in members and len(members) >= 2 else None
+
+
+def _series_txt(c) -> str:
+    """Why the series of ``c``'s temperature coefficient, when it was tried, is not the answer."""
+    ser = (c.refit or {}).get("series")
+    if not ser:
+        return ""
+    why = []
+    if ser["gap_open_after"]:
+        why.append("leaves it open too (chi2/dof after {}; generic structure: {})".format(
+            "-" if ser["gap_after"]["chi2_dof"] is None else f"{ser['gap_after']['chi2_dof']:.3g}",
+            ", ".join(ser["gap_after"]["generic_structure"]) or "none"))
+    if not why:
+        why.append(f"does not beat {c.effect} alone ({ser['over_single']['criterion']}) or the base model")
+    return f"; the series {' + '.join(ser['effects'])} " + "; ".join(why)
 
 
 def _structure_left_txt(c) -> str:
@@ -89,7 +121,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         raise InputError(f"unknown model effect(s) {unknown}; choose from {', '.join(EFFECTS)}")
     if len(campaign.units) != 1 or len(set(campaign.state.tolist())) != 1:
         raise InputError("diagnose takes one unit in one mechanical state (select one with Campaign.select)")
-    cands = [c for c in (candidates if candidates is not None else VOCABULARY + FORM_CANDIDATES) if c not in model]
+    cands = [c for c in dict.fromkeys(candidates if candidates is not None else VOCABULARY + FORM_CANDIDATES)
+             if c not in model]
     bad = [c for c in cands if c not in VOCABULARY + FORM_CANDIDATES]
     if bad:
         raise InputError(f"unknown candidate effect(s) {bad}; the vocabulary is "
@@ -190,6 +223,12 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         lag_indicated = any(c.effect == "thermal_lag" and c.score_logp < math.log(alpha)
                             for c in _top_by_score(cand_objs, top))
         cand_objs += _thermal_lag_history(campaign, full, model, names, base, noise.known, T0, lag_indicated)
+    if "tilt_settling" in form_cands:
+        # a settling is looked for when a change of the tilt in time is indicated: the linear drift among
+        # the top candidates by score at p < alpha (the profile over the time constant costs eight fits)
+        drift_indicated = any(c.effect == "tilt_drift" and c.score_logp < math.log(alpha)
+                              for c in _top_by_score(cand_objs, top))
+        cand_objs += _tilt_settling(campaign, full, model, names, base, noise.known, T0, drift_indicated)
     if "quantisation" in form_cands:
         from .quantisation import quantisation_candidates
 
@@ -253,54 +292,11 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     base_val = base.value(full)
     cross0 = _cross_group(campaign, noise, model, names, T0, base.x_full, noise.known) if cross_group else None
     n_sig_before = sum(1 for s in slices if s.p_adjusted < alpha)
-    for c in to_refit:
-        form = c.form
-        if form is not None:
-            st = form["state"]
-            new_names, var_scale, nu = list(c.params), None, math.inf
-            k_lr = max(c.k, 1)
-            if noise.known:
-                ll = _loglik_total(st)
-                lr_p = float(stats.chi2.sf(max(base.chi2 - st.chi2, 0.0), k_lr))
-            else:
-                ll = base_ll + 0.5 * st.r.size * math.log(base.chi2 / max(st.chi2, 1e-300))
-                F = (base.chi2 - st.chi2) / k_lr / (st.chi2 / max(st.dof - len(form["profiled"]), 1))
-                lr_p = float(stats.f.sf(max(F, 0.0), k_lr, max(st.dof - len(form["profiled"]), 1)))
-        elif c.effect in ("position_error", "flicker_noise"):
-            if c.effect == "flicker_noise":
-                from .flicker import fit_flicker
 
-                st = fit_flicker(full, campaign, base, names, sigma)
-            else:
-                st = _fit_position_error(full, campaign, base, names, sigma, noise.known)
-            var_scale, nu, new_names = st.var_scale, math.inf, []
-            ll = _loglik_total(st, var_scale=var_scale)
-            lr = max(2 * (ll - base_ll), 0.0)
-            # variances on the boundary (Self & Liang 1987): 1/2 chi2_0 + 1/2 chi2_1 for flicker's one;
-            # 1/4 chi2_0 + 1/2 chi2_1 + 1/4 chi2_2 for position_error's two (bench axes, wobble)
-            lr_p = (0.5 * float(stats.chi2.sf(lr, 1)) + 0.25 * float(stats.chi2.sf(lr, 2))
-                    if c.effect == "position_error" else 0.5 * float(stats.chi2.sf(lr, 1)))
-        elif c.effect == "heavy_tails":
-            st = _fit_heavy_tails(base)
-            var_scale, nu, new_names = st.var_scale, st.nu, []
-            ll = _loglik_total(st, var_scale=var_scale, nu=nu)
-            lr = max(2 * (ll - base_ll), 0.0)
-            # nu on its boundary (inf) and, with the noise known, the scale free (1 under the null):
-            # 1/2 chi2_1 + 1/2 chi2_2 (Self & Liang 1987); with the noise estimated the scale replaces it
-            lr_p = (0.5 * float(stats.chi2.sf(lr, 1)) + 0.5 * float(stats.chi2.sf(lr, 2)) if noise.known
-                    else 0.5 * float(stats.chi2.sf(lr, 1)))
-        else:
-            new_names = list(c.params)
-            st = _fit(full, names + new_names, base.x_full, noise.known)
-            var_scale, nu = None, math.inf
-            if noise.known:
-                ll = _loglik_total(st)
-                lr_p = float(stats.chi2.sf(max(base.chi2 - st.chi2, 0.0), len(new_names)))
-            else:
-                n_obs = st.r.size
-                ll = base_ll + 0.5 * n_obs * math.log(base.chi2 / max(st.chi2, 1e-300))
-                F = (base.chi2 - st.chi2) / len(new_names) / (st.chi2 / max(st.dof, 1))
-                lr_p = float(stats.f.sf(max(F, 0.0), len(new_names), max(st.dof, 1)))
+    def evidence(c, st, new_names, var_scale, nu, ll, lr_p, added):
+        """The refit's evidence (likelihood, PSIS-LOO, the gap and the generic families after it, the
+        parameter shifts) of candidate ``c`` refitted to ``st`` with ``added`` effects in the model."""
+        form = c.form
         elpd, se, pw, kmax = _loo(st, n_draws, rng, var_scale=var_scale, nu=nu)
         diff = pw - pw0
         d_elpd, d_se = float(diff.sum()), float(math.sqrt(diff.size) * np.std(diff))
@@ -341,7 +337,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         worst = max(shifts, key=lambda n: abs(shifts[n]["in_u"] or 0.0)) if shifts else None
         cross = None
         if cross_group and c.effect not in NOISE_EFFECTS and form is None:
-            cg = _cross_group(campaign, noise, model + (c.effect,), names + new_names, T0, base.x_full,
+            cg = _cross_group(campaign, noise, model + tuple(added), names + new_names, T0, base.x_full,
                               noise.known)
             cross = None if cg is None or cross0 is None else cg - cross0
         refit = {
@@ -373,10 +369,64 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                              "beats_simpler": bool(form["nested_passes"]), "criterion": form["criterion"],
                              "fit_options": form["fit_options"],
                              **{k: v for k, v in form["details"].items()}}
-        c.refit = refit
         if kmax > 0.7:
             notes.append(f"{c.effect}: Pareto k up to {kmax:.2f} > 0.7, the PSIS-LOO elpd is unreliable "
                          "(few visits or influential ones); rely on the likelihood ratio")
+        return refit
+
+    def mean_refit(new_names):
+        """The base model with the mean parameters ``new_names`` added: (state, log-likelihood, LR p
+        over the base: chi^2 with known noise, F with the noise estimated)."""
+        st = _fit(full, names + list(new_names), base.x_full, noise.known)
+        if noise.known:
+            return st, _loglik_total(st), float(stats.chi2.sf(max(base.chi2 - st.chi2, 0.0), len(new_names)))
+        ll = base_ll + 0.5 * st.r.size * math.log(base.chi2 / max(st.chi2, 1e-300))
+        F = (base.chi2 - st.chi2) / len(new_names) / (st.chi2 / max(st.dof, 1))
+        return st, ll, float(stats.f.sf(max(F, 0.0), len(new_names), max(st.dof, 1)))
+
+    states = {}
+    for c in to_refit:
+        form = c.form
+        if form is not None:
+            st = form["state"]
+            new_names, var_scale, nu = list(c.params), None, math.inf
+            k_lr = max(c.k, 1)
+            if noise.known:
+                ll = _loglik_total(st)
+                lr_p = float(stats.chi2.sf(max(base.chi2 - st.chi2, 0.0), k_lr))
+            else:
+                ll = base_ll + 0.5 * st.r.size * math.log(base.chi2 / max(st.chi2, 1e-300))
+                F = (base.chi2 - st.chi2) / k_lr / (st.chi2 / max(st.dof - len(form["profiled"]), 1))
+                lr_p = float(stats.f.sf(max(F, 0.0), k_lr, max(st.dof - len(form["profiled"]), 1)))
+        elif c.effect in ("position_error", "flicker_noise"):
+            if c.effect == "flicker_noise":
+                from .flicker import fit_flicker
+
+                st = fit_flicker(full, campaign, base, names, sigma)
+            else:
+                st = _fit_position_error(full, campaign, base, names, sigma, noise.known)
+            var_scale, nu, new_names = st.var_scale, math.inf, []
+            ll = _loglik_total(st, var_scale=var_scale)
+            lr = max(2 * (ll - base_ll), 0.0)
+            # variances on the boundary (Self & Liang 1987): 1/2 chi2_0 + 1/2 chi2_1 for flicker's one;
+            # 1/4 chi2_0 + 1/2 chi2_1 + 1/4 chi2_2 for position_error's two (bench axes, wobble)
+            lr_p = (0.5 * float(stats.chi2.sf(lr, 1)) + 0.25 * float(stats.chi2.sf(lr, 2))
+                    if c.effect == "position_error" else 0.5 * float(stats.chi2.sf(lr, 1)))
+        elif c.effect == "heavy_tails":
+            st = _fit_heavy_tails(base)
+            var_scale, nu, new_names = st.var_scale, st.nu, []
+            ll = _loglik_total(st, var_scale=var_scale, nu=nu)
+            lr = max(2 * (ll - base_ll), 0.0)
+            # nu on its boundary (inf) and, with the noise known, the scale free (1 under the null):
+            # 1/2 chi2_1 + 1/2 chi2_2 (Self & Liang 1987); with the noise estimated the scale replaces it
+            lr_p = (0.5 * float(stats.chi2.sf(lr, 1)) + 0.5 * float(stats.chi2.sf(lr, 2)) if noise.known
+                    else 0.5 * float(stats.chi2.sf(lr, 1)))
+        else:
+            new_names = list(c.params)
+            st, ll, lr_p = mean_refit(new_names)
+            var_scale, nu = None, math.inf
+        c.refit = evidence(c, st, new_names, var_scale, nu, ll, lr_p, (c.effect,))
+        states[c.effect] = st
     # -- rank ---------------------------------------------------------------------------
     refitted = sorted([c for c in testable if c.refit], key=lambda c: -c.refit["delta_elpd"])
     rest = [c for c in testable if not c.refit]
@@ -472,6 +522,86 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         # never decides it (a missing term then reads as scatter)
         eligible = [c for c in refitted if improves(c) and not (c.effect in NOISE_EFFECTS and structure_left(c))]
         absorbed = [c for c in refitted if improves(c) and c.effect in NOISE_EFFECTS and structure_left(c)]
+        def acceptance(c):
+            """Whether the gap stays open after ``c``'s refit (with known noise its chi^2 beyond the
+            noise at alpha, or a generic family significant after it), the significant slices left,
+            and what is left, in words."""
+            after = c.refit["gap_after"]
+            generic_left = after["generic_structure"]
+            chi2_open = False
+            if noise.known and after.get("chi2_dof") is not None:
+                dof_a = int(c.refit.get("dof_after") or 0)
+                p_after = float(stats.chi2.sf(after["chi2_dof"] * dof_a, dof_a)) if dof_a > 0 else None
+                chi2_open = p_after is None or p_after < alpha
+            n_left = after.get("significant_slices") or 0
+            left = [f"chi2/dof {after['chi2_dof']:.3g}"] if noise.known and after.get("chi2_dof") is not None else []
+            if n_left:
+                left.append(f"{n_left} slice(s) still significant")
+            if generic_left:
+                left.append("smooth structure left in " + ", ".join(
+                    f"{f} (p_holm {after['generic'][f]['p_holm']:.2g})" for f in generic_left))
+            return chi2_open or bool(generic_left), n_left, left
+
+        def series_of(best):
+            """The series of ``best``'s temperature coefficient (``TEMPCO_SERIES``): every order of
+            its quantity that the model lacks and the design can determine, refitted together, when
+            ``best`` is one of them and there is another. A candidate (not ranked) whose
+            ``refit["series"]`` holds the evidence, also recorded on ``best``'s refit; None when there
+            is no series. Named (``series["named"]``) when it improves on the base (LR p < alpha,
+            delta elpd > 0), its added orders beat ``best`` alone (nested likelihood ratio at alpha,
+            and a higher delta elpd) and the gap after it lies in the acceptance band; the effect
+            named is the order with the largest Wald chi^2 in that refit (docs/diagnosis.md, "A
+            series of one temperature coefficient")."""
+            members = _series_members(best.effect, model, cand_objs)
+            if members is None:
+                return None
+            params = {c.effect: c.params for c in cand_objs if c.effect in members}
+            new_names = list(dict.fromkeys(n for e in members for n in params[e]))
+            st, ll, lr_p = mean_refit(new_names)
+            st_best = states[best.effect]
+            k_extra = len(new_names) - len(best.params)
+            if noise.known:
+                stat = st_best.chi2 - st.chi2
+                p_more = float(stats.chi2.sf(max(stat, 0.0), k_extra))
+                crit = f"chi2 falls by {stat:.4g} on {k_extra} dof, p = {p_more:.3g}"
+            else:
+                F = (st_best.chi2 - st.chi2) / k_extra / (st.chi2 / max(st.dof, 1))
+                p_more = float(stats.f.sf(max(F, 0.0), k_extra, max(st.dof, 1)))
+                crit = f"F = {F:.4g} on ({k_extra}, {max(st.dof, 1)}) dof, p = {p_more:.3g}"
+            wald = {}
+            for e in members:
+                idx = [st.names.index(n) for n in params[e]]
+                xv = np.array([st.x_full[full.index[n]] for n in params[e]])
+                try:
+                    wald[e] = float(xv @ np.linalg.solve(st.cov[np.ix_(idx, idx)], xv))
+                except np.linalg.LinAlgError:
+                    wald[e] = 0.0
+            lead = max(members, key=lambda e: wald[e])
+            sc = Candidate(lead, True, k=len(new_names), params=new_names)
+            sc.refit = evidence(sc, st, new_names, None, math.inf, ll, lr_p, members)
+            states[id(sc)] = st
+            open_, n_left, left = acceptance(sc)
+            named_ = bool(lr_p < alpha and sc.refit["delta_elpd"] > 0 and p_more < alpha
+                          and sc.refit["delta_elpd"] > best.refit["delta_elpd"] and not open_)
+            effects_opt = ",".join(e for e in EFFECTS if e in model + tuple(members))
+            ser = {"effects": list(members), "n_parameters": len(new_names), "lead": lead,
+                   "wald_chi2": {e: _f(v) for e, v in wald.items()},
+                   "lr_p_value": _f(lr_p), "delta_elpd": sc.refit["delta_elpd"],
+                   "delta_elpd_se": sc.refit["delta_elpd_se"],
+                   "over_single": {"effect": best.effect, "p_value": _f(p_more), "criterion": crit},
+                   "gap_after": {k: sc.refit["gap_after"][k] for k in ("chi2_dof", "significant_slices",
+                                                                       "generic_structure")},
+                   "gap_open_after": bool(open_), "named": named_,
+                   "fit_options": f"--effects {effects_opt}"}
+            ser["evidence"] = (f"the series {' + '.join(members)} ({len(new_names)} parameters) refitted together: "
+                               f"LR p = {lr_p:.3g}, delta elpd = {sc.refit['delta_elpd']:.1f} +- "
+                               f"{sc.refit['delta_elpd_se']:.1f}; over {best.effect} alone ({best.refit['delta_elpd']:.1f}), "
+                               f"which leaves the gap open: {crit}; the leading order {lead} (Wald chi2 "
+                               f"{wald[lead]:.3g}); reproduce with: triadcal fit DATA.csv --effects {effects_opt}")
+            sc.refit["series"] = ser
+            best.refit["series"] = {k: v for k, v in ser.items() if k != "evidence"}
+            return sc
+
         # (a form candidate is eligible only when it beats its simpler form: improves())
         if eligible:
             best = eligible[0]
@@ -482,34 +612,35 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 fm = best.refit["form"]
                 verdict["evidence"] = (
                     f"refit-only form candidate (no score test at the fitted point): delta loglik = "
-                    f"{best.refit['delta_loglik']:.1f} with {best.k} parameter(s) ({', '.join(fm['profiled'])} "
-                    f"profiled), LR p = {best.refit['lr_p_value']:.3g}, delta elpd = {best.refit['delta_elpd']:.1f} "
+                    f"{best.refit['delta_loglik']:.1f} with {best.k} parameter(s)"
+                    + (f" ({', '.join(fm['profiled'])} profiled)" if fm['profiled'] else "")
+                    + f", LR p = {best.refit['lr_p_value']:.3g}, delta elpd = {best.refit['delta_elpd']:.1f} "
                     f"+- {best.refit['delta_elpd_se']:.1f} (less {fm['delta_elpd_penalty']} for the profiled); over "
                     f"{fm['simpler_form']}: {fm['criterion']}"
                     + (f"; {fm['location_choice']}, tau = {fm['tau_min']:.3g} min" if "location_choice" in fm else "")
                     + (f"; r = {fm['half_width_C']:g} degC from the {fm['start']} state" if "half_width_C" in fm else "")
+                    + (f"; tau_s = {fm['tau_h']:.3g} +- {fm['tau_u_h']:.2g} h over a campaign of {fm['span_h']:.3g} h"
+                       if "tau_h" in fm else "")
                     + f"; reproduce with: triadcal fit DATA.csv {fm['fit_options']}")
                 verdict["fit_options"] = fm["fit_options"]
-            after = best.refit["gap_after"]
-            generic_left = after["generic_structure"]
-            generic_txt = ", ".join(f"{f} (p_holm {after['generic'][f]['p_holm']:.2g})" for f in generic_left)
-            chi2_open = False
-            if noise.known and after.get("chi2_dof") is not None:
-                dof_a = int(best.refit.get("dof_after") or 0)
-                p_after = float(stats.chi2.sf(after["chi2_dof"] * dof_a, dof_a)) if dof_a > 0 else None
-                chi2_open = p_after is None or p_after < alpha
-            gap_open = chi2_open or bool(generic_left)
-            n_slices_left = after.get("significant_slices") or 0
+            gap_open, n_slices_left, left = acceptance(best)
+            named = best
+            if gap_open:
+                # one order of a temperature coefficient leaves the gap open: its quantity's other orders
+                # together with it (a smooth law of temperature is a series, not one power)
+                sc = series_of(best)
+                if sc is not None and sc.refit["series"]["named"]:
+                    named = sc
+                    ser = sc.refit["series"]
+                    verdict = {"effect": sc.effect, "effects": list(ser["effects"]),
+                               "evidence": ser["evidence"], "fit_options": ser["fit_options"]}
+                    gap_open, n_slices_left, left = acceptance(sc)
             if noise.known or gap_open or n_slices_left:
                 verdict["gap_closed"] = bool(not gap_open and not n_slices_left)
             if not verdict.get("gap_closed", True):
-                left = [f"chi2/dof {after['chi2_dof']:.3g}"] if noise.known else []
-                if n_slices_left:
-                    left.append(f"{n_slices_left} slice(s) still significant")
-                if generic_left:
-                    left.append(f"smooth structure left in {generic_txt}")
-                verdict["remaining"] = (f"the gap stays significant after adding {best.effect} ({', '.join(left)}): "
-                                        f"more is missing; refit with {best.effect} and diagnose again")
+                what = "+".join(verdict.get("effects", [named.effect]))
+                verdict["remaining"] = (f"the gap stays significant after adding {what} ({', '.join(left)}): "
+                                        f"more is missing; refit with {what} and diagnose again")
             if gap_open:
                 # an effect is named only when the gap after it lies in the acceptance band (issue 18 item 1:
                 # with known noise, the chi2 after its refit within the noise at alpha; and no generic family
@@ -523,20 +654,21 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 partial = dict(verdict)
                 verdict = {"effect": "unexplained", "best_partial": best.effect,
                            "reason": (f"significant gap that no candidate closes: the best, {best.effect} "
-                                      f"({partial['evidence']}), leaves it open: {partial['remaining']}"),
+                                      f"({partial['evidence']}), leaves it open: {partial['remaining']}"
+                                      + _series_txt(best)),
                            "evidence": partial["evidence"], "gap_closed": False, "remaining": partial["remaining"],
                            "where": where_of(slices)}
                 if "fit_options" in partial:
                     verdict["fit_options"] = partial["fit_options"]
-            if not gap_open and best.form is None and best.params and best.effect not in NOISE_EFFECTS:
-                amb = _ambiguity(best, refitted)
+            if not gap_open and named.form is None and named.params and named.effect not in NOISE_EFFECTS:
+                amb = _ambiguity(named, refitted)
                 if amb:
                     verdict = amb
             others = [c for c in refitted if c is not best]
             if others:
                 second = others[0]
                 verdict["runner_up"] = second.effect
-                verdict["delta_elpd_to_runner_up"] = best.refit["delta_elpd"] - second.refit["delta_elpd"]
+                verdict["delta_elpd_to_runner_up"] = named.refit["delta_elpd"] - second.refit["delta_elpd"]
         else:
             verdict = {"effect": "unexplained",
                        "reason": ("significant, structured gap that no candidate closes"

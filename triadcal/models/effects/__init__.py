@@ -20,12 +20,12 @@ from .thermal2 import AngleTempco2, BiasTempco2, ScaleTempco2
 from .thermal3 import AngleTempco3, BiasTempco3, ScaleTempco3
 from .thermal_lag import ThermalLag
 from .tilt import BenchTilt
-from .tilt_drift import TiltDrift
+from .tilt_drift import TiltDrift, TiltSettling
 from .warmup import BiasWarmup, ScaleWarmup
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls
-    for cls in (BenchTilt, TiltDrift, BenchNonorthogonality, ThermalLag, AngleTempco, AngleTempco2, AngleTempco3, Hysteresis, ScaleTempco, ScaleTempco2,
+    for cls in (BenchTilt, TiltDrift, TiltSettling, BenchNonorthogonality, ThermalLag, AngleTempco, AngleTempco2, AngleTempco3, Hysteresis, ScaleTempco, ScaleTempco2,
                 ScaleTempco3, BiasTempco, BiasTempco2, BiasTempco3, BiasDrift, BiasWarmup, ScaleWarmup, ScaleNonlinearity, ScaleAsymmetry,
                 ScaleCubic, CrossCoupling, GDependentMisalignment)
 }
