@@ -22,7 +22,7 @@ from independent_bench import default_truth, simulate_campaign  # noqa: E402
 
 from triadcal.io.bench_csv import parse_bench_csv  # noqa: E402
 from triadcal.judgement.diagnose import diagnose  # noqa: E402
-from triadcal.judgement.diagnose.run import TEMPCO_SERIES, _series_members  # noqa: E402
+from triadcal.judgement.diagnose.series import TEMPCO_SERIES, series_members  # noqa: E402
 from triadcal.judgement.diagnose.results import Candidate  # noqa: E402
 
 SETPOINTS = (20, 30, 40, 50, 60, 70, 60, 50, 40, 30, 20, 10, 0, -10, -20, -30, -40, -30, -20, -10, 0, 10, 20)
@@ -35,12 +35,12 @@ def test_series_members_by_hand():
     """The orders of the candidate's quantity that the model lacks and the design can test, when
     the candidate is one of them and there is another."""
     c = [Candidate(e, True, params=["p"]) for e in ("bias_tempco2", "bias_tempco3", "scale_tempco2")]
-    assert _series_members("bias_tempco2", MODEL, c) == ["bias_tempco2", "bias_tempco3"]
-    assert _series_members("scale_tempco2", MODEL, c) is None          # scale_tempco3 not testable here
-    assert _series_members("hysteresis", MODEL, c) is None
+    assert series_members("bias_tempco2", MODEL, c) == ["bias_tempco2", "bias_tempco3"]
+    assert series_members("scale_tempco2", MODEL, c) is None          # scale_tempco3 not testable here
+    assert series_members("hysteresis", MODEL, c) is None
     untestable = [Candidate("bias_tempco2", True, params=["p"]), Candidate("bias_tempco3", False)]
-    assert _series_members("bias_tempco2", MODEL, untestable) is None
-    assert _series_members("bias_tempco2", ("bias_tempco3",) + MODEL, c) is None   # cubic in the model
+    assert series_members("bias_tempco2", MODEL, untestable) is None
+    assert series_members("bias_tempco2", ("bias_tempco3",) + MODEL, c) is None   # cubic in the model
     assert set(TEMPCO_SERIES) == {"angle", "scale", "bias"}
 
 

@@ -12,7 +12,7 @@ import pytest
 from scipy import stats
 
 from triadcal.judgement.diagnose.fitting import _hat_q
-from triadcal.judgement.diagnose.rivals import SAME_TERM_FRACTION, encompassing, unbeaten_rivals
+from triadcal.judgement.diagnose.rivals import SAME_TERM_FRACTION, encompassing, rival_tests, unbeaten_rivals
 
 ALPHA = 0.01
 X = np.linspace(-1.0, 1.0, 41)
@@ -54,6 +54,22 @@ def test_a_rival_in_the_candidates_span_or_the_base_span_is_no_rival():
     assert SAME_TERM_FRACTION < 0.1
     got = unbeaten_rivals(r, Q, C, {"same": 2.0 * C, "base": BASE[:, [1]]}, True, 39, ALPHA)
     assert got == []
+
+
+@pytest.mark.parametrize("b", [2.0, 8.0])
+def test_rival_tests_put_the_closest_rival_first_and_its_s_is_the_noncentrality_without_noise(b):
+    """Noise-free y = b x^2 (the candidate true): S against the rival |x| is exactly the module
+    docstring's noncentrality b^2 |c_perp|^2 (the noise's part is zero), and |x| is the closest
+    rival (the odd x^3 leaves all of x^2's even part); c's own column written another way is no
+    rival; unbeaten_rivals are the tests with p >= alpha, in the same order."""
+    r, Q = _residual(b * X ** 2)
+    rivals = {"x^3": (X ** 3)[:, None], "|x|": T, "same": 2.0 * C}
+    tests = rival_tests(r, Q, C, rivals, True, X.size - 2)
+    assert [t[0] for t in tests] == ["|x|", "x^3"]
+    label, S, k, p = tests[0]
+    assert k == 1 and abs(S - _lambda(b)) <= 1e-9 * _lambda(b), (S, _lambda(b))
+    assert abs(p - stats.chi2.sf(_lambda(b), 1)) <= 1e-9 + 1e-6 * p and p >= tests[1][3]
+    assert unbeaten_rivals(r, Q, C, rivals, True, X.size - 2, ALPHA) == [t for t in tests if t[3] >= ALPHA]
 
 
 def test_an_alias_of_the_design_is_not_beaten_and_the_term_written_another_way_is_skipped():
@@ -162,7 +178,11 @@ def test_an_asymmetry_added_with_numpy_is_named_and_never_k2_when_it_is_not_a_ca
     w = np.asarray(c.w, float)
     c.w = w + 25e-6 * np.abs(w - np.median(w, axis=0))
     kw = dict(n_draws=100, cross_group=False, slices_after=True, top=2, seed=7)
-    assert diagnose(c, model, **kw).verdict["effect"] == "scale_asymmetry"
+    named = diagnose(c, model, **kw).verdict
+    assert named["effect"] == "scale_asymmetry"
+    # named, it carries the evidence that it beats its closest rival (K2's g_a^2 or the like)
+    cr = named["closest_rival"]
+    assert cr["k"] >= 1 and cr["p_value"] < ALPHA and f"beats its closest rival, {cr['rival']}" in named["evidence"]
     cands = [e for e in VOCABULARY + FORM_CANDIDATES if e != "scale_asymmetry"]
     v = diagnose(c, model, candidates=cands, **kw).verdict
     assert v["effect"] == "unexplained", v
@@ -194,6 +214,8 @@ def test_an_ambiguous_verdict_follows_the_contract_and_says_so():
     assert v["effect"] == "unexplained" and v["gap_closed"] is True, v
     pair = {"scale_nonlinearity", "scale_asymmetry"}
     assert v["best_partial"] in pair and (pair - {v["best_partial"]}) <= set(v["ambiguous_with"]), v
+    # the rival it beats least, with its test: not beaten at alpha
+    assert v["closest_rival"]["rival"] == v["ambiguous_with"][0] and v["closest_rival"]["p_value"] >= 0.01, v
     assert_valid(json.loads(json.dumps(d.to_dict())), "triadcal.diagnosis")
     line = next(x for x in summary_text(d).splitlines() if x.startswith("verdict"))
     assert "cannot tell it from" in line, line

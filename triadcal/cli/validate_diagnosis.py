@@ -124,7 +124,10 @@ def _detectability(args, effects, magnitudes, out) -> int:
            "definition": "lambda_total: noncentrality (chi2 units) of the effect's signal after the fit; "
                          "power_bound: Phi(sqrt(lambda_total) - z_(1-alpha)), the most powerful level-alpha test "
                          "of the known signal; lambda_own, k_own: the effect's own score test; power_own: its "
-                         "chance to pass alpha / n_gap_tests", "rows": rows}
+                         "chance to pass alpha / n_gap_tests; closest_rival, lambda_rival, k_rival: the "
+                         "encompassing test against the rival the effect beats least in the noise-free diagnosis; "
+                         "power_rival: its power at alpha (the diagnosis names the effect only when it passes); "
+                         "power_rival_bound: Phi(sqrt(lambda_rival) - z_(1-alpha))", "rows": rows}
     atomic_write_json(folder / "detectability.json", doc)
     out.say(table)
     out.say(f"written: {folder / 'detectability.txt'}, {folder / 'detectability.json'}")

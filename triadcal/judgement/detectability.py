@@ -18,7 +18,17 @@ residuals of the fit are ``r = P s / sigma + P e`` with ``P`` the projector orth
   ``power_own`` the probability that it alone passes the first step of Holm's procedure over the
   gap's ``n_gap_tests`` tests, ``chi2_k(lambda_own) > chi2_k^{-1}(1 - alpha / n)``.
 
-Both are computed on the validation campaign itself, simulated with the output noise scaled by
+* ``lambda_rival`` is the noncentrality of the encompassing test (``diagnose/rivals.py``) of the
+  effect against its closest rival (``verdict.closest_rival`` of the noise-free diagnosis: the rival
+  of the smallest ``S``, ``k_rival`` dof): the part of the effect's signal that neither the model nor
+  that rival holds. ``power_rival`` is that test's power at ``alpha``, ``P(chi2_k(lambda_rival) >
+  chi2_k^{-1}(1 - alpha))``: the diagnosis names the effect only when it passes, so its rate of
+  right names is at most ``min(power_own, power_rival)``. ``power_rival_bound`` =
+  ``Phi(sqrt(lambda_rival) - z_{1-alpha})`` bounds any rule that tells the effect from that rival
+  with a rate alpha of naming it when the rival is the truth. None when no rival is one, or when the
+  noise-free diagnosis does not end on the effect.
+
+All are computed on the validation campaign itself, simulated with the output noise scaled by
 1e-7 in SD and the thermometers' reading noise (0.01 degC) off (every random draw is still made, so
 the design is the seed's) and given the noisy campaign's ``sd_*`` columns, so that the diagnosis's
 own fit and score tests read them: its base chi2 is ``lambda_total`` and its candidate's score ``S``
@@ -79,16 +89,23 @@ def detectability(effect: str, magnitude: float = 1.0, preset: str = "ak18-quart
                   alpha: float = ALPHA) -> dict:
     """The noncentralities and powers of the module docstring for one condition."""
     c, model = noise_free_campaign(effect, magnitude, preset, seed)
-    d = diagnose(c, model, candidates=list(VOCABULARY), n_draws=20, slices_after=False, top=0, seed=seed)
+    d = diagnose(c, model, candidates=list(VOCABULARY), n_draws=20, slices_after=False, top=2, seed=seed)
     lam_total = float(d.gap["chi2_dof"]) * int(d.gap["dof"])
     own = next((x for x in d.candidates if x.effect == effect), None)
     lam_own = float(own.score) if own is not None and own.testable else None
     k_own = int(own.k) if lam_own is not None else None
     n = len(d.gap["tests"])
+    v = d.verdict
+    cr = v.get("closest_rival") if effect in (v.get("effect"), v.get("best_partial")) else None
+    lam_rival = float(cr["S"]) if cr and cr["k"] > 0 else 0.0 if cr else None
     return {"effect": effect, "magnitude": float(magnitude), "seed": int(seed), "alpha": float(alpha),
             "lambda_total": lam_total, "lambda_own": lam_own, "k_own": k_own, "n_gap_tests": n,
             "power_bound": power_bound(lam_total, alpha),
-            "power_own": power_chi2(lam_own, k_own, alpha / n) if lam_own is not None else None}
+            "power_own": power_chi2(lam_own, k_own, alpha / n) if lam_own is not None else None,
+            "closest_rival": cr["rival"] if cr else None, "lambda_rival": lam_rival,
+            "k_rival": int(cr["k"]) if cr else None,
+            "power_rival": (None if cr is None else 0.0 if cr["k"] == 0 else power_chi2(lam_rival, cr["k"], alpha)),
+            "power_rival_bound": power_bound(lam_rival, alpha) if cr else None}
 
 
 def detectability_table(effects: Sequence[str], magnitudes: Sequence[float] = (1.0, 0.5), **kw) -> list:
@@ -105,9 +122,14 @@ def detectability_table(effects: Sequence[str], magnitudes: Sequence[float] = (1
 
 def format_table(rows: Sequence[dict]) -> str:
     """A text table of :func:`detectability_table`'s rows."""
-    lines = [f"{'condition':<28} {'m':>4} {'lambda':>9} {'P bound':>8} {'lambda_own':>10} {'k':>3} {'P own':>7}"]
+    lines = [f"{'condition':<28} {'m':>4} {'lambda':>9} {'P bound':>8} {'lambda_own':>10} {'k':>3} {'P own':>7}"
+             f"  {'closest rival':<22} {'lambda':>8} {'k':>3} {'P rival':>7} {'bound':>6}"]
     for r in rows:
         own = (f"{r['lambda_own']:10.1f} {r['k_own']:3d} {r['power_own']:7.2f}" if r["lambda_own"] is not None
                else f"{'-':>10} {'-':>3} {'-':>7}")
-        lines.append(f"{r['effect']:<28} {r['magnitude']:4g} {r['lambda_total']:9.1f} {r['power_bound']:8.2f} {own}")
+        riv = (f"{r['closest_rival'][:22]:<22} {r['lambda_rival']:8.1f} {r['k_rival']:3d} {r['power_rival']:7.2f} "
+               f"{r['power_rival_bound']:6.2f}" if r.get("closest_rival") is not None
+               else f"{'-':<22} {'-':>8} {'-':>3} {'-':>7} {'-':>6}")
+        lines.append(f"{r['effect']:<28} {r['magnitude']:4g} {r['lambda_total']:9.1f} {r['power_bound']:8.2f} {own}"
+                     f"  {riv}")
     return "\n".join(lines)

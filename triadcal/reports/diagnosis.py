@@ -207,6 +207,10 @@ def _verdict_text(d) -> tuple[str, str]:
         elif isinstance(dd, (int, float)):
             evidence += (f" ({_num(-dd, '{:.1f}')} elpd ahead, but a noise effect cannot be named while slices or generic "
                          "families keep structure after its refit)")
+    cr = v.get("closest_rival")
+    if cr:
+        evidence += (f"; beats its closest rival, {cr['rival']}, by the encompassing test (S = "
+                     f"{_num(cr.get('S'), '{:.3g}')} on {cr.get('k')} dof, p = {_p(cr.get('p_value'))})")
     return str(effect), evidence
 
 

@@ -3,7 +3,8 @@ shrinks (``triadcal diagnose``). The tests and their null distributions are deri
 docs/diagnosis.md. Modules: fitting (a subset of the full model, compiled once per
 campaign), slices (where: residuals by axis, pose, setpoint, branch, time), candidates
 (which: score tests, refits, PSIS-LOO, cross-branch prediction), results (the Diagnosis and
-its JSON) and run (the entry point :func:`diagnose`).
+its JSON), rivals (the encompassing test against the runner-up), series (the orders of one
+temperature coefficient together) and run (the entry point :func:`diagnose`).
 """
 
 from .candidates import (  # noqa: F401

@@ -155,9 +155,11 @@ def encompassing(r: np.ndarray, Q: np.ndarray, C: np.ndarray, T: np.ndarray, noi
     return float(S), int(k), float(math.exp(logp))
 
 
-def unbeaten_rivals(r, Q, C, rivals: dict, noise_known: bool, dof: int, alpha: float,
-                    reference=None) -> list:
-    """The rivals ``c`` does not beat: ``[(label, S, k, p)]``, the least beaten first.
+def rival_tests(r, Q, C, rivals: dict, noise_known: bool, dof: int, reference=None) -> list:
+    """The encompassing test of ``c`` against every rival that is one: ``[(label, S, k, p)]``, the
+    least beaten (largest p) first. The first of them that ``c`` beats is its closest rival: the
+    verdict's evidence that it beats the runner-up (issue 18, item 1), and on a noise-free campaign
+    its ``S`` is the noncentrality of that test (``detectability.py``).
 
     ``reference``: a callable giving ``(Q_ref, C_ref, rivals_ref)`` -- the base span, ``c``'s and
     the rivals' columns on the reference design (``reference_poses``), called at most once and
@@ -180,7 +182,12 @@ def unbeaten_rivals(r, Q, C, rivals: dict, noise_known: bool, dof: int, alpha: f
                            same_elsewhere_of(label) if reference is not None else None)
         if res is None:
             continue
-        S, k, p = res
-        if p >= alpha:
-            out.append((label, S, k, p))
-    return sorted(out, key=lambda x: -x[3])
+        out.append((label, *res))
+    # p underflows to 0 for rivals beaten by far: among equal p the smaller S is the closer
+    return sorted(out, key=lambda x: (-x[3], x[1]))
+
+
+def unbeaten_rivals(r, Q, C, rivals: dict, noise_known: bool, dof: int, alpha: float,
+                    reference=None) -> list:
+    """The rivals ``c`` does not beat (p >= ``alpha``) of :func:`rival_tests`, the least beaten first."""
+    return [x for x in rival_tests(r, Q, C, rivals, noise_known, dof, reference) if x[3] >= alpha]

@@ -44,8 +44,9 @@ from .candidates import (
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .generic import generic_basis, generic_tests, per_output_terms, variance_basis, variance_test
-from .rivals import generic_rivals, reference_poses, unbeaten_rivals
+from .rivals import generic_rivals, reference_poses, rival_tests
 from .results import ALPHA, Candidate, Diagnosis, _f
+from .series import series_of, series_txt
 from .slices import _family_tests, _holm, _slice_tests
 
 
@@ -56,35 +57,10 @@ def _top_by_score(cands, top: int) -> list:
     return sorted(scored, key=lambda c: c.score_logp)[:top]
 
 
-#: the orders of one temperature coefficient, a Taylor series in (T - T0) (models/effects/thermal*.py)
-TEMPCO_SERIES = {q: (f"{q}_tempco", f"{q}_tempco2", f"{q}_tempco3") for q in ("angle", "scale", "bias")}
-
-
-def _series_members(effect: str, model, cand_objs) -> Optional[list]:
-    """The orders of ``effect``'s temperature coefficient that ``model`` lacks and whose candidates
-    are testable with parameters on this design, when ``effect`` is one of them and there are at
-    least two; else None."""
-    orders = next((o for o in TEMPCO_SERIES.values() if effect in o), None)
-    if orders is None:
-        return None
-    usable = {c.effect for c in cand_objs if c.testable and c.params and not c.refit_only}
-    members = [e for e in orders if e not in model and e in usable]
-    return members if effect in members and len(members) >= 2 else None
-
-
-def _series_txt(c) -> str:
-    """Why the series of ``c``'s temperature coefficient, when it was tried, is not the answer."""
-    ser = (c.refit or {}).get("series")
-    if not ser:
-        return ""
-    why = []
-    if ser["gap_open_after"]:
-        why.append("leaves it open too (chi2/dof after {}; generic structure: {})".format(
-            "-" if ser["gap_after"]["chi2_dof"] is None else f"{ser['gap_after']['chi2_dof']:.3g}",
-            ", ".join(ser["gap_after"]["generic_structure"]) or "none"))
-    if not why:
-        why.append(f"does not beat {c.effect} alone ({ser['over_single']['criterion']}) or the base model")
-    return f"; the series {' + '.join(ser['effects'])} " + "; ".join(why)
+def _rival_json(test) -> dict:
+    """A rival's encompassing test ``(label, S, k, p)`` as the verdict's ``closest_rival``."""
+    lab, S, k, p = test
+    return {"rival": lab, "S": _f(S), "k": int(k), "p_value": _f(p)}
 
 
 def _structure_left_txt(c) -> str:
@@ -467,9 +443,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             return [f for f, t in generic0.items() if -t["S"] + 2.0 * t["k"] < aic_noise]
 
         def _ambiguity(best, refitted):
-            """``unexplained`` when ``best`` does not beat a rival by the encompassing test (rivals.py):
-            the data cannot tell it from another refitted candidate or from a smooth term outside the
-            list; None when it beats them all."""
+            """``(verdict, closest)``: the verdict ``unexplained`` when ``best`` does not beat a rival by
+            the encompassing test (rivals.py) -- the data cannot tell it from another refitted candidate
+            or from a smooth term outside the list --, else None and ``closest``, the rival it beats
+            least ``(label, S, k, p)`` (None when there is no rival)."""
             cols = lambda c: Jfull[:, [full.index[n] for n in c.params]]  # noqa: E731
             named_rivals = [c for c in refitted
                             if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS]
@@ -490,9 +467,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 rr.update(generic_rivals(per_output_terms(ref, T0), sig_rows, lambda v: v / base.s))
                 return _hat_q(Jr[:, [full.index[n] for n in base.names]]), colr(best), rr
 
-            lost = unbeaten_rivals(base.r, Q, cols(best), rivals, noise.known, base.dof, alpha, reference)
+            tests = rival_tests(base.r, Q, cols(best), rivals, noise.known, base.dof, reference)
+            lost = [x for x in tests if x[3] >= alpha]
             if not lost:
-                return None
+                return None, (tests[0] if tests else None)
             named = [x for x in lost if x[0] in EFFECTS]
             shown = (named + [x for x in lost if x[0] not in EFFECTS])[:4]
             txt = "; ".join(f"{lab} (adding {best.effect} to it: S = {S:.3g} on {k} dof, p = {p:.3g})" if k else
@@ -506,7 +484,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                                f"{best.effect} from them (encompassing test at alpha = {alpha:g}, "
                                "docs/diagnosis.md \"Rivals\")"),
                     "evidence": verdict["evidence"], "gap_closed": True,
-                    "where": where_of(slices)}
+                    "closest_rival": _rival_json(lost[0]), "where": where_of(slices)}, None
 
         for c in refitted:
             if c.effect == "flicker_noise" and noise.known:
@@ -542,66 +520,6 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     f"{f} (p_holm {after['generic'][f]['p_holm']:.2g})" for f in generic_left))
             return chi2_open or bool(generic_left), n_left, left
 
-        def series_of(best):
-            """The series of ``best``'s temperature coefficient (``TEMPCO_SERIES``): every order of
-            its quantity that the model lacks and the design can determine, refitted together, when
-            ``best`` is one of them and there is another. A candidate (not ranked) whose
-            ``refit["series"]`` holds the evidence, also recorded on ``best``'s refit; None when there
-            is no series. Named (``series["named"]``) when it improves on the base (LR p < alpha,
-            delta elpd > 0), its added orders beat ``best`` alone (nested likelihood ratio at alpha,
-            and a higher delta elpd) and the gap after it lies in the acceptance band; the effect
-            named is the order with the largest Wald chi^2 in that refit (docs/diagnosis.md, "A
-            series of one temperature coefficient")."""
-            members = _series_members(best.effect, model, cand_objs)
-            if members is None:
-                return None
-            params = {c.effect: c.params for c in cand_objs if c.effect in members}
-            new_names = list(dict.fromkeys(n for e in members for n in params[e]))
-            st, ll, lr_p = mean_refit(new_names)
-            st_best = states[best.effect]
-            k_extra = len(new_names) - len(best.params)
-            if noise.known:
-                stat = st_best.chi2 - st.chi2
-                p_more = float(stats.chi2.sf(max(stat, 0.0), k_extra))
-                crit = f"chi2 falls by {stat:.4g} on {k_extra} dof, p = {p_more:.3g}"
-            else:
-                F = (st_best.chi2 - st.chi2) / k_extra / (st.chi2 / max(st.dof, 1))
-                p_more = float(stats.f.sf(max(F, 0.0), k_extra, max(st.dof, 1)))
-                crit = f"F = {F:.4g} on ({k_extra}, {max(st.dof, 1)}) dof, p = {p_more:.3g}"
-            wald = {}
-            for e in members:
-                idx = [st.names.index(n) for n in params[e]]
-                xv = np.array([st.x_full[full.index[n]] for n in params[e]])
-                try:
-                    wald[e] = float(xv @ np.linalg.solve(st.cov[np.ix_(idx, idx)], xv))
-                except np.linalg.LinAlgError:
-                    wald[e] = 0.0
-            lead = max(members, key=lambda e: wald[e])
-            sc = Candidate(lead, True, k=len(new_names), params=new_names)
-            sc.refit = evidence(sc, st, new_names, None, math.inf, ll, lr_p, members)
-            states[id(sc)] = st
-            open_, n_left, left = acceptance(sc)
-            named_ = bool(lr_p < alpha and sc.refit["delta_elpd"] > 0 and p_more < alpha
-                          and sc.refit["delta_elpd"] > best.refit["delta_elpd"] and not open_)
-            effects_opt = ",".join(e for e in EFFECTS if e in model + tuple(members))
-            ser = {"effects": list(members), "n_parameters": len(new_names), "lead": lead,
-                   "wald_chi2": {e: _f(v) for e, v in wald.items()},
-                   "lr_p_value": _f(lr_p), "delta_elpd": sc.refit["delta_elpd"],
-                   "delta_elpd_se": sc.refit["delta_elpd_se"],
-                   "over_single": {"effect": best.effect, "p_value": _f(p_more), "criterion": crit},
-                   "gap_after": {k: sc.refit["gap_after"][k] for k in ("chi2_dof", "significant_slices",
-                                                                       "generic_structure")},
-                   "gap_open_after": bool(open_), "named": named_,
-                   "fit_options": f"--effects {effects_opt}"}
-            ser["evidence"] = (f"the series {' + '.join(members)} ({len(new_names)} parameters) refitted together: "
-                               f"LR p = {lr_p:.3g}, delta elpd = {sc.refit['delta_elpd']:.1f} +- "
-                               f"{sc.refit['delta_elpd_se']:.1f}; over {best.effect} alone ({best.refit['delta_elpd']:.1f}), "
-                               f"which leaves the gap open: {crit}; the leading order {lead} (Wald chi2 "
-                               f"{wald[lead]:.3g}); reproduce with: triadcal fit DATA.csv --effects {effects_opt}")
-            sc.refit["series"] = ser
-            best.refit["series"] = {k: v for k, v in ser.items() if k != "evidence"}
-            return sc
-
         # (a form candidate is eligible only when it beats its simpler form: improves())
         if eligible:
             best = eligible[0]
@@ -615,8 +533,9 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     f"{best.refit['delta_loglik']:.1f} with {best.k} parameter(s)"
                     + (f" ({', '.join(fm['profiled'])} profiled)" if fm['profiled'] else "")
                     + f", LR p = {best.refit['lr_p_value']:.3g}, delta elpd = {best.refit['delta_elpd']:.1f} "
-                    f"+- {best.refit['delta_elpd_se']:.1f} (less {fm['delta_elpd_penalty']} for the profiled); over "
-                    f"{fm['simpler_form']}: {fm['criterion']}"
+                    f"+- {best.refit['delta_elpd_se']:.1f}"
+                    + (f" (less {fm['delta_elpd_penalty']} for the profiled)" if fm["delta_elpd_penalty"] else "")
+                    + f"; over {fm['simpler_form']}: {fm['criterion']}"
                     + (f"; {fm['location_choice']}, tau = {fm['tau_min']:.3g} min" if "location_choice" in fm else "")
                     + (f"; r = {fm['half_width_C']:g} degC from the {fm['start']} state" if "half_width_C" in fm else "")
                     + (f"; tau_s = {fm['tau_h']:.3g} +- {fm['tau_u_h']:.2g} h over a campaign of {fm['span_h']:.3g} h"
@@ -628,7 +547,9 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             if gap_open:
                 # one order of a temperature coefficient leaves the gap open: its quantity's other orders
                 # together with it (a smooth law of temperature is a series, not one power)
-                sc = series_of(best)
+                sc = series_of(best, model=model, cand_objs=cand_objs, states=states, full=full,
+                               noise_known=noise.known, alpha=alpha, mean_refit=mean_refit,
+                               evidence=evidence, acceptance=acceptance)
                 if sc is not None and sc.refit["series"]["named"]:
                     named = sc
                     ser = sc.refit["series"]
@@ -655,15 +576,22 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 verdict = {"effect": "unexplained", "best_partial": best.effect,
                            "reason": (f"significant gap that no candidate closes: the best, {best.effect} "
                                       f"({partial['evidence']}), leaves it open: {partial['remaining']}"
-                                      + _series_txt(best)),
+                                      + series_txt(best)),
                            "evidence": partial["evidence"], "gap_closed": False, "remaining": partial["remaining"],
                            "where": where_of(slices)}
                 if "fit_options" in partial:
                     verdict["fit_options"] = partial["fit_options"]
             if not gap_open and named.form is None and named.params and named.effect not in NOISE_EFFECTS:
-                amb = _ambiguity(named, refitted)
+                amb, closest = _ambiguity(named, refitted)
                 if amb:
                     verdict = amb
+                elif closest is not None:
+                    # the evidence that it beats the runner-up: the rival it beats least
+                    lab, S, k, p = closest
+                    verdict["closest_rival"] = _rival_json(closest)
+                    verdict["evidence"] += (f"; beats its closest rival, {lab}, by the encompassing test "
+                                            f"(adding {named.effect} to it: S = {S:.3g} on {k} dof, p = "
+                                            + (f"{p:.3g})" if p > 0 else "< 1e-300)"))
             others = [c for c in refitted if c is not best]
             if others:
                 second = others[0]
