@@ -503,6 +503,12 @@ def test_diagnosis_p_values_that_underflow_are_not_printed_as_zero():
 
     assert _p(0.0, -412.3) == "5.01e-413" and _p(0.0) == "< 1e-300" and _p(3.2e-5) == "3.2e-05"
     assert _p(None) == "not computed" and _ppc_p(0.0) == "no draw as extreme" and _ppc_p(0.25) == "0.25"
+    # after its name: "LR p < 1e-300", never "LR p = < 1e-300" or "p = 0" (the page and the JSON's evidence)
+    from triadcal.judgement.diagnose.results import _p_is as evidence_p
+    from triadcal.reports.diagnosis import _p_is
+
+    assert _p_is(0.0) == "< 1e-300" and _p_is(0.0, -412.3) == "= 5.01e-413" and _p_is(0.003) == "= 0.003"
+    assert evidence_p(0.0) == "< 1e-300" and evidence_p(0.003) == "= 0.003" and evidence_p(None) == "not computed"
 
 
 def test_diagnosis_slice_chart_has_both_axis_labels():

@@ -156,6 +156,12 @@ def _p(p, log10_p=None) -> str:
     return "< 1e-300"
 
 
+def _p_is(p, log10_p=None) -> str:
+    """``"= 0.003"`` or ``"< 1e-300"``: a p-value after its name ("LR p = 0.003", "LR p < 1e-300")."""
+    txt = _p(p, log10_p)
+    return txt if txt.startswith("<") else f"= {txt}"
+
+
 def _ppc_p(p) -> str:
     """A posterior-predictive p (a share of draws): 0 means no draw was as extreme."""
     if p is None or (isinstance(p, float) and math.isnan(p)):
@@ -194,8 +200,8 @@ def _verdict_text(d) -> tuple[str, str]:
     if cand is None or not cand.refit:
         return str(effect), str(v.get("evidence") or v.get("reason") or "")
     r = cand.refit
-    evidence = (f"score p = {_p(cand.score_p, cand.score_logp / math.log(10))}, "
-                f"LR p = {_p(r.get('lr_p_value'))}, delta elpd = {_num(r.get('delta_elpd'), '{:.1f}')} "
+    evidence = (f"score p {_p_is(cand.score_p, cand.score_logp / math.log(10))}, "
+                f"LR p {_p_is(r.get('lr_p_value'))}, delta elpd = {_num(r.get('delta_elpd'), '{:.1f}')} "
                 f"+- {_num(r.get('delta_elpd_se'), '{:.1f}')}")
     if v.get("remaining"):
         evidence += f"; {v['remaining']}"
@@ -210,7 +216,7 @@ def _verdict_text(d) -> tuple[str, str]:
     cr = v.get("closest_rival")
     if cr:
         evidence += (f"; beats its closest rival, {cr['rival']}, by the encompassing test (S = "
-                     f"{_num(cr.get('S'), '{:.3g}')} on {cr.get('k')} dof, p = {_p(cr.get('p_value'))})")
+                     f"{_num(cr.get('S'), '{:.3g}')} on {cr.get('k')} dof, p {_p_is(cr.get('p_value'))})")
     return str(effect), evidence
 
 
@@ -352,7 +358,7 @@ def summary_text(diagnosis) -> str:
         f = d.families[0]
         lines.append(f"  localised in: {f['family']} (chi2/dof {f['chi2_per_dof']:.3g}, log10 p {f['log10_p']:.1f})")
     for s in d.where[:5]:
-        lines.append(f"  where: {s.slice} [{s.axis}] {s.test}: {_num(s.size)} {s.unit}, p(Holm) = {_p(s.p_adjusted)}")
+        lines.append(f"  where: {s.slice} [{s.axis}] {s.test}: {_num(s.size)} {s.unit}, p(Holm) {_p_is(s.p_adjusted)}")
     for c in sorted(d.candidates, key=lambda c: c.rank)[:5]:
         if not c.testable:
             continue

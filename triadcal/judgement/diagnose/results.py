@@ -170,6 +170,14 @@ METHODS_TEXT = {
 }
 
 
+def _p_is(p) -> str:
+    """``"= 0.003"`` or ``"< 1e-300"`` (underflowed to 0): a p-value after its name in the evidence
+    ("LR p = 0.003", "LR p < 1e-300"), never a bare "p = 0"."""
+    if p is None or p != p:
+        return "not computed"
+    return f"= {p:.3g}" if p > 0 else "< 1e-300"
+
+
 def _f(v):
     if v is None:
         return None

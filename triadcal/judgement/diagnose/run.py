@@ -45,7 +45,7 @@ from .candidates import (
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .generic import generic_basis, generic_tests, per_output_terms, variance_basis, variance_test
 from .rivals import generic_rivals, reference_poses, rival_tests
-from .results import ALPHA, Candidate, Diagnosis, _f
+from .results import ALPHA, Candidate, Diagnosis, _f, _p_is
 from .series import series_of, series_txt
 from .slices import _family_tests, _holm, _slice_tests
 
@@ -524,7 +524,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         if eligible:
             best = eligible[0]
             verdict = {"effect": best.effect,
-                       "evidence": f"score p = {best.score_p:.3g}, LR p = {best.refit['lr_p_value']:.3g}, "
+                       "evidence": f"score p {_p_is(best.score_p)}, LR p {_p_is(best.refit['lr_p_value'])}, "
                                    f"delta elpd = {best.refit['delta_elpd']:.1f} +- {best.refit['delta_elpd_se']:.1f}"}
             if best.form is not None:
                 fm = best.refit["form"]
@@ -532,7 +532,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     f"refit-only form candidate (no score test at the fitted point): delta loglik = "
                     f"{best.refit['delta_loglik']:.1f} with {best.k} parameter(s)"
                     + (f" ({', '.join(fm['profiled'])} profiled)" if fm['profiled'] else "")
-                    + f", LR p = {best.refit['lr_p_value']:.3g}, delta elpd = {best.refit['delta_elpd']:.1f} "
+                    + f", LR p {_p_is(best.refit['lr_p_value'])}, delta elpd = {best.refit['delta_elpd']:.1f} "
                     f"+- {best.refit['delta_elpd_se']:.1f}"
                     + (f" (less {fm['delta_elpd_penalty']} for the profiled)" if fm["delta_elpd_penalty"] else "")
                     + f"; over {fm['simpler_form']}: {fm['criterion']}"
@@ -590,8 +590,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     lab, S, k, p = closest
                     verdict["closest_rival"] = _rival_json(closest)
                     verdict["evidence"] += (f"; beats its closest rival, {lab}, by the encompassing test "
-                                            f"(adding {named.effect} to it: S = {S:.3g} on {k} dof, p = "
-                                            + (f"{p:.3g})" if p > 0 else "< 1e-300)"))
+                                            f"(adding {named.effect} to it: S = {S:.3g} on {k} dof, p {_p_is(p)})")
             others = [c for c in refitted if c is not best]
             if others:
                 second = others[0]

@@ -19,7 +19,7 @@ import numpy as np
 from scipy import stats
 
 from ...models.effects import EFFECTS
-from .results import Candidate, _f
+from .results import Candidate, _f, _p_is
 
 
 #: the orders of one temperature coefficient, a Taylor series in (T - T0) (models/effects/thermal*.py)
@@ -82,11 +82,11 @@ def series_of(best, *, model, cand_objs, states: dict, full, noise_known: bool, 
     if noise_known:
         stat = st_best.chi2 - st.chi2
         p_more = float(stats.chi2.sf(max(stat, 0.0), k_extra))
-        crit = f"chi2 falls by {stat:.4g} on {k_extra} dof, p = {p_more:.3g}"
+        crit = f"chi2 falls by {stat:.4g} on {k_extra} dof, p {_p_is(p_more)}"
     else:
         F = (st_best.chi2 - st.chi2) / k_extra / (st.chi2 / max(st.dof, 1))
         p_more = float(stats.f.sf(max(F, 0.0), k_extra, max(st.dof, 1)))
-        crit = f"F = {F:.4g} on ({k_extra}, {max(st.dof, 1)}) dof, p = {p_more:.3g}"
+        crit = f"F = {F:.4g} on ({k_extra}, {max(st.dof, 1)}) dof, p {_p_is(p_more)}"
     wald = {}
     for e in members:
         idx = [st.names.index(n) for n in params[e]]
@@ -113,7 +113,7 @@ def series_of(best, *, model, cand_objs, states: dict, full, noise_known: bool, 
            "gap_open_after": bool(open_), "named": named_,
            "fit_options": f"--effects {effects_opt}"}
     ser["evidence"] = (f"the series {' + '.join(members)} ({len(new_names)} parameters) refitted together: "
-                       f"LR p = {lr_p:.3g}, delta elpd = {sc.refit['delta_elpd']:.1f} +- "
+                       f"LR p {_p_is(lr_p)}, delta elpd = {sc.refit['delta_elpd']:.1f} +- "
                        f"{sc.refit['delta_elpd_se']:.1f}; over {best.effect} alone ({best.refit['delta_elpd']:.1f}), "
                        f"which leaves the gap open: {crit}; the leading order {lead} (Wald chi2 "
                        f"{wald[lead]:.3g}); reproduce with: triadcal fit DATA.csv --effects {effects_opt}")
