@@ -81,6 +81,12 @@ def test_planted_k2_is_named_with_its_held_out_shrink():
     assert c["significant"] and c["held_out"]["shrink_ug"] > 0.3 * c["held_out"]["rms_base_ug"]
     assert c["full_fit"]["closes_gap"]
     assert all(r["versus_best"]["beaten"] for r in doc["raw"]["rivals"] if r["testable"])
+    # the evidence names the rival beaten by the fewest paired standard errors, with that margin (> 2)
+    margin = {r["term"]: r["versus_best"]["mean_diff"] / r["versus_best"]["se"] for r in doc["raw"]["rivals"]
+              if r["testable"]}
+    closest = min(margin, key=margin.get)
+    assert f"beats its closest rival, {closest}, held out" in doc["verdict"]["evidence"]
+    assert f"({margin[closest]:.3g} paired SE, 2 needed)" in doc["verdict"]["evidence"]
     # the planted size comes back as its correction (-800 ug/g^2 on every axis, within 4 u)
     for name, p in c["full_fit"]["new_parameters"].items():
         assert abs(p["value"] + 800) < 4 * p["u"] + 50, (name, p)

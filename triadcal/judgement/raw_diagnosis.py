@@ -471,6 +471,14 @@ def _verdict(gap, tested, sig, n, dof0, rms_ug, floor_ug, rivals=()) -> dict:
                            f"{SHRINK_SE:g} paired standard errors: {txt}; the data cannot tell "
                            f"{best['term']} from them")}
     v = {"term": best["term"], "evidence": ev + f"; chi2/dof after its refit {ff['chi2_dof']:.3g}"}
+    beaten = [r for r in rivals if r["testable"]]
+    if beaten:
+        # the evidence that it beats the runner-up: the rival it beats by the fewest paired SE
+        close = min(beaten, key=lambda r: r["versus_best"]["mean_diff"] / max(r["versus_best"]["se"], 1e-300))
+        vb = close["versus_best"]
+        v["evidence"] += (f"; beats its closest rival, {close['term']}, held out: z^2 worse by {vb['mean_diff']:.3g} "
+                          f"+- {vb['se']:.3g} there ({vb['mean_diff'] / max(vb['se'], 1e-300):.3g} paired SE, "
+                          f"{SHRINK_SE:g} needed)")
     if best.get("indistinguishable_from"):
         v["evidence"] += ("; held out, not better than " + ", ".join(best["indistinguishable_from"])
                           + " by 2 SE, which has more parameters")
