@@ -357,7 +357,8 @@ def _gate_time_constants(params: Mapping) -> GateOutcome:
     if bad:
         lo, hi = TIME_CONSTANT_RANGE_MIN
         return GateOutcome("time_constants", False, "unphysical_term", "; ".join(bad), float(len(bad)),
-                           f"{lo:g} <= tau <= {hi:g} min (the bench's settling 0.05-100 h)")
+                           f"{lo:g} <= tau <= {hi:g} min (" + "; ".join(
+                               f"{n} {a:g}-{b:g} {u}" for n, (a, b, u) in TIME_CONSTANT_RANGES.items()) + ")")
     return GateOutcome("time_constants", True, "unphysical_term", "every time constant within its range")
 
 

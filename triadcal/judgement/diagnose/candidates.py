@@ -214,9 +214,10 @@ def _cross_group(campaign, noise, effects_names, names, T0, x_start_full, noise_
 #: candidates that are forms of a registered effect fitted in estimation/ (not effects of the
 #: joint model): the play and Prandtl-Ishlinskii hysteresis (hysteresis_form.py) and the lag over
 #: the temperature history (thermal_lag_form.py); and the settling of the tilt, an effect of the
-#: model (models/effects/tilt_drift.py) refitted as a form of the linear drift it is nested over. They have no score test at the fitted point (their
-#: nonlinear parameters r, start, tau are not columns of the full Jacobian): each is refitted and
-#: ranked by its refit's likelihood gain with its parameter count stated.
+#: model (models/effects/tilt_drift.py) refitted as a form of the linear drift it is nested over.
+#: They have no score test at the fitted point (their nonlinear parameters r, start, tau are not
+#: columns of the full Jacobian): each is refitted and ranked by its refit's likelihood gain with
+#: its parameter count stated.
 FORM_CANDIDATES = ("hysteresis_play", "hysteresis_pi", "thermal_lag_history", "quantisation",  # quantisation.py
                    "tilt_settling")
 #: level of the nested likelihood ratio a form must pass over its simpler form to be named
