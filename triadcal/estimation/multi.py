@@ -23,6 +23,7 @@ from scipy import stats
 
 from ..errors import InputError
 from ..models.campaign import Campaign
+from ..models import effects
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.model import Model
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
@@ -31,8 +32,7 @@ from .joint import (BenchErrors, JointProblem, Solution, fit_joint, levenberg_ma
 from .result import CalibrationResult, ParameterValue
 
 #: parameters of the bench, shared by every unit mounted on it
-BENCH_PARAMETERS = ("tilt_x", "tilt_y", "tilt_x_drift", "tilt_y_drift", "tilt_x_settle", "tilt_y_settle",
-                    "tilt_settle_tau", "bench_nonorth")
+BENCH_PARAMETERS = effects.BENCH_PARAMETERS
 
 
 class StackedProblem:

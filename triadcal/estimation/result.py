@@ -18,6 +18,7 @@ from scipy.special import ndtri
 
 from ..io.atomic import read_json
 from ..io.formats import require_format
+from ..models.effects import BENCH_EFFECTS
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, dcm
 from ..models.units import ARCSEC, TO_INTERNAL
@@ -189,8 +190,7 @@ class CalibrationResult:
     # -- applying the calibration -------------------------------------------------
     def model(self) -> Model:
         """The model whose parameters this result holds (effects that act on the readings)."""
-        return Model([e for e in self.effects if e not in ("bench_tilt", "tilt_drift", "tilt_settling",
-                                                         "bench_nonorthogonality")],
+        return Model([e for e in self.effects if e not in BENCH_EFFECTS],
                      self.reference_temperature_C)
 
     def full_model(self) -> tuple[Model, dict]:

@@ -40,6 +40,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimation.result import CalibrationResult
+from ..models.effects import BENCH_EFFECTS
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES, dcm
 from ..models.units import ARCSEC
@@ -48,10 +49,9 @@ FORMAT = "triadcal.compensation"
 VERSION = 1
 FORMATS = ("json", "csv", "c-header")
 #: effects a table of temperature can represent (bench terms are not properties of the unit)
-TABLE_EFFECTS = ("bench_tilt", "tilt_drift", "tilt_settling", "bench_nonorthogonality", "angle_tempco", "angle_tempco2", "scale_tempco",
-                 "scale_tempco2", "bias_tempco", "bias_tempco2", "hysteresis", "thermal_lag", "angle_tempco3",
-                 "scale_tempco3", "bias_tempco3")
-BENCH_EFFECTS = ("bench_tilt", "tilt_drift", "tilt_settling", "bench_nonorthogonality")
+TABLE_EFFECTS = BENCH_EFFECTS + ("angle_tempco", "angle_tempco2", "scale_tempco", "scale_tempco2", "bias_tempco",
+                                 "bias_tempco2", "hysteresis", "thermal_lag", "angle_tempco3", "scale_tempco3",
+                                 "bias_tempco3")
 
 
 @dataclass

@@ -12,6 +12,7 @@ from scipy import stats
 from ...io.atomic import atomic_write_json
 from ...io.formats import require_format
 from ...io.numbers import parse_number
+from ...models import effects
 from ...models.sensor import ANGLE_NAMES
 from ...io.atomic import read_json
 from .rule import EN_COVERAGE_FACTOR, VERDICTS
@@ -31,8 +32,8 @@ ANGLES = tuple(f"Ca_{ab}" for ab in ANGLE_NAMES)
 
 
 #: properties of the bench, not of the unit: compared as a check, never judged
-BENCH_PARAMETERS = ("tilt_x", "tilt_y", "tilt_delta", "tilt_beta", "bench_nonorth", "tilt_x_drift", "tilt_y_drift",
-                    "tilt_x_settle", "tilt_y_settle", "tilt_settle_tau")
+#: (the model's bench parameters, and the tilt's polar form (delta, beta) a result reports)
+BENCH_PARAMETERS = effects.BENCH_PARAMETERS + ("tilt_delta", "tilt_beta")
 
 
 @dataclass

@@ -30,6 +30,10 @@ EFFECTS: dict[str, type[Effect]] = {
                 ScaleCubic, CrossCoupling, GDependentMisalignment)
 }
 NOISE_EFFECTS = ("position_error", "heavy_tails", "flicker_noise")
+#: effects of the bench, not of the unit (``Effect.bench``), in canonical order
+BENCH_EFFECTS = tuple(name for name, cls in EFFECTS.items() if cls.bench)
+#: their parameters, in canonical order (the order in which units on one bench share them)
+BENCH_PARAMETERS = tuple(spec.name for name in BENCH_EFFECTS for spec in EFFECTS[name]().parameters())
 VOCABULARY = tuple(EFFECTS) + NOISE_EFFECTS
 
 #: the model a metrologist uses for a thermal campaign on a tilted bench

@@ -16,6 +16,10 @@ from typing import ClassVar
 class Effect:
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
+    #: True for a property of the bench (its tilt, its axes), not of the unit: it acts on the
+    #: apparent gravity, is shared by every unit mounted on the bench, and is no part of the
+    #: unit's calibration (certificate, compensation table, comparison of two calibrations)
+    bench: ClassVar[bool] = False
 
     def parameters(self):
         """Tuple of :class:`~triadcal.models.parameters.ParameterSpec`."""

@@ -19,6 +19,7 @@ from .base import Effect
 
 class BenchNonorthogonality(Effect):
     name = "bench_nonorthogonality"
+    bench = True
     description = ("non-orthogonality of the bench's two axes: a constant rotation about the platform's y axis "
                    "between axis 2 and axis 1 (arcsec)")
 

@@ -14,6 +14,7 @@ from .base import Effect
 
 class BenchTilt(Effect):
     name = "bench_tilt"
+    bench = True
     description = "tilt of the bench against the local vertical (delta, beta; fitted as its two horizontal components)"
 
     def parameters(self):

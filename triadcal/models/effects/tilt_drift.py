@@ -39,6 +39,7 @@ def settled_fraction(t_s, tau_s):
 
 class TiltDrift(Effect):
     name = "tilt_drift"
+    bench = True
     description = "drift of the bench tilt during the campaign (rate of each horizontal component, arcsec/h)"
 
     def parameters(self):
@@ -54,6 +55,7 @@ class TiltDrift(Effect):
 
 class TiltSettling(Effect):
     name = "tilt_settling"
+    bench = True
     description = ("settling of the bench tilt during the campaign, d (1 - exp(-t/tau_s)) on each horizontal "
                    "component (d in arcsec; one tau_s, h)")
 
