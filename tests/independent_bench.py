@@ -203,7 +203,8 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
                       encoder_zero_arcsec=(0.0, 0.0), axes_nonorthogonality_arcsec=0.0,
                       fixture_arcsec=(0.0, 0.0, 0.0), tilt_arcsec=(0.0, 0.0),
                       local_g_m_s2=9.80665, true_g_m_s2=None, unit="SN-IND-0001", hysteresis=None,
-                      positions=None, tilt_change=None) -> tuple[str, dict]:
+                      positions=None, tilt_change=None, encoder_error=None, fixture_change=None,
+                      extra_scale=None, extra_bias=None) -> tuple[str, dict]:
     """CSV text of a bench campaign (12 positions at every setpoint, or ``positions``) and the true parameters.
 
     ``rng``: a ``numpy.random.Generator`` (used for the default truth, the temperature
@@ -218,6 +219,14 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
     ``tilt_arcsec`` (a bench that drifts or settles during the campaign). Random per visit: ``e1, e2 ~ N(0, sigma_position_arcsec)`` and
     a wobble ``~ N(0, sigma_wobble_arcsec)``. The mean output of each visit gets white noise of
     SD ``noise_sd / sqrt(n_samples)``; ``sd_*`` columns say ``noise_sd``.
+
+    Effects outside the project's vocabulary, as functions of the schedule (for open-world checks of
+    the diagnosis): ``encoder_error(axis1_rad, axis2_rad) -> (e1, e2)`` arcsec added to the angles
+    (e.g. an encoder's once-per-revolution error); ``fixture_change(time_s) -> (n, 3)`` rotation
+    vectors (arcsec, about IMU x, y, z) applied after the fixture (a unit that slips in its fixture);
+    ``extra_scale(k, time_s, temps) -> (3,)`` relative change of K of visit ``k``;
+    ``extra_bias(k, time_s, temps, G, direction) -> (3,)`` g added to the biases of visit ``k``
+    (``G`` the gravity on the IMU axes, g).
 
     ``hysteresis``: None, or ``{"form": "offset"|"play"|"pi", "half_widths_C": [...], "weights":
     [...], "start": "mid"|"heating"|"cooling"}`` with ``Ca_ab_hysteresis`` in the truth; the
@@ -248,6 +257,9 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
     e1 = rng.normal(0.0, sigma_position_arcsec, n) if sigma_position_arcsec > 0 else np.zeros(n)
     e2 = rng.normal(0.0, sigma_position_arcsec, n) if sigma_position_arcsec > 0 else np.zeros(n)
     wob = rng.normal(0.0, sigma_wobble_arcsec, n) if sigma_wobble_arcsec > 0 else np.zeros(n)
+    if encoder_error is not None:
+        c1, c2 = encoder_error(np.radians(a1_cmd), np.radians(a2_cmd))
+        e1, e2 = e1 + np.asarray(c1, float), e2 + np.asarray(c2, float)
     ax1 = np.radians(a1_cmd) + (encoder_zero_arcsec[0] + e1) * ARCSEC_RAD
     ax2 = np.radians(a2_cmd) + (encoder_zero_arcsec[1] + e2) * ARCSEC_RAD
     wobble = (axes_nonorthogonality_arcsec + wob) * ARCSEC_RAD
@@ -265,6 +277,9 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
     G = np.einsum("nji,nj->ni", R_base_from_imu, f_base) * (g_true / G0)  # R^T f, in g
     R_fix = Rotation.from_rotvec(np.asarray(fixture_arcsec, float) * ARCSEC_RAD).as_matrix()
     G = G @ R_fix                                                # rows: (R_fix^T G)^T = G^T R_fix
+    if fixture_change is not None:
+        R_slip = Rotation.from_rotvec(np.asarray(fixture_change(time_s), float) * ARCSEC_RAD).as_matrix()
+        G = np.einsum("nji,nj->ni", R_slip, G)                   # G' = R_slip^T G, per visit
 
     if hysteresis is None:
         branch = np.zeros(n)
@@ -286,6 +301,10 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
                       for i, a in enumerate(AXES)])
         S = np.array([truth[f"S_{a}"] + 1e-6 * _poly(0.0, dT[i], *coefs(f"S_{a}"))
                       for i, a in enumerate(AXES)])
+        if extra_scale is not None:
+            K = K * (1.0 + np.asarray(extra_scale(k, time_s[k], temps[k]), float))
+        if extra_bias is not None:
+            S = S + np.asarray(extra_bias(k, time_s[k], temps[k], G[k], direction[k]), float)
         W[k] = (_nonlinear_response(Ca, ang, G[k], truth) + S) / K
     W += rng.normal(0.0, noise_sd / math.sqrt(n_samples), size=W.shape)
 

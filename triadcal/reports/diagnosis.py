@@ -179,7 +179,14 @@ def _count(n) -> str:
 
 def _verdict_text(d) -> tuple[str, str]:
     """The verdict's headline and its evidence in words (p-values from the candidate itself, so
-    that an underflowed p never reads "p = 0")."""
+    that an underflowed p never reads "p = 0"), and what the design cannot tell from it."""
+    headline, evidence = _verdict_words(d)
+    if d.verdict.get("caveat"):
+        evidence += f"; caution: {d.verdict['caveat']}"
+    return headline, evidence
+
+
+def _verdict_words(d) -> tuple[str, str]:
     v = d.verdict
     effect = v.get("effect")
     if effect is None:
@@ -200,9 +207,13 @@ def _verdict_text(d) -> tuple[str, str]:
     if cand is None or not cand.refit:
         return str(effect), str(v.get("evidence") or v.get("reason") or "")
     r = cand.refit
-    evidence = (f"score p {_p_is(cand.score_p, cand.score_logp / math.log(10))}, "
-                f"LR p {_p_is(r.get('lr_p_value'))}, delta elpd = {_num(r.get('delta_elpd'), '{:.1f}')} "
-                f"+- {_num(r.get('delta_elpd_se'), '{:.1f}')}")
+    if cand.refit_only:
+        # a form candidate has no score test (its score p is no p-value): the verdict's own words
+        evidence = str(v.get("evidence") or "")
+    else:
+        evidence = (f"score p {_p_is(cand.score_p, cand.score_logp / math.log(10))}, "
+                    f"LR p {_p_is(r.get('lr_p_value'))}, delta elpd = {_num(r.get('delta_elpd'), '{:.1f}')} "
+                    f"+- {_num(r.get('delta_elpd_se'), '{:.1f}')}")
     if v.get("remaining"):
         evidence += f"; {v['remaining']}"
     if v.get("runner_up"):

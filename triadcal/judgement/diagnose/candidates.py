@@ -227,6 +227,33 @@ _TEMPCO_EFFECTS = ("angle_tempco", "scale_tempco", "bias_tempco", "angle_tempco2
                    "bias_tempco2", "angle_tempco3", "scale_tempco3", "bias_tempco3")
 
 
+#: the effects whose evidence is the difference between the heating and the cooling branches
+HYSTERESIS_FAMILY = ("hysteresis", "hysteresis_play", "hysteresis_pi")
+
+
+def turns(campaign: Campaign) -> int:
+    """How many times the campaign's temperature path turns (heating to cooling or back), in the
+    order of time (the visits' ``direction``; ``none`` does not count)."""
+    d = [x for x in np.asarray(campaign.direction)[np.argsort(campaign.time_s, kind="stable")]
+         if x in ("heating", "cooling")]
+    return sum(1 for a, b in zip(d, d[1:]) if a != b)
+
+
+def design_caveat(campaign: Campaign, effect: str):
+    """What this campaign's design cannot tell from a named ``effect``, in words, or None.
+
+    A hysteresis (any form) on a path that turns once is also a one-time change of the unit at
+    the turn -- a unit that slips in its fixture at the top of the cycle gives the same two
+    branches (tests/test_foreign_effects.py: a 30 arcsec slip at the turn is named
+    ``hysteresis_play`` 5 times in 5). A second turn tells them apart: a hysteresis comes back
+    on the next heating, a slip stays."""
+    if effect in HYSTERESIS_FAMILY and turns(campaign) < 2:
+        return (f"the temperature path turns {turns(campaign)} time(s): a one-time change of the unit at the "
+                "turn (e.g. a slip in its fixture) gives the same branches; a second turn (heat, cool, heat) "
+                "tells a hysteresis from it")
+    return None
+
+
 def _problem_on(full: JointProblem, campaign: Campaign) -> JointProblem:
     """The compiled full problem with the covariates of ``campaign`` (same visits, another branch
     vector or temperature record): no recompilation."""

@@ -29,6 +29,7 @@ from .candidates import (
     FORM_CANDIDATES,
     _cross_group,
     _effect_params,
+    design_caveat,
     _fit_heavy_tails,
     _fit_position_error,
     _hysteresis_forms,
@@ -579,6 +580,13 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                                       + series_txt(best)),
                            "evidence": partial["evidence"], "gap_closed": False, "remaining": partial["remaining"],
                            "where": where_of(slices)}
+                if absorbed:
+                    # a noise model that nearly closes it is said too: the partial answer is the best
+                    # mean term, not the only lead (three one-signed contaminated visits: heavy_tails
+                    # absorbs all but one slice, far ahead of the best mean term in elpd)
+                    verdict["reason"] += (f"; {', '.join(c.effect for c in absorbed)} would absorb it as noise, "
+                                          "but structure is left after that refit ("
+                                          + "; ".join(_structure_left_txt(c) for c in absorbed) + ")")
                 if "fit_options" in partial:
                     verdict["fit_options"] = partial["fit_options"]
             if not gap_open and named.form is None and named.params and named.effect not in NOISE_EFFECTS:
@@ -596,6 +604,9 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 second = others[0]
                 verdict["runner_up"] = second.effect
                 verdict["delta_elpd_to_runner_up"] = named.refit["delta_elpd"] - second.refit["delta_elpd"]
+            caveat = design_caveat(campaign, verdict["effect"])
+            if caveat:
+                verdict["caveat"] = caveat
         else:
             verdict = {"effect": "unexplained",
                        "reason": ("significant, structured gap that no candidate closes"
