@@ -143,3 +143,44 @@ def test_without_known_noise_only_the_outlier_test_runs(example):
     r = fit_classical(c)
     assert r.status == "ok"
     assert "scatter not testable" in r.fit["redundancy"]["reason"]
+
+
+def _independent(tmp_path, name, **kw):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_bench import simulate_campaign
+    from triadcal.io.bench_csv import read_bench_csv
+
+    text, _ = simulate_campaign(np.random.default_rng(1), setpoints_C=(-40, -10, 20, 50, 80, 50, 20, -10, -40), **kw)
+    path = tmp_path / f"{name}.csv"
+    path.write_text(text, encoding="utf-8")
+    return fit_classical(read_bench_csv(path))
+
+
+def test_a_thermal_line_the_values_do_not_follow_is_said_with_its_number(tmp_path, example):
+    """The paper's straight line in temperature widens its u by the Birge ratio when the
+    per-setpoint values scatter beyond their uncertainty; which lines that happened to, by how
+    much and why is said in a note, not left in fit.chi2_dof_by_parameter. Made another way: the
+    independent bench (no code of triadcal.models) with a 40 ug step of the y bias at hour 20 --
+    only S_y's line is named, with its chi2/dof -- and with nothing added -- no note. The
+    example's hysteresis of the angles names the six angles' lines, and nothing else."""
+    step = _independent(tmp_path, "step", extra_bias=lambda k, t, T, G, d: np.array(
+        [0.0, 40e-6 if t > 20 * 3600.0 else 0.0, 0.0]))
+    note = [n for n in step.notes if "do not lie on a straight line" in n]
+    assert len(note) == 1, _notes(step)
+    listed = re.findall(r"(\w+_\w+) chi2/dof ([\d.e+]+)", note[0])
+    assert [n for n, _ in listed] == ["S_y"], note
+    assert float(listed[0][1]) == pytest.approx(step.fit["chi2_dof_by_parameter"]["S_y"], rel=1e-2)
+    assert step.fit["chi2_dof_by_parameter"]["S_y"] > 10
+    assert f"u widened x{np.sqrt(step.fit['chi2_dof_by_parameter']['S_y']):.3g}" in note[0]
+
+    clean = _independent(tmp_path, "clean")
+    assert not [n for n in clean.notes if "straight line" in n], _notes(clean)
+
+    ex = fit_classical(example)
+    note = [n for n in ex.notes if "do not lie on a straight line" in n]
+    assert len(note) == 1
+    assert {n for n, _ in re.findall(r"(\w+_\w+) chi2/dof ([\d.e+]+)", note[0])} == {
+        f"Ca_{ab}" for ab in ("xy", "xz", "yx", "yz", "zx", "zy")}

@@ -180,6 +180,16 @@ def thermal_line(T: np.ndarray, y: np.ndarray, var: np.ndarray, T_ref: float, sl
     return Line(coef, cov * birge, chi2, dof, birge)
 
 
+def _line_p(line: Line, var: np.ndarray) -> Optional[float]:
+    """P(chi2_dof > the line's chi2) under the per-setpoint uncertainties, or None when they are
+    not known (an unweighted line) or the line has no residual dof."""
+    from scipy import stats
+
+    if line.dof <= 0 or not np.all(var > 0):
+        return None
+    return float(stats.chi2.sf(line.chi2, line.dof))
+
+
 # --------------------------------------------------------------------------------------
 # the estimator
 # --------------------------------------------------------------------------------------
@@ -363,11 +373,15 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     corr_names: list = []
     blocks_cov: list = []
     chi2_by, chi2_sum, dof_sum = {}, 0.0, 0
+    off_line = []
     unit_out = campaign.output_unit
     for j, n in enumerate(qnames):
         T_j = temps if temperature == "mean" else temps_own[:, AXES.index(n.split("_")[1][0])]
         line = thermal_line(T_j, est[:, j], var[:, j], T_ref, slope)
         chi2_by[n] = line.chi2_dof
+        p_line = _line_p(line, var[:, j])
+        if p_line is not None and p_line < gates.gof_p_min and line.chi2_dof > gates.gof_ratio_max:
+            off_line.append((n, line.chi2_dof, p_line))
         chi2_sum += line.chi2
         dof_sum += line.dof
         names_j, vals_j, cov_j = _to_reporting(n, line, slope, unit_out)
@@ -375,6 +389,18 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
             params[nm] = ParameterValue(float(v), float(u), unit)
         corr_names += names_j
         blocks_cov.append(cov_j)
+    if off_line:
+        off_line.sort(key=lambda x: -x[1])
+        notes.append(
+            f"the per-setpoint values of {len(off_line)} quantit{'y' if len(off_line) == 1 else 'ies'} do not lie on "
+            f"a {'straight line in temperature' if slope else 'constant'} within their uncertainty (p < "
+            f"{gates.gof_p_min:g} and chi2/dof > {gates.gof_ratio_max:g}): "
+            + ", ".join(f"{n} chi2/dof {r:.3g} (p {f'= {p:.2g}' if p > 0 else '< 1e-300'}; u widened x{math.sqrt(r):.3g})"
+                        for n, r, p in off_line)
+            + ". The Birge ratio widens their u instead of ignoring the scatter, and their value at the reference "
+            "temperature is the line's: a hysteresis, a change of the unit during the campaign or a law of "
+            "temperature that is not a line would do this; `triadcal diagnose` says which, and the joint fit "
+            "models it")
     order = [f"Ca_{ab}" for ab in ANGLE_NAMES] + [f"K_{a}" for a in AXES] + [f"S_{a}" for a in AXES]
     ordered = {}
     for base in order:
