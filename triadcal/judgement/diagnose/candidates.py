@@ -247,8 +247,9 @@ def design_caveat(campaign: Campaign, effect: str):
     branches (tests/test_foreign_effects.py: a 30 arcsec slip at the turn is named
     ``hysteresis_play`` 5 times in 5). A second turn tells them apart: a hysteresis comes back
     on the next heating, a slip stays."""
-    if effect in HYSTERESIS_FAMILY and turns(campaign) < 2:
-        return (f"the temperature path turns {turns(campaign)} time(s): a one-time change of the unit at the "
+    n = turns(campaign) if effect in HYSTERESIS_FAMILY else None
+    if n is not None and n < 2:
+        return (f"the temperature path turns {n} time(s): a one-time change of the unit at the "
                 "turn (e.g. a slip in its fixture) gives the same branches; a second turn (heat, cool, heat) "
                 "tells a hysteresis from it")
     return None
