@@ -122,6 +122,9 @@ def test_without_the_term_the_posterior_moves_as_the_least_squares_bias_predicts
     with_q = sample(campaign, list(MODEL), quantisation_lsb=Q, **FAST)      # the option implies the term
     without = sample(campaign, list(MODEL), **FAST)
     assert without.status == "model_mismatch" and without.fit["chi2_dof"] > 3
+    # the goodness of fit is said once for the least squares (labelled) and once for the posterior
+    assert sum(n.startswith("least squares: gate goodness_of_fit failed") for n in without.notes) == 1
+    assert sum(n.startswith("gate goodness_of_fit failed") for n in without.notes) == 1
     big = 0
     for n, p in ls_q.parameters.items():
         predicted = (ls_0.parameters[n].value - p.value) / p.u

@@ -33,6 +33,12 @@ NON_GAUSSIAN_TOLERANCE = 0.15
 LEVEL = 0.95
 
 
+def _ls_notes(ls) -> list:
+    """The least-squares fit's notes for the posterior's result; its gate lines say they are the
+    least squares' (the posterior's own gates add theirs, with the posterior's numbers)."""
+    return [f"least squares: {n}" if n.startswith("gate ") else n for n in ls.notes]
+
+
 def posterior_summary(names: Sequence[str], units: Sequence[str], run: PosteriorRun, pri: Mapping[str, Prior],
                       ls_intervals: Mapping[str, tuple]):
     """Value (posterior mean), ``u`` (posterior SD), the 95 % central and HDI intervals beside the
@@ -231,7 +237,7 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
         unit=ls.unit, method="posterior", parameters=params, effects=tuple(model.effect_names),
         reference_temperature_C=model.reference_temperature_C,
         temperature_range_C=(float(T.min()), float(T.max())), intervals=intervals, fit=fit,
-        correlation_names=tuple(names), correlation=corr, notes=notes + list(ls.notes),
+        correlation_names=tuple(names), correlation=corr, notes=notes + _ls_notes(ls),
         extra={"priors": {n: p.to_dict() for n, p in pri.items()},
                "flags": _flags_block(non_gaussian, prior_dominated), "intervals_to_use": rec,
                "sampler": sampler_info(run, names, total_seconds, ess, rhat_max, tau_factor, max_steps),
