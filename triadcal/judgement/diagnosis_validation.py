@@ -25,6 +25,7 @@ from ..models.campaign import DEFAULT_PLAN
 from ..models.effects import DEFAULT_EFFECTS, NOISE_EFFECTS, VOCABULARY
 from ..models.simulate import NoiseModel, Schedule, preset_truth, simulate_campaign
 from .diagnose import ALPHA, FORM_CANDIDATES, SIGNATURE, diagnose
+from .diagnose.candidates import HYSTERESIS_FAMILY
 
 VALIDATION_PLAN: dict = dict(DEFAULT_PLAN)
 #: 16 oblique poses: 8 skew ones (gravity (+-0.5, +-0.71, +-0.5) g, every sign combination)
@@ -55,7 +56,7 @@ MAGNITUDES = (1.0, 0.5)
 #: mixture of normals, which is what per-visit positioning errors make of the residuals).
 _FAMILIES = (
     ("bench_tilt", "tilt_drift", "tilt_settling"),
-    ("hysteresis", "hysteresis_play", "hysteresis_pi"),
+    HYSTERESIS_FAMILY,
     ("thermal_lag", "thermal_lag_history"),
     ("angle_tempco", "angle_tempco2", "angle_tempco3"),
     ("scale_tempco", "scale_tempco2", "scale_tempco3"),

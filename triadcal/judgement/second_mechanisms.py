@@ -48,6 +48,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..models.kinematics import gravity_in_imu
+from .diagnose.candidates import HYSTERESIS_FAMILY
 
 ARCSEC = np.pi / (180.0 * 3600.0)
 AXES = "xyz"
@@ -56,7 +57,7 @@ SUFFIX = "~2"
 
 #: the effects a second mechanism's verdict may name and be right (its family)
 FAMILY = {
-    "hysteresis": ("hysteresis", "hysteresis_play", "hysteresis_pi"),
+    "hysteresis": HYSTERESIS_FAMILY,
     "thermal_lag": ("thermal_lag", "thermal_lag_history"),
     "tilt_drift": ("tilt_drift", "tilt_settling"),
     "bench_tilt": ("bench_tilt",),

@@ -247,12 +247,14 @@ def design_caveat(campaign: Campaign, effect: str):
     branches (tests/test_foreign_effects.py: a 30 arcsec slip at the turn is named
     ``hysteresis_play`` 5 times in 5). A second turn tells them apart: a hysteresis comes back
     on the next heating, a slip stays."""
-    n = turns(campaign) if effect in HYSTERESIS_FAMILY else None
-    if n is not None and n < 2:
-        return (f"the temperature path turns {n} time(s): a one-time change of the unit at the "
-                "turn (e.g. a slip in its fixture) gives the same branches; a second turn (heat, cool, heat) "
-                "tells a hysteresis from it")
-    return None
+    if effect not in HYSTERESIS_FAMILY:
+        return None
+    n = turns(campaign)
+    if n >= 2:
+        return None
+    return (f"the temperature path turns {n} time(s): a one-time change of the unit at the "
+            "turn (e.g. a slip in its fixture) gives the same branches; a second turn (heat, cool, heat) "
+            "tells a hysteresis from it")
 
 
 def _problem_on(full: JointProblem, campaign: Campaign) -> JointProblem:
