@@ -104,14 +104,42 @@ def test_a_pattern_in_the_model_span_costs_nothing_and_one_outside_it_is_found(e
     assert out["temperature"]["p_value"] < 1e-6
 
 
+def _koenker_power(V, scale, alpha=0.01, draws=20000):
+    """Koenker's N R^2 (generic.variance_test) against a noise SD ``scale`` (3n,) per residual, by
+    the central limit of the projection: ``y = z^2`` has the mean ``scale^2`` and the variance
+    ``2 scale^4``; its projection ``x`` on an orthonormal basis ``U`` of the basis' centred span
+    (rank ``k``) is about normal with the mean ``U' y_c`` and the covariance ``U' diag(2 scale^4) U``,
+    and N R^2 is about ``|x|^2`` over the variance of ``y`` (noise and signal). The probability that
+    it passes the chi2_k quantile, from normal draws of ``x`` (a fixed seed). The skew of z^2 makes
+    the test's real power higher than this (0.98 and 0.93 measured over 2000 draws where this
+    gives 0.95 and 0.87): a conservative bound. Leverages neglected (6 of 540 here)."""
+    B = V.reshape(-1, 3, V.shape[1])
+    B = (B - B.mean(axis=0)).reshape(V.shape[0], -1)
+    norms = np.linalg.norm(B, axis=0)
+    keep = norms > 1e-9 * norms.max()
+    U, sv, _ = np.linalg.svd(B[:, keep] / norms[keep], full_matrices=False)
+    U = U[:, :int(np.sum(sv > 1e-8 * sv[0]))]
+    y = (scale ** 2).reshape(-1, 3)
+    y = (y - y.mean(axis=0)).reshape(-1)
+    var_y = 2.0 * scale ** 4
+    L = np.linalg.cholesky(U.T @ (U * var_y[:, None]))
+    x = (U.T @ y)[:, None] + L @ np.random.default_rng(0).standard_normal((U.shape[1], draws))
+    S = np.sum(x * x, axis=0) / (float(np.mean(var_y)) + float(np.mean(y * y)))
+    return float(np.mean(S > stats.chi2.ppf(1.0 - alpha, U.shape[1])))
+
+
 def test_the_variance_family_is_calibrated_under_normal_and_heavy_tailed_noise(example):
     """Koenker's test (generic.variance_test) on residuals of the linear fit of pure noise: the
     rejection rate at 0.01 over 400 draws stays within 4.5 binomial SD of 0.01 for normal noise and
-    for a Student-t with 5 dof (its heavy tails must not read as a pose-dependent scatter); a
-    scatter of the form a positioning error gives (made with numpy: an output's SD x 1.6 on the
-    poses where gravity is across it, 1 - g_a^2 = 1: a rotation moves the outputs across gravity)
-    is found at the same level in at least 94 % of 400 draws: N R^2 has a noncentrality of about 29
-    on 6 dof (E z^2 = SD^2, var z^2 = 2 SD^4), power 0.968, less 3 binomial SD (399/400 measured)."""
+    for a Student-t with 5 dof (its heavy tails must not read as a pose-dependent scatter). Two
+    scatters (made with numpy, not the model's terms) are found at the same level at least as often
+    as Koenker's noncentral power (_koenker_power) less 3 binomial SD of 400 draws:
+
+    * of the form a positioning error gives: an output's SD x 1.6 on the poses where gravity is
+      across it (1 - g_a^2 = 1: a rotation moves the outputs across gravity); on the basis' rank
+      12 (6 pose, 6 temperature columns on this campaign) the bound is 0.95;
+    * a noise that grows with temperature: every output's SD x 2 at the hottest soak (12 of 180
+      visits); the bound is 0.87. Without the temperature columns: 0 of 400."""
     from triadcal.judgement.diagnose.generic import variance_basis, variance_test
 
     rng = np.random.default_rng(7)
@@ -121,6 +149,7 @@ def test_the_variance_family_is_calibrated_under_normal_and_heavy_tailed_noise(e
     h = np.sum(Q * Q, axis=1)
     V = variance_basis(example)
     g = np.asarray(_nominal_g(example), float).reshape(-1, 3)
+    T = example.t.mean(axis=1)
 
     def rate(draw):
         hits = 0
@@ -134,8 +163,11 @@ def test_the_variance_family_is_calibrated_under_normal_and_heavy_tailed_noise(e
     n3 = 3 * example.n_visits
     assert abs(rate(lambda: rng.standard_normal(n3)) - 0.01) <= 4.5 * sd
     assert abs(rate(lambda: stats.t.rvs(5, size=n3, random_state=rng)) - 0.01) <= 4.5 * sd
-    scale = 1.0 + 0.6 * (1.0 - g ** 2)
-    assert rate(lambda: rng.standard_normal(n3) * scale.reshape(-1)) >= 0.94
+    for scale in ((1.0 + 0.6 * (1.0 - g ** 2)).reshape(-1),
+                  np.repeat(np.where(T >= T.max() - 1.0, 2.0, 1.0), 3)):
+        power = _koenker_power(V, scale)
+        assert power > 0.8
+        assert rate(lambda: rng.standard_normal(n3) * scale) >= power - 3.0 * np.sqrt(power * (1 - power) / 400)
 
 
 def test_a_cubic_law_about_the_reference_temperature_lies_in_one_block(example):

@@ -206,17 +206,27 @@ class _R:
 
 
 def variance_basis(campaign: Campaign) -> np.ndarray:
-    """Columns of the ``variance`` family, (3n, 15): per output, the products ``g_j g_k`` (j <= k) of
-    the nominal gravity components, less one (``sum_j g_j^2`` is the output's intercept where
-    ``|g| = 1``), each column on its own output. A bench error rotates gravity in the sensor frame:
-    the variance it adds to an output is a quadratic form in ``g`` (``position_error``), so a
-    per-visit excess of scatter that depends on the pose shows here."""
+    """Columns of the ``variance`` family, (3n, 21), each on its own output:
+
+    * per output, the products ``g_j g_k`` (j <= k) of the nominal gravity components, less one
+      (``sum_j g_j^2`` is the output's intercept where ``|g| = 1``). A bench error rotates gravity
+      in the sensor frame: the variance it adds to an output is a quadratic form in ``g``
+      (``position_error``), so a per-visit excess of scatter that depends on the pose shows here;
+    * per output, ``u`` and ``u^2`` of the visit's mean temperature reading (``u`` scaled to
+      [-1, 1] over the campaign, as the generic families' ``u``): a noise that grows or shrinks
+      with temperature. A Student-t is a scale mixture of normals, so such a scatter was otherwise
+      absorbed by ``heavy_tails`` (docs/diagnosis.md, "Effects outside every simulator of the
+      project": 2 of 8 probes with the SD x sqrt(5) at the hot soak named it, 1 of 8 with these
+      columns). Zero columns (one temperature) are dropped by :func:`variance_test`."""
     n = campaign.n_visits
     g = np.asarray(_nominal_g(campaign), float).reshape(n, 3)
     prods = np.column_stack([g[:, j] * g[:, k] for j in range(3) for k in range(j, 3)])[:, 1:]
-    B = np.zeros((n, 3, 3 * prods.shape[1]))
+    u = _scaled(np.mean(np.asarray(campaign.t, float), axis=1))
+    per = np.column_stack([prods, u, u * u])
+    k = per.shape[1]
+    B = np.zeros((n, 3, 3 * k))
     for a in range(3):
-        B[:, a, a * prods.shape[1]:(a + 1) * prods.shape[1]] = prods
+        B[:, a, a * k:(a + 1) * k] = per
     return B.reshape(3 * n, -1)
 
 
