@@ -213,8 +213,9 @@ def variance_basis(campaign: Campaign) -> np.ndarray:
       in the sensor frame: the variance it adds to an output is a quadratic form in ``g``
       (``position_error``), so a per-visit excess of scatter that depends on the pose shows here;
     * per output, ``u`` and ``u^2`` of the visit's mean temperature reading (``u`` scaled to
-      [-1, 1] over the campaign, as the generic families' ``u``): a noise that grows or shrinks
-      with temperature. A Student-t is a scale mixture of normals, so such a scatter was otherwise
+      [-1, 1] over the campaign; with the output's intercept their span is the same for any
+      centre, so not the reference temperature's): a noise that grows or shrinks with
+      temperature. A Student-t is a scale mixture of normals, so such a scatter was otherwise
       absorbed by ``heavy_tails`` (docs/diagnosis.md, "Effects outside every simulator of the
       project": 2 of 8 probes with the SD x sqrt(5) at the hot soak named it, 1 of 8 with these
       columns). Zero columns (one temperature) are dropped by :func:`variance_test`."""
