@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from independent_bench import euler_thermal_history
 from triadcal.api import fit
@@ -36,6 +37,15 @@ from triadcal.planning.ramp import RampPlan
 CLI = [sys.executable, "-m", "triadcal.cli"]
 EFFECTS = ["bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis", "thermal_lag"]
 ANGLES = ("Ca_xy", "Ca_xz", "Ca_yx", "Ca_yz", "Ca_zx", "Ca_zy")
+
+
+def _bound(n_z: int, alpha: float = 1e-3) -> float:
+    """|z| that ``n_z`` standard normal z-scores all stay within with probability 1 - alpha
+    (Bonferroni): the captures run on the wall clock, so which samples make a visit differs from run
+    to run, and a fixed 3 or 3.5 on many z-scores fails a calibrated fit a few times in a hundred
+    (CI of 2026-11-27: seed 14's angle or lag past 3.5 once; 24 reruns of seeds 11-22: every z
+    within 3, the angles' SD 1.07)."""
+    return float(stats.norm.isf(alpha / (2.0 * n_z)))
 
 
 class _Staircase:
@@ -140,8 +150,8 @@ def test_ramp_capture_through_the_emulator_fits_and_recovers_the_unit(tmp_path):
     z = {n: (r.parameters[n].value - v) / r.parameters[n].u for n, v in truth.parameters.items()}
     assert set(z) == set(truth.parameters)
     for n in (*ANGLES, "thermal_lag"):
-        assert abs(z[n]) < 3, (n, z[n])
-    assert max(abs(v) for v in z.values()) < 4, z
+        assert abs(z[n]) < _bound(7), (n, z[n])                     # 3.80
+    assert max(abs(v) for v in z.values()) < _bound(len(z)), z      # 4.17 for the 33 parameters
     # chi2/dof: see docs/hardware.md (the measured rate; 0.7-1.4 asserted as before)
     assert 0.7 < r.fit["chi2_dof"] < 1.4, r.fit["chi2_dof"]
     print(f"\nramp capture: {c.n_visits} visits in {wall:.1f} s wall, chi2/dof {r.fit['chi2_dof']:.3f}, "
@@ -172,8 +182,9 @@ def _capture_and_fit(tmp_path, seed):
 
 @pytest.mark.slow
 def test_ramp_captures_over_seeds_recover_the_unit(tmp_path):
-    """Six seeds (~80 s): every angle and thermal_lag within 3.5 u, the z-scores of all parameters
-    pooled with SD in 0.6-1.5 (their u describes their scatter) and chi2/dof below 1.4 each."""
+    """Six seeds (~80 s): every angle and thermal_lag within the Bonferroni bound of the 42 (4.22 u,
+    _bound), the z-scores of all parameters pooled with SD in 0.6-1.5 (their u describes their
+    scatter) and chi2/dof below 1.4 each."""
     zs, chi2 = [], []
     for seed in (11, 12, 13, 14, 15, 16):
         (tmp_path / str(seed)).mkdir()
@@ -182,7 +193,8 @@ def test_ramp_captures_over_seeds_recover_the_unit(tmp_path):
         # a rerun (6 seeds: chi2/dof 0.91-1.13) nor in the helper's runs; the message now says which seed
         # and the fit's chi2/dof and visits, to find the capture that does it
         assert r.status == "ok", (seed, r.status, r.fit.get("chi2_dof"), r.fit.get("n_obs"), r.notes[-3:])
-        assert all(abs(z[n]) < 3.5 for n in (*ANGLES, "thermal_lag")), (seed, z)
+        assert all(abs(z[n]) < _bound(6 * 7) for n in (*ANGLES, "thermal_lag")), (
+            seed, {n: z[n] for n in (*ANGLES, "thermal_lag")})
         zs.extend(z.values())
         chi2.append(r.fit["chi2_dof"])
     assert 0.6 < np.std(zs) < 1.5, np.std(zs)
