@@ -218,3 +218,41 @@ def test_foreign_effects_on_a_six_face_tumble(tmp_path):
                 assert d.verdict["effect"] is None, (name, seed, d.verdict)
             else:
                 _check_unexplained(d, name, seed)
+
+
+#: a visit mean's SD on the independent bench (noise 5e-4 V a sample, 3000 samples; g at K = 1 g/V)
+SE_G = 5e-4 / math.sqrt(3000)
+#: the last visit of PATH_C's schedule (s)
+END_S = 7200.0 * 9 + 8000.0 * 8 + 50.0 * 11
+
+
+def _growing_noise(seed, kind):
+    """A white scatter added to every visit's biases, drawn with its own generator: its SD grows
+    linearly from 0 at the start of the campaign to 2 SE at its end (``time``: the SD from x1 to
+    x sqrt(5)), or is 2 SE at the 80 degC soak only (``hot``: SD x sqrt(5) there, 12 of 108 visits)."""
+    rng = np.random.default_rng(10_000 + seed)
+    if kind == "time":
+        return lambda k, t, T, G, d: rng.normal(0.0, 2.0 * SE_G * t / END_S, 3)
+    return lambda k, t, T, G, d: rng.normal(0.0, 2.0 * SE_G, 3) if np.mean(T) > 70.0 else np.zeros(3)
+
+
+@pytest.mark.slow
+def test_noise_that_grows_with_time_or_temperature_is_seldom_a_noise_effect(tmp_path):
+    """Noise whose SD follows the time or the temperature is structure, not a noise effect of the
+    vocabulary (none of them has a variance that changes over the campaign): Koenker's variance test
+    looks at s, s^2 of the time and u, u^2 of the temperature (generic.variance_basis). Not met in
+    full, a known limit (docs/diagnosis.md, "Noise that grows with time"): over seeds 1-32 a noise
+    effect is named 4 times for the time (flicker_noise, whose 1/f covariance takes up part of a
+    growing scatter; the variance test after its GLS whitening at p_holm 0.04 in seed 6) and once
+    for the temperature (heavy_tails). This asserts the documented rate on seeds 1-16 as a guard
+    against a change that makes it worse: at most 3 of 16 (seeds 6, 9, 10) and 1 of 16 (seed 16);
+    without the time columns it was 11 of 16 for the time."""
+    named = {"time": [], "hot": []}
+    for kind in named:
+        for seed in range(1, 17):
+            d = _diagnose(tmp_path, f"grow_{kind}", seed, extra_bias=_growing_noise(seed, kind))
+            if d.verdict["effect"] in NOISE:
+                named[kind].append((seed, d.verdict["effect"]))
+            else:
+                assert d.verdict["effect"] in ("unexplained", None), (kind, seed, d.verdict)
+    assert len(named["time"]) <= 3 and len(named["hot"]) <= 1, named

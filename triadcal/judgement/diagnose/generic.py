@@ -206,7 +206,7 @@ class _R:
 
 
 def variance_basis(campaign: Campaign) -> np.ndarray:
-    """Columns of the ``variance`` family, (3n, 21), each on its own output:
+    """Columns of the ``variance`` family, (3n, 27), each on its own output:
 
     * per output, the products ``g_j g_k`` (j <= k) of the nominal gravity components, less one
       (``sum_j g_j^2`` is the output's intercept where ``|g| = 1``). A bench error rotates gravity
@@ -218,12 +218,18 @@ def variance_basis(campaign: Campaign) -> np.ndarray:
       temperature. A Student-t is a scale mixture of normals, so such a scatter was otherwise
       absorbed by ``heavy_tails`` (docs/diagnosis.md, "Effects outside every simulator of the
       project": 2 of 8 probes with the SD x sqrt(5) at the hot soak named it, 1 of 8 with these
-      columns). Zero columns (one temperature) are dropped by :func:`variance_test`."""
+      columns);
+    * per output, ``s`` and ``s^2`` of the visit's time (``s`` scaled to [-1, 1] over the
+      campaign): a noise that grows or shrinks over the campaign, which was otherwise named
+      ``heavy_tails`` or ``flicker_noise`` (docs/diagnosis.md, "Noise that grows with time": a
+      noise effect in 16 of 32 probes with the SD x1 to x sqrt(5) over 36 h, 2 of 24 with these
+      columns). Zero columns (one temperature, one time) are dropped by :func:`variance_test`."""
     n = campaign.n_visits
     g = np.asarray(_nominal_g(campaign), float).reshape(n, 3)
     prods = np.column_stack([g[:, j] * g[:, k] for j in range(3) for k in range(j, 3)])[:, 1:]
     u = _scaled(np.mean(np.asarray(campaign.t, float), axis=1))
-    per = np.column_stack([prods, u, u * u])
+    s = _scaled(np.asarray(campaign.time_s, float))
+    per = np.column_stack([prods, u, u * u, s, s * s])
     k = per.shape[1]
     B = np.zeros((n, 3, 3 * k))
     for a in range(3):
