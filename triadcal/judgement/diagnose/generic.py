@@ -222,8 +222,8 @@ def variance_basis(campaign: Campaign) -> np.ndarray:
     * per output, ``s`` and ``s^2`` of the visit's time (``s`` scaled to [-1, 1] over the
       campaign): a noise that grows or shrinks over the campaign, which was otherwise named
       ``heavy_tails`` or ``flicker_noise`` (docs/diagnosis.md, "Noise that grows with time": a
-      noise effect in 16 of 32 probes with the SD x1 to x sqrt(5) over 36 h, 2 of 24 with these
-      columns). Zero columns (one temperature, one time) are dropped by :func:`variance_test`."""
+      noise effect in 18 of 32 probes with the SD x1 to x sqrt(5) over 36 h, 4 of 32 with these
+      columns; tests/test_foreign_effects.py, ``_growing_noise``). Zero columns (one temperature, one time) are dropped by :func:`variance_test`."""
     n = campaign.n_visits
     g = np.asarray(_nominal_g(campaign), float).reshape(n, 3)
     prods = np.column_stack([g[:, j] * g[:, k] for j in range(3) for k in range(j, 3)])[:, 1:]
