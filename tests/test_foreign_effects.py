@@ -236,17 +236,33 @@ def _growing_noise(seed, kind):
     return lambda k, t, T, G, d: rng.normal(0.0, 2.0 * SE_G, 3) if np.mean(T) > 70.0 else np.zeros(3)
 
 
+def test_a_flicker_that_over_whitens_a_growing_scatter_is_not_named(tmp_path):
+    """Seed 10 of the time-growing scatter: a 1/f floor absorbs it, and no generic family keeps
+    structure after its refit, so flicker_noise was named. Its whitened residuals are not white:
+    the flicker's covariance differences independent visits, so adjacent ones are anti-correlated
+    (the serial family after the refit, generic.serial_test: z about -5), and the verdict is
+    'unexplained' with flicker_noise among what would absorb it."""
+    d = _diagnose(tmp_path, "grow_time", 10, extra_bias=_growing_noise(10, "time"))
+    _check_unexplained(d, "grow_time", 10)
+    fl = next(c for c in d.candidates if c.effect == "flicker_noise")
+    after = fl.refit["gap_after"]
+    assert after["generic_structure"] == ["serial"], after["generic_structure"]
+    assert after["generic"]["serial"]["z"] < -4.0 and after["generic"]["serial"]["p_holm"] < 0.01
+    assert "flicker_noise" in d.verdict["reason"].split("would absorb it as noise")[0]
+
+
 @pytest.mark.slow
 def test_noise_that_grows_with_time_or_temperature_is_seldom_a_noise_effect(tmp_path):
     """Noise whose SD follows the time or the temperature is structure, not a noise effect of the
     vocabulary (none of them has a variance that changes over the campaign): Koenker's variance test
-    looks at s, s^2 of the time and u, u^2 of the temperature (generic.variance_basis). Not met in
-    full, a known limit (docs/diagnosis.md, "Noise that grows with time"): over seeds 1-32 a noise
-    effect is named 4 times for the time (flicker_noise, whose 1/f covariance takes up part of a
-    growing scatter; the variance test after its GLS whitening at p_holm 0.04 in seed 6) and once
-    for the temperature (heavy_tails). This asserts the documented rate on seeds 1-16 as a guard
-    against a change that makes it worse: at most 3 of 16 (seeds 6, 9, 10) and 1 of 16 (seed 16);
-    without the time columns it was 11 of 16 for the time."""
+    looks at s, s^2 of the time and u, u^2 of the temperature (generic.variance_basis), and after a
+    flicker_noise refit the serial test asks whether its whitened residuals are white
+    (generic.serial_test). Not met in full, a known limit (docs/diagnosis.md, "Noise that grows
+    with time"): over seeds 1-32 a noise effect is named twice for the time (flicker_noise, whose
+    1/f covariance takes up part of a growing scatter; seeds 6 and 9, the serial test at p_holm 0.07
+    and 0.5) and once for the temperature (heavy_tails). This asserts the documented rate on seeds
+    1-16 as a guard against a change that makes it worse: at most 2 of 16 (seeds 6, 9) and 1 of 16
+    (seed 16); without the serial test it was 3 of 16 (seed 10 too), without the time columns 11."""
     named = {"time": [], "hot": []}
     for kind in named:
         for seed in range(1, 17):
@@ -255,4 +271,4 @@ def test_noise_that_grows_with_time_or_temperature_is_seldom_a_noise_effect(tmp_
                 named[kind].append((seed, d.verdict["effect"]))
             else:
                 assert d.verdict["effect"] in ("unexplained", None), (kind, seed, d.verdict)
-    assert len(named["time"]) <= 3 and len(named["hot"]) <= 1, named
+    assert len(named["time"]) <= 2 and len(named["hot"]) <= 1, named

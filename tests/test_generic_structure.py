@@ -211,3 +211,77 @@ def test_a_cubic_law_about_the_reference_temperature_lies_in_one_block(example):
     assert np.isclose(S_blk, S_full, rtol=1e-9)
     assert np.isclose(held[None][1], S_full, rtol=1e-5)          # the same span (rounding of the SVD)
     assert held[None][0] < 0.95 * S_full                         # 0.927 on this campaign
+
+
+def test_the_serial_test_by_hand():
+    """generic.serial_test on numbers worked by hand. Three visits out of time order (times 20, 0,
+    10 s): in time order they are visits 1, 2, 0, so the sum of adjacent products is, per output,
+    z_1 z_2 + z_2 z_0: 0.5 * 2 + 2 * 1 = 3, -1 * 1 + 1 * 2 = 1, 2 * 1 + 1 * (-1) = 1; 5 in all, and
+    z'z = 1 + 4 + 1 + 0.25 + 1 + 4 + 4 + 1 + 1 = 17.25, so rho = 5 / 17.25. With no fitted parameter
+    (P = I, nu = 9) tr M = 0 and tr M^2 = tr A^2 = 6 x 1/4 + 6 x 1/4 = 3 (n - 1) / 2 = 3: the mean
+    is 0 and the variance 2 x 3 / (9 x 11)."""
+    from triadcal.judgement.diagnose.generic import serial_test
+
+    z = np.array([[1.0, 2.0, -1.0],      # visit 0 (t = 20 s)
+                  [0.5, -1.0, 2.0],      # visit 1 (t = 0 s)
+                  [2.0, 1.0, 1.0]])      # visit 2 (t = 10 s)
+    out = serial_test(z.reshape(-1), np.zeros((9, 0)), [20.0, 0.0, 10.0])
+    rho = 5.0 / 17.25
+    zr = rho / np.sqrt(6.0 / 99.0)
+    assert np.isclose(out["rho"], rho) and np.isclose(out["z"], zr)
+    assert np.isclose(out["p_value"], 2.0 * stats.norm.sf(zr))
+    assert out["k"] == 1 and np.isclose(out["S"], zr * zr)
+    assert serial_test(np.ones(6), np.zeros((6, 0)), [0.0, 1.0]) is None      # fewer than 3 visits
+
+
+def test_the_serial_test_is_calibrated_and_finds_an_over_whitening(example):
+    """The lag-one test of whitened residuals (generic.serial_test, run after a flicker_noise refit)
+    on the linear fit of pure noise on the example's bias and scale columns: over 2000 draws the
+    standardised statistic has mean 0 and variance 1 within 4 standard errors (its moments are
+    exact), and the rejection rate at 0.01 is within 4.5 binomial SD of 0.01. Then the case it is
+    for: white noise whitened by a 1/f covariance it does not have (``L^-1 e``, ``L`` the Cholesky
+    factor of ``I + tau G``, ``G`` the flicker's covariance of the example's visits, ``tau`` ten
+    times the white variance at the mean visit), refitted in the whitened space: adjacent visits are
+    then anti-correlated, by ``tr(A Sigma) / tr(Sigma)`` = -0.28 on the example (``Sigma`` their
+    covariance; -0.006 under the null, with an SD of 0.043: 6.4 SD): found in at least 390 of 400
+    draws, each with a negative statistic. The scale of the whitened residuals does not enter: the
+    same draws multiplied by 10 give the same statistic."""
+    from triadcal.estimation.flicker_noise import AxisWhitening, normalised_components
+    from triadcal.judgement.diagnose.generic import serial_test
+
+    rng = np.random.default_rng(11)
+    n = example.n_visits
+    sigma = np.ones((n, 3))
+    J = _core_columns(example, sigma)
+    Q = _hat_q(J)
+    zs, hits = [], 0
+    for _ in range(2000):
+        e = rng.standard_normal(3 * n)
+        out = serial_test(e - Q @ (Q.T @ e), Q, example.time_s)
+        zs.append(out["z"])
+        hits += out["p_value"] < 0.01
+    zs = np.array(zs)
+    assert abs(zs.mean()) < 4.0 / np.sqrt(zs.size)
+    assert abs(zs.var() - 1.0) < 4.0 * np.sqrt(2.0 / zs.size)
+    assert abs(hits / 2000 - 0.01) <= 4.5 * np.sqrt(0.01 * 0.99 / 2000)
+
+    G = normalised_components(example, sigma)
+    W = AxisWhitening(G, [10.0 / float(np.mean(np.diag(G[0])))] * 3, example.time_s)
+    Qw = _hat_q(W.apply(J))
+    P = np.eye(3 * n) - Qw @ Qw.T
+    Linv = W.apply(np.eye(3 * n))
+    Sigma = P @ Linv @ Linv.T @ P
+    order = np.argsort(example.time_s, kind="stable")
+    A = np.zeros((3 * n, 3 * n))
+    for a in range(3):
+        rows = 3 * order + a
+        A[rows[:-1], rows[1:]] = A[rows[1:], rows[:-1]] = 0.5
+    assert -0.3 < float(np.trace(A @ Sigma) / np.trace(Sigma)) < -0.25
+    hits, neg = 0, 0
+    for _ in range(400):
+        r = P @ (Linv @ rng.standard_normal(3 * n))
+        out = serial_test(r, Qw, example.time_s)
+        assert np.isclose(serial_test(10.0 * r, Qw, example.time_s)["z"], out["z"])
+        hits += out["p_value"] < 0.01
+        neg += out["z"] < 0
+    assert hits >= 390 and neg == 400, (hits, neg)

@@ -223,7 +223,8 @@ def variance_basis(campaign: Campaign) -> np.ndarray:
       campaign): a noise that grows or shrinks over the campaign, which was otherwise named
       ``heavy_tails`` or ``flicker_noise`` (docs/diagnosis.md, "Noise that grows with time": a
       noise effect in 18 of 32 probes with the SD x1 to x sqrt(5) over 36 h, 4 of 32 with these
-      columns; tests/test_foreign_effects.py, ``_growing_noise``). Zero columns (one temperature, one time) are dropped by :func:`variance_test`."""
+      columns, 2 of 32 with :func:`serial_test` after flicker's refit too;
+      tests/test_foreign_effects.py, ``_growing_noise``). Zero columns (one temperature, one time) are dropped by :func:`variance_test`."""
     n = campaign.n_visits
     g = np.asarray(_nominal_g(campaign), float).reshape(n, 3)
     prods = np.column_stack([g[:, j] * g[:, k] for j in range(3) for k in range(j, 3)])[:, 1:]
@@ -262,3 +263,46 @@ def variance_test(z: np.ndarray, h: np.ndarray, basis: np.ndarray) -> Optional[d
     proj = U[:, :k].T @ y
     S = N * float(proj @ proj) / float(y @ y)
     return {"S": S, "k": k, "p_value": float(math.exp(_chi2_logsf(S, k)))}
+
+
+def serial_test(z: np.ndarray, Q: np.ndarray, time_s) -> Optional[dict]:
+    """Whether residuals whitened by a noise model with a covariance in time are white: their
+    lag-one serial correlation in the order of the visits' times, per output and pooled,
+    ``rho = z' A z / z' z`` (``z`` the standardised residuals (3n,), visit-major; ``A`` symmetric,
+    1/2 on each pair of visits adjacent in time on the same output, so ``z' A z`` is the sum of the
+    adjacent products). ``Q`` the orthonormal basis of the refit's whitened Jacobian (hat matrix
+    ``Q Q'``, ``P = I - Q Q'`` of rank ``nu``). Under the noise model ``z = P e``, ``e ~ N(0, I)``,
+    and ``rho`` is a ratio of quadratic forms independent of its denominator (Pitman-Koopman), so
+    its moments are exact (Durbin & Watson, Biometrika 37, 409-428, 1950; 38, 159-178, 1951): with
+    ``M = P A P``, ``E rho = tr M / nu`` and ``E rho^2 = ((tr M)^2 + 2 tr M^2) / (nu (nu + 2))``.
+    The standardised ``z_rho`` is referred to the normal, two-sided: ``S = z_rho^2`` on 1 dof (the
+    normal form is good for the hundreds of visits of a campaign; with a handful it is rough, and a
+    rejection then says ``unexplained``, not a wrong name). A covariance too strong for the data --
+    a 1/f floor fitted to white noise whose SD grows over the campaign, where the whitening
+    differences independent visits -- anti-correlates adjacent whitened residuals; one too weak, or
+    a slow pattern of the mean, leaves them positively correlated. It does not depend on the
+    residuals' overall scale: that is the chi2's question. None with fewer than three visits."""
+    z = np.asarray(z, float)
+    N = z.size
+    n = N // 3
+    nu = N - Q.shape[1]
+    if n < 3 or nu < 3 or not float(z @ z) > 0:
+        return None
+    order = np.argsort(np.asarray(time_s, float), kind="stable")
+    A = np.zeros((N, N))
+    for a in range(3):
+        rows = 3 * order + a
+        A[rows[:-1], rows[1:]] = 0.5
+        A[rows[1:], rows[:-1]] = 0.5
+    AQ = A @ Q
+    QAQ = Q.T @ AQ
+    tr_m = -float(np.trace(QAQ))                               # tr(A P), tr A = 0
+    # tr((A P)^2) = tr(A^2) - 2 tr(Q' A^2 Q) + tr((Q' A Q)^2)
+    tr_m2 = float(np.sum(A * A)) - 2.0 * float(np.sum(AQ * AQ)) + float(np.sum(QAQ * QAQ))
+    mean = tr_m / nu
+    var = (tr_m * tr_m + 2.0 * tr_m2) / (nu * (nu + 2.0)) - mean * mean
+    if not var > 0:
+        return None
+    rho = float(z @ A @ z) / float(z @ z)
+    zr = (rho - mean) / math.sqrt(var)
+    return {"S": zr * zr, "k": 1, "p_value": float(2.0 * stats.norm.sf(abs(zr))), "z": zr, "rho": rho}

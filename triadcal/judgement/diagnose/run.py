@@ -44,7 +44,7 @@ from .candidates import (
     _tilt_settling,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
-from .generic import generic_basis, generic_tests, per_output_terms, variance_basis, variance_test
+from .generic import generic_basis, generic_tests, per_output_terms, serial_test, variance_basis, variance_test
 from .rivals import generic_rivals, reference_poses, rival_tests
 from .results import ALPHA, Candidate, Diagnosis, _f, _p_is
 from .series import series_of, series_txt
@@ -294,6 +294,11 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         var_after = variance_test(r_after, np.sum(Q_after * Q_after, axis=1), vbasis)
         if var_after is not None:
             gen["variance"] = var_after
+        if c.effect == "flicker_noise":
+            # the whitened residuals of a noise model with a covariance in time must be white
+            serial = serial_test(r_after, Q_after, campaign.time_s)
+            if serial is not None:
+                gen["serial"] = serial
         gen_holm = dict(zip(gen, _holm([t["p_value"] for t in gen.values()]))) if gen else {}
         n_sig_after = None
         if slices_after:
@@ -329,6 +334,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                           "significant_slices": n_sig_after,
                           "generic": {f: {"S": _f(t["S"]), "k": t["k"], "p_value": _f(t["p_value"]),
                                           **({"p_full": _f(t["p_full"])} if "p_full" in t else {}),
+                                          **({"z": _f(t["z"])} if "z" in t else {}),
                                           "p_holm": _f(float(gen_holm[f]))} for f, t in gen.items()},
                           "generic_structure": [f for f in gen if gen_holm[f] < alpha]},
             "new_parameters": ({n: {"value": after_val.get(n, float(st.x_full[full.index[n]])),
