@@ -35,6 +35,10 @@ from triadcal.judgement.diagnose import diagnose
 PATH_C = (-40, -10, 20, 50, 80, 50, 20, -10, -40)
 UG = 1e-6
 NOISE = ("position_error", "heavy_tails", "flicker_noise")
+#: a visit mean's SD on the independent bench (noise 5e-4 V a sample, 3000 samples; g at K = 1 g/V)
+SE_G = 5e-4 / math.sqrt(3000)
+#: the last visit of PATH_C's schedule (s)
+END_S = 7200.0 * 9 + 8000.0 * 8 + 50.0 * 11
 
 
 def _bias(vector_ug):
@@ -48,6 +52,17 @@ FOREIGN = {
     "bias_hysteresis": dict(extra_bias=_bias(lambda k, t, d: (0.0, 0.0, {"heating": -20.0,
                                                                           "cooling": 20.0}.get(d, 0.0)))),
     "fixture_slip": dict(fixture_change=lambda t: np.column_stack([30.0 * (t > 12 * 3600.0), 0 * t, 0 * t])),
+}
+#: changes of the scale factors outside the vocabulary (its scale terms follow the temperature and
+#: the specific force, not the time or the branch), near the detection limit: 40 and -30 ppm of x
+#: and y over the campaign (an ageing scale), a 25 ppm step of y at hour 20 (a knock), and a
+#: hysteresis of the z scale, +-15 ppm by the direction of the last temperature change (written as
+#: a bias 15 ppm x G_z, G the gravity on the IMU axes)
+FOREIGN_SCALE = {
+    "scale_drift": dict(extra_scale=lambda k, t, T: np.array([40e-6, -30e-6, 0.0]) * t / END_S),
+    "scale_step": dict(extra_scale=lambda k, t, T: np.array([0.0, 25e-6 if t > 20 * 3600.0 else 0.0, 0.0])),
+    "scale_hysteresis": dict(extra_bias=lambda k, t, T, G, d: np.array(
+        [0.0, 0.0, {"heating": 15e-6, "cooling": -15e-6}.get(d, 0.0) * G[2]])),
 }
 SPIKES = {17: (150.0, 0.0, 0.0), 50: (0.0, -150.0, 0.0), 91: (0.0, 0.0, 150.0)}
 SPIKES_ONE_SIGN = {17: (150.0, 0.0, 0.0), 50: (150.0, 0.0, 0.0), 91: (150.0, 0.0, 0.0)}
@@ -64,7 +79,8 @@ def _check_unexplained(d, name, seed):
     v = d.verdict
     assert d.gap["significant"], (name, seed)
     assert v["effect"] == "unexplained", (name, seed, v)
-    assert v.get("gap_closed") is not True and v["where"], (name, seed, v)
+    # localised: by the slices, or by the shape against temperature, time, orientation, direction
+    assert v.get("gap_closed") is not True and (v["where"] or v["shape"]), (name, seed, v)
     assert v.get("best_partial") not in NOISE, (name, seed, v)
 
 
@@ -81,6 +97,22 @@ def _check_spikes(d, seed, one_sign):
 @pytest.mark.parametrize("name", sorted(FOREIGN))
 def test_an_effect_outside_the_vocabulary_is_unexplained(tmp_path, name):
     _check_unexplained(_diagnose(tmp_path, name, 1, **FOREIGN[name]), name, 1)
+
+
+@pytest.mark.parametrize("name", sorted(FOREIGN_SCALE))
+def test_a_scale_change_outside_the_vocabulary_is_unexplained(tmp_path, name):
+    """A scale that drifts with time, steps, or has a hysteresis of its own is no term of the
+    vocabulary (scale_tempco* follow the temperature, scale_warmup the power-on): 'unexplained',
+    never a tempco that shrinks the gap (seed 1 here; seeds 2-5 in the slow test below: 5 of 5 each,
+    2026-11-28)."""
+    _check_unexplained(_diagnose(tmp_path, name, 1, **FOREIGN_SCALE[name]), name, 1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [2, 3, 4, 5])
+def test_scale_changes_outside_the_vocabulary_over_seeds(tmp_path, seed):
+    for name, kw in FOREIGN_SCALE.items():
+        _check_unexplained(_diagnose(tmp_path, name, seed, **kw), name, seed)
 
 
 def test_clean_campaign_of_the_independent_bench_has_no_gap(tmp_path):
@@ -177,9 +209,11 @@ def _without_noise_columns(text: str) -> str:
 @pytest.mark.parametrize("seed", [1, 2, 3, 4])
 def test_foreign_effects_with_the_noise_estimated(tmp_path, seed):
     """The same campaigns with the noise columns removed (the noise estimated from the residuals):
-    every effect outside the vocabulary still 'unexplained', the clean campaign still 'none', the
-    random-sign contamination still heavy_tails (measured 4 of 4 seeds each)."""
-    cases = dict(FOREIGN, clean={}, spikes=dict(extra_bias=_bias(lambda k, t, d: SPIKES.get(k, (0.0, 0.0, 0.0)))))
+    every effect outside the vocabulary still 'unexplained' (the scale changes too), the clean
+    campaign still 'none', the random-sign contamination still heavy_tails (measured 4 of 4 seeds
+    each)."""
+    cases = dict(FOREIGN, **FOREIGN_SCALE, clean={},
+                 spikes=dict(extra_bias=_bias(lambda k, t, d: SPIKES.get(k, (0.0, 0.0, 0.0)))))
     for name, kw in cases.items():
         text, _ = simulate_campaign(np.random.default_rng(seed), setpoints_C=PATH_C, tilt_arcsec=(40.0, -25.0), **kw)
         path = tmp_path / f"{name}_{seed}_estimated.csv"
@@ -198,10 +232,32 @@ def test_foreign_effects_with_the_noise_estimated(tmp_path, seed):
 SIX_FACES = ("P01", "P03", "P05", "P07", "P09", "P11")
 
 
+def test_a_candidate_in_the_models_span_on_a_six_face_tumble_is_not_tested(tmp_path):
+    """On six faces the bench's non-orthogonality is the sensor's misalignment written again: its
+    column lies within 1.6e-6 of the fitted model's span. It was scored (p 4e-6 on the scale drift's
+    seed 2, a direction set by rounding) and refitted without moving (u 2.8e5 arcsec, delta elpd
+    -2.3e7); it is now not testable, with the reason, and the verdict does not change."""
+    from independent_bench import POSITIONS
+
+    six = {p: POSITIONS[p] for p in SIX_FACES}
+    d = _diagnose(tmp_path, "six_scale_drift", 2, positions=six, **FOREIGN_SCALE["scale_drift"])
+    c = next(c for c in d.candidates if c.effect == "bench_nonorthogonality")
+    assert not c.testable and "span on this design" in c.reason, (c.testable, c.reason)
+    assert all(not x.refit or x.refit["delta_elpd"] > -1e3 for x in d.candidates)
+    _check_unexplained(d, "six_scale_drift", 2)
+    # no single slice is significant: the verdict says where the misfit lies by its shape
+    assert d.verdict["where"] == [] and [x["family"] for x in d.verdict["shape"]] == ["time"]
+    from triadcal.reports.diagnosis import summary_text
+
+    line = next(x for x in summary_text(d).splitlines() if x.startswith("verdict:"))
+    assert "where: no single slice; shape against time (p(Holm) = " in line, line
+
+
 @pytest.mark.slow
 def test_foreign_effects_on_a_six_face_tumble(tmp_path):
     """The same effects with 6 positions a soak (one per face, seeds 1-3): the once-per-revolution
-    encoder error, the bias step, the bias hysteresis and the slip stay 'unexplained', clean stays
+    encoder error, the bias step, the bias hysteresis, the slip and the three scale changes
+    (FOREIGN_SCALE) stay 'unexplained', clean stays
     'none'. The twice-per-revolution error of axis 2 is +-3 arcsec (15 ug) at those angles: no gap,
     and nothing named."""
     from independent_bench import POSITIONS
@@ -212,18 +268,13 @@ def test_foreign_effects_on_a_six_face_tumble(tmp_path):
     assert sorted(map(tuple, np.round(g).astype(int).tolist())) == sorted(
         tuple(s * e) for e in np.eye(3, dtype=int) for s in (1, -1))
     for seed in (1, 2, 3):
-        for name, kw in dict(FOREIGN, clean={}).items():
+        for name, kw in dict(FOREIGN, **FOREIGN_SCALE, clean={}).items():
             d = _diagnose(tmp_path, f"six_{name}", seed, positions=six, **kw)
             if name in ("clean", "encoder_twice_per_rev_axis2"):
                 assert d.verdict["effect"] is None, (name, seed, d.verdict)
             else:
                 _check_unexplained(d, name, seed)
 
-
-#: a visit mean's SD on the independent bench (noise 5e-4 V a sample, 3000 samples; g at K = 1 g/V)
-SE_G = 5e-4 / math.sqrt(3000)
-#: the last visit of PATH_C's schedule (s)
-END_S = 7200.0 * 9 + 8000.0 * 8 + 50.0 * 11
 
 
 def _growing_noise(seed, kind):

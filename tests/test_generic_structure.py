@@ -11,6 +11,7 @@ verdict in the left-out validation (tests/test_diagnosis_validation.py, docs/dia
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy import stats
 
 from triadcal.judgement.diagnose.fitting import _hat_q
@@ -225,13 +226,14 @@ def test_the_serial_test_by_hand():
     z = np.array([[1.0, 2.0, -1.0],      # visit 0 (t = 20 s)
                   [0.5, -1.0, 2.0],      # visit 1 (t = 0 s)
                   [2.0, 1.0, 1.0]])      # visit 2 (t = 10 s)
-    out = serial_test(z.reshape(-1), np.zeros((9, 0)), [20.0, 0.0, 10.0])
+    out = serial_test(z.reshape(-1), np.zeros((9, 0)), [20.0, 0.0, 10.0], min_visits=3)
     rho = 5.0 / 17.25
     zr = rho / np.sqrt(6.0 / 99.0)
     assert np.isclose(out["rho"], rho) and np.isclose(out["z"], zr)
     assert np.isclose(out["p_value"], 2.0 * stats.norm.sf(zr))
     assert out["k"] == 1 and np.isclose(out["S"], zr * zr)
-    assert serial_test(np.ones(6), np.zeros((6, 0)), [0.0, 1.0]) is None      # fewer than 3 visits
+    assert serial_test(np.ones(6), np.zeros((6, 0)), [0.0, 1.0], min_visits=2) is None   # 3 at the least
+    assert serial_test(z.reshape(-1), np.zeros((9, 0)), [20.0, 0.0, 10.0]) is None     # SERIAL_MIN_VISITS
 
 
 def test_the_serial_test_is_calibrated_and_finds_an_over_whitening(example):
@@ -285,3 +287,23 @@ def test_the_serial_test_is_calibrated_and_finds_an_over_whitening(example):
         hits += out["p_value"] < 0.01
         neg += out["z"] < 0
     assert hits >= 390 and neg == 400, (hits, neg)
+
+
+def test_a_column_almost_in_the_span_is_not_scored_for_a_candidate():
+    """candidates._score_mean by hand: a column equal to one of the span's plus 1e-6 of an
+    orthogonal one has rank 1 for the generic families (any direction orthogonal to the span is a
+    valid test) but 0 for a candidate (SPAN_FRACTION_MIN: its parameter could not move); with 0.1
+    of it, both test it, and S is the squared projection of r on the orthogonal direction."""
+    from types import SimpleNamespace
+
+    from triadcal.judgement.diagnose.candidates import SPAN_FRACTION_MIN, _score_mean
+
+    e = np.eye(6)
+    Q = e[:, :2]
+    r = np.array([0.0, 0.0, 3.0, 1.0, 0.0, 0.0])
+    state = SimpleNamespace(r=r)
+    tiny = (e[:, 0] + 1e-6 * e[:, 2])[:, None]
+    assert _score_mean(state, tiny, Q) == (pytest.approx(9.0), 1)
+    assert _score_mean(state, tiny, Q, SPAN_FRACTION_MIN) is None
+    some = (e[:, 0] + 0.1 * e[:, 2])[:, None]
+    assert _score_mean(state, some, Q, SPAN_FRACTION_MIN) == (pytest.approx(9.0), 1)

@@ -186,6 +186,12 @@ def _verdict_text(d) -> tuple[str, str]:
     return headline, evidence
 
 
+#: the generic families of an unexplained gap's shape (verdict.shape), in words
+SHAPE_WORDS = {"temperature": "temperature", "time": "time", "orientation_even": "orientation (even in g)",
+               "orientation_odd": "orientation (odd in g)", "direction": "the direction of the temperature change",
+               "variance": "the scatter (variance)"}
+
+
 def _verdict_words(d) -> tuple[str, str]:
     v = d.verdict
     effect = v.get("effect")
@@ -194,6 +200,10 @@ def _verdict_words(d) -> tuple[str, str]:
     if effect == "unexplained":
         where = "; ".join(f"{w.get('family')} {w.get('slice')} ({w.get('axis')}, {w.get('test')})"
                           for w in v.get("where") or [])
+        shape = ", ".join(f"{SHAPE_WORDS.get(x['family'], x['family'])} (p(Holm) {_p_is(x.get('p_holm'))})"
+                          for x in v.get("shape") or [])
+        if shape:
+            where = (where + "; " if where else "no single slice; ") + f"shape against {shape}"
         if v.get("ambiguous_with"):
             return (f"unexplained: {v.get('best_partial')} closes the gap but the data cannot tell it from "
                     + ", ".join(str(x) for x in v["ambiguous_with"]),

@@ -265,7 +265,11 @@ def variance_test(z: np.ndarray, h: np.ndarray, basis: np.ndarray) -> Optional[d
     return {"S": S, "k": k, "p_value": float(math.exp(_chi2_logsf(S, k)))}
 
 
-def serial_test(z: np.ndarray, Q: np.ndarray, time_s) -> Optional[dict]:
+#: the fewest visits the serial test is asked on: its normal reference is rough below
+SERIAL_MIN_VISITS = 20
+
+
+def serial_test(z: np.ndarray, Q: np.ndarray, time_s, min_visits: int = SERIAL_MIN_VISITS) -> Optional[dict]:
     """Whether residuals whitened by a noise model with a covariance in time are white: their
     lag-one serial correlation in the order of the visits' times, per output and pooled,
     ``rho = z' A z / z' z`` (``z`` the standardised residuals (3n,), visit-major; ``A`` symmetric,
@@ -286,7 +290,7 @@ def serial_test(z: np.ndarray, Q: np.ndarray, time_s) -> Optional[dict]:
     N = z.size
     n = N // 3
     nu = N - Q.shape[1]
-    if n < 3 or nu < 3 or not float(z @ z) > 0:
+    if n < max(min_visits, 3) or nu < 3 or not float(z @ z) > 0:
         return None
     order = np.argsort(np.asarray(time_s, float), kind="stable")
     A = np.zeros((N, N))

@@ -39,6 +39,7 @@ from .candidates import (
     _pe_sensitivity,
     _position_score,
     _problem_on,
+    SPAN_FRACTION_MIN,
     _score_mean,
     _thermal_lag_history,
     _tilt_settling,
@@ -62,6 +63,14 @@ def _rival_json(test) -> dict:
     """A rival's encompassing test ``(label, S, k, p)`` as the verdict's ``closest_rival``."""
     lab, S, k, p = test
     return {"rival": lab, "S": _f(S), "k": int(k), "p_value": _f(p)}
+
+
+def _shape(gap_adj: dict, alpha: float) -> list:
+    """An unexplained gap's shape: the generic families (generic.py: smooth terms in temperature,
+    time, orientation and direction, and the variance) among the gap's tests that reject after
+    Holm, most significant first -- where the misfit lies when no single slice does."""
+    sig = sorted((k for k, p in gap_adj.items() if k.startswith("generic:") and p < alpha), key=gap_adj.get)
+    return [{"family": k.split(":", 1)[1], "p_holm": _f(gap_adj[k])} for k in sig]
 
 
 def _structure_left_txt(c) -> str:
@@ -175,11 +184,12 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         if not usable:
             cand_objs.append(Candidate(c, False, "invisible on this design: " + design[pn[0]]))
             continue
-        sc = _score_mean(base, Jfull[:, [full.index[n] for n in usable]], Q)
+        sc = _score_mean(base, Jfull[:, [full.index[n] for n in usable]], Q, SPAN_FRACTION_MIN)
         if sc is None:
             why = ("its sensitivity is zero at the fitted point (thermal lag acts only through temperature "
                    "coefficients: add a tempco to the model to test it)" if c == "thermal_lag" else
-                   "its sensitivity is zero or already in the fitted model's span on this design")
+                   "its sensitivity is zero or already in the fitted model's span on this design (less than "
+                   f"{SPAN_FRACTION_MIN:g} of its columns outside it)")
             cand_objs.append(Candidate(c, False, why))
             continue
         S, k = sc
@@ -623,6 +633,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                                      "(or a model without the needed terms) is the likelier cause" if absorbed else
                                      ": no candidate of the vocabulary improves the fit significantly")),
                        "where": where_of(slices)}
+    if verdict.get("effect") == "unexplained":
+        verdict["shape"] = _shape(gap_adj, alpha)
     fit = {"chi2_dof": _f(base.chi2_dof), "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
