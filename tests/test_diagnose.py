@@ -193,6 +193,8 @@ def test_real_ferraris_poses_diagnosis():
     for e in ("angle_tempco", "scale_tempco", "bias_tempco", "hysteresis", "thermal_lag"):
         assert not status[e].testable
     assert d.verdict_effect == "position_error"
+    # six poses, each visited once: a systematic error of each pose would give the same data
+    assert "every pose is visited once" in d.verdict["caveat"]
     pe_sigma = status["position_error"].refit["new_parameters"]["position_error_sigma"]["value"]
     assert pe_sigma > 60.0   # hand placement: arc-minutes, not the bench's arcseconds
 
