@@ -256,8 +256,11 @@ def design_caveat(campaign: Campaign, effect: str):
     A hysteresis (any form) on a path that turns once is also a one-time change of the unit at
     the turn -- a unit that slips in its fixture at the top of the cycle gives the same two
     branches (tests/test_foreign_effects.py: a 30 arcsec slip at the turn is named
-    ``hysteresis_play`` 5 times in 5). A second turn tells them apart: a hysteresis comes back
-    on the next heating, a slip stays.
+    ``hysteresis_play`` 5 times in 5), and so does a slow change in time: on one cycle each
+    temperature is visited once a branch, so a drift of an angle or a creep of the unit in its
+    fixture (15-20 arcsec over the campaign) is a function of temperature and branch too
+    (``hysteresis_play`` 5 times in 5 each). A second turn tells them apart: a hysteresis comes
+    back on the next heating, a slip or a drift does not.
 
     A positioning error on a campaign that visits every pose once is also a systematic error of
     each pose -- an encoder's error that depends on the angle gives one fixed offset a pose, which
@@ -277,9 +280,9 @@ def design_caveat(campaign: Campaign, effect: str):
     n = turns(campaign)
     if n >= 2:
         return None
-    return (f"the temperature path turns {n} time(s): a one-time change of the unit at the "
-            "turn (e.g. a slip in its fixture) gives the same branches; a second turn (heat, cool, heat) "
-            "tells a hysteresis from it")
+    return (f"the temperature path turns {n} time(s): a change of the unit in time -- once at the "
+            "turn (e.g. a slip in its fixture) or slowly (a creep in the fixture, a drift of the axes) -- "
+            "gives the same branches; a second turn (heat, cool, heat) tells a hysteresis from it")
 
 
 def _problem_on(full: JointProblem, campaign: Campaign) -> JointProblem:
