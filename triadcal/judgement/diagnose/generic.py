@@ -280,12 +280,13 @@ def serial_test(z: np.ndarray, Q: np.ndarray, time_s, min_visits: int = SERIAL_M
     its moments are exact (Durbin & Watson, Biometrika 37, 409-428, 1950; 38, 159-178, 1951): with
     ``M = P A P``, ``E rho = tr M / nu`` and ``E rho^2 = ((tr M)^2 + 2 tr M^2) / (nu (nu + 2))``.
     The standardised ``z_rho`` is referred to the normal, two-sided: ``S = z_rho^2`` on 1 dof (the
-    normal form is good for the hundreds of visits of a campaign; with a handful it is rough, and a
-    rejection then says ``unexplained``, not a wrong name). A covariance too strong for the data --
+    normal form is good for the hundreds of visits of a campaign; below ``min_visits`` visits,
+    :data:`SERIAL_MIN_VISITS` unless told, the test is not asked). A covariance too strong for the data --
     a 1/f floor fitted to white noise whose SD grows over the campaign, where the whitening
     differences independent visits -- anti-correlates adjacent whitened residuals; one too weak, or
     a slow pattern of the mean, leaves them positively correlated. It does not depend on the
-    residuals' overall scale: that is the chi2's question. None with fewer than three visits."""
+    residuals' overall scale: that is the chi2's question. None below ``min_visits`` (at least 3)
+    visits."""
     z = np.asarray(z, float)
     N = z.size
     n = N // 3
