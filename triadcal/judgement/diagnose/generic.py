@@ -311,3 +311,13 @@ def serial_test(z: np.ndarray, Q: np.ndarray, time_s, min_visits: int = SERIAL_M
     rho = float(z @ A @ z) / float(z @ z)
     zr = (rho - mean) / math.sqrt(var)
     return {"S": zr * zr, "k": 1, "p_value": float(2.0 * stats.norm.sf(abs(zr))), "z": zr, "rho": rho}
+
+
+def gap_shape(gap_adj: dict, alpha: float) -> list:
+    """An unexplained gap's shape (``verdict.shape``): the generic families among the gap's tests
+    (``generic:<family>`` in ``gap_adj``, Holm-adjusted p) that reject at ``alpha``, most significant
+    first -- where the misfit lies against temperature, time, orientation, direction or in the
+    scatter when no single slice does."""
+    sig = sorted((k for k, p in gap_adj.items() if k.startswith("generic:") and p < alpha), key=gap_adj.get)
+    return [{"family": k.split(":", 1)[1], "p_holm": float(gap_adj[k]) if math.isfinite(gap_adj[k]) else None}
+            for k in sig]

@@ -45,7 +45,8 @@ from .candidates import (
     _tilt_settling,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
-from .generic import generic_basis, generic_tests, per_output_terms, serial_test, variance_basis, variance_test
+from .generic import (gap_shape, generic_basis, generic_tests, per_output_terms, serial_test, variance_basis,
+                      variance_test)
 from .rivals import generic_rivals, reference_poses, rival_tests
 from .results import ALPHA, Candidate, Diagnosis, _f, _p_is
 from .series import series_of, series_txt
@@ -63,14 +64,6 @@ def _rival_json(test) -> dict:
     """A rival's encompassing test ``(label, S, k, p)`` as the verdict's ``closest_rival``."""
     lab, S, k, p = test
     return {"rival": lab, "S": _f(S), "k": int(k), "p_value": _f(p)}
-
-
-def _shape(gap_adj: dict, alpha: float) -> list:
-    """An unexplained gap's shape: the generic families (generic.py: smooth terms in temperature,
-    time, orientation and direction, and the variance) among the gap's tests that reject after
-    Holm, most significant first -- where the misfit lies when no single slice does."""
-    sig = sorted((k for k, p in gap_adj.items() if k.startswith("generic:") and p < alpha), key=gap_adj.get)
-    return [{"family": k.split(":", 1)[1], "p_holm": _f(gap_adj[k])} for k in sig]
 
 
 def _structure_left_txt(c) -> str:
@@ -634,7 +627,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                                      ": no candidate of the vocabulary improves the fit significantly")),
                        "where": where_of(slices)}
     if verdict.get("effect") == "unexplained":
-        verdict["shape"] = _shape(gap_adj, alpha)
+        verdict["shape"] = gap_shape(gap_adj, alpha)
     fit = {"chi2_dof": _f(base.chi2_dof), "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
