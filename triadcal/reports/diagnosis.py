@@ -189,7 +189,8 @@ def _verdict_text(d) -> tuple[str, str]:
 #: the generic families of an unexplained gap's shape (verdict.shape), in words
 SHAPE_WORDS = {"temperature": "temperature", "time": "time", "orientation_even": "orientation (even in g)",
                "orientation_odd": "orientation (odd in g)", "direction": "the direction of the temperature change",
-               "variance": "the scatter (variance)"}
+               "variance": "the scatter (variance)",
+               "correlated": "time, as a noise that wanders (residuals alike when close in time)"}
 
 
 def _verdict_words(d) -> tuple[str, str]:

@@ -45,7 +45,8 @@ from .candidates import (
     _tilt_settling,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
-from .generic import (gap_shape, generic_basis, generic_tests, per_output_terms, serial_test, variance_basis,
+from .correlated import correlated_test
+from .generic import (families_after, gap_shape, generic_basis, generic_tests, per_output_terms, variance_basis,
                       variance_test)
 from .rivals import generic_rivals, reference_poses, rival_tests
 from .results import ALPHA, Candidate, Diagnosis, _f, _p_is
@@ -76,6 +77,9 @@ def _structure_left_txt(c) -> str:
         parts.append(f"generic {f} p_holm {after['generic'][f]['p_holm']:.2g}")
     for f in after.get("mean_explains_better", []):
         parts.append(f"a smooth mean term in {f} explains the gap better than the noise model (AIC)")
+    if after.get("correlation_absent"):
+        parts.append("no correlation in time in the residuals before its refit (generic correlated p = "
+                     f"{after['correlation_absent']['p_value']:.2g}): its covariance took up a scatter")
     return f"{c.effect}: " + ", ".join(parts)
 
 
@@ -235,6 +239,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     var0 = variance_test(base.r, h, vbasis)
     if var0 is not None:
         gap_tests["generic:variance"] = var0["p_value"]
+    # residuals alike when close in time (a wandering noise: 1/f, Gauss-Markov) -- correlated.py
+    corr0 = correlated_test(base.r, Q, campaign.time_s, sigma)
+    if corr0 is not None:
+        gap_tests["generic:correlated"] = corr0["p_value"]
     keys = list(gap_tests)
     adj = _holm([gap_tests[k] for k in keys]) if keys else []
     gap_adj = dict(zip(keys, (float(a) for a in adj)))
@@ -292,16 +300,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         st_for_slices = FitState(st.names, st.x_full, r_after, st.J / (np.sqrt(var_scale)[:, None]
                                  if var_scale is not None else 1.0), st.cov, st.chi2, st.dof, st.s, st.converged)
         Q_after = _hat_q(st_for_slices.J)
-        gen = generic_tests({f: st.whitened(B) for f, B in gbasis.items()}, r_after, st_for_slices.J,
-                            noise.known, st.dof, Q_after)
-        var_after = variance_test(r_after, np.sum(Q_after * Q_after, axis=1), vbasis)
-        if var_after is not None:
-            gen["variance"] = var_after
-        if c.effect == "flicker_noise":
-            # the whitened residuals of a noise model with a covariance in time must be white
-            serial = serial_test(r_after, Q_after, campaign.time_s)
-            if serial is not None:
-                gen["serial"] = serial
+        gen = families_after(c.effect, {f: st.whitened(B) for f, B in gbasis.items()}, r_after,
+                             st_for_slices.J, Q_after, noise.known, st.dof, vbasis, campaign.time_s, sigma)
         gen_holm = dict(zip(gen, _holm([t["p_value"] for t in gen.values()]))) if gen else {}
         n_sig_after = None
         if slices_after:
@@ -338,6 +338,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                           "generic": {f: {"S": _f(t["S"]), "k": t["k"], "p_value": _f(t["p_value"]),
                                           **({"p_full": _f(t["p_full"])} if "p_full" in t else {}),
                                           **({"z": _f(t["z"])} if "z" in t else {}),
+                                          **({"tau_s": _f(t["tau_s"])} if "tau_s" in t else {}),
                                           "p_holm": _f(float(gen_holm[f]))} for f, t in gen.items()},
                           "generic_structure": [f for f in gen if gen_holm[f] < alpha]},
             "new_parameters": ({n: {"value": after_val.get(n, float(st.x_full[full.index[n]])),
@@ -499,11 +500,17 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         for c in refitted:
             if c.effect == "flicker_noise" and noise.known:
                 c.refit["gap_after"]["mean_explains_better"] = mean_explains_better(c)
+            if c.effect == "flicker_noise" and corr0 is not None and not corr0["p_value"] < alpha:
+                # a covariance in time is named only where the residuals are correlated in time: the
+                # generic family (no candidate's covariance) must see it before the refit; a 1/f floor
+                # also has a white part, which takes up a scatter that only grows (correlated.py)
+                c.refit["gap_after"]["correlation_absent"] = {"p_value": _f(corr0["p_value"])}
 
         def structure_left(c):
             n = c.refit["gap_after"].get("significant_slices")
             return ((n is not None and n > 0) or bool(c.refit["gap_after"]["generic_structure"])
-                    or bool(c.refit["gap_after"].get("mean_explains_better")))
+                    or bool(c.refit["gap_after"].get("mean_explains_better"))
+                    or bool(c.refit["gap_after"].get("correlation_absent")))
 
         # a noise effect (position_error, heavy_tails) widens the noise until the misfit looks
         # like noise; it may win only when no slice keeps structure after its refit: elpd alone
