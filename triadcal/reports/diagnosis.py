@@ -190,7 +190,8 @@ def _verdict_text(d) -> tuple[str, str]:
 SHAPE_WORDS = {"temperature": "temperature", "time": "time", "orientation_even": "orientation (even in g)",
                "orientation_odd": "orientation (odd in g)", "direction": "the direction of the temperature change",
                "variance": "the scatter (variance)",
-               "correlated": "time, as a noise that wanders (residuals alike when close in time)"}
+               "correlated": "time: residuals alike when close in time (a noise that wanders, or a pattern "
+                             "of the mean no smooth family holds)"}
 
 
 def _verdict_words(d) -> tuple[str, str]:
