@@ -200,3 +200,43 @@ def correlated_test(z: np.ndarray, Q: np.ndarray, time_s, sigma: np.ndarray,
     p = min(1.0, len(fractions) * best["p_value"])
     return {"S": best["z"] * abs(best["z"]), "k": 1, "p_value": p, "p_best": best["p_value"], "z": best["z"],
             "rho": best["rho"], "tau_s": best["tau_s"]}
+
+
+#: mean candidates that a bias wandering in time can mimic: functions of the time alone, on the bias
+WANDER_MIMICS = ("bias_drift", "bias_warmup")
+
+
+def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np.ndarray,
+                 fractions=CORRELATION_FRACTIONS) -> Optional[dict]:
+    """The encompassing test of a time-like mean candidate against a bias that wanders (known noise).
+
+    For each correlation time ``tau`` of ``fractions`` (of the campaign's span), the variance
+    ``v`` of a Gauss-Markov bias with the kernel of :func:`kernels` is estimated by REML on the
+    base model (``r``, ``J``: its normalised residuals and Jacobian; the white level held at 1:
+    :func:`triadcal.estimation.flicker_noise.reml_tau`), and the candidate's columns ``Jc`` are
+    scored by GLS under ``V = I + v K`` (the residuals and the columns whitened, projected off the
+    base's span): ``S ~ chi2_k`` when the wander alone made the data. A drift of the bias that is a
+    drift stays significant whatever the wander is allowed to be; one that the wander explains as
+    well is not told from it by these data. Returns the least significant of the ``tau``:
+    ``tau_s``, ``variance`` (normalised units), ``S``, ``k``, ``p_value``; None when degenerate."""
+    from ...estimation.flicker_noise import AxisWhitening, reml_tau
+
+    t = np.asarray(time_s, float)
+    span = float(np.ptp(t))
+    k = Jc.shape[1]
+    if not span > 0 or k == 0:
+        return None
+    worst = None
+    for f in fractions:
+        G = kernels(t, np.asarray(sigma, float), f * span)
+        v, _, _, _ = reml_tau(r, J, G, t, [[0, 1, 2]])
+        W = AxisWhitening(G, v, t)
+        rw, Jw, Jcw = W.apply(r), W.apply(J), W.apply(Jc)
+        Q, _ = np.linalg.qr(Jw)
+        Jp = Jcw - Q @ (Q.T @ Jcw)
+        U = Jp.T @ (rw - Q @ (Q.T @ rw))
+        S = float(U @ np.linalg.lstsq(Jp.T @ Jp, U, rcond=None)[0])
+        p = float(stats.chi2.sf(S, k))
+        if worst is None or p > worst["p_value"]:
+            worst = {"tau_s": f * span, "variance": float(v[0]), "S": S, "k": int(k), "p_value": p}
+    return worst
