@@ -158,19 +158,26 @@ def test_a_random_walk_of_the_bias_is_not_a_linear_drift(tmp_path):
     assert "correlated" in drift.refit["gap_after"]["generic_structure"]
 
 
+def _validation_diagnosis(effect, magnitude, seed, left_out):
+    """The validation's campaign of ``effect`` at ``magnitude`` and ``seed`` diagnosed as run_case
+    does, with the effect's group left out of the candidates or in the vocabulary."""
+    from triadcal.judgement.diagnosis_validation import (FORM_CANDIDATES, VALIDATION_PLAN, VALIDATION_SOAK_S,
+                                                         VOCABULARY, Schedule, left_out_group, scenario,
+                                                         simulate_campaign)
+    from triadcal.judgement.diagnose import diagnose
+
+    truth, model = scenario(effect, magnitude=magnitude)
+    c = simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S), seed=seed)
+    cands = [x for x in VOCABULARY + FORM_CANDIDATES if x not in left_out_group(effect)] if left_out else None
+    return diagnose(c, model, candidates=cands, slices_after=left_out, seed=seed, n_draws=200, top=2)
+
+
 def test_a_left_out_flicker_floor_is_unexplained_not_a_tempco():
     """The validation's 1/f floor at m = 0.5, seed 1001, with flicker_noise left out of the
     candidates: bias_tempco2 was named (score p 1.6e-4, beating its rival by the encompassing test),
     a confident wrong answer. The correlated family finds the floor in the gap (p ~ 1e-10) and after
     bias_tempco2's refit: unexplained."""
-    from triadcal.judgement.diagnosis_validation import (FORM_CANDIDATES, VALIDATION_PLAN, VALIDATION_SOAK_S,
-                                                         VOCABULARY, Schedule, left_out_group, scenario,
-                                                         simulate_campaign)
-    from triadcal.judgement.diagnose import diagnose
-    truth, model = scenario("flicker_noise", magnitude=0.5)
-    c = simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S), seed=1001)
-    cands = [x for x in VOCABULARY + FORM_CANDIDATES if x not in left_out_group("flicker_noise")]
-    d = diagnose(c, model, candidates=cands, slices_after=True, seed=1001, n_draws=200, top=2)
+    d = _validation_diagnosis("flicker_noise", 0.5, 1001, left_out=True)
     assert d.verdict["effect"] == "unexplained", d.verdict
     assert d.gap["tests"]["generic:correlated"]["p_holm"] < 1e-6
     assert d.verdict["shape"][0]["family"] == "correlated", d.verdict["shape"]
@@ -212,20 +219,10 @@ def test_a_left_out_flicker_floor_is_not_a_drift():
     confident wrong answer. Under a wandering bias's REML covariance its score is p ~ 0.5: the
     verdict is unexplained, ambiguous with a bias that wanders. A real drift (bias_drift at m = 1,
     seed 1000, in the vocabulary) keeps its name, the wander rival below alpha (6.4e-5)."""
-    from triadcal.judgement.diagnosis_validation import (FORM_CANDIDATES, VALIDATION_PLAN, VALIDATION_SOAK_S,
-                                                         VOCABULARY, Schedule, left_out_group, scenario,
-                                                         simulate_campaign)
-    from triadcal.judgement.diagnose import diagnose
-
-    truth, model = scenario("flicker_noise", magnitude=0.5)
-    c = simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S), seed=1012)
-    cands = [x for x in VOCABULARY + FORM_CANDIDATES if x not in left_out_group("flicker_noise")]
-    d = diagnose(c, model, candidates=cands, slices_after=True, seed=1012, n_draws=200, top=2)
+    d = _validation_diagnosis("flicker_noise", 0.5, 1012, left_out=True)
     v = d.verdict
     assert v["effect"] == "unexplained" and v["best_partial"] == "bias_drift", v
     assert v["ambiguous_with"][0].startswith("a bias that wanders") and v["wander_rival"]["p_value"] > 0.1, v
-    truth, model = scenario("bias_drift", magnitude=1.0)
-    c = simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S), seed=1000)
-    d = diagnose(c, model, slices_after=False, seed=1000, n_draws=200, top=2)
+    d = _validation_diagnosis("bias_drift", 1.0, 1000, left_out=False)
     assert d.verdict["effect"] == "bias_drift", d.verdict
     assert d.verdict["wander_rival"]["p_value"] < 1e-3, d.verdict["wander_rival"]          # 6.4e-5
