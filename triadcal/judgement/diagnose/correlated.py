@@ -60,10 +60,18 @@ def _blocks_apply(K: list, X: np.ndarray) -> np.ndarray:
     return out.reshape(X.shape)
 
 
-def ratio_test(z: np.ndarray, Q: np.ndarray, K: list) -> Optional[dict]:
+def kernel_traces(K: list) -> tuple:
+    """``(tr A, tr A^2, tr A^3)`` of ``A`` block-diagonal with the symmetric blocks ``K``: the
+    kernel-only parts of :func:`ratio_test`'s traces (they depend on the campaign, not on the fit)."""
+    return (sum(float(np.trace(k)) for k in K), sum(float(np.sum(k * k)) for k in K),
+            sum(float(np.sum(k * (k @ k))) for k in K))
+
+
+def ratio_test(z: np.ndarray, Q: np.ndarray, K: list, traces: Optional[tuple] = None) -> Optional[dict]:
     """One-sided test of ``rho = z' A z / z' z`` for ``A`` block-diagonal over the outputs with the
     symmetric blocks ``K`` (n x n each), ``Q`` the orthonormal basis of the fit's Jacobian (module
-    docstring: exact three moments, Pearson type III reference). None when degenerate."""
+    docstring: exact three moments, Pearson type III reference). ``traces``: :func:`kernel_traces`
+    of ``K`` when already known. None when degenerate."""
     z = np.asarray(z, float)
     N = z.size
     nu = N - Q.shape[1]
@@ -73,9 +81,7 @@ def ratio_test(z: np.ndarray, Q: np.ndarray, K: list) -> Optional[dict]:
     C = Q.T @ B
     D = B.T @ B
     KB = _blocks_apply(K, B)
-    trA = sum(float(np.trace(k)) for k in K)
-    trA2 = sum(float(np.sum(k * k)) for k in K)
-    trA3 = sum(float(np.sum(k * (k @ k))) for k in K)
+    trA, trA2, trA3 = traces if traces is not None else kernel_traces(K)
     t1 = trA - float(np.trace(C))
     t2 = trA2 - 2.0 * float(np.sum(B * B)) + float(np.sum(C * C))
     t3 = trA3 - 3.0 * float(np.sum(B * KB)) + 3.0 * float(np.sum(D * C)) - float(np.trace(C @ C @ C))
@@ -181,23 +187,54 @@ def kernels(time_s, sigma: np.ndarray, tau_s: float) -> list:
     return [E / np.outer(sigma[:, a], sigma[:, a]) for a in range(sigma.shape[1])]
 
 
+class CampaignKernels:
+    """The family's kernels of one campaign (visit times ``time_s``, noise ``sigma`` (n, 3)), one per
+    correlation time ``fractions x span``, each with its :func:`kernel_traces`: they depend on the
+    campaign only, so a diagnosis builds them once and asks them of the base fit, after every refit
+    and in :func:`wander_rival`. Built lazily, per correlation time."""
+
+    def __init__(self, time_s, sigma: np.ndarray, fractions=CORRELATION_FRACTIONS):
+        self.time_s = np.asarray(time_s, float)
+        self.sigma = np.asarray(sigma, float)
+        self.fractions = tuple(fractions)
+        self.span = float(np.ptp(self.time_s)) if self.time_s.size else 0.0
+        self._blocks: dict = {}
+        self._traces: dict = {}
+
+    def tau_s(self, i: int) -> float:
+        return self.fractions[i] * self.span
+
+    def blocks(self, i: int) -> list:
+        """:func:`kernels` at the ``i``-th correlation time."""
+        if i not in self._blocks:
+            self._blocks[i] = kernels(self.time_s, self.sigma, self.tau_s(i))
+        return self._blocks[i]
+
+    def traces(self, i: int) -> tuple:
+        """:func:`kernel_traces` of :meth:`blocks` ``(i)``."""
+        if i not in self._traces:
+            self._traces[i] = kernel_traces(self.blocks(i))
+        return self._traces[i]
+
+
 def correlated_test(z: np.ndarray, Q: np.ndarray, time_s, sigma: np.ndarray,
-                    fractions=CORRELATION_FRACTIONS, min_visits: int = CORRELATED_MIN_VISITS) -> Optional[dict]:
+                    fractions=CORRELATION_FRACTIONS, min_visits: int = CORRELATED_MIN_VISITS,
+                    cache: Optional[CampaignKernels] = None) -> Optional[dict]:
     """The ``correlated`` family (module docstring): the most significant correlation time, its
     ``rho`` and ``z``, and Bonferroni's p over :data:`CORRELATION_FRACTIONS`; None below
-    ``min_visits`` visits or when the campaign has one time."""
-    t = np.asarray(time_s, float)
-    span = float(np.ptp(t)) if t.size else 0.0
-    if t.size < max(min_visits, 3) or not span > 0:
+    ``min_visits`` visits or when the campaign has one time. ``cache``: the campaign's
+    :class:`CampaignKernels` (of these ``time_s``, ``sigma`` and ``fractions``) when already built."""
+    ck = cache if cache is not None else CampaignKernels(time_s, sigma, fractions)
+    if ck.time_s.size < max(min_visits, 3) or not ck.span > 0:
         return None
     best = None
-    for f in fractions:
-        res = ratio_test(z, Q, kernels(t, np.asarray(sigma, float), f * span))
+    for i in range(len(ck.fractions)):
+        res = ratio_test(z, Q, ck.blocks(i), ck.traces(i))
         if res is not None and (best is None or res["logp"] < best["logp"]):
-            best = dict(res, tau_s=f * span)
+            best = dict(res, tau_s=ck.tau_s(i))
     if best is None:
         return None
-    p = min(1.0, len(fractions) * best["p_value"])
+    p = min(1.0, len(ck.fractions) * best["p_value"])
     return {"S": best["z"] * abs(best["z"]), "k": 1, "p_value": p, "p_best": best["p_value"], "z": best["z"],
             "rho": best["rho"], "tau_s": best["tau_s"]}
 
@@ -207,7 +244,7 @@ WANDER_MIMICS = ("bias_drift", "bias_warmup")
 
 
 def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np.ndarray,
-                 fractions=CORRELATION_FRACTIONS) -> Optional[dict]:
+                 fractions=CORRELATION_FRACTIONS, cache: Optional[CampaignKernels] = None) -> Optional[dict]:
     """The encompassing test of a time-like mean candidate against a bias that wanders (known noise).
 
     For each correlation time ``tau`` of ``fractions`` (of the campaign's span), the variance
@@ -218,17 +255,18 @@ def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np
     base's span): ``S ~ chi2_k`` when the wander alone made the data. A drift of the bias that is a
     drift stays significant whatever the wander is allowed to be; one that the wander explains as
     well is not told from it by these data. Returns the least significant of the ``tau``:
-    ``tau_s``, ``variance`` (normalised units), ``S``, ``k``, ``p_value``; None when degenerate."""
+    ``tau_s``, ``variance`` (normalised units), ``S``, ``k``, ``p_value``; None when degenerate.
+    ``cache``: as in :func:`correlated_test`."""
     from ...estimation.flicker_noise import AxisWhitening, reml_tau
 
-    t = np.asarray(time_s, float)
-    span = float(np.ptp(t))
+    ck = cache if cache is not None else CampaignKernels(time_s, sigma, fractions)
+    t = ck.time_s
     k = Jc.shape[1]
-    if not span > 0 or k == 0:
+    if not ck.span > 0 or k == 0:
         return None
     worst = None
-    for f in fractions:
-        G = kernels(t, np.asarray(sigma, float), f * span)
+    for i in range(len(ck.fractions)):
+        G = ck.blocks(i)
         v, _, _, _ = reml_tau(r, J, G, t, [[0, 1, 2]])
         W = AxisWhitening(G, v, t)
         rw, Jw, Jcw = W.apply(r), W.apply(J), W.apply(Jc)
@@ -238,5 +276,27 @@ def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np
         S = float(U @ np.linalg.lstsq(Jp.T @ Jp, U, rcond=None)[0])
         p = float(stats.chi2.sf(S, k))
         if worst is None or p > worst["p_value"]:
-            worst = {"tau_s": f * span, "variance": float(v[0]), "S": S, "k": int(k), "p_value": p}
+            worst = {"tau_s": ck.tau_s(i), "variance": float(v[0]), "S": S, "k": int(k), "p_value": p}
     return worst
+
+
+def wander_json(w: dict) -> dict:
+    """:func:`wander_rival`'s result as kept in ``verdict.wander_rival`` (non-finite numbers as null)."""
+    from .results import _f
+
+    return {k: _f(v) if isinstance(v, float) else v for k, v in w.items()}
+
+
+def wander_ambiguity(effect: str, w: dict, alpha: float) -> Optional[dict]:
+    """The ``unexplained`` verdict's own fields when the time-like candidate ``effect`` does not beat
+    a bias that wanders (:func:`wander_rival`'s ``w``: its score under the wander's REML covariance
+    is not below ``alpha`` at every correlation time), else None. The caller adds the evidence, the
+    closed gap and where."""
+    if w["p_value"] < alpha:
+        return None
+    lab = f"a bias that wanders in time (Gauss-Markov, correlation time {w['tau_s'] / 3600.0:.3g} h)"
+    return {"effect": "unexplained", "best_partial": effect, "ambiguous_with": [lab],
+            "reason": (f"{effect} closes the gap but does not beat {lab}: under that noise's "
+                       f"REML covariance its score is S = {w['S']:.3g} on {w['k']} dof, p = "
+                       f"{w['p_value']:.3g} >= {alpha:g}; the data cannot tell a change of the bias "
+                       "in time from a wander (docs/diagnosis.md \"Rivals\")")}

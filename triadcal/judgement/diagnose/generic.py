@@ -315,7 +315,8 @@ def serial_test(z: np.ndarray, Q: np.ndarray, time_s, min_visits: int = SERIAL_M
 
 
 def families_after(effect: str, gbasis_whitened: dict, r: np.ndarray, J: np.ndarray, Q: np.ndarray,
-                   noise_known: bool, dof: int, vbasis: np.ndarray, time_s, sigma: np.ndarray) -> dict:
+                   noise_known: bool, dof: int, vbasis: np.ndarray, time_s, sigma: np.ndarray,
+                   corr_kernels=None) -> dict:
     """The generic families asked after the refit of candidate ``effect`` (``gap_after.generic``), on
     the residuals ``r`` standardised by its noise model, ``J`` and ``Q`` its Jacobian so scaled and
     that Jacobian's orthonormal basis: the five mean families, ``variance``, and ``serial`` after
@@ -323,19 +324,20 @@ def families_after(effect: str, gbasis_whitened: dict, r: np.ndarray, J: np.ndar
     ``heavy_tails`` (whose refit keeps the least-squares mean: the outliers' pull on the parameters
     is a pattern shared by neighbouring visits, correlated in time by construction -- the
     estimator's, not the noise's; seed 1000 of the validation's heavy_tails, p 2e-4 after the refit,
-    docs/diagnosis.md "Generic structure")."""
+    docs/diagnosis.md "Generic structure"). ``corr_kernels``: the campaign's
+    :class:`.correlated.CampaignKernels`, when already built."""
     gen = generic_tests(gbasis_whitened, r, J, noise_known, dof, Q)
     var_after = variance_test(r, np.sum(Q * Q, axis=1), vbasis)
     if var_after is not None:
         gen["variance"] = var_after
     if effect == "flicker_noise":
-        extra = ("serial", serial_test(r, Q, time_s))
+        res, fam = serial_test(r, Q, time_s), "serial"
     elif effect != "heavy_tails":
-        extra = ("correlated", correlated_test(r, Q, time_s, sigma))
+        res, fam = correlated_test(r, Q, time_s, sigma, cache=corr_kernels), "correlated"
     else:
-        extra = (None, None)
-    if extra[1] is not None:
-        gen[extra[0]] = extra[1]
+        res = None
+    if res is not None:
+        gen[fam] = res
     return gen
 
 

@@ -45,7 +45,7 @@ from .candidates import (
     _tilt_settling,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
-from .correlated import WANDER_MIMICS, correlated_test, wander_rival
+from .correlated import WANDER_MIMICS, CampaignKernels, correlated_test, wander_ambiguity, wander_json, wander_rival
 from .generic import (families_after, gap_shape, generic_basis, generic_tests, per_output_terms, variance_basis,
                       variance_test)
 from .rivals import generic_rivals, reference_poses, rival_tests
@@ -240,7 +240,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     if var0 is not None:
         gap_tests["generic:variance"] = var0["p_value"]
     # residuals alike when close in time (a wandering noise: 1/f, Gauss-Markov) -- correlated.py
-    corr0 = correlated_test(base.r, Q, campaign.time_s, sigma)
+    ckern = CampaignKernels(campaign.time_s, sigma)     # built once: base, refits, wander rival
+    corr0 = correlated_test(base.r, Q, campaign.time_s, sigma, cache=ckern)
     if corr0 is not None:
         gap_tests["generic:correlated"] = corr0["p_value"]
     keys = list(gap_tests)
@@ -301,7 +302,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                                  if var_scale is not None else 1.0), st.cov, st.chi2, st.dof, st.s, st.converged)
         Q_after = _hat_q(st_for_slices.J)
         gen = families_after(c.effect, {f: st.whitened(B) for f, B in gbasis.items()}, r_after,
-                             st_for_slices.J, Q_after, noise.known, st.dof, vbasis, campaign.time_s, sigma)
+                             st_for_slices.J, Q_after, noise.known, st.dof, vbasis, campaign.time_s, sigma,
+                             corr_kernels=ckern)
         gen_holm = dict(zip(gen, _holm([t["p_value"] for t in gen.values()]))) if gen else {}
         n_sig_after = None
         if slices_after:
@@ -497,25 +499,6 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     "evidence": verdict["evidence"], "gap_closed": True,
                     "closest_rival": _rival_json(lost[0]), "where": where_of(slices)}, None
 
-        def _wander_ambiguity(best):
-            """``unexplained`` when a time-like change of the bias does not beat a bias that wanders
-            (correlated.wander_rival: its score under the wander's REML covariance, at every
-            correlation time, must stay below alpha), else None; the test is kept in the verdict."""
-            w = wander_rival(base.r, base.J, Jfull[:, [full.index[n] for n in best.params]], campaign.time_s, sigma)
-            if w is None:
-                return None
-            verdict["wander_rival"] = {k: _f(v) if isinstance(v, float) else v for k, v in w.items()}
-            if w["p_value"] < alpha:
-                return None
-            lab = f"a bias that wanders in time (Gauss-Markov, correlation time {w['tau_s'] / 3600.0:.3g} h)"
-            return {"effect": "unexplained", "best_partial": best.effect, "ambiguous_with": [lab],
-                    "reason": (f"{best.effect} closes the gap but does not beat {lab}: under that noise's "
-                               f"REML covariance its score is S = {w['S']:.3g} on {w['k']} dof, p = "
-                               f"{w['p_value']:.3g} >= {alpha:g}; the data cannot tell a change of the bias "
-                               "in time from a wander (docs/diagnosis.md \"Rivals\")"),
-                    "evidence": verdict["evidence"], "gap_closed": True, "wander_rival": verdict["wander_rival"],
-                    "where": where_of(slices)}
-
         for c in refitted:
             if c.effect == "flicker_noise" and noise.known:
                 c.refit["gap_after"]["mean_explains_better"] = mean_explains_better(c)
@@ -627,7 +610,15 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             if not gap_open and named.form is None and named.params and named.effect not in NOISE_EFFECTS:
                 amb, closest = _ambiguity(named, refitted)
                 if not amb and named.effect in WANDER_MIMICS and noise.known:
-                    amb = _wander_ambiguity(named)
+                    # a time-like change of the bias must beat a bias that wanders (correlated.py)
+                    w = wander_rival(base.r, base.J, Jfull[:, [full.index[n] for n in named.params]],
+                                     campaign.time_s, sigma, cache=ckern)
+                    if w is not None:
+                        verdict["wander_rival"] = wander_json(w)
+                        amb = wander_ambiguity(named.effect, w, alpha)
+                        if amb:
+                            amb.update(evidence=verdict["evidence"], gap_closed=True,
+                                       wander_rival=verdict["wander_rival"], where=where_of(slices))
                 if amb:
                     verdict = amb
                 elif closest is not None:
