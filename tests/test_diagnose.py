@@ -192,9 +192,14 @@ def test_real_ferraris_poses_diagnosis():
     status = {x.effect: x for x in d.candidates}
     for e in ("angle_tempco", "scale_tempco", "bias_tempco", "hysteresis", "thermal_lag"):
         assert not status[e].testable
-    assert d.verdict_effect == "position_error"
-    # six poses, each visited once: a systematic error of each pose would give the same data
-    assert "every pose is visited once" in d.verdict["caveat"]
+    # position_error closes the gap, but on 18 residuals of which the fit takes 12 its variance's
+    # pattern over the poses is not told from a noise level the sd_* understate (the up axes keep
+    # residuals as large as the others: LR p 0.18; candidates.uniform_rival). Until 2026-11-28 it
+    # was named, with the caveat that poses visited once cannot tell a random error from a systematic one
+    v = d.verdict
+    assert v["effect"] == "unexplained" and v["best_partial"] == "position_error" and v["gap_closed"], v
+    assert v["ambiguous_with"][0].startswith("a white noise of the outputs above the declared level"), v
+    assert v["uniform_rival"]["p_value"] > 0.05 and v["uniform_rival"]["variance_factor"] > 1000.0, v
     pe_sigma = status["position_error"].refit["new_parameters"]["position_error_sigma"]["value"]
     assert pe_sigma > 60.0   # hand placement: arc-minutes, not the bench's arcseconds
 

@@ -191,7 +191,9 @@ SHAPE_WORDS = {"temperature": "temperature", "time": "time", "orientation_even":
                "orientation_odd": "orientation (odd in g)", "direction": "the direction of the temperature change",
                "variance": "the scatter (variance)",
                "correlated": "time: residuals alike when close in time (a noise that wanders, or a pattern "
-                             "of the mean no smooth family holds)"}
+                             "of the mean no smooth family holds)",
+               "level": "nothing but the level of the scatter (no pattern: the declared noise may be too small)",
+               "tails": "nothing but the tails of the scatter (outliers with no pattern)"}
 
 
 def _verdict_words(d) -> tuple[str, str]:

@@ -341,11 +341,23 @@ def families_after(effect: str, gbasis_whitened: dict, r: np.ndarray, J: np.ndar
     return gen
 
 
+#: the gap's own tests of the noise that give the shape when no generic family finds a pattern:
+#: the chi2 against the declared noise (the level of the scatter) and the kurtosis (its tails)
+LEVEL_TESTS = {"chi2": "level", "kurtosis": "tails"}
+
+
 def gap_shape(gap_adj: dict, alpha: float) -> list:
     """An unexplained gap's shape (``verdict.shape``): the generic families among the gap's tests
     (``generic:<family>`` in ``gap_adj``, Holm-adjusted p) that reject at ``alpha``, most significant
     first -- where the misfit lies against temperature, time, orientation, direction or in the
-    scatter when no single slice does."""
+    scatter when no single slice does. When none rejects, the gap's tests of the noise that do
+    (:data:`LEVEL_TESTS`: ``level``, the chi2 against the declared noise; ``tails``, the kurtosis):
+    a misfit with no pattern, e.g. a noise the sd_* columns understate."""
+    def entry(k, fam):
+        return {"family": fam, "p_holm": float(gap_adj[k]) if math.isfinite(gap_adj[k]) else None}
+
     sig = sorted((k for k, p in gap_adj.items() if k.startswith("generic:") and p < alpha), key=gap_adj.get)
-    return [{"family": k.split(":", 1)[1], "p_holm": float(gap_adj[k]) if math.isfinite(gap_adj[k]) else None}
-            for k in sig]
+    if sig:
+        return [entry(k, k.split(":", 1)[1]) for k in sig]
+    return [entry(k, LEVEL_TESTS[k]) for k in sorted((k for k in LEVEL_TESTS if gap_adj.get(k, 1.0) < alpha),
+                                                     key=gap_adj.get)]

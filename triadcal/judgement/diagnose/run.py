@@ -39,6 +39,8 @@ from .candidates import (
     _pe_sensitivity,
     _position_score,
     _problem_on,
+    uniform_ambiguity,
+    uniform_rival,
     SPAN_FRACTION_MIN,
     _score_mean,
     _thermal_lag_history,
@@ -152,9 +154,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     _, Jfull = full.residuals_and_jacobian(base.x_full)
     Jfull = Jfull / base.s
     cand_objs = []
+    pe_w = None                 # position_error's sensitivity (its rival, a uniform excess, needs it)
     for c in cands:
         if c == "position_error":
-            w = _pe_sensitivity(full, campaign, base.x_full, sigma)
+            w = pe_w = _pe_sensitivity(full, campaign, base.x_full, sigma)
             sc = _position_score(base, w, h, noise.known)
             if sc is None:
                 cand_objs.append(Candidate(c, False, "no pose makes an output sensitive to positioning errors"))
@@ -627,6 +630,23 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     verdict["closest_rival"] = _rival_json(closest)
                     verdict["evidence"] += (f"; beats its closest rival, {lab}, by the encompassing test "
                                             f"(adding {named.effect} to it: S = {S:.3g} on {k} dof, p {_p_is(p)})")
+            if not gap_open and noise.known and named.effect in ("position_error", "heavy_tails"):
+                # a noise effect must beat a noise level the sd_* columns understate, alike everywhere:
+                # position_error by the pattern of its variance over the poses (candidates.uniform_rival),
+                # heavy_tails by its tails (the kurtosis score, scale-free); each widens the noise too
+                if named.effect == "position_error":
+                    u = uniform_rival(base.r, pe_w, h) if pe_w is not None else None
+                else:
+                    u = {"variance_factor": float(np.sum(base.r ** 2) / np.sum(np.clip(1.0 - h, 1e-6, None))),
+                         "kurtosis_z": float(math.copysign(math.sqrt(abs(named.score)), named.score)),
+                         "p_value": float(named.score_p)}
+                if u is not None:
+                    verdict["uniform_rival"] = {k: _f(v) for k, v in u.items()}
+                    amb = uniform_ambiguity(named.effect, u, alpha)
+                    if amb:
+                        amb.update(evidence=verdict["evidence"], gap_closed=True,
+                                   uniform_rival=verdict["uniform_rival"], where=where_of(slices))
+                        verdict = amb
             others = [c for c in refitted if c is not best]
             if others:
                 second = others[0]
@@ -647,6 +667,12 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                        "where": where_of(slices)}
     if verdict.get("effect") == "unexplained":
         verdict["shape"] = gap_shape(gap_adj, alpha)
+        if [x["family"] for x in verdict["shape"]] == ["level"]:
+            verdict["reason"] += (f"; no generic family finds a pattern (against temperature, time, orientation, "
+                                  f"direction, in time or in the variance) and the tails are normal: the gap may be "
+                                  f"the level of the scatter alone, chi2/dof {base.chi2_dof:.3g} against the declared "
+                                  "noise, as a noise the sd_* columns understate makes it (the slices and the "
+                                  "candidates' scores are judged against the declared noise too)")
     fit = {"chi2_dof": _f(base.chi2_dof), "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
