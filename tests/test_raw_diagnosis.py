@@ -17,7 +17,7 @@ import pytest
 from triadcal.cli import main as cli_main
 from triadcal.estimation.raw import fit_raw
 from triadcal.io.raw import RawRecording
-from triadcal.judgement.raw_diagnosis import diagnose_raw
+from triadcal.judgement.raw_diagnosis import diagnose_raw, summary_lines
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_results_contract import assert_valid  # noqa: E402
@@ -160,10 +160,14 @@ def test_k2_and_asymmetry_over_seeds():
 def test_too_few_intervals_are_said_not_faked(tmp_path):
     rec = recording(seed=5, n_poses=9)
     out = fit_raw(rec, poses="unknown", local_g_m_s2=9.80665)
-    doc = diagnose_raw(out).doc
+    d = diagnose_raw(out)
+    doc = d.doc
     assert doc["verdict"]["effect"] is None and "no residual degree of freedom" in doc["verdict"]["reason"]
     assert all(not c["testable"] for c in doc["raw"]["candidates"])
     assert_valid(json.loads(json.dumps(doc)), "triadcal.diagnosis")
+    # the summary says why there is no ratio, never "chi2/dof -" (issue 18, item 6)
+    first = summary_lines(d)[0]
+    assert "chi2/dof -" not in first and "no chi2: 9 intervals for the 9-parameter norm correction" in first, first
 
 
 def test_cli_writes_the_diagnosis(tmp_path, capsys):

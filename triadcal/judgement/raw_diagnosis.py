@@ -555,9 +555,14 @@ def summary_lines(diag: RawDiagnosis) -> list:
     doc = diag.doc
     gap = doc["gap"]
     n = doc["fit"]["n_obs"]
-    c2 = "-" if gap["chi2_dof"] is None else f"{gap['chi2_dof']:.3g}"
+    if gap["chi2_dof"] is None:
+        # never "chi2/dof -": say why there is no ratio (issue 18, item 6)
+        level = (f"no chi2: {n} intervals for the {doc['fit']['n_params']}-parameter norm correction leave no "
+                 "residual degree of freedom")
+    else:
+        level = f"chi2/dof {gap['chi2_dof']:.3g}, {gap['dof']} dof"
     lines = [f"diagnosis over {n} static intervals: residual RMS {gap['residual_rms_ug']:.4g} ug after the fit, "
-             f"noise floor {gap['noise_floor_ug']:.4g} ug (chi2/dof {c2}, {gap['dof']} dof)"]
+             f"noise floor {gap['noise_floor_ug']:.4g} ug ({level})"]
     out = doc["raw"]["standing_out"]
     if out:
         lines.append(f"  intervals standing out (|modified z| > {ROBUST_Z:g}): {', '.join(map(str, out))}")

@@ -45,8 +45,9 @@ def series_txt(c) -> str:
         return ""
     why = []
     if ser["gap_open_after"]:
-        why.append("leaves it open too (chi2/dof after {}; generic structure: {})".format(
-            "-" if ser["gap_after"]["chi2_dof"] is None else f"{ser['gap_after']['chi2_dof']:.3g}",
+        c2 = ser["gap_after"]["chi2_dof"]
+        why.append("leaves it open too ({}; generic structure: {})".format(
+            "the noise estimated, no chi2 level" if c2 is None else f"chi2/dof after {c2:.3g}",
             ", ".join(ser["gap_after"]["generic_structure"]) or "none"))
     if not why:
         why.append(f"does not beat {c.effect} alone ({ser['over_single']['criterion']}) or the base model")
