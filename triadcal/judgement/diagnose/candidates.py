@@ -148,6 +148,22 @@ def uniform_rival(r: np.ndarray, w: np.ndarray, h: np.ndarray) -> Optional[dict]
     return {"variance_factor": c, "LR": lr, "kurtosis_ratio": kr, "p_value": p}
 
 
+#: the noise effects that widen the noise, so that a noise level the sd_* understate mimics them
+LEVEL_MIMICS = ("position_error", "heavy_tails")
+
+
+def noise_level_rival(c, r: np.ndarray, h: np.ndarray, pe_w: Optional[np.ndarray]) -> Optional[dict]:
+    """The test a noise candidate ``c`` of :data:`LEVEL_MIMICS` must pass against a common noise
+    level, at the base fit (residuals ``r``, leverages ``h``): ``position_error`` the pattern of its
+    variance over the poses (:func:`uniform_rival`, ``pe_w`` its sensitivity); ``heavy_tails`` its
+    own kurtosis score (scale-free: ``kurtosis_z``, ``p_value``) with the level ``variance_factor``.
+    None when untestable."""
+    if c.effect == "position_error":
+        return uniform_rival(r, pe_w, h) if pe_w is not None else None
+    return {"variance_factor": float(np.sum(r ** 2) / np.sum(np.clip(1.0 - h, 1e-6, None))),
+            "kurtosis_z": float(math.copysign(math.sqrt(abs(c.score)), c.score)), "p_value": float(c.score_p)}
+
+
 def uniform_ambiguity(effect: str, u: dict, alpha: float) -> Optional[dict]:
     """The ``unexplained`` verdict's own fields when the noise effect ``effect`` does not beat a
     uniform excess of white noise (``u``: :func:`uniform_rival`'s for ``position_error`` -- the

@@ -361,3 +361,11 @@ def gap_shape(gap_adj: dict, alpha: float) -> list:
         return [entry(k, k.split(":", 1)[1]) for k in sig]
     return [entry(k, LEVEL_TESTS[k]) for k in sorted((k for k in LEVEL_TESTS if gap_adj.get(k, 1.0) < alpha),
                                                      key=gap_adj.get)]
+
+
+def level_words(chi2_dof: float) -> str:
+    """What an unexplained verdict whose shape is ``level`` alone adds to its reason."""
+    return (f"; no generic family finds a pattern (against temperature, time, orientation, direction, in time "
+            f"or in the variance) and the tails are normal: the gap may be the level of the scatter alone, "
+            f"chi2/dof {chi2_dof:.3g} against the declared noise, as a noise the sd_* columns understate makes "
+            "it (the slices and the candidates' scores are judged against the declared noise too)")

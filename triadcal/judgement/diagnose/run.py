@@ -39,8 +39,9 @@ from .candidates import (
     _pe_sensitivity,
     _position_score,
     _problem_on,
+    LEVEL_MIMICS,
+    noise_level_rival,
     uniform_ambiguity,
-    uniform_rival,
     SPAN_FRACTION_MIN,
     _score_mean,
     _thermal_lag_history,
@@ -48,8 +49,8 @@ from .candidates import (
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .correlated import WANDER_MIMICS, CampaignKernels, correlated_test, wander_ambiguity, wander_json, wander_rival
-from .generic import (families_after, gap_shape, generic_basis, generic_tests, per_output_terms, variance_basis,
-                      variance_test)
+from .generic import (families_after, gap_shape, generic_basis, generic_tests, level_words, per_output_terms,
+                      variance_basis, variance_test)
 from .rivals import generic_rivals, reference_poses, rival_tests
 from .results import ALPHA, Candidate, Diagnosis, _f, _p_is
 from .series import series_of, series_txt
@@ -630,16 +631,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     verdict["closest_rival"] = _rival_json(closest)
                     verdict["evidence"] += (f"; beats its closest rival, {lab}, by the encompassing test "
                                             f"(adding {named.effect} to it: S = {S:.3g} on {k} dof, p {_p_is(p)})")
-            if not gap_open and noise.known and named.effect in ("position_error", "heavy_tails"):
-                # a noise effect must beat a noise level the sd_* columns understate, alike everywhere:
-                # position_error by the pattern of its variance over the poses (candidates.uniform_rival),
-                # heavy_tails by its tails (the kurtosis score, scale-free); each widens the noise too
-                if named.effect == "position_error":
-                    u = uniform_rival(base.r, pe_w, h) if pe_w is not None else None
-                else:
-                    u = {"variance_factor": float(np.sum(base.r ** 2) / np.sum(np.clip(1.0 - h, 1e-6, None))),
-                         "kurtosis_z": float(math.copysign(math.sqrt(abs(named.score)), named.score)),
-                         "p_value": float(named.score_p)}
+            if not gap_open and noise.known and named.effect in LEVEL_MIMICS:
+                # a noise effect widens the noise: it must beat a noise level the sd_* understate,
+                # alike everywhere (candidates.noise_level_rival)
+                u = noise_level_rival(named, base.r, h, pe_w)
                 if u is not None:
                     verdict["uniform_rival"] = {k: _f(v) for k, v in u.items()}
                     amb = uniform_ambiguity(named.effect, u, alpha)
@@ -668,11 +663,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     if verdict.get("effect") == "unexplained":
         verdict["shape"] = gap_shape(gap_adj, alpha)
         if [x["family"] for x in verdict["shape"]] == ["level"]:
-            verdict["reason"] += (f"; no generic family finds a pattern (against temperature, time, orientation, "
-                                  f"direction, in time or in the variance) and the tails are normal: the gap may be "
-                                  f"the level of the scatter alone, chi2/dof {base.chi2_dof:.3g} against the declared "
-                                  "noise, as a noise the sd_* columns understate makes it (the slices and the "
-                                  "candidates' scores are judged against the declared noise too)")
+            verdict["reason"] += level_words(base.chi2_dof)
     fit = {"chi2_dof": _f(base.chi2_dof), "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
