@@ -14,7 +14,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from ...models.campaign import Campaign
-from ...models.effects import EFFECTS
+from ...models.effects import EFFECTS, NOISE_EFFECTS
 from ...models.effects import heavy_tails as ht
 from ...models.effects import position_error as pe
 from ...models.model import Model
@@ -162,6 +162,20 @@ def noise_level_rival(c, r: np.ndarray, h: np.ndarray, pe_w: Optional[np.ndarray
         return uniform_rival(r, pe_w, h) if pe_w is not None else None
     return {"variance_factor": float(np.sum(r ** 2) / np.sum(np.clip(1.0 - h, 1e-6, None))),
             "kurtosis_z": float(math.copysign(math.sqrt(abs(c.score)), c.score)), "p_value": float(c.score_p)}
+
+
+def score_with_level(c, chi2: float, dof: int) -> Optional[float]:
+    """The p of mean candidate ``c``'s score with the noise level estimated from the residuals
+    instead of the declared one: ``F = (S / k) / ((chi2 - S) / (dof - k))`` on ``(k, dof - k)``
+    (the score test's F form, as with estimated noise). A level the sd_* understate inflates every
+    known-noise score by the same factor; this is what the score says without it. None for a
+    candidate with no score (a form, a noise effect) or no dof left."""
+    if c.form is not None or not c.params or c.effect in NOISE_EFFECTS or c.k < 1 or dof - c.k < 1:
+        return None
+    rest = chi2 - c.score
+    if not rest > 0:
+        return 0.0
+    return float(stats.f.sf((c.score / c.k) / (rest / (dof - c.k)), c.k, dof - c.k))
 
 
 def uniform_ambiguity(effect: str, u: dict, alpha: float) -> Optional[dict]:
