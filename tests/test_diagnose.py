@@ -194,7 +194,7 @@ def test_real_ferraris_poses_diagnosis():
         assert not status[e].testable
     # position_error closes the gap, but on 18 residuals of which the fit takes 12 its variance's
     # pattern over the poses is not told from a noise level the sd_* understate (the up axes keep
-    # residuals as large as the others: LR p 0.18; candidates.uniform_rival). Until 2026-11-28 it
+    # residuals as large as the others: LR p 0.18; noise_level.uniform_rival). Until 2026-11-28 it
     # was named, with the caveat that poses visited once cannot tell a random error from a systematic one
     v = d.verdict
     assert v["effect"] == "unexplained" and v["best_partial"] == "position_error" and v["gap_closed"], v

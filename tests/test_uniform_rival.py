@@ -1,4 +1,4 @@
-"""position_error against a white noise the declared sd_* understate (candidates.uniform_rival).
+"""position_error against a white noise the declared sd_* understate (noise_level.uniform_rival).
 
 With known noise, position_error's score is a variance added beyond the declared one: a noise of the
 outputs larger than declared, alike at every pose, raises it just as well. On the independent bench
@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from triadcal.judgement.diagnose.candidates import _position_score, uniform_rival
+from triadcal.judgement.diagnose.candidates import _position_score
+from triadcal.judgement.diagnose.noise_level import uniform_rival
 
 sys.path.insert(0, str(Path(__file__).parent))
 

@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Optional
 
 import numpy as np
 from scipy import optimize, stats
 
 from ...models.campaign import Campaign
-from ...models.effects import EFFECTS, NOISE_EFFECTS
+from ...models.effects import EFFECTS
 from ...models.effects import heavy_tails as ht
 from ...models.effects import position_error as pe
 from ...models.model import Model
@@ -95,106 +94,6 @@ def _position_score(state: FitState, w: np.ndarray, h: np.ndarray, noise_known: 
         return None
     z = u / math.sqrt(info)
     return z, float(stats.norm.logsf(z))
-
-
-def uniform_rival(r: np.ndarray, w: np.ndarray, h: np.ndarray) -> Optional[dict]:
-    """The encompassing test of ``position_error`` against a white noise of the outputs above the
-    declared level, alike at every pose (known noise).
-
-    A positioning error adds the variance ``tau w`` (``w`` the outputs' sensitivity per arcsec^2,
-    :func:`_pe_sensitivity`: large where an axis lies across gravity, zero where it is along it);
-    a noise the declared sd_* understate by a common factor adds the same to every residual. The
-    known-noise score of :func:`_position_score` sees both. Here the two variance models of the
-    normalised residuals are compared by their likelihood, the level free in both:
-
-        H0: var r_i = (1 - h_i) c            H1: var r_i = (1 - h_i) (c0 + tau w_i),  c0, tau >= 0
-
-    (``h`` the leverages; ``c`` is the chi2/dof at H0), ``LR = 2 (l1 - l0)`` with ``c0`` profiled
-    in closed form for each ratio ``tau / c0`` (a log grid, then a bounded search), ``LR`` on the
-    boundary ``tau = 0`` is 1/2 chi2_0 + 1/2 chi2_1 (Self & Liang, JASA 82, 605-610, 1987). A
-    variance test of the squared residuals is as sensitive to their kurtosis as to a pattern, so
-    ``LR`` is divided by ``mean(e^2) / 2``, ``e = q / c - 1`` the squared residuals' scatter at H0
-    (2 for Gaussian residuals; Koenker, J. Econometrics 17, 107-112, 1981, studentises the
-    Breusch-Pagan score so). The likelihood, not the score at ``tau = 0``: on a campaign whose
-    poses are visited once a positioning error makes the variance of some residuals tens of times
-    that of others, where the score's power stops near z = 2.5 (the independent bench at one
-    setpoint, 10 or 20 arcsec: score p < 0.01 in 4 of 8, the likelihood in 5 of 8).
-    ``variance_factor`` (c), ``LR`` (adjusted), ``kurtosis_ratio`` (mean(e^2) / 2), ``p_value``;
-    None when ``w`` does not vary."""
-    r, w, h = np.asarray(r, float), np.asarray(w, float), np.asarray(h, float)
-    q = r * r / np.clip(1.0 - h, 1e-6, None)
-    c = float(q.mean())
-    if not (c > 0 and float(np.ptp(w)) > 0 and float(w.max()) > 0):
-        return None
-    ws = w / float(w.max())
-    l0 = -0.5 * float(np.sum(np.log(c) + q / c))
-
-    def profile(rho):
-        g = 1.0 + rho * ws
-        c0 = float(np.mean(q / g))
-        return -0.5 * float(np.sum(np.log(c0 * g) + q / (c0 * g)))
-
-    grid = np.logspace(-3.0, 8.0, 45)
-    vals = [profile(x) for x in grid]
-    k = int(np.argmax(vals))
-    best = max(l0, vals[k])
-    lo, hi = math.log10(grid[max(k - 1, 0)]), math.log10(grid[min(k + 1, grid.size - 1)])
-    res = optimize.minimize_scalar(lambda lx: -profile(10.0 ** lx), bounds=(lo, hi), method="bounded")
-    best = max(best, -float(res.fun))
-    e = q / c - 1.0
-    kr = float(np.mean(e * e)) / 2.0
-    lr = max(2.0 * (best - l0), 0.0) / kr if kr > 0 else 0.0
-    p = 0.5 * float(stats.chi2.sf(lr, 1)) if lr > 0 else 1.0
-    return {"variance_factor": c, "LR": lr, "kurtosis_ratio": kr, "p_value": p}
-
-
-#: the noise effects that widen the noise, so that a noise level the sd_* understate mimics them
-LEVEL_MIMICS = ("position_error", "heavy_tails")
-
-
-def noise_level_rival(c, r: np.ndarray, h: np.ndarray, pe_w: Optional[np.ndarray]) -> Optional[dict]:
-    """The test a noise candidate ``c`` of :data:`LEVEL_MIMICS` must pass against a common noise
-    level, at the base fit (residuals ``r``, leverages ``h``): ``position_error`` the pattern of its
-    variance over the poses (:func:`uniform_rival`, ``pe_w`` its sensitivity); ``heavy_tails`` its
-    own kurtosis score (scale-free: ``kurtosis_z``, ``p_value``) with the level ``variance_factor``.
-    None when untestable."""
-    if c.effect == "position_error":
-        return uniform_rival(r, pe_w, h) if pe_w is not None else None
-    return {"variance_factor": float(np.sum(r ** 2) / np.sum(np.clip(1.0 - h, 1e-6, None))),
-            "kurtosis_z": float(math.copysign(math.sqrt(abs(c.score)), c.score)), "p_value": float(c.score_p)}
-
-
-def score_with_level(c, chi2: float, dof: int) -> Optional[float]:
-    """The p of mean candidate ``c``'s score with the noise level estimated from the residuals
-    instead of the declared one: ``F = (S / k) / ((chi2 - S) / (dof - k))`` on ``(k, dof - k)``
-    (the score test's F form, as with estimated noise). A level the sd_* understate inflates every
-    known-noise score by the same factor; this is what the score says without it. None for a
-    candidate with no score (a form, a noise effect) or no dof left."""
-    if c.form is not None or not c.params or c.effect in NOISE_EFFECTS or c.k < 1 or dof - c.k < 1:
-        return None
-    rest = chi2 - c.score
-    if not rest > 0:
-        return 0.0
-    return float(stats.f.sf((c.score / c.k) / (rest / (dof - c.k)), c.k, dof - c.k))
-
-
-def uniform_ambiguity(effect: str, u: dict, alpha: float) -> Optional[dict]:
-    """The ``unexplained`` verdict's own fields when the noise effect ``effect`` does not beat a
-    uniform excess of white noise (``u``: :func:`uniform_rival`'s for ``position_error`` -- the
-    pattern of its variance over the poses; for ``heavy_tails`` the kurtosis score of its tails,
-    scale-free -- not significant at ``alpha`` once the common level is free), else None. The
-    caller adds the evidence, the closed gap and where."""
-    if u["p_value"] < alpha:
-        return None
-    lab = (f"a white noise of the outputs above the declared level, alike at every pose (variance "
-           f"{u['variance_factor']:.3g} times the declared)")
-    what = (f"the pattern of its variance over the poses gains LR = {u['LR']:.3g}" if effect == "position_error"
-            else f"its tails are not heavier than a normal's: kurtosis score z = {u['kurtosis_z']:.3g}")
-    cause = ("the bench's positioning errors" if effect == "position_error" else "heavy tails of the noise")
-    return {"effect": "unexplained", "best_partial": effect, "ambiguous_with": [lab],
-            "reason": (f"{effect} closes the gap but does not beat {lab}: with that level free, {what}, p = "
-                       f"{u['p_value']:.3g} >= {alpha:g}; the data cannot tell {cause} from a noise the sd_* "
-                       "columns understate (docs/diagnosis.md \"Rivals\")")}
 
 
 def _loglik_pointwise(r, var_scale=None, nu=math.inf):

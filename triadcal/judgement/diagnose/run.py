@@ -39,16 +39,13 @@ from .candidates import (
     _pe_sensitivity,
     _position_score,
     _problem_on,
-    LEVEL_MIMICS,
-    noise_level_rival,
-    score_with_level,
-    uniform_ambiguity,
     SPAN_FRACTION_MIN,
     _score_mean,
     _thermal_lag_history,
     _tilt_settling,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
+from .noise_level import LEVEL_MIMICS, noise_level_rival, partial_without_level, uniform_ambiguity
 from .correlated import WANDER_MIMICS, CampaignKernels, correlated_test, wander_ambiguity, wander_json, wander_rival
 from .generic import (families_after, gap_shape, generic_basis, generic_tests, level_words, per_output_terms,
                       variance_basis, variance_test)
@@ -634,7 +631,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                                             f"(adding {named.effect} to it: S = {S:.3g} on {k} dof, p {_p_is(p)})")
             if not gap_open and noise.known and named.effect in LEVEL_MIMICS:
                 # a noise effect widens the noise: it must beat a noise level the sd_* understate,
-                # alike everywhere (candidates.noise_level_rival)
+                # alike everywhere (noise_level.noise_level_rival)
                 u = noise_level_rival(named, base.r, h, pe_w)
                 if u is not None:
                     verdict["uniform_rival"] = {k: _f(v) for k, v in u.items()}
@@ -664,23 +661,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     if verdict.get("effect") == "unexplained":
         verdict["shape"] = gap_shape(gap_adj, alpha)
         if [x["family"] for x in verdict["shape"]] == ["level"]:
-            # a gap with no pattern: the best partial's score was judged against the declared level,
-            # which the gap says is too small; without it, is the partial answer still one?
-            part = next((c for c in cand_objs if c.effect == verdict.get("best_partial")), None)
-            p_lvl = how = None
-            if part is not None and verdict.get("gap_closed") is False:
-                if part.effect in LEVEL_MIMICS and noise.known:
-                    u = noise_level_rival(part, base.r, h, pe_w)
-                    p_lvl, how = (u["p_value"], "its test against a common level") if u else (None, None)
-                else:
-                    p_lvl, how = score_with_level(part, base.chi2, base.dof), "F form of its score"
-            if p_lvl is not None and not p_lvl < alpha:
-                verdict = {"effect": "unexplained",
-                           "reason": (f"significant gap with no pattern: the best candidate, {part.effect} (score p "
-                                      f"{_p_is(part.score_p)} against the declared noise), is not significant with "
-                                      f"the noise level estimated from the residuals ({how}, p = {p_lvl:.3g} >= "
-                                      f"{alpha:g}), so it is no partial answer"),
-                           "where": verdict["where"], "shape": verdict["shape"]}
+            # a gap with no pattern: is the best partial answer one without the declared level?
+            verdict = partial_without_level(verdict, cand_objs, base, h, pe_w, alpha, noise.known)
             verdict["reason"] += level_words(base.chi2_dof)
     fit = {"chi2_dof": _f(base.chi2_dof), "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
