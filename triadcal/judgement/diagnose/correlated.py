@@ -280,13 +280,6 @@ def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np
     return worst
 
 
-def wander_json(w: dict) -> dict:
-    """:func:`wander_rival`'s result as kept in ``verdict.wander_rival`` (non-finite numbers as null)."""
-    from .results import _f
-
-    return {k: _f(v) if isinstance(v, float) else v for k, v in w.items()}
-
-
 def wander_ambiguity(effect: str, w: dict, alpha: float) -> Optional[dict]:
     """The ``unexplained`` verdict's own fields when the time-like candidate ``effect`` does not beat
     a bias that wanders (:func:`wander_rival`'s ``w``: its score under the wander's REML covariance

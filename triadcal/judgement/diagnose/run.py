@@ -46,7 +46,7 @@ from .candidates import (
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .noise_level import LEVEL_MIMICS, noise_level_rival, partial_without_level, uniform_ambiguity
-from .correlated import WANDER_MIMICS, CampaignKernels, correlated_test, wander_ambiguity, wander_json, wander_rival
+from .correlated import WANDER_MIMICS, CampaignKernels, correlated_test, wander_ambiguity, wander_rival
 from .generic import (families_after, gap_shape, generic_basis, generic_tests, level_words, per_output_terms,
                       variance_basis, variance_test)
 from .rivals import generic_rivals, reference_poses, rival_tests
@@ -66,6 +66,18 @@ def _rival_json(test) -> dict:
     """A rival's encompassing test ``(label, S, k, p)`` as the verdict's ``closest_rival``."""
     lab, S, k, p = test
     return {"rival": lab, "S": _f(S), "k": int(k), "p_value": _f(p)}
+
+
+def _kept_rival(verdict: dict, key: str, test: dict, amb: Optional[dict], where) -> Optional[dict]:
+    """Keep a rival's ``test`` in ``verdict[key]`` (non-finite numbers as null); when the rival is not
+    beaten (``amb``: the ``unexplained`` verdict's own fields, correlated.wander_ambiguity or
+    noise_level.uniform_ambiguity) return that verdict, completed with the named effect's evidence,
+    the closed gap, the test and where; else None."""
+    verdict[key] = {k: _f(v) if isinstance(v, float) else v for k, v in test.items()}
+    if amb:
+        amb.update(evidence=verdict["evidence"], gap_closed=True, where=where)
+        amb[key] = verdict[key]
+    return amb or None
 
 
 def _structure_left_txt(c) -> str:
@@ -616,11 +628,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     w = wander_rival(base.r, base.J, Jfull[:, [full.index[n] for n in named.params]],
                                      campaign.time_s, sigma, cache=ckern)
                     if w is not None:
-                        verdict["wander_rival"] = wander_json(w)
-                        amb = wander_ambiguity(named.effect, w, alpha)
-                        if amb:
-                            amb.update(evidence=verdict["evidence"], gap_closed=True,
-                                       wander_rival=verdict["wander_rival"], where=where_of(slices))
+                        amb = _kept_rival(verdict, "wander_rival", w, wander_ambiguity(named.effect, w, alpha),
+                                          where_of(slices))
                 if amb:
                     verdict = amb
                 elif closest is not None:
@@ -634,12 +643,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 # alike everywhere (noise_level.noise_level_rival)
                 u = noise_level_rival(named, base.r, h, pe_w)
                 if u is not None:
-                    verdict["uniform_rival"] = {k: _f(v) for k, v in u.items()}
-                    amb = uniform_ambiguity(named.effect, u, alpha)
-                    if amb:
-                        amb.update(evidence=verdict["evidence"], gap_closed=True,
-                                   uniform_rival=verdict["uniform_rival"], where=where_of(slices))
-                        verdict = amb
+                    verdict = _kept_rival(verdict, "uniform_rival", u, uniform_ambiguity(named.effect, u, alpha),
+                                          where_of(slices)) or verdict
             others = [c for c in refitted if c is not best]
             if others:
                 second = others[0]
