@@ -307,3 +307,77 @@ def test_a_column_almost_in_the_span_is_not_scored_for_a_candidate():
     assert _score_mean(state, tiny, Q, SPAN_FRACTION_MIN) is None
     some = (e[:, 0] + 0.1 * e[:, 2])[:, None]
     assert _score_mean(state, some, Q, SPAN_FRACTION_MIN) == (pytest.approx(9.0), 1)
+
+
+def test_the_tilt_family_is_the_tilt_split_by_soak(example):
+    """generic.soak_tilt_basis by hand: two columns a setpoint block, each the tilt's columns on that
+    block's rows and zero elsewhere, summing to the constant tilt's columns; None on one soak."""
+    from triadcal.judgement.diagnose.generic import soak_tilt_basis
+
+    rng = np.random.default_rng(3)
+    n = example.n_visits
+    Jt = rng.standard_normal((3 * n, 2))
+    B = soak_tilt_basis(example, Jt)
+    blocks = example.setpoint_blocks
+    m = int(blocks.max()) + 1
+    assert m > 1 and B.shape == (3 * n, 2 * m)
+    np.testing.assert_array_equal(B.reshape(3 * n, m, 2).sum(axis=1), Jt)
+    for k in range(m):
+        rows = np.repeat(blocks == k, 3)
+        np.testing.assert_array_equal(B[rows, 2 * k:2 * k + 2], Jt[rows])
+        assert not B[~rows, 2 * k:2 * k + 2].any()
+    one = blocks == blocks[0]
+    assert soak_tilt_basis(example.select(one), Jt[np.repeat(one, 3)]) is None
+
+
+def test_the_tests_that_tell_positioning_errors_from_heavy_tails_are_calibrated(example):
+    """generic.position_variance_test (asked after heavy_tails' refit) and generic.tails_test (after
+    position_error's) on residuals of the linear fit of pure noise, 1000 draws each: the rejection
+    rate at 0.01 within 4.5 binomial SD of 0.01 for normal noise, and for the position test also
+    under a Student-t with 5 dof (Koenker's studentisation). Power, from theory:
+
+    * the position test on a scatter of the positioning errors' form (every output's SD x 1.6 where
+      gravity lies across it, w = 1 - g_a^2): its mean is ``mu = wc'E[y] / sqrt(wc'wc var y)``
+      (``E y_i = s_i^2``, ``var y_i = 2 s_i^4`` for normal residuals), so it rejects at least as often
+      as ``Phi(mu - z_0.99)`` less 3 binomial SD (the leverages make E y a little smaller: the bound
+      is on the conservative side);
+    * the tails test under a Student-t with 5 dof (excess kurtosis 6: D'Agostino's statistic near 9
+      on these 540 residuals) rejects in at least 95 % of draws; under a uniform spread of the errors
+      (lighter tails than a normal's, what uniform positioning errors make) at most at its level."""
+    from triadcal.judgement.diagnose.generic import position_variance_test, tails_test
+
+    rng = np.random.default_rng(11)
+    sigma = np.ones((example.n_visits, 3))
+    J = _core_columns(example, sigma)
+    Q = _hat_q(J)
+    h = np.sum(Q * Q, axis=1)
+    g = np.asarray(_nominal_g(example), float).reshape(-1, 3)
+    w = (1.0 - g ** 2).reshape(-1)
+    n3 = 3 * example.n_visits
+    N = 1000
+
+    def rate(test, draw):
+        hits = 0
+        for _ in range(N):
+            e = draw()
+            r = e - Q @ (Q.T @ e)
+            hits += test(r) < 0.01
+        return hits / N
+
+    pos = lambda r: position_variance_test(r, h, w)["p_value"]  # noqa: E731
+    tails = lambda r: tails_test(r, h)["p_value"]  # noqa: E731
+    sd = np.sqrt(0.01 * 0.99 / N)
+    assert abs(rate(pos, lambda: rng.standard_normal(n3)) - 0.01) <= 4.5 * sd
+    assert abs(rate(pos, lambda: stats.t.rvs(5, size=n3, random_state=rng)) - 0.01) <= 4.5 * sd
+    assert abs(rate(tails, lambda: rng.standard_normal(n3)) - 0.01) <= 4.5 * sd
+
+    s = 1.0 + 0.6 * w
+    wc = w - w.mean()
+    Ey = s ** 2
+    vy = np.mean(2.0 * s ** 4) + np.var(Ey)
+    mu = float(wc @ (Ey - Ey.mean())) / np.sqrt(float(wc @ wc) * vy)
+    power = float(stats.norm.cdf(mu - stats.norm.isf(0.01)))
+    assert power > 0.9
+    assert rate(pos, lambda: rng.standard_normal(n3) * s) >= power - 3.0 * np.sqrt(power * (1 - power) / N)
+    assert rate(tails, lambda: stats.t.rvs(5, size=n3, random_state=rng)) >= 0.95
+    assert rate(tails, lambda: rng.uniform(-1.0, 1.0, n3)) <= 0.01 + 4.5 * sd

@@ -314,12 +314,78 @@ def serial_test(z: np.ndarray, Q: np.ndarray, time_s, min_visits: int = SERIAL_M
     return {"S": zr * zr, "k": 1, "p_value": float(2.0 * stats.norm.sf(abs(zr))), "z": zr, "rho": rho}
 
 
+def soak_tilt_basis(campaign: Campaign, J_tilt: np.ndarray) -> Optional[np.ndarray]:
+    """The ``tilt`` family, asked after a refit only: the bench tilt's two columns ``J_tilt`` (3n, 2;
+    normalised units, the model's own derivatives of the residuals by ``tilt_x`` and ``tilt_y``,
+    models/effects/tilt.py) split by setpoint block (``Campaign.setpoint_blocks``): a tilt free at
+    each soak, (3n, 2 m) for m blocks. Their sum is the constant tilt (in the fitted span when the
+    model has ``bench_tilt``, so the test's dof are 2 (m - 1) then). The visits of one soak share the
+    bench's attitude; a positioning error makes every visit's error its own. A base that tilts with
+    the building's day (a 24 h cycle of 8" and 6", foreign to every simulator here) is absorbed as
+    independent positioning errors, and the smooth families, on the residuals whitened by their
+    inflated variance, see nothing left (docs/diagnosis.md, "A tilt that follows the day"); a tilt
+    per soak does. None with fewer than two blocks."""
+    blocks = campaign.setpoint_blocks
+    m = int(blocks.max()) + 1 if blocks.size else 0
+    if m < 2:
+        return None
+    rows = np.repeat(blocks, 3)
+    B = np.zeros((J_tilt.shape[0], 2 * m))
+    for k in range(m):
+        on = rows == k
+        B[on, 2 * k:2 * k + 2] = J_tilt[on]
+    return B
+
+
+def position_variance_test(z: np.ndarray, h: np.ndarray, w: np.ndarray) -> Optional[dict]:
+    """One-sided studentised score test (Koenker 1981, as :func:`variance_test`) of a variance that
+    grows along ``w`` (3n,), a positioning error's sensitivity (``candidates._pe_sensitivity``), in
+    the standardised residuals ``z`` with leverages ``h``: ``y = z^2 / (1 - h)`` regressed on ``w``,
+    ``z_w = wc'(y - mean y) / sqrt(wc'wc mean((y - mean y)^2))``, ``wc = w - mean w``, N(0, 1) under
+    a variance that does not follow ``w`` for any noise with a finite fourth moment. Asked after the
+    ``heavy_tails`` refit (on its normal scores): a Student-t is a scale mixture of normals, so it
+    absorbs the scatter of positioning errors too; their pattern over the poses is what tells them
+    apart. ``{"S": z_w^2, "k": 1, "z", "p_value"}``; None when ``w`` does not vary."""
+    z, h, w = np.asarray(z, float), np.asarray(h, float), np.asarray(w, float)
+    y = z * z / np.clip(1.0 - h, 1e-6, None)
+    wc, yc = w - w.mean(), y - y.mean()
+    den = float(wc @ wc) * float(np.mean(yc * yc))
+    if not den > 0:
+        return None
+    zw = float(wc @ yc) / math.sqrt(den)
+    return {"S": zw * zw, "k": 1, "z": zw, "p_value": float(stats.norm.sf(zw))}
+
+
+def tails_test(z: np.ndarray, h: np.ndarray) -> Optional[dict]:
+    """One-sided kurtosis test (D'Agostino's, ``scipy.stats.kurtosistest``) of the standardised
+    residuals ``z / sqrt(1 - h)``: tails heavier than a normal's. Asked after the ``position_error``
+    refit, whose whitened residuals are normal when its model holds: positioning errors make a
+    Gaussian of each visit, and a contamination's outliers are absorbed by their variance as well as
+    by a Student-t's; tails left are what tells a contamination from them. ``{"S": z^2 signed, "k": 1,
+    "z", "p_value"}``; None with fewer than 20 residuals."""
+    z = np.asarray(z, float) / np.sqrt(np.clip(1.0 - np.asarray(h, float), 1e-6, None))
+    if z.size < 20:
+        return None
+    stat, _ = stats.kurtosistest(z, alternative="greater")
+    return {"S": float(stat) * abs(float(stat)), "k": 1, "z": float(stat), "p_value": float(stats.norm.sf(stat))}
+
+
+#: the tests the two noise effects that widen the scatter ask of each other after their refit
+#: (``position`` after heavy_tails, ``tails`` after position_error): rival tests, each at alpha on
+#: its own like the other rivals (rivals.py, noise_level.py), not members of the families' Holm
+#: correction -- in it they diluted the variance family after heavy_tails' refit (a scatter x sqrt(5)
+#: at the hot soak, seed 5 of tests/test_foreign_effects.py: p_holm 0.0076 -> 0.0101, named)
+NOISE_RIVAL_TESTS = ("position", "tails")
+
+
 def families_after(effect: str, gbasis_whitened: dict, r: np.ndarray, J: np.ndarray, Q: np.ndarray,
                    noise_known: bool, dof: int, vbasis: np.ndarray, time_s, sigma: np.ndarray,
-                   corr_kernels=None) -> dict:
+                   corr_kernels=None, pe_w: Optional[np.ndarray] = None) -> dict:
     """The generic families asked after the refit of candidate ``effect`` (``gap_after.generic``), on
     the residuals ``r`` standardised by its noise model, ``J`` and ``Q`` its Jacobian so scaled and
-    that Jacobian's orthonormal basis: the five mean families, ``variance``, and ``serial`` after
+    that Jacobian's orthonormal basis: the five mean families (and ``tilt``, when given), ``variance``,
+    ``position`` after ``heavy_tails`` (``pe_w``: :func:`position_variance_test`), ``tails`` after
+    ``position_error`` (:func:`tails_test`), and ``serial`` after
     ``flicker_noise`` (its whitened residuals must be white) or ``correlated`` after any other but
     ``heavy_tails`` (whose refit keeps the least-squares mean: the outliers' pull on the parameters
     is a pattern shared by neighbouring visits, correlated in time by construction -- the
@@ -327,9 +393,16 @@ def families_after(effect: str, gbasis_whitened: dict, r: np.ndarray, J: np.ndar
     docs/diagnosis.md "Generic structure"). ``corr_kernels``: the campaign's
     :class:`.correlated.CampaignKernels`, when already built."""
     gen = generic_tests(gbasis_whitened, r, J, noise_known, dof, Q)
-    var_after = variance_test(r, np.sum(Q * Q, axis=1), vbasis)
+    h = np.sum(Q * Q, axis=1)
+    var_after = variance_test(r, h, vbasis)
     if var_after is not None:
         gen["variance"] = var_after
+    # the two noise effects that widen the scatter must beat each other: a Student-t leaves no
+    # pattern of the variance over the poses, positioning errors leave no heavy tails
+    extra = (position_variance_test(r, h, pe_w) if effect == "heavy_tails" and pe_w is not None else
+             tails_test(r, h) if effect == "position_error" else None)
+    if extra is not None:
+        gen["position" if effect == "heavy_tails" else "tails"] = extra
     if effect == "flicker_noise":
         res, fam = serial_test(r, Q, time_s), "serial"
     elif effect != "heavy_tails":
