@@ -132,6 +132,17 @@ def test_scale_changes_outside_the_vocabulary_over_seeds(tmp_path, seed):
         _check_unexplained(_diagnose(tmp_path, name, seed, **kw), name, seed)
 
 
+def test_a_tilt_that_follows_the_day_is_a_tilt_per_soak_not_positioning_errors(tmp_path):
+    """Seed 1 of diurnal_tilt: positioning errors (independent per visit) absorbed it with the gap
+    closed; the tilt free at each soak (generic.soak_tilt_basis) is what is left after their refit,
+    and it is the gap's shape, first."""
+    d = _diagnose(tmp_path, "diurnal_tilt", 1, **FOREIGN["diurnal_tilt"])
+    _check_unexplained(d, "diurnal_tilt", 1)
+    assert d.verdict["shape"][0]["family"] == "tilt", d.verdict["shape"]
+    pe = next(c for c in d.candidates if c.effect == "position_error")
+    assert "tilt" in pe.refit["gap_after"]["generic_structure"], pe.refit["gap_after"]
+
+
 def _thermometer_hysteresis(text: str, delta_C: float) -> str:
     """The CSV with every t_* reading delta_C high on the heating branch and low on the cooling one."""
     lines = text.splitlines()

@@ -18,7 +18,9 @@ residual's row ``3 i + a``, divided by the output's noise SD ``sigma_ia`` as the
 * ``orientation_odd``: ``g_j |g_j|, g_j^3, g_j^2 g_k`` (j != k): odd ones (K3, g-dependent
   misalignment, an odd-quadratic nonlinearity);
 * ``direction``: ``d`` times ``1, g_x, g_y, g_z`` (``d`` = +1 heating, -1 cooling, 0 none):
-  any hysteresis-like offset of the branch.
+  any hysteresis-like offset of the branch;
+* ``tilt`` (:func:`soak_tilt_basis`, added by the caller: it needs the model's tilt columns): a
+  bench tilt free at each soak.
 
 The test of a family is the score test of the mean candidates (``candidates._score_mean``: the
 residuals projected on the family's columns made orthogonal to the fitted model's span; ``S``
@@ -315,7 +317,8 @@ def serial_test(z: np.ndarray, Q: np.ndarray, time_s, min_visits: int = SERIAL_M
 
 
 def soak_tilt_basis(campaign: Campaign, J_tilt: np.ndarray) -> Optional[np.ndarray]:
-    """The ``tilt`` family, asked after a refit only: the bench tilt's two columns ``J_tilt`` (3n, 2;
+    """The ``tilt`` family (among the gap's tests and after every refit, like the five of
+    :func:`per_output_terms`, but made of the model's own columns): the bench tilt's two columns ``J_tilt`` (3n, 2;
     normalised units, the model's own derivatives of the residuals by ``tilt_x`` and ``tilt_y``,
     models/effects/tilt.py) split by setpoint block (``Campaign.setpoint_blocks``): a tilt free at
     each soak, (3n, 2 m) for m blocks. Their sum is the constant tilt (in the fitted span when the

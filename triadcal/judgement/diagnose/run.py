@@ -244,15 +244,16 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             gap_tests[f"score:{c.effect}"] = c.score_p
     # smooth mean terms that no candidate names (generic.py): a missing term outside the list
     gbasis = generic_basis(campaign, sigma, T0)
+    # and a bench tilt free at each soak (generic.soak_tilt_basis): a base that moves between soaks
+    tbasis = soak_tilt_basis(campaign, Jfull[:, [full.index["tilt_x"], full.index["tilt_y"]]] * base.s)
+    if tbasis is not None:
+        gbasis["tilt"] = tbasis
     generic0 = generic_tests({f: base.whitened(B) for f, B in gbasis.items()}, base.r, base.J, noise.known,
                              base.dof, Q)
     for fam, t in generic0.items():
         gap_tests[f"generic:{fam}"] = t["p_value"]
     # a scatter that depends on the pose (positioning errors): Koenker's test of the variance
     vbasis = variance_basis(campaign)
-    # asked after a refit only: a bench tilt free at each soak (generic.soak_tilt_basis)
-    tbasis = soak_tilt_basis(campaign, Jfull[:, [full.index["tilt_x"], full.index["tilt_y"]]] * base.s)
-    after_basis = dict(gbasis, **({"tilt": tbasis} if tbasis is not None else {}))
     var0 = variance_test(base.r, h, vbasis)
     if var0 is not None:
         gap_tests["generic:variance"] = var0["p_value"]
@@ -318,7 +319,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         st_for_slices = FitState(st.names, st.x_full, r_after, st.J / (np.sqrt(var_scale)[:, None]
                                  if var_scale is not None else 1.0), st.cov, st.chi2, st.dof, st.s, st.converged)
         Q_after = _hat_q(st_for_slices.J)
-        gen = families_after(c.effect, {f: st.whitened(B) for f, B in after_basis.items()}, r_after,
+        gen = families_after(c.effect, {f: st.whitened(B) for f, B in gbasis.items()}, r_after,
                              st_for_slices.J, Q_after, noise.known, st.dof, vbasis, campaign.time_s, sigma,
                              corr_kernels=ckern, pe_w=pe_w)
         # Holm over the families; the two noise effects' tests of each other are rival tests, each at
