@@ -327,7 +327,6 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         fams = [f for f in gen if f not in NOISE_RIVAL_TESTS]
         gen_holm = dict(zip(fams, _holm([gen[f]["p_value"] for f in fams]))) if fams else {}
         gen_holm.update({f: gen[f]["p_value"] for f in gen if f in NOISE_RIVAL_TESTS})
-        gen = {f: gen[f] for f in fams + [f for f in gen if f in NOISE_RIVAL_TESTS]}
         n_sig_after = None
         if slices_after:
             sl_after = _slice_tests(campaign, st_for_slices, to_ug, sigma, 0, rng)
