@@ -309,25 +309,81 @@ def test_a_column_almost_in_the_span_is_not_scored_for_a_candidate():
     assert _score_mean(state, some, Q, SPAN_FRACTION_MIN) == (pytest.approx(9.0), 1)
 
 
-def test_the_tilt_family_is_the_tilt_split_by_soak(example):
-    """generic.soak_tilt_basis by hand: two columns a setpoint block, each the tilt's columns on that
-    block's rows and zero elsewhere, summing to the constant tilt's columns; None on one soak."""
-    from triadcal.judgement.diagnose.generic import soak_tilt_basis
+@pytest.mark.parametrize("c", [2, 3])
+def test_a_soak_family_is_its_columns_split_by_soak(example, c):
+    """generic.soak_basis by hand, for the tilt's two columns and the scales' three: c columns a
+    setpoint block, column c k + j the j-th column on block k's rows and zero elsewhere, summing to
+    the constant parameters' columns; None on one soak."""
+    from triadcal.judgement.diagnose.generic import soak_basis
 
     rng = np.random.default_rng(3)
     n = example.n_visits
-    Jt = rng.standard_normal((3 * n, 2))
-    B = soak_tilt_basis(example, Jt)
+    Jc = rng.standard_normal((3 * n, c))
+    B = soak_basis(example, Jc)
     blocks = example.setpoint_blocks
     m = int(blocks.max()) + 1
-    assert m > 1 and B.shape == (3 * n, 2 * m)
-    np.testing.assert_array_equal(B.reshape(3 * n, m, 2).sum(axis=1), Jt)
+    assert m > 1 and B.shape == (3 * n, c * m)
+    np.testing.assert_array_equal(B.reshape(3 * n, m, c).sum(axis=1), Jc)
     for k in range(m):
         rows = np.repeat(blocks == k, 3)
-        np.testing.assert_array_equal(B[rows, 2 * k:2 * k + 2], Jt[rows])
-        assert not B[~rows, 2 * k:2 * k + 2].any()
+        np.testing.assert_array_equal(B[rows, c * k:c * k + c], Jc[rows])
+        assert not B[~rows, c * k:c * k + c].any()
     one = blocks == blocks[0]
-    assert soak_tilt_basis(example.select(one), Jt[np.repeat(one, 3)]) is None
+    assert soak_basis(example.select(one), Jc[np.repeat(one, 3)]) is None
+
+
+def test_the_scale_family_is_tested_on_the_whole_and_on_each_axis(example):
+    """The ``scale`` family's p: Bonferroni over the whole family and its three axes, each the score
+    test by least squares written here (chi2 with the projected rank as dof)."""
+    from triadcal.judgement.diagnose.generic import soak_basis
+
+    rng = np.random.default_rng(5)
+    n = example.n_visits
+    JK = rng.standard_normal((3 * n, 3))
+    B = soak_basis(example, JK)
+    m = int(example.setpoint_blocks.max()) + 1
+    # a fitted model that holds the constant scales; a scale of x off at the second soak
+    J = np.column_stack([JK, rng.standard_normal((3 * n, 4))])
+    e = rng.standard_normal(3 * n) + 0.8 * B[:, 3 * 1 + 0]
+    Q = _hat_q(J)
+    r = e - Q @ (Q.T @ e)
+
+    def by_hand(cols):
+        X = B[:, cols] - Q @ (Q.T @ B[:, cols])
+        beta, *_ = np.linalg.lstsq(X, r, rcond=None)
+        S = float(r @ (X @ beta))
+        return S, stats.chi2.sf(S, np.linalg.matrix_rank(X))
+
+    whole = by_hand(list(range(3 * m)))
+    axes = [by_hand(list(range(a, 3 * m, 3))) for a in range(3)]
+    t = generic_tests({"scale": B}, r, J, True, r.size - J.shape[1], Q)["scale"]
+    assert t["k"] == 3 * (m - 1) and t["S"] == pytest.approx(whole[0], rel=1e-9)
+    assert t["p_full"] == pytest.approx(whole[1], rel=1e-9)
+    assert t["p_value"] == pytest.approx(min(1.0, 4 * min([whole[1]] + [p for _, p in axes])), rel=1e-9)
+    assert axes[0][1] < min(axes[1][1], axes[2][1])       # the axis it was put on
+
+
+def test_the_scale_family_keeps_its_size(example):
+    """The ``scale`` family's p on residuals of the linear fit of pure noise (the example's design, its
+    own scale columns split by soak), 1000 draws: rejections at 5 % within the binomial bound of a
+    test of size at most 5 % (Bonferroni over the family and its axes is conservative)."""
+    from triadcal.judgement.diagnose.generic import soak_basis
+
+    rng = np.random.default_rng(11)
+    n = example.n_visits
+    JK = rng.standard_normal((3 * n, 3))
+    J = np.column_stack([JK, rng.standard_normal((3 * n, 6))])
+    B = soak_basis(example, JK)
+    Q = _hat_q(J)
+    hits = 0
+    for _ in range(1000):
+        e = rng.standard_normal(3 * n)
+        r = e - Q @ (Q.T @ e)
+        hits += generic_tests({"scale": B}, r, J, True, r.size - J.shape[1], Q)["scale"]["p_value"] < 0.05
+    print("scale family, rejections at 5 %:", hits, "of 1000")
+    assert hits <= stats.binom.ppf(0.999, 1000, 0.05), hits
+    # and not a test that never rejects: the whole family alone rejects at 5 % / 4 under the null
+    assert hits >= stats.binom.ppf(0.001, 1000, 0.05 / 4), hits
 
 
 def test_the_tests_that_tell_positioning_errors_from_heavy_tails_are_calibrated(example):

@@ -191,6 +191,7 @@ SHAPE_WORDS = {"temperature": "temperature", "time": "time", "orientation_even":
                "orientation_odd": "orientation (odd in g)", "direction": "the direction of the temperature change",
                "variance": "the scatter (variance)",
                "tilt": "the bench's tilt, soak by soak (a base that moves between soaks)",
+               "scale": "the scale factors, soak by soak (a scale that wanders in time)",
                "correlated": "time: residuals alike when close in time (a noise that wanders, or a pattern "
                              "of the mean no smooth family holds)",
                "level": "nothing but the level of the scatter (no pattern: the declared noise may be too small)",

@@ -241,11 +241,18 @@ def correlated_test(z: np.ndarray, Q: np.ndarray, time_s, sigma: np.ndarray,
 
 #: mean candidates that a bias wandering in time can mimic: functions of the time alone, on the bias
 WANDER_MIMICS = ("bias_drift", "bias_warmup")
+#: mean candidates that a scale factor wandering in time can mimic: functions of the temperature on
+#: the scale, which on a stepped campaign is one value a soak, as a wander's is near enough (a
+#: Gauss-Markov scale of 20 ppm, 6 h, on the independent bench: a scale tempco named with the gap
+#: closed in 3 of 20 seeds before this rival; docs/diagnosis.md "A scale that wanders")
+SCALE_WANDER_MIMICS = ("scale_tempco", "scale_tempco2", "scale_tempco3")
 
 
 def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np.ndarray,
-                 fractions=CORRELATION_FRACTIONS, cache: Optional[CampaignKernels] = None) -> Optional[dict]:
-    """The encompassing test of a time-like mean candidate against a bias that wanders (known noise).
+                 fractions=CORRELATION_FRACTIONS, cache: Optional[CampaignKernels] = None,
+                 along: Optional[np.ndarray] = None, groups=((0, 1, 2),)) -> Optional[dict]:
+    """The encompassing test of a mean candidate against a bias (or, with ``along``, a scale factor)
+    that wanders (known noise).
 
     For each correlation time ``tau`` of ``fractions`` (of the campaign's span), the variance
     ``v`` of a Gauss-Markov bias with the kernel of :func:`kernels` is estimated by REML on the
@@ -255,8 +262,14 @@ def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np
     base's span): ``S ~ chi2_k`` when the wander alone made the data. A drift of the bias that is a
     drift stays significant whatever the wander is allowed to be; one that the wander explains as
     well is not told from it by these data. Returns the least significant of the ``tau``:
-    ``tau_s``, ``variance`` (normalised units), ``S``, ``k``, ``p_value``; None when degenerate.
-    ``cache``: as in :func:`correlated_test`."""
+    ``tau_s``, ``variance`` (normalised units; the largest of ``groups``'), ``S``, ``k``, ``p_value``;
+    None when degenerate. ``cache``: as in :func:`correlated_test`.
+
+    ``along`` (n, 3), when given, makes it a wander of what multiplies it on each output: the kernel
+    of output a becomes ``D_a K_a D_a`` with ``D_a = diag(along[:, a])`` -- with the nominal gravity on
+    the sensor axes, a scale factor that wanders (:data:`SCALE_WANDER_MIMICS`); ``groups``: the outputs
+    that share one variance (the bias's: all three; a scale's: one each, the three elements' scale
+    factors being unrelated)."""
     from ...estimation.flicker_noise import AxisWhitening, reml_tau
 
     ck = cache if cache is not None else CampaignKernels(time_s, sigma, fractions)
@@ -267,7 +280,9 @@ def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np
     worst = None
     for i in range(len(ck.fractions)):
         G = ck.blocks(i)
-        v, _, _, _ = reml_tau(r, J, G, t, [[0, 1, 2]])
+        if along is not None:
+            G = [along[:, [a]] * Ga * along[:, a][None, :] for a, Ga in enumerate(G)]
+        v, _, _, _ = reml_tau(r, J, G, t, [list(g) for g in groups])
         W = AxisWhitening(G, v, t)
         rw, Jw, Jcw = W.apply(r), W.apply(J), W.apply(Jc)
         Q, _ = np.linalg.qr(Jw)
@@ -276,20 +291,21 @@ def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np
         S = float(U @ np.linalg.lstsq(Jp.T @ Jp, U, rcond=None)[0])
         p = float(stats.chi2.sf(S, k))
         if worst is None or p > worst["p_value"]:
-            worst = {"tau_s": ck.tau_s(i), "variance": float(v[0]), "S": S, "k": int(k), "p_value": p}
+            worst = {"tau_s": ck.tau_s(i), "variance": float(np.max(v)), "S": S, "k": int(k), "p_value": p}
     return worst
 
 
-def wander_ambiguity(effect: str, w: dict, alpha: float) -> Optional[dict]:
-    """The ``unexplained`` verdict's own fields when the time-like candidate ``effect`` does not beat
-    a bias that wanders (:func:`wander_rival`'s ``w``: its score under the wander's REML covariance
-    is not below ``alpha`` at every correlation time), else None. The caller adds the evidence, the
-    closed gap and where."""
+def wander_ambiguity(effect: str, w: dict, alpha: float, quantity: str = "bias") -> Optional[dict]:
+    """The ``unexplained`` verdict's own fields when the mean candidate ``effect`` does not beat a
+    ``quantity`` (bias or scale) that wanders (:func:`wander_rival`'s ``w``: its score under the
+    wander's REML covariance is not below ``alpha`` at every correlation time), else None. The caller
+    adds the evidence, the closed gap and where."""
     if w["p_value"] < alpha:
         return None
-    lab = f"a bias that wanders in time (Gauss-Markov, correlation time {w['tau_s'] / 3600.0:.3g} h)"
+    lab = f"a {quantity} that wanders in time (Gauss-Markov, correlation time {w['tau_s'] / 3600.0:.3g} h)"
+    change = "a change of the bias in time" if quantity == "bias" else f"a change of the {quantity} with temperature"
     return {"effect": "unexplained", "best_partial": effect, "ambiguous_with": [lab],
             "reason": (f"{effect} closes the gap but does not beat {lab}: under that noise's "
                        f"REML covariance its score is S = {w['S']:.3g} on {w['k']} dof, p = "
-                       f"{w['p_value']:.3g} >= {alpha:g}; the data cannot tell a change of the bias "
-                       "in time from a wander (docs/diagnosis.md \"Rivals\")")}
+                       f"{w['p_value']:.3g} >= {alpha:g}; the data cannot tell {change} "
+                       "from a wander (docs/diagnosis.md \"Rivals\")")}

@@ -19,8 +19,8 @@ residual's row ``3 i + a``, divided by the output's noise SD ``sigma_ia`` as the
   misalignment, an odd-quadratic nonlinearity);
 * ``direction``: ``d`` times ``1, g_x, g_y, g_z`` (``d`` = +1 heating, -1 cooling, 0 none):
   any hysteresis-like offset of the branch;
-* ``tilt`` (:func:`soak_tilt_basis`, added by the caller: it needs the model's tilt columns): a
-  bench tilt free at each soak.
+* ``tilt`` and ``scale`` (:func:`soak_basis`, added by the caller: they are the model's own tilt
+  and scale columns): a bench tilt, and the scale factors, free at each soak.
 
 The test of a family is the score test of the mean candidates (``candidates._score_mean``: the
 residuals projected on the family's columns made orthogonal to the fitted model's span; ``S``
@@ -191,8 +191,10 @@ def generic_tests(basis: dict, r: np.ndarray, J: np.ndarray, noise_known: bool, 
             continue
         S, k, p = full
         ps = [p]
-        if fam in SUB_BLOCKS:
-            for cols in block_columns(fam, B.shape[1] // 3):
+        groups = (block_columns(fam, B.shape[1] // 3) if fam in SUB_BLOCKS else
+                  [list(range(a, B.shape[1], 3)) for a in range(3)] if fam == "scale" else [])
+        if groups:
+            for cols in groups:
                 t = _one_test(r, B[:, cols], Q, noise_known, dof)
                 if t is not None:
                     ps.append(t[2])
@@ -316,27 +318,39 @@ def serial_test(z: np.ndarray, Q: np.ndarray, time_s, min_visits: int = SERIAL_M
     return {"S": zr * zr, "k": 1, "p_value": float(2.0 * stats.norm.sf(abs(zr))), "z": zr, "rho": rho}
 
 
-def soak_tilt_basis(campaign: Campaign, J_tilt: np.ndarray) -> Optional[np.ndarray]:
-    """The ``tilt`` family (among the gap's tests and after every refit, like the five of
-    :func:`per_output_terms`, but made of the model's own columns): the bench tilt's two columns ``J_tilt`` (3n, 2;
-    normalised units, the model's own derivatives of the residuals by ``tilt_x`` and ``tilt_y``,
-    models/effects/tilt.py) split by setpoint block (``Campaign.setpoint_blocks``): a tilt free at
-    each soak, (3n, 2 m) for m blocks. Their sum is the constant tilt (in the fitted span when the
-    model has ``bench_tilt``, so the test's dof are 2 (m - 1) then). The visits of one soak share the
-    bench's attitude; a positioning error makes every visit's error its own. A base that tilts with
-    the building's day (a 24 h cycle of 8" and 6", foreign to every simulator here) is absorbed as
-    independent positioning errors, and the smooth families, on the residuals whitened by their
-    inflated variance, see nothing left (docs/diagnosis.md, "A tilt that follows the day"); a tilt
-    per soak does. None with fewer than two blocks."""
+def soak_basis(campaign: Campaign, J_cols: np.ndarray) -> Optional[np.ndarray]:
+    """Columns ``J_cols`` (3n, c; normalised units: the model's own derivatives of the residuals by c
+    parameters) split by setpoint block (``Campaign.setpoint_blocks``): the parameters free at each
+    soak, (3n, c m) for m blocks, column ``k c + j`` parameter ``j`` at block ``k``. Their sum over the
+    blocks is the constant parameters (in the fitted span when the model has them, so a test's dof
+    are c (m - 1) then). None with fewer than two blocks.
+
+    Two families are made so (among the gap's tests and after every refit, like the five of
+    :func:`per_output_terms`, but of the model's own columns):
+
+    * ``tilt``: the bench tilt's two columns (``tilt_x``, ``tilt_y``, models/effects/tilt.py), a tilt
+      free at each soak. The visits of one soak share the bench's attitude; a positioning error makes
+      every visit's error its own. A base that tilts with the building's day (a 24 h cycle of 8" and
+      6", foreign to every simulator here) is absorbed as independent positioning errors, and the
+      smooth families, on the residuals whitened by their inflated variance, see nothing left
+      (docs/diagnosis.md, "A tilt that follows the day"); a tilt per soak does;
+    * ``scale``: the three scale factors' columns (``K_x``, ``K_y``, ``K_z``, eq. 1), a scale free at
+      each soak, tested on the whole and on each axis (``generic_tests``). A scale that wanders in
+      time (a Gauss-Markov scale instability, foreign to every simulator here) takes a different
+      value at each soak; a scale tempco fitted to it follows the temperature, and what the wander
+      did at the soaks of one temperature on the way up and on the way down is left. The ``correlated``
+      family does not see it: its kernels are the bias's, and a scale's residual changes sign with
+      the axis's side up (docs/diagnosis.md, "A scale that wanders")."""
     blocks = campaign.setpoint_blocks
     m = int(blocks.max()) + 1 if blocks.size else 0
     if m < 2:
         return None
+    c = J_cols.shape[1]
     rows = np.repeat(blocks, 3)
-    B = np.zeros((J_tilt.shape[0], 2 * m))
+    B = np.zeros((J_cols.shape[0], c * m))
     for k in range(m):
         on = rows == k
-        B[on, 2 * k:2 * k + 2] = J_tilt[on]
+        B[on, c * k:c * k + c] = J_cols[on]
     return B
 
 

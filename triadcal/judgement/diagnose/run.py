@@ -26,6 +26,7 @@ from ...estimation.joint import (
     start_values,
 )
 from .candidates import (
+    _nominal_g,
     FORM_CANDIDATES,
     _cross_group,
     _effect_params,
@@ -46,9 +47,10 @@ from .candidates import (
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .noise_level import LEVEL_MIMICS, noise_level_rival, partial_without_level, uniform_ambiguity
-from .correlated import WANDER_MIMICS, CampaignKernels, correlated_test, wander_ambiguity, wander_rival
+from .correlated import (SCALE_WANDER_MIMICS, WANDER_MIMICS, CampaignKernels, correlated_test, wander_ambiguity,
+                         wander_rival)
 from .generic import (NOISE_RIVAL_TESTS, families_after, gap_shape, generic_basis, generic_tests, level_words,
-                      per_output_terms, soak_tilt_basis, variance_basis, variance_test)
+                      per_output_terms, soak_basis, variance_basis, variance_test)
 from .rivals import generic_rivals, reference_poses, rival_tests
 from .results import ALPHA, Candidate, Diagnosis, _f, _p_is
 from .series import series_of, series_txt
@@ -244,10 +246,14 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             gap_tests[f"score:{c.effect}"] = c.score_p
     # smooth mean terms that no candidate names (generic.py): a missing term outside the list
     gbasis = generic_basis(campaign, sigma, T0)
-    # and a bench tilt free at each soak (generic.soak_tilt_basis): a base that moves between soaks
-    tbasis = soak_tilt_basis(campaign, Jfull[:, [full.index["tilt_x"], full.index["tilt_y"]]] * base.s)
+    # and a bench tilt free at each soak (generic.soak_basis): a base that moves between soaks
+    tbasis = soak_basis(campaign, Jfull[:, [full.index["tilt_x"], full.index["tilt_y"]]] * base.s)
     if tbasis is not None:
         gbasis["tilt"] = tbasis
+    # and a scale free at each soak (generic.soak_basis): a scale that wanders in time
+    kbasis = soak_basis(campaign, Jfull[:, [full.index[f"K_{a}"] for a in AXES]] * base.s)
+    if kbasis is not None:
+        gbasis["scale"] = kbasis
     generic0 = generic_tests({f: base.whitened(B) for f, B in gbasis.items()}, base.r, base.J, noise.known,
                              base.dof, Q)
     for fam, t in generic0.items():
@@ -635,13 +641,23 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     verdict["fit_options"] = partial["fit_options"]
             if not gap_open and named.form is None and named.params and named.effect not in NOISE_EFFECTS:
                 amb, closest = _ambiguity(named, refitted)
-                if not amb and named.effect in WANDER_MIMICS and noise.known:
-                    # a time-like change of the bias must beat a bias that wanders (correlated.py)
+                # a change of the bias in time must beat a bias that wanders, a scale tempco a scale factor
+                # that wanders (on a stepped campaign a wander takes one value a soak, as the temperature
+                # does): correlated.WANDER_MIMICS, SCALE_WANDER_MIMICS
+                named_effects = set(verdict.get("effects", [named.effect]))
+                for quantity, mimics, along, groups in (
+                        ("bias", WANDER_MIMICS, None, ((0, 1, 2),)),
+                        ("scale", SCALE_WANDER_MIMICS, _nominal_g(campaign), ((0,), (1,), (2,)))):
+                    if amb or not noise.known or not named_effects & set(mimics):
+                        continue
                     w = wander_rival(base.r, base.J, Jfull[:, [full.index[n] for n in named.params]],
-                                     campaign.time_s, sigma, cache=ckern)
+                                     campaign.time_s, sigma, cache=ckern,
+                                     along=None if along is None else np.asarray(along, float).reshape(-1, 3),
+                                     groups=groups)
                     if w is not None:
-                        amb = _kept_rival(verdict, "wander_rival", w, wander_ambiguity(named.effect, w, alpha),
-                                          where_of(slices))
+                        w["quantity"] = quantity
+                        amb = _kept_rival(verdict, "wander_rival", w,
+                                          wander_ambiguity(named.effect, w, alpha, quantity), where_of(slices))
                 if amb:
                     verdict = amb
                 elif closest is not None:
