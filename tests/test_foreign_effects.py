@@ -163,12 +163,11 @@ def _scale_wander(seed: int, sd_ppm: float = 20.0, tau_h: float = 6.0):
 def test_a_scale_that_wanders_is_unexplained_and_shaped_scale(tmp_path, seed):
     """A scale of x that wanders in time (20 ppm, correlation time 6 h: foreign to every simulator
     here) is 'unexplained', and its shape holds the scale free at each soak (generic.soak_basis, the
-    family ``scale``). Before that family seed 2 was 'none' and seed 6 named ``scale_tempco3`` with the
-    gap closed; seed 3 was named ``scale_tempco2`` with the gap closed even with the family (its
-    realisation follows a quadratic in temperature to the noise), and is 'unexplained' since a scale
-    tempco must beat a scale that wanders (correlated.SCALE_WANDER_MIMICS: p 0.12 under its REML
-    covariance). Seeds 1-20: named 3, 'none' 4 before; named 0, 'none' 1 now (docs/diagnosis.md,
-    "A scale that wanders")."""
+    family ``scale``, among the gap's tests). Before, seed 2 was 'none' (the family finds it), and
+    seeds 3 and 6 were named ``scale_tempco2`` and ``scale_tempco3`` with the gap closed: a realisation
+    that follows a polynomial in temperature to the noise; a scale tempco must now beat a scale that
+    wanders (correlated.SCALE_WANDER_MIMICS; seed 3: p 0.12 under its REML covariance). Seeds 1-20:
+    named 3, 'none' 4 before; named 0, 'none' 1 now (docs/diagnosis.md, "A scale that wanders")."""
     d = _diagnose(tmp_path, "scale_wander", seed, extra_scale=_scale_wander(seed))
     v = d.verdict
     assert v["effect"] == "unexplained" and d.gap["significant"] and (v["where"] or v["shape"]), (seed, v)

@@ -325,22 +325,22 @@ def soak_basis(campaign: Campaign, J_cols: np.ndarray) -> Optional[np.ndarray]:
     blocks is the constant parameters (in the fitted span when the model has them, so a test's dof
     are c (m - 1) then). None with fewer than two blocks.
 
-    Two families are made so (among the gap's tests and after every refit, like the five of
-    :func:`per_output_terms`, but of the model's own columns):
+    Two families are made so (like the five of :func:`per_output_terms`, but of the model's own
+    columns):
 
-    * ``tilt``: the bench tilt's two columns (``tilt_x``, ``tilt_y``, models/effects/tilt.py), a tilt
-      free at each soak. The visits of one soak share the bench's attitude; a positioning error makes
+    * ``tilt`` (among the gap's tests and after every refit): the bench tilt's two columns (``tilt_x``,
+      ``tilt_y``, models/effects/tilt.py), a tilt free at each soak. The visits of one soak share the bench's attitude; a positioning error makes
       every visit's error its own. A base that tilts with the building's day (a 24 h cycle of 8" and
       6", foreign to every simulator here) is absorbed as independent positioning errors, and the
       smooth families, on the residuals whitened by their inflated variance, see nothing left
       (docs/diagnosis.md, "A tilt that follows the day"); a tilt per soak does;
-    * ``scale``: the three scale factors' columns (``K_x``, ``K_y``, ``K_z``, eq. 1), a scale free at
-      each soak, tested on the whole and on each axis (``generic_tests``). A scale that wanders in
-      time (a Gauss-Markov scale instability, foreign to every simulator here) takes a different
-      value at each soak; a scale tempco fitted to it follows the temperature, and what the wander
-      did at the soaks of one temperature on the way up and on the way down is left. The ``correlated``
-      family does not see it: its kernels are the bias's, and a scale's residual changes sign with
-      the axis's side up (docs/diagnosis.md, "A scale that wanders")."""
+    * ``scale`` (among the gap's tests only): the three scale factors' columns (``K_x``, ``K_y``,
+      ``K_z``, eq. 1), a scale free at each soak, tested on the whole and on each axis
+      (``generic_tests``). A scale that wanders in time (a Gauss-Markov scale instability, foreign to
+      every simulator here) takes a different value at each soak; the ``correlated`` family does not
+      see it: its kernels are the bias's, and a scale's residual changes sign with the axis's side up
+      (docs/diagnosis.md, "A scale that wanders"). After a refit the candidate a wander passes for, a
+      scale tempco, meets it as a rival instead (correlated.SCALE_WANDER_MIMICS)."""
     blocks = campaign.setpoint_blocks
     m = int(blocks.max()) + 1 if blocks.size else 0
     if m < 2:
