@@ -1,5 +1,13 @@
 """``diagnose``: fit the model, find where it misses, name which effect explains it and how far
 the gap shrinks when it is added.
+
+Over 600 lines because it is one flow -- base fit, gap tests, scores, refits with their evidence,
+verdict -- whose steps share one base fit's state (its residuals, Jacobian, hat matrix, noise, the
+generic bases and kernels, a dozen locals the inner functions close over). Each test and rival
+lives in its own module (generic, correlated, rivals, noise_level, series, slices, candidates);
+what stays here is their order and the verdict. The verdict section (``improves``, ``acceptance``,
+``_ambiguity``, the naming) is the part to move out next, with the outputs proved identical on a
+validation run.
 """
 
 from __future__ import annotations
