@@ -158,10 +158,10 @@ def test_a_random_walk_of_the_bias_is_not_a_linear_drift(tmp_path):
     assert "correlated" in drift.refit["gap_after"]["generic_structure"]
 
 
-def _validation_diagnosis(effect, magnitude, seed, left_out, only=None):
+def _validation_diagnosis(effect, magnitude, seed, left_out, only=None, estimated=False):
     """The validation's campaign of ``effect`` at ``magnitude`` and ``seed`` diagnosed as run_case
     does, with the effect's group left out of the candidates or in the vocabulary (``only``: these
-    candidates alone)."""
+    candidates alone); ``estimated``: its CSV without the noise (no sd_*, n_samples, Q_V2s)."""
     from triadcal.judgement.diagnosis_validation import (FORM_CANDIDATES, VALIDATION_PLAN, VALIDATION_SOAK_S,
                                                          VOCABULARY, Schedule, left_out_group, scenario,
                                                          simulate_campaign)
@@ -169,6 +169,11 @@ def _validation_diagnosis(effect, magnitude, seed, left_out, only=None):
 
     truth, model = scenario(effect, magnitude=magnitude)
     c = simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S), seed=seed)
+    if estimated:
+        from test_foreign_effects import _without_noise_columns
+        from triadcal.io.bench_csv import format_bench_csv, parse_bench_csv
+        text = _without_noise_columns(format_bench_csv(c))
+        c = parse_bench_csv("\n".join(x for x in text.splitlines() if not x.startswith("# Q_V2s")) + "\n")
     cands = [x for x in VOCABULARY + FORM_CANDIDATES if x not in left_out_group(effect)] if left_out else None
     cands = list(only) if only is not None else cands
     return diagnose(c, model, candidates=cands, slices_after=left_out, seed=seed, n_draws=200, top=2)
@@ -185,13 +190,10 @@ def test_a_left_out_flicker_floor_is_unexplained_not_a_tempco():
     assert d.verdict["shape"][0]["family"] == "correlated", d.verdict["shape"]
 
 
-def test_the_wander_rival_keeps_a_drift_and_not_a_walk():
-    """correlated.wander_rival on the linear design (time columns per output removed from the base,
-    a drift column per output as the candidate): a drift of 6 SE over the campaign on white noise
-    stays significant at every correlation time (p < 0.01; measured 4.6e-4 at the longest, whose
-    REML variance takes up much of the line: the price of asking); a random walk of the same end size, no drift, is not
-    told from a wander in at least 16 of 20 draws (p >= 0.01 at the worst correlation time)."""
-    from triadcal.judgement.diagnose.correlated import wander_rival
+def _linear_design():
+    """150 visits in 15 blocks of 10 (50 s apart, blocks 3000 s apart); the base per output: a
+    constant, a sine of the time and a random column; the candidate: a drift column per output.
+    Returns the generator (seed 8, after the random columns), n, the times, X, Jc and sigma = 1."""
     rng = np.random.default_rng(8)
     n = 150
     t = np.array([3000.0 * (i // 10) + 50.0 * (i % 10) for i in range(n)])
@@ -201,7 +203,17 @@ def test_the_wander_rival_keeps_a_drift_and_not_a_walk():
     for a in range(3):
         X[a::3, 3 * a:3 * a + 3] = np.column_stack([np.ones(n), np.sin(5.0 * s), rng.standard_normal(n)])
         Jc[a::3, a] = s
-    sig = np.ones((n, 3))
+    return rng, n, t, X, Jc, np.ones((n, 3))
+
+
+def test_the_wander_rival_keeps_a_drift_and_not_a_walk():
+    """correlated.wander_rival on the linear design (time columns per output removed from the base,
+    a drift column per output as the candidate): a drift of 6 SE over the campaign on white noise
+    stays significant at every correlation time (p < 0.01; measured 4.6e-4 at the longest, whose
+    REML variance takes up much of the line: the price of asking); a random walk of the same end size, no drift, is not
+    told from a wander in at least 16 of 20 draws (p >= 0.01 at the worst correlation time)."""
+    from triadcal.judgement.diagnose.correlated import wander_rival
+    rng, n, t, X, Jc, sig = _linear_design()
     r = rng.standard_normal(3 * n) + 6.0 * Jc.sum(axis=1)
     r -= X @ np.linalg.lstsq(X, r, rcond=None)[0]
     w = wander_rival(r, X, Jc, t, sig)
@@ -246,3 +258,80 @@ def test_a_scale_tempco_beats_a_scale_that_wanders():
     v = d.verdict
     assert v["effect"] == "scale_tempco3", v
     assert v["wander_rival"]["quantity"] == "scale" and v["wander_rival"]["p_value"] < 1e-3, v["wander_rival"]
+    # the noise estimated: the rival's level free, its score an F test; the name kept
+    d = _validation_diagnosis("scale_tempco3", 1.0, 1000, left_out=False, estimated=True)
+    v = d.verdict
+    assert not d.noise_known and v["effect"] == "scale_tempco3", v
+    assert v["wander_rival"]["p_value"] < 1e-3 and "F_dof" in v["wander_rival"], v["wander_rival"]
+
+
+def _dense_profiled_reml(r, X, Gs, tau):
+    """The profiled REML log-likelihood written out with dense matrices (numpy's slogdet and
+    solve, no whitening): V = I + sum_a tau_a G_a (block a on the rows a::3), s2 = r' P r / (N - p),
+    ll = -1/2 (log det V + log det X' V^-1 X + (N - p) log s2)."""
+    N, p = X.shape
+    V = np.eye(N)
+    for a, Ga in enumerate(Gs):
+        V[a::3, a::3] += tau[a] * Ga
+    Vi = np.linalg.inv(V)
+    XtViX = X.T @ Vi @ X
+    P = Vi - Vi @ X @ np.linalg.solve(XtViX, X.T @ Vi)
+    s2 = float(r @ P @ r) / (N - p)
+    ll = -0.5 * (np.linalg.slogdet(V)[1] + np.linalg.slogdet(XtViX)[1] + (N - p) * math.log(s2))
+    return ll, s2
+
+
+def test_the_profiled_reml_is_the_dense_formula_maximised():
+    """flicker_noise.reml_tau_profiled (the white level free, profiled out) against the dense
+    formula maximised by scipy's bounded scalar search: the same variance ratio (to 1e-3 of itself)
+    and white level; both unchanged when the residuals are scaled by 7 but the level (x 49): the
+    ratio is of the wander to the white noise, whatever the declared sigma."""
+    from scipy import optimize
+    from triadcal.estimation.flicker_noise import reml_tau_profiled
+    from triadcal.judgement.diagnose.correlated import kernels
+    rng = np.random.default_rng(21)
+    n = 60
+    t = np.array([3000.0 * (i // 6) + 50.0 * (i % 6) for i in range(n)])
+    G = kernels(t, np.ones((n, 3)), 0.3 * t.max())
+    X = np.zeros((3 * n, 6))
+    for a in range(3):
+        X[a::3, 2 * a:2 * a + 2] = np.column_stack([np.ones(n), t / t.max()])
+    L = np.linalg.cholesky(np.eye(n) + 2.0 * G[0])
+    r = 3.0 * np.concatenate([L @ rng.standard_normal(n) for _ in range(3)]).reshape(3, n).T.reshape(-1)
+    tau, s2 = reml_tau_profiled(r, X, G, t, [[0, 1, 2]])
+    best = optimize.minimize_scalar(lambda v: -_dense_profiled_reml(r, X, G, [v] * 3)[0], bounds=(0.0, 50.0),
+                                    method="bounded", options={"xatol": 1e-8})
+    assert tau[0] == pytest.approx(best.x, rel=1e-3) and tau[0] == tau[2], (tau, best.x)
+    assert s2 == pytest.approx(_dense_profiled_reml(r, X, G, tau)[1], rel=1e-6)
+    assert 0.5 < tau[0] < 8.0 and 4.0 < s2 < 20.0, (tau, s2)          # drawn with 2 and 9
+    tau7, s27 = reml_tau_profiled(7.0 * r, X, G, t, [[0, 1, 2]])
+    assert tau7 == pytest.approx(tau, rel=1e-6) and s27 == pytest.approx(49.0 * s2, rel=1e-6)
+
+
+def test_the_wander_rival_with_the_noise_estimated():
+    """correlated.wander_rival with ``noise_known=False`` on the linear design of the test above:
+    its p does not depend on the residuals' declared scale (x 5: the same to 1e-6); the drift of 6 SE
+    keeps p < 0.01; and under the null it claims (a Gauss-Markov wander, variance 3 white levels, on a
+    white noise of level 0.04 that the test is not told; 200 draws), asked at the wander's own
+    correlation time, the F reference rejects at 0.05 and at 0.5 within 3 binomial SE of 10 and 100
+    (measured 7 and 98; with the level known and held, 7 and 97). The diagnosis keeps the least
+    significant of three correlation times, at or below this size."""
+    from triadcal.judgement.diagnose.correlated import kernels, wander_rival
+    rng, n, t, X, Jc, sig = _linear_design()
+    r = 0.3 * (rng.standard_normal(3 * n) + 6.0 * Jc.sum(axis=1))
+    r -= X @ np.linalg.lstsq(X, r, rcond=None)[0]
+    w = wander_rival(r, X, Jc, t, sig, noise_known=False)
+    assert w["p_value"] < 0.01 and w["F_dof"] == [3, 3 * n - 9 - 3], w
+    w5 = wander_rival(5.0 * r, X, Jc, t, sig, noise_known=False)
+    assert w5["p_value"] == pytest.approx(w["p_value"], rel=1e-6), (w, w5)
+    K = kernels(t, np.ones((n, 3)), 0.1 * (t.max() - t.min()))[0]
+    L = math.sqrt(3.0) * np.linalg.cholesky(K + 1e-9 * np.eye(n))
+    draws, p_true = 200, []
+    for _ in range(draws):
+        r = 0.2 * (rng.standard_normal(3 * n) + np.column_stack([L @ rng.standard_normal(n) for _ in range(3)]).reshape(-1))
+        r -= X @ np.linalg.lstsq(X, r, rcond=None)[0]
+        p_true.append(wander_rival(r, X, Jc, t, sig, noise_known=False, fractions=(0.1,))["p_value"])
+    p_true = np.array(p_true)
+    for a in (0.05, 0.5):
+        se = math.sqrt(draws * a * (1.0 - a))
+        assert abs(np.sum(p_true < a) - draws * a) <= 3.0 * se, (a, np.sum(p_true < a))

@@ -148,18 +148,21 @@ def reml_pieces(r, J, G, tau, time_s, groups, return_trace: bool = False):
     return ll, U, info
 
 
-def reml_tau(r, J, G, time_s, groups, tau0=None, max_iter: int = 50):
-    """``(tau per output (3,), u per group, info)`` maximising the REML likelihood (module docstring)."""
-    k = len(G)
-    t = np.zeros(len(groups)) if tau0 is None else np.array([tau0[g[0]] for g in groups], float)
-
+def _expander(groups, k: int):
+    """The per-output vector (k,) of a value per group."""
     def expand(tg):
         out = np.zeros(k)
         for g, v in zip(groups, tg):
             out[list(g)] = v
         return out
+    return expand
 
-    ll, U, info = reml_pieces(r, J, G, expand(t), time_s, groups)
+
+def _fisher_ascent(t, evaluate, max_iter: int):
+    """Fisher scoring from ``t`` on ``t >= 0``: ``evaluate(t) -> (ll, U, info, extra)``; the step
+    ``info^-1 U`` halved until ``ll`` rises; stops when ``t`` moves by < 1e-5 of itself or ``ll`` by
+    < 1e-6. Returns ``(t, ll, U, info, extra)`` at the last point accepted."""
+    ll, U, info, extra = evaluate(t)
     for _ in range(max_iter):
         try:
             step = np.linalg.solve(info, U)
@@ -168,7 +171,7 @@ def reml_tau(r, J, G, time_s, groups, tau0=None, max_iter: int = 50):
         moved = False
         for _h in range(30):
             t_new = np.maximum(t + step, 0.0)
-            ll_new, U_new, info_new = reml_pieces(r, J, G, expand(t_new), time_s, groups)
+            ll_new, U_new, info_new, extra_new = evaluate(t_new)
             if ll_new >= ll - 1e-10 * abs(ll):
                 moved = True
                 break
@@ -177,15 +180,56 @@ def reml_tau(r, J, G, time_s, groups, tau0=None, max_iter: int = 50):
             break
         # converged: tau moves by < 1e-5 of itself (B_f by 5e-6) or the likelihood by < 1e-6
         done = np.all(np.abs(t_new - t) <= 1e-5 * np.maximum(np.abs(t_new), 1e-300)) or abs(ll_new - ll) < 1e-6
-        t, ll, U, info = t_new, ll_new, U_new, info_new
+        t, ll, U, info, extra = t_new, ll_new, U_new, info_new, extra_new
         if done:
             break
+    return t, ll, U, info, extra
+
+
+def reml_tau(r, J, G, time_s, groups, tau0=None, max_iter: int = 50):
+    """``(tau per output (3,), u per group, info)`` maximising the REML likelihood (module docstring)."""
+    expand = _expander(groups, len(G))
+    t = np.zeros(len(groups)) if tau0 is None else np.array([tau0[g[0]] for g in groups], float)
+    t, ll, _, info, _ = _fisher_ascent(
+        t, lambda tg: reml_pieces(r, J, G, expand(tg), time_s, groups) + (None,), max_iter)
     try:
         cov = np.linalg.inv(info)
         u = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     except np.linalg.LinAlgError:
         u = np.full(len(groups), math.inf)
     return expand(t), u, info, ll
+
+
+def _profiled_ll(r, J, G, tau, time_s):
+    """REML log-likelihood with the white level profiled out, and that level: for
+    ``V = s2 (I + sum_a tau_a G_a)``, ``s2 = e' e / (N - p)`` (``e`` the whitened residuals off the
+    whitened Jacobian's span) and ``ll = -1/2 (log det(I + tau G) + log det(X~' X~) + (N - p) log s2)``
+    up to a constant (Harville, JASA 72, 320-338, 1977, sec. 5: the scale profiled out of REML)."""
+    W = AxisWhitening(G, tau, time_s)
+    rt, Xt = W.apply(r), W.apply(J)
+    Q, logdetR = _orthobasis(Xt)
+    e = rt - Q @ (Q.T @ rt)
+    nu = len(rt) - Q.shape[1]
+    s2 = float(e @ e) / max(nu, 1)
+    return -0.5 * (W.logdet() + 2.0 * logdetR + nu * math.log(max(s2, 1e-300))), s2
+
+
+def reml_tau_profiled(r, J, G, time_s, groups, max_iter: int = 50):
+    """``(tau per output (3,), s2)`` maximising the REML likelihood of ``V = s2 (I + sum tau_a G_a)``
+    with the white level ``s2`` free (profiled out: :func:`_profiled_ll`): the variance components
+    relative to a white noise that is estimated, not declared. Fisher scoring as :func:`reml_tau`
+    (:func:`_fisher_ascent`) on the profiled likelihood, the score that of :func:`reml_pieces` at the
+    residuals divided by the profiled ``sqrt(s2)`` (the profiled likelihood's derivative:
+    ``1/2 (r' P G_k P r / s2 - tr(P G_k))``), ``tau >= 0``."""
+    expand = _expander(groups, len(G))
+
+    def evaluate(tg):
+        ll, s2 = _profiled_ll(r, J, G, expand(tg), time_s)
+        _, U, info = reml_pieces(r / math.sqrt(max(s2, 1e-300)), J, G, expand(tg), time_s, groups)
+        return ll, U, info, s2
+
+    t, _, _, _, s2 = _fisher_ascent(np.zeros(len(groups)), evaluate, max_iter)
+    return expand(t), s2
 
 
 @dataclass

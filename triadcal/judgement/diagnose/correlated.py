@@ -250,9 +250,10 @@ SCALE_WANDER_MIMICS = ("scale_tempco", "scale_tempco2", "scale_tempco3")
 
 def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np.ndarray,
                  fractions=CORRELATION_FRACTIONS, cache: Optional[CampaignKernels] = None,
-                 along: Optional[np.ndarray] = None, groups=((0, 1, 2),)) -> Optional[dict]:
+                 along: Optional[np.ndarray] = None, groups=((0, 1, 2),),
+                 noise_known: bool = True) -> Optional[dict]:
     """The encompassing test of a mean candidate against a bias (or, with ``along``, a scale factor)
-    that wanders (known noise).
+    that wanders.
 
     For each correlation time ``tau`` of ``fractions`` (of the campaign's span), the variance
     ``v`` of a Gauss-Markov bias with the kernel of :func:`kernels` is estimated by REML on the
@@ -269,8 +270,16 @@ def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np
     of output a becomes ``D_a K_a D_a`` with ``D_a = diag(along[:, a])`` -- with the nominal gravity on
     the sensor axes, a scale factor that wanders (:data:`SCALE_WANDER_MIMICS`); ``groups``: the outputs
     that share one variance (the bias's: all three; a scale's: one each, the three elements' scale
-    factors being unrelated)."""
-    from ...estimation.flicker_noise import AxisWhitening, reml_tau
+    factors being unrelated).
+
+    ``noise_known=False`` (no ``sd_*``: the white level estimated): the covariance is
+    ``s2 (I + v K)`` with ``s2`` free, REML with the level profiled out
+    (:func:`triadcal.estimation.flicker_noise.reml_tau_profiled`), and the score is the GLS F test
+    ``F = (S / k) / s2_1`` on ``(k, nu - k)`` dof, ``s2_1`` the whitened residual variance with the
+    candidate added (``S`` then in units of that level). With the level held at the declared one a
+    wander would have to explain every excess of scatter; freed, it is asked only to explain the
+    correlation in time."""
+    from ...estimation.flicker_noise import AxisWhitening, reml_tau, reml_tau_profiled
 
     ck = cache if cache is not None else CampaignKernels(time_s, sigma, fractions)
     t = ck.time_s
@@ -282,16 +291,32 @@ def wander_rival(r: np.ndarray, J: np.ndarray, Jc: np.ndarray, time_s, sigma: np
         G = ck.blocks(i)
         if along is not None:
             G = [along[:, [a]] * Ga * along[:, a][None, :] for a, Ga in enumerate(G)]
-        v, _, _, _ = reml_tau(r, J, G, t, [list(g) for g in groups])
+        if noise_known:
+            v, _, _, _ = reml_tau(r, J, G, t, [list(g) for g in groups])
+        else:
+            v, _ = reml_tau_profiled(r, J, G, t, [list(g) for g in groups])
         W = AxisWhitening(G, v, t)
         rw, Jw, Jcw = W.apply(r), W.apply(J), W.apply(Jc)
         Q, _ = np.linalg.qr(Jw)
         Jp = Jcw - Q @ (Q.T @ Jcw)
-        U = Jp.T @ (rw - Q @ (Q.T @ rw))
+        e0 = rw - Q @ (Q.T @ rw)
+        U = Jp.T @ e0
         S = float(U @ np.linalg.lstsq(Jp.T @ Jp, U, rcond=None)[0])
-        p = float(stats.chi2.sf(S, k))
+        if noise_known:
+            p = float(stats.chi2.sf(S, k))
+        else:
+            nu1 = len(rw) - Q.shape[1] - k
+            if nu1 < 1:
+                return None
+            s2_1 = (float(e0 @ e0) - S) / nu1
+            if not s2_1 > 0:
+                return None
+            S = S / s2_1                        # the reduction in units of the white level
+            p = float(stats.f.sf(S / k, k, nu1))
         if worst is None or p > worst["p_value"]:
             worst = {"tau_s": ck.tau_s(i), "variance": float(np.max(v)), "S": S, "k": int(k), "p_value": p}
+            if not noise_known:
+                worst["F_dof"] = [int(k), int(nu1)]
     return worst
 
 
@@ -306,6 +331,8 @@ def wander_ambiguity(effect: str, w: dict, alpha: float, quantity: str = "bias")
     change = "a change of the bias in time" if quantity == "bias" else f"a change of the {quantity} with temperature"
     return {"effect": "unexplained", "best_partial": effect, "ambiguous_with": [lab],
             "reason": (f"{effect} closes the gap but does not beat {lab}: under that noise's "
-                       f"REML covariance its score is S = {w['S']:.3g} on {w['k']} dof, p = "
+                       f"REML covariance its score is S = {w['S']:.3g} on {w['k']} dof"
+                       + (f" (F test on {w['F_dof'][0]} and {w['F_dof'][1]} dof, the white level "
+                          "estimated)" if "F_dof" in w else "") + ", p = "
                        f"{w['p_value']:.3g} >= {alpha:g}; the data cannot tell {change} "
                        "from a wander (docs/diagnosis.md \"Rivals\")")}

@@ -660,12 +660,12 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 for quantity, mimics, along, groups in (
                         ("bias", WANDER_MIMICS, None, ((0, 1, 2),)),
                         ("scale", SCALE_WANDER_MIMICS, _nominal_g(campaign), ((0,), (1,), (2,)))):
-                    if amb or not noise.known or not named_effects & set(mimics):
+                    if amb or not named_effects & set(mimics):
                         continue
                     w = wander_rival(base.r, base.J, Jfull[:, [full.index[n] for n in named.params]],
                                      campaign.time_s, sigma, cache=ckern,
                                      along=None if along is None else np.asarray(along, float).reshape(-1, 3),
-                                     groups=groups)
+                                     groups=groups, noise_known=noise.known)
                     if w is not None:
                         w["quantity"] = quantity
                         amb = _kept_rival(verdict, "wander_rival", w,
