@@ -87,6 +87,35 @@ def test_left_out_mode_rows_confusion_and_json(tmp_path):
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_noise_estimated_mode(tmp_path):
+    """--noise-estimated: the campaign's declared noise removed before the diagnosis (validation's
+    without_noise: no sd, n_samples, u_w, Q_V2s), the row says the noise was estimated, the JSON says
+    the mode and follows its contract; the cubic scale tempco is still named (its wander rival asked
+    with the level free: tests/test_correlated_noise.py). With the noise declared: noise_known in
+    the row."""
+    from triadcal.judgement.diagnosis_validation import run_case, without_noise
+    from triadcal.models.simulate import Schedule, simulate_campaign
+    from triadcal.judgement.diagnosis_validation import VALIDATION_PLAN, VALIDATION_SOAK_S
+
+    truth, _ = scenario("scale_tempco3")
+    c = simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S), seed=1000)
+    bare = without_noise(c)
+    assert c.output_sigma() is not None and "Q_V2s" in c.metadata
+    assert bare.output_sigma() is None and "Q_V2s" not in bare.metadata and np.array_equal(bare.w, c.w)
+    res = validate(seeds=1, effects=("scale_tempco3",), processes=1, noise_estimated=True)
+    (row,) = res.rows
+    assert row["noise_known"] is False and row["verdict"] == "scale_tempco3", row
+    assert run_case("scale_tempco3", 1000)["noise_known"] is True
+    from triadcal.reports.diagnosis import write_validation
+    from test_results_contract import assert_valid, load
+
+    paths = write_validation(res, tmp_path)
+    doc = load(paths["json"])
+    assert doc["noise_estimated"] is True and "estimated" in doc["noise_estimated_definition"]
+    assert "noise estimated" in doc["design"]
+    assert_valid(doc, "triadcal.diagnosis_validation")
+
+
 def test_cli_magnitudes_and_left_out(tmp_path):
     """The command end to end on clean data alone with --left-out and a magnitude (the README's
     command as the doc harness reduces it): nothing is left out and the table says so (it was an

@@ -35,6 +35,7 @@ Noise 5e-4 V per sample, 3000 samples a visit: a visit's mean has an SD of 9 ug,
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -201,6 +202,25 @@ def test_a_scale_that_wanders_with_the_noise_estimated_is_unexplained(tmp_path, 
     d.save(tmp_path / "d.json")                     # F_dof in the schema of docs/results-json.md
     from test_results_contract import errors
     assert errors(json.loads((tmp_path / "d.json").read_text())) == []
+    # issue 18 item 6: no chi2 level with the noise estimated -- the summary and the report say so and
+    # what it was estimated from, and how far each refit shrank the gap as a ratio to the base fit's
+    # (the candidates' chi2/dof after were 1e-8-like ratios of relative weights before)
+    from triadcal.reports.diagnosis import html_report, summary_text
+    for c in d.candidates:
+        if c.refit:
+            a = c.refit["gap_after"]
+            assert a["chi2_dof"] is None and c.refit["gap_before"]["chi2_dof"] is None, (c.effect, a)
+            if c.effect in ("heavy_tails", "position_error"):       # reweighted: no ratio to the base's
+                assert a["chi2_dof_ratio"] is None, (c.effect, a)
+                continue
+            # nested at the optimum: chi2 does not rise, so the ratio is at most dof before / dof after
+            bound = d.gap["dof"] / c.refit["dof_after"] * (1.0 + 1e-6)
+            assert 0.0 < a["chi2_dof_ratio"] <= bound, (c.effect, a["chi2_dof_ratio"], bound)
+    text = summary_text(d)
+    assert "the noise was estimated from the residuals" in text and not re.search(r"chi2/dof after [0-9]", text), text
+    assert "of the base fit's (noise estimated: no chi2 level)" in text and "not computed" not in text, text
+    page = html_report(d)
+    assert "the noise was estimated from the residuals" in page and "of the base fit&#x27;s (noise estimated" in page
 
 
 def _thermometer_hysteresis(text: str, delta_C: float) -> str:

@@ -38,6 +38,10 @@ def register(sub) -> None:
                         "powerful test at alpha = 0.01 that knows the effect's exact shape (an upper bound on "
                         "any rule's detection rate) and of the effect's own score test at Holm's first step; "
                         "writes detectability.txt and detectability.json (docs/diagnosis.md, \"Detectability\")")
+    p.add_argument("--noise-estimated", action="store_true",
+                   help="remove each campaign's declared noise (sd_*, n_samples, u_w_*, Q_V2s) before the "
+                        "diagnosis, as in a bench CSV without them: the white level is estimated from the "
+                        "residuals (flicker_noise and quantisation are then untestable)")
     p.add_argument("--preset", default="ak18-quartz", help="unit preset (default ak18-quartz)")
     p.add_argument("--processes", type=int, default=2, help="worker processes (default 2)")
     p.add_argument("--out", default="diagnosis-validation", metavar="DIR",
@@ -70,6 +74,9 @@ def run(args) -> int:
 
     effects = name_list(args.effects) if args.effects else None
     if args.detectability:
+        if args.noise_estimated:
+            raise InputError("--detectability computes the noncentrality with the declared noise; "
+                             "--noise-estimated does not apply to it")
         return _detectability(args, effects, magnitudes, out)
     if args.second_mechanisms and effects is None:
         from ..judgement.second_mechanisms import CONDITIONS
@@ -77,7 +84,7 @@ def run(args) -> int:
         effects = list(CONDITIONS)
     res = validate(seeds=args.seeds, effects=effects,
                    processes=args.processes, preset=args.preset, progress=progress, magnitudes=magnitudes,
-                   left_out=args.left_out)
+                   left_out=args.left_out, noise_estimated=args.noise_estimated)
     paths = write_validation(res, args.out)
     out.say(res.table())
     fa = res.summary.get("clean", {}).get("false_alarm_rate")

@@ -101,6 +101,20 @@ LEFT_OUT_DEFINITION = ("left-out mode: the same campaign diagnosed again with th
                        "group (LEFT_OUT_GROUPS) removed from the candidate list; right verdict 'unexplained'")
 
 
+NOISE_ESTIMATED_DEFINITION = ("noise estimated: each campaign's noise columns removed before the diagnosis (no "
+                              "sd_*, n_samples, u_w_* or Q_V2s), so that the white level is estimated from the "
+                              "residuals; flicker_noise and quantisation, which need the declared noise, are untestable")
+
+
+def without_noise(campaign):
+    """``campaign`` with no declared noise: its ``sd``, ``n_samples``, ``u_w`` and the ``Q_V2s``
+    metadata line removed (a bench CSV without those columns), so the diagnosis estimates the level."""
+    import dataclasses
+
+    meta = {k: v for k, v in campaign.metadata.items() if k != "Q_V2s"}
+    return dataclasses.replace(campaign, sd=None, n_samples=None, u_w=None, metadata=meta)
+
+
 #: parameters of a withheld effect that the magnitude does not scale: the settling's time constant
 #: (its size is the offsets d; a shorter tau_s would be another law, not a smaller one)
 UNSCALED = ("tilt_settle_tau",)
@@ -141,8 +155,11 @@ def scenario(effect: str, preset: str = "ak18-quartz", magnitude: float = 1.0):
 
 
 def run_case(effect: str, seed: int, preset: str = "ak18-quartz", n_draws: int = 200,
-             cross_group: bool = False, top: int = 2, magnitude: float = 1.0, left_out: bool = False) -> dict:
+             cross_group: bool = False, top: int = 2, magnitude: float = 1.0, left_out: bool = False,
+             noise_estimated: bool = False) -> dict:
     """Simulate, fit without ``effect``, diagnose; the row of the validation table.
+
+    ``noise_estimated``: the campaign's declared noise removed first (:func:`without_noise`).
 
     With ``left_out`` (and an effect, not 'clean') the same campaign is diagnosed a second time
     with ``left_out_group(effect)`` removed from the candidates; the row then also holds
@@ -161,6 +178,8 @@ def run_case(effect: str, seed: int, preset: str = "ak18-quartz", n_draws: int =
         truth, model = scenario(effect, preset, magnitude)
         campaign = simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S),
                                      seed=seed)
+    if noise_estimated:
+        campaign = without_noise(campaign)
     #: the verdicts that are right: the effect (none for clean), or any of its family for a second mechanism
     right = (sm.FAMILY[base_effect] if second else
              (NONE,) if effect == "clean" else SAME_EFFECT.get(effect, (effect,)))
@@ -195,7 +214,7 @@ def run_case(effect: str, seed: int, preset: str = "ak18-quartz", n_draws: int =
             "chi2_dof_after": after, "n_significant_slices": len(where), "top_slice": (local[0] if local else where[0]).slice if where else None,
             "top_slice_family": top_family,
             "localised": (top_family in expected) if expected else top_family is None,
-            "seconds": seconds, "cpu_seconds": cpu}
+            "noise_known": bool(d.noise_known), "seconds": seconds, "cpu_seconds": cpu}
     if left_out and effect != "clean":
         group = tuple(dict.fromkeys(left_out_group(base_effect) + (tuple(right) if second else ())))
         cands = [c for c in VOCABULARY + FORM_CANDIDATES if c not in group]
@@ -227,6 +246,7 @@ class ValidationResult:
     summary: dict = field(default_factory=dict)
     magnitudes: tuple = (1.0,)
     left_out: bool = False            # each effect also diagnosed with its group left out
+    noise_estimated: bool = False     # the campaigns' declared noise removed (without_noise)
 
     @property
     def left_out_conditions(self) -> tuple:
@@ -266,7 +286,8 @@ class ValidationResult:
             else:
                 rng = s["chi2_dof_after_range"]
                 extra = (f"   {s['correct_rate']:6.0%}   {s['localised_rate']:7.0%}    "
-                         + (f"[{rng[0]:.2f}, {rng[1]:.2f}]" if rng else "-"))
+                         + (f"[{rng[0]:.2f}, {rng[1]:.2f}]" if rng else
+                            "none (noise estimated)" if self.noise_estimated else "-"))
             lines.append(f"{c:<{w}}" + " ".join(f"{v:>9d}" for v in M[i]) + extra)
         return lines
 
@@ -285,7 +306,9 @@ class ValidationResult:
              "confusion": self.confusion().tolist(), "summary": self.summary, "rows": self.rows,
              "design": self.design.strip(), "seconds": self.seconds,
              "magnitudes": [float(m) for m in self.magnitudes], "magnitude_definition": MAGNITUDE_DEFINITION,
-             "left_out": self.left_out}
+             "left_out": self.left_out, "noise_estimated": self.noise_estimated}
+        if self.noise_estimated:
+            d["noise_estimated_definition"] = NOISE_ESTIMATED_DEFINITION
         if self.left_out:
             d.update({"left_out_definition": LEFT_OUT_DEFINITION,
                       "left_out_conditions": list(self.left_out_conditions),
@@ -321,7 +344,9 @@ def summarise(rows, conditions) -> dict:
             "noise_named_rate": (float(np.mean([r["verdict"] in NOISE_EFFECTS for r in rs]))
                                  if base not in NOISE_EFFECTS else None),
             "localised_rate": float(np.mean([bool(r["localised"]) for r in rs])),
-            "chi2_dof_before_median": float(np.median([r["chi2_dof_before"] for r in rs])),
+            # None with the noise estimated (no chi2/dof against a declared level)
+            "chi2_dof_before_median": (float(np.median(before)) if (before := [
+                r["chi2_dof_before"] for r in rs if r["chi2_dof_before"] is not None]) else None),
             "chi2_dof_after_range": [float(min(after)), float(max(after))] if after else None,
             "chi2_dof_after_in_0.8_1.2": (float(np.mean([0.8 <= a <= 1.2 for a in after])) if after else None),
             "median_seconds": float(np.median([r["seconds"] for r in rs])),
@@ -373,10 +398,12 @@ def _one_blas_thread():
 
 def validate(seeds: int = 20, effects: Optional[Sequence[str]] = None, processes: int = 2,
              preset: str = "ak18-quartz", first_seed: int = 1000, n_draws: int = 200,
-             progress=None, magnitudes: Sequence[float] = (1.0,), left_out: bool = False) -> ValidationResult:
+             progress=None, magnitudes: Sequence[float] = (1.0,), left_out: bool = False,
+             noise_estimated: bool = False) -> ValidationResult:
     """Run the validation: ``seeds`` campaigns per condition (clean and each effect at each of
     ``magnitudes``; clean once). With ``left_out`` each effect's campaign is diagnosed a second
-    time with the effect's group left out of the candidates (:func:`run_case`).
+    time with the effect's group left out of the candidates (:func:`run_case`); with
+    ``noise_estimated`` without its declared noise (:func:`without_noise`).
 
     Runs in ``processes`` worker processes (spawned with one BLAS thread each: the
     matrices are small and threaded BLAS only adds overhead). ``progress`` (optional)
@@ -390,7 +417,8 @@ def validate(seeds: int = 20, effects: Optional[Sequence[str]] = None, processes
     conditions = tuple(condition_name(e, m) for e, m in cases)
     for e, _ in cases:
         scenario(e, preset)                        # unknown effects fail here, before the workers
-    jobs = [(e, first_seed + s, preset, n_draws, False, 2, m, left_out) for e, m in cases for s in range(seeds)]
+    jobs = [(e, first_seed + s, preset, n_draws, False, 2, m, left_out, noise_estimated)
+            for e, m in cases for s in range(seeds)]
     t0 = time.perf_counter()
     rows = []
     if processes <= 1:
@@ -405,12 +433,13 @@ def validate(seeds: int = 20, effects: Optional[Sequence[str]] = None, processes
                 if progress:
                     progress(row)
     labels = tuple(VOCABULARY) + FORM_CANDIDATES + (UNEXPLAINED, NONE)
-    design = DESIGN + "; " + MAGNITUDE_DEFINITION + (("; " + LEFT_OUT_DEFINITION) if left_out else "")
+    design = (DESIGN + "; " + MAGNITUDE_DEFINITION + (("; " + LEFT_OUT_DEFINITION) if left_out else "")
+              + (("; " + NOISE_ESTIMATED_DEFINITION) if noise_estimated else ""))
     res = ValidationResult(rows, conditions, labels, seeds, design=design, seconds=time.perf_counter() - t0,
-                           magnitudes=magnitudes, left_out=left_out)
+                           magnitudes=magnitudes, left_out=left_out, noise_estimated=noise_estimated)
     res.summary = summarise(rows, conditions)
     return res
 
 
 __all__ = ["ALPHA", "CONDITIONS", "LEFT_OUT_GROUPS", "MAGNITUDES", "VALIDATION_PLAN", "ValidationResult",
-           "condition_name", "left_out_group", "run_case", "scenario", "validate"]
+           "condition_name", "left_out_group", "run_case", "scenario", "validate", "without_noise"]

@@ -133,6 +133,25 @@ def _img(png: bytes, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode()}"/>'
 
 
+def _chi2_after(gap_after: dict, noise_known: bool = True) -> str:
+    """How far a refit shrank the gap: its chi2/dof, or with the noise estimated (no chi2 level)
+    the ratio of chi2/dof after to before (none for a noise model, which reweights), said so."""
+    a = gap_after or {}
+    if a.get("chi2_dof") is not None or noise_known:
+        return f"chi2/dof after {_num(a.get('chi2_dof'))}"
+    if a.get("chi2_dof_ratio") is None:
+        return "chi2/dof after: none (noise estimated, and a noise model reweights the residuals)"
+    return f"chi2/dof x {_num(a['chi2_dof_ratio'])} of the base fit's (noise estimated: no chi2 level)"
+
+
+def _gap_chi2(d) -> str:
+    """The gap's chi2/dof, or with the noise estimated what it was estimated from."""
+    g = d.gap
+    if g.get("chi2_dof") is None and not d.noise_known:
+        return f"chi2/dof: none, the noise was {d.noise} ({_count(g.get('dof'))} dof)"
+    return f"chi2/dof = {_num(g['chi2_dof'])} ({_count(g.get('dof'))} dof)"
+
+
 def _num(v, fmt="{:.3g}") -> str:
     """A number, or why there is none (never a bare dash that reads like a value)."""
     if v is None:
@@ -260,8 +279,9 @@ def html_report(diagnosis, campaign=None) -> str:
         f"<h1>Diagnosis of the model-data gap</h1><p>data: {e(str(d.source))}; model: "
         f"{e(', '.join(d.model) or '(core only)')}; noise: {e(d.noise)}</p>",
         "<h2>Gap</h2>",
-        f"<p>chi2/dof = {_num(g['chi2_dof'])} ({_count(g.get('dof'))} dof), residual RMS "
-        f"{_num(g['residual_rms_ug'])} ug against a noise floor of {_num(g['noise_floor_ug'])} ug; "
+        f"<p>{e(_gap_chi2(d))}, residual RMS "
+        f"{_num(g['residual_rms_ug'])} ug against a noise floor of {_num(g['noise_floor_ug'])} ug"
+        f"{'' if d.noise_known else ' (estimated from these residuals)'}; "
         f"significant: <b>{_yes_no(g.get('significant'))}</b> (Holm at alpha = {d.alpha:g}). "
         f"{e(str(g.get('testable', '')))}.</p>",
         "<h2>Verdict</h2>",
@@ -313,7 +333,7 @@ def html_report(diagnosis, campaign=None) -> str:
             f"<td>{_p(r.get('lr_p_value'))}</td>"
             f"<td>{_num(r.get('delta_elpd'), '{:.1f}')} +- {_num(r.get('delta_elpd_se'), '{:.1f}')}</td>"
             f"<td>{_num(r.get('cross_branch_delta_lpd'), '{:.1f}')}</td>"
-            f"<td>{_num((r.get('gap_after') or {}).get('chi2_dof'))}</td>"
+            f"<td>{e(_chi2_after(r.get('gap_after'), d.noise_known).replace('chi2/dof after ', ''))}</td>"
             f"<td>{_num((r.get('gap_after') or {}).get('residual_rms_ug'))}</td>"
             + (f"<td>{e(str(ls['parameter']))} {_num(ls.get('in_u'), '{:.1f}')} u</td></tr>" if ls.get("parameter")
                else "<td>not computed</td></tr>"))
@@ -327,7 +347,10 @@ def html_report(diagnosis, campaign=None) -> str:
         moved = sorted(((n, s) for n, s in r["parameter_shifts"].items() if s.get("in_u") is not None),
                        key=lambda t: -abs(t[1]["in_u"]))[:6]
         parts.append(
-            f"<h3>{e(c.effect)}</h3><p>chi2/dof {_num(b['chi2_dof'])} &rarr; {_num(a['chi2_dof'])}; residual RMS "
+            f"<h3>{e(c.effect)}</h3><p>"
+            + (f"chi2/dof {_num(b['chi2_dof'])} &rarr; {_num(a['chi2_dof'])}" if a.get("chi2_dof") is not None
+               or d.noise_known else e(_chi2_after(a, False)))
+            + "; residual RMS "
             f"{_num(b['residual_rms_ug'])} &rarr; {_num(a['residual_rms_ug'])} ug (noise floor "
             f"{_num(a['noise_floor_ug'])} ug); elpd {_num(b['elpd_loo'], '{:.1f}')} &rarr; "
             f"{_num(a['elpd_loo'], '{:.1f}')}; significant slices {_count(b.get('significant_slices'))} &rarr; "
@@ -378,8 +401,9 @@ def summary_text(diagnosis) -> str:
     d = diagnosis
     g = d.gap
     lines = [f"model: {', '.join(d.model) or '(core only)'}",
-             f"gap: chi2/dof = {_num(g['chi2_dof'])} ({g['dof']} dof), RMS {_num(g['residual_rms_ug'])} ug vs noise "
-             f"{_num(g['noise_floor_ug'])} ug; significant: {_yes_no(g.get('significant'))}",
+             f"gap: {_gap_chi2(d)}, RMS {_num(g['residual_rms_ug'])} ug vs noise "
+             f"{_num(g['noise_floor_ug'])} ug{'' if d.noise_known else ' (estimated from these residuals)'}; "
+             f"significant: {_yes_no(g.get('significant'))}",
              "verdict: {}  ({})".format(*_verdict_text(d))]
     if d.families and d.families[0]["log10_p"] < math.log10(d.alpha):
         f = d.families[0]
@@ -390,8 +414,7 @@ def summary_text(diagnosis) -> str:
         if not c.testable:
             continue
         r = c.refit or {}
-        after = (r.get("gap_after") or {}).get("chi2_dof")
         lines.append(f"  {c.rank}. {c.effect}: score log10 p = {c.score_logp / math.log(10):.1f}"
-                     + (f", delta elpd = {r['delta_elpd']:.1f} +- {r['delta_elpd_se']:.1f}, chi2/dof after "
-                        f"{_num(after)}" if r else ""))
+                     + (f", delta elpd = {r['delta_elpd']:.1f} +- {r['delta_elpd_se']:.1f}, "
+                        + _chi2_after(r.get("gap_after"), d.noise_known) if r else ""))
     return "\n".join(lines)

@@ -372,9 +372,17 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             "elpd_loo": elpd, "elpd_se": se, "delta_elpd": d_elpd, "delta_elpd_se": d_se,
             "pareto_k_max": kmax,
             "cross_branch_delta_lpd": _f(cross) if cross is not None else None,
-            "gap_before": {"chi2_dof": _f(base.chi2_dof), "residual_rms_ug": gap["residual_rms_ug"],
+            # with the noise estimated there is no chi2 level (the weights are relative: a tiny ratio that
+            # means nothing); how far the gap shrank is then the ratio of chi2/dof after to before
+            "gap_before": {"chi2_dof": _f(base.chi2_dof) if noise.known else None,
+                           "residual_rms_ug": gap["residual_rms_ug"],
                            "noise_floor_ug": floor_ug, "elpd_loo": elpd0, "significant_slices": n_sig_before},
-            "gap_after": {"chi2_dof": _f(chi2_after / dof_after if dof_after > 0 else float("nan")),
+            "gap_after": {"chi2_dof": (_f(chi2_after / dof_after if dof_after > 0 else float("nan"))
+                                       if noise.known else None),
+                          # a noise model reweights the residuals: its chi2 is not the base's, no ratio
+                          "chi2_dof_ratio": (None if c.effect in NOISE_EFFECTS else
+                                             _f(chi2_after / dof_after / base.chi2_dof
+                                                if dof_after > 0 and base.chi2_dof > 0 else float("nan"))),
                           "residual_rms_ug": rms_after, "noise_floor_ug": floor_ug, "elpd_loo": elpd,
                           "significant_slices": n_sig_after,
                           "generic": {f: {"S": _f(t["S"]), "k": t["k"], "p_value": _f(t["p_value"]),
@@ -709,7 +717,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             # a gap with no pattern: is the best partial answer one without the declared level?
             verdict = partial_without_level(verdict, cand_objs, base, h, pe_w, alpha, noise.known)
             verdict["reason"] += level_words(base.chi2_dof)
-    fit = {"chi2_dof": _f(base.chi2_dof), "n_obs": int(base.r.size), "n_params": len(names),
+    fit = {"chi2_dof": _f(base.chi2_dof) if noise.known else None, "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
     return Diagnosis(model=model, noise_known=noise.known, noise=noise.description, gap=gap, slices=slices,

@@ -47,7 +47,8 @@ def series_txt(c) -> str:
     if ser["gap_open_after"]:
         c2 = ser["gap_after"]["chi2_dof"]
         why.append("leaves it open too ({}; generic structure: {})".format(
-            "the noise estimated, no chi2 level" if c2 is None else f"chi2/dof after {c2:.3g}",
+            (f"the noise estimated, no chi2 level: chi2/dof {ser['gap_after'].get('chi2_dof_ratio') or float('nan'):.3g} "
+             "of the base fit's") if c2 is None else f"chi2/dof after {c2:.3g}",
             ", ".join(ser["gap_after"]["generic_structure"]) or "none"))
     if not why:
         why.append(f"does not beat {c.effect} alone ({ser['over_single']['criterion']}) or the base model")
@@ -109,7 +110,7 @@ def series_of(best, *, model, cand_objs, states: dict, full, noise_known: bool, 
            "lr_p_value": _f(lr_p), "delta_elpd": sc.refit["delta_elpd"],
            "delta_elpd_se": sc.refit["delta_elpd_se"],
            "over_single": {"effect": best.effect, "p_value": _f(p_more), "criterion": crit},
-           "gap_after": {k: sc.refit["gap_after"][k] for k in ("chi2_dof", "significant_slices",
+           "gap_after": {k: sc.refit["gap_after"][k] for k in ("chi2_dof", "chi2_dof_ratio", "significant_slices",
                                                                "generic_structure")},
            "gap_open_after": bool(open_), "named": named_,
            "fit_options": f"--effects {effects_opt}"}
