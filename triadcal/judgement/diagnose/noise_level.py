@@ -137,6 +137,68 @@ def partial_without_level(verdict: dict, cand_objs: list, base, h: np.ndarray, p
             "where": verdict["where"], "shape": verdict["shape"]}
 
 
+#: draws of the Monte Carlo null of :func:`soak_level_rival` (fixed seed: p to 1 / (draws + 1))
+SOAK_LEVEL_DRAWS = 4000
+
+
+def soak_level_rival(r: np.ndarray, Q: np.ndarray, blocks: np.ndarray, seed: int = 0) -> Optional[dict]:
+    """The test ``heavy_tails`` must pass against a Gaussian noise whose level changes soak by soak.
+
+    Residuals from a noise whose SD is larger at one soak (a hot chamber, a vibrating compressor
+    cycle) are a scale mixture of normals: heavy-tailed together, normal within each soak. So the
+    residuals ``r`` (3n, normalised) are standardised by their own RMS within each setpoint block
+    (``blocks``: per visit, ``Campaign.setpoint_blocks``; the three outputs of a soak together), and
+    their kurtosis ``b2 = N sum z^4 / (sum z^2)^2`` is compared with its null: Gaussian white noise,
+    projected off the fitted span (``Q``: its orthonormal basis, so the leverages are in the null)
+    and standardised the same way, by Monte Carlo (:data:`SOAK_LEVEL_DRAWS` draws, seeded ``seed``;
+    one-sided, ``p = (1 + #{b2* >= b2}) / (draws + 1)``; within a group of m the standardisation
+    alone lowers E b2 to 3 m / (m + 2)). Tails heavy within the soaks keep b2 high; a level that only
+    changes between soaks does not. ``b2``, ``b2_null_mean``, ``blocks``, ``level_ratio`` (the
+    largest soak's mean square over the smallest's), ``p_value``; None with fewer than two blocks."""
+    r = np.asarray(r, float)
+    g = np.repeat(np.asarray(blocks, int), r.size // max(len(blocks), 1))
+    m = int(g.max()) + 1 if g.size else 0
+    if m < 2 or g.size != r.size:
+        return None
+    counts = np.bincount(g, minlength=m).astype(float)
+    if np.any(counts < 4):
+        return None
+
+    def b2(X):                                     # X (N, k): the statistic of each column
+        ms = np.zeros((m, X.shape[1]))
+        np.add.at(ms, g, X * X)
+        ms /= counts[:, None]
+        Z2 = X * X / np.maximum(ms[g], 1e-300)
+        return X.shape[0] * np.sum(Z2 * Z2, axis=0) / np.sum(Z2, axis=0) ** 2
+
+    obs = float(b2(r[:, None])[0])
+    rng = np.random.default_rng(seed)
+    sims = []
+    for _ in range(SOAK_LEVEL_DRAWS // 500):
+        E = rng.standard_normal((r.size, 500))
+        sims.append(b2(E - Q @ (Q.T @ E)))
+    sims = np.concatenate(sims)
+    ms = np.bincount(g, weights=r * r, minlength=m) / counts
+    return {"b2": obs, "b2_null_mean": float(np.mean(sims)), "blocks": m,
+            "level_ratio": float(ms.max() / max(ms.min(), 1e-300)),
+            "p_value": float((1 + np.sum(sims >= obs)) / (sims.size + 1))}
+
+
+def soak_level_ambiguity(u: dict, alpha: float) -> Optional[dict]:
+    """The ``unexplained`` verdict's own fields when ``heavy_tails`` does not beat a noise whose level
+    changes soak by soak (:func:`soak_level_rival`'s ``u`` not significant at ``alpha``), else None.
+    The caller adds the evidence, the closed gap and where."""
+    if u["p_value"] < alpha:
+        return None
+    lab = (f"a Gaussian noise whose level changes soak by soak (mean squares over {u['blocks']} soaks, the "
+           f"largest {u['level_ratio']:.3g} times the smallest)")
+    return {"effect": "unexplained", "best_partial": "heavy_tails", "ambiguous_with": [lab],
+            "reason": (f"heavy_tails closes the gap but does not beat {lab}: standardised soak by soak the "
+                       f"residuals' kurtosis is b2 = {u['b2']:.3g} against {u['b2_null_mean']:.3g} for normal "
+                       f"noise, p = {u['p_value']:.3g} >= {alpha:g}; the data cannot tell heavy tails from a "
+                       "scatter that grows at some soaks (docs/diagnosis.md \"Rivals\")")}
+
+
 def uniform_ambiguity(effect: str, u: dict, alpha: float) -> Optional[dict]:
     """The ``unexplained`` verdict's own fields when the noise effect ``effect`` does not beat a
     uniform excess of white noise (``u``: :func:`uniform_rival`'s for ``position_error`` -- the

@@ -54,7 +54,8 @@ from .candidates import (
     _tilt_settling,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
-from .noise_level import LEVEL_MIMICS, noise_level_rival, partial_without_level, uniform_ambiguity
+from .noise_level import (LEVEL_MIMICS, noise_level_rival, partial_without_level, soak_level_ambiguity,
+                          soak_level_rival, uniform_ambiguity)
 from .correlated import (SCALE_WANDER_MIMICS, WANDER_MIMICS, CampaignKernels, correlated_test, wander_ambiguity,
                          wander_rival)
 from .generic import (NOISE_RIVAL_TESTS, families_after, gap_shape, generic_basis, generic_tests, level_words,
@@ -692,6 +693,13 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                 u = noise_level_rival(named, base.r, h, pe_w)
                 if u is not None:
                     verdict = _kept_rival(verdict, "uniform_rival", u, uniform_ambiguity(named.effect, u, alpha),
+                                          where_of(slices)) or verdict
+            if not gap_open and named.effect == "heavy_tails" and verdict["effect"] == "heavy_tails":
+                # heavy tails must beat a normal noise whose level changes soak by soak: a scale mixture
+                # that standardising each soak removes (noise_level.soak_level_rival; with either noise)
+                u = soak_level_rival(base.r, Q, campaign.setpoint_blocks, seed=seed)
+                if u is not None:
+                    verdict = _kept_rival(verdict, "soak_level_rival", u, soak_level_ambiguity(u, alpha),
                                           where_of(slices)) or verdict
             others = [c for c in refitted if c is not best]
             if others:
