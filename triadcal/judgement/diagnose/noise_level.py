@@ -11,6 +11,8 @@ score by one factor, and a noise effect that widens the noise (``position_error`
 * :func:`noise_level_rival` -- the test each of :data:`LEVEL_MIMICS` must pass (``heavy_tails``: its
   kurtosis score, scale-free);
 * :func:`uniform_ambiguity` -- the ``unexplained`` verdict when it does not;
+* :func:`soak_level_rival`, :func:`soak_level_ambiguity` -- ``heavy_tails`` against a normal noise
+  whose level changes soak by soak (a scale mixture: heavy-tailed only together), with either noise;
 * :func:`score_with_level`, :func:`partial_without_level` -- a gap with no pattern (shape: the level
   alone): its best partial answer asked again with the level estimated.
 
