@@ -161,7 +161,7 @@ def test_a_random_walk_of_the_bias_is_not_a_linear_drift(tmp_path):
 def _validation_diagnosis(effect, magnitude, seed, left_out, only=None, estimated=False):
     """The validation's campaign of ``effect`` at ``magnitude`` and ``seed`` diagnosed as run_case
     does, with the effect's group left out of the candidates or in the vocabulary (``only``: these
-    candidates alone); ``estimated``: its CSV without the noise (no sd_*, n_samples, Q_V2s)."""
+    candidates alone); ``estimated``: without its declared noise (diagnosis_validation.without_noise)."""
     from triadcal.judgement.diagnosis_validation import (FORM_CANDIDATES, VALIDATION_PLAN, VALIDATION_SOAK_S,
                                                          VOCABULARY, Schedule, left_out_group, scenario,
                                                          simulate_campaign)
@@ -170,10 +170,8 @@ def _validation_diagnosis(effect, magnitude, seed, left_out, only=None, estimate
     truth, model = scenario(effect, magnitude=magnitude)
     c = simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S), seed=seed)
     if estimated:
-        from test_foreign_effects import _without_noise_columns
-        from triadcal.io.bench_csv import format_bench_csv, parse_bench_csv
-        text = _without_noise_columns(format_bench_csv(c))
-        c = parse_bench_csv("\n".join(x for x in text.splitlines() if not x.startswith("# Q_V2s")) + "\n")
+        from triadcal.judgement.diagnosis_validation import without_noise
+        c = without_noise(c)
     cands = [x for x in VOCABULARY + FORM_CANDIDATES if x not in left_out_group(effect)] if left_out else None
     cands = list(only) if only is not None else cands
     return diagnose(c, model, candidates=cands, slices_after=left_out, seed=seed, n_draws=200, top=2)
