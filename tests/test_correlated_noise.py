@@ -279,6 +279,21 @@ def _dense_profiled_reml(r, X, Gs, tau):
     return ll, s2
 
 
+def _profiled_design(seed):
+    """60 visits in 10 blocks of 6; a Gauss-Markov kernel of 0.3 of the span per output; the base a
+    constant and a line per output; ``L`` the Cholesky factor of ``I + 2 G``: the generator, n, t,
+    G, X, L."""
+    from triadcal.judgement.diagnose.correlated import kernels
+    rng = np.random.default_rng(seed)
+    n = 60
+    t = np.array([3000.0 * (i // 6) + 50.0 * (i % 6) for i in range(n)])
+    G = kernels(t, np.ones((n, 3)), 0.3 * t.max())
+    X = np.zeros((3 * n, 6))
+    for a in range(3):
+        X[a::3, 2 * a:2 * a + 2] = np.column_stack([np.ones(n), t / t.max()])
+    return rng, n, t, G, X, np.linalg.cholesky(np.eye(n) + 2.0 * G[0])
+
+
 def test_the_profiled_reml_is_the_dense_formula_maximised():
     """flicker_noise.reml_tau_profiled (the white level free, profiled out) against the dense
     formula maximised by scipy's bounded scalar search: the same variance ratio (to 1e-3 of itself)
@@ -286,15 +301,7 @@ def test_the_profiled_reml_is_the_dense_formula_maximised():
     ratio is of the wander to the white noise, whatever the declared sigma."""
     from scipy import optimize
     from triadcal.estimation.flicker_noise import reml_tau_profiled
-    from triadcal.judgement.diagnose.correlated import kernels
-    rng = np.random.default_rng(21)
-    n = 60
-    t = np.array([3000.0 * (i // 6) + 50.0 * (i % 6) for i in range(n)])
-    G = kernels(t, np.ones((n, 3)), 0.3 * t.max())
-    X = np.zeros((3 * n, 6))
-    for a in range(3):
-        X[a::3, 2 * a:2 * a + 2] = np.column_stack([np.ones(n), t / t.max()])
-    L = np.linalg.cholesky(np.eye(n) + 2.0 * G[0])
+    rng, n, t, G, X, L = _profiled_design(21)
     r = 3.0 * np.concatenate([L @ rng.standard_normal(n) for _ in range(3)]).reshape(3, n).T.reshape(-1)
     tau, s2 = reml_tau_profiled(r, X, G, t, [[0, 1, 2]])
     best = optimize.minimize_scalar(lambda v: -_dense_profiled_reml(r, X, G, [v] * 3)[0], bounds=(0.0, 50.0),
@@ -304,6 +311,45 @@ def test_the_profiled_reml_is_the_dense_formula_maximised():
     assert 0.5 < tau[0] < 8.0 and 4.0 < s2 < 20.0, (tau, s2)          # drawn with 2 and 9
     tau7, s27 = reml_tau_profiled(7.0 * r, X, G, t, [[0, 1, 2]])
     assert tau7 == pytest.approx(tau, rel=1e-6) and s27 == pytest.approx(49.0 * s2, rel=1e-6)
+
+
+def _dense_information(X, Gs, s2, b):
+    """The expected REML information of ``(s2, b)`` for ``V = s2 I + b G`` (G block-diagonal, one
+    common b), written out with dense matrices: ``1/2 tr(P V_i P V_j)`` (Harville 1977, eq. 4.6)."""
+    N = X.shape[0]
+    Gd = np.zeros((N, N))
+    for a, Ga in enumerate(Gs):
+        Gd[a::3, a::3] = Ga
+    Vi = np.linalg.inv(s2 * np.eye(N) + b * Gd)
+    P = Vi - Vi @ X @ np.linalg.solve(X.T @ Vi @ X, X.T @ Vi)
+    comps = (np.eye(N), Gd)
+    return np.array([[0.5 * np.trace(P @ A @ P @ B) for B in comps] for A in comps])
+
+
+def test_the_flicker_floor_with_the_white_level_estimated():
+    """flicker_noise.profiled_u (u of b = s2 tau from the joint information of the white level and
+    the component): (a) equal to the dense formula's inverse information at the estimate (to 1e-6 of
+    itself); (b) on 200 draws of V = 9 (I + 2 G) (the design of the test above) the REML estimates
+    b^ = s2^ tau^ are unbiased (mean within 3 SE of 18) and scatter as the information at the truth
+    says (Cramer-Rao: their SD / u within 1 +- 0.15, 3 SE of an SD from 200 draws; measured 0.95),
+    and u at the estimate is that u in the median (within 15 %; measured 6.35 against 6.55). (The
+    Wald z = (b^ - b) / u^ is not normal on 60 visits: a small b^ has a small u^.)"""
+    from triadcal.estimation.flicker_noise import profiled_u, reml_tau_profiled
+    rng, n, t, G, X, L = _profiled_design(22)
+    b, u = [], []
+    for k in range(200):
+        r = 3.0 * np.concatenate([L @ rng.standard_normal(n) for _ in range(3)]).reshape(3, n).T.reshape(-1)
+        tau, s2 = reml_tau_profiled(r, X, G, t, [[0, 1, 2]])
+        u.append(float(profiled_u(r, X, G, tau, s2, t, [[0, 1, 2]])[0]))
+        b.append(s2 * tau[0])
+        if k == 0:
+            dense = np.linalg.inv(_dense_information(X, G, s2, s2 * tau[0]))
+            assert u[0] == pytest.approx(math.sqrt(dense[1, 1]), rel=1e-6), (u[0], dense)
+    b = np.array(b)
+    u_truth = math.sqrt(np.linalg.inv(_dense_information(X, G, 9.0, 18.0))[1, 1])
+    assert abs(b.mean() - 18.0) < 3.0 * b.std() / math.sqrt(200), b.mean()
+    assert abs(b.std() / u_truth - 1.0) < 0.15, (b.std(), u_truth)
+    assert float(np.median(u)) == pytest.approx(u_truth, rel=0.15)
 
 
 def test_the_wander_rival_with_the_noise_estimated():

@@ -91,8 +91,9 @@ def test_noise_estimated_mode(tmp_path):
     """--noise-estimated: the campaign's declared noise removed before the diagnosis (validation's
     without_noise: no sd, n_samples, u_w, Q_V2s), the row says the noise was estimated, the JSON says
     the mode and follows its contract; the cubic scale tempco is still named (its wander rival asked
-    with the level free: tests/test_correlated_noise.py). With the noise declared: noise_known in
-    the row."""
+    with the level free: tests/test_correlated_noise.py), and flicker_noise is named (its floor
+    estimated with the white level; the full run named it 20 of 20 at m = 1). With the noise
+    declared: noise_known in the row."""
     from triadcal.judgement.diagnosis_validation import run_case, without_noise
     from triadcal.models.simulate import Schedule, simulate_campaign
     from triadcal.judgement.diagnosis_validation import VALIDATION_PLAN, VALIDATION_SOAK_S
@@ -102,9 +103,11 @@ def test_noise_estimated_mode(tmp_path):
     bare = without_noise(c)
     assert c.output_sigma() is not None and "Q_V2s" in c.metadata
     assert bare.output_sigma() is None and "Q_V2s" not in bare.metadata and np.array_equal(bare.w, c.w)
-    res = validate(seeds=1, effects=("scale_tempco3",), processes=1, noise_estimated=True)
-    (row,) = res.rows
+    res = validate(seeds=1, effects=("scale_tempco3", "flicker_noise"), processes=1, noise_estimated=True)
+    row, fl = res.rows
     assert row["noise_known"] is False and row["verdict"] == "scale_tempco3", row
+    # flicker_noise with the white level estimated together (was untestable without declared noise)
+    assert fl["noise_known"] is False and fl["verdict"] == "flicker_noise", fl
     assert run_case("scale_tempco3", 1000)["noise_known"] is True
     from triadcal.reports.diagnosis import write_validation
     from test_results_contract import assert_valid, load

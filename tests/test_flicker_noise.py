@@ -167,12 +167,58 @@ def test_withheld_quadratic_bias_tempco_is_not_named_flicker():
     assert d.verdict["effect"] != "flicker_noise", d.verdict
 
 
+# -- (f) with the noise estimated (no sd_*, n_samples, u_w_*, Q_V2s) ----------------------------------
+def test_independent_flicker_with_the_noise_estimated_is_named_and_its_floor_recovered():
+    """The white level estimated together with the floor (REML with the level profiled out; the score
+    the level-free ratio test): the independent 1/f stream of (b) with its noise columns removed is
+    named flicker_noise with no slice left, its B_f within 2 u of the truth (u larger than with the
+    noise declared: the level's uncertainty is in it), the same B_f as ``fit`` gives (one estimator);
+    the clean stream is not named and its B_f^2 is within 2 u of 0."""
+    from triadcal.judgement.diagnosis_validation import without_noise
+
+    c, _, _ = campaign_with_stream(11, BF)
+    est_c = without_noise(c)
+    d = diagnose(est_c, MODEL, n_draws=100, cross_group=False)
+    assert d.verdict["effect"] == "flicker_noise", d.verdict
+    fl = next(x for x in d.candidates if x.effect == "flicker_noise")
+    assert fl.testable and fl.score_p < 1e-6 and fl.refit["gap_after"]["significant_slices"] == 0
+    bf = fl.refit["new_parameters"]["flicker_Bf"]
+    assert bf["unit"] == "V" and abs(bf["value"] - BF) <= 2.0 * bf["u"], bf
+    est, result = flicker_from_residuals(est_c, MODEL, per_axis=False)
+    known, _ = flicker_from_residuals(c, MODEL, per_axis=False)
+    assert est.white_estimated and not known.white_estimated
+    assert float(est.u_Bf[0]) > float(known.u_Bf[0])
+    assert float(est.Bf[0]) == pytest.approx(bf["value"], rel=0.02)
+    assert result.fit["noise_known"] is False and result.fit["Q_estimate"] > 0
+    clean = without_noise(campaign_with_stream(12, 0.0)[0])
+    d0 = diagnose(clean, MODEL, n_draws=100, cross_group=False)
+    assert d0.verdict["effect"] != "flicker_noise", d0.verdict
+    est0, _ = flicker_from_residuals(clean, MODEL, per_axis=False)
+    assert est0.Bf2[0] <= 2.0 * est0.u_Bf2[0], (est0.Bf2[0], est0.u_Bf2[0])
+
+
+def test_the_level_free_flicker_score_does_not_depend_on_the_scale():
+    """The estimated-noise score is a ratio r'Wr / r'r: the residuals scaled by 1000 (the outputs
+    in mV instead of V, relative weights unchanged) give the same p to 1e-9 of its log."""
+    import dataclasses
+
+    from triadcal.judgement.diagnosis_validation import without_noise
+
+    c = without_noise(campaign_with_stream(11, BF)[0])
+    scaled = dataclasses.replace(c, w=c.w * 1000.0)
+    ps = []
+    for cc in (c, scaled):
+        d = diagnose(cc, MODEL, candidates=["flicker_noise"], n_draws=50, cross_group=False)
+        ps.append(next(x for x in d.candidates if x.effect == "flicker_noise").score_logp)
+    assert ps[1] == pytest.approx(ps[0], rel=1e-9, abs=1e-9), ps
+
+
 # -- (e) the command line ------------------------------------------------------------------------
-def test_cli_fit_with_flicker_noise_reports_bf(tmp_path, capsys):
+def _cli_fit_flicker(tmp_path, capsys, c):
+    """``triadcal fit`` of ``c`` (written as a bench CSV) with flicker_noise; its floors, each within
+    3 u of the truth, and the result document."""
     from triadcal.cli import main
 
-    assert "flicker_noise" in NOISE_EFFECTS
-    c, _, _ = campaign_with_stream(13, BF)
     path = tmp_path / "bench.csv"
     path.write_text(format_bench_csv(c), encoding="utf-8")
     out = tmp_path / "r.json"
@@ -183,13 +229,53 @@ def test_cli_fit_with_flicker_noise_reports_bf(tmp_path, capsys):
     fl = doc["extra"]["flicker_noise"] if "extra" in doc else doc["flicker_noise"]
     for a in "xyz":
         v = fl["flicker_Bf"][a]
-        assert v["unit"] == "V" and v["u"] > 0
-        assert abs(v["value"] - BF) <= 3.0 * v["u"]
+        assert v["unit"] == "V" and v["u"] > 0 and abs(v["value"] - BF) <= 3.0 * v["u"], v
+    return fl, doc
+
+
+def test_cli_fit_with_flicker_noise_reports_bf(tmp_path, capsys):
+    from triadcal.cli import main
+
+    assert "flicker_noise" in NOISE_EFFECTS
+    fl, doc = _cli_fit_flicker(tmp_path, capsys, campaign_with_stream(13, BF)[0])
+    assert fl["white_level_estimated"] is False
     assert any("flicker_noise" in n for n in doc["notes"])
     capsys.readouterr()
     with pytest.raises(SystemExit):
         main(["fit", "--help"])
     assert "flicker_noise" in capsys.readouterr().out.replace("\n", " ")
+
+
+def test_cli_fit_with_flicker_noise_and_no_declared_noise(tmp_path, capsys):
+    """A bench CSV without sd_* / n_samples / Q_V2s: ``fit --effects ...,flicker_noise`` estimates the
+    white level with the floors (it refused before: "the two cannot be told apart"), says so in the
+    method, and the floors are within 3 u of the truth."""
+    from triadcal.judgement.diagnosis_validation import without_noise
+
+    c = without_noise(campaign_with_stream(13, BF)[0])
+    text = format_bench_csv(c)
+    assert "sd_x" not in text and "Q_V2s" not in text
+    fl, _ = _cli_fit_flicker(tmp_path, capsys, c)
+    assert fl["white_level_estimated"] is True and "profiled" in fl["method"]
+
+
+@pytest.mark.slow
+def test_sample_with_flicker_noise_and_the_noise_estimated_agrees_with_the_gls():
+    """``sample`` with flicker_noise and no declared noise: the white level held at the GLS fit's
+    estimate (a note says so); the posterior SDs agree with the GLS u within 20 % (ESS 400), as with
+    the noise declared."""
+    from triadcal.estimation.noise_effects import fit_with_noise_effects
+    from triadcal.estimation.posterior.sample import sample
+    from triadcal.judgement.diagnosis_validation import without_noise
+
+    c = without_noise(campaign_with_stream(13, BF)[0])
+    effects = list(MODEL) + ["flicker_noise"]
+    post = sample(c, effects, ess=400, max_steps=6000, seed=1)
+    gls = fit_with_noise_effects(c, effects)
+    assert any("white level held at its estimate" in n for n in post.notes)
+    for n in ("S_x", "K_y", "Ca_xy", "S_z_tempco"):
+        assert post.parameters[n].u == pytest.approx(gls.parameters[n].u, rel=0.2)
+        assert abs(post.parameters[n].value - gls.parameters[n].value) < 0.5 * gls.parameters[n].u
 
 
 @pytest.mark.slow

@@ -41,7 +41,8 @@ def register(sub) -> None:
     p.add_argument("--noise-estimated", action="store_true",
                    help="remove each campaign's declared noise (sd_*, n_samples, u_w_*, Q_V2s) before the "
                         "diagnosis, as in a bench CSV without them: the white level is estimated from the "
-                        "residuals (flicker_noise and quantisation are then untestable)")
+                        "residuals (quantisation is then untestable; flicker_noise is tested with the "
+                        "white level estimated together)")
     p.add_argument("--preset", default="ak18-quartz", help="unit preset (default ak18-quartz)")
     p.add_argument("--processes", type=int, default=2, help="worker processes (default 2)")
     p.add_argument("--out", default="diagnosis-validation", metavar="DIR",

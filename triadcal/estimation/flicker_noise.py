@@ -232,6 +232,36 @@ def reml_tau_profiled(r, J, G, time_s, groups, max_iter: int = 50):
     return expand(t), s2
 
 
+def profiled_u(r, J, G, tau, s2: float, time_s, groups) -> np.ndarray:
+    """u of ``b_k = s2 tau_k`` per group (the components in the residuals' own units: ``V = s2 I +
+    sum b_k G_k``) from the inverse expected REML information of ``(s2, b)`` jointly, so that the
+    white level's uncertainty is in it. With ``R`` the residual projector of the whitened problem
+    (``I + tau G = L L'``), ``M_k = L^-1 G_k L^-T`` and ``L^-1 I L^-T = I - sum tau_k M_k``, the
+    information ``1/2 tr(P V_i P V_j)`` (Harville 1977, eq. 4.6) is, times ``2 s2^2``,
+
+        I_ss = nu - 2 tau't1 + tau'T2 tau,   I_sb = t1 - T2 tau,   I_bb = T2,
+
+    ``nu = tr R``, ``t1_k = tr(R M_k)``, ``T2_kl = tr(R M_k R M_l)`` (:func:`reml_pieces`' trace and
+    twice its information). ``inf`` where the information is singular."""
+    expand = _expander(groups, len(G))
+    tg = np.array([tau[g[0]] for g in groups], float)
+    _, _, info, t1 = reml_pieces(np.asarray(r, float), J, G, expand(tg), time_s, groups, return_trace=True)
+    Q, _ = _orthobasis(AxisWhitening(G, expand(tg), time_s).apply(J))
+    nu = float(len(r) - Q.shape[1])
+    T2 = 2.0 * info
+    m = len(groups)
+    Im = np.empty((m + 1, m + 1))
+    Im[0, 0] = nu - 2.0 * float(tg @ t1) + float(tg @ T2 @ tg)
+    Im[0, 1:] = Im[1:, 0] = t1 - T2 @ tg
+    Im[1:, 1:] = T2
+    Im /= 2.0 * s2 * s2
+    try:
+        cov = np.linalg.inv(Im)
+    except np.linalg.LinAlgError:
+        return np.full(m, math.inf)
+    return np.sqrt(np.clip(np.diag(cov)[1:], 0.0, None))
+
+
 @dataclass
 class FlickerEstimate:
     """B_f^2 per output (output unit^2) by REML with its u, and the whitening of the GLS fit."""
@@ -243,6 +273,8 @@ class FlickerEstimate:
     to_ug: np.ndarray               # output unit -> ug per axis (|K| 1e6)
     rounds: int
     whitening: Optional[AxisWhitening] = field(default=None, repr=False)
+    #: the white level estimated with B_f^2 (no declared noise): profiled REML, :func:`reml_tau_profiled`
+    white_estimated: bool = False
 
     @property
     def Bf(self) -> np.ndarray:
@@ -266,8 +298,12 @@ class FlickerEstimate:
                                     "unit": f"{self.output_unit}^2"} for a, i in zip(axes, idx)},
                 "method": ("REML of the flicker floor B_f^2 (Allan-deviation floor of 1/f noise) "
                            + ("per output" if self.per_axis else "common to the outputs")
+                           + (" with the white level estimated together (no declared output noise: the REML "
+                              "likelihood of s^2 (I + tau G) with s^2 profiled out, Harville 1977; u of B_f^2 "
+                              "from the joint information of s^2 and B_f^2)" if self.white_estimated else "")
                            + ", alternating with the GLS refit of the mean (residuals whitened per output with "
                              "the Cholesky factor of diag(sigma^2) + B_f^2 C in time order)"),
+                "white_level_estimated": self.white_estimated,
                 "rounds": self.rounds}
 
 
@@ -281,16 +317,12 @@ def flicker_from_residuals(campaign, effects: Sequence[str], *, per_axis: bool =
         raise InputError(f"flicker_noise is fitted by generalised least squares: it cannot be combined with "
                          f"--loss {fit_kw.get('loss')} or heavy_tails")
     noise = noise_of(campaign)
-    if not noise.known:
-        raise InputError(f"{campaign.source or 'campaign'}: flicker_noise is a covariance added to the output "
-                         "noise, but the data give no output noise (no sd_*/n_samples or u_w_* columns, no Q_V2s "
-                         "metadata): the two cannot be told apart")
     if campaign.n_visits < 4:
         raise InputError("flicker_noise needs at least 4 visits at different times")
     G = None
     groups = [[0], [1], [2]] if per_axis else [[0, 1, 2]]
     tau = np.zeros(3)
-    whitening, done = None, 0
+    whitening, done, s2 = None, 0, 1.0
     u = np.zeros(len(groups))
     for done in range(1, rounds + 1):
         result, problem, sol = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
@@ -300,7 +332,12 @@ def flicker_from_residuals(campaign, effects: Sequence[str], *, per_axis: bool =
         if G is None:       # the fit's own sigma (with the bench's errors when they are given)
             G = normalised_components(campaign, raw.sigma)
         r_raw, J_raw = raw.residuals_and_jacobian(sol.x)
-        new, u, _, _ = reml_tau(r_raw, J_raw, G, campaign.time_s, groups, tau0=tau)
+        if noise.known:
+            new, u, _, _ = reml_tau(r_raw, J_raw, G, campaign.time_s, groups, tau0=tau)
+        else:
+            # the white level is estimated: V = s2 (I + tau G), s2 profiled out; B_f^2 = s2 tau
+            new, s2 = reml_tau_profiled(r_raw, J_raw, G, campaign.time_s, groups)
+            u = profiled_u(r_raw, J_raw, G, new, s2, campaign.time_s, groups)
         converged = np.all(np.abs(np.sqrt(new) - np.sqrt(tau)) <= 1e-3 * np.maximum(np.sqrt(new), 1e-300))
         tau = new
         whitening = AxisWhitening(G, tau, campaign.time_s)
@@ -311,7 +348,8 @@ def flicker_from_residuals(campaign, effects: Sequence[str], *, per_axis: bool =
     K = np.array([abs(result.parameters[f"K_{a}"].value) if f"K_{a}" in result.parameters else 1.0
                   for a in "xyz"])
     u3 = np.array([u[0]] * 3) if not per_axis else np.asarray(u)
-    est = FlickerEstimate(tau, u3, per_axis, campaign.output_unit, K * 1e6, done, whitening)
+    est = FlickerEstimate(tau * s2, u3, per_axis, campaign.output_unit, K * 1e6, done, whitening,
+                          white_estimated=not noise.known)
     return est, result
 
 

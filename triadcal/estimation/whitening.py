@@ -100,14 +100,16 @@ def bench_whitening(model, p, campaign, sigma_data: np.ndarray, sigma_total: np.
 
 
 def gls_posterior_target(campaign, effects, least_squares, whitening, priors=None,
-                         reference_temperature_C: float = 20.0, name: str = "joint_gls"):
+                         reference_temperature_C: float = 20.0, name: str = "joint_gls", noise_scale: float = 1.0):
     """A :class:`~triadcal.estimation.posterior.targets.ResidualTarget` of the joint model whose
     residuals are whitened by ``whitening`` (one with ``casadi_apply``:
     :class:`~triadcal.estimation.flicker_noise.AxisWhitening`, ``flicker_noise``; the bench's blocks
     on oblique poses go into the compiled per-visit target instead, ``LogPosterior(whitening=...)``): the
     likelihood is the Gaussian of the full covariance, its variance components held at the values of
     the least-squares fit (a plug-in). ``least_squares``: the GLS fit ``(result, problem, solution)``
-    of :func:`~triadcal.estimation.joint.fit_joint`."""
+    of :func:`~triadcal.estimation.joint.fit_joint`. ``noise_scale``: the factor on the problem's
+    sigma (with the noise estimated, the least squares' ``sqrt(chi2/dof)`` of the whitened residuals,
+    held there: a plug-in, as ``sample`` holds the estimated white level without correlated noise)."""
     import casadi as ca
 
     from ..models.model import Model
@@ -122,11 +124,12 @@ def gls_posterior_target(campaign, effects, least_squares, whitening, priors=Non
     names = tuple(raw.names)
     x = ca.MX.sym("x", len(names))
     w = raw._predict(x, ca.DM(raw.cov_matrix), raw.gravity_g)              # 3 x n
-    r = (ca.DM(campaign.w.T) - w) / ca.DM(raw.sigma.T)
+    r = (ca.DM(campaign.w.T) - w) / ca.DM(raw.sigma.T * noise_scale)
     f = ca.Function(f"{name}_whitened_residuals", [x], [whitening.casadi_apply(r)])   # visit-major, as the fit
-    sigma = (raw.sigma * whitening.diag()).reshape(-1)                      # one-step prediction SDs
+    sigma = (raw.sigma * noise_scale * whitening.diag()).reshape(-1)        # one-step prediction SDs
     return ResidualTarget(
         name=name, residual=f, data=(), names=names,
         units=tuple(parameter_unit(model, nm, campaign.output_unit) for nm in names),
-        priors={nm: pri[nm] for nm in names}, x_ls=np.asarray(sol.x, float), cov_ls=scaled_covariance(sol.J),
+        priors={nm: pri[nm] for nm in names}, x_ls=np.asarray(sol.x, float),
+        cov_ls=scaled_covariance(sol.J) * noise_scale ** 2,
         sigma=sigma, unit_serial=str(campaign.units[0]))

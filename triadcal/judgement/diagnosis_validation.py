@@ -103,7 +103,8 @@ LEFT_OUT_DEFINITION = ("left-out mode: the same campaign diagnosed again with th
 
 NOISE_ESTIMATED_DEFINITION = ("noise estimated: each campaign's noise columns removed before the diagnosis (no "
                               "sd_*, n_samples, u_w_* or Q_V2s), so that the white level is estimated from the "
-                              "residuals; flicker_noise and quantisation, which need the declared noise, are untestable")
+                              "residuals; quantisation, which needs the declared noise, is untestable; "
+                              "flicker_noise is tested with the white level profiled out")
 
 
 def without_noise(campaign):

@@ -211,18 +211,30 @@ def _sample_flicker(campaign, effects, noise_fx, added, kw):
     ls = fit_joint(campaign, effects, reference_temperature_C=kw["reference_temperature_C"], return_problem=True,
                    gates=kw["gates"], bench_errors=noise_fx["bench_errors"], systematics=kw["systematics"],
                    whitening=noise_fx["whitening"])
-    return _sample_gls(campaign, effects, ls, noise_fx["whitening"], noise_fx, added, kw, [
-        "flicker_noise: the likelihood has the full covariance of the visit means (residuals whitened per output), "
-        "B_f held at its REML value (plug-in)"], name="joint_flicker_gls")
+    notes = ["flicker_noise: the likelihood has the full covariance of the visit means (residuals whitened per "
+             "output), B_f held at its REML value (plug-in)"]
+    scale = 1.0
+    if not ls[0].fit.get("noise_known", True):
+        chi2_dof = ls[0].fit.get("chi2_dof")
+        if not (chi2_dof and np.isfinite(chi2_dof)):
+            raise InputError(f"{campaign.source or 'campaign'}: the noise of the outputs is not in the data "
+                             "and cannot be estimated from the fit (no degrees of freedom left)")
+        scale = math.sqrt(chi2_dof)
+        notes.append(f"output noise not in the data: the white level held at its estimate with B_f (REML, "
+                     f"chi2/dof of the whitened residuals = {chi2_dof:.3g}); the posterior does not include the "
+                     "uncertainty of the noise level")
+    return _sample_gls(campaign, effects, ls, noise_fx["whitening"], noise_fx, added, kw, notes,
+                       name="joint_flicker_gls", noise_scale=scale)
 
 
-def _sample_gls(campaign, effects, ls, whitening, noise_fx, added, kw, gls_notes, name="joint_gls"):
+def _sample_gls(campaign, effects, ls, whitening, noise_fx, added, kw, gls_notes, name="joint_gls",
+                noise_scale: float = 1.0):
     """The posterior of the residuals whitened as the least-squares fit ``ls`` whitened them
     (:func:`triadcal.estimation.whitening.gls_posterior_target`)."""
     from ..whitening import gls_posterior_target
 
     target = gls_posterior_target(campaign, effects, ls, whitening, kw["priors"], kw["reference_temperature_C"],
-                                  name=name)
+                                  name=name, noise_scale=noise_scale)
     notes = ([added] if added else []) + noise_fx["notes"] + list(gls_notes)
     result, run = sample_target(target, ess=kw["ess"], rhat_max=kw["rhat_max"], tau_factor=kw["tau_factor"],
                                 max_steps=kw["max_steps"], n_walkers=kw["n_walkers"], seed=kw["seed"],

@@ -440,7 +440,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             if c.effect == "flicker_noise":
                 from .flicker import fit_flicker
 
-                st = fit_flicker(full, campaign, base, names, sigma)
+                st = fit_flicker(full, campaign, base, names, sigma, noise.known)
             else:
                 st = _fit_position_error(full, campaign, base, names, sigma, noise.known)
             var_scale, nu, new_names = st.var_scale, math.inf, []
@@ -495,14 +495,19 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             -S + 2k < -2 delta loglik + 2 (the score S is the chi2 drop of the linear refit, 2 delta
             loglik). A noise model with a covariance (flicker's 1/f) can absorb a slow mean pattern so
             that nothing is left after its refit; the smooth mean term then accounts for the gap better
-            than the variance does (left-out validation, docs/diagnosis.md)."""
-            if c.effect != "flicker_noise" or not noise.known:
+            than the variance does (left-out validation, docs/diagnosis.md). With the noise estimated
+            the mean term's 2 delta loglik has the level profiled too: N log(r'r / (r'r - S))."""
+            if c.effect != "flicker_noise":
                 # only flicker: a per-visit variance (position_error, heavy_tails) cannot absorb a slow
                 # pattern, and on a design of few poses (6 hand-placed ones) the orientation families are
                 # saturated -- they fit any per-pose offset, which is what misplaced poses make
                 return []
             aic_noise = -2.0 * c.refit["delta_loglik"] + 2.0
-            return [f for f, t in generic0.items() if -t["S"] + 2.0 * t["k"] < aic_noise]
+            if noise.known:
+                return [f for f, t in generic0.items() if -t["S"] + 2.0 * t["k"] < aic_noise]
+            rr = float(base.r @ base.r)
+            return [f for f, t in generic0.items()
+                    if t["S"] >= rr or -base.r.size * math.log(rr / (rr - t["S"])) + 2.0 * t["k"] < aic_noise]
 
         def _ambiguity(best, refitted):
             """``(verdict, closest)``: the verdict ``unexplained`` when ``best`` does not beat a rival by
@@ -549,7 +554,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     "closest_rival": _rival_json(lost[0]), "where": where_of(slices)}, None
 
         for c in refitted:
-            if c.effect == "flicker_noise" and noise.known:
+            if c.effect == "flicker_noise":
                 c.refit["gap_after"]["mean_explains_better"] = mean_explains_better(c)
             if c.effect == "flicker_noise" and corr0 is not None and not corr0["p_value"] < alpha:
                 # a covariance in time is named only where the residuals are correlated in time: the
