@@ -1,20 +1,17 @@
 """``diagnose``: fit the model, find where it misses, name which effect explains it and how far
 the gap shrinks when it is added.
 
-Over 600 lines because it is one flow -- base fit, gap tests, scores, refits with their evidence,
-verdict -- whose steps share one base fit's state (its residuals, Jacobian, hat matrix, noise, the
-generic bases and kernels, a dozen locals the inner functions close over). Each test and rival
-lives in its own module (generic, correlated, rivals, noise_level, series, slices, candidates);
-what stays here is their order and the verdict. The verdict section (``improves``, ``acceptance``,
-``_ambiguity``, the naming) is the part to move out next, with the outputs proved identical on a
-validation run.
+One flow -- base fit, gap tests, scores, refits with their evidence -- whose steps share one base
+fit's state (its residuals, Jacobian, hat matrix, noise, the generic bases and kernels, the locals
+the inner functions ``evidence`` and ``mean_refit`` close over). Each test and rival lives in its own
+module (generic, correlated, rivals, noise_level, series, slices, candidates); the verdict's rules
+are in :mod:`.verdict`, which gets this flow's results as :class:`.verdict.VerdictInputs`.
 """
 
 from __future__ import annotations
 
 from ...errors import InputError
 
-import dataclasses
 import math
 from typing import Optional, Sequence
 
@@ -34,11 +31,9 @@ from ...estimation.joint import (
     start_values,
 )
 from .candidates import (
-    _nominal_g,
     FORM_CANDIDATES,
     _cross_group,
     _effect_params,
-    design_caveat,
     _fit_heavy_tails,
     _fit_position_error,
     _hysteresis_forms,
@@ -47,23 +42,17 @@ from .candidates import (
     _loo,
     _pe_sensitivity,
     _position_score,
-    _problem_on,
     SPAN_FRACTION_MIN,
     _score_mean,
     _thermal_lag_history,
     _tilt_settling,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
-from .noise_level import (LEVEL_MIMICS, noise_level_rival, partial_without_level, soak_level_ambiguity,
-                          soak_level_rival, uniform_ambiguity)
-from .correlated import (SCALE_WANDER_MIMICS, WANDER_MIMICS, CampaignKernels, correlated_test, wander_ambiguity,
-                         wander_rival)
-from .generic import (NOISE_RIVAL_TESTS, families_after, gap_shape, generic_basis, generic_tests, level_words,
-                      per_output_terms, soak_basis, variance_basis, variance_test)
-from .rivals import generic_rivals, reference_poses, rival_tests
-from .results import ALPHA, Candidate, Diagnosis, _f, _p_is
-from .series import series_of, series_txt
+from .correlated import (CampaignKernels, correlated_test)
+from .generic import (NOISE_RIVAL_TESTS, families_after, generic_basis, generic_tests, soak_basis, variance_basis, variance_test)
+from .results import ALPHA, Candidate, Diagnosis, _f
 from .slices import _family_tests, _holm, _slice_tests
+from .verdict import VerdictInputs, decide
 
 
 def _top_by_score(cands, top: int) -> list:
@@ -71,40 +60,6 @@ def _top_by_score(cands, top: int) -> list:
     time-correlated misfit of the mean scores high on it too), the ones refitted anyway."""
     scored = [c for c in cands if c.testable and not c.refit_only and c.effect != "flicker_noise"]
     return sorted(scored, key=lambda c: c.score_logp)[:top]
-
-
-def _rival_json(test) -> dict:
-    """A rival's encompassing test ``(label, S, k, p)`` as the verdict's ``closest_rival``."""
-    lab, S, k, p = test
-    return {"rival": lab, "S": _f(S), "k": int(k), "p_value": _f(p)}
-
-
-def _kept_rival(verdict: dict, key: str, test: dict, amb: Optional[dict], where) -> Optional[dict]:
-    """Keep a rival's ``test`` in ``verdict[key]`` (non-finite numbers as null); when the rival is not
-    beaten (``amb``: the ``unexplained`` verdict's own fields, correlated.wander_ambiguity or
-    noise_level.uniform_ambiguity) return that verdict, completed with the named effect's evidence,
-    the closed gap, the test and where; else None."""
-    verdict[key] = {k: _f(v) if isinstance(v, float) else v for k, v in test.items()}
-    if amb:
-        amb.update(evidence=verdict["evidence"], gap_closed=True, where=where)
-        amb[key] = verdict[key]
-    return amb or None
-
-
-def _structure_left_txt(c) -> str:
-    """What keeps structure after a candidate's refit: slices and generic families."""
-    after = c.refit["gap_after"]
-    parts = []
-    if after.get("significant_slices"):
-        parts.append(f"{after['significant_slices']} significant slice(s)")
-    for f in after.get("generic_structure", []):
-        parts.append(f"generic {f} p_holm {after['generic'][f]['p_holm']:.2g}")
-    for f in after.get("mean_explains_better", []):
-        parts.append(f"a smooth mean term in {f} explains the gap better than the noise model (AIC)")
-    if after.get("correlation_absent"):
-        parts.append("no correlation in time in the residuals before its refit (generic correlated p = "
-                     f"{after['correlation_absent']['p_value']:.2g}): its covariance took up a scatter")
-    return f"{c.effect}: " + ", ".join(parts)
 
 
 # ----------------------------------------------------------------------------------
@@ -471,265 +426,11 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     order = refitted + rest + [c for c in cand_objs if not c.testable]
     for i, c in enumerate(order, 1):
         c.rank = i
-    # -- verdict ------------------------------------------------------------------------
-    def where_of(tests):
-        """The verdict's ``where``: up to five significant slices, most significant first."""
-        sig = sorted((x for x in tests if x.p_adjusted < alpha), key=lambda x: x.p_adjusted)[:5]
-        return [{"family": x.family, "slice": x.slice, "axis": x.axis, "test": x.test,
-                 "p_adjusted": _f(x.p_adjusted)} for x in sig]
-
-    verdict = {"effect": None}
-    if not significant:
-        verdict["reason"] = f"no significant gap (smallest Holm-adjusted p = {min(gap_adj.values(), default=1.0):.3g} >= {alpha:g})"
-    elif not refitted:
-        verdict["reason"] = "significant gap, but no candidate effect is testable on this design"
-    else:
-        def improves(c):
-            return (c.refit["lr_p_value"] is not None and c.refit["lr_p_value"] < alpha
-                    and c.refit["delta_elpd"] > 0
-                    # a form is named only when it beats its simpler form (nested LR at 99 %)
-                    and (c.form is None or c.form["nested_passes"]))
-
-        def mean_explains_better(c):
-            """A generic family (smooth mean terms, white noise) whose AIC beats the noise candidate's:
-            -S + 2k < -2 delta loglik + 2 (the score S is the chi2 drop of the linear refit, 2 delta
-            loglik). A noise model with a covariance (flicker's 1/f) can absorb a slow mean pattern so
-            that nothing is left after its refit; the smooth mean term then accounts for the gap better
-            than the variance does (left-out validation, docs/diagnosis.md). With the noise estimated
-            the mean term's 2 delta loglik has the level profiled too: N log(r'r / (r'r - S))."""
-            if c.effect != "flicker_noise":
-                # only flicker: a per-visit variance (position_error, heavy_tails) cannot absorb a slow
-                # pattern, and on a design of few poses (6 hand-placed ones) the orientation families are
-                # saturated -- they fit any per-pose offset, which is what misplaced poses make
-                return []
-            aic_noise = -2.0 * c.refit["delta_loglik"] + 2.0
-            if noise.known:
-                return [f for f, t in generic0.items() if -t["S"] + 2.0 * t["k"] < aic_noise]
-            rr = float(base.r @ base.r)
-            return [f for f, t in generic0.items()
-                    if t["S"] >= rr or -base.r.size * math.log(rr / (rr - t["S"])) + 2.0 * t["k"] < aic_noise]
-
-        def _ambiguity(best, refitted):
-            """``(verdict, closest)``: the verdict ``unexplained`` when ``best`` does not beat a rival by
-            the encompassing test (rivals.py) -- the data cannot tell it from another refitted candidate
-            or from a smooth term outside the list --, else None and ``closest``, the rival it beats
-            least ``(label, S, k, p)`` (None when there is no rival)."""
-            cols = lambda c: Jfull[:, [full.index[n] for n in c.params]]  # noqa: E731
-            named_rivals = [c for c in refitted
-                            if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS]
-            rivals = {c.effect: cols(c) for c in named_rivals}
-            sig_rows = np.broadcast_to(np.asarray(sigma, float), (campaign.n_visits, 3))
-            rivals.update(generic_rivals(per_output_terms(campaign, T0), sig_rows, base.whitened))
-
-            def reference():
-                """The base span, ``best``'s and the rivals' columns on the reference design: the same
-                visits at the poses of ``reference_poses`` (rivals.py), to tell a term written another
-                way from a different function that coincides with ``best`` at this campaign's poses."""
-                a1, a2 = reference_poses(campaign.n_visits)
-                ref = dataclasses.replace(campaign, axis1_deg=a1, axis2_deg=a2)
-                _, Jr = _problem_on(full, ref).residuals_and_jacobian(base.x_full)
-                Jr = Jr / base.s
-                colr = lambda c: Jr[:, [full.index[n] for n in c.params]]  # noqa: E731
-                rr = {c.effect: colr(c) for c in named_rivals}
-                rr.update(generic_rivals(per_output_terms(ref, T0), sig_rows, lambda v: v / base.s))
-                return _hat_q(Jr[:, [full.index[n] for n in base.names]]), colr(best), rr
-
-            tests = rival_tests(base.r, Q, cols(best), rivals, noise.known, base.dof, reference)
-            lost = [x for x in tests if x[3] >= alpha]
-            if not lost:
-                return None, (tests[0] if tests else None)
-            named = [x for x in lost if x[0] in EFFECTS]
-            shown = (named + [x for x in lost if x[0] not in EFFECTS])[:4]
-            txt = "; ".join(f"{lab} (adding {best.effect} to it: S = {S:.3g} on {k} dof, p = {p:.3g})" if k else
-                            f"{lab} (the same columns as {best.effect} at this campaign's poses; other poses "
-                            "tell them apart)"
-                            for lab, S, k, p in shown)
-            return {"effect": "unexplained", "best_partial": best.effect,
-                    "ambiguous_with": [x[0] for x in shown],
-                    "reason": (f"{best.effect} closes the gap but does not beat "
-                               f"{len(lost)} rival(s) on this design: {txt}; the data cannot tell "
-                               f"{best.effect} from them (encompassing test at alpha = {alpha:g}, "
-                               "docs/diagnosis.md \"Rivals\")"),
-                    "evidence": verdict["evidence"], "gap_closed": True,
-                    "closest_rival": _rival_json(lost[0]), "where": where_of(slices)}, None
-
-        for c in refitted:
-            if c.effect == "flicker_noise":
-                c.refit["gap_after"]["mean_explains_better"] = mean_explains_better(c)
-            if c.effect == "flicker_noise" and corr0 is not None and not corr0["p_value"] < alpha:
-                # a covariance in time is named only where the residuals are correlated in time: the
-                # generic family (no candidate's covariance) must see it before the refit; a 1/f floor
-                # also has a white part, which takes up a scatter that only grows (correlated.py)
-                c.refit["gap_after"]["correlation_absent"] = {"p_value": _f(corr0["p_value"])}
-
-        def structure_left(c):
-            n = c.refit["gap_after"].get("significant_slices")
-            return ((n is not None and n > 0) or bool(c.refit["gap_after"]["generic_structure"])
-                    or bool(c.refit["gap_after"].get("mean_explains_better"))
-                    or bool(c.refit["gap_after"].get("correlation_absent")))
-
-        # a noise effect (position_error, heavy_tails) widens the noise until the misfit looks
-        # like noise; it may win only when no slice keeps structure after its refit: elpd alone
-        # never decides it (a missing term then reads as scatter)
-        eligible = [c for c in refitted if improves(c) and not (c.effect in NOISE_EFFECTS and structure_left(c))]
-        absorbed = [c for c in refitted if improves(c) and c.effect in NOISE_EFFECTS and structure_left(c)]
-        def acceptance(c):
-            """Whether the gap stays open after ``c``'s refit (with known noise its chi^2 beyond the
-            noise at alpha, a generic family significant after it, or the slices not explained: more
-            than one left, or as many as before), the significant slices left, and what is left, in
-            words. One marginal slice left of many may stay with the name (gap_closed false): the right
-            effect's refit leaves one in 2 of 10 oblique campaigns of tests/test_cross_axis_effects.py
-            (48-65 before); a candidate that leaves the slices as they were (13 of 13: a contamination,
-            left out, took tilt_drift for its chi2) has not explained where the model misses."""
-            after = c.refit["gap_after"]
-            generic_left = after["generic_structure"]
-            chi2_open = False
-            if noise.known and after.get("chi2_dof") is not None:
-                dof_a = int(c.refit.get("dof_after") or 0)
-                p_after = float(stats.chi2.sf(after["chi2_dof"] * dof_a, dof_a)) if dof_a > 0 else None
-                chi2_open = p_after is None or p_after < alpha
-            n_left = after.get("significant_slices") or 0
-            left = [f"chi2/dof {after['chi2_dof']:.3g}"] if noise.known and after.get("chi2_dof") is not None else []
-            if n_left:
-                left.append(f"{n_left} slice(s) still significant")
-            if generic_left:
-                left.append("smooth structure left in " + ", ".join(
-                    f"{f} (p_holm {after['generic'][f]['p_holm']:.2g})" for f in generic_left))
-            slices_open = n_left > 1 or (n_left > 0 and n_left >= n_sig_before)
-            return chi2_open or bool(generic_left) or slices_open, n_left, left
-
-        # (a form candidate is eligible only when it beats its simpler form: improves())
-        if eligible:
-            best = eligible[0]
-            verdict = {"effect": best.effect,
-                       "evidence": f"score p {_p_is(best.score_p)}, LR p {_p_is(best.refit['lr_p_value'])}, "
-                                   f"delta elpd = {best.refit['delta_elpd']:.1f} +- {best.refit['delta_elpd_se']:.1f}"}
-            if best.form is not None:
-                fm = best.refit["form"]
-                verdict["evidence"] = (
-                    f"refit-only form candidate (no score test at the fitted point): delta loglik = "
-                    f"{best.refit['delta_loglik']:.1f} with {best.k} parameter(s)"
-                    + (f" ({', '.join(fm['profiled'])} profiled)" if fm['profiled'] else "")
-                    + f", LR p {_p_is(best.refit['lr_p_value'])}, delta elpd = {best.refit['delta_elpd']:.1f} "
-                    f"+- {best.refit['delta_elpd_se']:.1f}"
-                    + (f" (less {fm['delta_elpd_penalty']} for the profiled)" if fm["delta_elpd_penalty"] else "")
-                    + f"; over {fm['simpler_form']}: {fm['criterion']}"
-                    + (f"; {fm['location_choice']}, tau = {fm['tau_min']:.3g} min" if "location_choice" in fm else "")
-                    + (f"; r = {fm['half_width_C']:g} degC from the {fm['start']} state" if "half_width_C" in fm else "")
-                    + (f"; tau_s = {fm['tau_h']:.3g} +- {fm['tau_u_h']:.2g} h over a campaign of {fm['span_h']:.3g} h"
-                       if "tau_h" in fm else "")
-                    + f"; reproduce with: triadcal fit DATA.csv {fm['fit_options']}")
-                verdict["fit_options"] = fm["fit_options"]
-            gap_open, n_slices_left, left = acceptance(best)
-            named = best
-            if gap_open:
-                # one order of a temperature coefficient leaves the gap open: its quantity's other orders
-                # together with it (a smooth law of temperature is a series, not one power)
-                sc = series_of(best, model=model, cand_objs=cand_objs, states=states, full=full,
-                               noise_known=noise.known, alpha=alpha, mean_refit=mean_refit,
-                               evidence=evidence, acceptance=acceptance)
-                if sc is not None and sc.refit["series"]["named"]:
-                    named = sc
-                    ser = sc.refit["series"]
-                    verdict = {"effect": sc.effect, "effects": list(ser["effects"]),
-                               "evidence": ser["evidence"], "fit_options": ser["fit_options"]}
-                    gap_open, n_slices_left, left = acceptance(sc)
-            if noise.known or gap_open or n_slices_left:
-                verdict["gap_closed"] = bool(not gap_open and not n_slices_left)
-            if not verdict.get("gap_closed", True):
-                what = "+".join(verdict.get("effects", [named.effect]))
-                verdict["remaining"] = (f"the gap stays significant after adding {what} ({', '.join(left)}): "
-                                        f"more is missing; refit with {what} and diagnose again")
-            if gap_open:
-                # an effect is named only when the gap after it lies in the acceptance band (issue 18 item 1:
-                # with known noise, the chi2 after its refit within the noise at alpha; and no generic family
-                # -- smooth terms in temperature, time, orientation, direction: generic.py -- finding structure
-                # left, with known or estimated noise): a candidate that
-                # shrinks the gap without closing it is the best partial answer, not the answer -- the
-                # missing effect may be outside the vocabulary (left-out validation: 96 of 176 campaigns
-                # named a wrong effect with the gap open). One marginal slice left with the chi2 closed
-                # leaves the name, with gap_closed false and what remains (acceptance())
-                partial = dict(verdict)
-                verdict = {"effect": "unexplained", "best_partial": best.effect,
-                           "reason": (f"significant gap that no candidate closes: the best, {best.effect} "
-                                      f"({partial['evidence']}), leaves it open: {partial['remaining']}"
-                                      + series_txt(best)),
-                           "evidence": partial["evidence"], "gap_closed": False, "remaining": partial["remaining"],
-                           "where": where_of(slices)}
-                if absorbed:
-                    # a noise model that nearly closes it is said too: the partial answer is the best
-                    # mean term, not the only lead (three one-signed contaminated visits: heavy_tails
-                    # absorbs all but one slice, far ahead of the best mean term in elpd)
-                    verdict["reason"] += (f"; {', '.join(c.effect for c in absorbed)} would absorb it as noise, "
-                                          "but structure is left after that refit ("
-                                          + "; ".join(_structure_left_txt(c) for c in absorbed) + ")")
-                if "fit_options" in partial:
-                    verdict["fit_options"] = partial["fit_options"]
-            if not gap_open and named.form is None and named.params and named.effect not in NOISE_EFFECTS:
-                amb, closest = _ambiguity(named, refitted)
-                # a change of the bias in time must beat a bias that wanders, a scale tempco a scale factor
-                # that wanders (on a stepped campaign a wander takes one value a soak, as the temperature
-                # does): correlated.WANDER_MIMICS, SCALE_WANDER_MIMICS
-                named_effects = set(verdict.get("effects", [named.effect]))
-                for quantity, mimics, along, groups in (
-                        ("bias", WANDER_MIMICS, None, ((0, 1, 2),)),
-                        ("scale", SCALE_WANDER_MIMICS, _nominal_g(campaign), ((0,), (1,), (2,)))):
-                    if amb or not named_effects & set(mimics):
-                        continue
-                    w = wander_rival(base.r, base.J, Jfull[:, [full.index[n] for n in named.params]],
-                                     campaign.time_s, sigma, cache=ckern,
-                                     along=None if along is None else np.asarray(along, float).reshape(-1, 3),
-                                     groups=groups, noise_known=noise.known)
-                    if w is not None:
-                        w["quantity"] = quantity
-                        amb = _kept_rival(verdict, "wander_rival", w,
-                                          wander_ambiguity(named.effect, w, alpha, quantity), where_of(slices))
-                if amb:
-                    verdict = amb
-                elif closest is not None:
-                    # the evidence that it beats the runner-up: the rival it beats least
-                    lab, S, k, p = closest
-                    verdict["closest_rival"] = _rival_json(closest)
-                    verdict["evidence"] += (f"; beats its closest rival, {lab}, by the encompassing test "
-                                            f"(adding {named.effect} to it: S = {S:.3g} on {k} dof, p {_p_is(p)})")
-            if not gap_open and noise.known and named.effect in LEVEL_MIMICS:
-                # a noise effect widens the noise: it must beat a noise level the sd_* understate,
-                # alike everywhere (noise_level.noise_level_rival)
-                u = noise_level_rival(named, base.r, h, pe_w)
-                if u is not None:
-                    verdict = _kept_rival(verdict, "uniform_rival", u, uniform_ambiguity(named.effect, u, alpha),
-                                          where_of(slices)) or verdict
-            if not gap_open and named.effect == "heavy_tails" and verdict["effect"] == "heavy_tails":
-                # heavy tails must beat a normal noise whose level changes soak by soak: a scale mixture
-                # that standardising each soak removes (noise_level.soak_level_rival; with either noise)
-                u = soak_level_rival(base.r, Q, campaign.setpoint_blocks, seed=seed)
-                if u is not None:
-                    verdict = _kept_rival(verdict, "soak_level_rival", u, soak_level_ambiguity(u, alpha),
-                                          where_of(slices)) or verdict
-            others = [c for c in refitted if c is not best]
-            if others:
-                second = others[0]
-                verdict["runner_up"] = second.effect
-                verdict["delta_elpd_to_runner_up"] = named.refit["delta_elpd"] - second.refit["delta_elpd"]
-            caveat = design_caveat(campaign, verdict["effect"])
-            if caveat:
-                verdict["caveat"] = caveat
-        else:
-            verdict = {"effect": "unexplained",
-                       "reason": ("significant, structured gap that no candidate closes"
-                                  + (f": {', '.join(c.effect for c in absorbed)} would absorb it as noise, but "
-                                     "structure is left after that refit ("
-                                     + "; ".join(_structure_left_txt(c) for c in absorbed)
-                                     + "), so a term outside the vocabulary "
-                                     "(or a model without the needed terms) is the likelier cause" if absorbed else
-                                     ": no candidate of the vocabulary improves the fit significantly")),
-                       "where": where_of(slices)}
-    if verdict.get("effect") == "unexplained":
-        verdict["shape"] = gap_shape(gap_adj, alpha)
-        if [x["family"] for x in verdict["shape"]] == ["level"]:
-            # a gap with no pattern: is the best partial answer one without the declared level?
-            verdict = partial_without_level(verdict, cand_objs, base, h, pe_w, alpha, noise.known)
-            verdict["reason"] += level_words(base.chi2_dof)
+    # -- verdict (verdict.py) ----------------------------------------------------------
+    verdict = decide(VerdictInputs(campaign=campaign, model=model, noise=noise, alpha=alpha, seed=seed,
+        base=base, full=full, Jfull=Jfull, Q=Q, T0=T0, sigma=sigma, significant=significant, gap_adj=gap_adj,
+        refitted=refitted, cand_objs=cand_objs, states=states, generic0=generic0, corr0=corr0, slices=slices,
+        n_sig_before=n_sig_before, ckern=ckern, h=h, pe_w=pe_w, mean_refit=mean_refit, evidence=evidence))
     fit = {"chi2_dof": _f(base.chi2_dof) if noise.known else None, "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
