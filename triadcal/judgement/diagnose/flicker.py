@@ -20,7 +20,7 @@ does not rank flicker above the mean term that explains it and crowd that term o
 ``4 I``), whose tail is heavier than the normal one of ``z`` near the detection limit.
 With the noise estimated from the residuals (no sd_* / Q) the white level is a nuisance
 parameter, and the test is the locally best invariant one of a variance component against white
-noise of unknown level (King, J. Econometrics 13, 1980; Durbin & Watson's ratio): ``rho = r' W r /
+noise of unknown level (King & Hillier, JRSS B 47, 98-102, 1985; Durbin & Watson's ratio): ``rho = r' W r /
 r' r``, whose null distribution does not depend on the level, referred to
 :func:`.correlated.ratio_test` (exact three moments, Pearson III, saddlepoint where it decides) --
 the ``correlated`` family's test with the flicker's covariance as the kernel. No cap is needed:
