@@ -351,13 +351,3 @@ def flicker_from_residuals(campaign, effects: Sequence[str], *, per_axis: bool =
     est = FlickerEstimate(tau * s2, u3, per_axis, campaign.output_unit, K * 1e6, done, whitening,
                           white_estimated=not noise.known)
     return est, result
-
-
-def posterior_target(campaign, effects: Sequence[str], least_squares, whitening: AxisWhitening, priors=None,
-                     reference_temperature_C: float = 20.0):
-    """``sample --effects ...,flicker_noise``: the posterior of the residuals whitened per output,
-    ``B_f`` held at its REML value (:func:`triadcal.estimation.whitening.gls_posterior_target`)."""
-    from .whitening import gls_posterior_target
-
-    return gls_posterior_target(campaign, effects, least_squares, whitening, priors, reference_temperature_C,
-                                name="joint_flicker_gls")

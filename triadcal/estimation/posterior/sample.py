@@ -207,7 +207,8 @@ def _held_quantisation(campaign, ls):
 
 def _sample_flicker(campaign, effects, noise_fx, added, kw):
     """``sample`` with ``flicker_noise``: the posterior of the whitened (GLS) residuals, B_f held at
-    its REML value (:func:`triadcal.estimation.flicker_noise.posterior_target`)."""
+    its REML value (:func:`_sample_gls` with this fit's whitening; with the noise estimated the white
+    level is held at the GLS estimate, ``noise_scale = sqrt(chi2/dof)``)."""
     ls = fit_joint(campaign, effects, reference_temperature_C=kw["reference_temperature_C"], return_problem=True,
                    gates=kw["gates"], bench_errors=noise_fx["bench_errors"], systematics=kw["systematics"],
                    whitening=noise_fx["whitening"])
