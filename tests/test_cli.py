@@ -90,6 +90,15 @@ def test_a_missing_file_is_named_in_a_sentence(tmp_path, capsys):
     assert f"{missing}: no such file or directory" in err and "[Errno" not in err
 
 
+def test_an_unknown_preset_is_an_input_error_with_exit_1(tmp_path, capsys):
+    """Once exit 2 (an argparse usage error, docs/model.md listed it as a known issue); an unknown
+    preset is bad input like a missing file: exit 1, the presets named."""
+    assert main(["simulate", "-o", str(tmp_path / "x.csv"), "--preset", "UNKNOWN"]) == 1
+    err = capsys.readouterr().err
+    assert "unknown preset 'UNKNOWN'" in err and "ak18-quartz" in err
+    assert not (tmp_path / "x.csv").exists()
+
+
 # -- the same output flags on every command (issue 22, item 6) -----------------------------
 
 @pytest.mark.parametrize("name", sorted(_subcommands()))
