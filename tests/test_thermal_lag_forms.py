@@ -117,7 +117,7 @@ def test_bridging_is_refused_for_a_housing_thermometer_and_without_the_history_f
                     program=StepProgram(soak_min=20.0))
     with pytest.raises(InputError, match="chamber air"):
         fit_thermal_lag(c, EFFECTS, "housing", bridge_gaps=True)
-    with pytest.raises(InputError, match="--thermal-lag-form housing or air"):
+    with pytest.raises(InputError, match="--thermal-lag-form housing, air or history"):
         fit(c, effects=EFFECTS, bridge_gaps=True)
 
 

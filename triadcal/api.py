@@ -85,13 +85,18 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     ``thermal_lag_form``: ``rate`` (the ``thermal_lag`` effect as listed: ``T - tau dT/dt``, for
     short lags), ``housing`` or ``air`` (the element's lag estimated from the temperature history,
     the thermometer on the housing or in the chamber air;
-    :func:`triadcal.estimation.thermal_lag_form.fit_thermal_lag`); ``bridge_gaps`` (with those two)
+    :func:`triadcal.estimation.thermal_lag_form.fit_thermal_lag`), or ``history`` (the location
+    chosen by the data, the gaps of a stepped record bridged: ``fit_thermal_lag_history``, the rule
+    of the diagnosis's ``thermal_lag_history``); ``bridge_gaps`` (with ``housing`` or ``air``)
     fills the record's gaps, the soaks of a stepped campaign, with a first-order approach profiled
     with the lags (docs/model.md).
     ``hysteresis_form``: ``offset`` (the branches a constant offset apart), ``play`` (a play
     hysteresis of half-width ``hysteresis_half_width_C`` degC, profiled when None), ``pi`` (a
     Prandtl-Ishlinskii sum of two plays, profiled) or ``auto`` (chosen by the data;
     :mod:`triadcal.estimation.hysteresis_form`).
+    ``effects`` may name the diagnosis's form candidates (:mod:`triadcal.estimation.form_names`):
+    ``hysteresis_play`` and ``hysteresis_pi`` are ``hysteresis`` with that ``hysteresis_form``,
+    ``thermal_lag_history`` is ``thermal_lag`` with ``thermal_lag_form="history"``.
     ``effects`` may name ``quantisation`` (a digital output rounded to an LSB q, one for the three
     outputs, in the output unit): q is ``quantisation_lsb`` when given (which implies the term), else
     profiled; :mod:`triadcal.estimation.quantisation_form`, ``fit.quantisation`` in the result.
@@ -103,7 +108,10 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
 
     gates = GateConfig(angle_bound_arcsec=angle_bound_arcsec)
 
+    from .estimation.form_names import resolve_form_names
+
     campaign = data if isinstance(data, Campaign) else read_bench_csv(example_path() if data is None else data)
+    effects, hysteresis_form, thermal_lag_form = resolve_form_names(effects, hysteresis_form, thermal_lag_form)
     quantised = "quantisation" in effects or quantisation_lsb is not None
     effects = [e for e in effects if e != "quantisation"]
     if quantised and (method != "joint" or thermal_lag_form != "rate" or hysteresis_form != "offset"
@@ -160,21 +168,24 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
 
             effects, order_block = choose_thermal_order(
                 campaign, effects, thermal_order, **{k: v for k, v in kwargs.items() if k != "return_problem"})
-        if thermal_lag_form not in ("rate", "housing", "air"):
-            raise InputError(f"unknown thermal lag form {thermal_lag_form!r}: choose rate, housing or air")
+        if thermal_lag_form not in ("rate", "housing", "air", "history"):
+            raise InputError(f"unknown thermal lag form {thermal_lag_form!r}: choose rate, housing, air or history")
         if bridge_gaps and thermal_lag_form == "rate":
             raise InputError("--bridge-gaps fills the temperature record's gaps for the history form: use it with "
-                             "--thermal-lag-form housing or air")
+                             "--thermal-lag-form housing, air or history")
         if thermal_lag_form != "rate":
             if hysteresis_form != "offset" or hysteresis_half_width_C is not None or thermal_order != "1" \
                     or netcdf_path is not None:
                 raise InputError(f"--thermal-lag-form {thermal_lag_form} is fitted with the offset hysteresis, "
                                  "linear tempcos and no --netcdf (not combined with --hysteresis-form, "
                                  "--hysteresis-width, --thermal-order or --netcdf)")
-            from .estimation.thermal_lag_form import fit_thermal_lag
+            from .estimation.thermal_lag_form import fit_thermal_lag, fit_thermal_lag_history
 
             kwargs.pop("return_problem")
-            result = fit_thermal_lag(campaign, effects, thermal_lag_form, bridge_gaps=bridge_gaps, **kwargs)
+            if thermal_lag_form == "history":           # the location chosen by the data, gaps bridged
+                result = fit_thermal_lag_history(campaign, effects, **kwargs)
+            else:
+                result = fit_thermal_lag(campaign, effects, thermal_lag_form, bridge_gaps=bridge_gaps, **kwargs)
             result.notes.extend(noise_fx["notes"] + ([added] if added else []))
             result.extra.update(noise_fx["extra"])
             if json_path is not None:

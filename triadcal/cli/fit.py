@@ -27,7 +27,9 @@ def register(sub) -> None:
                         f"{', '.join(NOISE_EFFECTS)} (a variance component / the Student-t likelihood / 1/f noise: B_f by REML, the "
                         "mean by GLS), and quantisation "
                         "(a digital output rounded to an LSB q: the expected visit-mean error, q profiled or "
-                        "--quantisation-lsb); default: "
+                        "--quantisation-lsb), and the diagnosis's forms hysteresis_play, hysteresis_pi (= "
+                        "hysteresis with --hysteresis-form play / pi) and thermal_lag_history (= thermal_lag with "
+                        "--thermal-lag-form history); default: "
                         f"{','.join(DEFAULT_EFFECTS)} (the thermal-campaign model: bench tilt, linear "
                         "tempcos of angles, scale factors and biases, hysteresis of the angles)")
     p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
@@ -58,10 +60,12 @@ def register(sub) -> None:
                         "play (a backlash of half-width r on the temperature history, r profiled), pi (a "
                         "Prandtl-Ishlinskii sum of two plays, widths and weight profiled), auto (chosen by "
                         "the data: nested likelihood ratios at 99 %%); docs/model.md")
-    p.add_argument("--thermal-lag-form", choices=("rate", "housing", "air"), default="rate",
+    p.add_argument("--thermal-lag-form", choices=("rate", "housing", "air", "history"), default="rate",
                    help="with a ramp or a continuously logged record: the element's thermal lag estimated from "
                         "the temperature history, the thermometer on the housing (one stage, thermal_lag, min) or "
-                        "in the chamber air (two stages, thermal_lag_housing and thermal_lag); default rate: the "
+                        "in the chamber air (two stages, thermal_lag_housing and thermal_lag); history: the "
+                        "location chosen by the data (the air kept when it beats the housing at 99 %%; a stepped "
+                        "record's gaps bridged), as --effects ...,thermal_lag_history; default rate: the "
                         "thermal_lag effect's T - tau dT/dt, for short lags only; docs/model.md")
     p.add_argument("--bridge-gaps", action="store_true",
                    help="with --thermal-lag-form housing or air on a stepped campaign read only at its visits: fill "

@@ -26,7 +26,10 @@ def register(sub) -> None:
                    help=f"effects of the joint model, from: {', '.join(EFFECTS)}, the noise effects "
                         f"{', '.join(NOISE_EFFECTS)}, and quantisation (a digital output rounded to an LSB q: the "
                         "least-squares fit with the term first, q given or profiled, then the posterior with q and "
-                        f"the per-sample sigma held at the fit's values); default: {','.join(DEFAULT_EFFECTS)}")
+                        "the per-sample sigma held at the fit's values), and the diagnosis's forms hysteresis_play, "
+                        "hysteresis_pi and thermal_lag_history (the form's nonlinear parameters profiled by the least "
+                        "squares and held, as fit --effects with the same names); default: "
+                        f"{','.join(DEFAULT_EFFECTS)}")
     p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
                    help="reference temperature of the thermal model, degC (default 20)")
     p.add_argument("--quantisation-lsb", type=float, default=None, metavar="Q",

@@ -306,3 +306,69 @@ def profile_interval(result, level: float = 1.0) -> Optional[tuple]:
     cmin = min(c for _, c in pts)
     inside = [t for t, c in pts if c <= cmin + level]
     return (min(inside), max(inside)) if inside else None
+
+
+#: level of the likelihood ratio by which the air's second stage must lower chi^2 to be kept
+#: (known noise), and the p-value of chi^2 above which the housing's one stage already fits
+LOCATION_LEVEL = 0.99
+
+
+def housing_suffices(chi2_housing: float, dof: int, noise_known: bool) -> bool:
+    """With known noise, the housing's one stage already within the noise (chi^2 p >= 1 - level):
+    the air's second stage is not looked for. With the noise estimated there is no such test."""
+    from scipy import stats
+
+    return bool(noise_known and stats.chi2.sf(chi2_housing, max(dof, 1)) >= 1.0 - LOCATION_LEVEL)
+
+
+def air_kept(chi2_housing: float, chi2_air: float, n_obs: int, noise_known: bool) -> tuple:
+    """Whether the thermometer is taken to be in the air: the housing's form is the air's with the
+    housing's stage at zero (nested, one time constant more), so the air is kept only when it beats
+    the housing by the likelihood ratio at ``LOCATION_LEVEL`` (known noise: chi^2 with 1 dof) or by
+    the AIC (noise estimated: scale-free, margin 0). Returns ``(kept, text)``
+    (:func:`~triadcal.estimation.hysteresis_form.nested_criterion`). Used by ``fit`` with the
+    history form and by the diagnosis's ``thermal_lag_history`` candidate."""
+    from .hysteresis_form import nested_criterion
+
+    return nested_criterion(chi2_housing, chi2_air, 1, n_obs, noise_known, "chi2_housing - chi2_air",
+                            level=LOCATION_LEVEL, aic_margin=0.0)
+
+
+def _chi2_of(result) -> tuple:
+    """(chi^2, dof, n_obs) of a result of :func:`fit_thermal_lag`."""
+    n = int(result.fit["n_obs"])
+    dof = n - int(result.fit["n_params"])
+    return float(result.fit["chi2_dof"]) * dof, dof, n
+
+
+def fit_thermal_lag_history(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, **fit_kwargs):
+    """The lag over the temperature history with the thermometer's location chosen by the data
+    (``fit --thermal-lag-form history``, ``--effects ...,thermal_lag_history``): the rule of the
+    diagnosis's candidate of that name. A record with gaps (the soaks of a stepped campaign) is
+    fitted in the air's form with the gaps bridged (the only form the bridge is, see
+    :func:`fit_thermal_lag`); otherwise the housing's one stage, and the air's two only when the
+    housing's is not within the noise (:func:`housing_suffices`) and the air beats it
+    (:func:`air_kept`). ``fit.thermal_lag.location_choice`` says why."""
+    gaps = record_gaps(campaign)
+    if len(gaps):
+        res = fit_thermal_lag(campaign, effects, "air", bridge_gaps=True, **fit_kwargs)
+        why = (f"the record has {len(gaps)} gap(s) of up to {gaps.max():.0f} min (soaks no visit records): "
+               "the air's form, the only one the bridge is")
+    else:
+        res = fit_thermal_lag(campaign, effects, "housing", **fit_kwargs)
+        chi2_h, dof_h, n = _chi2_of(res)
+        noise_known = bool(res.fit.get("noise_known", True))
+        why = f"housing: chi2 {chi2_h:.4g}"
+        if housing_suffices(chi2_h, dof_h, noise_known):
+            why += " is within the noise; the air's second stage not looked for"
+        else:
+            air = fit_thermal_lag(campaign, effects, "air", **fit_kwargs)
+            chi2_a = _chi2_of(air)[0]
+            kept, crit = air_kept(chi2_h, chi2_a, n, noise_known)
+            why += f", air: chi2 {chi2_a:.4g}; {crit}: " + ("the air kept" if kept else "the housing kept")
+            if kept:
+                res = air
+    res.fit["thermal_lag"]["location_choice"] = why
+    res.fit["thermal_lag"]["form_requested"] = "history (location chosen by the data)"
+    res.notes.append(f"thermal_lag_history: thermometer location {res.fit['thermal_lag']['location']} ({why})")
+    return res

@@ -97,6 +97,17 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     from ..noise_effects import resolve_noise_effects
 
     t_start = time.perf_counter()
+    from ..form_names import held_form, resolve_form_names
+
+    effects, h_form, lag_form = resolve_form_names(effects)
+    form = None
+    if h_form != "offset" or lag_form != "rate":
+        if NAME_QUANTISATION in effects or quantisation_lsb is not None:
+            raise InputError("sample: quantisation is sampled with the offset hysteresis and the rate-form lag (as in "
+                             "fit), not with hysteresis_play, hysteresis_pi or thermal_lag_history")
+        campaign, effects, *form = held_form(campaign, effects, h_form, lag_form,
+                                             reference_temperature_C=reference_temperature_C, gates=gates,
+                                             bench_errors=bench_errors, systematics=systematics)
     quantised = NAME_QUANTISATION in effects or quantisation_lsb is not None
     effects = [e for e in effects if e != NAME_QUANTISATION]
     if quantisation_lsb is not None:
@@ -179,6 +190,7 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     result = _result(campaign, model, problem, pri, ls, run, notes, total_seconds, ess, rhat_max, tau_factor, max_steps,
                      gates)
     result.extra.update(noise_fx["extra"])
+    _attach_form(result, form)
     if quantisation is not None:
         result.fit["quantisation"] = dict(ls.fit["quantisation"], held_in_posterior=True,
                                           posterior="q and sigma_sample held at these values (plug-in)")
@@ -187,6 +199,22 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     if posterior_path is not None:
         write_inference_data(posterior_path, campaign, run, result)
     return (result, run) if return_run else result
+
+
+def _attach_form(result, form) -> None:
+    """The held form's block (``fit.hysteresis`` or ``fit.thermal_lag``, ``held_in_posterior``) and
+    note on the posterior's ``result``; when the form's own least-squares fit failed a gate (a time
+    constant the data do not resolve, a form that did not converge) the posterior is not an answer
+    either: its status becomes that one, with the gate's note."""
+    if not form:
+        return
+    form_ls, key, note = form
+    result.fit[key] = dict(form_ls.fit[key], held_in_posterior=True)
+    result.notes.append(note)
+    if form_ls.status != "ok" and result.status == "ok":
+        result.status = form_ls.status
+        result.notes.append(f"the least-squares fit of the form ({key}) has status {form_ls.status!r}: "
+                            + "; ".join(n for n in form_ls.notes if n.startswith("gate ")))
 
 
 def _held_quantisation(campaign, ls):
@@ -242,6 +270,7 @@ def _sample_gls(campaign, effects, ls, whitening, noise_fx, added, kw, gls_notes
                                 moves=kw["moves"], progress=kw["progress"], posterior_path=kw["posterior_path"],
                                 max_saved_draws=kw["max_saved_draws"], notes=notes)
     result.extra.update(noise_fx["extra"])
+    _attach_form(result, kw.get("form"))
     if kw["json_path"] is not None:
         result.save(kw["json_path"])
     return (result, run) if kw["return_run"] else result

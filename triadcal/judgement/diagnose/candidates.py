@@ -386,7 +386,9 @@ def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_kno
     passed through one (thermometer on the housing) or two (in the air) first-order stages; the time
     constants profiled by ``fit_thermal_lag`` for each location, the model refitted at the element's
     temperature with the diagnosis's weights, and the location with the lower chi^2 kept (the air's
-    two stages only when they lower it by more than the 99 % point of chi^2 with 1 dof).
+    two stages only when they beat the housing's one: ``thermal_lag_form.air_kept``, the likelihood
+    ratio at 99 % with 1 dof, or the AIC with the noise estimated; the rule of ``fit
+    --thermal-lag-form history``).
 
     A record with gaps (the soaks of a stepped campaign) is bridged (``fit_thermal_lag``'s
     ``bridge_gaps``: a first-order approach through each gap, its time constant profiled too) when
@@ -394,7 +396,13 @@ def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_kno
     form in the model -- and the candidate is untestable otherwise (the bridged search costs 300-700
     inner fits)."""
     from ...errors import InputError, TriadcalError
-    from ...estimation.thermal_lag_form import fit_thermal_lag, record_gaps, with_element_temperature
+    from ...estimation.thermal_lag_form import (
+        air_kept,
+        fit_thermal_lag,
+        housing_suffices,
+        record_gaps,
+        with_element_temperature,
+    )
     from .results import Candidate
 
     name = "thermal_lag_history"
@@ -421,10 +429,9 @@ def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_kno
     # with gaps only the air's form is bridged (fit_thermal_lag): a housing's history through a soak
     # is two stages, not the bridge's one
     for loc in ("air",) if bridge else ("housing", "air"):
-        if loc == "air" and noise_known and fits:
-            st_h = fits["housing"][0]
-            if stats.chi2.sf(st_h.chi2, max(st_h.dof - 1, 1)) >= 0.01:
-                break       # one stage closes the gap: the air's second stage is not looked for
+        if loc == "air" and fits and housing_suffices(fits["housing"][0].chi2, fits["housing"][0].dof - 1,
+                                                      noise_known):
+            break           # one stage closes the gap: the air's second stage is not looked for
         try:
             res = fit_thermal_lag(campaign, effects, loc, bridge_gaps=bridge and loc == "air",
                                   reference_temperature_C=T0)
@@ -443,15 +450,15 @@ def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_kno
         if tb is not None:
             st.extra_params["thermal_lag_history_bridge_min"] = {"value": tb, "unit": "min"}
         fits[loc] = (st, te, th)
-    thr1 = float(stats.chi2.ppf(FORM_LEVEL, 1))
     loc = "housing" if "housing" in fits else "air"
-    if "air" in fits and "housing" in fits and fits["housing"][0].chi2 - fits["air"][0].chi2 > (thr1 if noise_known
-                                                                                                 else 2.0):
-        loc = "air"
+    crit_loc = ""
+    if "air" in fits and "housing" in fits:
+        kept, crit_loc = air_kept(fits["housing"][0].chi2, fits["air"][0].chi2, fits["air"][0].r.size, noise_known)
+        loc = "air" if kept else "housing"
     st, te, th = fits[loc]
     if "housing" in fits:
         why_loc = (f"thermometer location {loc}: chi2 housing {fits['housing'][0].chi2:.4g}"
-                   + (f", air {fits['air'][0].chi2:.4g} (air kept only when lower by > {thr1:.3g})"
+                   + (f", air {fits['air'][0].chi2:.4g} (the air kept only when it beats the housing: {crit_loc})"
                       if "air" in fits else ""))
     else:
         why_loc = (f"thermometer location air: the record's gaps are bridged, which only the air's form is "

@@ -1,0 +1,240 @@
+"""Every name the diagnosis can answer is one command away in ``fit`` and ``sample`` (issue 18, item 2).
+
+The effects of the model, the noise effects and ``quantisation`` were accepted by ``--effects``
+before; the three refit-only forms (``hysteresis_play``, ``hysteresis_pi``, ``thermal_lag_history``)
+were not: ``fit --effects ...,hysteresis_play`` said "unknown effect", and the diagnosis's
+``fit_options`` was the only way. They are now names of ``--effects`` for both commands
+(``estimation/form_names.py``): a play is ``hysteresis`` with ``--hysteresis-form play``, the lag's
+history is ``thermal_lag`` with ``--thermal-lag-form history`` (the thermometer's location chosen by
+the data, with the rule of the diagnosis's candidate). The data are made by
+``tests/independent_bench.py`` (a backlash state machine, Euler heat equations), not by the model.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+from independent_bench import (ANGLES, OBLIQUE_POSITIONS, default_truth,  # noqa: E402
+                               simulate_campaign, simulate_lag_campaign)
+
+from triadcal.cli import main  # noqa: E402
+from triadcal.errors import InputError  # noqa: E402
+from triadcal.estimation.form_names import FORM_NAMES, resolve_form_names  # noqa: E402
+from triadcal.estimation.gates import STATUSES  # noqa: E402
+from triadcal.estimation.thermal_lag_form import air_kept, housing_suffices  # noqa: E402
+from triadcal.judgement.diagnose import FORM_CANDIDATES  # noqa: E402
+from triadcal.models.effects import DEFAULT_EFFECTS, VOCABULARY  # noqa: E402
+
+#: every name a diagnosis's verdict can hold (besides "unexplained" and none)
+ANSWERABLE = tuple(dict.fromkeys(VOCABULARY + tuple(FORM_CANDIDATES)))
+#: the thermal model the forms are added to (the play replaces the offset hysteresis)
+THERMAL = ("bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco")
+#: 10 degC steps up to 70, down to -40, back to 20 (the play's partial branches at the turns)
+SETPOINTS = (20, 30, 40, 50, 60, 70, 60, 50, 40, 30, 20, 10, 0, -10, -20, -30, -40, -30, -20, -10, 0, 10, 20)
+LAG_MODEL = ("angle_tempco", "scale_tempco", "bias_tempco")
+
+
+def _write(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return str(path)
+
+
+def _play_campaign(tmp_path, seed=3, half_width_C=10.0):
+    """The angles' hysteresis of 5-10 arcsec through a backlash of half-width 10 degC."""
+    rng = np.random.default_rng(seed)
+    t = default_truth(rng)
+    for ab in ANGLES:
+        t[f"Ca_{ab}_hysteresis"] = float(rng.uniform(5, 10)) * float(rng.choice([-1, 1]))
+    text, truth = simulate_campaign(rng, truth=t, setpoints_C=SETPOINTS, tilt_arcsec=(30.0, -20.0),
+                                    hysteresis={"form": "play", "half_widths_C": [half_width_C]})
+    return _write(tmp_path, f"play_{seed}.csv", text), truth
+
+
+def _lag_campaign(tmp_path, seed, location, tau_min=20.0):
+    """A ramp 20 -> -40 -> 70 -> 20 degC at 1 degC/min, the element lagging by ``tau_min`` behind
+    a thermometer on the housing or in the air (the housing then 30 min behind the air)."""
+    text, truth = simulate_lag_campaign(np.random.default_rng(seed), tau_element_min=tau_min, location=location,
+                                        tau_housing_min=30.0)
+    return _write(tmp_path, f"lag_{location}_{seed}.csv", text), truth
+
+
+def _fit(path, effects, out, *extra):
+    code = main(["fit", path, "--method", "joint", "--effects", ",".join(effects), "--json", str(out), "--quiet",
+                 *extra])
+    return code, (json.loads(Path(out).read_text()) if Path(out).exists() else None)
+
+
+def _sample(path, effects, out, *extra):
+    """``triadcal sample`` with ``effects``: (exit code, the result JSON)."""
+    code = main(["sample", path, "--effects", ",".join(effects), "--json", str(out), "--quiet", *extra])
+    return code, json.loads(Path(out).read_text())
+
+
+def test_the_answerable_names_are_the_vocabulary_and_the_forms():
+    """What the test below runs over: the three forms are the names that are not effects."""
+    assert set(FORM_NAMES) == set(ANSWERABLE) - set(VOCABULARY) - {"quantisation", "tilt_settling"}
+    assert {"hysteresis_play", "hysteresis_pi", "thermal_lag_history", "quantisation"} <= set(ANSWERABLE)
+
+
+@pytest.fixture(scope="module")
+def oblique_campaign(tmp_path_factory):
+    """24 poses (12 with gravity along a face diagonal) x 5 setpoints, tilted bench, no effect
+    outside the thermal model: every candidate is fitted on it (most are not in these data, and
+    must then be refused by a gate, not by the parser)."""
+    text, _ = simulate_campaign(np.random.default_rng(7), positions=OBLIQUE_POSITIONS, tilt_arcsec=(30.0, -20.0),
+                                setpoints_C=(-40, -10, 20, 50, 80, 50, 20, -10, -40))
+    return _write(tmp_path_factory.mktemp("oblique"), "oblique.csv", text)
+
+
+@pytest.mark.parametrize("name", ANSWERABLE)
+def test_fit_accepts_every_name_the_diagnosis_answers(oblique_campaign, tmp_path, name, capsys):
+    """``fit --effects MODEL,NAME`` runs for every answerable name and writes a result whose status
+    is one of the statuses (ok, or a gate's refusal with its number): never "unknown effect"."""
+    model = [e for e in DEFAULT_EFFECTS if not (name.startswith("hysteresis_") and e == "hysteresis")]
+    code, doc = _fit(oblique_campaign, model + [name], tmp_path / "r.json")
+    err = capsys.readouterr().err
+    assert "unknown effect" not in err, err
+    assert code in (0, 3) and doc is not None, (code, err)
+    assert doc["status"] in STATUSES and (code == 0) == (doc["status"] == "ok"), (doc["status"], code)
+
+
+def test_a_play_is_the_same_fit_by_its_name_and_by_the_option(tmp_path):
+    """``--effects ...,hysteresis_play`` is ``--effects ...,hysteresis --hysteresis-form play``: the same
+    parameters and the same half-width; on a backlash of 10 degC (independent bench) the play is
+    found near it and each hysteresis angle within 3u of the truth."""
+    path, truth = _play_campaign(tmp_path)
+    _, by_name = _fit(path, THERMAL + ("hysteresis_play",), tmp_path / "a.json")
+    _, by_option = _fit(path, THERMAL + ("hysteresis",), tmp_path / "b.json", "--hysteresis-form", "play")
+    assert by_name["status"] == "ok", by_name["notes"]
+    assert by_name["parameters"] == by_option["parameters"]
+    assert by_name["fit"]["hysteresis"]["form"] == "play"
+    assert by_name["fit"]["hysteresis"]["half_width_C"] == by_option["fit"]["hysteresis"]["half_width_C"]
+    assert 6.0 <= by_name["fit"]["hysteresis"]["half_width_C"] <= 14.0, by_name["fit"]["hysteresis"]
+    for ab in ANGLES:
+        p = by_name["parameters"][f"Ca_{ab}_hysteresis"]
+        assert abs(p["value"] - truth[f"Ca_{ab}_hysteresis"]) < 3 * p["u"], (ab, p, truth[f"Ca_{ab}_hysteresis"])
+
+
+@pytest.mark.parametrize("location", ["housing", "air"])
+def test_thermal_lag_history_chooses_the_thermometers_location(tmp_path, location):
+    """``--effects ...,thermal_lag_history``: the location is chosen by the data (the air's two stages
+    kept only when they beat the housing's one at 99 %). A housing thermometer 20 min ahead of its
+    element stays ``housing`` (one stage within the noise: the air not looked for) with tau within
+    3u; an air thermometer (the housing 30 min behind it, the element 20 min behind the housing) is
+    ``air`` with both stages within 3u (the pair is symmetric: the shorter is reported as the
+    element's)."""
+    path, _ = _lag_campaign(tmp_path, 11 if location == "housing" else 12, location)
+    code, doc = _fit(path, LAG_MODEL + ("thermal_lag_history",), tmp_path / "r.json")
+    assert code == 0 and doc["status"] == "ok", doc["notes"]
+    blk = doc["fit"]["thermal_lag"]
+    assert blk["location"] == location, blk["location_choice"]
+    lag = doc["parameters"]["thermal_lag"]
+    assert abs(lag["value"] - 20.0) < 3 * lag["u"], lag
+    if location == "air":
+        housing = doc["parameters"]["thermal_lag_housing"]
+        assert abs(housing["value"] - 30.0) < 3 * housing["u"], housing
+        assert "the air kept" in blk["location_choice"]
+    else:
+        assert "thermal_lag_housing" not in doc["parameters"]
+        assert "not looked for" in blk["location_choice"]
+
+
+def test_conflicting_forms_are_refused_by_name():
+    """Two forms of one effect, or a form name against its option, are an input error naming both;
+    an explicit location is kept for ``thermal_lag_history``."""
+    with pytest.raises(InputError, match="hysteresis_play and hysteresis_pi"):
+        resolve_form_names(["hysteresis_play", "hysteresis_pi"])
+    with pytest.raises(InputError, match="--hysteresis-form pi was given"):
+        resolve_form_names(["hysteresis_play"], hysteresis_form="pi")
+    assert resolve_form_names(["angle_tempco", "thermal_lag_history"], thermal_lag_form="air") == (
+        ["angle_tempco", "thermal_lag"], "offset", "air")
+    assert resolve_form_names(["hysteresis", "hysteresis_pi"]) == (["hysteresis"], "pi", "rate")
+    assert resolve_form_names(list(DEFAULT_EFFECTS)) == (list(DEFAULT_EFFECTS), "offset", "rate")
+
+
+def test_the_location_rule_by_hand():
+    """``air_kept``: known noise, the likelihood ratio of one more stage against chi2(1) at 99 %
+    (6.635); noise estimated, the AIC (n ln(chi2_h / chi2_a) > 2), which does not depend on the
+    output's unit: before, the diagnosis compared raw chi^2 differences with 2.0, in whatever units
+    the relative weights had. ``housing_suffices``: chi^2 p >= 0.01, known noise only."""
+    thr = 6.634896601021214
+    assert air_kept(100.0 + thr + 1e-6, 100.0, 500, True)[0]
+    assert not air_kept(100.0 + thr - 1e-6, 100.0, 500, True)[0]
+    n = 500
+    just = math.exp(2.0 / n)                  # chi2_h / chi2_a at which the AIC ties
+    for scale in (1e-9, 1.0, 1e9):
+        assert air_kept(scale * just * 1.0001, scale, n, False)[0]
+        assert not air_kept(scale * just * 0.9999, scale, n, False)[0]
+    assert housing_suffices(500.0, 500, True) and not housing_suffices(600.0, 500, True)
+    assert not housing_suffices(500.0, 500, False)
+
+
+def test_sample_takes_a_play_by_its_name_and_holds_its_half_width(tmp_path, capsys):
+    """``sample --effects ...,hysteresis_play``: the play's half-width is profiled by the least
+    squares and held (a plug-in, said in a note and in ``fit.hysteresis.held_in_posterior``); the
+    posterior of every hysteresis angle agrees with the least squares' (means within 0.3u, SDs
+    within 20 %: the model is linear in them once the branch is fixed)."""
+    path, _ = _play_campaign(tmp_path)
+    _, ls = _fit(path, THERMAL + ("hysteresis_play",), tmp_path / "ls.json")
+    code, doc = _sample(path, THERMAL + ("hysteresis_play",), tmp_path / "post.json", "--ess", "400", "--seed", "1")
+    capsys.readouterr()
+    assert code == 0 and doc["status"] == "ok", doc["notes"]
+    assert doc["fit"]["hysteresis"]["held_in_posterior"] is True
+    assert doc["fit"]["hysteresis"]["half_width_C"] == ls["fit"]["hysteresis"]["half_width_C"]
+    assert any(n.startswith("hysteresis_play: the branch of each visit from a play") for n in doc["notes"])
+    for ab in ANGLES:
+        p, q = doc["parameters"][f"Ca_{ab}_hysteresis"], ls["parameters"][f"Ca_{ab}_hysteresis"]
+        assert abs(p["value"] - q["value"]) < 0.3 * q["u"] and abs(p["u"] / q["u"] - 1.0) < 0.2, (ab, p, q)
+
+
+def test_sample_takes_the_lag_history_by_its_name(tmp_path, capsys):
+    """``sample --effects ...,thermal_lag_history`` on the housing thermometer's campaign: the time
+    constant held at the least-squares value (the note says the posterior lacks its uncertainty);
+    the angle tempcos' posterior means within 0.5 of the least squares' u (whose u also holds the
+    time constant's, so the posterior's SD may only be smaller: at most 1.1 of it)."""
+    path, _ = _lag_campaign(tmp_path, 11, "housing")
+    _, ls = _fit(path, LAG_MODEL + ("thermal_lag_history",), tmp_path / "ls.json")
+    code, doc = _sample(path, LAG_MODEL + ("thermal_lag_history",), tmp_path / "post.json", "--ess", "400",
+                        "--seed", "2")
+    capsys.readouterr()
+    assert code == 0 and doc["status"] == "ok", doc["notes"]
+    blk = doc["fit"]["thermal_lag"]
+    assert blk["held_in_posterior"] is True and blk["tau_min"] == ls["fit"]["thermal_lag"]["tau_min"]
+    assert "thermal_lag" not in doc["parameters"]
+    assert any("lacks the time constants' uncertainty" in n for n in doc["notes"])
+    for ab in ANGLES:
+        p, q = doc["parameters"][f"Ca_{ab}_tempco"], ls["parameters"][f"Ca_{ab}_tempco"]
+        assert abs(p["value"] - q["value"]) < 0.5 * q["u"] and p["u"] < 1.1 * q["u"], (ab, p, q)
+
+
+def test_sample_with_a_lag_the_data_do_not_hold_is_refused(tmp_path, capsys):
+    """No lag in the data (a 0.1 min element): the history's time constant is refused by its gate
+    in the least squares, and the posterior with it held is not an answer either (status not ok,
+    exit 3), whatever its own gates say."""
+    path, _ = _lag_campaign(tmp_path, 13, "housing", tau_min=0.1)
+    code, doc = _sample(path, LAG_MODEL + ("thermal_lag_history",), tmp_path / "post.json", "--ess", "200")
+    capsys.readouterr()
+    assert code == 3 and doc["status"] != "ok", doc["status"]
+    assert doc["fit"]["thermal_lag"]["held_in_posterior"] is True
+
+
+@pytest.mark.parametrize("name", ANSWERABLE)
+def test_sample_accepts_every_name_the_diagnosis_answers(oblique_campaign, tmp_path, name, capsys):
+    """``sample --effects MODEL,NAME`` (a short chain: the test is of the names, not of convergence)
+    writes a result with a status for every answerable name, never "unknown effect"."""
+    model = [e for e in DEFAULT_EFFECTS if not (name.startswith("hysteresis_") and e == "hysteresis")]
+    out = tmp_path / "s.json"
+    code = main(["sample", oblique_campaign, "--effects", ",".join(model + [name]), "--ess", "50",
+                 "--max-steps", "400", "--json", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert "unknown effect" not in err, err
+    assert code in (0, 3) and out.exists(), (code, err)
+    assert json.loads(out.read_text())["status"] in STATUSES
