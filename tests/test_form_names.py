@@ -238,3 +238,44 @@ def test_sample_accepts_every_name_the_diagnosis_answers(oblique_campaign, tmp_p
     assert "unknown effect" not in err, err
     assert code in (0, 3) and out.exists(), (code, err)
     assert json.loads(out.read_text())["status"] in STATUSES
+
+
+def test_diagnose_again_with_the_named_form_in_the_model(tmp_path, capsys):
+    """The loop a verdict asks for: the offset model's diagnosis names ``hysteresis_play``; diagnosed
+    again with ``--model ...,hysteresis_play`` (the play profiled and held) the gap is at the noise
+    floor (verdict none), the JSON's model says the form, and a note says what is held."""
+    path, _ = _play_campaign(tmp_path)
+    first, again = tmp_path / "d1.json", tmp_path / "d2.json"
+    assert main(["diagnose", path, "--model", ",".join(THERMAL + ("hysteresis",)), "--json", str(first),
+                 "--quiet", "--draws", "100"]) == 0
+    assert main(["diagnose", path, "--model", ",".join(THERMAL + ("hysteresis_play",)), "--json", str(again),
+                 "--quiet", "--draws", "100"]) == 0
+    capsys.readouterr()
+    d1, d2 = json.loads(first.read_text()), json.loads(again.read_text())
+    assert d1["verdict"]["effect"] == "hysteresis_play", d1["verdict"]
+    assert d2["model"] == list(THERMAL) + ["hysteresis_play"]
+    assert d2["verdict"]["effect"] is None and not d2["gap"]["significant"], (d2["verdict"], d2["gap"])
+    assert "hysteresis_play" not in [c["effect"] for c in d2["candidates"]]
+    assert any(n.startswith("model: hysteresis_play: the branch of each visit from a play") for n in d2["notes"])
+    from test_results_contract import assert_valid
+
+    assert_valid(d2, "triadcal.diagnosis")
+
+
+@pytest.mark.parametrize("location", ["housing", "air"])
+def test_diagnose_again_with_the_lag_history_in_the_model(tmp_path, location):
+    """A lag of 20 min behind a housing or an air thermometer (Euler heat equations): the tempco
+    model's diagnosis names ``thermal_lag_history``; with it in the model (the location chosen and
+    the time constants held) the gap is gone. Measured: tau 19.83 min (housing), 19.59 and 30.58 min
+    (air)."""
+    from triadcal.io.bench_csv import read_bench_csv
+    from triadcal.judgement.diagnose import diagnose
+
+    path, _ = _lag_campaign(tmp_path, 11 if location == "housing" else 12, location)
+    c = read_bench_csv(path)
+    first = diagnose(c, model=LAG_MODEL, n_draws=100)
+    again = diagnose(c, model=LAG_MODEL + ("thermal_lag_history",), n_draws=100)
+    assert first.verdict_effect == "thermal_lag_history", first.verdict
+    assert again.verdict_effect is None and not again.gap["significant"], (again.verdict, again.gap)
+    held = next(n for n in again.notes if n.startswith("model: thermal_lag_history"))
+    assert f"the thermometer in the {location}" in held, held

@@ -19,7 +19,9 @@ def register(sub) -> None:
                     "JSON (format triadcal.diagnosis v1) and optionally an HTML report.")
     p.add_argument("data", help="bench CSV v1 file")
     p.add_argument("--model", default=",".join(DEFAULT_EFFECTS),
-                   help=f"effects of the fitted model, from: {', '.join(EFFECTS)}; 'none' for eq. 1 only "
+                   help=f"effects of the fitted model, from: {', '.join(EFFECTS)}, or the forms hysteresis_play, "
+                        "hysteresis_pi, thermal_lag_history (profiled by the least squares and held, so that a "
+                        "model a verdict named can be diagnosed again); 'none' for eq. 1 only "
                         f"(default: {','.join(DEFAULT_EFFECTS)})")
     p.add_argument("--candidates", default=None,
                    help=f"effects to test (default: every effect of {', '.join(VOCABULARY)} not in the model, and "

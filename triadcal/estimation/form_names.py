@@ -63,20 +63,21 @@ def resolve_form_names(effects: Sequence[str], hysteresis_form: str = "offset",
 
 
 def held_form(campaign, effects: Sequence[str], hysteresis_form: str, thermal_lag_form: str, **fit_kwargs):
-    """``sample`` with a form (``hysteresis_play``, ``hysteresis_pi``, ``thermal_lag_history``): the
-    least-squares fit of the form profiles its nonlinear parameters (the play's half-width and start
-    state, the PI's widths and weight, the lag's time constants and the thermometer's location), and
-    the posterior is that of the model's parameters with them held there (a plug-in, like the
-    flicker floor and the quantisation LSB). Returns ``(campaign, effects, form_result, block_key,
-    note)``: the campaign with the form's branch (or the element's temperatures) in place, the
-    effects to sample (the lag's own term dropped: the element's temperature carries it), the
-    form's least-squares result (its status carries into the posterior's), the key of its block in
-    ``result.fit`` and a note saying what is held."""
+    """A form (``hysteresis_play``, ``hysteresis_pi``, ``thermal_lag_history``) held at its
+    least-squares profile, for ``sample`` and for ``diagnose --model``: the least-squares fit of the
+    form profiles its nonlinear parameters (the play's half-width and start state, the PI's widths
+    and weight, the lag's time constants and the thermometer's location), and the campaign is
+    returned with the form's branch (or the element's temperatures) in place, so that the model's
+    linear terms act through it (a plug-in, like the flicker floor and the quantisation LSB).
+    Returns ``(campaign, effects, form_result, block_key, held)``: the effects to use (the lag's own
+    term dropped: the element's temperature carries it), the form's least-squares result (its
+    status says whether the form is an answer), the key of its block in ``result.fit`` and what is
+    held, in words."""
     from ..models.effects import EFFECTS
 
     if hysteresis_form != "offset" and thermal_lag_form != "rate":
-        raise InputError("sample: a hysteresis form and the lag's history form are not sampled together (as in "
-                         "fit); name one of them")
+        raise InputError("a hysteresis form and the lag's history form are not held together (as in fit); name "
+                         "one of them")
     mean = [e for e in effects if e in EFFECTS]
     if thermal_lag_form != "rate":
         from .thermal_lag_form import fit_thermal_lag_history, with_element_temperature
@@ -88,11 +89,10 @@ def held_form(campaign, effects: Sequence[str], hysteresis_form: str, thermal_la
                                             blk["tau_housing_min"] or 0.0, tb)
         taus = f"tau = {blk['tau_min']:.4g} min" + (f", tau_housing = {blk['tau_housing_min']:.4g} min"
                                                      if blk["tau_housing_min"] else "")
-        note = (f"thermal_lag_history: the thermal terms at the element's temperature, the thermometer in the "
+        held = (f"thermal_lag_history: the thermal terms at the element's temperature, the thermometer in the "
                 f"{blk['location']} ({taus}" + (f", the record's gaps bridged by {tb:.3g} min" if tb else "")
-                + ") held at the least-squares profile's values (plug-in): the posterior lacks the time "
-                "constants' uncertainty, which the least-squares u includes (fit.thermal_lag)")
-        return campaign, [e for e in effects if e != "thermal_lag"], ls, "thermal_lag", note
+                + ") held at the least-squares profile's values")
+        return campaign, [e for e in effects if e != "thermal_lag"], ls, "thermal_lag", held
     from .hysteresis_form import fit_hysteresis_form
 
     ls, _, _, campaign = fit_hysteresis_form(campaign, mean, hysteresis_form, None, **fit_kwargs)
@@ -102,6 +102,5 @@ def held_form(campaign, effects: Sequence[str], hysteresis_form: str, thermal_la
     else:
         what = (f"a Prandtl-Ishlinskii sum of plays of half-widths {blk['pi_half_widths_C'][0]:g} and "
                 f"{blk['pi_half_widths_C'][1]:g} degC, weights {blk['pi_weights'][0]:g} and {blk['pi_weights'][1]:g}")
-    note = (f"hysteresis_{hysteresis_form}: the branch of each visit from {what}, held at the least-squares "
-            "profile's values (plug-in): the posterior is that of the model's parameters given them (fit.hysteresis)")
-    return campaign, effects, ls, "hysteresis", note
+    held = f"hysteresis_{hysteresis_form}: the branch of each visit from {what}, held at the least-squares profile's values"
+    return campaign, effects, ls, "hysteresis", held

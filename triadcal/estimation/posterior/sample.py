@@ -208,9 +208,12 @@ def _attach_form(result, form) -> None:
     either: its status becomes that one, with the gate's note."""
     if not form:
         return
-    form_ls, key, note = form
+    form_ls, key, held = form
     result.fit[key] = dict(form_ls.fit[key], held_in_posterior=True)
-    result.notes.append(note)
+    result.notes.append(held + (" (plug-in): the posterior lacks the time constants' uncertainty, which the "
+                                "least-squares u includes (fit.thermal_lag)" if key == "thermal_lag" else
+                                " (plug-in): the posterior is that of the model's parameters given them "
+                                "(fit.hysteresis)"))
     if form_ls.status != "ok" and result.status == "ok":
         result.status = form_ls.status
         result.notes.append(f"the least-squares fit of the form ({key}) has status {form_ls.status!r}: "

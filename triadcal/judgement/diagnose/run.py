@@ -76,15 +76,29 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     and scored on the other; ``slices_after``: slice tests redone after each refit). Returns a :class:`Diagnosis` (``to_dict`` gives
     the results-json ``triadcal.diagnosis`` v1 document).
     """
+    from ...estimation.form_names import held_form, resolve_form_names
+
     rng = np.random.default_rng(seed)
-    model = tuple(dict.fromkeys(model))
+    asked = tuple(dict.fromkeys(model))
+    resolved, h_form, lag_form = resolve_form_names(asked)
+    model = tuple(resolved)
     unknown = [m for m in model if m not in EFFECTS]
     if unknown:
-        raise InputError(f"unknown model effect(s) {unknown}; choose from {', '.join(EFFECTS)}")
+        raise InputError(f"unknown model effect(s) {unknown}; choose from {', '.join(EFFECTS)}, or the forms "
+                         "hysteresis_play, hysteresis_pi, thermal_lag_history")
     if len(campaign.units) != 1 or len(set(campaign.state.tolist())) != 1:
         raise InputError("diagnose takes one unit in one mechanical state (select one with Campaign.select)")
     cands = [c for c in dict.fromkeys(candidates if candidates is not None else VOCABULARY + FORM_CANDIDATES)
-             if c not in model]
+             if c not in model and c not in asked]
+    notes = []
+    if h_form != "offset" or lag_form != "rate":
+        # a form in the model (after a verdict named it): its nonlinear parameters profiled by the least
+        # squares and held, the campaign carrying its branch or the element's temperature
+        campaign, held_model, form_ls, _, held = held_form(campaign, list(model), h_form, lag_form,
+                                                           reference_temperature_C=reference_temperature_C)
+        model = tuple(held_model)
+        notes.append(f"model: {held} (the form's least-squares status: {form_ls.status}); the gap and the "
+                     "candidates are judged given them")
     bad = [c for c in cands if c not in VOCABULARY + FORM_CANDIDATES]
     if bad:
         raise InputError(f"unknown candidate effect(s) {bad}; the vocabulary is "
@@ -92,7 +106,6 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     form_cands = [c for c in cands if c in FORM_CANDIDATES]
     cands = [c for c in cands if c not in FORM_CANDIDATES]
     T0 = reference_temperature_C
-    notes = []
     noise = noise_of(campaign)
     sigma = noise.sigma
     model_all = Model(tuple(EFFECTS), T0)
@@ -434,6 +447,6 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     fit = {"chi2_dof": _f(base.chi2_dof) if noise.known else None, "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
-    return Diagnosis(model=model, noise_known=noise.known, noise=noise.description, gap=gap, slices=slices,
+    return Diagnosis(model=asked, noise_known=noise.known, noise=noise.description, gap=gap, slices=slices,
                      candidates=order, verdict=verdict, fit=fit, notes=notes, source=campaign.source, alpha=alpha,
                      residuals=base.r.reshape(-1, 3).copy(), families=_family_tests(campaign, base, Q))
