@@ -6,6 +6,9 @@ says pass when a side is not ok. Each case mutates a real result of the built-in
 import copy
 import json
 import math
+import re
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -223,3 +226,25 @@ def test_certificate_refuses_a_diagnosis_it_cannot_read(tmp_path, change, messag
     with pytest.raises(ValueError, match=message):
         certificate(tmp_path / "r.json", diagnosis=tmp_path / "d.json", html=tmp_path / "c.html")
     assert not (tmp_path / "c.html").exists()
+
+
+def test_summary_with_the_noise_estimated_prints_no_ratio_but_the_level_and_its_source(tmp_path, capsys):
+    """Issue 18 item 6: without sd_* / n_samples / Q_V2s the fit's chi2/dof is the scatter in the
+    weights' units (3e-9 for volts: "chi2/dof = 0.000" was printed, with an excuse). The summary now
+    prints no ratio and says the noise was estimated, from what, and its level: with the weights
+    1/sqrt(tau_s), chi2/dof is the white-noise intensity Q. The example campaign says Q_V2s = 3e-9;
+    with the line and the noise columns removed Q comes back within the chi2's spread on ~500 dof
+    (3 SD: a factor 1 +- 0.19)."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_foreign_effects import _without_noise_columns
+    from triadcal.api import example_path
+
+    text = "\n".join(line for line in _without_noise_columns(Path(example_path()).read_text()).splitlines()
+                     if not line.startswith("# Q_V2s")) + "\n"
+    path = tmp_path / "no_noise.csv"
+    path.write_text(text, encoding="utf-8")
+    assert main(["fit", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "chi2/dof =" not in out and "chi2/dof: none, the noise was estimated from the residuals" in out, out
+    q = float(re.search(r"Q = ([0-9.e+-]+) V\^2 s", out).group(1))
+    assert abs(q / 3e-9 - 1.0) < 0.19, q

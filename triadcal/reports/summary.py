@@ -25,6 +25,21 @@ def coverage_factor(result: CalibrationResult) -> tuple[float, str]:
     return 2.0, "coverage about 95 %"
 
 
+def _estimated_noise_text(chi2_dof: float, noise: str, output_unit) -> str:
+    """What the summary says of the fit when the data hold no noise level: no chi2/dof (the
+    scatter itself set the level, so it is 1 by construction in its own units and a number printed
+    there would mean nothing), but the level estimated and from what. With the weights 1/sqrt(tau_s)
+    (``noise_model.noise_of``) chi2/dof is the white-noise intensity Q of the outputs, in the output
+    unit squared times s, the unit of the ``Q_V2s`` metadata line."""
+    unit = output_unit or "V"
+    if "1/sqrt(tau_s)" in noise:
+        level = f"Q = {chi2_dof:.3g} {unit}^2 s, the output's white-noise intensity"
+    else:
+        level = f"residual scale {chi2_dof ** 0.5:.3g} in the units of the weights"
+    return (f"chi2/dof: none, the noise was {noise or 'estimated from the residuals'} ({level}), so no "
+            "goodness-of-fit test")
+
+
 def summary_text(result: CalibrationResult) -> str:
     """A concise table: parameter, value(u) with u to two significant digits, unit."""
     lines = [f"{result.unit}: {result.method} calibration, status {result.status}"]
@@ -36,10 +51,10 @@ def summary_text(result: CalibrationResult) -> str:
     if fit:
         bits = []
         c = fit.get("chi2_dof")
-        if isinstance(c, (int, float)) and c == c:
-            known = fit.get("noise_known")
-            bits.append(f"chi2/dof = {c:.3f}" + ("" if known is not False else
-                        " (no noise level in the data: the scatter itself set it, so no goodness-of-fit test)"))
+        if isinstance(c, (int, float)) and c == c and fit.get("noise_known") is False:
+            bits.append(_estimated_noise_text(c, str(fit.get("noise") or ""), result.extra.get("output_unit")))
+        elif isinstance(c, (int, float)) and c == c:
+            bits.append(f"chi2/dof = {c:.3f}")
         else:
             bits.append("chi2/dof not computed (no degrees of freedom or no residuals)")
         if "n_obs" in fit:
