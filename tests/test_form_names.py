@@ -279,3 +279,22 @@ def test_diagnose_again_with_the_lag_history_in_the_model(tmp_path, location):
     assert again.verdict_effect is None and not again.gap["significant"], (again.verdict, again.gap)
     held = next(n for n in again.notes if n.startswith("model: thermal_lag_history"))
     assert f"the thermometer in the {location}" in held, held
+
+
+@pytest.mark.parametrize("location", ["housing", "air"])
+def test_thermal_lag_history_chooses_the_location_with_the_noise_estimated(tmp_path, location):
+    """The same campaigns with the noise columns removed: no chi^2 test of the housing's one stage,
+    so the air's two are always fitted and kept only when the AIC falls (scale-free). Measured on
+    seeds 11-14: housing 4 / 4 (the AIC rises by 1.7-2.0, the extra stage buys nothing), air 4 / 4
+    (the AIC falls by 1600-2100), tau within 3u."""
+    from test_foreign_effects import _without_noise_columns
+
+    text, _ = simulate_lag_campaign(np.random.default_rng(12), tau_element_min=20.0, location=location,
+                                    tau_housing_min=30.0)
+    path = _write(tmp_path, "lag_estimated.csv", _without_noise_columns(text))
+    code, doc = _fit(path, LAG_MODEL + ("thermal_lag_history",), tmp_path / "r.json")
+    assert code == 0 and doc["fit"]["noise_known"] is False, doc["notes"]
+    assert doc["fit"]["thermal_lag"]["location"] == location, doc["fit"]["thermal_lag"]["location_choice"]
+    assert "noise estimated" in doc["fit"]["thermal_lag"]["location_choice"]
+    lag = doc["parameters"]["thermal_lag"]
+    assert abs(lag["value"] - 20.0) < 3 * lag["u"], lag
