@@ -77,6 +77,22 @@ def test_cli_writes_one_result_per_unit(tmp_path):
     assert main(["fit", str(path), "--joint-units", "--json", str(tmp_path / "x.json")]) == 1
 
 
+@pytest.mark.parametrize("extra", [["--hysteresis-form", "play"], ["--thermal-lag-form", "history"],
+                                   ["--thermal-order", "2"], ["--loss", "huber"], ["--strict"],
+                                   ["--quantisation-lsb", "0.001"], ["--effects", "bench_tilt,hysteresis_play"],
+                                   ["--effects", "bench_tilt,position_error"]])
+def test_cli_joint_units_refuses_what_it_would_ignore(tmp_path, capsys, extra):
+    """--joint-units fits the joint model's effects by least squares; the options and names of the
+    single-unit fit it does not do (forms, orders, losses, noise effects) were silently ignored, or
+    met an 'unknown effect'. They are refused, named, before the file is read."""
+    path, _ = _fleet_file(tmp_path, n=2, seed=5)
+    code = main(["fit", str(path), "--joint-units", "--json-dir", str(tmp_path / "res"), *extra])
+    err = capsys.readouterr().err
+    assert code == 1 and "--joint-units fits the effects of the joint model" in err, err
+    named = extra[1].split(",")[-1] if extra[0] == "--effects" else extra[0]
+    assert named in err and not (tmp_path / "res").exists()
+
+
 def test_the_labs_systematic_errors_through_the_stacked_fit(tmp_path):
     """Type B through the stacked fit: an encoder zero of axis 1 is one error for every unit (it
     turns each unit's Ca_xz/Ca_zx by -1/+1 alike), a fixture rotation one per unit (its own pair

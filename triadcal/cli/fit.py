@@ -132,6 +132,18 @@ def _joint_units(args, out) -> int:
     if args.method != "joint" or args.unit or args.json or args.netcdf:
         raise InputError("--joint-units fits every unit with the joint method: no --unit, --json or --netcdf "
                          "(give --json-dir DIR)")
+    ignored = [flag for flag, given in (
+        ("--loss", args.loss != "l2"), ("--strict", args.strict), ("--thermal-order", args.thermal_order != "1"),
+        ("--hysteresis-form", args.hysteresis_form != "offset"), ("--hysteresis-width", args.hysteresis_width is not None),
+        ("--thermal-lag-form", args.thermal_lag_form != "rate"), ("--bridge-gaps", args.bridge_gaps),
+        ("--quantisation-lsb", args.quantisation_lsb is not None),
+        ("--bench-errors-from-replicates", args.bench_errors_from_replicates)) if given]
+    from ..estimation.form_names import FORM_NAMES
+
+    ignored += [e for e in name_list(args.effects) if e in FORM_NAMES or e in NOISE_EFFECTS or e == "quantisation"]
+    if ignored:
+        raise InputError(f"--joint-units fits the effects of the joint model with least squares, not {', '.join(ignored)} "
+                         "(they would be ignored); fit each unit with --unit for those")
     campaign = read_bench_csv(args.data or example_path())
     if args.state is not None:
         states = sorted(set(campaign.state.tolist()))
