@@ -260,3 +260,18 @@ def test_cli_simulate_then_fit_classical_within_4u(tmp_path):
         p, true = result["parameters"][n], truth["parameters"][n]["value"]
         assert p["unit"] == "arcsec"
         assert abs(p["value"] - true) < 4 * p["u"], (n, p, true)
+
+
+@pytest.mark.parametrize("extra", [["--effects", "bench_tilt,angle_tempco"], ["--thermal-order", "2"],
+                                   ["--hysteresis-form", "play"], ["--loss", "huber"], ["--strict"],
+                                   ["--effects", "bench_tilt,hysteresis_play"], ["--thermal-lag-form", "housing"]])
+def test_cli_classical_refuses_what_it_would_ignore(extra, capsys):
+    """The classical method is the paper's eq. 2 per setpoint and its linear thermal correction;
+    the joint model's effects, forms, orders and losses were silently ignored with it. They are
+    refused, named (the default --effects is the classical method's own and passes)."""
+    from triadcal.cli import main
+
+    assert main(["fit", "--example", "--method", "classical", *extra]) == 1
+    err = capsys.readouterr().err
+    assert "--method classical is the paper's eq. 2" in err and extra[0] in err, err
+    assert main(["fit", "--example", "--method", "classical", "--quiet"]) == 0

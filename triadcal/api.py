@@ -122,6 +122,21 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     if method == "classical":
         from .estimation.classical import fit_classical
 
+        # the paper's eq. 2 per setpoint and its linear thermal correction: nothing of the joint model
+        # applies; what would be ignored is refused by name
+        ignored = [what for what, given in (
+            (f"--effects {','.join(effects)}", list(effects) != list(DEFAULT_EFFECTS)),
+            (f"--loss {loss}", loss != "l2"), ("--strict", strict),
+            (f"--hysteresis-form {hysteresis_form}", hysteresis_form != "offset"),
+            ("--hysteresis-width", hysteresis_half_width_C is not None),
+            ("--bench-errors-from-replicates", bench_errors_from_replicates),
+            (f"--thermal-order {thermal_order}", thermal_order != "1"),
+            (f"--thermal-lag-form {thermal_lag_form}", thermal_lag_form != "rate"), ("--bridge-gaps", bridge_gaps),
+            ("--netcdf", netcdf_path is not None)) if given]
+        if ignored:
+            raise InputError(f"--method classical is the paper's eq. 2 per setpoint with a linear thermal "
+                             f"correction: {', '.join(ignored)} would be ignored; use --method joint for them")
+
         result = fit_classical(campaign, reference_temperature_C=reference_temperature_C, gates=gates)
         if lab is not None:
             result.notes.append("the classical method does not propagate the lab file's errors into u (Type A "
