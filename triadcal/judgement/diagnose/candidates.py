@@ -461,8 +461,9 @@ def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_kno
                    + (f", air {fits['air'][0].chi2:.4g} (the air kept only when it beats the housing: {crit_loc})"
                       if "air" in fits else ""))
     else:
-        why_loc = (f"thermometer location air: the record's gaps are bridged, which only the air's form is "
-                   f"(chi2 {fits['air'][0].chi2:.4g})")
+        why_loc = (f"thermometer location air, assumed: the record's gaps are bridged, which only the air's form "
+                   f"is, and a record with gaps does not show where the thermometer sits (chi2 "
+                   f"{fits['air'][0].chi2:.4g}; the lag is named, its split into stages is the air's)")
     n_tau = (2 if loc == "air" else 1) + (1 if bridge else 0)        # the bridge is profiled too
     tb = st.extra_params.get("thermal_lag_history_bridge_min", {}).get("value")
     rate_in_model = "thermal_lag" in model
