@@ -47,14 +47,19 @@ def _write(tmp_path, name, text):
     return str(path)
 
 
-def _play_campaign(tmp_path, seed=3, half_width_C=10.0):
-    """The angles' hysteresis of 5-10 arcsec through a backlash of half-width 10 degC."""
+def _hysteresis_text(seed, hysteresis):
+    """CSV text and truth of the angles' hysteresis of 5-10 arcsec (random signs), its branch from the
+    independent bench's backlash state machine (``hysteresis``: its form, half-widths, weights)."""
     rng = np.random.default_rng(seed)
     t = default_truth(rng)
     for ab in ANGLES:
         t[f"Ca_{ab}_hysteresis"] = float(rng.uniform(5, 10)) * float(rng.choice([-1, 1]))
-    text, truth = simulate_campaign(rng, truth=t, setpoints_C=SETPOINTS, tilt_arcsec=(30.0, -20.0),
-                                    hysteresis={"form": "play", "half_widths_C": [half_width_C]})
+    return simulate_campaign(rng, truth=t, setpoints_C=SETPOINTS, tilt_arcsec=(30.0, -20.0), hysteresis=hysteresis)
+
+
+def _play_campaign(tmp_path, seed=3, half_width_C=10.0):
+    """The hysteresis through a backlash of half-width 10 degC."""
+    text, truth = _hysteresis_text(seed, {"form": "play", "half_widths_C": [half_width_C]})
     return _write(tmp_path, f"play_{seed}.csv", text), truth
 
 
@@ -325,3 +330,17 @@ def test_thermal_lag_history_on_a_record_with_gaps_is_refused_until_the_location
         assert code == 0 and stated["status"] == "ok", stated["notes"]
         lag = stated["parameters"]["thermal_lag_housing"]
         assert abs(lag["value"] - th) < 3 * lag["u"], lag
+
+
+def test_the_diagnose_again_loop_through_the_hysteresis_forms(tmp_path):
+    """A Prandtl-Ishlinskii hysteresis (two backlashes of 3 and 25 degC, weights 0.5; independent
+    bench): under the offset model and under the play the verdict is ``hysteresis_pi``; with
+    ``hysteresis_pi`` in the model the gap is gone (seeds 3 and 4 alike, measured 2026-11-28)."""
+    from triadcal.io.bench_csv import parse_bench_csv
+    from triadcal.judgement.diagnose import diagnose
+
+    text, _ = _hysteresis_text(3, {"form": "pi", "half_widths_C": [3.0, 25.0], "weights": [0.5, 0.5]})
+    c = parse_bench_csv(text)
+    verdicts = [diagnose(c, model=THERMAL + (h,), n_draws=100).verdict_effect
+                for h in ("hysteresis", "hysteresis_play", "hysteresis_pi")]
+    assert verdicts == ["hysteresis_pi", "hysteresis_pi", None], verdicts
