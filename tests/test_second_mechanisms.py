@@ -43,6 +43,34 @@ def test_the_sum_of_ou_processes_has_the_stated_variance():
     assert abs(np.var(x) / 16.0 - 1.0) < 0.2, np.var(x)
 
 
+def test_the_exponential_tempco_laws_by_hand():
+    """scale_tempco~2 and angle_tempco~2 (and bias_tempco~2) follow 2 c theta^2 (e^x - 1 - x),
+    x = (T - 20) / theta, theta = 40 degC: c (T - 20)^2 near 20 degC (the preset's quadratic tempco,
+    the first mechanism), 2 c 1600 (e - 2) = 2298.5 c at 60 degC. Checked on the campaigns: the
+    scale's outputs are W / (1 + delta) of the clean campaign's (the same seed draws the same noise),
+    per axis with its own sensor's temperature; the angles' change is c_ab law(T_mean) G_b on output
+    a, nothing else."""
+    from triadcal.judgement.diagnosis_validation import VALIDATION_PLAN, VALIDATION_SOAK_S, scenario
+    from triadcal.models.simulate import Schedule, simulate_campaign
+
+    theta = sm.EXP_THETA_C
+    law = lambda T: 2.0 * theta ** 2 * (np.exp((T - 20.0) / theta) - 1.0 - (T - 20.0) / theta)  # noqa: E731
+    assert law(60.0) == pytest.approx(2.0 * 1600.0 * (np.e - 2.0)) and law(20.0) == 0.0
+    assert law(20.5) == pytest.approx(0.25, rel=0.01)
+    truth, _ = scenario("clean")
+    clean = simulate_campaign(truth, plan=VALIDATION_PLAN, schedule=Schedule(soak_s=VALIDATION_SOAK_S), seed=7)
+    scale, _ = sm.second_campaign("scale_tempco", 7)
+    delta = 1e-6 * np.array([0.05, -0.04, 0.06]) * law(np.asarray(clean.t, float))
+    assert np.allclose(scale.w, clean.w / (1.0 + delta), rtol=0, atol=1e-15)
+    angle, _ = sm.second_campaign("angle_tempco", 7)
+    G = sm._gravity(clean)
+    L = law(np.asarray(clean.t, float).mean(axis=1)) * sm.ARCSEC
+    c2 = {"xy": 0.004, "xz": -0.003, "yx": 0.0035, "yz": -0.004, "zx": 0.003, "zy": 0.0025}
+    K = np.array([truth.parameters[f"K_{a}"] for a in "xyz"])
+    expect = np.column_stack([sum(c2[a + b] * L * G[:, "xyz".index(b)] for b in "xyz" if b != a) for a in "xyz"])
+    assert np.allclose(angle.w - clean.w, expect * K, rtol=0, atol=1e-15)
+
+
 def test_names_and_errors():
     assert sm.base_effect("hysteresis~2") == "hysteresis" and sm.is_second("hysteresis~2")
     assert set(sm.CONDITIONS) == {e + "~2" for e in sm.FAMILY}

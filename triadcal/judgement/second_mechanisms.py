@@ -29,6 +29,16 @@ Mechanisms (``m`` the magnitude; 1 is the preset's realistic size of the first m
   ``2 c theta^2 (exp(x) - 1 - x)``, ``x = (T - 20 degC) / theta``, ``theta`` = 40 degC, ``c`` the
   preset's quadratic tempcos (0.05, -0.04, 0.06 ug/degC^2) times ``m``: every order beyond the
   linear one, which the model holds; right: any order of the bias tempco.
+* ``scale_tempco~2`` -- the scale factors' temperature law **exponential** (a material property
+  with an Arrhenius-like law, e.g. a magnet's remanence, rather than a polynomial): each K
+  changes by the relative ``2 c theta^2 (exp(x) - 1 - x)``, ``x = (T_a - 20 degC) / theta``,
+  ``theta`` = 40 degC, ``c`` the preset's quadratic scale tempcos (0.05, -0.04, 0.06 ppm/degC^2)
+  times ``m``, applied to the outputs as ``W / (1 + delta)``; right: any order of the scale tempco.
+* ``angle_tempco~2`` -- the **mount bends** with the unit's mean temperature (the three sensors'
+  mean, not each accelerometer's own reading, which the model's angle tempcos follow), by the same
+  exponential law: each sensing-axis angle gains ``2 c theta^2 (exp(x) - 1 - x)`` arcsec, ``c``
+  the preset's quadratic angle tempcos (0.0025-0.004 arcsec/degC^2) times ``m``; right: any
+  order of the angle tempco.
 * ``bias_drift~2`` -- an **ageing** bias that settles, ``r tau (1 - exp(-t / tau))``, ``tau`` the
   campaign's length, ``r`` the preset's rates (3, -2, 4 ug/h) times ``m``.
 * ``heavy_tails~2`` -- **contamination**: each output mean is, with probability 0.05 m, hit by
@@ -54,6 +64,8 @@ ARCSEC = np.pi / (180.0 * 3600.0)
 AXES = "xyz"
 PAIRS = ("xy", "xz", "yx", "yz", "zx", "zy")
 SUFFIX = "~2"
+#: the temperature scale of the exponential laws of the tempco families (degC)
+EXP_THETA_C = 40.0
 
 #: the effects a second mechanism's verdict may name and be right (its family)
 FAMILY = {
@@ -62,6 +74,8 @@ FAMILY = {
     "tilt_drift": ("tilt_drift", "tilt_settling"),
     "bench_tilt": ("bench_tilt",),
     "bias_tempco": ("bias_tempco", "bias_tempco2", "bias_tempco3"),
+    "scale_tempco": ("scale_tempco", "scale_tempco2", "scale_tempco3"),
+    "angle_tempco": ("angle_tempco", "angle_tempco2", "angle_tempco3"),
     "bias_drift": ("bias_drift",),
     "heavy_tails": ("heavy_tails",),
     "position_error": ("position_error",),
@@ -181,10 +195,19 @@ def second_campaign(effect: str, seed: int, magnitude: float = 1.0, preset: str 
         dA = (_gravity(c, _tilted(tx0 + m * 1.5 * settle, ty0 - m * 1.0 * settle))
               - _gravity(c, _tilted(np.full(n, tx0), np.full(n, ty0))))
     elif effect == "bias_tempco":
-        theta = 40.0
-        x = (T - 20.0) / theta
+        x = (T - 20.0) / EXP_THETA_C
         c2 = m * np.array([0.05, -0.04, 0.06])   # ug/degC^2
-        dW = 1e-6 * K * 2.0 * c2 * theta ** 2 * (np.exp(x) - 1.0 - x)
+        dW = 1e-6 * K * 2.0 * c2 * EXP_THETA_C ** 2 * (np.exp(x) - 1.0 - x)
+    elif effect == "scale_tempco":
+        x = (T - 20.0) / EXP_THETA_C
+        c2 = m * np.array([0.05, -0.04, 0.06])   # ppm/degC^2
+        delta = 1e-6 * 2.0 * c2 * EXP_THETA_C ** 2 * (np.exp(x) - 1.0 - x)
+        dW = np.asarray(c.w, float) / (1.0 + delta) - np.asarray(c.w, float)
+    elif effect == "angle_tempco":
+        xm = (T.mean(axis=1) - 20.0) / EXP_THETA_C
+        law = 2.0 * EXP_THETA_C ** 2 * (np.exp(xm) - 1.0 - xm)
+        c2 = dict(zip(PAIRS, (0.004, -0.003, 0.0035, -0.004, 0.003, 0.0025)))      # arcsec/degC^2
+        dA = _angle_offsets(_gravity(c), {ab: m * c2[ab] * law * ARCSEC for ab in PAIRS})
     elif effect == "bias_drift":
         r = m * np.array([3.0, -2.0, 4.0])       # ug/h
         dW = 1e-6 * K * r * span_h * (1.0 - np.exp(-hours / span_h))[:, None]
