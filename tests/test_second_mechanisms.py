@@ -68,7 +68,7 @@ def test_the_exponential_tempco_laws_by_hand():
     c2 = {"xy": 0.004, "xz": -0.003, "yx": 0.0035, "yz": -0.004, "zx": 0.003, "zy": 0.0025}
     K = np.array([truth.parameters[f"K_{a}"] for a in "xyz"])
     expect = np.column_stack([sum(c2[a + b] * L * G[:, "xyz".index(b)] for b in "xyz" if b != a) for a in "xyz"])
-    assert np.allclose(angle.w - clean.w, expect * K, rtol=0, atol=1e-15)
+    assert np.allclose(angle.w - clean.w, expect / K, rtol=0, atol=1e-15)     # W = (Ca G + S) / K
 
 
 def test_names_and_errors():

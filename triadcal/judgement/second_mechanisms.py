@@ -197,7 +197,7 @@ def second_campaign(effect: str, seed: int, magnitude: float = 1.0, preset: str 
     elif effect == "bias_tempco":
         x = (T - 20.0) / EXP_THETA_C
         c2 = m * np.array([0.05, -0.04, 0.06])   # ug/degC^2
-        dW = 1e-6 * K * 2.0 * c2 * EXP_THETA_C ** 2 * (np.exp(x) - 1.0 - x)
+        dW = 1e-6 / K * 2.0 * c2 * EXP_THETA_C ** 2 * (np.exp(x) - 1.0 - x)
     elif effect == "scale_tempco":
         x = (T - 20.0) / EXP_THETA_C
         c2 = m * np.array([0.05, -0.04, 0.06])   # ppm/degC^2
@@ -210,7 +210,7 @@ def second_campaign(effect: str, seed: int, magnitude: float = 1.0, preset: str 
         dA = _angle_offsets(_gravity(c), {ab: m * c2[ab] * law * ARCSEC for ab in PAIRS})
     elif effect == "bias_drift":
         r = m * np.array([3.0, -2.0, 4.0])       # ug/h
-        dW = 1e-6 * K * r * span_h * (1.0 - np.exp(-hours / span_h))[:, None]
+        dW = 1e-6 / K * r * span_h * (1.0 - np.exp(-hours / span_h))[:, None]
     elif effect == "heavy_tails":
         sigma = np.sqrt(truth.noise.Q_V2s / np.asarray(c.tau_s, float))[:, None] * np.ones((1, 3))
         hit = rng.random((n, 3)) < 0.05 * m
@@ -224,7 +224,8 @@ def second_campaign(effect: str, seed: int, magnitude: float = 1.0, preset: str 
     elif effect == "flicker_noise":
         taus = (0.3, 1.5, 7.5, 37.5)
         dW = np.column_stack([_ou_sum(c.time_s, taus, 4.8e-6 * m, rng) for _ in range(3)])
-    c.w = np.asarray(c.w, float) + dA * K + dW
+    # eq. 1 solved for W: W = (Ca G + S) / K, K in g per output unit
+    c.w = np.asarray(c.w, float) + dA / K + dW
     return c, model
 
 
