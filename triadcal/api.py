@@ -86,8 +86,9 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
     short lags), ``housing`` or ``air`` (the element's lag estimated from the temperature history,
     the thermometer on the housing or in the chamber air;
     :func:`triadcal.estimation.thermal_lag_form.fit_thermal_lag`), or ``history`` (the location
-    chosen by the data, the gaps of a stepped record bridged: ``fit_thermal_lag_history``, the rule
-    of the diagnosis's ``thermal_lag_history``); ``bridge_gaps`` (with ``housing`` or ``air``)
+    chosen by the data on a continuous record, by the rule of the diagnosis's ``thermal_lag_history``;
+    a stepped record with gaps is refused until the location is stated: ``fit_thermal_lag_history``);
+    ``bridge_gaps`` (with ``housing`` or ``air``)
     fills the record's gaps, the soaks of a stepped campaign, with a first-order approach profiled
     with the lags (docs/model.md).
     ``hysteresis_form``: ``offset`` (the branches a constant offset apart), ``play`` (a play
@@ -197,7 +198,7 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             from .estimation.thermal_lag_form import fit_thermal_lag, fit_thermal_lag_history
 
             kwargs.pop("return_problem")
-            if thermal_lag_form == "history":           # the location chosen by the data, gaps bridged
+            if thermal_lag_form == "history":           # the location chosen by the data, or refused
                 result = fit_thermal_lag_history(campaign, effects, **kwargs)
             else:
                 result = fit_thermal_lag(campaign, effects, thermal_lag_form, bridge_gaps=bridge_gaps, **kwargs)

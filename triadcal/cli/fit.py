@@ -65,7 +65,8 @@ def register(sub) -> None:
                         "the temperature history, the thermometer on the housing (one stage, thermal_lag, min) or "
                         "in the chamber air (two stages, thermal_lag_housing and thermal_lag); history: the "
                         "location chosen by the data (the air kept when it beats the housing at 99 %%; a stepped "
-                        "record's gaps bridged), as --effects ...,thermal_lag_history; default rate: the "
+                        "record with gaps refused until the location is stated), as --effects "
+                        "...,thermal_lag_history; default rate: the "
                         "thermal_lag effect's T - tau dT/dt, for short lags only; docs/model.md")
     p.add_argument("--bridge-gaps", action="store_true",
                    help="with --thermal-lag-form housing or air on a stepped campaign read only at its visits: fill "

@@ -94,6 +94,11 @@ def _bench_whitening(campaign: Campaign, model: Model, noise: "NoiseSource", ben
     return bw
 
 
+#: the weights of a fit whose data hold no noise level (``noise_of``): with them chi^2/dof is the
+#: outputs' white-noise intensity Q (output unit^2 s), as the summary reports it
+RELATIVE_WEIGHTS = "weights 1/sqrt(tau_s)"
+
+
 def noise_of(campaign: Campaign) -> NoiseSource:
     """Weights of the fit: ``u_w_*`` (the data's own noise) or ``sd_*/sqrt(n_samples)`` where
     present (:meth:`Campaign.output_sigma`), else ``sqrt(Q/tau)`` from a
@@ -109,7 +114,7 @@ def noise_of(campaign: Campaign) -> NoiseSource:
         return NoiseSource(np.repeat(np.sqrt(Q / campaign.tau_s)[:, None], 3, axis=1), True,
                            f"white noise Q = {Q:g} (output unit)^2 s from the file's metadata, sqrt(Q/tau_s)")
     return NoiseSource(np.repeat((1.0 / np.sqrt(campaign.tau_s))[:, None], 3, axis=1), False,
-                       "estimated from the residuals (weights 1/sqrt(tau_s))" + why)
+                       f"estimated from the residuals ({RELATIVE_WEIGHTS})" + why)
 
 
 

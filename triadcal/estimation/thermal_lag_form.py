@@ -24,7 +24,7 @@ from dataclasses import replace
 from typing import Optional, Sequence
 
 import numpy as np
-from scipy import optimize
+from scipy import optimize, stats
 
 from ..errors import InputError
 from ..models.campaign import Campaign
@@ -342,8 +342,6 @@ LOCATION_LEVEL = 0.99
 def housing_suffices(chi2_housing: float, dof: int, noise_known: bool) -> bool:
     """With known noise, the housing's one stage already within the noise (chi^2 p >= 1 - level):
     the air's second stage is not looked for. With the noise estimated there is no such test."""
-    from scipy import stats
-
     return bool(noise_known and stats.chi2.sf(chi2_housing, max(dof, 1)) >= 1.0 - LOCATION_LEVEL)
 
 

@@ -67,6 +67,15 @@ SUFFIX = "~2"
 #: the temperature scale of the exponential laws of the tempco families (degC)
 EXP_THETA_C = 40.0
 
+
+
+def _exp_curvature(T) -> np.ndarray:
+    """``exp(x) - 1 - x``, ``x = (T - 20 degC) / EXP_THETA_C``: what the exponential law of the
+    tempco families has beyond its linear term (times ``2 c theta^2``, ``c`` its quadratic tempco)."""
+    x = (np.asarray(T, float) - 20.0) / EXP_THETA_C
+    return np.exp(x) - 1.0 - x
+
+
 #: the effects a second mechanism's verdict may name and be right (its family)
 FAMILY = {
     "hysteresis": HYSTERESIS_FAMILY,
@@ -195,17 +204,14 @@ def second_campaign(effect: str, seed: int, magnitude: float = 1.0, preset: str 
         dA = (_gravity(c, _tilted(tx0 + m * 1.5 * settle, ty0 - m * 1.0 * settle))
               - _gravity(c, _tilted(np.full(n, tx0), np.full(n, ty0))))
     elif effect == "bias_tempco":
-        x = (T - 20.0) / EXP_THETA_C
         c2 = m * np.array([0.05, -0.04, 0.06])   # ug/degC^2
-        dW = 1e-6 / K * 2.0 * c2 * EXP_THETA_C ** 2 * (np.exp(x) - 1.0 - x)
+        dW = 1e-6 / K * 2.0 * c2 * EXP_THETA_C ** 2 * _exp_curvature(T)
     elif effect == "scale_tempco":
-        x = (T - 20.0) / EXP_THETA_C
         c2 = m * np.array([0.05, -0.04, 0.06])   # ppm/degC^2
-        delta = 1e-6 * 2.0 * c2 * EXP_THETA_C ** 2 * (np.exp(x) - 1.0 - x)
+        delta = 1e-6 * 2.0 * c2 * EXP_THETA_C ** 2 * _exp_curvature(T)
         dW = np.asarray(c.w, float) / (1.0 + delta) - np.asarray(c.w, float)
     elif effect == "angle_tempco":
-        xm = (T.mean(axis=1) - 20.0) / EXP_THETA_C
-        law = 2.0 * EXP_THETA_C ** 2 * (np.exp(xm) - 1.0 - xm)
+        law = 2.0 * EXP_THETA_C ** 2 * _exp_curvature(T.mean(axis=1))
         c2 = dict(zip(PAIRS, (0.004, -0.003, 0.0035, -0.004, 0.003, 0.0025)))      # arcsec/degC^2
         dA = _angle_offsets(_gravity(c), {ab: m * c2[ab] * law * ARCSEC for ab in PAIRS})
     elif effect == "bias_drift":

@@ -31,8 +31,10 @@ def _estimated_noise_text(chi2_dof: float, noise: str, output_unit) -> str:
     there would mean nothing), but the level estimated and from what. With the weights 1/sqrt(tau_s)
     (``noise_model.noise_of``) chi2/dof is the white-noise intensity Q of the outputs, in the output
     unit squared times s, the unit of the ``Q_V2s`` metadata line."""
+    from ..estimation.noise_model import RELATIVE_WEIGHTS
+
     unit = output_unit or "V"
-    if "1/sqrt(tau_s)" in noise:
+    if RELATIVE_WEIGHTS in noise:
         level = f"Q = {chi2_dof:.3g} {unit}^2 s, the output's white-noise intensity"
     else:
         level = f"residual scale {chi2_dof ** 0.5:.3g} in the units of the weights"
