@@ -50,6 +50,34 @@ Mechanisms (``m`` the magnitude; 1 is the preset's realistic size of the first m
   processes** (time constants 0.3, 1.5, 7.5 and 37.5 h, SD 4.8e-6 V m each: an Allan floor near
   3e-6 V m over 0.5-50 h, the classic approximation of 1/f noise) instead of Gaussian noise
   with the 1/f covariance.
+* ``scale_nonlinearity~2`` -- the even nonlinearity is the **readout's** (the integral
+  nonlinearity of the front end and ADC, a bow over the full scale), quadratic in the output
+  voltage ``W`` itself, bias and misalignment included, not in the specific force along the
+  sensing axis: ``W + c W^2`` with ``c = K2 K`` (``K2`` the preset's, 10, -8, 12 ug/g^2, times ``m``),
+  which is ``K2 (K W)^2`` in g: the first mechanism's law to a relative 2 K2 S (about 1e-8).
+* ``scale_asymmetry~2`` -- the two gains of a **push-pull output stage** with a smooth crossover:
+  ``W (1 + e tanh(K W / 0.05 g))``, ``e`` the preset's asymmetries (20, -15, 25 ppm) times ``m``,
+  switching on the sign of the output (bias included), not of the input; ``e |a|`` beyond
+  0.15 g, smooth through 0.
+* ``scale_cubic~2`` -- an open-loop element on a **Duffing spring**: the deflection ``x`` solves
+  ``x + beta x^3 = a`` (Newton's method, ``a = K W`` the linear response in g), ``beta = -K3``
+  (the preset's K3, 15, -10, 12 ug/g^3, times ``m``: softening for K3 > 0, stiffening for K3 < 0);
+  ``x = a - beta a^3 + 3 beta^2 a^5 ...``, every odd order.
+* ``cross_coupling~2`` -- **pendulous elements**: each element's pendulum deflects about its hinge
+  by ``delta_a = k_a s_a`` (rad, ``s_a`` its input) and tilts its input axis toward its pendulous
+  axis ``p``: the output is ``cos(delta) s_a + sin(delta) s_p`` (an exact rotation), with the
+  pendulous axes x -> y, y -> z, z -> x and ``k`` the preset's ``Kc_xy``, ``Kc_yz``, ``Kc_zx``
+  (30, -15, 20 ug/g^2) times ``m``: IEEE 1293's physical origin of ``K_ip``, three of the model's
+  six coefficients.
+* ``g_dependent_misalignment~2`` -- each element's **flexure bows** under the load along its axis:
+  its input axis turns toward each other axis ``b`` by ``phi_ab = m_ab s_a^2`` and is rebuilt as
+  the unit vector ``(e_a + tan(phi_ab) e_b + tan(phi_ac) e_c) / norm`` dotted with gravity (a
+  geometric rotation, not the model's product ``m_ab a_a^2 a_b``), ``m_ab`` the preset's
+  ``Ca_ab_g2`` (1.5-3 arcsec/g^2) times ``m``.
+* ``bench_nonorthogonality~2`` -- axis 1's **bearing is inclined** by ``w0`` (the preset's 8 arcsec
+  times ``m``) in axis 2's platform: the unit turns about ``n = (sin w0, 0, cos w0)`` (Rodrigues'
+  formula, written here with numpy), not by a rotation ``Ry(w0)`` inserted between the axes; the
+  two differ by a constant rotation of the unit, which its own angles and the tilt absorb.
 """
 
 from __future__ import annotations
@@ -89,6 +117,12 @@ FAMILY = {
     "heavy_tails": ("heavy_tails",),
     "position_error": ("position_error",),
     "flicker_noise": ("flicker_noise",),
+    "scale_nonlinearity": ("scale_nonlinearity",),
+    "scale_asymmetry": ("scale_asymmetry",),
+    "scale_cubic": ("scale_cubic",),
+    "cross_coupling": ("cross_coupling",),
+    "g_dependent_misalignment": ("g_dependent_misalignment",),
+    "bench_nonorthogonality": ("bench_nonorthogonality",),
 }
 CONDITIONS = tuple(e + SUFFIX for e in FAMILY)
 
@@ -156,6 +190,44 @@ def _ou_sum(times_s: np.ndarray, taus_h, sd: float, rng) -> np.ndarray:
                 x = a * x + sd * np.sqrt(1.0 - a * a) * rng.standard_normal()
             total[k] += x
     return total
+
+
+def _preset_values(effect: str, preset: str) -> dict:
+    """The preset's values of ``effect``'s parameters (reporting units: ug/g^2, ppm, arcsec ...):
+    what the validation's first mechanism is given at magnitude 1."""
+    from .diagnosis_validation import scenario
+
+    truth, _ = scenario(effect, preset)
+    clean, _ = scenario("clean", preset)
+    return {k: float(v) for k, v in truth.parameters.items() if k not in clean.parameters}
+
+
+def duffing_deflection(a, beta, iterations: int = 4) -> np.ndarray:
+    """The root ``x`` of ``x + beta x^3 = a`` near ``a`` (Newton's method from ``x = a``; for
+    ``|beta a^2|`` of 1e-5 the error after two steps is below 1e-15): the static deflection of an
+    element on a Duffing spring, in units of its linear deflection per g."""
+    a = np.asarray(a, float)
+    x = a.copy()
+    for _ in range(iterations):
+        x = x - (x + beta * x ** 3 - a) / (1.0 + 3.0 * beta * x * x)
+    return x
+
+
+def inclined_bearing_gravity(campaign, f_base, w0: float) -> np.ndarray:
+    """(n, 3) gravity in the IMU frame when axis 1 turns about ``n = (sin w0, 0, cos w0)`` of axis
+    2's platform (its bearing inclined by ``w0`` rad) instead of its z axis: ``u = Rx(axis2)^T f``,
+    ``v = Rot(n, axis1)^T u`` by Rodrigues' formula ``v = u cos t - (n x u) sin t + n (n.u)(1 - cos t)``,
+    ``G = (v0, v2, -v1)`` (the mounting of bench-csv.md). With ``w0 = 0`` it is the bench's nominal
+    kinematics; written here, not taken from ``models.kinematics``."""
+    a1 = np.radians(np.asarray(campaign.axis1_deg, float))
+    a2 = np.radians(np.asarray(campaign.axis2_deg, float))
+    f = np.broadcast_to(np.asarray(f_base, float).reshape(3, -1), (3, len(a1)))
+    c2, s2 = np.cos(a2), np.sin(a2)
+    u = np.array([f[0], c2 * f[1] + s2 * f[2], -s2 * f[1] + c2 * f[2]])
+    n = np.array([np.sin(w0), 0.0, np.cos(w0)])[:, None]
+    c1, s1 = np.cos(a1), np.sin(a1)
+    v = u * c1 - np.cross(n, u, axis=0) * s1 + n * (n * u).sum(axis=0) * (1.0 - c1)
+    return np.column_stack([v[0], v[2], -v[1]])
 
 
 def second_campaign(effect: str, seed: int, magnitude: float = 1.0, preset: str = "ak18-quartz"):
@@ -230,9 +302,46 @@ def second_campaign(effect: str, seed: int, magnitude: float = 1.0, preset: str 
     elif effect == "flicker_noise":
         taus = (0.3, 1.5, 7.5, 37.5)
         dW = np.column_stack([_ou_sum(c.time_s, taus, 4.8e-6 * m, rng) for _ in range(3)])
+    elif effect in ("scale_nonlinearity", "scale_asymmetry", "scale_cubic"):   # laws of the readout
+        v = _preset_values(effect, preset)
+        W = np.asarray(c.w, float)
+        a = K * W                                                               # g, bias included
+        if effect == "scale_nonlinearity":
+            k2 = m * 1e-6 * np.array([v[f"K2_{x}"] for x in AXES])              # 1/g
+            dW = k2 * K * W * W
+        elif effect == "scale_asymmetry":
+            e = m * 1e-6 * np.array([v[f"K_{x}_asymmetry"] for x in AXES])
+            dW = W * e * np.tanh(a / 0.05)
+        else:
+            beta = -m * 1e-6 * np.array([v[f"K3_{x}"] for x in AXES])           # 1/g^2
+            dW = duffing_deflection(a, beta) / K - W
+    elif effect == "cross_coupling":
+        v = _preset_values(effect, preset)
+        G = _gravity(c)
+        for i, ab in enumerate(("xy", "yz", "zx")):                         # element -> pendulous axis
+            p = AXES.index(ab[1])
+            delta = m * 1e-6 * v[f"Kc_{ab}"] * G[:, i]                           # rad
+            dA[:, i] = (np.cos(delta) - 1.0) * G[:, i] + np.sin(delta) * G[:, p]
+    elif effect == "g_dependent_misalignment":
+        v = _preset_values(effect, preset)
+        G = _gravity(c)
+        for i, a in enumerate(AXES):
+            row = np.zeros((n, 3))
+            row[:, i] = 1.0
+            for j, b in enumerate(AXES):
+                if j != i:
+                    row[:, j] = np.tan(m * v[f"Ca_{a}{b}_g2"] * ARCSEC * G[:, i] ** 2)
+            row /= np.linalg.norm(row, axis=1)[:, None]
+            dA[:, i] = (row * G).sum(axis=1) - G[:, i]
+    elif effect == "bench_nonorthogonality":
+        v = _preset_values(effect, preset)
+        f = _tilted(np.full(n, float(P["tilt_x"]) * ARCSEC), np.full(n, float(P["tilt_y"]) * ARCSEC))
+        dA = (inclined_bearing_gravity(c, f, m * v["bench_nonorth"] * ARCSEC)
+              - inclined_bearing_gravity(c, f, 0.0))
     # eq. 1 solved for W: W = (Ca G + S) / K, K in g per output unit
     c.w = np.asarray(c.w, float) + dA / K + dW
     return c, model
 
 
-__all__ = ["CONDITIONS", "FAMILY", "base_effect", "is_second", "play_branch", "second_campaign"]
+__all__ = ["CONDITIONS", "FAMILY", "base_effect", "duffing_deflection", "inclined_bearing_gravity", "is_second",
+           "play_branch", "second_campaign"]
