@@ -237,6 +237,14 @@ FORM_LEVEL = 0.99
 _TEMPCO_EFFECTS = ("angle_tempco", "scale_tempco", "bias_tempco", "angle_tempco2", "scale_tempco2",
                    "bias_tempco2", "angle_tempco3", "scale_tempco3", "bias_tempco3")
 
+#: names a verdict can give that are not terms of the mean but of the noise model: what each is
+NOISE_MODEL_TERMS = {
+    "position_error": "position_error: a variance component of the bench's random positioning errors",
+    "heavy_tails": "heavy_tails: a Student-t likelihood",
+    "flicker_noise": "flicker_noise: a 1/f covariance of the visit means",
+    "quantisation": "quantisation: the output's LSB, a rounding of each sample",
+}
+
 
 #: the effects whose evidence is the difference between the heating and the cooling branches
 HYSTERESIS_FAMILY = ("hysteresis", "hysteresis_play", "hysteresis_pi")

@@ -32,6 +32,7 @@ from ...estimation.joint import (
 )
 from .candidates import (
     FORM_CANDIDATES,
+    NOISE_MODEL_TERMS,
     _cross_group,
     _effect_params,
     _fit_heavy_tails,
@@ -82,6 +83,15 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     asked = tuple(dict.fromkeys(model))
     resolved, h_form, lag_form = resolve_form_names(asked)
     model = tuple(resolved)
+    likelihood = [m for m in model if m in NOISE_MODEL_TERMS]
+    if likelihood:
+        raise InputError(
+            f"the diagnosed model holds terms of the mean; {', '.join(likelihood)} "
+            f"{'is' if len(likelihood) == 1 else 'are'} part of the noise model ("
+            + "; ".join(NOISE_MODEL_TERMS[m] for m in likelihood) + "), which the diagnosis's weighted least "
+            "squares does not hold. A verdict that names one already says that after its refit no structure is left "
+            "in any slice; to estimate with it, run triadcal fit --effects ... or triadcal sample --effects ... "
+            "with the same names")
     unknown = [m for m in model if m not in EFFECTS]
     if unknown:
         raise InputError(f"unknown model effect(s) {unknown}; choose from {', '.join(EFFECTS)}, or the forms "

@@ -23,7 +23,7 @@ import numpy as np
 from scipy import stats
 
 from ...models.effects import EFFECTS, NOISE_EFFECTS
-from .candidates import _nominal_g, _problem_on, design_caveat
+from .candidates import NOISE_MODEL_TERMS, _nominal_g, _problem_on, design_caveat
 from .correlated import SCALE_WANDER_MIMICS, WANDER_MIMICS, wander_ambiguity, wander_rival
 from .fitting import _hat_q
 from .generic import gap_shape, level_words, per_output_terms
@@ -274,8 +274,10 @@ def decide(v: VerdictInputs) -> dict:
                 verdict["gap_closed"] = bool(not gap_open and not n_slices_left)
             if not verdict.get("gap_closed", True):
                 what = "+".join(verdict.get("effects", [named.effect]))
+                again = ("diagnose again" if named.effect not in NOISE_MODEL_TERMS else
+                         "fit with it (triadcal fit --effects; diagnose --model holds terms of the mean only)")
                 verdict["remaining"] = (f"the gap stays significant after adding {what} ({', '.join(left)}): "
-                                        f"more is missing; refit with {what} and diagnose again")
+                                        f"more is missing; refit with {what} and {again}")
             if gap_open:
                 # an effect is named only when the gap after it lies in the acceptance band (issue 18 item 1:
                 # with known noise, the chi2 after its refit within the noise at alpha; and no generic family
