@@ -255,8 +255,13 @@ def test_diagnose_follows_the_contract(model, work):
     assert_valid(doc, "triadcal.diagnosis")
     if model == "none":          # eq. 1 alone on a thermal campaign: a gap, and an effect named
         assert doc["gap"]["significant"] and doc["verdict"]["effect"] is not None and doc["where"]
-    else:                        # the campaign's own model: no significant gap
+    else:                        # the campaign's own model: no significant gap, and what it could not see
         assert doc["verdict"]["effect"] is None and "reason" in doc["verdict"]
+        lim = doc["verdict"]["detection_limits"]
+        assert lim["candidates"] and 0 < lim["level"] < doc["alpha"]
+        bad = json.loads(json.dumps(doc))
+        bad["verdict"]["detection_limits"]["candidates"][0]["parameters"] = {"x": {"value": -1.0, "unit": "ug"}}
+        assert any("detection_limits" in e for e in errors(bad)), errors(bad)
 
 
 # -- the other formats -----------------------------------------------------------------------

@@ -48,6 +48,7 @@ from scipy import stats
 from ..errors import InputError
 from ..models.effects import NOISE_EFFECTS, VOCABULARY
 from .diagnose import ALPHA, diagnose
+from .diagnose.detection import power_chi2
 
 #: the noise intensity's factor in the noise-free campaign (its SD: 1e-7 of the real one)
 NOISE_FACTOR = 1e-14
@@ -77,12 +78,6 @@ def power_bound(lambda_total: float, alpha: float = ALPHA) -> float:
     """``Phi(sqrt(lambda) - z_{1-alpha})``: the power of the most powerful level-alpha test of a
     known signal of noncentrality ``lambda`` (module docstring)."""
     return float(stats.norm.cdf(math.sqrt(max(lambda_total, 0.0)) - stats.norm.ppf(1.0 - alpha)))
-
-
-def power_chi2(lam: float, k: int, level: float) -> float:
-    """``P(chi2_k(lam) > chi2_k^{-1}(1 - level))``: the power of a chi2(k) test at ``level``."""
-    crit = stats.chi2.isf(level, k)
-    return float(stats.ncx2.sf(crit, k, max(lam, 1e-12)))
 
 
 def detectability(effect: str, magnitude: float = 1.0, preset: str = "ak18-quartz", seed: int = 1000,

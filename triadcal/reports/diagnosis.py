@@ -287,6 +287,17 @@ def html_report(diagnosis, campaign=None) -> str:
         "<h2>Verdict</h2>",
         f"<p><b>{e(headline)}</b>" + (f" &mdash; {e(evidence)}" if evidence else "") + "</p>",
     ]
+    lim = d.verdict.get("detection_limits")
+    if lim and lim.get("candidates"):
+        parts.append(f"<p>What this campaign could not have seen: the size of each parameter (the others at zero) "
+                     f"that its candidate's own score test finds with probability {lim['power']:g} at Holm's first "
+                     f"level {lim['level']:.2g}; smaller effects may be there.</p>"
+                     "<table><tr><th>candidate</th><th>parameter</th><th>limit</th></tr>")
+        for c in lim["candidates"]:
+            for n, p in c["parameters"].items():
+                val = "not seen apart from the model" if p["value"] is None else f"{_num(p['value'])} {e(p['unit'])}"
+                parts.append(f"<tr><td>{e(c['effect'])}</td><td>{e(n)}</td><td>{val}</td></tr>")
+        parts.append("</table>")
     if campaign is not None and d.residuals is not None:
         parts.append(_img(figure_png(residuals_figure(d, campaign)), "residuals"))
     parts.append("<h2>Where</h2>")

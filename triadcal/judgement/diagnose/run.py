@@ -454,6 +454,16 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         base=base, full=full, Jfull=Jfull, Q=Q, T0=T0, sigma=sigma, significant=significant, gap_adj=gap_adj,
         refitted=refitted, cand_objs=cand_objs, states=states, generic0=generic0, corr0=corr0, slices=slices,
         n_sig_before=n_sig_before, ckern=ckern, h=h, pe_w=pe_w, mean_refit=mean_refit, evidence=evidence))
+    if verdict.get("effect") is None and keys:
+        # a none verdict says what it could not have seen (detection.py)
+        from .detection import POWER, detection_limits, limits_text
+
+        level = alpha / len(keys)
+        verdict["detection_limits"] = {
+            "power": POWER, "level": level,
+            "candidates": detection_limits(cand_objs, Jfull, full.index, Q, level, unit_of)}
+        if verdict["detection_limits"]["candidates"]:
+            verdict["reason"] += "; " + limits_text(verdict["detection_limits"]["candidates"], level)
     fit = {"chi2_dof": _f(base.chi2_dof) if noise.known else None, "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
