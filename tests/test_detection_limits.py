@@ -67,6 +67,7 @@ def test_a_none_verdict_carries_its_limits(tmp_path):
     assert set(kc["parameters"]) == {"Kc_xy", "Kc_xz", "Kc_yx", "Kc_yz", "Kc_zx", "Kc_zy"}
     assert all(p["unit"] == "ug/g2" and 1.0 < p["value"] < 100.0 for p in kc["parameters"].values())
     assert "would have been found with probability 0.95" in v["reason"]
+    assert lim["not_testable"] == []            # every candidate is testable on 24 poses
     assert limits_text(lim["candidates"], lim["level"]).count("ug/g2") == 1
     assert "cross_coupling" in summary_text(d).split("verdict:", 1)[1]
     write_html_report(d, tmp_path / "d.html", c)
@@ -90,3 +91,17 @@ def test_the_limit_is_the_power_of_the_own_score_test():
             hits += own.score_p < level
         sd = math.sqrt(expect * (1 - expect) / n)
         assert abs(hits / n - expect) <= 3 * sd + 1.0 / n, (factor, hits, expect)
+
+
+def test_a_none_verdict_on_six_faces_names_what_it_cannot_test():
+    """On the 12 positions (every pose with one axis along gravity) K3 and the cross-coupling are
+    invisible (a^3 = a, every product a_a a_b zero): a none verdict lists them as not testable and
+    says nothing of their size."""
+    rng = np.random.default_rng(5)
+    text, _ = simulate_campaign(rng, setpoints_C=SETPOINTS)
+    v = _diagnose(parse_bench_csv(text)).verdict
+    assert v["effect"] is None
+    lim = v["detection_limits"]
+    assert {"cross_coupling", "scale_cubic"} <= set(lim["not_testable"])
+    assert not {"cross_coupling", "scale_cubic"} & {e["effect"] for e in lim["candidates"]}
+    assert "not testable on this design" in v["reason"]

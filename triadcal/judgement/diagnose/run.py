@@ -459,11 +459,15 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         from .detection import POWER, detection_limits, limits_text
 
         level = alpha / len(keys)
+        blind = [c.effect for c in cand_objs if not c.testable]
         verdict["detection_limits"] = {
             "power": POWER, "level": level,
-            "candidates": detection_limits(cand_objs, Jfull, full.index, Q, level, unit_of)}
+            "candidates": detection_limits(cand_objs, Jfull, full.index, Q, level, unit_of),
+            "not_testable": blind}
         if verdict["detection_limits"]["candidates"]:
             verdict["reason"] += "; " + limits_text(verdict["detection_limits"]["candidates"], level)
+        if blind:
+            verdict["reason"] += "; not testable on this design (nothing said of them): " + ", ".join(blind)
     fit = {"chi2_dof": _f(base.chi2_dof) if noise.known else None, "n_obs": int(base.r.size), "n_params": len(names),
            "converged": base.converged, "parameters": {n: {"value": base_val[n], "u": base_u[n],
                                                            "unit": unit_of(n)} for n in names}}
