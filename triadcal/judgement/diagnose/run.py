@@ -454,7 +454,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         base=base, full=full, Jfull=Jfull, Q=Q, T0=T0, sigma=sigma, significant=significant, gap_adj=gap_adj,
         refitted=refitted, cand_objs=cand_objs, states=states, generic0=generic0, corr0=corr0, slices=slices,
         n_sig_before=n_sig_before, ckern=ckern, h=h, pe_w=pe_w, mean_refit=mean_refit, evidence=evidence))
-    if verdict.get("effect") is None and keys:
+    if verdict.get("effect") is None and not significant and keys:
         # a none verdict says what it could not have seen (detection.py)
         from .detection import POWER, detection_limits, limits_text
 
