@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from independent_bench import OBLIQUE_POSITIONS, default_truth, simulate_campaign  # noqa: E402
+from test_two_effects import B2, KC, bench_text  # noqa: E402
 
 from triadcal.io.bench_csv import parse_bench_csv  # noqa: E402
 from triadcal.judgement.diagnose import diagnose  # noqa: E402
@@ -70,12 +70,7 @@ def test_the_square_root_of_an_ill_scaled_covariance():
 
 
 def test_a_campaign_in_counts_is_diagnosed_as_in_volts():
-    rng = np.random.default_rng(1)
-    truth = default_truth(rng)
-    truth.update({"Kc_xy": 150.0, "Kc_xz": -100.0, "Kc_yx": 200.0, "Kc_yz": -120.0, "Kc_zx": 100.0,
-                  "Kc_zy": -180.0, "S_x_tempco2": 0.02, "S_y_tempco2": -0.015, "S_z_tempco2": 0.025})
-    text, _ = simulate_campaign(rng, truth=truth, positions=OBLIQUE_POSITIONS,
-                                setpoints_C=(-40, -10, 20, 50, 80, 50, 20, -10, -40))
+    text = bench_text({**KC, **B2}, 1)       # the first two-effect pair of test_two_effects.py, seed 1
     model = ["angle_tempco", "scale_tempco", "bias_tempco"]
     cands = ["cross_coupling", "bias_tempco2", "position_error", "scale_cubic"]
     v, c = (diagnose(parse_bench_csv(t), model, candidates=cands, n_draws=100, seed=1, top=4)

@@ -57,12 +57,17 @@ def _campaign(pair: str, seed: int):
 
 
 def _make(upd: dict, seed: int, hyst=None, extra_bias=None, encoder_error=None, **bench_errors):
+    return parse_bench_csv(bench_text(upd, seed, hyst, extra_bias, encoder_error, **bench_errors))
+
+
+def bench_text(upd: dict, seed: int, hyst=None, extra_bias=None, encoder_error=None, **bench_errors) -> str:
+    """The bench CSV text of the independent bench's campaign with ``upd`` in its truth."""
     rng = np.random.default_rng(seed)
     truth = default_truth(rng)
     truth.update(upd)
     text, _ = simulate_campaign(rng, truth=truth, positions=OBLIQUE_POSITIONS, setpoints_C=SETPOINTS,
                                 hysteresis=hyst, extra_bias=extra_bias, encoder_error=encoder_error, **bench_errors)
-    return parse_bench_csv(text)
+    return text
 
 
 def chain(campaign, model=BASE, steps: int = 4):
