@@ -17,7 +17,10 @@ def register(sub) -> None:
                     "how often the verdict names it. With --left-out each campaign is diagnosed a second "
                     "time with the effect (and the candidates that explain the same data) left out of the "
                     "candidates: the right verdict is then 'unexplained'. Writes the confusion matrices as a "
-                    "table (confusion.txt), a plot (confusion.png) and every row (validation.json).")
+                    "table (confusion.txt), a plot (confusion.png) and every row (validation.json). Every row is also "
+                    "appended to DIR/rows.jsonl as it finishes: a run stopped midway, started again with the same "
+                    "settings into the same DIR, takes the rows it finds there and diagnoses only the rest (refused "
+                    "when the settings or triadcal's code differ).")
     p.add_argument("--seeds", type=int, default=20, help="campaigns per effect (default 20)")
     p.add_argument("--effects", default=None,
                    help="comma-separated conditions (default: clean and every effect of the vocabulary)")
@@ -85,7 +88,7 @@ def run(args) -> int:
         effects = list(CONDITIONS)
     res = validate(seeds=args.seeds, effects=effects,
                    processes=args.processes, preset=args.preset, progress=progress, magnitudes=magnitudes,
-                   left_out=args.left_out, noise_estimated=args.noise_estimated)
+                   left_out=args.left_out, noise_estimated=args.noise_estimated, journal_dir=args.out)
     paths = write_validation(res, args.out)
     out.say(res.table())
     fa = res.summary.get("clean", {}).get("false_alarm_rate")
@@ -100,7 +103,10 @@ def run(args) -> int:
                 f" of the {sum(res.summary[c]['left_out_detected_n'] for c in lo)} whose in-vocabulary diagnosis found the gap)"
                 + ("; a candidate was named instead in " + "; ".join(f"{c}: {v}" for c, v in wrong.items())
                    if wrong else ""))
-    out.say(f"{len(res.rows)} diagnoses in {res.seconds:.0f} s; the table is in {paths['table']}, the plot in "
+    if res.resumed:
+        out.say(f"resumed: {res.resumed} of the {len(res.rows)} rows were taken from {args.out}/rows.jsonl, "
+                "written by a stopped run of the same settings and code")
+    out.say(f"{len(res.rows) - res.resumed} diagnoses in {res.seconds:.0f} s; the table is in {paths['table']}, the plot in "
             f"{paths['plot']} and every row in {paths['json']}")
     return 0
 

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from ..errors import InputError
 
+import contextlib
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -26,6 +28,7 @@ from ..models.effects import DEFAULT_EFFECTS, NOISE_EFFECTS, VOCABULARY
 from ..models.simulate import NoiseModel, Schedule, preset_truth, simulate_campaign
 from .diagnose import ALPHA, FORM_CANDIDATES, SIGNATURE, diagnose
 from .diagnose.candidates import HYSTERESIS_FAMILY
+from .validation_journal import job_key
 
 VALIDATION_PLAN: dict = dict(DEFAULT_PLAN)
 #: 16 oblique poses: 8 skew ones (gravity (+-0.5, +-0.71, +-0.5) g, every sign combination)
@@ -248,6 +251,7 @@ class ValidationResult:
     magnitudes: tuple = (1.0,)
     left_out: bool = False            # each effect also diagnosed with its group left out
     noise_estimated: bool = False     # the campaigns' declared noise removed (without_noise)
+    resumed: int = 0                  # rows taken from the journal of a stopped run (validate's journal_dir)
 
     @property
     def left_out_conditions(self) -> tuple:
@@ -400,7 +404,7 @@ def _one_blas_thread():
 def validate(seeds: int = 20, effects: Optional[Sequence[str]] = None, processes: int = 2,
              preset: str = "ak18-quartz", first_seed: int = 1000, n_draws: int = 200,
              progress=None, magnitudes: Sequence[float] = (1.0,), left_out: bool = False,
-             noise_estimated: bool = False) -> ValidationResult:
+             noise_estimated: bool = False, journal_dir=None) -> ValidationResult:
     """Run the validation: ``seeds`` campaigns per condition (clean and each effect at each of
     ``magnitudes``; clean once). With ``left_out`` each effect's campaign is diagnosed a second
     time with the effect's group left out of the candidates (:func:`run_case`); with
@@ -408,7 +412,11 @@ def validate(seeds: int = 20, effects: Optional[Sequence[str]] = None, processes
 
     Runs in ``processes`` worker processes (spawned with one BLAS thread each: the
     matrices are small and threaded BLAS only adds overhead). ``progress`` (optional)
-    is called with each finished row.
+    is called with each row diagnosed in this run.
+
+    ``journal_dir``: every finished row is appended to ``journal_dir/rows.jsonl`` as it comes, and
+    the rows a stopped run of the same settings and code left there are taken instead of diagnosed
+    again (:mod:`.validation_journal`; the folder is locked for the run). ``result.resumed`` counts them.
     """
     effects = tuple(effects) if effects else CONDITIONS
     magnitudes = tuple(dict.fromkeys(float(m) for m in magnitudes))
@@ -421,23 +429,44 @@ def validate(seeds: int = 20, effects: Optional[Sequence[str]] = None, processes
     jobs = [(e, first_seed + s, preset, n_draws, False, 2, m, left_out, noise_estimated)
             for e, m in cases for s in range(seeds)]
     t0 = time.perf_counter()
-    rows = []
-    if processes <= 1:
-        for j in jobs:
-            rows.append(run_case(*j))
+    with contextlib.ExitStack() as stack:
+        journal = None
+        if journal_dir is not None:
+            from ..hardware.storage import folder_lock
+            from .validation_journal import Journal
+
+            stack.enter_context(folder_lock(journal_dir, "validate-diagnosis"))
+            journal = Journal(journal_dir, {"preset": preset, "n_draws": n_draws, "left_out": bool(left_out),
+                                            "noise_estimated": bool(noise_estimated), "cross_group": False, "top": 2})
+            stack.callback(journal.close)
+            for note in journal.notes:
+                print(f"note: {note}", file=sys.stderr)
+        done = {} if journal is None else {job_key(j): journal.rows[job_key(j)] for j in jobs
+                                           if job_key(j) in journal.rows}
+        todo = [j for j in jobs if job_key(j) not in done]
+
+        def finished(job, row):
+            if journal is not None:
+                journal.append(job_key(job), row)
+            done[job_key(job)] = row
             if progress:
-                progress(rows[-1])
-    else:
-        with ProcessPoolExecutor(processes, mp_context=get_context("spawn"), initializer=_one_blas_thread) as ex:
-            for row in ex.map(_run_star, jobs, chunksize=2 if left_out else 4):
-                rows.append(row)
-                if progress:
-                    progress(row)
+                progress(row)
+
+        resumed = len(done)
+        if processes <= 1:
+            for j in todo:
+                finished(j, run_case(*j))
+        elif todo:
+            with ProcessPoolExecutor(processes, mp_context=get_context("spawn"), initializer=_one_blas_thread) as ex:
+                for j, row in zip(todo, ex.map(_run_star, todo, chunksize=2 if left_out else 4)):
+                    finished(j, row)
+    rows = [done[job_key(j)] for j in jobs]
     labels = tuple(VOCABULARY) + FORM_CANDIDATES + (UNEXPLAINED, NONE)
     design = (DESIGN + "; " + MAGNITUDE_DEFINITION + (("; " + LEFT_OUT_DEFINITION) if left_out else "")
               + (("; " + NOISE_ESTIMATED_DEFINITION) if noise_estimated else ""))
     res = ValidationResult(rows, conditions, labels, seeds, design=design, seconds=time.perf_counter() - t0,
-                           magnitudes=magnitudes, left_out=left_out, noise_estimated=noise_estimated)
+                           magnitudes=magnitudes, left_out=left_out, noise_estimated=noise_estimated,
+                           resumed=resumed)
     res.summary = summarise(rows, conditions)
     return res
 
