@@ -55,7 +55,9 @@ MAGNITUDES = (1.0, 0.5)
 #: temperature coefficient (a cubic absorbs most of a missing linear term over -40..+70 degC,
 #: and naming the wrong order still names the right quantity), the drift of the tilt the
 #: model lacks (tilt_drift needs bench_tilt: r t from the campaign's start carries a constant
-#: tilt's pattern), and the two models of excess output scatter (a Student-t is a scale
+#: tilt's pattern), the two laws of a bias that changes in time (a warm-up whose time constant is
+#: long against the campaign is a constant rate, b exp(-t/tau) ~ b - (b/tau) t, as with the tilt's
+#: settling; a rate fits much of an exponential), and the two models of excess output scatter (a Student-t is a scale
 #: mixture of normals, which is what per-visit positioning errors make of the residuals).
 _FAMILIES = (
     ("bench_tilt", "tilt_drift", "tilt_settling"),
@@ -65,6 +67,7 @@ _FAMILIES = (
     ("scale_tempco", "scale_tempco2", "scale_tempco3"),
     ("bias_tempco", "bias_tempco2", "bias_tempco3"),
     ("position_error", "heavy_tails"),
+    ("bias_drift", "bias_warmup"),
 )
 #: the forms of one effect that name it (a first mechanism's verdict is right with either): the
 #: history form of the thermal lag is the rate form's exact solution (the rate form is its first

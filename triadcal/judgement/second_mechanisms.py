@@ -40,7 +40,9 @@ Mechanisms (``m`` the magnitude; 1 is the preset's realistic size of the first m
   the preset's quadratic angle tempcos (0.0025-0.004 arcsec/degC^2) times ``m``; right: any
   order of the angle tempco.
 * ``bias_drift~2`` -- an **ageing** bias that settles, ``r tau (1 - exp(-t / tau))``, ``tau`` the
-  campaign's length, ``r`` the preset's rates (3, -2, 4 ug/h) times ``m``.
+  campaign's length, ``r`` the preset's rates (3, -2, 4 ug/h) times ``m``; right: either law of a
+  bias that changes in time, the rate (``bias_drift``) or the exponential (``bias_warmup``, whose
+  form this is, with a time constant of hours instead of a power-on's minutes), as for the tilt.
 * ``heavy_tails~2`` -- **contamination**: each output mean is, with probability 0.05 m, hit by
   an extra error of 5 sigma SD (a mixture, not a Student-t).
 * ``position_error~2`` -- **uniform** errors of both bench axes per visit (an encoder's
@@ -113,7 +115,7 @@ FAMILY = {
     "bias_tempco": ("bias_tempco", "bias_tempco2", "bias_tempco3"),
     "scale_tempco": ("scale_tempco", "scale_tempco2", "scale_tempco3"),
     "angle_tempco": ("angle_tempco", "angle_tempco2", "angle_tempco3"),
-    "bias_drift": ("bias_drift",),
+    "bias_drift": ("bias_drift", "bias_warmup"),
     "heavy_tails": ("heavy_tails",),
     "position_error": ("position_error",),
     "flicker_noise": ("flicker_noise",),

@@ -99,6 +99,28 @@ def _structure_left_txt(c) -> str:
     return f"{c.effect}: " + ", ".join(parts)
 
 
+def _columns_at_refit(c, base, full, Jfull: np.ndarray, states: dict) -> np.ndarray:
+    """``c``'s columns of the normalised Jacobian at its own refit: the base fit with ``c``'s parameters
+    set to the values its refit found. A term linear in its coefficients has the same columns as at
+    the base fit (``Jfull``); a term with a nonlinear parameter (bias_warmup's and scale_warmup's time
+    constant, tilt_drift's) has them at the fitted value, not at the start value the base fit carries
+    (the warm-up's 5 min against a fitted 40 min: a rival test of the drift against the wrong warm-up,
+    docs/diagnosis.md "Rivals")."""
+    idx = [full.index[n] for n in c.params]
+    st = states.get(c.effect)
+    if st is None or not idx:
+        return Jfull[:, idx]
+    x = np.array(base.x_full, dtype=float, copy=True)
+    x[idx] = np.asarray(st.x_full, dtype=float)[idx]
+    if np.array_equal(x, base.x_full):
+        return Jfull[:, idx]
+    _, J = full.residuals_and_jacobian(x)
+    J = J[:, idx] / base.s
+    lin = Jfull[:, idx]
+    # the columns of a term linear in its coefficients do not move with them: keep the base's exactly
+    return lin if np.allclose(J, lin, rtol=1e-9, atol=1e-12 * max(float(np.max(np.abs(lin), initial=0.0)), 1e-300)) else J
+
+
 def decide(v: VerdictInputs) -> dict:
     """The verdict dict of a diagnosis (docs/diagnosis.md "How it works", "Rivals"; the module
     docstring)."""
@@ -150,7 +172,7 @@ def decide(v: VerdictInputs) -> dict:
             the encompassing test (rivals.py) -- the data cannot tell it from another refitted candidate
             or from a smooth term outside the list --, else None and ``closest``, the rival it beats
             least ``(label, S, k, p)`` (None when there is no rival)."""
-            cols = lambda c: Jfull[:, [full.index[n] for n in c.params]]  # noqa: E731
+            cols = lambda c: _columns_at_refit(c, base, full, Jfull, states)  # noqa: E731
             named_rivals = [c for c in refitted
                             if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS]
             rivals = {c.effect: cols(c) for c in named_rivals}
@@ -314,7 +336,7 @@ def decide(v: VerdictInputs) -> dict:
                         ("scale", SCALE_WANDER_MIMICS, _nominal_g(campaign), ((0,), (1,), (2,)))):
                     if amb or not named_effects & set(mimics):
                         continue
-                    w = wander_rival(base.r, base.J, Jfull[:, [full.index[n] for n in named.params]],
+                    w = wander_rival(base.r, base.J, _columns_at_refit(named, base, full, Jfull, states),
                                      campaign.time_s, sigma, cache=ckern,
                                      along=None if along is None else np.asarray(along, float).reshape(-1, 3),
                                      groups=groups, noise_known=noise.known)
