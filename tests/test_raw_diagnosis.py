@@ -285,3 +285,60 @@ def test_cli_reads_the_temperature_column_and_refuses_a_bad_field(tmp_path, caps
     assert "rec.csv:501: column 'T'" in err and "warm" in err, err
     assert cli_main(base + ["--temperature-column", "degC"]) == 1
     assert "temperature column not in the header" in capsys.readouterr().err
+
+
+def _intervals(poses, A, sigma_g):
+    from triadcal.judgement.raw_diagnosis import IntervalData
+
+    n = len(poses)
+    return IntervalData(A, np.full(n, sigma_g), np.full(n, sigma_g * 17.3), np.full(n, 300), np.arange(n) * 400,
+                        np.arange(n) * 400 + 300, np.arange(n) * 4.0, [""] * n, 1.0)
+
+
+def test_a_null_verdict_states_its_detection_limits_and_they_hold():
+    """A null verdict carries, for each candidate term, the size at which the gap's own rule (chi2 p <
+    0.01 and chi2/dof > 1.2) fires with probability 0.95 (raw_diagnosis.detection_limits, linearised).
+    Checked by simulation on interval means made here with numpy: 40 poses on the sphere, an interval
+    mean's SD 58 ug on each axis, K2 of axis x planted at the limit and at half of it (400 noise draws
+    each, the poses fixed): the rule fires in 0.95 and in the noncentral chi2's prediction at a
+    quarter of the noncentrality, each within 4 binomial SE; a clean draw does not fire at the limit's
+    rate."""
+    from scipy import stats
+
+    from triadcal.judgement import raw_diagnosis as rd
+
+    rng = np.random.default_rng(5)
+    v = rng.standard_normal((40, 3))
+    poses = v / np.linalg.norm(v, axis=1)[:, None]
+    sig = 58e-6
+
+    def draw(k2x_ug):
+        A = poses.copy()
+        A[:, 0] += k2x_ug * 1e-6 * poses[:, 0] ** 2
+        return A + sig * rng.standard_normal(A.shape)
+
+    clean = rd.diagnose_intervals(_intervals(poses, draw(0.0), sig))
+    v0 = clean.doc["verdict"]
+    assert v0["effect"] is None and "detection_limits" in v0, v0
+    lim = v0["detection_limits"]
+    assert lim["power"] == 0.95 and lim["dof"] == 31
+    assert lim["critical_chi2"] == pytest.approx(max(stats.chi2.isf(0.01, 31), 1.2 * 31))
+    byname = {e["effect"]: e for e in lim["candidates"]}
+    assert set(byname) == {"scale_nonlinearity", "cross_coupling", "g_dependent_misalignment"}   # no temperature
+    L = byname["scale_nonlinearity"]["parameters"]["K2_x"]["value"]
+    assert byname["scale_nonlinearity"]["parameters"]["K2_x"]["unit"] == "ug/g2" and 100 < L < 2000, L
+    assert "scale_nonlinearity" in v0["reason"] and "probability 0.95" in v0["reason"]
+
+    def fires(k2x_ug, n=400):
+        hits = 0
+        for _ in range(n):
+            d = _intervals(poses, draw(k2x_ug), sig)
+            base = rd._Model(d, None)
+            p, _, _ = base.fit(np.arange(40))
+            hits += rd._chi2(rd._residual(d.A, base.B, p, 1.0), d.sigma, 40 - base.n_params)["significant"]
+        return hits / n
+
+    se = lambda p: np.sqrt(p * (1 - p) / 400)  # noqa: E731
+    assert abs(fires(L) - 0.95) < 4 * se(0.95)
+    half = float(stats.ncx2.sf(lim["critical_chi2"], 31, lim["noncentrality"] / 4))
+    assert half < 0.5 and abs(fires(L / 2) - half) < 4 * se(half)

@@ -43,10 +43,20 @@ def power_chi2(lam: float, k: int, level: float) -> float:
 
 def lambda_needed(k: int, level: float, power: float = POWER) -> float:
     """The noncentrality at which a chi2(k) test at ``level`` has ``power``."""
+    return lambda_beyond(k, float(stats.chi2.isf(level, k)), power)
+
+
+def lambda_beyond(k: int, critical: float, power: float = POWER) -> float:
+    """The noncentrality at which ``chi2_k(lambda)`` exceeds ``critical`` with probability ``power``
+    (a test whose critical value is not a chi2 quantile alone: the raw diagnosis's gap needs p < alpha
+    and chi2/dof above a ratio)."""
+    def exceed(lam):
+        return float(stats.ncx2.sf(critical, k, max(lam, 1e-12)))
+
     hi = 1.0
-    while power_chi2(hi, k, level) < power:
+    while exceed(hi) < power:
         hi *= 2.0
-    return float(optimize.brentq(lambda lam: power_chi2(lam, k, level) - power, 0.0, hi, xtol=1e-10))
+    return float(optimize.brentq(lambda lam: exceed(lam) - power, 0.0, hi, xtol=1e-10))
 
 
 def detection_limits(cand_objs: Sequence, Jfull: np.ndarray, index: dict, Q: np.ndarray, level: float,
