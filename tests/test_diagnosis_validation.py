@@ -52,6 +52,7 @@ def test_left_out_groups_hold_the_forms_and_orders_of_the_effect():
     noise_group = {"position_error", "heavy_tails"}
     assert set(left_out_group("position_error")) == set(left_out_group("heavy_tails")) == noise_group
     assert left_out_group("scale_asymmetry") == ("scale_asymmetry",)     # separable by the oblique poses
+    assert left_out_group("bias_drift") == ("bias_drift", "bias_warmup")  # a long warm-up is a rate
     assert all(e in left_out_group(e) for e in LEFT_OUT_GROUPS)
     # a verdict naming another form of the same effect is right in vocabulary; left out, every such
     # form is removed with the effect, or the left-out mode could be 'right' by naming it
@@ -66,8 +67,8 @@ def test_left_out_mode_rows_confusion_and_json(tmp_path):
     res = validate(seeds=1, effects=("bias_drift",), processes=1, magnitudes=(0.5,), left_out=True)
     (row,) = res.rows
     assert row["condition"] == "bias_drift@0.5" and row["magnitude"] == 0.5
-    assert row["left_out"] == ["bias_drift"]
-    assert row["left_out_verdict"] in res.labels and row["left_out_verdict"] != "bias_drift"
+    assert row["left_out"] == ["bias_drift", "bias_warmup"]        # the two laws of a bias in time
+    assert row["left_out_verdict"] in res.labels and row["left_out_verdict"] not in row["left_out"]
     assert res.left_out_conditions == ("bias_drift@0.5",)
     M, L = res.confusion(), res.confusion(left_out=True)
     assert M.shape == L.shape == (1, len(res.labels)) and M.sum() == L.sum() == 1
@@ -81,12 +82,13 @@ def test_left_out_mode_rows_confusion_and_json(tmp_path):
     paths = write_validation(res, tmp_path)
     doc = json.loads(open(paths["json"]).read())
     assert doc["left_out"] is True and doc["confusion_left_out"] == L.tolist()
-    assert doc["left_out_groups"] == {"bias_drift@0.5": ["bias_drift"]} and doc["magnitudes"] == [0.5]
+    assert doc["left_out_groups"] == {"bias_drift@0.5": ["bias_drift", "bias_warmup"]} and doc["magnitudes"] == [0.5]
     assert "magnitude m" in doc["magnitude_definition"] and "left-out" in doc["design"]
     png = open(paths["plot"], "rb").read()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 def test_noise_estimated_mode(tmp_path):
     """--noise-estimated: the campaign's declared noise removed before the diagnosis (validation's
     without_noise: no sd, n_samples, u_w, Q_V2s), the row says the noise was estimated, the JSON says
