@@ -79,6 +79,7 @@ def test_scale_does_not_matter():
     assert a["p_value"] == pytest.approx(b["p_value"], rel=1e-9) and a["rho"] == pytest.approx(b["rho"], rel=1e-12)
 
 
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 def test_size_on_a_linear_null():
     """Residuals of a linear fit to white noise (z = P e): each correlation time rejects at its
     nominal 0.05 and 0.01 within 4.5 binomial SD over 1500 draws, and the family (Bonferroni over
@@ -225,6 +226,7 @@ def test_the_wander_rival_keeps_a_drift_and_not_a_walk():
     assert kept <= 4, kept
 
 
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 def test_a_left_out_flicker_floor_is_not_a_drift():
     """Seed 1012 of the validation's 1/f floor at m = 0.5, flicker_noise left out: once the
     correlated family found the gap, bias_drift was named with the gap closed (score p 5e-4), a
@@ -352,6 +354,7 @@ def test_the_flicker_floor_with_the_white_level_estimated():
     assert float(np.median(u)) == pytest.approx(u_truth, rel=0.15)
 
 
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 def test_the_wander_rival_with_the_noise_estimated():
     """correlated.wander_rival with ``noise_known=False`` on the linear design of the test above:
     its p does not depend on the residuals' declared scale (x 5: the same to 1e-6); the drift of 6 SE

@@ -192,6 +192,7 @@ def test_lag_behind_the_housing_on_a_ramp_is_named_thermal_lag_history(tau):
     assert "location housing" in d.verdict["evidence"]
 
 
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 def test_lag_behind_the_air_on_a_stepped_campaign_is_named_with_the_gaps_bridged():
     """A stepped campaign read only at its visits (30 min soaks), the thermometer in the air, the
     housing 20 min and the element 4 min behind it, the chamber 5 min behind its program (Euler heat

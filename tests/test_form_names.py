@@ -305,6 +305,7 @@ def test_thermal_lag_history_chooses_the_location_with_the_noise_estimated(tmp_p
     assert abs(lag["value"] - 20.0) < 3 * lag["u"], lag
 
 
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 @pytest.mark.parametrize("location", ["housing", "air"])
 def test_thermal_lag_history_on_a_record_with_gaps_is_refused_until_the_location_is_stated(tmp_path, location):
     """A stepped campaign read only at its visits (Euler heat equations, soaks of 20-30 min): the

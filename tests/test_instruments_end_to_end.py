@@ -91,6 +91,7 @@ def fit_and_check(csv: Path, truth, tmp_path: Path, label: str, z_max: float = 3
 
 
 # -- (a) VectorNav + Watlow F4 + ESP301 ------------------------------------------------------
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 def test_vectornav_watlow_f4_esp301_campaign_is_captured_and_its_fit_recovers_the_unit(tmp_path):
     timing = EmulatorTiming(time_scale=120.0, rate_hz=20.0, self_heating_time_constant_s=0.0)
     em = emulate(tmp_path / "emu", effects=["bench_tilt"], protocol="vectornav", timing=timing, seed=11,
@@ -307,6 +308,7 @@ def _strict_events(path: Path) -> list:
     return [json.loads(line) for line in lines]
 
 
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 def test_dmm_capture_killed_mid_visit_and_resumed_keeps_every_visit_once(tmp_path):
     timing = EmulatorTiming(time_scale=200.0, self_heating_time_constant_s=0.0)
     em = emulate(tmp_path / "emu", effects=["bench_tilt"], timing=timing, seed=24, dmm=True,

@@ -62,6 +62,7 @@ class _Staircase:
         return np.where(i >= 0, self.v[np.clip(i, 0, None)], self.start_C)
 
 
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 def test_ramp_capture_through_the_emulator_fits_and_recovers_the_unit(tmp_path):
     # a short program on a faster chamber and unit than the simulator's (300 s, 600 s), so that
     # 80 min of program play in ~10 s at x500; the unit trails the program by s (tau_c + tau_u)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from triadcal.judgement.diagnose.noise_level import soak_level_ambiguity, soak_level_rival
 
@@ -24,6 +25,7 @@ def _design():
     return rng, blocks, Q, lambda e: e - Q @ (Q.T @ e)
 
 
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 def test_the_soak_level_rival_is_calibrated_and_tells_tails_from_a_hot_soak():
     """200 Gaussian draws: rejections at 0.05 and 0.5 within 3 binomial SE of 10 and 100 (measured 6
     and 95); 20 draws of Student-t noise with 3 dof: p < 0.01 in all (100 of 100 measured); 20 draws

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from triadcal.judgement.diagnose.candidates import _position_score
 from triadcal.judgement.diagnose.noise_level import uniform_rival
@@ -34,6 +35,7 @@ def _size(draws, rng, n, w, h, make):
     return sum(uniform_rival(make(), w, h)["p_value"] < 0.01 for _ in range(draws)) / draws
 
 
+@pytest.mark.slow  # 2026-11-29: the quick suite over its 10 minutes on CI (623 s); run in CI's slow phase
 def test_size_under_a_uniform_excess_and_the_known_noise_score_fooled():
     """Residuals of variance c = 1.7 everywhere (h = 0.02, as a fit of 2 % of the rows would leave),
     Gaussian and Student-t with 6 dof (kurtosis 6: what the kurtosis ratio is for): uniform_rival
