@@ -34,6 +34,15 @@ from .rivals import generic_rivals, reference_poses, rival_tests
 from .series import series_of, series_txt
 
 
+#: a candidate -> the candidate that is its limit (nested in it): the warm-up's b e^(-t/tau) with tau long
+#: against the campaign is the drift's rate, b - (b/tau) t. The richer law is named over its limit only
+#: when it beats it (the encompassing test of its columns at its refit, against the limit's), and the
+#: limit, when named, does not have to beat the richer law: no rate can beat an exponential that holds
+#: it (docs/diagnosis.md "Rivals", "Nested laws"). (The tilt's settling is a form of its drift, with a
+#: nested likelihood ratio of its own: candidates._tilt_settling.)
+NESTED_LIMIT = {"bias_warmup": "bias_drift"}
+
+
 @dataclass
 class VerdictInputs:
     """What :func:`decide` needs of a diagnosis (all computed by ``run.diagnose``)."""
@@ -174,7 +183,8 @@ def decide(v: VerdictInputs) -> dict:
             least ``(label, S, k, p)`` (None when there is no rival)."""
             cols = lambda c: _columns_at_refit(c, base, full, Jfull, states)  # noqa: E731
             named_rivals = [c for c in refitted
-                            if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS]
+                            if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS
+                            and NESTED_LIMIT.get(c.effect) != best.effect]
             rivals = {c.effect: cols(c) for c in named_rivals}
             sig_rows = np.broadcast_to(np.asarray(sigma, float), (campaign.n_visits, 3))
             rivals.update(generic_rivals(per_output_terms(campaign, T0), sig_rows, base.whitened))
@@ -257,6 +267,20 @@ def decide(v: VerdictInputs) -> dict:
             return chi2_open or bool(generic_left) or slices_open, n_left, left
 
         # (a form candidate is eligible only when it beats its simpler form: improves())
+        nested_note = None
+        if eligible and NESTED_LIMIT.get(eligible[0].effect) in {c.effect for c in eligible}:
+            # the richer law ranked first is named only when it beats its limit; else the limit comes first
+            rich = eligible[0]
+            limit = next(c for c in eligible if c.effect == NESTED_LIMIT[rich.effect])
+            t = rival_tests(base.r, Q, _columns_at_refit(rich, base, full, Jfull, states),
+                            {limit.effect: _columns_at_refit(limit, base, full, Jfull, states)}, noise.known, base.dof)
+            if not t or t[0][3] >= alpha:
+                eligible = [limit] + [c for c in eligible if c is not limit]
+                nested_note = (f"; {rich.effect} ranked first (delta elpd {rich.refit['delta_elpd']:.1f}) but does not "
+                               f"beat {limit.effect}, its limit: "
+                               + (f"S = {t[0][1]:.3g} on {t[0][2]} dof, p = {t[0][3]:.3g}" if t else
+                                  "the same columns at its fitted time constant")
+                               + ", so the simpler law is named")
         if eligible:
             best = eligible[0]
             verdict = {"effect": best.effect,
@@ -278,6 +302,8 @@ def decide(v: VerdictInputs) -> dict:
                        if "tau_h" in fm else "")
                     + f"; reproduce with: triadcal fit DATA.csv {fm['fit_options']}")
                 verdict["fit_options"] = fm["fit_options"]
+            if nested_note:
+                verdict["evidence"] += nested_note
             gap_open, n_slices_left, left = acceptance(best)
             named = best
             if gap_open:
