@@ -297,7 +297,7 @@ def _intervals(poses, A, sigma_g):
 
 def test_a_null_verdict_states_its_detection_limits_and_they_hold():
     """A null verdict carries, for each candidate term, the size at which the gap's own rule (chi2 p <
-    0.01 and chi2/dof > 1.2) fires with probability 0.95 (raw_diagnosis.detection_limits, linearised).
+    0.01 and chi2/dof > 1.2) fires with probability 0.95 (raw_limits.detection_limits, linearised).
     Checked by simulation on interval means made here with numpy: 40 poses on the sphere, an interval
     mean's SD 58 ug on each axis, K2 of axis x planted at the limit and at half of it (400 noise draws
     each, the poses fixed): the rule fires in 0.95 and in the noncentral chi2's prediction at a

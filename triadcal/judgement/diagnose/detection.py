@@ -83,8 +83,9 @@ def detection_limits(cand_objs: Sequence, Jfull: np.ndarray, index: dict, Q: np.
     return out
 
 
-def limits_text(limits: Sequence[dict], level: float, power: float = POWER, most: int = 8) -> str:
-    """``"scale_cubic 5.1-7.9 ug/g3, ..."``: each candidate's range of limits over its parameters."""
+def limit_ranges(limits: Sequence[dict]) -> list:
+    """``["scale_cubic 5.1-7.9 ug/g3", ...]``: each candidate's range of limits over its parameters
+    (candidates without a finite limit left out)."""
     parts = []
     for e in limits:
         vals = [p["value"] for p in e["parameters"].values() if p["value"] is not None]
@@ -94,6 +95,12 @@ def limits_text(limits: Sequence[dict], level: float, power: float = POWER, most
         lo, hi = min(vals), max(vals)
         rng = f"{lo:.2g}" if math.isclose(lo, hi, rel_tol=0.05) else f"{lo:.2g}-{hi:.2g}"
         parts.append(f"{e['effect']} {rng} {'/'.join(sorted(units))}")
+    return parts
+
+
+def limits_text(limits: Sequence[dict], level: float, power: float = POWER, most: int = 8) -> str:
+    """``"... : scale_cubic 5.1-7.9 ug/g3, ..."``: :func:`limit_ranges` in a sentence."""
+    parts = limit_ranges(limits)
     more = f", and {len(parts) - most} more (verdict.detection_limits)" if len(parts) > most else ""
     return (f"an effect this size or larger would have been found with probability {power:g} by its own "
             f"score test at Holm's first level {level:.2g}: " + ", ".join(parts[:most]) + more)

@@ -108,13 +108,25 @@ def _structure_left_txt(c) -> str:
     return f"{c.effect}: " + ", ".join(parts)
 
 
-def _columns_at_refit(c, base, full, Jfull: np.ndarray, states: dict) -> np.ndarray:
+def _columns_at_refit(c, base, full, Jfull: np.ndarray, states: dict, cache: Optional[dict] = None) -> np.ndarray:
     """``c``'s columns of the normalised Jacobian at its own refit: the base fit with ``c``'s parameters
     set to the values its refit found. A term linear in its coefficients has the same columns as at
     the base fit (``Jfull``); a term with a nonlinear parameter (bias_warmup's and scale_warmup's time
     constant, tilt_drift's) has them at the fitted value, not at the start value the base fit carries
     (the warm-up's 5 min against a fitted 40 min: a rival test of the drift against the wrong warm-up,
-    docs/diagnosis.md "Rivals")."""
+    docs/diagnosis.md "Rivals"). ``cache`` keeps one Jacobian per candidate within a verdict:
+    the nested-laws check, the rivals and the wander rival ask for the same columns (keyed by effect
+    and parameters)."""
+    key = (c.effect, tuple(c.params))         # a series of one tempco's orders shares its first order's name
+    if cache is not None and key in cache:
+        return cache[key]
+    cols = _refit_columns(c, base, full, Jfull, states)
+    if cache is not None:
+        cache[key] = cols
+    return cols
+
+
+def _refit_columns(c, base, full, Jfull: np.ndarray, states: dict) -> np.ndarray:
     idx = [full.index[n] for n in c.params]
     st = states.get(c.effect)
     if st is None or not idx:
@@ -146,6 +158,7 @@ def decide(v: VerdictInputs) -> dict:
                  "p_adjusted": _f(x.p_adjusted)} for x in sig]
 
     verdict = {"effect": None}
+    refit_cols = {}          # each candidate's columns at its refit (_columns_at_refit), computed once
     if not significant:
         verdict["reason"] = f"no significant gap (smallest Holm-adjusted p = {min(gap_adj.values(), default=1.0):.3g} >= {alpha:g})"
     elif not refitted:
@@ -181,7 +194,7 @@ def decide(v: VerdictInputs) -> dict:
             the encompassing test (rivals.py) -- the data cannot tell it from another refitted candidate
             or from a smooth term outside the list --, else None and ``closest``, the rival it beats
             least ``(label, S, k, p)`` (None when there is no rival)."""
-            cols = lambda c: _columns_at_refit(c, base, full, Jfull, states)  # noqa: E731
+            cols = lambda c: _columns_at_refit(c, base, full, Jfull, states, refit_cols)  # noqa: E731
             named_rivals = [c for c in refitted
                             if c is not best and c.form is None and c.params and c.effect not in NOISE_EFFECTS
                             and NESTED_LIMIT.get(c.effect) != best.effect]
@@ -272,8 +285,8 @@ def decide(v: VerdictInputs) -> dict:
             # the richer law ranked first is named only when it beats its limit; else the limit comes first
             rich = eligible[0]
             limit = next(c for c in eligible if c.effect == NESTED_LIMIT[rich.effect])
-            t = rival_tests(base.r, Q, _columns_at_refit(rich, base, full, Jfull, states),
-                            {limit.effect: _columns_at_refit(limit, base, full, Jfull, states)}, noise.known, base.dof)
+            t = rival_tests(base.r, Q, _columns_at_refit(rich, base, full, Jfull, states, refit_cols),
+                            {limit.effect: _columns_at_refit(limit, base, full, Jfull, states, refit_cols)}, noise.known, base.dof)
             if not t or t[0][3] >= alpha:
                 eligible = [limit] + [c for c in eligible if c is not limit]
                 nested_note = (f"; {rich.effect} ranked first (delta elpd {rich.refit['delta_elpd']:.1f}) but does not "
@@ -362,7 +375,7 @@ def decide(v: VerdictInputs) -> dict:
                         ("scale", SCALE_WANDER_MIMICS, _nominal_g(campaign), ((0,), (1,), (2,)))):
                     if amb or not named_effects & set(mimics):
                         continue
-                    w = wander_rival(base.r, base.J, _columns_at_refit(named, base, full, Jfull, states),
+                    w = wander_rival(base.r, base.J, _columns_at_refit(named, base, full, Jfull, states, refit_cols),
                                      campaign.time_s, sigma, cache=ckern,
                                      along=None if along is None else np.asarray(along, float).reshape(-1, 3),
                                      groups=groups, noise_known=noise.known)
