@@ -310,6 +310,7 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
 
     lines = ["# generator = tests/independent_bench.py",
              "# bench = independent simulated two-axis bench",
+             "# power_on_s = 0",
              f"# local_g_m_s2 = {local_g_m_s2!r}",
              "# output_unit = V",
              ",".join(COLUMNS)]
@@ -463,6 +464,7 @@ def simulate_lag_campaign(rng, *, program=None, tau_element_min=5.0, location="h
 
     lines = ["# generator = tests/independent_bench.py (Euler heat equations)",
              "# bench = independent simulated two-axis bench",
+             "# power_on_s = 0",
              "# local_g_m_s2 = 9.80665",
              "# output_unit = V",
              ",".join(COLUMNS)]

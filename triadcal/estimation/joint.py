@@ -79,9 +79,7 @@ class JointProblem:
         per_visit = ca.Function("visit", [x, c, g], [w, ca.jacobian(w, x)])
         self._mapped = per_visit.map(self.n, "serial")
         self._predict = ca.Function("visit_w", [x, c, g], [w]).map(self.n, "serial")
-        rate = campaign.temperature_rate()
-        self.cov_matrix = np.vstack([np.radians(campaign.axis1_deg), np.radians(campaign.axis2_deg),
-                                     campaign.t.T, rate.T, campaign.branch, campaign.time_s])
+        self.cov_matrix = campaign.covariate_matrix()
         self.gravity_g = campaign.gravity_g
         self.build_seconds = time.perf_counter() - t0
 

@@ -113,7 +113,8 @@ def _metadata(lines, path):
     if override not in ("true", "false"):
         raise BenchCSVError(path, where["local_g_override"], None,
                             f"metadata 'local_g_override' must be true or false, got {metadata['local_g_override']!r}")
-    for key, low, high, low_open in (("local_g_m_s2", 0.0, 100.0, True), ("Q_V2s", 0.0, MAX_READING, True)):
+    for key, low, high, low_open in (("local_g_m_s2", 0.0, 100.0, True), ("Q_V2s", 0.0, MAX_READING, True),
+                                     ("power_on_s", -MAX_READING, MAX_READING, False)):
         if key in metadata:
             try:
                 v = parse_number(metadata[key], low=low, high=high, low_open=low_open, what=key)
@@ -235,6 +236,13 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
         dTdt_C_per_min=arr(DTDT) if DTDT in cols else None,
         extra={h: np.array(cols[h]).astype(str) for h in header if h not in COLUMNS})
     check_output_unit(campaign, meta_line.get("output_unit", header_line))
+    if "power_on_s" in metadata:
+        t_on, first = float(metadata["power_on_s"]), int(np.argmin(campaign.time_s))
+        if t_on > campaign.time_s[first]:
+            raise BenchCSVError(path, meta_line["power_on_s"], None,
+                                f"metadata 'power_on_s' = {metadata['power_on_s']} s is after the visit of line "
+                                f"{int(lnum[first])} (time_s {campaign.time_s[first]:g} s): a unit is read after it "
+                                "is switched on; the time-dependent terms (drifts, warm-ups) count from power-on")
     return campaign
 
 

@@ -83,6 +83,9 @@ class Campaign:
     #: ``dTdt_C_per_min``; how it was measured: metadata ``dTdt_method``); when present,
     #: :meth:`temperature_rate` takes it instead of central differences of the visit means
     dTdt_C_per_min: Optional[np.ndarray] = None
+    #: the origin of the clock of the terms that change in time (s on the ``time_s`` clock), carried
+    #: by :meth:`select` so that a part of a campaign keeps its whole's origin; None: :attr:`time_origin_s`
+    origin_s: Optional[float] = None
 
     def __post_init__(self):
         n = len(self.time_s)
@@ -200,13 +203,48 @@ class Campaign:
             return None
         return "sd_*/sqrt(n_samples) of each visit"
 
+    @property
+    def time_origin_s(self) -> float:
+        """The zero of the clock of the terms that change in time (``bias_drift``, ``tilt_drift``,
+        ``tilt_settling``, the warm-ups), in s on the ``time_s`` clock: the campaign's start. The
+        ``power_on_s`` metadata line when the file has one (the simulator and the emulator write 0:
+        their clocks start at power-on); else the start of the first visit's window,
+        ``min(time_s - tau_s / 2)``. A file stamped with Unix time (1.7e9 s) is then read as the same
+        campaign as one whose clock starts at 0: without the origin its drift's bias was the bias of
+        1970 (u of tens of mg, status ok) and a warm-up's exponential underflowed to nothing."""
+        if self.origin_s is not None:
+            return float(self.origin_s)
+        v = self.metadata.get("power_on_s")
+        if v is not None:
+            try:
+                t_on = float(v)
+            except (TypeError, ValueError):
+                raise InputError(f"metadata 'power_on_s' = {v!r} is not a number of seconds") from None
+            if not np.isfinite(t_on):
+                raise InputError(f"metadata 'power_on_s' = {v!r} is not a finite number of seconds")
+            return t_on
+        if not len(self.time_s):
+            return 0.0
+        return float(np.min(np.asarray(self.time_s, float) - np.asarray(self.tau_s, float) / 2.0))
+
+    def elapsed_s(self) -> np.ndarray:
+        """Each visit's time since :attr:`time_origin_s` (s): the time of the terms that change in time."""
+        return np.asarray(self.time_s, float) - self.time_origin_s
+
     def covariates(self) -> Covariates:
         rate = self.temperature_rate()
         return Covariates(
             axis1=self.axis1_deg * DEG, axis2=self.axis2_deg * DEG,
             temp=tuple(self.t[:, i] for i in range(3)),
             temp_rate=tuple(rate[:, i] for i in range(3)),
-            branch=self.branch, time_s=self.time_s.astype(float))
+            branch=self.branch, time_s=self.elapsed_s())
+
+    def covariate_matrix(self) -> np.ndarray:
+        """The covariates as rows (``estimation.joint.COVARIATES``: axis1, axis2 in rad, the three
+        temperatures, their rates, the branch, the elapsed time), one column a visit: the compiled
+        problems' argument."""
+        return np.vstack([np.radians(self.axis1_deg), np.radians(self.axis2_deg), self.t.T,
+                          self.temperature_rate().T, self.branch, self.elapsed_s()])
 
     def select(self, mask) -> "Campaign":
         """A campaign with the visits selected by a boolean mask or index array."""
@@ -221,4 +259,4 @@ class Campaign:
                        sd=t(self.sd), n_samples=t(self.n_samples), lines=t(self.lines),
                        metadata=dict(self.metadata), extra={k: v[idx] for k, v in self.extra.items()},
                        branch_values=t(self.branch_values), u_w=t(self.u_w),
-                       dTdt_C_per_min=t(self.dTdt_C_per_min))
+                       dTdt_C_per_min=t(self.dTdt_C_per_min), origin_s=self.time_origin_s)

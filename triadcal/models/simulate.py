@@ -504,6 +504,7 @@ def simulate_campaign(truth: Truth, plan: Optional[Mapping[str, tuple]] = None,
         "local_g_m_s2": repr(truth.local_g_m_s2),
         "output_unit": "V",
         "Q_V2s": repr(noise.Q_V2s),
+        "power_on_s": "0",          # the simulator's clock starts at power-on (Campaign.time_origin_s)
     }
     if q_lsb:
         metadata["quantisation_lsb"] = repr(float(q_lsb))

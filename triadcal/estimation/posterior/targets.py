@@ -90,9 +90,7 @@ class LogPosterior:
         self.x0 = np.asarray(x0, float)
         self.L = np.asarray(L, float)
         mu, sd, self.low, self.high = prior_arrays(priors, self.names)
-        rate = campaign.temperature_rate()
-        C = np.vstack([np.radians(campaign.axis1_deg), np.radians(campaign.axis2_deg), campaign.t.T,
-                       rate.T, campaign.branch, campaign.time_s])
+        C = campaign.covariate_matrix()
         self.sigma = np.asarray(sigma, float)
         self.args = [ca.DM(self.x0), ca.DM(self.L), ca.DM(C), campaign.gravity_g, ca.DM(campaign.w.T),
                      ca.DM(1.0 / self.sigma.T), ca.DM(mu), ca.DM(1.0 / sd)]

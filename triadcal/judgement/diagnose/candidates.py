@@ -300,9 +300,7 @@ def _problem_on(full: JointProblem, campaign: Campaign) -> JointProblem:
 
     p = copy.copy(full)
     p.campaign = campaign
-    rate = campaign.temperature_rate()
-    p.cov_matrix = np.vstack([np.radians(campaign.axis1_deg), np.radians(campaign.axis2_deg),
-                              campaign.t.T, rate.T, campaign.branch, campaign.time_s])
+    p.cov_matrix = campaign.covariate_matrix()
     return p
 
 

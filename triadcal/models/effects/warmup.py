@@ -11,9 +11,9 @@ warm-up; MEMS vendors quote a bias warm-up of 1-5 mg settling in 2-10 min). Per 
 
 ``b_inf = S_a`` (with its tempco and drift terms) is the settled bias, ``db_a`` (ug) the
 warm-up offset at power-on ``t_on``, one time constant ``tau_w`` (min) for the unit.
-``t`` is the campaign's clock ``time_s``; ``t_on`` is its zero (the simulator's and the
-emulator's clocks start at power-on). For a file whose clock starts elsewhere,
-:func:`power_on_time` reads the ``power_on_s`` metadata line (else the first visit), and
+``t`` is the campaign's elapsed time ``Campaign.elapsed_s`` and ``t_on`` its zero,
+``Campaign.time_origin_s`` (:func:`power_on_time`): the ``power_on_s`` metadata line (the
+simulator writes 0, its clock starting at power-on), else the start of the first visit.
 :func:`offset_at` converts ``db`` between two origins: the exponential has no other memory,
 so a different ``t_on`` only rescales ``db`` by ``exp(dt_on / tau_w)``. Before ``t_on``
 the term is held at ``db`` (the unit was not yet on: a visit before power-on is an error of
@@ -61,11 +61,7 @@ def power_on_time(campaign) -> float:
     """The campaign's power-on time on its own clock (s): the ``power_on_s`` metadata line, else
     the time of the first visit's window start (the unit is taken to be switched on as the
     campaign starts)."""
-    v = (campaign.metadata or {}).get("power_on_s")
-    if v is not None:
-        return float(v)
-    t = np.asarray(campaign.time_s, float)
-    return float(np.min(t - np.asarray(campaign.tau_s, float) / 2.0)) if len(t) else 0.0
+    return campaign.time_origin_s
 
 
 def offset_at(offset, tau_min: float, from_t_on_s: float, to_t_on_s: float):
