@@ -196,16 +196,17 @@ def test_a_settling_bias_is_named_by_its_exponential_tested_at_the_fitted_time_c
     time constant its refit found, not at the 5 min the base fit starts from (verdict._columns_at_refit):
     with the old columns the test compared the drift with a warm-up over before the first visit, and
     the verdict was 'unexplained, ambiguous with bias_drift' (p 0.68 on seed 1001 of the last run).
-    Here the exponential beats the rate (S 19.8 on 4 dof, p 5e-4) and the fitted tau is the truth's
-    within 3 u (581 +- 138 min against 770 min)."""
+    The fitted tau is the truth's within 3 u (581 +- 138 min against 770 min), and the exponential was
+    named until 2026-11-29 (ninth session): a time constant of 581 min is one the fit's own answer gate
+    refuses as a warm-up after power-on (time_constants, [0.5, 300] min), so the verdict now names the
+    rate, in the family, and says why the exponential ranked above it is not named."""
     from triadcal.judgement.diagnose import diagnose
 
     campaign, model = sm.second_campaign("bias_drift", 1005)
     span_min = (float(campaign.time_s[-1]) - float(campaign.time_s[0])) / 60.0
     d = diagnose(campaign, model, n_draws=200, slices_after=False, top=2, seed=1005)
     v = d.verdict
-    assert v["effect"] == "bias_warmup", v
-    assert v["closest_rival"]["rival"] == "bias_drift" and v["closest_rival"]["k"] == 4, v
-    assert v["closest_rival"]["p_value"] < 0.01 and v["closest_rival"]["S"] > 10, v
+    assert v["effect"] == "bias_drift" and v["effect"] in sm.FAMILY["bias_drift"], v
+    assert "bias_warmup ranked above it" in v["evidence"] and "outside [0.5, 300] min" in v["evidence"], v
     tau = next(c.refit["new_parameters"]["S_warmup_tau"] for c in d.candidates if c.effect == "bias_warmup")
     assert tau["unit"] == "min" and abs(tau["value"] - span_min) < 3 * tau["u"], (tau, span_min)

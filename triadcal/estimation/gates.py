@@ -362,6 +362,30 @@ def _gate_time_constants(params: Mapping) -> GateOutcome:
     return GateOutcome("time_constants", True, "unphysical_term", "every time constant within its range")
 
 
+#: the largest warm-up offset at power-on a unit can have (reporting units): for the bias ten times
+#: the largest figure of the warm-up literature (MEMS vendors quote 1-5 mg), for the scale fifty
+#: times the presets' 200 ppm (models/effects/warmup.py). A larger offset is an extrapolation of a few visits' offset
+#: back to power-on through a short time constant (a warm-up of 10 min fitted to a 1/f offset of the
+#: first visits, two hours after power-on: -34 g +- 149 g), not a warm-up
+WARMUP_OFFSET_MAX = {"S_{a}_warmup": (5e4, "ug"), "K_{a}_warmup": (1e4, "ppm")}
+
+
+def _gate_warmup_offsets(params: Mapping) -> GateOutcome:
+    """Every warm-up offset at power-on within :data:`WARMUP_OFFSET_MAX` (50 mg, 1 %)."""
+    present = {f.format(a=a): lim for f, lim in WARMUP_OFFSET_MAX.items() for a in "xyz"
+               if f.format(a=a) in params}
+    if not present:
+        return GateOutcome("warmup_offsets", None, "unphysical_term", "no warm-up in the result")
+    bad = [f"{n} = {_value(params[n]):.3g} {unit}" for n, (lim, unit) in present.items()
+           if _value(params[n]) is not None and abs(_value(params[n])) > lim]
+    if bad:
+        return GateOutcome("warmup_offsets", False, "unphysical_term",
+                           "; ".join(bad) + " at power-on: no warm-up is that large (vendors quote 1-5 mg); a short "
+                           "time constant extrapolates a few visits' offset back to power-on; refit without the term",
+                           float(len(bad)), "|offset| <= 5e4 ug (bias), 1e4 ppm (scale)")
+    return GateOutcome("warmup_offsets", True, "unphysical_term", "every warm-up offset within 50 mg / 1 %")
+
+
 def _gate_time_constants_determined(params: Mapping) -> GateOutcome:
     """A time constant of :data:`TIME_CONSTANTS` within its range whose standard uncertainty exceeds
     its value is not measured (a warm-up that decayed before the first visit, a lag the data do not
@@ -389,7 +413,8 @@ def result_gates(parameters: Mapping, *, output_unit: Optional[str] = None, loca
     so uncertain that they are not measured, and terms whose physics fixes their sign."""
     return [_gate_finite(parameters), _gate_scale(parameters, output_unit, local_g_m_s2, config),
             _gate_angles(parameters, config), _gate_determined(parameters, config), _gate_signs(parameters),
-            _gate_time_constants(parameters), _gate_time_constants_determined(parameters)]
+            _gate_time_constants(parameters), _gate_time_constants_determined(parameters),
+            _gate_warmup_offsets(parameters)]
 
 
 # ------------------------------------------------------------------------------------------
@@ -515,7 +540,8 @@ def answer_gates(parameters: Mapping, evidence: FitEvidence, *, output_unit: Opt
            _gate_identifiable(evidence, config), _gate_determined(parameters, config), _gate_improved(evidence),
            _gate_scale(parameters, output_unit, local_g_m_s2, config), _gate_angles(parameters, config),
            *(o for o in (_gate_signs(parameters), _gate_time_constants(parameters),
-                         _gate_time_constants_determined(parameters)) if o.passed is not None),
+                         _gate_time_constants_determined(parameters), _gate_warmup_offsets(parameters))
+             if o.passed is not None),
            _gate_gof(evidence, config)]
     out.extend(evidence.extra)
     return out

@@ -72,7 +72,10 @@ def detection_limits(cand_objs: Sequence, Jfull: np.ndarray, index: dict, Q: np.
         Jc = Jfull[:, [index[n] for n in c.params]]
         M = Jc - Q @ (Q.T @ Jc)
         m2 = np.sum(M * M, axis=0)
-        lam = lambda_needed(int(c.k), level, power)
+        # a score profiled over a grid of time constants is tested at level / grid size (Bonferroni);
+        # its limit is that of the start value's columns (Jfull's: a warm-up of 5 min)
+        grid = (getattr(c, "score_profile", None) or {}).get("grid_size", 1)
+        lam = lambda_needed(int(c.k), level / grid, power)
         scale = float(np.max(np.sum(Jc * Jc, axis=0), initial=0.0))
         params = {}
         for n, v in zip(c.params, m2):

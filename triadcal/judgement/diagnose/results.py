@@ -69,6 +69,8 @@ class Candidate:
     refit_only: bool = False
     #: a form candidate's prepared refit (state, nested criterion, fit options); not in the JSON
     form: Optional[dict] = None
+    #: a candidate with a time constant: its score profiled over it (time_constant.profiled_score)
+    score_profile: Optional[dict] = None
 
     @property
     def score_p(self) -> float:
@@ -83,6 +85,8 @@ class Candidate:
             d.update({"score": None, "score_p_value": None, "score_log10_p": None, "refit_only": True})
         if self.reason:
             d["reason"] = self.reason
+        if self.score_profile is not None:
+            d["score_profile"] = dict(self.score_profile)
         if self.refit:
             d.update(self.refit)
         return d

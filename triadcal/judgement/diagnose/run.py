@@ -53,6 +53,7 @@ from .correlated import (CampaignKernels, correlated_test)
 from .generic import (NOISE_RIVAL_TESTS, families_after, generic_basis, generic_tests, soak_basis, variance_basis, variance_test)
 from .results import ALPHA, Candidate, Diagnosis, _f
 from .slices import _family_tests, _holm, _slice_tests
+from .time_constant import TIME_CONSTANT_OF, profiled_score, range_refusal
 from .verdict import VerdictInputs, decide
 
 
@@ -184,6 +185,14 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         if not usable:
             cand_objs.append(Candidate(c, False, "invisible on this design: " + design[pn[0]]))
             continue
+        if c in TIME_CONSTANT_OF:
+            # its offsets' columns depend on its time constant: scored over a grid of it (time_constant.py)
+            prof = profiled_score(full, campaign, base, Q, usable, TIME_CONSTANT_OF[c], noise.known)
+            if prof is not None:
+                S, k, logp, profile = prof
+                cand_objs.append(Candidate(c, True, k=k, score=S, score_logp=logp, params=usable,
+                                           score_profile=profile))
+                continue
         sc = _score_mean(base, Jfull[:, [full.index[n] for n in usable]], Q, SPAN_FRACTION_MIN)
         if sc is None:
             why = ("its sensitivity is zero at the fitted point (thermal lag acts only through temperature "
@@ -390,10 +399,11 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                          "(few visits or influential ones); rely on the likelihood ratio")
         return refit
 
-    def mean_refit(new_names):
-        """The base model with the mean parameters ``new_names`` added: (state, log-likelihood, LR p
-        over the base: chi^2 with known noise, F with the noise estimated)."""
-        st = _fit(full, names + list(new_names), base.x_full, noise.known)
+    def mean_refit(new_names, x_start=None):
+        """The base model with the mean parameters ``new_names`` added (from ``x_start``, default the
+        base's point): (state, log-likelihood, LR p over the base: chi^2 with known noise, F with the
+        noise estimated)."""
+        st = _fit(full, names + list(new_names), base.x_full if x_start is None else x_start, noise.known)
         if noise.known:
             return st, _loglik_total(st), float(stats.chi2.sf(max(base.chi2 - st.chi2, 0.0), len(new_names)))
         ll = base_ll + 0.5 * st.r.size * math.log(base.chi2 / max(st.chi2, 1e-300))
@@ -439,9 +449,16 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
                     else 0.5 * float(stats.chi2.sf(lr, 1)))
         else:
             new_names = list(c.params)
-            st, ll, lr_p = mean_refit(new_names)
+            x_start = None
+            if c.score_profile is not None:      # from the time constant its score was largest at
+                x_start = base.x_full.copy()
+                x_start[full.index[c.score_profile["parameter"]]] = c.score_profile["best"]
+            st, ll, lr_p = mean_refit(new_names, x_start)
             var_scale, nu = None, math.inf
         c.refit = evidence(c, st, new_names, var_scale, nu, ll, lr_p, (c.effect,))
+        refused = range_refusal(c)
+        if refused:              # not a warm-up: the fit's answer gate would refuse it (time_constant.py)
+            c.refit["time_constant_refused"] = refused
         states[c.effect] = st
     # -- rank ---------------------------------------------------------------------------
     refitted = sorted([c for c in testable if c.refit], key=lambda c: -c.refit["delta_elpd"])

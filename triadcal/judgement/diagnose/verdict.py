@@ -168,7 +168,9 @@ def decide(v: VerdictInputs) -> dict:
             return (c.refit["lr_p_value"] is not None and c.refit["lr_p_value"] < alpha
                     and c.refit["delta_elpd"] > 0
                     # a form is named only when it beats its simpler form (nested LR at 99 %)
-                    and (c.form is None or c.form["nested_passes"]))
+                    and (c.form is None or c.form["nested_passes"])
+                    # nor a time constant the fit's answer gate refuses (time_constant.range_refusal)
+                    and not c.refit.get("time_constant_refused"))
 
         def mean_explains_better(c):
             """A generic family (smooth mean terms, white noise) whose AIC beats the noise candidate's:
@@ -317,6 +319,11 @@ def decide(v: VerdictInputs) -> dict:
                 verdict["fit_options"] = fm["fit_options"]
             if nested_note:
                 verdict["evidence"] += nested_note
+            refused = [c for c in refitted if c.refit.get("time_constant_refused")
+                       and c.refit["delta_elpd"] > best.refit["delta_elpd"]]
+            for c in refused:           # ranked above the named one, refused by the fit's gates (time_constant.py)
+                verdict["evidence"] += (f"; {c.effect} ranked above it (delta elpd {c.refit['delta_elpd']:.1f}) but is "
+                                        f"no warm-up: {c.refit['time_constant_refused']}")
             gap_open, n_slices_left, left = acceptance(best)
             named = best
             if gap_open:
