@@ -43,6 +43,7 @@ def test_grid_by_hand():
     assert tau_grid(5.0, np.array([0.0, 3600.0])) == [5.0, 10.0, 20.0, 40.0, 80.0, 120.0]
     assert RATIO == 2.0 and SPAN_FACTOR == 2.0 and TIME_CONSTANT_RANGE_MIN[1] == 300.0
     assert tau_grid(-5.0, np.array([0.0])) == [5.0]          # |tau|; no span: the start alone
+    assert tau_grid(0.0, np.array([0.0, 600.0])) == [0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 20.0]   # from the gate's 0.5 min
 
 
 @pytest.mark.parametrize("tau_w", [30.0, 60.0])

@@ -39,16 +39,16 @@ from .fitting import _chi2_logsf
 TIME_CONSTANT_OF = {"bias_warmup": "S_warmup_tau", "scale_warmup": "K_warmup_tau"}
 #: ratio of the grid's neighbouring time constants
 RATIO = 2.0
-#: the grid reaches at least this many times the campaign's elapsed span (a warm-up that long is
-#: a drift over the campaign: the nested-laws rule then names the drift, docs/diagnosis.md)
+#: the grid reaches this many times the campaign's elapsed span, unless the gate's 300 min is shorter
+#: (a warm-up that long is a drift over the campaign: the nested-laws rule names the drift)
 SPAN_FACTOR = 2.0
 
 
 def tau_grid(start_min: float, elapsed_s: np.ndarray) -> list:
-    """The time constants scored (min): ``start * RATIO**k`` below the top, then the top: the
-    gate's longest time constant or ``SPAN_FACTOR`` times the largest elapsed time, the shorter
-    (the start value alone when the top is not above it)."""
-    start = abs(float(start_min))
+    """The time constants scored (min): ``start * RATIO**k`` (start at least the gate's 0.5 min)
+    below the top, then the top: the gate's longest time constant or ``SPAN_FACTOR`` times the
+    largest elapsed time, the shorter (the start value alone when the top is not above it)."""
+    start = max(abs(float(start_min)), TIME_CONSTANT_RANGE_MIN[0])     # a zero start would never double
     top = min(TIME_CONSTANT_RANGE_MIN[1], SPAN_FACTOR * float(np.max(elapsed_s, initial=0.0)) / 60.0)
     grid = [start]
     while grid[-1] * RATIO < top:
