@@ -105,6 +105,27 @@ def _null_rejections(n_draws, alpha, seed):
     return hits, prof["grid_size"]
 
 
+def test_the_start_jacobian_is_reused_not_recomputed():
+    """The caller's Jacobian at the start time constant gives the same profile, one Jacobian fewer."""
+    c, _ = _stepped(3, None)
+    full = JointProblem(c, Model(tuple(EFFECTS), 20.0), noise_of(c).sigma)
+    start = start_values(c, full.model)
+    x0 = np.array([start[n] for n in full.model.names])
+    base = _fit(full, list(Model(MODEL, 20.0).names), x0, True)
+    Q = _hat_q(base.J)
+    params = [n for n in Model(("bias_warmup",), 20.0).names if "warmup" in n]
+    plain, reused = _Cached(full), _Cached(full)
+    a = profiled_score(plain, c, base, Q, params, "S_warmup_tau", True)
+    J_start = full.residuals_and_jacobian(base.x_full)[1] / base.s
+    b = profiled_score(reused, c, base, Q, params, "S_warmup_tau", True, J_start=J_start)
+    assert a[3]["grid"][0] == base.x_full[full.index["S_warmup_tau"]]
+    assert len(reused._j) == len(plain._j) - 1 == a[3]["grid_size"] - 1
+    assert a[0] == pytest.approx(b[0], rel=1e-12) and a[1] == b[1] and a[2] == pytest.approx(b[2], rel=1e-12)
+    assert [x is None for x in a[3]["scores"]] == [x is None for x in b[3]["scores"]]
+    assert [x for x in a[3]["scores"] if x is not None] == pytest.approx(
+        [x for x in b[3]["scores"] if x is not None], rel=1e-12)
+
+
 def _binomial_upper(n, p, z=3.0):
     return n * p + z * math.sqrt(n * p * (1.0 - p))
 

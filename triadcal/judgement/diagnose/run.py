@@ -187,7 +187,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             continue
         if c in TIME_CONSTANT_OF:
             # its offsets' columns depend on its time constant: scored over a grid of it (time_constant.py)
-            prof = profiled_score(full, campaign, base, Q, usable, TIME_CONSTANT_OF[c], noise.known)
+            prof = profiled_score(full, campaign, base, Q, usable, TIME_CONSTANT_OF[c], noise.known,
+                                  J_start=Jfull)
             if prof is not None:
                 S, k, logp, profile = prof
                 cand_objs.append(Candidate(c, True, k=k, score=S, score_logp=logp, params=usable,

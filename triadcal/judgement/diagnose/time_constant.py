@@ -68,22 +68,28 @@ def range_refusal(c):
     return "; ".join(bad) or None
 
 
-def profiled_score(full, campaign, base, Q, params, tau_name: str, noise_known: bool):
+def profiled_score(full, campaign, base, Q, params, tau_name: str, noise_known: bool, J_start=None):
     """``(S, k, logp, profile)`` of the offsets ``params`` (their tau excluded) scored at each time
     constant of :func:`tau_grid`, or None when no time constant gives a testable column. ``logp``
     is the largest score's log p-value plus log(grid size), at most 0; ``profile`` holds the grid,
-    the score at each point (None: not testable there), the best time constant and the grid size."""
+    the score at each point (None: not testable there), the best time constant and the grid size.
+    ``J_start``: the whitened Jacobian at ``base.x_full`` if the caller holds it (reused where the
+    grid's time constant is the start value, not recomputed)."""
     offsets = [n for n in params if n != tau_name]
     if not offsets:
         return None
     grid = tau_grid(base.x_full[full.index[tau_name]], campaign.elapsed_s())
     cols = [full.index[n] for n in offsets]
     scores = []
+    tau_start = base.x_full[full.index[tau_name]]
     for tau in grid:
-        x = base.x_full.copy()
-        x[full.index[tau_name]] = tau
-        _, J = full.residuals_and_jacobian(x)
-        scores.append(_score_mean(base, J[:, cols] / base.s, Q, SPAN_FRACTION_MIN))
+        if J_start is not None and tau == tau_start:
+            Jw = J_start
+        else:
+            x = base.x_full.copy()
+            x[full.index[tau_name]] = tau
+            Jw = full.residuals_and_jacobian(x)[1] / base.s
+        scores.append(_score_mean(base, Jw[:, cols], Q, SPAN_FRACTION_MIN))
     done = [(sc[0], sc[1], tau) for sc, tau in zip(scores, grid) if sc is not None]
     if not done:
         return None
