@@ -59,7 +59,7 @@ def run(args) -> int:
         states = ", ".join(sorted(set(campaign.state.tolist())))
         raise InputError(f"{args.data} has no visit of {asked}; its units are {', '.join(campaign.units)} and "
                          f"its states {states}")
-    campaign = campaign.select(np.flatnonzero(mask))
+    campaign = campaign.select(np.flatnonzero(mask), own_origin=True)
     if len(campaign.units) > 1 or len(set(campaign.state.tolist())) > 1:
         raise InputError(f"{args.data} holds units {', '.join(campaign.units)} and states "
                          f"{', '.join(sorted(set(campaign.state.tolist())))}: choose one with --unit and --state")

@@ -150,7 +150,7 @@ def _joint_units(args, out) -> int:
         states = sorted(set(campaign.state.tolist()))
         if args.state not in states:
             raise InputError(f"{args.data}: no state {args.state!r}; its states are {', '.join(states)}")
-        campaign = campaign.select(campaign.state == args.state)
+        campaign = campaign.select(campaign.state == args.state, own_origin=True)
     lab = load_lab(args.lab) if args.lab else None
     results = fit_joint_units(campaign, name_list(args.effects), reference_temperature_C=args.reference_temperature,
                               bench_errors=bench_errors_of(lab) if lab else None,

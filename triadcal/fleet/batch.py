@@ -146,7 +146,7 @@ def fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, o
         if done is not None:
             records.append({**rec, "action": "skipped", "result": done})
             continue
-        sub = campaign.select(pair_mask(campaign, unit, state))
+        sub = campaign.select(pair_mask(campaign, unit, state), own_origin=True)
         t0 = time.perf_counter()
         try:
             if threadpool_limits is not None:

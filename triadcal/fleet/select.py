@@ -42,7 +42,7 @@ def select_unit_state(campaign, unit: Optional[str] = None, state: Optional[str]
         raise InputError(f"{source} has no visit of unit {unit} in state {state}; its unit/state pairs are "
                          f"{present}")
     if not mask.all():
-        campaign = campaign.select(np.flatnonzero(mask))
+        campaign = campaign.select(np.flatnonzero(mask), own_origin=True)
     sel_units = campaign.units
     sel_states = sorted(set(campaign.state.tolist()))
     if len(sel_units) > 1 or len(sel_states) > 1:

@@ -246,9 +246,22 @@ class Campaign:
         return np.vstack([np.radians(self.axis1_deg), np.radians(self.axis2_deg), self.t.T,
                           self.temperature_rate().T, self.branch, self.elapsed_s()])
 
-    def select(self, mask) -> "Campaign":
-        """A campaign with the visits selected by a boolean mask or index array."""
+    def select(self, mask, own_origin: bool = False) -> "Campaign":
+        """A campaign with the visits selected by a boolean mask or index array.
+
+        The selection keeps this campaign's :attr:`time_origin_s` (a held-out subset is on the
+        same clock), unless ``own_origin``: then, when the file states no ``power_on_s``, its origin
+        is the start of its own first visit's window. That is the selection of one unit or one
+        state of a file that holds several (``--unit``, ``--state``, ``batch``): each was powered
+        on at its own time, a unit calibrated ten hours after the first one did not warm up at
+        the file's start, and its drift's bias is its bias at its own start, not an extrapolation
+        ten hours back."""
         idx = np.asarray(mask)
+        origin = self.time_origin_s
+        if own_origin and "power_on_s" not in self.metadata:
+            sel = np.arange(self.n_visits)[idx]
+            if sel.size:
+                origin = float(np.min(np.asarray(self.time_s, float)[sel] - np.asarray(self.tau_s, float)[sel] / 2.0))
         def t(v):
             return None if v is None else v[idx]
         return replace(self, unit=self.unit[idx], setpoint_C=self.setpoint_C[idx],
@@ -259,4 +272,4 @@ class Campaign:
                        sd=t(self.sd), n_samples=t(self.n_samples), lines=t(self.lines),
                        metadata=dict(self.metadata), extra={k: v[idx] for k, v in self.extra.items()},
                        branch_values=t(self.branch_values), u_w=t(self.u_w),
-                       dTdt_C_per_min=t(self.dTdt_C_per_min), origin_s=self.time_origin_s)
+                       dTdt_C_per_min=t(self.dTdt_C_per_min), origin_s=origin)
