@@ -285,6 +285,7 @@ def test_sigkill_mid_ramp_then_resume_loses_no_sample(tmp_path):
     (lambda d: d["positions"][2].pop("label"), "field positions[2].label is missing"),
     (lambda d: d.update(format="triadcal.plan"), "a stepped plan"),
     (lambda d: d.update(version=2), "ramp plan version 2 is not known"),
+    (lambda d: d["positions"][3].update(label=d["positions"][0]["label"]), "field positions[3].label: 'P01' appears"),
 ])
 def test_a_bad_ramp_plan_is_refused_naming_file_and_field(tmp_path, capsys, edit, message):
     path = tmp_path / "bad_ramp.json"
@@ -295,6 +296,12 @@ def test_a_bad_ramp_plan_is_refused_naming_file_and_field(tmp_path, capsys, edit
     err = capsys.readouterr().err
     assert str(path) in err and message in err, err
     assert not (tmp_path / "out").exists()           # refused before anything started
+    # simulate --plan reads it with the same checks (before: a label given twice lost a position)
+    if "stepped" not in message:
+        assert main(["simulate", "--plan", str(path), "--out", str(tmp_path / "sim.csv")]) == 1
+        err = capsys.readouterr().err
+        assert str(path) in err and message in err, err
+        assert not (tmp_path / "sim.csv").exists()
 
 
 def test_ramp_and_setpoints_exclude_each_other_and_the_folder_kinds_do_not_mix(tmp_path, capsys):

@@ -39,9 +39,8 @@ written is an event ``ramp_setpoint`` with its program time; a new run resumes t
 the last one wrote it (the chamber has held that setpoint meanwhile, as a controller does when its
 host goes away) and the visits at the next position of the cycle, without a new soak.
 
-Over 500 lines because the plan file's checks, the program, the visit's quality checks and the
-campaign's loop with its resume are one capture; the visit itself, the storage and the noise are
-capture.py's.
+The plan file is read by :func:`triadcal.planning.ramp.read_ramp_plan` (every field checked, the
+reader ``simulate --plan`` uses too); the visit itself, the storage and the noise are capture.py's.
 """
 
 from __future__ import annotations
@@ -60,7 +59,7 @@ from ..errors import InputError
 from ..io.atomic import atomic_write_json, atomic_write_text, read_json
 from ..io.bench_csv import BenchCSVError, format_bench_csv, read_bench_csv
 from ..io.formats import require_format
-from ..planning.ramp import RAMP_FORMAT, RampPlan, load_plan
+from ..planning.ramp import RampPlan, read_ramp_plan  # noqa: F401 - read_ramp_plan: the capture's API
 from .capture import (CSV_NAME, EVENTS_NAME, RAW_NAME, STATE_NAME, CaptureError, CaptureReport,
                       CaptureSettings, _campaign, _campaign_noise, _Runner, _visit, finish_session, soak,
                       imu_metadata)
@@ -75,71 +74,6 @@ RAMP_STATE_FORMAT = "triadcal.ramp_capture"
 DEFAULT_STEP_S = 10.0
 #: the setpoint register's resolution (every driver takes tenths of a degree)
 SETPOINT_RESOLUTION_C = 0.1
-
-
-# -- the plan file ----------------------------------------------------------------------------
-
-def read_ramp_plan(path) -> RampPlan:
-    """The ramp plan file of ``triadcal plan --ramp`` (``triadcal.ramp_plan`` version 1), each field
-    checked with an error naming the file and the field; built by
-    :func:`triadcal.planning.ramp.load_plan`. A stepped plan (``triadcal.plan``) is refused, saying so."""
-    d = read_json(path)
-    if isinstance(d, dict) and d.get("format") == "triadcal.plan":
-        raise InputError(f"{path}: a stepped plan (format 'triadcal.plan'); capture --ramp takes a ramp plan "
-                         f"({RAMP_FORMAT!r}, written by 'triadcal plan --ramp'); run a stepped plan with --setpoints")
-    require_format(d, RAMP_FORMAT, 1, str(path), "a ramp plan", "ramp plan")
-
-    def number(key, value, *, low=-math.inf, high=math.inf, strict_low=False, where=None):
-        name = where or key
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise InputError(f"{path}: field {name}: expected a finite number, got {value!r}")
-        if value < low or (strict_low and value == low) or value > high:
-            rng = f"> {low:g}" if strict_low else f">= {low:g}"
-            if math.isfinite(high):
-                rng += f" and <= {high:g}"
-            raise InputError(f"{path}: field {name}: {value!r} out of range (must be {rng})")
-        return float(value)
-
-    for key in ("program_C", "rate_C_per_min", "tau_s", "positions"):
-        if key not in d:
-            raise InputError(f"{path}: field {key} is missing (a ramp plan needs program_C, rate_C_per_min, "
-                             "tau_s and positions)")
-    prog = d["program_C"]
-    if not isinstance(prog, list) or len(prog) < 2:
-        raise InputError(f"{path}: field program_C: expected a list of at least two temperatures (degC), "
-                         f"got {prog!r}")
-    values = [number("program_C", v, low=-273.15, high=1000.0, where=f"program_C[{k}]") for k, v in enumerate(prog)]
-    for k in range(1, len(values)):
-        if values[k] == values[k - 1]:
-            raise InputError(f"{path}: field program_C[{k}]: {values[k]:g} degC repeats program_C[{k - 1}] "
-                             "(a leg must change the temperature; use hold_s for a pause)")
-    number("rate_C_per_min", d["rate_C_per_min"], low=0.0, strict_low=True, high=100.0)
-    number("tau_s", d["tau_s"], low=0.0, strict_low=True)
-    for key in ("hold_s", "move_s"):
-        if key in d:
-            number(key, d[key], low=0.0)
-    pos = d["positions"]
-    if not isinstance(pos, list) or not pos:
-        raise InputError(f"{path}: field positions: expected a non-empty list of {{label, axis1_deg, axis2_deg}}")
-    seen = set()
-    for k, p in enumerate(pos):
-        if not isinstance(p, dict):
-            raise InputError(f"{path}: field positions[{k}]: expected an object {{label, axis1_deg, axis2_deg}}, "
-                             f"got {p!r}")
-        for key in ("label", "axis1_deg", "axis2_deg"):
-            if key not in p:
-                raise InputError(f"{path}: field positions[{k}].{key} is missing")
-        if not isinstance(p["label"], str) or not p["label"].strip():
-            raise InputError(f"{path}: field positions[{k}].label: expected a non-empty text, got {p['label']!r}")
-        if p["label"] in seen:
-            raise InputError(f"{path}: field positions[{k}].label: {p['label']!r} appears twice")
-        seen.add(p["label"])
-        for key in ("axis1_deg", "axis2_deg"):
-            number(key, p[key], low=-360.0, high=360.0, where=f"positions[{k}].{key}")
-    plan = load_plan(path)
-    if not isinstance(plan, RampPlan):      # pragma: no cover - the format was checked above
-        raise InputError(f"{path}: not a ramp plan")
-    return plan
 
 
 # -- the program ------------------------------------------------------------------------------

@@ -21,13 +21,15 @@ target ends the search.
 
 from __future__ import annotations
 
-import json
+import math
 from dataclasses import dataclass, field, replace
 from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
 from ..errors import InputError
+from ..io.atomic import read_json
+from ..io.formats import require_format
 from ..models.campaign import DEFAULT_PLAN
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.simulate import RampSchedule
@@ -97,8 +99,8 @@ class RampPlan:
 
     @classmethod
     def from_dict(cls, d: Mapping, source: str = "plan") -> "RampPlan":
-        if d.get("format") != RAMP_FORMAT or d.get("version") != 1:
-            raise InputError(f"{source}: not a {RAMP_FORMAT} version 1 document")
+        require_format(d, RAMP_FORMAT, 1, source, "a ramp plan", "ramp plan")
+        check_ramp_fields(d, source)
         try:
             plan = cls(program_C=tuple(float(v) for v in d["program_C"]), rate_C_per_min=float(d["rate_C_per_min"]),
                        hold_s=float(d.get("hold_s", 0.0)), move_s=float(d.get("move_s", MOVE_S)),
@@ -119,14 +121,77 @@ def load_plan(path):
     (``triadcal.plan``) or a :class:`RampPlan` (``triadcal.ramp_plan``)."""
     from .plan import Plan
 
-    try:
-        with open(path, encoding="utf-8") as fh:
-            d = json.load(fh)
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the plan: {exc}") from None
+    d = read_json(path)
     if isinstance(d, dict) and d.get("format") == RAMP_FORMAT:
         return RampPlan.from_dict(d, str(path))
     return Plan.from_dict(d, str(path))
+
+
+def check_ramp_fields(d: Mapping, path) -> None:
+    """Each field of a ramp plan document ``d`` (``triadcal.ramp_plan`` version 1, checked by the
+    caller) checked, with an error naming the file and the field: ``program_C`` at least two finite
+    temperatures, no leg without a change; ``rate_C_per_min`` in (0, 100]; ``tau_s`` > 0;
+    ``hold_s``, ``move_s`` >= 0; ``positions`` a non-empty list of objects with a unique non-empty
+    ``label`` and bench angles within +-360 deg. Before, ``RampPlan.from_dict`` took a rate of
+    Infinity and a label given twice (the second overwrote the first, one position silently lost)."""
+    def number(key, value, *, low=-math.inf, high=math.inf, strict_low=False, where=None):
+        name = where or key
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise InputError(f"{path}: field {name}: expected a finite number, got {value!r}")
+        if value < low or (strict_low and value == low) or value > high:
+            rng = f"> {low:g}" if strict_low else f">= {low:g}"
+            if math.isfinite(high):
+                rng += f" and <= {high:g}"
+            raise InputError(f"{path}: field {name}: {value!r} out of range (must be {rng})")
+        return float(value)
+
+    for key in ("program_C", "rate_C_per_min", "tau_s", "positions"):
+        if key not in d:
+            raise InputError(f"{path}: field {key} is missing (a ramp plan needs program_C, rate_C_per_min, "
+                             "tau_s and positions)")
+    prog = d["program_C"]
+    if not isinstance(prog, list) or len(prog) < 2:
+        raise InputError(f"{path}: field program_C: expected a list of at least two temperatures (degC), "
+                         f"got {prog!r}")
+    values = [number("program_C", v, low=-273.15, high=1000.0, where=f"program_C[{k}]") for k, v in enumerate(prog)]
+    for k in range(1, len(values)):
+        if values[k] == values[k - 1]:
+            raise InputError(f"{path}: field program_C[{k}]: {values[k]:g} degC repeats program_C[{k - 1}] "
+                             "(a leg must change the temperature; use hold_s for a pause)")
+    number("rate_C_per_min", d["rate_C_per_min"], low=0.0, strict_low=True, high=100.0)
+    number("tau_s", d["tau_s"], low=0.0, strict_low=True)
+    for key in ("hold_s", "move_s"):
+        if key in d:
+            number(key, d[key], low=0.0)
+    pos = d["positions"]
+    if not isinstance(pos, list) or not pos:
+        raise InputError(f"{path}: field positions: expected a non-empty list of {{label, axis1_deg, axis2_deg}}")
+    seen = set()
+    for k, p in enumerate(pos):
+        if not isinstance(p, dict):
+            raise InputError(f"{path}: field positions[{k}]: expected an object {{label, axis1_deg, axis2_deg}}, "
+                             f"got {p!r}")
+        for key in ("label", "axis1_deg", "axis2_deg"):
+            if key not in p:
+                raise InputError(f"{path}: field positions[{k}].{key} is missing")
+        if not isinstance(p["label"], str) or not p["label"].strip():
+            raise InputError(f"{path}: field positions[{k}].label: expected a non-empty text, got {p['label']!r}")
+        if p["label"] in seen:
+            raise InputError(f"{path}: field positions[{k}].label: {p['label']!r} appears twice")
+        seen.add(p["label"])
+        for key in ("axis1_deg", "axis2_deg"):
+            number(key, p[key], low=-360.0, high=360.0, where=f"positions[{k}].{key}")
+
+
+def read_ramp_plan(path) -> "RampPlan":
+    """The ramp plan file of ``triadcal plan --ramp`` (``triadcal.ramp_plan`` version 1) for
+    ``capture --ramp``: a stepped plan (``triadcal.plan``) is refused, saying so; the rest as
+    :func:`load_plan` (every field checked by :func:`check_ramp_fields`)."""
+    d = read_json(path)
+    if isinstance(d, dict) and d.get("format") == "triadcal.plan":
+        raise InputError(f"{path}: a stepped plan (format 'triadcal.plan'); capture --ramp takes a ramp plan "
+                         f"({RAMP_FORMAT!r}, written by 'triadcal plan --ramp'); run a stepped plan with --setpoints")
+    return RampPlan.from_dict(d, str(path))
 
 
 def candidate_programs(lo: float, hi: float) -> list:
