@@ -14,7 +14,8 @@ import pytest
 
 from triadcal.estimation.gates import (
     PRECEDENCE, STATUSES, FitEvidence, GateOutcome, RefusedResult, answer_gates, check_result_for_use,
-    orientation_hints, rank_deficiency, scale_band, status_of)
+    rank_deficiency, scale_band, status_of)
+from triadcal.estimation.hints import orientation_hints
 from triadcal.estimation.joint import fit_joint
 from triadcal.estimation.result import CalibrationResult, ParameterValue
 from triadcal.models.campaign import nominal_gravity

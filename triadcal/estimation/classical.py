@@ -23,7 +23,8 @@ from ..models.campaign import Campaign, nominal_gravity
 from ..models.kinematics import gravity_in_imu
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, PPM, UG
-from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates, orientation_hints
+from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates
+from .hints import orientation_hints
 from .result import CalibrationResult, ParameterValue
 
 IMU_AXES = "XYZ"

@@ -6,7 +6,7 @@ fit to :func:`apply_gates`; each gate that fails has its own status and a one-li
 that names the number that failed. Consumers (certificate, compare, any reader of a
 result) call :func:`check_result_for_use`, which re-runs the gates a result can be checked
 on by itself and refuses what does not pass. The statuses and their thresholds are listed
-in docs/statuses.md. Over 500 lines on purpose: every gate of the one contract in one place,
+in docs/statuses.md. About 600 lines on purpose: every gate of the one contract in one place,
 so that a change to a threshold is seen against all the others.
 """
 
@@ -615,32 +615,3 @@ def result_problems(result, *, need_ok: bool = True, config: Optional[GateConfig
         if o.passed is False:
             why.append(f"gate {o.gate} fails ({o.status}): {o.reason}")
     return why
-
-
-def orientation_hints(w: np.ndarray, gravity: np.ndarray, axes: Sequence[str] = ("x", "y", "z")) -> list[str]:
-    """What a per-axis linear fit of the outputs on the nominal gravity says about the wiring:
-    an output that follows gravity along another axis (swapped columns, a mislabelled axis)
-    or falls when its own axis points up (an inverted sign). Empty when nothing is amiss.
-
-    ``w`` (n, 3) outputs, ``gravity`` (n, 3) nominal gravity in the unit frame (g), from the
-    bench kinematics. A hint, not a gate: it explains why a gate failed.
-    """
-    w, G = np.asarray(w, float), np.asarray(gravity, float)
-    if w.shape != G.shape or len(w) < 4 or not (np.all(np.isfinite(w)) and np.all(np.isfinite(G))):
-        return []
-    A = np.column_stack([G, np.ones(len(G))])
-    hints = []
-    for i, a in enumerate(axes):
-        if np.ptp(G[:, i]) < 1.0:
-            continue  # the axis never turns over: nothing to say
-        coef, *_ = np.linalg.lstsq(A, w[:, i], rcond=None)
-        b = coef[:3]
-        j = int(np.argmax(np.abs(b)))
-        if not np.isfinite(b).all() or np.abs(b).max() == 0:
-            hints.append(f"output w_{a} does not follow gravity at all (a constant or stuck channel?)")
-        elif j != i and abs(b[j]) > 2 * abs(b[i]):
-            hints.append(f"output w_{a} follows gravity along {axes[j]}, not {a} (swapped columns or a mislabelled "
-                         "axis?)")
-        elif b[i] < 0:
-            hints.append(f"output w_{a} falls when its axis points up (an inverted sign?)")
-    return hints

@@ -29,7 +29,8 @@ from ..models.kinematics import tilt_polar
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, DEG
-from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates, orientation_hints
+from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
+from .hints import orientation_hints
 from .result import CalibrationResult, ParameterValue
 
 #: covariates of one visit, in the order of the mapped function's second input

@@ -24,8 +24,8 @@ from ..gates import (
     FitEvidence,
     GateConfig,
     apply_gates,
-    orientation_hints,
 )
+from ..hints import orientation_hints
 from ..joint import Solution, levenberg_marquardt, scaled_covariance, start_values
 from ..result import CalibrationResult, ParameterValue
 from .detection import (
