@@ -126,6 +126,51 @@ def test_the_start_jacobian_is_reused_not_recomputed():
         [x for x in b[3]["scores"] if x is not None], rel=1e-12)
 
 
+def test_the_none_limit_at_each_time_constant(tmp_path):
+    """A ``none`` verdict gives a warm-up's detection limit at each time constant of its grid
+    (detection.py): on a stepped campaign whose first visit follows a 2 h soak, a 5 min warm-up is
+    over before any visit (limit ~1e12 ug, not seen), one of 80 min is seen from ~80 ug. Checked
+    against the score's law: an offset at the 80 min limit, injected by the independent bench
+    (tests/independent_bench.py) on x alone with tau = 80 min, gives a score at 80 min of mean
+    ``k + lambda*`` (noncentral chi2; 4 seeds, 4 standard errors)."""
+    from triadcal.judgement.diagnose.detection import lambda_needed
+    c, _ = _stepped(3, None)
+    d = diagnose(c, MODEL, n_draws=200, top=2, seed=3)
+    assert d.verdict_effect is None, d.verdict
+    lim = d.verdict["detection_limits"]
+    e = next(x for x in lim["candidates"] if x["effect"] == "bias_warmup")
+    wu = next(x for x in d.candidates if x.effect == "bias_warmup")
+    tc = e["time_constant"]
+    assert tc["parameter"] == "S_warmup_tau" and tc["unit"] == "min" and tc["grid"] == wu.score_profile["grid"]
+    assert set(tc["limits"]) == {"S_x_warmup", "S_y_warmup", "S_z_warmup"}
+    for n, vals in tc["limits"].items():
+        assert vals[0] == pytest.approx(e["parameters"][n]["value"], rel=1e-9)
+        assert all(a > b for a, b in zip(vals, vals[1:])), (n, vals)      # longer: seen from smaller
+        assert vals[0] > 1e6 and vals[tc["grid"].index(80.0)] < 300.0, vals
+    from triadcal.reports.diagnosis import write_html_report
+    write_html_report(d, tmp_path / "d.html", c)
+    page = (tmp_path / "d.html").read_text()
+    row = page.split("<td>S_x_warmup</td>", 1)[1].split("</tr>", 1)[0]
+    assert " at 5 min; " in row and " at 80 min; " in row and "(ug)" in row, row
+    assert "<td>S_warmup_tau</td>" not in page
+    L = tc["limits"]["S_x_warmup"][tc["grid"].index(80.0)]
+    lam = lambda_needed(3, lim["level"] / len(tc["grid"]))
+    params = [n for n in Model(("bias_warmup",), 20.0).names if "warmup" in n]
+    scores = []
+    for seed in (11, 12, 13, 14):
+        text, _ = simulate_lag_campaign(np.random.default_rng(seed), tau_element_min=0.02, program=StepProgram(),
+                                        warmup=((L, 0.0, 0.0), 80.0))
+        cc = parse_bench_csv(text)
+        full = JointProblem(cc, Model(tuple(EFFECTS), 20.0), noise_of(cc).sigma)
+        start = start_values(cc, full.model)
+        base = _fit(full, list(Model(MODEL, 20.0).names), np.array([start[n] for n in full.model.names]), True)
+        S, k, logp, prof = profiled_score(full, cc, base, _hat_q(base.J), params, "S_warmup_tau", True)
+        scores.append(prof["scores"][prof["grid"].index(80.0)])
+    assert k == 3
+    se = math.sqrt((2 * k + 4 * lam) / len(scores))
+    assert abs(np.mean(scores) - (k + lam)) < 4 * se, (scores, k + lam, se)
+
+
 def _binomial_upper(n, p, z=3.0):
     return n * p + z * math.sqrt(n * p * (1.0 - p))
 

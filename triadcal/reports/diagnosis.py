@@ -294,8 +294,16 @@ def html_report(diagnosis, campaign=None) -> str:
                      f"level {lim['level']:.2g}; smaller effects may be there.</p>"
                      "<table><tr><th>candidate</th><th>parameter</th><th>limit</th></tr>")
         for c in lim["candidates"]:
+            tc = c.get("time_constant") or {}
             for n, p in c["parameters"].items():
-                val = "not seen apart from the model" if p["value"] is None else f"{_num(p['value'])} {e(p['unit'])}"
+                if n == tc.get("parameter"):
+                    continue            # the grid's own parameter: its limits are per value of it
+                if n in tc.get("limits", {}):
+                    val = "; ".join(f"{'not seen' if v is None else _num(v)} at {_num(t)} {e(tc['unit'])}"
+                                    for t, v in zip(tc["grid"], tc["limits"][n])) + f" ({e(p['unit'])})"
+                else:
+                    val = ("not seen apart from the model" if p["value"] is None
+                           else f"{_num(p['value'])} {e(p['unit'])}")
                 parts.append(f"<tr><td>{e(c['effect'])}</td><td>{e(n)}</td><td>{val}</td></tr>")
         parts.append("</table>")
     if campaign is not None and d.residuals is not None:

@@ -69,21 +69,33 @@ def detection_limits(cand_objs: Sequence, Jfull: np.ndarray, index: dict, Q: np.
     for c in cand_objs:
         if not c.testable or c.refit_only or not c.params or c.effect in NOISE_EFFECTS or c.k < 1:
             continue
-        Jc = Jfull[:, [index[n] for n in c.params]]
-        M = Jc - Q @ (Q.T @ Jc)
-        m2 = np.sum(M * M, axis=0)
         # a score profiled over a grid of time constants is tested at level / grid size (Bonferroni);
-        # its limit is that of the start value's columns (Jfull's: a warm-up of 5 min)
-        grid = (getattr(c, "score_profile", None) or {}).get("grid_size", 1)
-        lam = lambda_needed(int(c.k), level / grid, power)
-        scale = float(np.max(np.sum(Jc * Jc, axis=0), initial=0.0))
-        params = {}
-        for n, v in zip(c.params, m2):
-            # a column with (almost) nothing outside the model's span: no finite limit
-            seen = v > 1e-12 * max(scale, 1e-300)
-            params[n] = {"value": float(math.sqrt(lam / v)) if seen else None, "unit": unit_of(n)}
-        out.append({"effect": c.effect, "k": int(c.k), "parameters": params})
+        # ``value`` is the limit at the start value's columns (Jfull's: a warm-up of 5 min), and
+        # ``time_constant`` holds the limits at each time constant of the grid
+        profile = getattr(c, "score_profile", None) or {}
+        lam = lambda_needed(int(c.k), level / profile.get("grid_size", 1), power)
+        limits = _limits(Jfull[:, [index[n] for n in c.params]], Q, lam)
+        entry = {"effect": c.effect, "k": int(c.k),
+                 "parameters": {n: {"value": v, "unit": unit_of(n)} for n, v in zip(c.params, limits)}}
+        by_tau = getattr(c, "columns_by_tau", None)
+        if by_tau:
+            per_tau = [_limits(J, Q, lam) for _, J in by_tau]
+            offsets = [n for n in c.params if n != profile.get("parameter")]     # the columns' order
+            entry["time_constant"] = {
+                "parameter": profile.get("parameter"), "unit": profile.get("unit", "min"),
+                "grid": [float(t) for t, _ in by_tau],
+                "limits": {n: [lim[j] for lim in per_tau] for j, n in enumerate(offsets)}}
+        out.append(entry)
     return out
+
+
+def _limits(Jc: np.ndarray, Q: np.ndarray, lam: float) -> list:
+    """Each column's limit ``sqrt(lam / |M_j|^2)``, ``M = (I - Q Q^T) J_c``; None for a column with
+    (almost) nothing outside the model's span (no finite limit)."""
+    M = Jc - Q @ (Q.T @ Jc)
+    m2 = np.sum(M * M, axis=0)
+    scale = float(np.max(np.sum(Jc * Jc, axis=0), initial=0.0))
+    return [float(math.sqrt(lam / v)) if v > 1e-12 * max(scale, 1e-300) else None for v in m2]
 
 
 def limit_ranges(limits: Sequence[dict]) -> list:
@@ -92,12 +104,16 @@ def limit_ranges(limits: Sequence[dict]) -> list:
     parts = []
     for e in limits:
         vals = [p["value"] for p in e["parameters"].values() if p["value"] is not None]
+        tc = e.get("time_constant")
+        if tc:       # over the grid of time constants too: "(tau 5-300 min)"
+            vals += [v for vs in tc["limits"].values() for v in vs if v is not None]
         units = {p["unit"] for p in e["parameters"].values()}
         if not vals:
             continue
         lo, hi = min(vals), max(vals)
         rng = f"{lo:.2g}" if math.isclose(lo, hi, rel_tol=0.05) else f"{lo:.2g}-{hi:.2g}"
-        parts.append(f"{e['effect']} {rng} {'/'.join(sorted(units))}")
+        over = f" (tau {min(tc['grid']):.2g}-{max(tc['grid']):.3g} {tc['unit']})" if tc else ""
+        parts.append(f"{e['effect']} {rng} {'/'.join(sorted(units))}{over}")
     return parts
 
 

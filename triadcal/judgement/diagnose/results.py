@@ -71,6 +71,9 @@ class Candidate:
     form: Optional[dict] = None
     #: a candidate with a time constant: its score profiled over it (time_constant.profiled_score)
     score_profile: Optional[dict] = None
+    #: and its offsets' whitened columns at each time constant of the grid, ``[(tau_min, J), ...]``
+    #: (the detection limits per time constant); not in the JSON
+    columns_by_tau: Optional[list] = field(default=None, repr=False)
 
     @property
     def score_p(self) -> float:

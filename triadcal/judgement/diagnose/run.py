@@ -187,12 +187,13 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             continue
         if c in TIME_CONSTANT_OF:
             # its offsets' columns depend on its time constant: scored over a grid of it (time_constant.py)
+            columns = []
             prof = profiled_score(full, campaign, base, Q, usable, TIME_CONSTANT_OF[c], noise.known,
-                                  J_start=Jfull)
+                                  J_start=Jfull, columns_out=columns)
             if prof is not None:
                 S, k, logp, profile = prof
                 cand_objs.append(Candidate(c, True, k=k, score=S, score_logp=logp, params=usable,
-                                           score_profile=profile))
+                                           score_profile=profile, columns_by_tau=columns))
                 continue
         sc = _score_mean(base, Jfull[:, [full.index[n] for n in usable]], Q, SPAN_FRACTION_MIN)
         if sc is None:

@@ -68,13 +68,16 @@ def range_refusal(c):
     return "; ".join(bad) or None
 
 
-def profiled_score(full, campaign, base, Q, params, tau_name: str, noise_known: bool, J_start=None):
+def profiled_score(full, campaign, base, Q, params, tau_name: str, noise_known: bool, J_start=None,
+                   columns_out: list | None = None):
     """``(S, k, logp, profile)`` of the offsets ``params`` (their tau excluded) scored at each time
     constant of :func:`tau_grid`, or None when no time constant gives a testable column. ``logp``
     is the largest score's log p-value plus log(grid size), at most 0; ``profile`` holds the grid,
     the score at each point (None: not testable there), the best time constant and the grid size.
     ``J_start``: the whitened Jacobian at ``base.x_full`` if the caller holds it (reused where the
-    grid's time constant is the start value, not recomputed)."""
+    grid's time constant is the start value, not recomputed). ``columns_out``: a list to which each
+    grid point's ``(tau, whitened offset columns)`` is appended (the detection limits per time
+    constant, detection.py)."""
     offsets = [n for n in params if n != tau_name]
     if not offsets:
         return None
@@ -90,6 +93,8 @@ def profiled_score(full, campaign, base, Q, params, tau_name: str, noise_known: 
             x[full.index[tau_name]] = tau
             Jw = full.residuals_and_jacobian(x)[1] / base.s
         scores.append(_score_mean(base, Jw[:, cols], Q, SPAN_FRACTION_MIN))
+        if columns_out is not None:
+            columns_out.append((float(tau), Jw[:, cols]))
     done = [(sc[0], sc[1], tau) for sc, tau in zip(scores, grid) if sc is not None]
     if not done:
         return None
