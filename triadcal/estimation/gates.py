@@ -436,7 +436,9 @@ def rank_deficiency(J: np.ndarray, names: Sequence[str], rtol: float) -> tuple[i
     if not np.all(np.isfinite(Js)):
         return n_par, list(names)
     try:
-        _, s, vt = np.linalg.svd(Js, full_matrices=True)
+        # the right singular vectors only: full_matrices=True also built the rows x rows U
+        # (26.8 GiB for 20 000 visits); with fewer rows than parameters vt is padded below
+        _, s, vt = np.linalg.svd(Js, full_matrices=Js.shape[0] < Js.shape[1])
     except np.linalg.LinAlgError:
         return n_par, list(names)
     s = np.concatenate([s, np.zeros(vt.shape[0] - len(s))])
