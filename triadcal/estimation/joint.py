@@ -140,6 +140,30 @@ def start_values(campaign: Campaign, model: Model) -> dict:
     return {n: start.get(n, model.spec[n].nominal) for n in model.names}
 
 
+#: a campaign whose accelerometers' mean temperature spans less than this (degC) is at one temperature
+TEMPERATURE_SPAN_MIN_C = 1.0
+
+
+def single_temperature_reference(campaign: Campaign, reference_temperature_C: float) -> tuple:
+    """``(reference_temperature_C, note)``: the requested reference, or, for a campaign at one
+    temperature (its accelerometers' mean temperature spans less than :data:`TEMPERATURE_SPAN_MIN_C`),
+    that temperature's mean (rounded to 0.01 degC) and a note saying so. No temperature coefficient
+    can be determined there (:func:`identifiability_problems` holds them at 0), so values at another
+    temperature would be those of the data relabelled: a campaign at 50 degC reported its K at
+    "20 degC" with status ok, 419 u from the unit's K at 20 degC (an outside probe). As the
+    classical method does (docs/classical.md, "One setpoint temperature")."""
+    T = np.asarray(campaign.t, float).mean(axis=1)
+    ref = float(reference_temperature_C)
+    if not len(T) or not np.all(np.isfinite(T)) or np.ptp(T) >= TEMPERATURE_SPAN_MIN_C:
+        return ref, None
+    Tm = round(float(np.mean(T)), 2)
+    if abs(Tm - ref) < 0.005:
+        return ref, None
+    return Tm, (f"one temperature: the accelerometers' mean temperature spans {np.ptp(T):.2f} degC, so no "
+                f"temperature coefficient is determined and the values are at the mean temperature {Tm:.2f} degC, "
+                f"not at {ref:g} degC (reference_temperature_C says which)")
+
+
 def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]:
     """Parameters the data cannot determine, with the reason, from the design of the campaign."""
     problems = {}
@@ -152,7 +176,7 @@ def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]
             problems[f"Ca_{ab}_hysteresis"] = (
                 "hysteresis needs visits on both a heating and a cooling branch; the data has only "
                 + ", ".join(sorted(have[b] for b in branches)))
-    if np.ptp(T) < 1.0:
+    if np.ptp(T) < TEMPERATURE_SPAN_MIN_C:
         for e, fmt, names in (("angle_tempco", "Ca_{}_tempco", ANGLE_NAMES), ("scale_tempco", "K_{}_tempco", AXES),
                               ("bias_tempco", "S_{}_tempco", AXES)):
             if e in eff:
@@ -358,9 +382,10 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                          f"found units {units} and states {sorted(set(campaign.state.tolist()))} "
                          "(select one, e.g. with Campaign.select)")
     stuck_outputs(campaign)
+    reference_temperature_C, moved = single_temperature_reference(campaign, reference_temperature_C)
     model = Model(effects, reference_temperature_C)
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
-    notes = []
+    notes = [moved] if moved else []
     if bench_errors is not None:
         whitening = _bench_whitening(campaign, model, noise, bench_errors, whitening, notes)
     if bench_errors is None and not systematics:

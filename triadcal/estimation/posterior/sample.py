@@ -92,6 +92,9 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     if moves not in MOVES:
         raise InputError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
     campaign = _load(data)
+    from ..joint import single_temperature_reference
+
+    reference_temperature_C = single_temperature_reference(campaign, reference_temperature_C)[0]
     from ...uncertainty.typeb import effects_with_lab
 
     from ..noise_effects import resolve_noise_effects
