@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from ..errors import UnknownName
 
+import math
 from dataclasses import dataclass
 from typing import Mapping, Optional
 
@@ -98,3 +99,41 @@ def prior_arrays(priors: Mapping[str, Prior], names) -> tuple[np.ndarray, np.nda
 def draw_parameters(priors: Mapping[str, Prior], rng: np.random.Generator) -> dict[str, float]:
     """One draw of every parameter from its prior (reporting units), for SBC."""
     return {n: float(p.draw(rng)) for n, p in priors.items()}
+
+
+#: a scale factor whose least-squares value lies beyond this many prior SDs of the default prior
+#: (``K ~ N(1, 0.1)`` in the file's output unit) gets a prior centred on its own scale
+AUTOSCALE_SDS = 3.0
+
+
+def autoscaled_scale_priors(priors: Mapping[str, Prior], least_squares: Mapping[str, float],
+                            user: Mapping = (), width: float = PRIOR_WIDTH) -> tuple[dict, list]:
+    """``(priors, notes)``: the scale factors' priors centred on the unit's own scale where the default
+    would pull.
+
+    The default ``K ~ N(1, 0.1)`` is in the file's own output unit (g/V, g/count, ...): right for a
+    unit of about 1 V/g, but a 5 mV/g analog unit (K = 200 g/V) sat 2 000 prior SDs from it and the
+    prior pulled the posterior 6 u below the truth with status ok (K = 1 000 g/V: 225 u; an outside
+    probe). A data scale is what the prior should carry (rstanarm's autoscaled priors, Gabry &
+    Goodrich 2020): where the least-squares ``K`` lies beyond :data:`AUTOSCALE_SDS` prior SDs, its
+    prior is ``N(K0, width x 1 % x K0)``, ``K0`` the least-squares value rounded to two significant
+    digits (a scale, not the fit: 200.0 for 199.998), the default's relative width (10 %), still
+    ``K > 0``. Priors the user gave (``user``) are kept; so is every prior of a unit near 1 in its
+    unit (the simulation-based calibration's, whose draws come from the default)."""
+    out, notes = dict(priors), []
+    for n, p in priors.items():
+        if not (n.startswith("K_") and n.count("_") == 1) or n in user or n not in least_squares:
+            continue
+        k = float(least_squares[n])
+        if not (math.isfinite(k) and k > 0) or abs(k - p.mean) <= AUTOSCALE_SDS * p.sd:
+            continue
+        k0 = float(f"{k:.2g}")
+        sd = width * 0.01 * k0
+        out[n] = Prior(n, p.unit, k0, sd, 0.0, p.high,
+                       f"autoscaled: the least-squares {n} = {k:.6g} is {abs(k - p.mean) / p.sd:.3g} SD from the "
+                       f"default prior's {p.mean:g}; centred on the unit's scale {k0:g}, {width * 0.01:.0%} wide "
+                       "(a scale factor is positive)")
+        notes.append(f"prior of {n}: N({k0:g}, {sd:.3g}) in the file's unit, centred on the unit's scale (the "
+                     f"least squares give {k:.6g}, {abs(k - p.mean) / p.sd:.3g} SD from the default N({p.mean:g}, "
+                     f"{p.sd:g}), which would pull the posterior)")
+    return out, notes

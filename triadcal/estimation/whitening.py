@@ -115,12 +115,13 @@ def gls_posterior_target(campaign, effects, least_squares, whitening, priors=Non
     from ..models.model import Model
     from .joint import parameter_unit, scaled_covariance
     from .posterior.targets import ResidualTarget
-    from .priors import default_priors
+    from .priors import autoscaled_scale_priors, default_priors
 
     ls, problem, sol = least_squares
     raw = getattr(problem, "raw", problem)
     model = Model(effects, reference_temperature_C)
-    pri = default_priors(model, overrides=priors)
+    pri, _ = autoscaled_scale_priors(default_priors(model, overrides=priors),       # noted by the caller
+                                     {n: p.value for n, p in ls.parameters.items()}, user=priors or {})
     names = tuple(raw.names)
     x = ca.MX.sym("x", len(names))
     w = raw._predict(x, ca.DM(raw.cov_matrix), raw.gravity_g)              # 3 x n
