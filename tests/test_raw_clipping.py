@@ -1,0 +1,76 @@
+"""A channel clipped at full scale in a static interval is refused, naming the interval
+(``estimation.raw.poses.clipped_intervals``, docs/raw.md "Clipped channels"). Before, an axis clipped
+at 2075 counts during its +1 g face gave status ok with K_x 19 u off (an outside probe): six faces
+leave no redundancy to show it. The recordings are made here with numpy (six faces held 8 s each,
+transitions between them), not by the project's simulator; the bound on one value's share is
+derived by hand from the normal density."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from triadcal.errors import InputError
+from triadcal.estimation.raw import fit_raw
+
+RATE = 100.0
+FACES = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)]
+K = np.array([4.9e-4, 4.95e-4, 5.05e-4])           # g per count
+S = np.array([0.02, -0.015, 0.03])                 # g
+
+
+def _recording(seed, noise_counts, static_s=8.0, move_s=2.0):
+    rng = np.random.default_rng(seed)
+    rows, prev = [], np.array(FACES[-1], float)
+    for f in FACES:
+        g = np.array(f, float)
+        for t in np.linspace(0.0, 1.0, int(move_s * RATE), endpoint=False):     # a slerp-like turn
+            v = (1 - t) * prev + t * g + math.sin(math.pi * t) * np.array([0.3, 0.5, 0.8])   # never through 0
+            rows.append(v / np.linalg.norm(v))
+        rows.extend([g] * int(static_s * RATE))
+        prev = g
+    G = np.array(rows)
+    counts = (G + S) / K + rng.normal(0.0, noise_counts, G.shape)
+    return np.round(counts)
+
+
+def _write(path, counts):
+    np.savetxt(path, counts, fmt="%d", delimiter=",", header="acc_x,acc_y,acc_z", comments="")
+    return path
+
+
+def test_a_clipped_face_is_refused_naming_it(tmp_path):
+    counts = _recording(1, 8.0)
+    top = (1 + S[0]) / K[0]                                          # the x_p face's mean, 2082 counts
+    clipped = counts.copy()
+    clipped[:, 0] = np.minimum(clipped[:, 0], np.floor(top) - 6)     # clip 0.75 sigma below it
+    ok = fit_raw(_write(tmp_path / "clean.csv", counts), RATE, unit="counts")
+    assert ok.result.status == "ok", ok.result.notes
+    with pytest.raises(InputError, match=r"clipped at full scale: x in the interval x_p .* largest value") as e:
+        fit_raw(_write(tmp_path / "clip.csv", clipped), RATE, unit="counts")
+    assert "clip.csv" in str(e.value)
+    # unknown poses: the same
+    with pytest.raises(InputError, match="clipped at full scale"):
+        fit_raw(tmp_path / "clip.csv", RATE, unit="counts", poses="unknown")
+
+
+def test_low_noise_counts_and_floats_are_not_clipping(tmp_path):
+    # a quiet digital output: 0.3 counts of noise puts most samples of a face on one or two values,
+    # but no more than the bound allows (one value's share can be near 1 below a step)
+    quiet = _recording(2, 0.3)
+    assert fit_raw(_write(tmp_path / "quiet.csv", quiet), RATE, unit="counts").result.status == "ok"
+    # floats never repeat: the bound is ~0 and a clean recording has no pile at its extremes
+    floats = _recording(3, 8.0) + np.random.default_rng(4).uniform(-0.5, 0.5, (1, 3))
+    path = tmp_path / "floats.csv"
+    np.savetxt(path, floats + 1e-3 * np.random.default_rng(5).normal(size=floats.shape), fmt="%.6f",
+               delimiter=",", header="acc_x,acc_y,acc_z", comments="")
+    assert fit_raw(path, RATE, unit="counts").result.status == "ok"
+
+
+def test_the_bound_by_hand():
+    from triadcal.estimation.raw.poses import PILE_FRACTION
+    # sigma 8 counts, step 1: at most 1 / (8 sqrt(2 pi)) = 5.0 % of the samples on one value
+    assert 1.0 / (8.0 * math.sqrt(2.0 * math.pi)) == pytest.approx(0.0499, abs=1e-4)
+    assert PILE_FRACTION == 0.2
