@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 import sys
 
+from ..errors import InputError
 from ._common import add_output_options, name_list, output
 
 
@@ -25,7 +27,12 @@ def register(sub) -> None:
     src.add_argument("--labels", metavar="COLUMN", help="label column naming the poses (imucal's 'part')")
     src.add_argument("--intervals", metavar="FILE",
                      help="static intervals: imucal session-list JSON, or start/end sample indices (CSV)")
-    p.add_argument("--local-g", type=float, default=9.81, metavar="M_S2", help="local gravity, m/s2 (default 9.81)")
+    p.add_argument("--local-g", type=float, default=9.81, metavar="M_S2",
+                   help="local gravity, m/s2 (default 9.81); outside 9.76-9.84 (Earth's surface) refused unless "
+                        "--local-g-override")
+    p.add_argument("--local-g-override", action="store_true",
+                   help="accept a --local-g outside Earth's surface range (a centrifuge, another planet, a "
+                        "deliberate test), as '# local_g_override = true' does in a bench CSV")
     p.add_argument("--placement-sd-deg", default="auto", metavar="DEG|auto",
                    help="SD of the hand-placement tilt per pose and component, deg (a stated prior), or 'auto' "
                         "(default): integrated over a log-uniform hyperprior on 0.02-20 deg, weighted by what the "
@@ -64,11 +71,52 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _number(option: str, value, *, low: float = 0.0, low_open: bool = True, what: str = "") -> None:
+    """Refuse an option value that is not finite or not above ``low`` (at or above when
+    ``low_open`` is False), naming the option and the value."""
+    if value is None:
+        return
+    ok = math.isfinite(value) and (value > low if low_open else value >= low)
+    if not ok:
+        bound = f"{'>' if low_open else '>='} {low:g}"
+        raise InputError(f"{option} must be a finite number {bound}{' (' + what + ')' if what else ''}, "
+                         f"got {value!r}")
+
+
+def check_options(args) -> None:
+    """Every numeric option of fit-raw, and the combinations that would be refused after a fit,
+    before anything is read or written (docs/raw.md, "What is refused, and where")."""
+    from ..estimation.raw.fit import check_raw_options
+
+    _number("--rate", args.rate, what="Hz")
+    check_raw_options(args.local_g, args.local_g_override, window_s=args.static_window_s,
+                      threshold=args.static_threshold, min_duration_s=args.min_static_s)
+    placement = str(args.placement_sd_deg).strip()
+    if placement.lower() != "auto":
+        try:
+            value = float(placement)
+        except ValueError:
+            raise InputError(f"--placement-sd-deg must be 'auto' or a number of degrees, got {placement!r}") from None
+        _number("--placement-sd-deg", value, what="deg")
+    _number("--misalignment-sd-deg", args.misalignment_sd_deg, what="deg")
+    _number("--counts-per-g", args.counts_per_g, what="counts per g")
+    _number("--angle-bound-arcsec", args.angle_bound_arcsec, what="arcsec")
+    _number("--ess", args.ess)
+    _number("--max-steps", args.max_steps)
+    _number("--seed", args.seed, low_open=False)
+    if args.bench_csv and args.poses != "known":
+        raise InputError("--bench-csv needs known poses (--poses known): free orientations have no bench angles")
+    if args.posterior and not args.sample:
+        raise InputError("--posterior needs sampling (--sample)")
+
+
 def run(args) -> int:
     from ..estimation.gates import GateConfig
     from ..estimation.raw import fit_raw
+    from ..io.bench_csv import LOCAL_G_RANGE_M_S2
     from ..reports.summary import summary_text
 
+    check_options(args)
     ui = output(args)
     bar = ui.bar(total=args.max_steps, desc="sampling", unit="step") if args.sample else None
     progress = None
@@ -78,18 +126,20 @@ def run(args) -> int:
     try:
         out = fit_raw(args.data, args.rate, columns=name_list(args.columns) if args.columns else None,
                       unit=args.unit, poses=args.poses, labels=args.labels, intervals=args.intervals,
-                      temperature_column=args.temperature_column,
+                      temperature_column=args.temperature_column, local_g_override=args.local_g_override,
                       local_g_m_s2=args.local_g, placement_sd_deg=args.placement_sd_deg,
                       misalignment_sd_deg=args.misalignment_sd_deg,
                       counts_per_g=args.counts_per_g, serial=args.serial, window_s=args.static_window_s,
                       threshold=args.static_threshold, min_duration_s=args.min_static_s,
-                      json_path=args.json, bench_csv_path=args.bench_csv, sample=args.sample,
+                      json_path=args.json, bench_csv_path=None, sample=args.sample,
                       posterior_path=args.posterior, ess=args.ess, max_steps=args.max_steps, seed=args.seed,
                       progress=progress, gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec))
     finally:
         if bar is not None:
             bar.close()
     r = out.result
+    if args.bench_csv:
+        _write_bench_csv(out.campaign, args)
     ui.say(out.detection.summary(out.recording.rate_hz))
     for iv in out.detection.intervals:
         ui.say(f"  samples {iv.start:>7d} .. {iv.end:<7d} {iv.n / out.recording.rate_hz:6.1f} s  {iv.label}")
@@ -117,6 +167,23 @@ def run(args) -> int:
         for line in summary_lines(diag):
             ui.say(line)
         ui.say(f"diagnosis written to {args.diagnose}")
+    low, high = LOCAL_G_RANGE_M_S2
+    if not low <= args.local_g <= high:
+        print(f"note: --local-g {args.local_g:g} m/s2, outside Earth's {low}-{high} m/s2, accepted with "
+              "--local-g-override", file=sys.stderr)
     for note in r.notes:
         print(f"note: {note}", file=sys.stderr)
     return 0 if r.status == "ok" else 3
+
+
+def _write_bench_csv(campaign, args) -> None:
+    """The pose averages as bench CSV v1; a --local-g outside Earth's range is written with the
+    override line, so that `triadcal fit` reads back what fit-raw was told to accept."""
+    from ..io.bench_csv import LOCAL_G_RANGE_M_S2, write_bench_csv
+
+    if campaign is None:                                  # checked before the fit (check_options)
+        raise InputError("--bench-csv needs known poses: free orientations have no bench angles")
+    low, high = LOCAL_G_RANGE_M_S2
+    if not low <= args.local_g <= high:
+        campaign.metadata["local_g_override"] = "true"
+    write_bench_csv(campaign, args.bench_csv)

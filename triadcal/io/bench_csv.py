@@ -89,6 +89,8 @@ def column_range(name: str) -> tuple:
 #: local gravity accepted without ``# local_g_override = true`` (m/s^2): the range on Earth's
 #: surface is 9.78 (equator) to 9.83 (poles), with a margin for altitude and anomalies
 LOCAL_G_RANGE_M_S2 = (9.76, 9.84)
+#: the largest local g accepted even with the override (m/s2)
+LOCAL_G_MAX_M_S2 = 100.0
 #: a temperature column whose median is at or above this (degC) is kelvin, not degC: no IMU
 #: calibration runs at 200 degC, while 200 K is -73 degC
 KELVIN_MEDIAN_C = 200.0
@@ -113,7 +115,7 @@ def _metadata(lines, path):
     if override not in ("true", "false"):
         raise BenchCSVError(path, where["local_g_override"], None,
                             f"metadata 'local_g_override' must be true or false, got {metadata['local_g_override']!r}")
-    for key, low, high, low_open in (("local_g_m_s2", 0.0, 100.0, True), ("Q_V2s", 0.0, MAX_READING, True),
+    for key, low, high, low_open in (("local_g_m_s2", 0.0, LOCAL_G_MAX_M_S2, True), ("Q_V2s", 0.0, MAX_READING, True),
                                      ("power_on_s", -MAX_READING, MAX_READING, False)):
         if key in metadata:
             try:

@@ -13,6 +13,7 @@ from ..errors import InputError
 import csv
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional, Sequence
@@ -128,6 +129,7 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
         raise RawRecordingError(path, None, None,
                                 "no header line naming the columns " + " or ".join(",".join(c) for c in wanted)
                                 + " in the first 200 lines (give --columns)")
+    _check_unique_names(path, header_at + 1, header)
     if label_column is not None and label_column not in header:
         raise RawRecordingError(path, header_at + 1, label_column,
                                 f"label column not in the header (columns: {', '.join(header)})")
@@ -135,26 +137,97 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
         raise RawRecordingError(path, header_at + 1, temperature_column,
                                 f"temperature column not in the header (columns: {', '.join(header)})")
     metadata = {}
-    for line in lines[:header_at]:
-        parts = [p.strip() for p in line.split(",")]
+    for k, line in enumerate(lines[:header_at]):
+        parts = _metadata_fields(line)
         if len(parts) >= 2 and parts[0]:
             metadata[parts[0]] = parts[1]
-    file_rate = metadata.get("Fs") or metadata.get("rate_hz") or metadata.get("sample_rate_hz")
-    if file_rate is not None:
-        try:
-            fr = float(file_rate)
-        except ValueError:
-            fr = None
+        fr = _file_rate(path, k + 1, line)
         if fr is not None and abs(fr - rate_hz) > 1e-6 * rate_hz:
-            raise RawRecordingError(path, None, None,
+            raise RawRecordingError(path, k + 1, None,
                                     f"the stated rate {rate_hz:g} Hz disagrees with the file's header ({fr:g} Hz); "
                                     "check which one is right (imucal issue #25)")
     offset = _line_start(path, header_at, bom)
     read = cols + ((temperature_column,) if temperature_column is not None else ())
     acc, labels = _read_samples_fast(path, offset, header_at, header, read, label_column, delim)
     temp = acc[:, 3] if temperature_column is not None else None
+    if temp is not None:
+        _check_temperature(path, header_at + 2, temperature_column, temp)
     return RawRecording(acc[:, :3], float(rate_hz), unit, cols, labels, label_column, metadata, path,
                         header_at + 2, temp, temperature_column)
+
+
+def _check_unique_names(path, line: int, header: Sequence[str]) -> None:
+    """Refuse a header that names a column twice: the reader would take the first and ignore the
+    second without a word (``acc_x,acc_y,acc_z,acc_x``). Empty names (a trailing separator) are
+    not names and may repeat."""
+    first = {}
+    for i, name in enumerate(header):
+        if not name:
+            continue
+        if name in first:
+            raise RawRecordingError(path, line, name,
+                                    f"the header names this column twice (fields {first[name] + 1} and {i + 1}); "
+                                    "which one holds the readings is ambiguous: rename or remove one")
+        first[name] = i
+
+
+def _metadata_fields(line: str) -> list:
+    """A header line before the column names as ``key, value, ...``: split at the first of
+    :data:`DELIMITERS` that the line holds (``Fs,100``, ``Fs<TAB>100``, ``Fs;100``)."""
+    for sep in DELIMITERS:
+        if sep in line:
+            return [p.strip() for p in line.split(sep)]
+    return [line.strip()]
+
+
+#: header lines before the column names that state the sample rate (docs/raw.md, Reading)
+RATE_KEYS = ("Fs", "rate_hz", "sample_rate_hz")
+_RATE_LINE = re.compile(r"^\s*(" + "|".join(RATE_KEYS) + r")\s*(?:[,;\t=:]|\s)(.*)$")
+_RATE_VALUE = re.compile(r"^(.*?)\s*(k?hz)?$", re.IGNORECASE)
+
+
+def _file_rate(path: str, line_number: int, line: str) -> Optional[float]:
+    """The sample rate (Hz) a header line states, None when it states none. A rate line is one
+    whose first field is a key of :data:`RATE_KEYS`, separated by a comma, tab, semicolon,
+    ``=``, ``:`` or blanks; its value is a number with an optional unit ``Hz`` or ``kHz``
+    (``Fs,100``, ``Fs,200 Hz``, ``Fs<TAB>200``, ``rate_hz = 0.2 kHz``). A rate line whose value
+    cannot be read is refused: a rate the reader ignored could not be checked against ``--rate``."""
+    m = _RATE_LINE.match(line)
+    if m is None:
+        return None
+    key = m.group(1)
+    text = re.sub(r"[,;\t]+", " ", m.group(2)).strip()
+    v = _RATE_VALUE.match(text)
+    number, unit = (v.group(1), v.group(2)) if v else (text, None)
+    try:
+        rate = parse_number(number, low=0.0, high=MAX_READING, low_open=True, what=key)
+    except NumberError as exc:
+        raise RawRecordingError(path, line_number, None,
+                                f"the header line {line.strip()!r} states a sample rate that cannot be read "
+                                f"({exc.problem}; expected e.g. '{key},100' or '{key},100 Hz'): correct or remove "
+                                "the line, a rate in the file is checked against --rate") from None
+    return rate * (1000.0 if unit and unit.lower() == "khz" else 1.0)
+
+
+def _check_temperature(path: str, first_line: int, column: str, temp: np.ndarray) -> None:
+    """The bench reader's rules for a temperature column (degC): a median at or above
+    :data:`~triadcal.io.bench_csv.KELVIN_MEDIAN_C` is kelvin and refused as such, then every
+    value must lie in the range of the bench's ``t_*`` columns."""
+    from .bench_csv import KELVIN_MEDIAN_C, column_range
+
+    if not len(temp):
+        return
+    med = float(np.median(temp))
+    if med >= KELVIN_MEDIAN_C:
+        raise RawRecordingError(path, first_line, column,
+                                f"temperatures look like kelvin (median {med:g}): the temperature column is degC "
+                                f"(subtract 273.15; no IMU calibration runs at a median of {KELVIN_MEDIAN_C:g} degC)")
+    low, high, _ = column_range("t_x")
+    bad = np.flatnonzero((temp < low) | (temp > high))
+    if len(bad):
+        i = int(bad[0])
+        raise RawRecordingError(path, first_line + i, column,
+                                f"temperature {temp[i]:g} degC is outside {low:g} .. {high:g} degC")
 
 
 def _line_start(path, k: int, bom: int) -> int:
@@ -285,7 +358,10 @@ def read_intervals(path) -> IntervalSpec:
         raise RawRecordingError(path, None, None, f"not UTF-8 text (byte {exc.start})") from None
     if text.lstrip().startswith("{"):
         try:
-            d = json.loads(text)
+            d = json.loads(text, object_pairs_hook=_unique_keys)
+        except _DuplicateKey as exc:
+            raise RawRecordingError(path, None, exc.key, "entry given twice: a JSON reader keeps only the last one, "
+                                    "so one of the two would be ignored") from None
         except json.JSONDecodeError as exc:
             raise RawRecordingError(path, exc.lineno, None, f"not valid JSON: {exc.msg}") from None
         labels, s, e = [], [], []
@@ -327,9 +403,48 @@ def read_intervals(path) -> IntervalSpec:
     return _checked(IntervalSpec(s.astype(int), e.astype(int), None, path))
 
 
+class _DuplicateKey(ValueError):
+    def __init__(self, key):
+        super().__init__(key)
+        self.key = key
+
+
+def _unique_keys(pairs):
+    """``object_pairs_hook`` of the session-list JSON: a key given twice is an error, not the last
+    one silently kept."""
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(k)
+        out[k] = v
+    return out
+
+
 def _checked(spec: IntervalSpec) -> IntervalSpec:
+    """Each interval ends after it starts, and no two intervals share a sample: two faces pointed at
+    the same range (or overlapping ranges) would average the same samples as two poses."""
     bad = np.flatnonzero(spec.end <= spec.start)
     if len(bad):
         raise RawRecordingError(spec.source, None, None,
-                                f"interval {int(bad[0]) + 1} ends ({spec.end[bad[0]]}) before it starts ({spec.start[bad[0]]})")
+                                f"interval {_entry(spec, int(bad[0]))} ends before it starts")
+    order = np.argsort(spec.start, kind="stable")
+    reach = -1                                 # the entry reaching furthest among those before
+    for j in order:
+        if reach >= 0 and spec.start[j] < spec.end[reach]:
+            i, k = sorted((int(reach), int(j)))
+            same = spec.start[i] == spec.start[k] and spec.end[i] == spec.end[k]
+            lo, hi = max(spec.start[i], spec.start[k]), min(spec.end[i], spec.end[k])
+            raise RawRecordingError(
+                spec.source, None, None,
+                f"intervals {_entry(spec, i)} and {_entry(spec, k)} "
+                + ("cover the same samples" if same else f"overlap (samples {lo}..{hi})")
+                + ": each static interval must have samples of its own (end is exclusive)")
+        if reach < 0 or spec.end[j] > spec.end[reach]:
+            reach = int(j)
     return spec
+
+
+def _entry(spec: IntervalSpec, i: int) -> str:
+    """One interval as the message names it: its label (JSON) or its position in the file."""
+    name = f"'{spec.labels[i]}'" if spec.labels else f"{i + 1}"
+    return f"{name} ({int(spec.start[i])}..{int(spec.end[i])})"

@@ -88,6 +88,30 @@ def static_intervals_of(rec: RawRecording, *, labels: Optional[str] = None, inte
     return det
 
 
+def check_raw_options(local_g_m_s2: float, local_g_override: bool = False, *, window_s: float = 1.0,
+                      threshold: float = 4.0, min_duration_s: float = 2.0) -> None:
+    """The options of :func:`fit_raw` that the data cannot check, before anything is read (the library,
+    ``triadcal fit-raw`` and ``batch`` manifests alike): a local g in m/s2 on Earth's surface (the bench
+    reader's 9.76-9.84, ``LOCAL_G_RANGE_M_S2``) unless ``local_g_override`` (then still positive and at most
+    100), and the static detector's window and threshold positive, its minimum duration not negative, all
+    finite. Before, ``--local-g 1`` (g typed in g) gave K 9.81 times too small with status ok."""
+    from ...io.bench_csv import LOCAL_G_MAX_M_S2, LOCAL_G_RANGE_M_S2
+
+    g = local_g_m_s2
+    if isinstance(g, bool) or not isinstance(g, (int, float)) or not (math.isfinite(g) and 0 < g <= LOCAL_G_MAX_M_S2):
+        raise InputError(f"--local-g must be a positive number of m/s2, at most {LOCAL_G_MAX_M_S2:g}, got {g!r}")
+    low, high = LOCAL_G_RANGE_M_S2
+    if not local_g_override and not low <= g <= high:
+        raise InputError(f"--local-g {g:g} m/s2 is outside {low}-{high} m/s2, the local gravity anywhere on "
+                         "Earth's surface (it is in m/s2, not in g); if it is right (a centrifuge, another planet, a "
+                         "deliberate test), add --local-g-override")
+    for name, option, v, strict in (("window_s", "--static-window-s", window_s, True),
+                                    ("threshold", "--static-threshold", threshold, True),
+                                    ("min_duration_s", "--min-static-s", min_duration_s, False)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 or (strict and v == 0):
+            raise InputError(f"{option} must be a finite number {'>' if strict else '>='} 0 ({name}), got {v!r}")
+
+
 def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence[str]] = None,
             unit: str = "counts", poses: str = "known", labels: Optional[str] = None, intervals=None,
             local_g_m_s2: float = 9.81, placement_sd_deg: Union[float, str] = "auto", misalignment_sd_deg: float = 1.0,
@@ -96,7 +120,7 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
             min_duration_s: float = 2.0, json_path=None, bench_csv_path=None, sample: bool = False,
             posterior_path=None, priors=None, ess: float = 2000, seed: int = 0, max_steps: int = 20000,
             progress=None, n_walkers: Optional[int] = None, gates: GateConfig = DEFAULT_CONFIG,
-            temperature_column: Optional[str] = None) -> RawFit:
+            temperature_column: Optional[str] = None, local_g_override: bool = False) -> RawFit:
     """Calibrate from a raw recording (``triadcal fit-raw``).
 
     ``data`` is a CSV path (read with :func:`triadcal.io.raw.read_raw_csv` at the stated
@@ -112,13 +136,14 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
     ``seed``, ``max_steps``, ``progress`` as in :func:`triadcal.estimation.posterior.sample`.
     ``temperature_column``: a column of the file with the unit's temperature (degC), kept on the
     recording for the diagnosis (``diagnose_raw``); the calibration does not use it.
+    ``local_g_override``: accept a local g outside Earth's surface range (:func:`check_raw_options`).
     """
     if posterior_path is not None and not sample:
         raise InputError("a posterior file needs sampling (--sample)")
     if poses not in ("known", "unknown"):
         raise InputError(f"poses must be 'known' or 'unknown', got {poses!r}")
-    if not (local_g_m_s2 > 0 and math.isfinite(local_g_m_s2)):
-        raise InputError(f"local g must be a positive number of m/s2, got {local_g_m_s2}")
+    check_raw_options(local_g_m_s2, local_g_override, window_s=window_s, threshold=threshold,
+                      min_duration_s=min_duration_s)
     if isinstance(data, RawRecording):
         rec = data
     else:

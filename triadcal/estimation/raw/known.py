@@ -152,11 +152,16 @@ def marginal_posterior(problem: KnownPoseProblem, x_map: np.ndarray, cov_laplace
     Ju = _conditional_jacobian(problem, J_map)
     H_inv = scaled_covariance(Ju)
     P = H_inv @ Ju.T                 # one Gauss-Newton step given the tilts: x_u <- x_u - P r
-    for _ in range(2):
-        Xu = Xu - conditional_residuals(problem, Xu, T) @ P.T
-    r = conditional_residuals(problem, Xu, T)
-    lw = -0.5 * (np.sum(r * r, axis=1) + np.sum((T / problem.sigma_h) ** 2, axis=1)) - log_q
+    # draws whose angles leave the model's domain (a row of Ca past 90 deg: swapped or inverted
+    # columns) have no residual; they get weight 0, without numpy's warnings on stderr
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        for _ in range(2):
+            Xu = Xu - conditional_residuals(problem, Xu, T) @ P.T
+        r = conditional_residuals(problem, Xu, T)
+        lw = -0.5 * (np.sum(r * r, axis=1) + np.sum((T / problem.sigma_h) ** 2, axis=1)) - log_q
     lw = np.where(np.isfinite(lw), lw, -np.inf)
+    if not np.isfinite(lw).any():          # no draw is usable: the Laplace approximation, ESS 0
+        return x_map, cov_laplace, 0.0
     w = np.exp(lw - np.max(lw))
     w /= w.sum()
     X = np.hstack([Xu, T])
