@@ -24,6 +24,7 @@ from ..models.kinematics import gravity_in_imu
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, PPM, UG
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates
+from .classical_tilt import tilt_leak_gate
 from .hints import orientation_hints
 from .result import CalibrationResult, ParameterValue
 
@@ -293,7 +294,9 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                 yk = campaign.w[idx, ai] / known.sigma[idx, ai]
                 ck, *_ = np.linalg.lstsq(Xk, yk, rcond=None)
                 red_chi2[ai] += float(np.sum((yk - Xk @ ck) ** 2))
-        per_block.append(dict(idx=idx, pair=pair, setpoint_C=sp, direction=direction, cycle=cycle, where=where))
+        off = [leak[k, ai] for k, bb in enumerate(IMU_AXES) for ai, a in enumerate(AXES) if a != bb.lower()]
+        per_block.append(dict(idx=idx, pair=pair, setpoint_C=sp, direction=direction, cycle=cycle, where=where,
+                              leak=float(np.max(np.abs(off))) if off else 0.0))
 
     # -- output noise ------------------------------------------------------------------
     sd_sigma = campaign.output_sigma()
@@ -425,6 +428,9 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     worst = _worst_studentised(resid, rss, dof, campaign)
     redundancy = redundancy_gate(red_chi2, dof, known.known, known.description, gates, use, worst)
     fit["redundancy"] = redundancy.to_dict()
+    tilt = tilt_leak_gate(campaign, per_block, sigma, gates, noise_dof=dof_total if use == "residuals" else None)
+    if tilt is not None:
+        fit["tilt_leak"] = tilt.to_dict()
     result = CalibrationResult(
         unit=units[0], method="classical", parameters=ordered, status="ok",
         effects=THERMAL_EFFECTS if slope else (), reference_temperature_C=T_ref,
@@ -433,7 +439,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         extra={"per_setpoint": per_setpoint, "output_unit": unit_out,
                "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source})
     apply_gates(result, FitEvidence(converged=True, n_obs=3 * campaign.n_visits, n_free=15 * len(per_block),
-                                    extra=[redundancy]), config=gates)
+                                    extra=[redundancy] + ([tilt] if tilt is not None else [])), config=gates)
     if result.status != "ok":
         g = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3)
         for hint in orientation_hints(campaign.w, g):

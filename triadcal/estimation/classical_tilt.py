@@ -1,0 +1,76 @@
+"""The classical method's check of the bench tilt on a plan whose up/down groups are not half-turn
+pairs (docs/classical.md, "Tilt on other plans").
+
+Eq. 2's pairing cancels a bench tilt exactly when the two positions of a group are a half turn apart
+about the vertical (docs/classical.md, "Tilt cancels exactly"). On other plans (the six faces of a
+cube, reached by a two-axis bench) the tilt enters the angles and the biases with a factor up to 1
+(``classical.tilt_sensitivity``; the per-block notes give it), and the method's uncertainty knows
+nothing of it: a 6-face campaign on a bench tilted by 50 arcsec gave Ca_zx 91 u and S_x 88 u off the
+truth with status ok (an outside probe).
+
+The redundant positions can see the tilt: the per-setpoint linear model of each output,
+``W_a = sum_b W_a^b g_b + bias`` (:func:`~triadcal.estimation.classical.residual_design`'s first
+four columns), against the same model with the two first-order tilt columns ``e_a . (base e_x, e_y
+in the IMU frame)``. The drop of the residual sum of squares over the blocks and outputs, with each
+mean output divided by its standard uncertainty (the noise the method uses), is chi^2 with the
+estimable tilt directions' count as dof when there is no tilt (a nested linear test; Seber & Lee
+2003, ch. 4). Significant at the goodness-of-fit gate's level (p < ``gof_p_min``): the gate fails
+with status ``model_mismatch`` and says to fit with ``--method joint``, which estimates the tilt.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+from scipy import stats
+
+from .gates import DEFAULT_CONFIG, GateConfig, GateOutcome
+
+#: a block whose largest leak factor (tilt -> an angle) is below this is a half-turn-pair block
+LEAK_MIN = 1e-6
+
+
+def tilt_leak_gate(campaign, blocks, sigma: np.ndarray, config: GateConfig = DEFAULT_CONFIG,
+                   noise_dof: Optional[int] = None):
+    """The gate ``tilt_leak`` (None when every block's groups are half-turn pairs: the tilt cancels).
+
+    ``blocks``: dicts with ``idx`` (the block's visits) and ``leak`` (its largest leak factor);
+    ``sigma``: (n, 3) standard uncertainty of each mean output (output unit); ``noise_dof``: the
+    degrees of freedom of ``sigma`` when it was estimated from residuals (then the statistic over its
+    dof is F(dof, noise_dof), not chi2/dof: with the 5 dof of a 6-face campaign at 5 setpoints the
+    chi2 test rejected 37 % of tilt-free campaigns, the F test 10 % at the 10 % level), None when it
+    is the data's own noise (``sd_*``)."""
+    from .classical import residual_design
+
+    leaky = [b for b in blocks if b["leak"] > LEAK_MIN]
+    if not leaky:
+        return None
+    worst = max(b["leak"] for b in leaky)
+    chi2, dof = 0.0, 0
+    for b in leaky:
+        idx = b["idx"]
+        for a in range(3):
+            s = sigma[idx, a]
+            X = residual_design(campaign.axis1_deg[idx], campaign.axis2_deg[idx], np.eye(3)[a]) / s[:, None]
+            y = campaign.w[idx, a] / s
+            full, red = np.linalg.matrix_rank(X), np.linalg.matrix_rank(X[:, :4])
+            if full <= red or len(idx) <= full:
+                continue                   # no estimable tilt direction, or no redundancy left to test it
+            r_full = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
+            r_red = y - X[:, :4] @ np.linalg.lstsq(X[:, :4], y, rcond=None)[0]
+            chi2 += float(r_red @ r_red - r_full @ r_full)
+            dof += full - red
+    what = (f"the up/down groups of {len(leaky)} of {len(blocks)} setpoint(s) are not half-turn pairs, so a bench "
+            f"tilt enters the angles with a factor up to {worst:.3g}")
+    if dof == 0:
+        return GateOutcome("tilt_leak", None, "model_mismatch",
+                           what + "; the plan cannot test for a tilt (no redundant position sees it): the angles "
+                                  "hold whatever tilt the bench has")
+    p = float(stats.chi2.sf(chi2, dof) if not noise_dof else stats.f.sf(chi2 / dof, dof, noise_dof))
+    test = "chi2" if not noise_dof else f"F({dof}, {noise_dof}) = {chi2 / dof:.4g}, chi2"
+    fails = p < config.gof_p_min
+    reason = (what + f"; the redundant positions test for a tilt: {test} = {chi2:.4g} on {dof} dof, p = {p:.2g}"
+              + (f" < {config.gof_p_min:g}: the bench is tilted, and the classical angles and biases carry it "
+                 "(their u does not); fit with --method joint, which estimates the tilt" if fails else ""))
+    return GateOutcome("tilt_leak", not fails, "model_mismatch", reason, p, f"p >= {config.gof_p_min:g}")
