@@ -506,7 +506,7 @@ def _gate_degenerate(ev: FitEvidence, cfg: GateConfig) -> GateOutcome:
     return GateOutcome("residuals", ok, "degenerate",
                        f"residual RMS {r:.3g} against data RMS {d:.3g}" + ("" if ok else
                        ": the model reproduces the data exactly with free parameters left, a degenerate answer "
-                       "(e.g. every scale factor driven to 0)"), r / max(d, 1e-300), f"> {cfg.zero_residual_rel:g}")
+                       "(every scale factor driven to 0, or data without noise, which no measurement is)"), r / max(d, 1e-300), f"> {cfg.zero_residual_rel:g}")
 
 
 def _gate_gof(ev: FitEvidence, cfg: GateConfig) -> GateOutcome:
