@@ -41,6 +41,10 @@ def test_offset_binary_counts_give_the_signed_answer(signed):
         assert r[f"S_{a}"].value == pytest.approx(signed[f"S_{a}"].value + 32768 * r[f"K_{a}"].value, abs=1e-5)
     for n in ("Ca_xy", "Ca_xz", "Ca_yz"):
         assert r[n].value == pytest.approx(signed[n].value, abs=0.01 * signed[n].u)
+    # the orientations are counted on the calibrated means: the raw ones all point near (32768, 32768,
+    # 32768) and read as one orientation, with a note that K, S and the angles cannot be told apart
+    assert r.fit["distinct_orientations"] == signed.fit["distinct_orientations"] > 9
+    assert not any("distinct orientation" in n for n in r.notes), r.notes
 
 
 @pytest.mark.parametrize("scale, unit", [(9.81 / 2048, "m/s2"), (1.0 / 2048 * 9.81 / 9.80665, "g")])

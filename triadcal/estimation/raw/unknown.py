@@ -141,8 +141,8 @@ ORIENTATION_SEPARATION_DEG = 10.0
 
 def distinct_orientations(w: np.ndarray, separation_deg: float = ORIENTATION_SEPARATION_DEG) -> int:
     """How many distinct directions the interval means ``w`` (n, 3) point in: greedy clusters
-    of unit vectors closer than ``separation_deg`` (the offset is small against g, so the raw
-    means' directions are the poses' to within a few degrees)."""
+    of unit vectors closer than ``separation_deg``. Give calibrated means (g): a raw reading's
+    offset need not be small against g (offset-binary counts sit at 32768)."""
     u = np.asarray(w, float)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
     centres = []
@@ -200,7 +200,9 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
     notes = ["gravity-norm model: a rotation of the IMU frame is unobservable from norms, so the frame is imu_tk's "
              "(Z along the Z sensing axis, the Y sensing axis in the Y-Z plane): Ca_zx = Ca_zy = Ca_yx = 0 by "
              "definition and only Ca_xy, Ca_xz, Ca_yz are estimated"]
-    k_orient = distinct_orientations(avg.w)
+    # on the calibrated means: the raw ones of offset-binary counts all point near (32768, 32768, 32768)
+    # and counted as one orientation (an outside probe); equal raw means stay equal whatever K and S
+    k_orient = distinct_orientations(calibrated_acceleration(K, S, Ca, avg.w))
     if k_orient < len(NORM_NAMES):
         notes.append(f"the {n} static intervals show only {k_orient} distinct orientation{'s' if k_orient != 1 else ''} "
                      f"(directions {ORIENTATION_SEPARATION_DEG:g} deg apart or more): the gravity-norm model's "
