@@ -45,6 +45,9 @@ def test_offset_binary_counts_give_the_signed_answer(signed):
     # 32768) and read as one orientation, with a note that K, S and the angles cannot be told apart
     assert r.fit["distinct_orientations"] == signed.fit["distinct_orientations"] > 9
     assert not any("distinct orientation" in n for n in r.notes), r.notes
+    # the summary gives the gate's goodness of fit, not "chi2/dof not computed"
+    from triadcal.reports.summary import summary_text
+    assert f"noise floor of the interval means = {r.fit['noise_floor_ratio']:.3f}" in summary_text(r)
 
 
 @pytest.mark.parametrize("scale, unit", [(9.81 / 2048, "m/s2"), (1.0 / 2048 * 9.81 / 9.80665, "g")])

@@ -57,6 +57,11 @@ def summary_text(result: CalibrationResult) -> str:
             bits.append(_estimated_noise_text(c, str(fit.get("noise") or ""), result.extra.get("output_unit")))
         elif isinstance(c, (int, float)) and c == c:
             bits.append(f"chi2/dof = {c:.3f}")
+        elif isinstance(fit.get("noise_floor_ratio"), (int, float)):
+            # a raw recording's gravity-norm fit: its goodness of fit is the residual variance over the
+            # recording's own noise floor of the interval means (the gate's ratio)
+            bits.append(f"residual variance / noise floor of the interval means = {fit['noise_floor_ratio']:.3f}"
+                        + (f" ({fit['dof']} dof)" if "dof" in fit else ""))
         else:
             bits.append("chi2/dof not computed (no degrees of freedom or no residuals)")
         if "n_obs" in fit:
