@@ -52,6 +52,11 @@ def make_result(values, u=2.0, unit_name="SN-1", corr=None, method="joint", extr
     params = {n: ParameterValue(v, u if np.isscalar(u) else u[i], "arcsec") for i, (n, v) in enumerate(zip(ANGLES, values))}
     params.update(extra_params or {})
     r = CalibrationResult(unit=unit_name, method=method, parameters=params, effects=("bench_tilt",))
+    # the parameters of its model it does not hold are held (as the joint fit records them), so that
+    # the result reads back (the reader refuses an incomplete result)
+    from triadcal.models.model import Model
+    m = Model(r.effects)
+    r.extra["fixed"] = {n: {"value": m.spec[n].nominal, "unit": m.spec[n].unit} for n in m.names if n not in params}
     if corr is not None:
         r.correlation_names, r.correlation = ANGLES, np.asarray(corr, float)
     return r

@@ -40,6 +40,9 @@ def _result(xy, zx, u_a, u_s=5.0, budget=True):
     params["Ca_xy"] = _param(xy, u_a, +1.0 if budget else None, u_s)
     params["Ca_zx"] = _param(zx, u_a, -1.0 if budget else None, u_s)
     r = CalibrationResult(unit="SN-1", method="joint", parameters=params, effects=("bench_tilt",))
+    from triadcal.models.model import Model
+    m = Model(r.effects)       # what it does not hold is held, so that it reads back
+    r.extra["fixed"] = {n: {"value": m.spec[n].nominal, "unit": m.spec[n].unit} for n in m.names if n not in params}
     R = np.eye(6)
     if budget:
         i, j = ANGLES.index("Ca_xy"), ANGLES.index("Ca_zx")

@@ -22,6 +22,9 @@ from ..models.effects import BENCH_EFFECTS
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, dcm
 from ..models.units import ARCSEC, TO_INTERNAL
+from .result_reader import (_NAME, ResultFormatError, _check_complete, _check_fit, _check_gates,  # noqa: F401
+                            _check_intervals, _check_scale_units, _check_unit, _kind, _read_correlation,
+                            _read_fixed, _read_uncertainty, _Reader)
 
 #: the 97.5 % point of the standard normal: a 95 % two-sided interval is value +- Z95 u
 Z95 = float(ndtri(0.975))
@@ -30,7 +33,6 @@ FORMAT = "triadcal.result"
 #: the estimators that write results (docs/results-json.md)
 METHODS = ("classical", "joint", "posterior")
 VERSION = 1
-METHODS = ("classical", "joint", "posterior")
 
 
 @dataclass
@@ -87,7 +89,9 @@ class CalibrationResult:
         return {k: v.value for k, v in self.parameters.items()}
 
     def covariance(self, names: Sequence[str]) -> np.ndarray:
-        """Covariance (reporting units) of ``names``; uncorrelated where no correlation is known."""
+        """Covariance (reporting units) of ``names``; uncorrelated where no correlation is known.
+        A null (not finite) correlation of a parameter whose u is 0 gives covariance 0 (the only
+        place the reader lets a null through, :func:`_read_correlation`)."""
         u = np.array([self.parameters[n].u for n in names])
         R = np.eye(len(names))
         if self.correlation is not None:
@@ -95,7 +99,8 @@ class CalibrationResult:
             for i, a in enumerate(names):
                 for j, b in enumerate(names):
                     if a in index and b in index:
-                        R[i, j] = self.correlation[index[a], index[b]]
+                        c = self.correlation[index[a], index[b]]
+                        R[i, j] = 0.0 if not math.isfinite(c) and (u[i] == 0 or u[j] == 0) else c
         return R * np.outer(u, u)
 
     # -- JSON ----------------------------------------------------------------------
@@ -118,48 +123,24 @@ class CalibrationResult:
     def from_dict(cls, d: dict, source: str = "<dict>") -> "CalibrationResult":
         """Read a results-json v1 document, validating every field it uses: a
         :class:`ResultFormatError` (one line, naming ``source`` and the JSON path of the field)
-        for a wrong type, a missing key or an unknown unit. ``null`` where a number is expected
-        means "not finite" (the writer turns NaN and infinities into null) and is read as NaN:
-        the answer gates of a consumer (:func:`~triadcal.estimation.gates.check_result_for_use`)
-        then refuse it by name."""
+        for a wrong type, a missing key, an unknown unit, a unit other than the one the parameter
+        is written in, a result that lacks a parameter of its own model, an expanded uncertainty
+        that is not k u, a correlation matrix that is not one, and the other violations of the
+        schema in docs/results-json.md. ``null`` where a number is expected means "not finite"
+        (the writer turns NaN and infinities into null) and is read as NaN: the answer gates of a
+        consumer (:func:`~triadcal.estimation.gates.check_result_for_use`) then refuse it by name."""
         require_format(d, FORMAT, VERSION, source, "a calibration result", "result")
         known = {"format", "version", "unit", "method", "status", "effects", "reference_temperature_C",
                  "temperature_range_C", "parameters", "intervals", "fit", "notes", "correlation"}
         r = _Reader(source)
-        params = {}
-        for k, v in r.mapping(d, "parameters", required=True).items():
-            where = f"parameters.{k}"
-            if not isinstance(v, dict):
-                raise r.error(where, f"is a {_kind(v)}, expected an object with value, u and unit")
-            unit = r.string(v, "unit", where)
-            if unit not in TO_INTERNAL and not unit.startswith("g/"):
-                raise r.error(f"{where}.unit", f"{unit!r} is not a unit this triadcal knows")
-            params[k] = ParameterValue(r.number(v, "value", where), r.number(v, "u", where), unit,
-                                       _read_uncertainty(r, v, where))
+        serial = r.string(d, "unit")
+        method = r.string(d, "method")
+        if method not in METHODS:
+            raise r.error("method", f"{method!r} is not one of {', '.join(METHODS)}")
         status = r.string(d, "status")
         from .gates import STATUSES
         if status not in STATUSES:
             raise r.error("status", f"{status!r} is not one of {', '.join(STATUSES)}")
-        corr = d.get("correlation")
-        names, matrix = (), None
-        if corr is not None:
-            if not isinstance(corr, dict):
-                raise r.error("correlation", f"is a {_kind(corr)}, expected an object with names and matrix")
-            names = tuple(r.string_list(corr, "names", "correlation"))
-            rows = corr.get("matrix")
-            if not (isinstance(rows, list) and len(rows) == len(names)
-                    and all(isinstance(row, list) and len(row) == len(names) for row in rows)):
-                raise r.error("correlation.matrix", f"is not a {len(names)} x {len(names)} list of lists")
-            matrix = np.array([[r.number_value(x, f"correlation.matrix[{i}][{j}]") for j, x in enumerate(row)]
-                               for i, row in enumerate(rows)], float)
-        trange = d.get("temperature_range_C")
-        if trange is not None:
-            if not (isinstance(trange, list) and len(trange) == 2):
-                raise r.error("temperature_range_C", "is not a list [low, high]")
-            trange = tuple(r.number_value(x, f"temperature_range_C[{i}]") for i, x in enumerate(trange))
-        method = r.string(d, "method")
-        if method not in METHODS:
-            raise r.error("method", f"{method!r} is not one of {', '.join(METHODS)}")
         effects = tuple(r.string_list(d, "effects", required=False))
         from ..models.effects import EFFECTS
 
@@ -167,12 +148,59 @@ class CalibrationResult:
         if unknown:
             raise r.error("effects", f"{', '.join(map(repr, unknown))} is not an effect of the model "
                                      f"({', '.join(EFFECTS)})")
+        output_unit = r.optional_string(d, "output_unit")
+        r.optional_string(d, "input_unit")
+        if d.get("source") is not None and not isinstance(d["source"], str):
+            raise r.error("source", f"is a {_kind(d['source'])}, expected a string or null")
+        g = d.get("local_g_m_s2")
+        if g is not None:
+            g = r.number_value(g, "local_g_m_s2")
+            if not (math.isfinite(g) and g > 0):
+                raise r.error("local_g_m_s2", f"= {g!r} is not a positive acceleration in m/s^2")
+        params = {}
+        for k, v in r.mapping(d, "parameters", required=True).items():
+            where = f"parameters.{k}"
+            if not _NAME.match(k):
+                raise r.error(where, "is not a parameter name (a letter, then letters, digits and _)")
+            if not isinstance(v, dict):
+                raise r.error(where, f"is a {_kind(v)}, expected an object with value, u and unit")
+            unit = r.string(v, "unit", where)
+            if unit not in TO_INTERNAL and not unit.startswith("g/"):
+                raise r.error(f"{where}.unit", f"{unit!r} is not a unit this triadcal knows")
+            _check_unit(r, k, unit, output_unit, f"{where}.unit")
+            value, u = r.number(v, "value", where), r.number(v, "u", where)
+            if u < 0:
+                raise r.error(f"{where}.u", f"= {u!r} is negative (a standard uncertainty is >= 0)")
+            params[k] = ParameterValue(value, u, unit, _read_uncertainty(r, v, where, u))
+        if not params:
+            raise r.error("parameters", "is empty: the result holds no parameters")
+        _check_scale_units(r, params)
+        fixed = _read_fixed(r, d, output_unit)
+        unidentifiable = d.get("unidentifiable")
+        if unidentifiable is not None and not (isinstance(unidentifiable, dict)
+                                               and all(isinstance(x, str) for x in unidentifiable.values())):
+            raise r.error("unidentifiable", f"is a {_kind(unidentifiable)}, expected an object "
+                                            "parameter -> reason (a string)")
+        fit = r.mapping(d, "fit")
+        _check_fit(r, fit)
+        _check_complete(r, method, effects, params, fixed, unidentifiable or {}, fit)
+        names, matrix = _read_correlation(r, d.get("correlation"), params)
+        trange = d.get("temperature_range_C")
+        if trange is not None:
+            if not (isinstance(trange, list) and len(trange) == 2):
+                raise r.error("temperature_range_C", "is not a list [low, high]")
+            trange = tuple(r.number_value(x, f"temperature_range_C[{i}]") for i, x in enumerate(trange))
+            if trange[0] > trange[1]:
+                raise r.error("temperature_range_C", f"= [{trange[0]:g}, {trange[1]:g}]: low is above high "
+                                                     "(the range is [lowest, highest] temperature in the data)")
         ref = d.get("reference_temperature_C", 20.0)
+        intervals = r.mapping(d, "intervals")
+        _check_intervals(r, intervals)
+        _check_gates(r, d.get("gates"), "gates" in d)
         return cls(
-            unit=r.string(d, "unit"), method=method, parameters=params, status=status, effects=effects,
+            unit=serial, method=method, parameters=params, status=status, effects=effects,
             reference_temperature_C=r.number_value(ref, "reference_temperature_C"),
-            temperature_range_C=trange,
-            intervals=r.mapping(d, "intervals"), fit=r.mapping(d, "fit"),
+            temperature_range_C=trange, intervals=intervals, fit=fit,
             correlation_names=names, correlation=matrix,
             notes=r.string_list(d, "notes", required=False), extra={k: v for k, v in d.items() if k not in known})
 
@@ -258,104 +286,6 @@ class CalibrationResult:
         angles = {k[3:]: self.parameters[k].value * ARCSEC for k in self.parameters
                   if k.startswith("Ca_") and len(k) == 5}
         return np.array(dcm(angles), float)
-
-
-class ResultFormatError(InputError):
-    """A results-json document with a field of the wrong type, missing or unknown (one line)."""
-
-
-#: the budget fields of a parameter (docs/results-json.md) and the row fields
-UNCERTAINTY_FIELDS = ("u_type_a", "U", "k", "coverage_probability", "dof_eff", "U_method", "budget")
-BUDGET_ROW_NUMBERS = ("u", "sensitivity", "contribution")
-
-
-def _read_uncertainty(r: "_Reader", v: dict, where: str) -> dict:
-    """The budget fields of ``parameters.NAME``, validated (numbers finite and >= 0 where they
-    are uncertainties, the rows' fields typed); {} when there is no budget."""
-    out = {}
-    for key in UNCERTAINTY_FIELDS:
-        if key not in v:
-            continue
-        x = v[key]
-        if key == "budget":
-            if not isinstance(x, list):
-                raise r.error(f"{where}.budget", f"is a {_kind(x)}, expected a list of rows")
-            rows = []
-            for i, row in enumerate(x):
-                w = f"{where}.budget[{i}]"
-                if not isinstance(row, dict):
-                    raise r.error(w, f"is a {_kind(row)}, expected an object")
-                r.string(row, "source", w)
-                for n in BUDGET_ROW_NUMBERS:
-                    if row.get(n) is not None:
-                        r.number(row, n, w)
-                if row.get("contribution") is not None and row["contribution"] < 0:
-                    raise r.error(f"{w}.contribution", "is negative")
-                rows.append(dict(row))
-            out[key] = rows
-        elif key == "U_method":
-            out[key] = r.string(v, key, where)
-        elif key == "dof_eff" and x is None:
-            out[key] = None           # infinite
-        else:
-            val = r.number(v, key, where)
-            if val < 0 or (key == "coverage_probability" and val >= 1):
-                raise r.error(f"{where}.{key}", f"= {val!r} is out of range")
-            out[key] = val
-    return out
-
-
-def _kind(v) -> str:
-    return {type(None): "null", bool: "boolean", str: "string", list: "list", dict: "object"}.get(
-        type(v), "number" if isinstance(v, (int, float)) else type(v).__name__)
-
-
-class _Reader:
-    """Typed access to a JSON tree with errors naming the source and the field's JSON path."""
-
-    def __init__(self, source: str):
-        self.source = source
-
-    def error(self, where: str, what: str) -> ResultFormatError:
-        return ResultFormatError(f"{self.source}: {where} {what}")
-
-    def number_value(self, v, where: str) -> float:
-        if v is None:
-            return math.nan                  # the writer's null: "not finite"
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.error(where, f"is a {_kind(v)} ({v!r:.40}), expected a number")
-        return float(v)
-
-    def number(self, d: dict, key: str, where: str) -> float:
-        if key not in d:
-            raise self.error(f"{where}.{key}", "is missing")
-        return self.number_value(d[key], f"{where}.{key}")
-
-    def string(self, d: dict, key: str, where: str = "") -> str:
-        path = f"{where}.{key}" if where else key
-        if key not in d:
-            raise self.error(path, "is missing")
-        v = d[key]
-        if not isinstance(v, str):
-            raise self.error(path, f"is a {_kind(v)}, expected a string")
-        return v
-
-    def string_list(self, d: dict, key: str, where: str = "", required: bool = True) -> list:
-        path = f"{where}.{key}" if where else key
-        v = d.get(key)
-        if v is None and not required:
-            return []
-        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
-            raise self.error(path, f"is a {_kind(v)}, expected a list of strings")
-        return list(v)
-
-    def mapping(self, d: dict, key: str, required: bool = False) -> dict:
-        v = d.get(key)
-        if v is None and not required:
-            return {}
-        if not isinstance(v, dict):
-            raise self.error(key, "is missing" if v is None else f"is a {_kind(v)}, expected an object")
-        return v
 
 
 def significant(x: float, digits: int) -> str:

@@ -129,9 +129,93 @@ def _no_constant(name):
     raise InputError(f"{name} is not JSON (a non-finite number must be written as null)")
 
 
+class _DuplicateKey(ValueError):
+    """A key that occurs twice in one JSON object (raised by :func:`_unique_keys`)."""
+
+    def __init__(self, key: str):
+        super().__init__(key)
+        self.key = key
+
+
+def _unique_keys(pairs):
+    """``object_pairs_hook`` of :func:`read_json`: an object, refused when a key repeats (the
+    standard library would keep the last value without a word: ``"status": "model_mismatch",
+    "status": "ok"`` would read as ok)."""
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(k)
+        out[k] = v
+    return out
+
+
+def _duplicate_key_at(text: str):
+    """``(key, line, path)`` of the first key that repeats in an object of ``text`` (JSON that
+    the parser has read up to that key), or None. A walk over the tokens that keeps one set of
+    keys per open object; only run once the parser has found a duplicate."""
+    stack = []          # per open container: [its keys (None: a list), its path, last key or index]
+    i, n, line = 0, len(text), 1
+    expect_key = False  # after "{" or after "," in an object: the next string is a key
+    while i < n:
+        c = text[i]
+        if c in " \t\r\n":
+            line += c == "\n"
+            i += 1
+            continue
+        if c == '"':
+            j = i + 1
+            while j < n and text[j] != '"':
+                j += 2 if text[j] == "\\" else 1
+            token = text[i:j + 1]
+            k = j + 1
+            while k < n and text[k] in " \t\r\n":
+                k += 1
+            if expect_key and stack and stack[-1][0] is not None and k < n and text[k] == ":":
+                try:
+                    key = json.loads(token)
+                except ValueError:
+                    key = token
+                if key in stack[-1][0]:
+                    return key, line, stack[-1][1]
+                stack[-1][0].add(key)
+                stack[-1][2] = key
+            line += token.count("\n")
+            i = j + 1
+            expect_key = False
+            continue
+        expect_key = False
+        if c == "{":
+            stack.append([set(), _child_path(stack), None])
+            expect_key = True
+        elif c == "[":
+            stack.append([None, _child_path(stack), 0])
+        elif c in "}]":
+            if stack:
+                stack.pop()
+        elif c == "," and stack:
+            if stack[-1][0] is None:
+                stack[-1][2] += 1
+            else:
+                expect_key = True
+        i += 1
+    return None
+
+
+def _child_path(stack) -> str:
+    """The JSON path of a container that opens inside the innermost one of ``stack``."""
+    if not stack:
+        return ""
+    keys, path, last = stack[-1]
+    if keys is None:
+        return f"{path}[{last}]"
+    return f"{path}.{last}" if path else str(last)
+
+
 def read_json(path):
     """A JSON document from ``path`` with one-line errors naming the file and line: not UTF-8,
-    not JSON, NaN or Infinity tokens (not JSON), nesting too deep, a file that is not there."""
+    not JSON, NaN or Infinity tokens (not JSON), a key given twice in one object (JSON leaves
+    its meaning open; Python would keep the last one silently), nesting too deep, a file that
+    is not there."""
     try:
         text = Path(path).read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -139,7 +223,16 @@ def read_json(path):
     except OSError as exc:
         raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     try:
-        return json.loads(text, parse_constant=_no_constant)
+        return json.loads(text, parse_constant=_no_constant, object_pairs_hook=_unique_keys)
+    except _DuplicateKey as exc:
+        found = _duplicate_key_at(text)
+        if found is None:
+            raise InputError(f"{path}: the key {exc.key!r} occurs twice in one object (which value is meant "
+                             "is ambiguous)") from None
+        key, line, where = found
+        field = f"{where}.{key}" if where else key
+        raise InputError(f"{path}:{line}: {field}: the key {key!r} occurs twice in one object (which value is "
+                         "meant is ambiguous)") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
     except ValueError as exc:

@@ -9,6 +9,7 @@ two-column start/end CSV, imucal's session-list JSON). Derivation/design: docs/r
 from __future__ import annotations
 
 from ..errors import InputError
+from .atomic import _DuplicateKey, _unique_keys
 
 import csv
 import json
@@ -401,23 +402,6 @@ def read_intervals(path) -> IntervalSpec:
     if np.any(s != np.round(s)) or np.any(e != np.round(e)):
         raise RawRecordingError(path, None, None, "interval limits must be whole sample indices")
     return _checked(IntervalSpec(s.astype(int), e.astype(int), None, path))
-
-
-class _DuplicateKey(ValueError):
-    def __init__(self, key):
-        super().__init__(key)
-        self.key = key
-
-
-def _unique_keys(pairs):
-    """``object_pairs_hook`` of the session-list JSON: a key given twice is an error, not the last
-    one silently kept."""
-    out = {}
-    for k, v in pairs:
-        if k in out:
-            raise _DuplicateKey(k)
-        out[k] = v
-    return out
 
 
 def _checked(spec: IntervalSpec) -> IntervalSpec:
