@@ -411,9 +411,9 @@ def test_data_of_another_unit_is_refused(tmp_path):
 COMPARISON = {
     "format": "triadcal.comparison", "version": 1, "unit": "SN-GOLD-0001",
     "rule": "fail when the drift exceeds 30 arcsec with probability > 95 %",
-    "parameters": {"Ca_xy": {"drift": 13.83, "u": 4.1, "unit": "arcsec", "En": 1.69, "p_exceeds": 1e-4,
+    "parameters": {"Ca_xy": {"drift": 13.83, "u": 4.1, "unit": "arcsec", "En": 1.69, "tolerance": 30.0,
                              "verdict": "pass"},
-                   "Ca_yz": {"drift": -51.34, "u": 4.1, "unit": "arcsec", "En": 6.3, "p_exceeds": 0.9999,
+                   "Ca_yz": {"drift": -51.34, "u": 4.1, "unit": "arcsec", "En": 6.3, "tolerance": 30.0,
                              "verdict": "fail"},
                    "K_x": {"drift": 3.1e-6, "u": 1.9e-6, "unit": "g/V", "En": 0.82, "p_exceeds": 0.01,
                            "verdict": "pass"}},
@@ -505,7 +505,7 @@ def _lab(tmp_path, text):
 
 
 def test_expired_equipment_refuses_the_certificate_unless_allowed_and_then_prints_it(tmp_path):
-    r = hand_result()
+    r = hand_result(method="classical")     # a joint hand result holds no lab's Type B rows: refused for that
     lab = _lab(tmp_path, C.EXAMPLE_LAB_TOML.replace("due = 2027-06-30", "due = 2025-06-30"))
     assert lab.equipment["bench"] == {"instrument": "two-axis table, serial 0001", "certificate": "ANG-2026-0417",
                                       "due": "2025-06-30"}
@@ -522,6 +522,7 @@ def test_the_labs_systematic_errors_and_gravity_enter_the_certificate(tmp_path):
     """A classical result (no budget of its own): eq. 4-7 with the systematic rows at
     sensitivity 1, the largest case."""
     r = hand_result(method="classical")
+    r.extra["local_g_m_s2"] = 9.8112          # fitted with the lab's g (another g is refused)
     text = C.EXAMPLE_LAB_TOML.replace("# local_g_m_s2 = 9.8112", "local_g_m_s2 = 9.8112").replace(
         "# u_ppm = 10", "u_ppm = 10")
     cert = C.build_certificate(r, lab=_lab(tmp_path, text), issue_date=ISSUE_DATE, plots=False)

@@ -102,9 +102,14 @@ def test_compare_never_passes_a_side_that_is_not_an_answer(tmp_path, capsys, goo
 
 
 def test_the_unmutated_result_certifies_and_compares(tmp_path, capsys, good):
-    a, b = _write(tmp_path, good, "a.json"), _write(tmp_path, good, "b.json")
+    import copy
+    second = copy.deepcopy(good)                 # a second calibration (the same one twice is never a pass)
+    second["parameters"]["Ca_xy"]["value"] += 0.1
+    a, b = _write(tmp_path, good, "a.json"), _write(tmp_path, second, "b.json")
     code, out, err = _run(capsys, ["compare", str(a), str(b), "--json", str(tmp_path / "c.json")])
     assert code == 0 and "overall: pass" in out
+    code, out, err = _run(capsys, ["compare", str(a), str(_write(tmp_path, good, "a2.json"))])
+    assert "overall: pass" not in out and "inconclusive" in out
     code, out, err = _run(capsys, ["certificate", str(a), "--html", str(tmp_path / "c.html")])
     assert code == 0 and "issued" in out
 

@@ -14,7 +14,7 @@ from ..errors import InputError
 
 import sys
 
-from ._common import add_output_options, assignments, name_list, output
+from ._common import add_output_options, name_list, output
 
 
 def register(sub) -> None:
@@ -41,8 +41,9 @@ def register(sub) -> None:
                    help="tolerance on each angle's drift with its unit: arcsec, arcmin or deg "
                         "(default 30arcsec, the paper's limit); 'none' for significance only")
     p.add_argument("--param-tolerance", action="append", metavar="NAME=VALUE",
-                   help="tolerance of another parameter in its own unit, e.g. K_x=2e-5 (repeatable); "
-                        "it then enters the overall verdict")
+                   help="tolerance of one parameter in its own unit, e.g. K_x=2e-5 or Ca_xy=10 (arcsec; an angle "
+                        "given one is judged against it instead of --tolerance) (repeatable); it then enters the "
+                        "overall verdict; a finite number >= 0")
     p.add_argument("--correlation", default=None,
                    help="correlation coefficient rho between the two calibrations' errors (default: derived, "
                         "0 for fitted results and published tables; the reason is written in the output)")
@@ -69,8 +70,11 @@ def run(args) -> int:
                                       read_published_table)
 
     say = output(args).say
-    tolerance = parse_tolerance(args.tolerance)
-    tolerances = assignments(args.param_tolerance)
+    try:
+        tolerance = parse_tolerance(args.tolerance)
+    except InputError as exc:
+        raise InputError(f"--tolerance {args.tolerance}: {exc}") from None
+    tolerances = _param_tolerances(args.param_tolerance)
     correlation = "auto" if args.correlation in (None, "auto") else _float(args.correlation, "--correlation")
     shared = _shared_equipment(args)
 
@@ -119,7 +123,7 @@ def run(args) -> int:
         out = compare(before, after, tolerance_arcsec=tolerance, tolerances=tolerances,
                       posterior_before=args.posterior_before, posterior_after=args.posterior_after,
                       correlation=correlation, level=args.level, shared_equipment=shared,
-                      label=f"{_stem(args.results[0])} -> {_stem(args.results[1])}")
+                      label=f"{_stem(args.results[0])} -> {_stem(args.results[1])}", files=tuple(args.results))
         say(_comparison_text(out))
         _print_footer(out, say)
         say(f"overall: {out.overall}")
@@ -137,6 +141,14 @@ def run(args) -> int:
         say(f"plot written to {args.plot}")
     for note in getattr(out, "notes", []):
         print(f"note: {note}", file=sys.stderr)
+    if args.sequence:
+        # a comparison whose pass was held back says why (a same calibration, a missing angle)
+        from ..judgement.compare import NOT_PASS_NOTE
+
+        for c in out.steps + out.cumulative:
+            for note in c.notes:
+                if note.startswith(NOT_PASS_NOTE):
+                    print(f"note: {c.label}: {note}", file=sys.stderr)
     if args.exit_code:
         return {"pass": 0, "fail": 4, "inconclusive": 5}[out.overall]
     return 0
@@ -207,6 +219,32 @@ def _stem(path: str) -> str:
     from pathlib import Path
 
     return Path(path).stem
+
+
+def _param_tolerances(items) -> dict:
+    """``['K_x=2e-5', 'Ca_xy=10']`` -> ``{'K_x': 2e-05, 'Ca_xy': 10.0}``; each a finite number >= 0,
+    refused naming the option and the value otherwise."""
+    from ..judgement.compare import check_tolerance
+
+    out = {}
+    for item in items or ():
+        if "=" not in item:
+            raise InputError(f"--param-tolerance {item}: expected NAME=VALUE, e.g. K_x=2e-5")
+        k, v = (x.strip() for x in item.split("=", 1))
+        if not k:
+            raise InputError(f"--param-tolerance {item}: no parameter name")
+        try:
+            value = float(v)
+        except ValueError:
+            raise InputError(f"--param-tolerance {item}: {v!r} is not a number (in the parameter's own unit; "
+                             "leave the parameter out for significance only)") from None
+        if k in out:
+            raise InputError(f"--param-tolerance {item}: {k} is given twice")
+        try:
+            out[k] = check_tolerance(value, f"the tolerance of {k}")
+        except InputError as exc:
+            raise InputError(f"--param-tolerance {item}: {exc}") from None
+    return out
 
 
 def _float(text: str, what: str) -> float:

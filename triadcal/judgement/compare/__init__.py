@@ -12,6 +12,7 @@ from .rule import (  # noqa: F401
     VERDICTS,
     _TOLERANCE_ALIASES,
     _TOLERANCE_UNITS,
+    check_tolerance,
     combined_covariance,
     coverage_factors,
     decide,
@@ -21,20 +22,25 @@ from .rule import (  # noqa: F401
     parse_tolerance,
     probability_exceeds,
     rule_text,
+    verdict_from_probability,
 )
 from .correlation import (  # noqa: F401
     CORRELATION_TERMS,
     POSTERIOR_PAIRS,
     SharedErrors,
+    POSTERIOR_MEAN_TOLERANCE,
     budget_equipment,
+    check_posterior,
     derive_correlation,
     posterior_draws,
     posterior_drift,
+    read_posterior,
     shared_errors,
     type_b_rows,
 )
 from .results import (  # noqa: F401
     ANGLES,
+    BASES,
     BENCH_PARAMETERS,
     ComparisonResult,
     FORMAT,
@@ -49,13 +55,17 @@ from .results import (  # noqa: F401
     _num,
     _opt_float,
     _save_json,
+    check_verdict,
 )
 from .pair import (  # noqa: F401
+    NOT_PASS_NOTE,
+    SHAREABLE_EQUIPMENT,
     _describe,
     _is_angle,
     compare,
     joint_test,
     overall_verdict,
+    same_calibration,
 )
 from .sequence import (  # noqa: F401
     SequenceComparison,

@@ -191,6 +191,16 @@ def shared_errors(before: CalibrationResult, after: CalibrationResult, names: Se
     return out
 
 
+def read_posterior(source):
+    """An arviz InferenceData from a netCDF path (the one reader,
+    :func:`triadcal.io.netcdf.read_inference_data`), an InferenceData as is, a dict of draws as is."""
+    if isinstance(source, (str, os.PathLike)):
+        from ...io.netcdf import read_inference_data
+
+        return read_inference_data(source)
+    return source
+
+
 def posterior_draws(source) -> dict:
     """Posterior draws by parameter name from an arviz InferenceData (object or netCDF path).
 
@@ -200,12 +210,7 @@ def posterior_draws(source) -> dict:
     """
     if isinstance(source, dict):
         return {k: (np.asarray(v, float).ravel(), None) for k, v in source.items()}
-    if isinstance(source, (str, os.PathLike)):
-        from ...io.netcdf import read_inference_data
-
-        idata = read_inference_data(source)
-    else:
-        idata = source
+    idata = read_posterior(source)
     if not hasattr(idata, "posterior"):
         raise InputError(f"{source}: has no 'posterior' group (expected arviz InferenceData)")
     post = idata.posterior
@@ -216,6 +221,83 @@ def posterior_draws(source) -> dict:
         unit = var.attrs.get("unit", var.attrs.get("units"))
         out[str(name)] = (np.asarray(var.values, float).ravel(), unit)
     return out
+
+
+#: a posterior whose mean of a parameter lies further than this many standard deviations (the
+#: larger of the draws' SD and the result's u) from the result's value is not that result's
+#: posterior: a posterior of the same data and model differs from its result by a fraction of u
+POSTERIOR_MEAN_TOLERANCE = 1.0
+
+
+#: a parameter-like variable name (the model's naming, docs/results-json.md)
+_PARAMETER_LIKE = re.compile(r"^(K_|S_|Ca_|tilt_)")
+
+
+#: the bench tilt's polar form: derived from tilt_x, tilt_y, in a posterior or a result or neither
+_DERIVED = ("tilt_delta", "tilt_beta")
+
+
+def check_posterior(source, draws: dict, result: CalibrationResult, what: str) -> None:
+    """Refuse a posterior that is not ``result``'s, naming it (``what``: the file, or which side):
+
+    * a parameter in another unit than the result's;
+    * the posterior group's ``unit`` attribute (the serial, written by ``triadcal sample``)
+      differs from the result's unit;
+    * its parameter set differs: a parameter-like variable (``K_``, ``S_``, ``Ca_``, ``tilt_``)
+      the result does not have; for a file written by triadcal, a parameter of the result it
+      does not have;
+    * the certificate's checks of a posterior against its result
+      (:func:`triadcal.reports.certificate.refusal.refusal_reasons` with
+      :func:`~triadcal.reports.certificate.refusal.posterior_diagnostics`, reused as is): the
+      stored convergence fingerprint differs from the result's (not the file written with it),
+      or the draws did not converge;
+    * a posterior mean further than ``POSTERIOR_MEAN_TOLERANCE`` standard deviations from the
+      result's value (swapped posteriors: before's draws with after's result).
+    """
+    for n, (_, unit_p) in draws.items():
+        if n in result.parameters and unit_p is not None and unit_p != result[n].unit:
+            raise InputError(f"{what}: {n} is in {unit_p!r}, the result gives {result[n].unit!r}")
+    idata = None if isinstance(source, dict) else source
+    attrs = dict(getattr(getattr(idata, "posterior", None), "attrs", {}) or {})
+    serial = attrs.get("unit")
+    if isinstance(serial, str) and serial != result.unit:
+        raise InputError(f"{what} is a posterior of unit {serial!r}, its result is of unit {result.unit!r}: "
+                         "give the posterior written with that result")
+    extra = sorted(n for n in draws if _PARAMETER_LIKE.match(n) and n not in result.parameters
+                   and n not in _DERIVED)
+    missing = sorted(n for n in result.parameters if n not in draws and n not in _DERIVED)
+    by_triadcal = str(attrs.get("created_by", "")).startswith("triadcal")
+    if extra or (missing and by_triadcal):
+        bits = ([f"holds {', '.join(extra)}, which its result does not have"] if extra else []) + \
+               ([f"lacks {', '.join(missing)}, which its result has"] if missing and by_triadcal else [])
+        raise InputError(f"{what}: its parameter set differs from its result's ({'; '.join(bits)}): a posterior "
+                         "of another model or unit; give the posterior written with that result")
+    if idata is not None:
+        from ...reports.certificate.refusal import posterior_diagnostics, refusal_reasons
+
+        diag = posterior_diagnostics(idata, list(result.parameters), result)
+        if diag:
+            plain = set(refusal_reasons(result))
+            reasons = [r for r in refusal_reasons(result, posterior_diag=diag) if r not in plain]
+            if reasons:
+                raise InputError(f"{what}: " + "; ".join(reasons))
+    off = []
+    for n, (d, _) in draws.items():
+        if n not in result.parameters or n in _DERIVED or len(d) == 0:
+            continue
+        p = result[n]
+        scale = max(float(np.std(d)), p.u)
+        gap = abs(float(np.mean(d)) - p.value)
+        if not gap <= POSTERIOR_MEAN_TOLERANCE * scale:
+            off.append((gap / scale if scale > 0 else math.inf, n, float(np.mean(d)), p.value, scale, p.unit))
+    if off:
+        off.sort(reverse=True)
+        worst = "; ".join(f"{n}: mean {m:.6g} against the result's {v:.6g} {unit} ({k:.3g} sd)"
+                          for k, n, m, v, _, unit in off[:3])
+        raise InputError(f"{what}: its means disagree with its result's values by more than "
+                         f"{POSTERIOR_MEAN_TOLERANCE:g} standard deviation ({worst}"
+                         f"{f'; and {len(off) - 3} more' if len(off) > 3 else ''}): not this result's posterior "
+                         "(swapped before and after?)")
 
 
 def posterior_drift(draws_before: np.ndarray, draws_after: np.ndarray, seed: int = 0,

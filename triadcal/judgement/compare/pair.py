@@ -4,15 +4,39 @@
 from __future__ import annotations
 from ...errors import InputError
 import math
+import os
 from typing import Mapping, Optional, Sequence, Union
 import numpy as np
 from scipy import stats
 from ...estimation.gates import check_result_for_use
 from ...estimation.result import CalibrationResult
-from ...io.lab import EQUIPMENT_SECTIONS
-from .rule import combined_covariance, coverage_factors, decide, decide_from_draws, drift_uncertainty, normalised_error, probability_exceeds, rule_text
-from .correlation import CORRELATION_TERMS, derive_correlation, posterior_draws, posterior_drift, shared_errors
+from ...io.lab import DISTRIBUTION_SECTIONS, EQUIPMENT_SECTIONS
+from .rule import (check_tolerance, combined_covariance, coverage_factors, decide, decide_from_draws, drift_uncertainty,
+                   normalised_error, probability_exceeds, rule_text)
+from .correlation import (CORRELATION_TERMS, check_posterior, derive_correlation, posterior_draws, posterior_drift,
+                          read_posterior, shared_errors)
 from .results import ANGLES, BENCH_PARAMETERS, ComparisonResult, JointTest, ParameterDrift
+
+
+#: equipment that can be shared: the lab-file sections with systematic errors of their own (Type B
+#: rows, triadcal.uncertainty.typeb), the list the lab file's ``[compare] shared_equipment`` accepts.
+#: ``[chamber]`` has none: its ``temperature_uncertainty_C`` is the thermometers' row ``[thermometers] u_C``
+SHAREABLE_EQUIPMENT = DISTRIBUTION_SECTIONS
+
+
+#: an overall verdict held back from pass (a same calibration, an angle missing on one side) says so in
+#: a note that starts with this
+NOT_PASS_NOTE = "overall verdict not pass: "
+
+
+def same_calibration(before: CalibrationResult, after: CalibrationResult) -> bool:
+    """True when ``before`` and ``after`` are one calibration: same unit, method and source, and
+    every parameter's value and u identical (a file compared with itself or a copy of it)."""
+    if (before.unit, before.method, before.extra.get("source")) != (after.unit, after.method, after.extra.get("source")):
+        return False
+    if set(before.parameters) != set(after.parameters):
+        return False
+    return all(before[n].value == after[n].value and before[n].u == after[n].u for n in before.parameters)
 
 
 #: two single-temperature calibrations whose temperatures differ by at most this (degC) are compared:
@@ -27,12 +51,15 @@ def _has_tempcos(r) -> bool:
 def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_arcsec: Optional[float] = 30.0,
             tolerances: Optional[Mapping[str, float]] = None, posterior_before=None, posterior_after=None,
             correlation: Union[str, float] = "auto", level: float = 0.95,
-            label: Optional[str] = None, shared_equipment: Sequence[str] = ()) -> ComparisonResult:
+            label: Optional[str] = None, shared_equipment: Sequence[str] = (),
+            files: Optional[Sequence[str]] = None) -> ComparisonResult:
     """Drift of every parameter from ``before`` to ``after`` and the verdicts (``triadcal compare``).
 
     ``tolerance_arcsec``: tolerance on the drift of each angle (None: significance only).
-    ``tolerances``: tolerances of other parameters by name, in their unit (e.g.
-    ``{"K_x": 2e-5}``); those parameters then enter the overall verdict.
+    ``tolerances``: tolerances of parameters by name, in their unit (e.g.
+    ``{"K_x": 2e-5}``); those parameters then enter the overall verdict. An angle given one
+    (``{"Ca_xy": 10}``, arcsec) is judged against it instead of ``tolerance_arcsec`` (a note says so).
+    Every tolerance must be a finite number >= 0 (None: significance only).
     ``posterior_before``/``posterior_after``: arviz InferenceData or netCDF paths whose
     ``posterior`` variables are named like the parameters (reporting units).
     ``correlation``: ``"auto"`` (derived, see :func:`derive_correlation`) or a coefficient
@@ -43,11 +70,19 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     a source of that equipment in both budgets (same ``source``, same ``u``) gives
     ``var(d) = u_b^2 + u_a^2 - 2 sum_s c_b,s c_a,s u_s^2`` per parameter (reported as the
     parameter's ``rho``) and ``C_b + C_a - X - X^T`` for the joint test (docs/compare.md).
+    ``files``: the names of the before and after results (and messages name them).
+
+    A posterior is checked against its result (:func:`.correlation.check_posterior`: serial,
+    parameter set, the certificate's fingerprint and convergence checks, means against values)
+    and refused, named, when it is not that result's. The overall verdict is never pass when
+    before and after are the same calibration (:func:`same_calibration`) or an angle is missing
+    from a result: inconclusive, with a note starting ``NOT_PASS_NOTE``.
     """
     k2, _ = coverage_factors(level)
-    tolerances = dict(tolerances or {})
-    if tolerance_arcsec is not None and tolerance_arcsec < 0:
-        raise InputError(f"tolerance must be >= 0, got {tolerance_arcsec} arcsec")
+    tag_b, tag_a = (str(files[0]), str(files[1])) if files else ("before", "after")
+    if tolerance_arcsec is not None:
+        tolerance_arcsec = check_tolerance(tolerance_arcsec, "the angles' tolerance (arcsec)")
+    tolerances = {str(k): check_tolerance(v, f"the tolerance of {k}") for k, v in dict(tolerances or {}).items()}
     notes = []
     # a drift between calibrations one of which is not an answer is not a drift: refuse, naming
     # the side (status not ok, a value or u not finite, u < 0, a failing answer gate)
@@ -81,6 +116,12 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     if unknown_eq:
         raise InputError(f"shared equipment {', '.join(map(repr, unknown_eq))} is not a lab-file equipment section "
                          f"({', '.join(EQUIPMENT_SECTIONS)})")
+    unshareable = [e for e in shared_equipment if e not in SHAREABLE_EQUIPMENT]
+    if unshareable:
+        raise InputError(f"shared equipment {', '.join(map(repr, unshareable))} has no systematic error of its own in "
+                         "a budget, so there is nothing to share ([chamber] temperature_uncertainty_C is the "
+                         "thermometers' row, [thermometers] u_C: share 'thermometers'); shareable: "
+                         f"{', '.join(SHAREABLE_EQUIPMENT)}")
     if isinstance(correlation, str):
         if correlation != "auto":
             raise InputError(f"correlation must be 'auto' or a number in [-1, 1], got {correlation!r}")
@@ -104,19 +145,36 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     unknown = [n for n in tolerances if n not in names]
     if unknown:
         raise InputError(f"tolerances given for {unknown}, which are not in both results")
+    own = [n for n in ANGLES if n in tolerances]
+    if own:
+        notes.append("judged against their own tolerance (not the angles' "
+                     + ("none" if tolerance_arcsec is None else f"{tolerance_arcsec:g} arcsec") + "): "
+                     + ", ".join(f"{n} (T = {tolerances[n]:g} arcsec)" for n in own))
+    # the six angles are in every result of eq. 1: one missing from a side is not a drift of zero
+    missing_angles = [n for n in ANGLES if n not in names]
 
     shared = shared_errors(before, after, names, shared_equipment)
     notes.extend(shared.notes)
 
-    post_b = posterior_draws(posterior_before) if posterior_before is not None else None
-    post_a = posterior_draws(posterior_after) if posterior_after is not None else None
-    if (post_b is None) != (post_a is None):
+    if (posterior_before is None) != (posterior_after is None):
         raise InputError("give posteriors for both calibrations (before and after), or for neither")
+    post_b = post_a = None
+    if posterior_before is not None:
+        posts = []
+        for tag, source, r, name in (("before", posterior_before, before, tag_b), ("after", posterior_after, after,
+                                                                                    tag_a)):
+            what = (f"posterior {source} (of the {tag} calibration {name})" if isinstance(source, (str, os.PathLike))
+                    else f"the posterior of the {tag} calibration ({name})")
+            data = read_posterior(source)
+            draws = posterior_draws(data)
+            check_posterior(data, draws, r, what)
+            posts.append(draws)
+        post_b, post_a = posts
 
     params, type_b_added = {}, []
     for n in names:
         b, a = before[n], after[n]
-        T = tolerance_arcsec if n in ANGLES else tolerances.get(n)
+        T = tolerances.get(n, tolerance_arcsec) if n in ANGLES else tolerances.get(n)
         judged = n in ANGLES or n in tolerances
         d = a.value - b.value
         rho_n = rho
@@ -179,12 +237,19 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         joint = joint_test(d, cov, angles, level)
 
     bench = {}
-    for n in ("tilt_x", "tilt_y"):
-        if n in before.parameters and n in after.parameters:
-            dd = after[n].value - before[n].value
-            uu = drift_uncertainty(before[n].u, after[n].u, 0.0)
-            bench[n] = {"drift": dd, "u": uu, "unit": before[n].unit,
-                        "significant": bool(abs(dd) > k2 * uu)}
+    tilts = [n for n in ("tilt_x", "tilt_y") if n in before.parameters and n in after.parameters]
+    # the shared equipment's errors cancel in the tilt's change too (an encoder zero goes one to one
+    # into the tilt about its axis): the same subtraction as for the unit's parameters
+    shared_tilt = shared_errors(before, after, tilts, shared_equipment) if tilts else None
+    for n in tilts:
+        b, a = before[n], after[n]
+        dd = a.value - b.value
+        cov_t = shared_tilt.covariance(n) if shared_tilt.sources else 0.0
+        rho_t = max(-1.0, min(1.0, cov_t / (b.u * a.u))) if b.u > 0 and a.u > 0 else 0.0
+        uu = drift_uncertainty(b.u, a.u, rho_t)
+        bench[n] = {"drift": dd, "u": uu, "unit": b.unit, "significant": bool(abs(dd) > k2 * uu)}
+        if cov_t:
+            bench[n]["rho"] = rho_t
     if any(v["significant"] for v in bench.values()):
         notes.append("the bench tilt changed significantly between the campaigns: was the bench re-levelled "
                      "or moved? Shared bench errors may then not cancel")
@@ -200,8 +265,22 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         notes.append("shared between the calibrations (one error in both, subtracted from each drift's variance and "
                      "from the joint test's covariance): " + ", ".join(
                          f"{s['source']} ({s['key']}, u = {s['u']:g} {s['unit']})" for s in shared.sources))
+    overall = overall_verdict(params, joint, tolerance_arcsec)
+    if same_calibration(before, after):
+        src = before.extra.get("source")
+        notes.insert(0, NOT_PASS_NOTE + f"{tag_b} and {tag_a} are the same calibration (unit {before.unit}, method "
+                     f"{before.method}{f', source {src}' if src else ''}; every parameter's value and u identical): "
+                     "its drift is zero by construction and u(d), which treats them as two independent calibrations, "
+                     "says nothing about the unit; compare two calibrations")
+    if missing_angles:
+        where = "; ".join(f"{n} missing from " + " and ".join(
+            t for t, r in ((tag_b, before), (tag_a, after)) if n not in r.parameters) for n in missing_angles)
+        notes.insert(0, NOT_PASS_NOTE + f"{where}: every calibration of eq. 1 holds the six angles, so the drift "
+                     "of the unit's axes is not judged in full")
+    if overall == "pass" and (same_calibration(before, after) or missing_angles):
+        overall = "inconclusive"
     return ComparisonResult(
-        parameters=params, overall=overall_verdict(params, joint, tolerance_arcsec), level=level,
+        parameters=params, overall=overall, level=level,
         rule=rule_text(level, tolerance_arcsec, tolerances, posterior=post_b is not None),
         tolerance_arcsec=tolerance_arcsec, tolerances=tolerances, correlation=corr, joint=joint,
         bench_check=bench, before=_describe(before), after=_describe(after), label=label, notes=notes)

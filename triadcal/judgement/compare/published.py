@@ -13,7 +13,7 @@ import numpy as np
 from scipy import stats
 from ...io.numbers import parse_number
 from ...io.atomic import read_json
-from .rule import EN_COVERAGE_FACTOR, decide, drift_uncertainty, probability_exceeds, rule_text
+from .rule import EN_COVERAGE_FACTOR, check_tolerance, decide, drift_uncertainty, probability_exceeds, rule_text
 from .results import ANGLES, ComparisonResult, MAX_ANGLE_ARCSEC, ParameterDrift, _opt_float
 from .pair import joint_test, overall_verdict
 from .sequence import SequenceComparison
@@ -64,7 +64,17 @@ def read_published_table(path) -> list[PublishedDrift]:
         where = f"{path}:row {i + 1}" if start is None else f"{path}: data row {i + 1}"
         if None in row:
             raise InputError(f"{where}: more fields than the header names")
+        if start is None:
+            # JSON carries numbers as numbers: a string "50" (or true) is not a drift; CSV cells are text
+            bad = [k for k in ("drift_arcsec", "u_arcsec", "u_drift_arcsec")
+                   if row.get(k) is not None and (isinstance(row[k], bool) or not isinstance(row[k], (int, float)))]
+            if bad:
+                raise InputError(f"{where}: {bad[0]} = {row[bad[0]]!r:.40} is not a JSON number")
         row = {str(k).strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items() if k}
+        if row.get("u_arcsec") not in (None, "") and row.get("u_drift_arcsec") not in (None, ""):
+            raise InputError(f"{where}: both u_arcsec ({row['u_arcsec']}) and u_drift_arcsec ({row['u_drift_arcsec']}) "
+                             "are given: u_arcsec is the uncertainty of each angle measurement, u_drift_arcsec that "
+                             "of the drift; give one")
         missing = [k for k in ("exposure", "angle", "drift_arcsec") if row.get(k) in (None, "")]
         if missing:
             raise InputError(f"{where}: missing {', '.join(missing)} (columns: exposure, sensor, angle, "
@@ -98,6 +108,13 @@ def judge_published(rows: Sequence[PublishedDrift], *, u_measurement_arcsec: Opt
     """
     if not -1.0 <= correlation <= 1.0:
         raise InputError(f"correlation must lie in [-1, 1], got {correlation}")
+    if tolerance_arcsec is not None:
+        tolerance_arcsec = check_tolerance(tolerance_arcsec, "the angles' tolerance (arcsec)")
+    if u_measurement_arcsec is not None and not (isinstance(u_measurement_arcsec, (int, float))
+                                                 and not isinstance(u_measurement_arcsec, bool)
+                                                 and math.isfinite(u_measurement_arcsec) and u_measurement_arcsec > 0):
+        raise InputError(f"the uncertainty of each angle measurement (--u-arcsec) = {u_measurement_arcsec!r} is not a "
+                         "finite number > 0")
     exposures = list(dict.fromkeys(r.exposure for r in rows))
     comps = []
     for e in exposures:

@@ -15,7 +15,7 @@ from ...io.numbers import parse_number
 from ...models import effects
 from ...models.sensor import ANGLE_NAMES
 from ...io.atomic import read_json
-from .rule import EN_COVERAGE_FACTOR, VERDICTS
+from .rule import EN_COVERAGE_FACTOR, VERDICTS, coverage_factors, decide, probability_exceeds, verdict_from_probability
 
 
 FORMAT = "triadcal.comparison"
@@ -29,6 +29,10 @@ VERSION = 1
 
 #: the six orientation angles of eq. 1, in the order of results-json
 ANGLES = tuple(f"Ca_{ab}" for ab in ANGLE_NAMES)
+
+
+#: how a parameter's verdict was reached: the rule on (drift, u), on posterior draws, on a published row
+BASES = ("normal", "posterior", "published")
 
 
 #: properties of the bench, not of the unit: compared as a check, never judged
@@ -85,6 +89,20 @@ class ParameterDrift:
             raise InputError(f"{where}.verdict {d.get('verdict')!r} is not one of {VERDICTS}")
         if not isinstance(d.get("unit"), str):
             raise InputError(f"{where}.unit is missing or not a string")
+        for key in ("significant", "judged"):
+            if d.get(key) is not None and not isinstance(d[key], bool):
+                raise InputError(f"{where}.{key} = {d[key]!r:.40} is not true/false")
+        if name.rsplit(".", 1)[-1] in ANGLES:
+            # an angle is in arcsec and always judged (docs/compare.md): a report prints both
+            if d["unit"] != "arcsec":
+                raise InputError(f"{where}.unit {d['unit']!r}: an angle's drift is in 'arcsec'")
+            if d.get("judged") is False:
+                raise InputError(f"{where}.judged is false: an angle is always judged")
+        if d.get("U") is not None:
+            k = num.req("k", low=0.0) if d.get("k") is not None else EN_COVERAGE_FACTOR
+            U, u = num.req("U", low=0.0), num.req("u", low=0.0)
+            if not math.isclose(U, k * u, rel_tol=1e-9, abs_tol=1e-300):
+                raise InputError(f"{where}.U = {U:.6g} is not k u(d) = {k:g} x {u:.6g}")
         return cls(name=name, unit=d["unit"], drift=num.req("drift"), u=num.req("u", low=0.0),
                    before=num.opt("before"), after=num.opt("after"), u_before=num.opt("u_before", low=0.0),
                    u_after=num.opt("u_after", low=0.0), rho=num.opt("rho", -1.0, 1.0, default=0.0),
@@ -142,8 +160,19 @@ class JointTest:
         names = d.get("names")
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
             raise InputError(f"{source}: joint.names is not a list of names")
-        return cls(tuple(names), num.req("D2", low=0.0), int(num.req("dof", low=1.0)), num.req("p_value", 0.0, 1.0),
-                   bool(d.get("significant")), num.req("level", 0.0, 1.0))
+        D2, dof, p = num.req("D2", low=0.0), int(num.req("dof", low=1.0)), num.req("p_value", 0.0, 1.0)
+        level = num.req("level", 0.0, 1.0)
+        significant = d.get("significant")
+        if not isinstance(significant, bool):
+            raise InputError(f"{source}: joint.significant is missing or not true/false")
+        # the stored numbers must give the stored decision (a report prints both)
+        p_calc = float(stats.chi2.sf(D2, dof))
+        if not math.isclose(p, p_calc, rel_tol=1e-6, abs_tol=1e-300):
+            raise InputError(f"{source}: joint.p_value = {p:.6g} but chi2({dof}).sf(D2 = {D2:.6g}) = {p_calc:.6g}")
+        if significant != (p < 1 - level):
+            raise InputError(f"{source}: joint.significant = {str(significant).lower()} contradicts p = {p:.3g} "
+                             f"at level {level:g}")
+        return cls(tuple(names), D2, dof, p, significant, level)
 
 
 @dataclass
@@ -198,18 +227,38 @@ class ComparisonResult:
                 raise InputError(f"{source}: {key} is not an object")
         if d.get("notes") is not None and not isinstance(d["notes"], list):
             raise InputError(f"{source}: notes is not a list")
-        level = _Fields(source + ":", d).opt("level", 0.0, 1.0, default=0.95)
+        level = _Fields(f"{source}: comparison", d).opt("level", 0.0, 1.0, default=0.95)
         if d.get("overall") not in VERDICTS:
             raise InputError(f"{source}: overall verdict {d.get('overall')!r} is not one of {VERDICTS}")
         tol = dict(d.get("tolerance") or {})
         angles_tol = tol.pop("angles_arcsec", None)
+        try:
+            coverage_factors(level)
+        except InputError as exc:
+            raise InputError(f"{source}: {exc}") from None
+        if angles_tol is not None:
+            angles_tol = _Fields(f"{source}: tolerance", {"angles_arcsec": angles_tol}).req("angles_arcsec", low=0.0)
         params = {k: ParameterDrift.from_dict(k, p, source) for k, p in d["parameters"].items()}
+        for k, p in params.items():
+            check_verdict(p, level, source, significance_stated=d["parameters"][k].get("significant") is not None)
         if d["overall"] == "pass" and any(p.verdict == "fail" and p.judged for p in params.values()):
             raise InputError(f"{source}: overall verdict 'pass' contradicts a judged parameter whose verdict is 'fail'")
+        joint = None if not d.get("joint") else JointTest.from_dict(d["joint"], source)
+        from .pair import overall_verdict
+
+        expected = overall_verdict(params, joint, angles_tol)
+        # a pass must be the rule's (compare may hold a pass back as inconclusive, with a note: a same
+        # calibration, an angle missing on one side), a fail the rule gives must be stated, and a fail
+        # must not contradict a rule's pass
+        stored = d["overall"]
+        if (stored == "pass" and expected != "pass") or (expected == "fail" and stored != "fail") \
+                or (stored == "fail" and expected == "pass"):
+            raise InputError(f"{source}: overall verdict {d['overall']!r} contradicts the per-parameter verdicts and "
+                             f"the joint test, from which the rule gives {expected!r}")
         return cls(parameters=params,
                    overall=d["overall"], rule=d["rule"], level=level,
                    tolerance_arcsec=angles_tol, tolerances=tol, correlation=d.get("correlation", {}),
-                   joint=None if not d.get("joint") else JointTest.from_dict(d["joint"], source),
+                   joint=joint,
                    bench_check=d.get("bench_check", {}), before=d.get("before", {}),
                    after=d.get("after", {}), label=d.get("label"), notes=list(d.get("notes", [])))
 
@@ -219,6 +268,39 @@ class ComparisonResult:
     @classmethod
     def load(cls, path) -> "ComparisonResult":
         return cls.from_dict(_load_json(path), str(path))
+
+
+def check_verdict(p: ParameterDrift, level: float, source: str = "<dict>", significance_stated: bool = True) -> None:
+    """Refuse a stored verdict (or significance) that the decision rule (:mod:`.rule`) does not
+    give from the parameter's own numbers: drift, u(d), tolerance and, for a verdict on
+    posterior draws, P(|d| > T). A report prints the verdict next to the numbers; they must agree.
+    ``significance_stated``: False when the file does not state ``significant`` (nothing to check;
+    a report then prints none)."""
+    where = f"{source}: parameters.{p.name}"
+    if p.basis not in BASES:
+        raise InputError(f"{where}.basis {p.basis!r} is not one of {BASES}")
+    T = "none" if p.tolerance is None else f"{p.tolerance:g}"
+    if p.basis == "posterior":
+        if p.tolerance is not None and p.p_exceeds is None:
+            raise InputError(f"{where}: a posterior verdict against T = {T} needs p_exceeds")
+        if p.tolerance is None and not significance_stated:
+            raise InputError(f"{where}: a posterior verdict without a tolerance needs significant")
+        expected = verdict_from_probability(p.p_exceeds, p.significant, p.tolerance, level)
+        numbers = f"P(|d| > T) = {p.p_exceeds}, significant = {str(p.significant).lower()}, T = {T}"
+    else:
+        expected, significant = decide(p.drift, p.u, p.tolerance, level)
+        numbers = f"drift = {p.drift:.6g}, u(d) = {p.u:.6g}, T = {T}"
+        if significance_stated and significant != p.significant:
+            raise InputError(f"{where}.significant = {str(p.significant).lower()} contradicts its numbers "
+                             f"({numbers}, level {level:g}): the rule gives {str(significant).lower()}")
+        if p.tolerance is not None and p.p_exceeds is not None:
+            pe = probability_exceeds(p.drift, p.u, p.tolerance)
+            if not math.isclose(p.p_exceeds, pe, rel_tol=1e-6, abs_tol=1e-9):
+                raise InputError(f"{where}.p_exceeds = {p.p_exceeds:.6g} contradicts its numbers ({numbers}): "
+                                 f"P(|d| > T) = {pe:.6g}")
+    if expected != p.verdict:
+        raise InputError(f"{where}.verdict {p.verdict!r} contradicts its numbers ({numbers}, level {level:g}): "
+                         f"the decision rule gives {expected!r}")
 
 
 def _finite(v):

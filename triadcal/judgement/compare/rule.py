@@ -15,6 +15,10 @@ from scipy import stats
 VERDICTS = ("pass", "fail", "inconclusive")
 
 
+#: the six orientation angles (results.ANGLES, without importing it here)
+_ANGLES = tuple(f"Ca_{ab}" for ab in ("xy", "xz", "yx", "yz", "zx", "zy"))
+
+
 #: coverage factor of ISO 13528's En (expanded uncertainty U = k u)
 EN_COVERAGE_FACTOR = 2.0
 
@@ -45,7 +49,7 @@ def parse_tolerance(text: Union[str, float, None]) -> Optional[float]:
     s = str(text).strip()
     if s.lower() == "none":
         return None
-    m = re.fullmatch(r"([+]?\d+(?:\.\d*)?(?:[eE][+-]?\d+)?|\.\d+)\s*(.*)", s)
+    m = re.fullmatch(r"([+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?)\s*(.*)", s)
     if not m:
         raise InputError(f"cannot read tolerance {text!r}: write a number and a unit, e.g. 30arcsec")
     value, unit = float(m.group(1)), m.group(2).strip()
@@ -55,7 +59,23 @@ def parse_tolerance(text: Union[str, float, None]) -> Optional[float]:
     if unit not in _TOLERANCE_UNITS:
         raise InputError(f"tolerance {text!r}: unknown unit {m.group(2).strip()!r}; "
                          f"use one of {', '.join(_TOLERANCE_UNITS)}")
-    return value * _TOLERANCE_UNITS[unit]
+    return check_tolerance(value * _TOLERANCE_UNITS[unit], f"tolerance {text!r}")
+
+
+def check_tolerance(value, what: str = "tolerance") -> float:
+    """A tolerance as a finite number >= 0, else an InputError naming ``what`` and the value.
+
+    An infinite tolerance is not "no tolerance" (that is ``none``/None: significance only) and
+    would pass any drift; NaN compares false with everything; a negative one cannot be met."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputError(f"{what} = {value!r} is not a number")
+    v = float(value)
+    if not math.isfinite(v):
+        raise InputError(f"{what} = {value!r} is not finite: give a finite tolerance (for significance only, "
+                         "none: --tolerance none, or no --param-tolerance for that parameter)")
+    if v < 0:
+        raise InputError(f"{what} = {value!r} is negative: a tolerance is a bound on |drift|, >= 0")
+    return v
 
 
 def drift_uncertainty(u_before: float, u_after: float, rho: float = 0.0) -> float:
@@ -100,11 +120,23 @@ def decide_from_draws(draws: np.ndarray, tolerance: Optional[float], level: floa
     if tolerance is None:
         return ("fail" if significant else "pass"), significant, None
     p = float(np.mean(np.abs(draws) > tolerance))
-    if p <= 1 - level:
-        return "pass", significant, p
-    if significant and p > 0.5:
-        return "fail", significant, p
-    return "inconclusive", significant, p
+    return verdict_from_probability(p, significant, tolerance, level), significant, p
+
+
+def verdict_from_probability(p_exceeds: Optional[float], significant: bool, tolerance: Optional[float],
+                             level: float = 0.95) -> str:
+    """The posterior form of the rule from ``P(|d| > T)`` and the significance: pass when
+    ``P <= 1 - L``, fail when significant and ``P > 1/2``, inconclusive otherwise; without a
+    tolerance fail when significant, pass otherwise."""
+    if tolerance is None:
+        return "fail" if significant else "pass"
+    if p_exceeds is None:
+        raise InputError("a posterior verdict against a tolerance needs P(|d| > T)")
+    if p_exceeds <= 1 - level:
+        return "pass"
+    if significant and p_exceeds > 0.5:
+        return "fail"
+    return "inconclusive"
 
 
 def rule_text(level: float, tolerance_arcsec: Optional[float], tolerances: Mapping[str, float] = None,
@@ -116,6 +148,8 @@ def rule_text(level: float, tolerance_arcsec: Optional[float], tolerances: Mappi
            else "no tolerance for the angles")
     if tolerances:
         tol += "; " + ", ".join(f"T = {v:g} for {k}" for k, v in tolerances.items())
+        if any(k.rsplit(".", 1)[-1] in _ANGLES for k in tolerances):
+            tol += " (an angle given its own tolerance is judged against it, not against the angles' T)"
     text = (
         f"Drift d = after - before with standard uncertainty u(d) = sqrt(u_b^2 + u_a^2 - 2 rho u_b u_a). "
         f"Significant when |d| > {k2:.3f} u(d) (two-sided {pct}). With a tolerance T: pass when "

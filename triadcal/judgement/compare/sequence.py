@@ -106,9 +106,11 @@ def compare_sequence(results: Sequence[CalibrationResult], labels: Optional[Sequ
     steps, cumulative = [], []
     for i in range(1, len(results)):
         steps.append(compare(results[i - 1], results[i], posterior_before=posteriors[i - 1],
-                             posterior_after=posteriors[i], label=f"{labels[i - 1]} -> {labels[i]}", **kwargs))
+                             posterior_after=posteriors[i], label=f"{labels[i - 1]} -> {labels[i]}",
+                             files=(labels[i - 1], labels[i]), **kwargs))
         cumulative.append(compare(results[0], results[i], posterior_before=posteriors[0],
-                                  posterior_after=posteriors[i], label=f"{labels[0]} -> {labels[i]}", **kwargs))
+                                  posterior_after=posteriors[i], label=f"{labels[0]} -> {labels[i]}",
+                                  files=(labels[0], labels[i]), **kwargs))
     notes = ["consecutive steps share a calibration, so their drifts are negatively correlated "
              "(each comparison is right on its own; do not add step drifts and their u in quadrature)"]
     return SequenceComparison(labels=labels, steps=steps, cumulative=cumulative, kind="results",

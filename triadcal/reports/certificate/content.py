@@ -9,6 +9,7 @@ from ...models.units import STANDARD_GRAVITY_M_S2
 import datetime as _dt
 import hashlib
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -174,7 +175,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     reasons = refusal_reasons(result, posterior_diag=post_diag, diagnosis=diagnosis)
     data_date = campaign.metadata.get("date", "") if campaign is not None else ""
     expired = lab.expired(data_date or lab.calibration_date or issue_date)
-    reasons += _missing_type_b(result, lab)
+    reasons += _missing_type_b(result, lab) + _lab_disagrees(result, lab)
     if expired and not allow_expired_equipment:
         reasons += [f"{e}; recalibrate it, or issue with --allow-expired-equipment, which prints the expiry on "
                     "the certificate" for e in expired]
@@ -363,6 +364,52 @@ def _missing_type_b(result: CalibrationResult, lab: LabConfig) -> list:
     return [f"the lab file declares systematic errors ({', '.join(names)}), but the result's uncertainties are "
             "Type A only (it was fitted without them): fit again with --lab so that every parameter's U includes "
             "them"]
+
+
+def _lab_disagrees(result: CalibrationResult, lab: LabConfig) -> list:
+    """The lab file given to the certificate is not the one the result was fitted with: a systematic
+    error it declares that no parameter's budget holds, or holds with another u (a joint or posterior
+    result whose U includes Type B), or a local g that differs from the fit's beyond the lab's own u
+    (1 ppm when it states none; K is proportional to g). Before, a result fitted with a lab file
+    without [gravity] and [voltmeter] got a certificate under one declaring both, U(K_x) 15 times
+    too small, and one fitted with g = 9.80665 under a lab stating 9.81 (an outside probe)."""
+    out = []
+    if lab.source is None:
+        return out
+    rows = [row for p in result.parameters.values() for row in (p.uncertainty.get("budget") or [])
+            if isinstance(row, dict)]
+    if result.method != "classical" and any(p.U is not None for p in result.parameters.values()):
+        from ...uncertainty.typeb import systematic_sources
+
+        try:
+            declared = systematic_sources(lab, str(result.extra.get("output_unit") or "V"))
+        except InputError:
+            declared = []
+        missing, changed = [], []
+        for src in declared:
+            if src.kind == "axes_nonorthogonality" and "bench_nonorth" in result.parameters:
+                continue               # measured by the fit: its row is the estimate's own u (joint.py)
+            held = [row for row in rows if row.get("source") == src.source]
+            if not held:
+                missing.append(f"{src.source} ({src.key} = {src.u:g} {src.unit})")
+            elif any(not math.isclose(float(row.get("u", math.nan)), src.u, rel_tol=1e-9) for row in held):
+                changed.append(f"{src.source}: {src.key} = {src.u:g} {src.unit} in the lab file, "
+                               f"{float(held[0].get('u', math.nan)):g} in the result")
+        if missing:
+            out.append(f"the lab file declares systematic errors the result's budgets do not hold ({'; '.join(missing)}): "
+                       "it was fitted with another lab file; fit again with this --lab")
+        if changed:
+            out.append(f"the lab file states other uncertainties than the result was fitted with ({'; '.join(changed)}): "
+                       "fit again with this --lab")
+    g = result.extra.get("local_g_m_s2")
+    if lab.local_g_m_s2 is not None and isinstance(g, (int, float)) and math.isfinite(g):
+        tol_ppm = lab.local_g_u_ppm if lab.local_g_u_ppm else 1.0
+        diff_ppm = abs(float(g) - lab.local_g_m_s2) / lab.local_g_m_s2 * 1e6
+        if diff_ppm > tol_ppm:
+            out.append(f"the lab file's local gravity {lab.local_g_m_s2:.5f} m/s² differs from the {float(g):.5f} m/s² "
+                       f"the fit used by {diff_ppm:.3g} ppm (more than its u of {tol_ppm:g} ppm); K is proportional to "
+                       "g: fit again with the lab's g (--lab, or local_g_m_s2 in the data)")
+    return out
 
 
 def _diagnostic_lines(result, post_diag, diagnosis) -> list:

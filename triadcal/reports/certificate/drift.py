@@ -125,6 +125,11 @@ def overall_statement(comparison: dict, rows: list) -> str:
         bits.append(f"Judged parameters whose conformance is not shown: {', '.join(undecided)}.")
     if judged and not failed and not undecided:
         bits.append(f"Every judged parameter ({len(judged)}) passes.")
+    from ...judgement.compare import NOT_PASS_NOTE
+
+    held = [str(n)[len(NOT_PASS_NOTE):] for n in comparison.get("notes") or () if str(n).startswith(NOT_PASS_NOTE)]
+    if overall != "PASS" and held:
+        bits.append("The overall verdict is not pass: " + "; ".join(held) + ".")
     changed = [r.name for r in rows if not r.judged and r.significant]
     if changed:
         bits.append(f"{', '.join(changed)} changed significantly but {'have' if len(changed) > 1 else 'has'} no "

@@ -1,0 +1,64 @@
+"""The lab file given to ``certificate`` must be the one the result was fitted with
+(``reports.certificate.content._lab_disagrees``, docs/certificate.md "Refusal"): a systematic error
+it declares that no budget of the result holds, or holds with another u, or a local g that differs
+from the fit's beyond the lab's own u, refuses the certificate. Before, a result fitted without
+[gravity] and [voltmeter] was certified under a lab declaring both, U(K_x) 15 times too small, and
+one fitted with g = 9.80665 m/s2 under a lab stating 9.81 (an outside probe)."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+os.environ.setdefault("XDG_CACHE_HOME", "/tmp/xdg")
+
+from triadcal import api  # noqa: E402
+from triadcal.models.effects import DEFAULT_EFFECTS  # noqa: E402
+from triadcal.reports import certificate as C  # noqa: E402
+
+pytest.importorskip("reportlab")
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    d = tmp_path_factory.mktemp("certlab")
+    _, campaign = api.simulate(d / "campaign.csv", seed=12, unit="SN-LAB-0001")
+    (d / "lab.toml").write_text(C.EXAMPLE_LAB_TOML)
+    result = api.fit(campaign, effects=DEFAULT_EFFECTS, lab=d / "lab.toml")
+    result.save(d / "result.json")
+    return d
+
+
+def _lab(d, name, text):
+    (d / name).write_text(text)
+    return d / name
+
+
+def test_the_same_lab_issues(fitted):
+    cert = C.certificate(fitted / "result.json", lab=fitted / "lab.toml", issue_date="2026-11-29")
+    assert cert.issued, cert.reasons
+
+
+def test_a_source_the_result_never_saw_refuses(fitted):
+    text = C.EXAMPLE_LAB_TOML.replace("# [voltmeter]", "[voltmeter]").replace("# gain_u_ppm = 15", "gain_u_ppm = 15")
+    cert = C.certificate(fitted / "result.json", lab=_lab(fitted, "volt.toml", text), issue_date="2026-11-29")
+    assert not cert.issued
+    why = " ".join(cert.reasons)
+    assert "budgets do not hold" in why and "voltmeter gain, axis x" in why, why
+
+
+def test_another_u_for_a_source_refuses(fitted):
+    text = C.EXAMPLE_LAB_TOML.replace("encoder_zero_u_arcsec = 2.0", "encoder_zero_u_arcsec = 5.0")
+    cert = C.certificate(fitted / "result.json", lab=_lab(fitted, "enc.toml", text), issue_date="2026-11-29")
+    assert not cert.issued
+    assert any("[bench] encoder_zero_u_arcsec = 5 arcsec in the lab file, 2 in the result" in r
+               for r in cert.reasons), cert.reasons
+
+
+def test_another_local_g_refuses(fitted):
+    text = C.EXAMPLE_LAB_TOML.replace("# local_g_m_s2 = 9.8112", "local_g_m_s2 = 9.81")
+    cert = C.certificate(fitted / "result.json", lab=_lab(fitted, "g.toml", text), issue_date="2026-11-29")
+    assert not cert.issued
+    assert any("local gravity 9.81000 m/s² differs from the 9.80665 m/s²" in r and "341 ppm" in r
+               for r in cert.reasons), cert.reasons
