@@ -87,10 +87,16 @@ def test_a_relay_hysteresis_on_a_quadratic_tempco_is_named(tmp_path):
     assert a.branch_gap == pytest.approx(0.04, abs=0.005)            # cooling - heating = 2 h
 
 
-def test_a_clean_quadratic_stays_a_polynomial(tmp_path):
-    a = _run(_cycle(tmp_path, lambda t, T: 0.05 - 0.003 * (T - 20) + 4e-5 * (T - 20) ** 2, "quad.csv"))
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
+def test_a_clean_quadratic_is_named_a_quadratic(tmp_path, seed):
+    """The simplest form within one standard error or 1 % of the best held-out error
+    (``thermal_cycle.parsimonious_best``): a form with a hysteresis or a play that predicts the
+    held-out blocks better by chance (1e-5 of the RMS, on 4 of 15 axes of an outside probe) is not
+    named."""
+    a = _run(_cycle(tmp_path, lambda t, T: 0.05 - 0.003 * (T - 20) + 4e-5 * (T - 20) ** 2, "quad.csv",
+                    seed=seed))
     assert a.form("quadratic").cv_rms < 1.1 * a.noise_floor
-    assert a.form(a.best).cv_rms >= a.form("quadratic").cv_rms * 0.97   # no other form is meaningfully better
+    assert a.best == "quadratic", [(f.name, f.cv_rms) for f in a.forms]
     assert abs(a.branch_gap) < 0.003
 
 
