@@ -11,7 +11,16 @@ def _range(text: str) -> tuple:
         lo, hi = (float(v) for v in text.split(":"))
     except ValueError:
         raise InputError(f"--range: {text!r}; write LOW:HIGH in degC, e.g. -40:85") from None
+    from ..planning.search import checked_range
+
+    checked_range(lo, hi)
     return lo, hi
+
+
+def _hours(text: str) -> float:
+    from ..planning.search import checked_hours_cap
+
+    return checked_hours_cap(text)
 
 
 def _rate(text: str, option: str = "--chamber-rate") -> float:
@@ -48,7 +57,7 @@ def register(sub) -> None:
                    help="white-noise intensity of the outputs, V^2 s (default 3e-9, the example campaign's Q_V2s)")
     p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS), help="effects of the model to be fitted")
     p.add_argument("--preset", default="ak18-quartz", help="unit whose parameter values the Jacobian is taken at")
-    p.add_argument("--max-hours", type=float, default=200.0, help="cap of chamber hours (default 200)")
+    p.add_argument("--max-hours", default="200", help="cap of chamber hours (default 200)")
     p.add_argument("--ramp", action="store_true",
                    help="plan a continuous ramp instead (no soak): program legs, rate (1, 1/2, 1/4 of --chamber-rate), "
                         "holds, positions and dwell; thermal_lag is added to the model (docs/plan.md)")
@@ -64,6 +73,7 @@ def run(args) -> int:
     from ..planning import DEFAULT_Q_V2S, prediction_document, search
 
     lo, hi = _range(args.range)
+    hours_cap = _hours(args.max_hours)
     lab = load_lab(args.lab) if args.lab else None
     Q = DEFAULT_Q_V2S if args.q is None else args.q
     effects = name_list(args.effects)
@@ -73,10 +83,10 @@ def run(args) -> int:
         effects = ramp_effects(effects)
         choice = search_ramp(args.target, lo, hi, lab=lab, Q_V2s=Q, chamber_rate_C_per_min=_rate(args.chamber_rate),
                              positions=args.positions, effects=effects, preset=args.preset,
-                             hours_cap=args.max_hours)
+                             hours_cap=hours_cap)
     else:
         choice = search(args.target, lo, hi, lab=lab, Q_V2s=Q, chamber_rate_C_per_min=_rate(args.chamber_rate),
-                        positions=args.positions, effects=effects, preset=args.preset, hours_cap=args.max_hours)
+                        positions=args.positions, effects=effects, preset=args.preset, hours_cap=hours_cap)
     doc = prediction_document(choice, Q_V2s=Q, lab_source=args.lab, preset=args.preset, effects=effects)
     choice.plan.save(args.output, predicted={"chamber_hours": doc["chamber_hours"],
                                              "U": {n: v["U"] for n, v in doc["parameters"].items()},

@@ -60,6 +60,8 @@ CHAMBER_RATE_C_PER_MIN = 1.0
 #: the example campaign's white-noise intensity (its ``# Q_V2s`` line)
 DEFAULT_Q_V2S = 3e-9
 HOURS_CAP = 200.0
+#: the temperature readings' noise of a visit (degC; the simulator's ``NoiseModel.temp_noise_C``)
+READING_NOISE_C = 0.01
 FORMAT = "triadcal.plan"
 
 
@@ -194,6 +196,8 @@ class Design:
     #: the bench's full 3 x 3 covariance per visit (n, 3, 3; output unit^2) when it correlates a visit's
     #: outputs (oblique poses; the fit is then GLS on it, estimation/whitening.py), else None
     bench_blocks: Optional[np.ndarray] = None
+    #: the largest rate of the unit's temperature over the visits (degC/s, the simulated covariates)
+    max_rate_C_per_s: float = float("nan")
 
 
 def _model_and_sources(effects, lab, output_unit="V"):
@@ -207,10 +211,17 @@ def _model_and_sources(effects, lab, output_unit="V"):
     return Model(effects), tuple(effects), sources
 
 
-def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, preset: str = "ak18-quartz") -> Design:
+def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, preset: str = "ak18-quartz",
+           hold: Optional[Mapping] = None) -> Design:
     """Covariates, Jacobian and bench variance of ``plan`` (its position set once per setpoint;
     repetitions multiply the information, :func:`predict`). ``plan`` may also be a
-    :class:`triadcal.planning.ramp.RampPlan` (its visits as simulated, repetitions 1)."""
+    :class:`triadcal.planning.ramp.RampPlan` (its visits as simulated, repetitions 1).
+
+    The parameters the plan cannot determine are held, as the fit holds them
+    (:func:`triadcal.estimation.joint.fit_joint`): those of ``identifiability_problems`` on the
+    simulated covariates, then those in the null space of the Jacobian probed, as the fit probes
+    it, at a generic point (effect terms at their typical size); ``hold`` (name -> reason) adds
+    more (:func:`undetermined_time_constants`)."""
     from ..estimation.joint import JointProblem, identifiability_problems, null_space_problems, parameter_unit
     from ..io.lab import bench_errors_of
     from ..estimation.whitening import NEGLIGIBLE_CORRELATION
@@ -224,8 +235,14 @@ def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, prese
     campaign = simulate_campaign(truth, once.visit_positions(), once.schedule(), seed=0)
     values = {n: float(truth.parameters.get(n, model.spec[n].nominal)) for n in model.names}
     problems = identifiability_problems(campaign, model)
+    problems.update({k: str(v) for k, v in (hold or {}).items() if k in values})
     fixed = {k: values[k] for k in problems}
     prob = JointProblem(campaign, model, np.ones((campaign.n_visits, 3)), fixed)
+    # the fit's probe of the null space: core terms at their values, effect terms at their typical size
+    x0 = np.array([values[n] if model.spec[n].effect == "core" else model.spec[n].typical for n in prob.names])
+    _, J0 = prob.residuals_and_jacobian(x0)
+    if np.all(np.isfinite(J0)):
+        problems.update(null_space_problems(J0, prob.names))
     x = np.array([values[n] for n in prob.names])
     _, Jr = prob.residuals_and_jacobian(x)
     problems.update(null_space_problems(Jr, prob.names))
@@ -250,7 +267,8 @@ def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, prese
     w = prob.predict(x)
     F = [data_change(s, model, p_int, cov, campaign.gravity_g, w, "V") for s in sources]
     units = {n: parameter_unit(model, n, "V") for n in prob.names}
-    return Design(plan, prob.names, units, J, np.asarray(var_b), F, sources, values, problems, blocks)
+    rate = float(np.max(np.abs(campaign.temperature_rate()), initial=0.0))
+    return Design(plan, prob.names, units, J, np.asarray(var_b), F, sources, values, problems, blocks, rate)
 
 
 def predict(d: Design, Q_V2s: float, tau_s: Optional[float] = None, repetitions: Optional[int] = None) -> dict:
@@ -282,3 +300,53 @@ def predict(d: Design, Q_V2s: float, tau_s: Optional[float] = None, repetitions:
     u_a = np.sqrt(np.diag(C_a))
     u = np.sqrt(np.diag(C))
     return {"names": d.names, "u_a": u_a, "u": u, "U": 2.0 * u, "cov": C}
+
+
+def undetermined_time_constants(d: Design, Q_V2s: float, tau_s: float, repetitions: int,
+                                at_rest: bool = False) -> dict:
+    """Time constants of the model (``estimation.gates.TIME_CONSTANTS``: ``thermal_lag``, ...)
+    that the plan of ``d`` cannot determine even at dwell ``tau_s`` and ``repetitions`` (pass the
+    most informative of the search): the predicted u is not below the value, which the fit's
+    ``time_constants_determined`` gate refuses, or the value +- 2u leaves the range of the
+    ``time_constants`` gate. name -> the reason (for ``assumptions.not_estimated``). A stepped
+    plan's visits are at rest after the soak (temperature rates ~0), so it cannot determine a
+    thermal lag; a ramp plan (``plan --ramp``) can.
+
+    ``at_rest`` (a stepped plan): ``thermal_lag`` is held whatever the Fisher information says.
+    The rates of a stepped plan's visits are the tail of the soak (at most ~0.004 degC/min over
+    -40..85 degC), the fit takes them from central differences of 0.01 degC readings one visit
+    (50-320 s) apart, whose noise (0.002-0.02 degC/min) is as large or larger: the information
+    the noise-free simulated rates carry is not in a real campaign (errors in the covariate), and
+    the fit of a planned stepped campaign estimates a lag of -3.6 +- 3.3 min for a true 4 and is
+    refused (``time_constants`` gate)."""
+    from ..estimation.gates import TIME_CONSTANTS, _tc_range
+
+    names = list(d.names)
+    todo = [n for n in names if n in TIME_CONSTANTS]
+    if not todo:
+        return {}
+    out = {}
+    lag = d.values.get("thermal_lag")
+    if "thermal_lag" in todo and lag is not None and np.isfinite(d.max_rate_C_per_s):
+        shift = d.max_rate_C_per_s * abs(lag) * 60.0            # the lag's whole effect on the element, degC
+        if at_rest or shift < READING_NOISE_C:
+            out["thermal_lag"] = (
+                f"thermal lag needs temperatures that change during the visits: this plan's visits are at rest after "
+                f"each soak (rates up to {d.max_rate_C_per_s * 60:.2g} degC/min, the tail of the soak), so a lag of "
+                f"{lag:g} min moves the element's temperature by at most {shift:.2g} degC, of the order of the "
+                f"{READING_NOISE_C:g} degC noise of the readings the fit takes the rate from; held, as the fit would "
+                "hold it (a fit that estimates it is refused by the time_constants gate); a ramp plan "
+                "(triadcal plan --ramp) can determine it")
+            todo.remove("thermal_lag")
+    if not todo:
+        return out
+    pred = predict(d, Q_V2s, tau_s, repetitions)
+    for n in todo:
+        v, u = d.values[n], float(pred["u"][names.index(n)])
+        lo, hi, unit = _tc_range(n)
+        if not (np.isfinite(u) and u < abs(v) and lo <= v - 2 * u and v + 2 * u <= hi):
+            out[n] = (f"{TIME_CONSTANTS[n]} is not determined by this plan: predicted u = {u:.3g} {unit} for a value "
+                      f"of {v:.3g} {unit} even at tau {tau_s:g} s x {repetitions} (the fit's time_constants gates "
+                      "would refuse it); a stepped plan's visits are at rest after each soak (temperature rates ~0), "
+                      "so it is held, as the fit would hold it; a ramp plan (triadcal plan --ramp) can determine it")
+    return out

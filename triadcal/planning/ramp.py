@@ -229,7 +229,7 @@ def search_ramp(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: floa
     """The cheapest ramp plan meeting every target (see the module); refuses an unreachable target."""
     from .search import Choice, checked_inputs, evaluate, parse_targets
 
-    sets = checked_inputs(chamber_rate_C_per_min, Q_V2s, positions)
+    sets = checked_inputs(chamber_rate_C_per_min, Q_V2s, positions, lo=lo, hi=hi, hours_cap=hours_cap)
     effects = ramp_effects(effects)
     progs = programs or candidate_programs(lo, hi)
     groups: dict = {}

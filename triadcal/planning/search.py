@@ -10,16 +10,18 @@ sequences of :func:`candidate_sequences`, the position sets 12 / 18 / 24
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
-from typing import Optional, Sequence
+from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
 from ..errors import InputError
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.units import ARCSEC
-from .plan import AMBIENT_C, DEFAULT_Q_V2S, HOURS_CAP, POSITION_SETS, Plan, design, predict
+from .plan import (AMBIENT_C, DEFAULT_Q_V2S, HOURS_CAP, POSITION_SETS, Plan, design, predict,
+                   undetermined_time_constants)
 
 TAUS = (30.0, 60.0, 120.0, 300.0)
 REPETITIONS = (1, 2, 3)
@@ -37,6 +39,7 @@ FAMILIES = {
     "S": (r"^S_[xyz]$", {"g": 1.0, "mg": 1e3, "ug": 1e6}),
     "S_tempco": (r"^S_[xyz]_tempco$", {"ug/degC": 1.0}),
     "tilt": (r"^tilt_[xy]$", {"arcsec": 1.0}),
+    "thermal_lag": (r"^thermal_lag$", {"min": 1.0, "s": 60.0}),
 }
 
 
@@ -106,7 +109,10 @@ def candidate_sequences(lo: float, hi: float, hysteresis: bool = True) -> list:
     sequence starts at ambient (20 degC, clamped into the range): the unit has soaked there, so its
     first setpoint is on the mid-line (direction ``none``, docs/model.md); then ``up-down``
     (heating sweep to hi, cooling sweep to lo), ``down-up`` (mirrored), each also with the sweep
-    back to ambient (the example's shape); without hysteresis in the model also a single sweep."""
+    back to ambient (the example's shape); without hysteresis in the model also a single sweep.
+    With hysteresis every sequence has heating and cooling visits: when the range does not contain
+    ambient the start is clamped to one end, and only the sequences that come back through the
+    range from the far end are kept."""
     if not hi > lo:
         raise InputError(f"--range: the upper end must exceed the lower ({lo:g}:{hi:g})")
     amb = min(max(AMBIENT_C, lo), hi)
@@ -128,6 +134,16 @@ def candidate_sequences(lo: float, hi: float, hysteresis: bool = True) -> list:
             out.append((f"sweep, {m} levels", tuple([amb] + dn + lo_hi)))
     seen, uniq = set(), []
     for name, seq in out:
+        # a clamped ambient coincides with an end: no setpoint twice in a row (a second soak for nothing)
+        seq = tuple(float(v) for k, v in enumerate(seq) if k == 0 or v != seq[k - 1])
+        if hysteresis and not {"heating", "cooling"} <= set(Plan(setpoints_C=seq).directions()):
+            # a range not containing ambient (e.g. 30:85) clamps the start to an end: the sweep
+            # away from that end alone is one-directional, no hysteresis (the fit would hold it at
+            # 0 while the first visits, direction none, and the rest differ in branch)
+            continue
+        if len(seq) > 1 and hysteresis:
+            # named by its first move (a clamped ambient makes up-down-back of -40:10 go down first)
+            name = re.sub(r"^(up-down|down-up)", "up-down" if seq[1] > seq[0] else "down-up", name)
         if seq not in seen:
             seen.add(seq)
             uniq.append((name, seq))
@@ -151,17 +167,56 @@ CRITERION = ("the fewest chamber hours whose predicted U (Fisher information, be
              "(U/target)^2 over the targeted parameters)")
 
 
-def evaluate(targets, names, U, values) -> dict:
+def evaluate(targets, names, U, values, held: Optional[Mapping] = None) -> dict:
+    """spec -> (met, worst U in the target's unit, parameter); a parameter the plan holds
+    (``held``: not estimated) has no U: infinite, so the target is not met."""
     out = {}
+    held = dict(held or {})
+    every = list(names) + [n for n in held if n not in names]
+
+    def U_of(t, n):
+        return math.inf if n not in names else t.in_unit(n, float(U[names.index(n)]), values)
+
     for t in targets:
-        worst = max(((t.in_unit(n, float(U[names.index(n)]), values), n) for n in t.parameters(names)))
+        worst = max(((U_of(t, n), n) for n in t.parameters(every)))
         out[t.spec] = (worst[0] <= t.limit, worst[0], worst[1])
     return out
 
 
-def checked_inputs(chamber_rate_C_per_min: float, Q_V2s: float, positions: str) -> list:
-    """The position sets to search, after refusing a rate or a noise that is not positive and an
-    unknown position set (the stepped and the ramp search share them)."""
+#: absolute zero, degC: no range may reach below it
+ABSOLUTE_ZERO_C = -273.15
+
+
+def checked_range(lo: float, hi: float) -> None:
+    """Refuse a ``--range`` that is not finite, not increasing or reaches below absolute zero."""
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise InputError(f"--range: {lo:g}:{hi:g} degC; both ends must be finite numbers")
+    if lo < ABSOLUTE_ZERO_C:
+        raise InputError(f"--range: {lo:g}:{hi:g} degC reaches below absolute zero ({ABSOLUTE_ZERO_C:g} degC)")
+    if not hi > lo:
+        raise InputError(f"--range: the upper end must exceed the lower ({lo:g}:{hi:g})")
+
+
+def checked_hours_cap(hours_cap) -> float:
+    """Refuse a ``--max-hours`` that is not a finite number > 0."""
+    try:
+        h = float(hours_cap)
+    except (TypeError, ValueError):
+        raise InputError(f"--max-hours: {hours_cap!r}; give a finite number of chamber hours > 0") from None
+    if not (math.isfinite(h) and h > 0):
+        raise InputError(f"--max-hours: {hours_cap!r}; give a finite number of chamber hours > 0")
+    return h
+
+
+def checked_inputs(chamber_rate_C_per_min: float, Q_V2s: float, positions: str, *, lo: Optional[float] = None,
+                   hi: Optional[float] = None, hours_cap: Optional[float] = None) -> list:
+    """The position sets to search, after refusing a rate or a noise that is not positive, an
+    unknown position set, a range below absolute zero and a cap of hours that is not a finite
+    number > 0 (the stepped and the ramp search share them)."""
+    if lo is not None and hi is not None:
+        checked_range(float(lo), float(hi))
+    if hours_cap is not None:
+        checked_hours_cap(hours_cap)
     if not chamber_rate_C_per_min > 0:
         raise InputError("--chamber-rate must be > 0 degC/min")
     if not Q_V2s > 0:
@@ -182,18 +237,26 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
            hours_cap: float = HOURS_CAP, taus: Sequence[float] = TAUS,
            repetitions: Sequence[int] = REPETITIONS, sequences: Optional[list] = None) -> Choice:
     """The chosen plan (see the module); refuses an unreachable target within ``hours_cap``."""
-    sets = checked_inputs(chamber_rate_C_per_min, Q_V2s, positions)
+    sets = checked_inputs(chamber_rate_C_per_min, Q_V2s, positions, lo=lo, hi=hi, hours_cap=hours_cap)
     seqs = sequences or candidate_sequences(lo, hi, "hysteresis" in effects)
     targets = None
     best, best_key, searched = None, None, 0
     reach: dict = {}
+    held_reason: dict = {}          # target spec -> {parameter: why some plan holds it}
     for name, sps in seqs:
         for npos in sets:
             plan = Plan(setpoints_C=sps, positions=dict(POSITION_SETS[npos]),
                         chamber_rate_C_per_min=chamber_rate_C_per_min, name=f"{name}, {npos} positions")
             d = design(plan, effects, lab, preset)
+            # the fit's gates on time constants: hold those the plan cannot determine (thermal_lag)
+            hold = undetermined_time_constants(d, Q_V2s, max(taus), max(repetitions), at_rest=True)
+            if hold:
+                d = design(plan, effects, lab, preset, hold={**d.problems, **hold})
             if targets is None:
-                targets = parse_targets(target_text, d.names)
+                targets = parse_targets(target_text, list(d.names) + [n for n in d.problems if n not in d.names])
+            for t in targets:
+                for n in t.parameters(list(d.problems)):
+                    held_reason.setdefault(t.spec, {})[n] = d.problems[n]
             for tau in taus:
                 for reps in repetitions:
                     p = Plan(**{**plan.__dict__, "tau_s": float(tau), "repetitions": int(reps)})
@@ -204,7 +267,7 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
                     pred = predict(d, Q_V2s, tau, reps)
                     if not np.all(np.isfinite(pred["U"])):
                         continue
-                    met = evaluate(targets, list(d.names), pred["U"], d.values)
+                    met = evaluate(targets, list(d.names), pred["U"], d.values, d.problems)
                     for spec, (ok, worst, n) in met.items():
                         if spec not in reach or worst < reach[spec][0]:
                             reach[spec] = (worst, n, hours)
@@ -215,9 +278,17 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
                         if best_key is None or key < best_key:
                             best_key = key
                             best = Choice(p, pred, targets, met, d.values, d.units, 0, d.problems)
+    if best is None and not searched:
+        raise InputError(f"--max-hours: no stepped plan over {lo:g}:{hi:g} degC fits within {hours_cap:g} chamber "
+                         "hours (raise --max-hours)")
     if best is None:
+        never = [t for t in targets if t.spec in reach and not math.isfinite(reach[t.spec][0])]
+        if never:
+            why = "; ".join(f"{t.spec}: {n} is not estimated by any stepped plan ({r})"
+                            for t in never for n, r in held_reason.get(t.spec, {}).items())
+            raise InputError(f"--target cannot be met by a stepped plan: {why}")
         bad = [f"{spec}: best reachable U = {w:.3g} {t.unit} ({n}, in {h:.1f} h)"
-               for t in targets for spec, (w, n, h) in [(t.spec, reach[t.spec])] if w > t.limit]
+               for t in targets if t.spec in reach for spec, (w, n, h) in [(t.spec, reach[t.spec])] if w > t.limit]
         why = "; ".join(bad) if bad else "each target alone is reachable, but no searched plan meets them all"
         raise InputError(f"--target cannot be met within {hours_cap:g} chamber hours by any of the {searched} "
                          f"plans searched: {why}")
