@@ -23,16 +23,13 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import math
-
     from ..estimation.result import CalibrationResult
     from ..reports.compensation import export_compensation
 
     grid = args.grid
     if grid is None:
-        lo, hi = CalibrationResult.load(args.result).temperature_range_C or (20.0, 20.0)
-        lo5, hi5 = 5.0 * math.ceil(lo / 5.0 - 1e-9), 5.0 * math.floor(hi / 5.0 + 1e-9)
-        grid = f"{lo5:g}:{hi5:g}:5"
+        grid = default_grid(CalibrationResult.load(args.result).temperature_range_C, args.result,
+                            args.allow_extrapolation)
     table = export_compensation(args.result, args.out, args.format, grid, args.allow_extrapolation)
     out = output(args)
     out.say(f"{table.unit}: {len(table.grid_C)} grid points {table.grid_C[0]:g}..{table.grid_C[-1]:g} degC "
@@ -43,3 +40,29 @@ def run(args) -> int:
     for n in table.notes:
         out.say(f"  note: {n}")
     return 0
+
+
+def default_grid(rng, name, allow_extrapolation: bool = False) -> str:
+    """The grid when --grid is not given: the calibrated range in 5 degC steps (its own ends when
+    no two multiples of 5 degC lie in it). A result without a temperature range, or of one
+    temperature, is refused with what is wrong, not with a grid the user never typed."""
+    import math
+
+    from ..errors import InputError
+
+    if rng is None:
+        raise InputError(f"{name}: the result has no temperature range (fitted without temperature data, e.g. by "
+                         "fit-raw): a compensation table of T cannot be made from it; apply it with "
+                         "CalibrationResult.apply, or calibrate over a temperature range")
+    from ..estimation.joint import TEMPERATURE_SPAN_MIN_C
+
+    lo, hi = float(rng[0]), float(rng[1])
+    if not hi - lo >= TEMPERATURE_SPAN_MIN_C:     # as the fit says "one temperature" (estimation/joint.py)
+        hint = ("give --grid LO:HI:STEP" if allow_extrapolation else "give --grid LO:HI:STEP with "
+                "--allow-extrapolation") + f" (its points outside {lo:.2f}..{hi:.2f} degC are marked EXTRAPOLATED)"
+        raise InputError(f"{name}: the result was calibrated at one temperature ({lo:.2f}..{hi:.2f} degC): a table of T would "
+                         f"be a single point, and the thermal model is not valid away from it; {hint}")
+    lo5, hi5 = 5.0 * math.ceil(lo / 5.0 - 1e-9), 5.0 * math.floor(hi / 5.0 + 1e-9)
+    if hi5 > lo5:
+        return f"{lo5:g}:{hi5:g}:5"
+    return f"{lo!r}:{hi!r}:{hi - lo!r}"       # a range narrower than the 5 degC step: its two ends

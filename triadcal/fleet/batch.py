@@ -135,9 +135,9 @@ def fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, o
     records = []
     try:
         campaign = read_bench_csv(input_path)
-    except InputError as exc:
+    except InputError as exc:       # said once, by part 0, not by every part of the file
         return [{"unit": "", "state": "", "input": str(input_path), "path": "", "action": "error",
-                 "status": "refused", "error": str(exc)}]
+                 "status": "refused", "error": str(exc)}] if part == 0 else []
     todo = pairs(campaign)[part::n_parts]
     for unit, state in todo:
         path = result_path(out_dir, unit, state)
@@ -176,9 +176,9 @@ def fit_manifest_part(manifest: str, out_dir: str, part: int, n_parts: int) -> l
 
     try:
         entries = read_manifest(manifest)[part::n_parts]
-    except InputError as exc:
+    except InputError as exc:       # said once, by part 0, not by every part of the manifest
         return [{"unit": "", "state": "", "input": str(manifest), "path": "", "action": "error",
-                 "status": "refused", "error": str(exc)}]
+                 "status": "refused", "error": str(exc)}] if part == 0 else []
     records = []
     for e in entries:
         sha = sha256_of(e.path)
@@ -202,6 +202,55 @@ def fit_manifest_part(manifest: str, out_dir: str, part: int, n_parts: int) -> l
         result.save(path)
         records.append({**rec, "action": "fitted", "seconds": time.perf_counter() - t0, "result": result.to_dict()})
     return records
+
+
+# -- one unit and state in one input only ------------------------------------------------------
+
+def quick_pairs(path) -> list[tuple[str, str]]:
+    """The (unit, state) pairs of an input, read cheaply before any fit: a manifest's entries, a
+    bench CSV's ``unit`` and ``state`` columns (empty state: ``initial``, as the reader says).
+    An input that cannot be read gives none here: its task reports the error."""
+    import csv
+
+    from .manifest import is_manifest, read_manifest
+
+    try:
+        if is_manifest(path):
+            return [(e.serial, e.state) for e in read_manifest(path)]
+        with open(path, encoding="utf-8", newline="") as fh:
+            lines = (ln for ln in fh if ln.strip() and not ln.startswith("#"))
+            rows = csv.reader(lines)
+            header = [h.strip() for h in next(rows)]
+            iu = header.index("unit")
+            ist = header.index("state") if "state" in header else None
+            out = set()
+            for row in rows:
+                if len(row) == len(header):
+                    out.add((row[iu].strip(), (row[ist].strip() if ist is not None else "") or "initial"))
+            return sorted(out)
+    except (InputError, OSError, UnicodeDecodeError, ValueError, StopIteration, csv.Error):
+        return []
+
+
+def check_unique_pairs(files: Sequence[Path]) -> None:
+    """Refuse inputs in which one unit and state (or two whose file names coincide) is in two
+    files: one result file would hold one of the two fits, and the summary would count the unit
+    twice (docs/fleet.md)."""
+    where: dict = {}
+    clashes = []
+    for f in files:
+        for unit, state in quick_pairs(f):
+            key = result_path("", unit, state)
+            if key in where and where[key][0] != str(f):
+                clashes.append(f"unit {unit} in state {state} is in {where[key][0]} and in {f}"
+                               + ("" if where[key][1:] == (unit, state) else
+                                  f" (as {where[key][1]}/{where[key][2]}: one result file name)"))
+            else:
+                where.setdefault(key, (str(f), unit, state))
+    if clashes:
+        raise InputError(f"{clashes[0]}" + (f" (and {len(clashes) - 1} more)" if len(clashes) > 1 else "")
+                         + ": one result file would hold one of the two fits; give each unit and state in one "
+                           "input only")
 
 
 # -- the batch -------------------------------------------------------------------------------
@@ -279,6 +328,7 @@ def batch(inputs: Sequence, out_dir, *, lab=None, scheduler: Optional[str] = Non
 
     t0 = time.perf_counter()
     files = expand_inputs(inputs)
+    check_unique_pairs(files)                  # one unit and state in two inputs: refused before any fit
     if lab is not None and not isinstance(lab, LabConfig):
         lab = load_lab(lab)
     tol = None
@@ -286,6 +336,10 @@ def batch(inputs: Sequence, out_dir, *, lab=None, scheduler: Optional[str] = Non
         from .summary import load_tolerances
 
         tol = load_tolerances(tolerances)      # refused before any fit
+    if history is not None:
+        from .history import HistoryDB
+
+        HistoryDB(history).close()             # a corrupt or foreign database is refused before any fit
     out_dir = Path(out_dir)
     (out_dir / "results").mkdir(parents=True, exist_ok=True)
 

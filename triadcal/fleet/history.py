@@ -62,8 +62,23 @@ class HistoryDB:
         self.path = Path(path)
         if self.path.parent and not self.path.parent.exists():
             raise InputError(f"{self.path}: folder {self.path.parent} does not exist")
-        self.con = sqlite3.connect(self.path, timeout=30)
-        self.con.executescript(SCHEMA)
+        if self.path.is_dir():
+            raise InputError(f"{self.path}: is a folder, not a calibration history database (SQLite)")
+        try:
+            self.con = sqlite3.connect(self.path, timeout=30)
+        except sqlite3.Error as exc:
+            raise InputError(f"{self.path}: cannot open the calibration history database: {exc}") from None
+        try:
+            self.con.executescript(SCHEMA)
+            cols = [r[1] for r in self.con.execute("PRAGMA table_info(calibrations)")]
+        except sqlite3.DatabaseError as exc:
+            self.con.close()
+            raise InputError(f"{self.path}: not a usable calibration history database (SQLite): {exc}") from None
+        need = ("id", "serial", "state", "date", "lab", "equipment", "result", "sha256", "added")
+        if any(c not in cols for c in need):
+            self.con.close()
+            raise InputError(f"{self.path}: its table calibrations lacks {', '.join(c for c in need if c not in cols)}: "
+                             "not a triadcal calibration history")
 
     def __enter__(self):
         return self
@@ -85,20 +100,29 @@ class HistoryDB:
             or _dt.datetime.now(_dt.timezone.utc).date().isoformat()
         lab_name = (lab.name if lab is not None else "") or b.get("lab", "")
         state = b.get("state") or result.get("state") or ""
-        with self.con:
-            cur = self.con.execute(
-                "INSERT OR IGNORE INTO calibrations (serial, state, date, lab, equipment, result, sha256, added) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                (str(result["unit"]), state, str(date), lab_name, json.dumps(equipment_of(lab), sort_keys=True),
-                 text, sha, _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")))
+        try:
+            with self.con:
+                cur = self._insert(result, state, date, lab_name, lab, text, sha)
+        except sqlite3.DatabaseError as exc:
+            raise InputError(f"{self.path}: cannot record in the calibration history database: {exc}") from None
         return cur.rowcount == 1
+
+    def _insert(self, result, state, date, lab_name, lab, text, sha):
+        return self.con.execute(
+            "INSERT OR IGNORE INTO calibrations (serial, state, date, lab, equipment, result, sha256, added) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (str(result["unit"]), state, str(date), lab_name, json.dumps(equipment_of(lab), sort_keys=True),
+             text, sha, _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")))
 
     def calibrations(self, serial: str) -> list[dict]:
         """Every recorded calibration of ``serial``, oldest first (by date, then by when recorded)."""
-        cur = self.con.execute("SELECT id, serial, state, date, lab, equipment, result, sha256, added FROM "
-                               "calibrations WHERE serial = ? ORDER BY date, id", (serial,))
+        try:
+            rows = self.con.execute("SELECT id, serial, state, date, lab, equipment, result, sha256, added FROM "
+                                    "calibrations WHERE serial = ? ORDER BY date, id", (serial,)).fetchall()
+        except sqlite3.DatabaseError as exc:
+            raise InputError(f"{self.path}: cannot read the calibration history database: {exc}") from None
         out = []
-        for row in cur.fetchall():
+        for row in rows:
             out.append({"id": row[0], "serial": row[1], "state": row[2], "date": row[3], "lab": row[4],
                         "equipment": json.loads(row[5]), "result": json.loads(row[6]), "sha256": row[7],
                         "added": row[8]})
@@ -143,20 +167,25 @@ def history_text(serial: str, calibrations) -> str:
         lines.append(f"  #{i} {c['date']}  state {c['state'] or '-'}  lab {c['lab'] or '-'}  method "
                      f"{r.get('method')}  status {r.get('status')}")
     names = shown_parameters(calibrations)
-    head = "  " + "parameter".ljust(12) + "".join(f"#{i}".rjust(24) for i in range(1, len(calibrations) + 1))
-    lines += ["", head]
+    # every cell is "value ± u unit" (a serial's calibrations may be in different units: g/V,
+    # g/counts), and the columns are as wide as their widest cell, two spaces apart
+    table = []
     for n in names:
         cells = []
-        unit = ""
         for c in calibrations:
             p = c["result"].get("parameters", {}).get(n)
             if p is None or p.get("value") is None or p.get("u") is None:
-                cells.append("-".rjust(24))
+                cells.append("-")
                 continue
-            unit = p.get("unit", "")
             v, u = round_to_uncertainty(p["value"], p["u"])
-            cells.append(f"{v} ± {u}".rjust(24))
-        lines.append("  " + f"{n}".ljust(12) + "".join(cells) + f"  {unit}")
+            cells.append(f"{v} ± {u} {p.get('unit', '')}".rstrip())
+        table.append((n, cells))
+    widths = [max([len(f"#{i}")] + [len(cells[i - 1]) for _, cells in table])
+              for i in range(1, len(calibrations) + 1)]
+    name_w = max([len("parameter")] + [len(n) for n in names])
+    lines += ["", "  " + "parameter".ljust(name_w) + "".join("  " + f"#{i}".rjust(w) for i, w in enumerate(widths, 1))]
+    for n, cells in table:
+        lines.append("  " + n.ljust(name_w) + "".join("  " + c.rjust(w) for c, w in zip(cells, widths)))
     vs = verdicts(calibrations)
     if vs:
         lines += ["", "  compare (consecutive, significance only):"]

@@ -62,6 +62,7 @@ def read_manifest(path) -> list:
         raise InputError(f"{path}: a manifest holds [[recording]] entries only"
                          + (f"; unknown: {', '.join(unknown)}" if unknown else ""))
     out = []
+    first: dict = {}
     for i, e in enumerate(data["recording"], start=1):
         where = f"{path}: recording {i}"
         bad = [k for k in e if k not in KEYS]
@@ -85,6 +86,11 @@ def read_manifest(path) -> list:
         rec = (path.parent / e["path"]).resolve()
         if not rec.is_file():
             raise InputError(f"{where}: {e['path']}: no such file (paths are relative to the manifest)")
+        key = (e["serial"], e.get("state", "initial"))
+        if key in first:
+            raise InputError(f"{where}: serial {key[0]} in state {key[1]} is also recording {first[key]}: one result "
+                             "file would hold one of them; give each serial and state once")
+        first[key] = i
         out.append(RawEntry(rec, e["serial"], e.get("state", "initial"), float(e["rate_hz"]), e["unit"], e["poses"],
                             tuple(e["columns"]) if "columns" in e else None, e.get("labels"),
                             float(e.get("local_g_m_s2", 9.81))))

@@ -104,7 +104,8 @@ def parameter_names(records) -> list[str]:
 
 
 def table(records, tolerances=None):
-    """(columns, rows as dicts) of the fleet: BASE_COLUMNS then ``<p>``, ``<p>_u`` per parameter."""
+    """(columns, rows as dicts) of the fleet: BASE_COLUMNS then ``<p>``, ``<p>_u``, ``<p>_unit`` per
+    parameter. Outliers are sought per parameter and unit (never over values of different units)."""
     names = parameter_names(records)
     rows = []
     for r in records:
@@ -119,17 +120,32 @@ def table(records, tolerances=None):
             p = params.get(n) or {}
             row[n] = p.get("value")
             row[n + "_u"] = p.get("u")
+            row[n + "_unit"] = p.get("unit", "") if n in params else ""
         rows.append(row)
     ok = np.array([row["status"] == "ok" for row in rows], bool)
     flagged = {i: [] for i in range(len(rows))}
     for n in names:
-        x = np.array([row[n] if (row[n] is not None and ok[i]) else np.nan for i, row in enumerate(rows)], float)
-        for i in np.flatnonzero(robust_outliers(x)):
-            flagged[int(i)].append(n)
+        # values of different units (g/V and g/counts) are never pooled: the rule runs per unit
+        for unit in units_of(rows, n):
+            x = np.array([row[n] if (row[n] is not None and ok[i] and row[n + "_unit"] == unit) else np.nan
+                          for i, row in enumerate(rows)], float)
+            for i in np.flatnonzero(robust_outliers(x)):
+                flagged[int(i)].append(n)
     for i, row in enumerate(rows):
         row["outliers"] = ";".join(flagged[i])
-    columns = list(BASE_COLUMNS) + [c for n in names for c in (n, n + "_u")]
+    columns = list(BASE_COLUMNS) + [c for n in names for c in (n, n + "_u", n + "_unit")]
     return columns, rows, names
+
+
+def units_of(rows, name: str) -> list[str]:
+    """The units of parameter ``name`` over the rows whose status is ok and that hold it, most
+    frequent first (the fleet's values of one name in different units are never pooled)."""
+    count: dict = {}
+    for r in rows:
+        if r["status"] == "ok" and r.get(name) is not None:
+            u = r.get(name + "_unit", "")
+            count[u] = count.get(u, 0) + 1
+    return sorted(count, key=lambda u: (-count[u], u))
 
 
 def write_summary(records, out_dir, tolerances=None, html_page: bool = True) -> tuple[dict, dict]:
@@ -153,7 +169,8 @@ def write_summary(records, out_dir, tolerances=None, html_page: bool = True) -> 
     arrays = {}
     for c in columns:
         vals = [row[c] for row in rows]
-        if c in ("unit", "state", "input", "action", "status", "out_of_tolerance", "outliers", "error"):
+        if c in ("unit", "state", "input", "action", "status", "out_of_tolerance", "outliers", "error") \
+                or c.endswith("_unit"):
             arrays[c] = pa.array([str(v) for v in vals], pa.string())
         elif c == "n_obs":
             arrays[c] = pa.array([None if v is None else int(v) for v in vals], pa.int64())
@@ -205,11 +222,18 @@ def render_html(rows, names, tolerances=None) -> str:
     else:
         parts.append("<p>none</p>")
     parts.append("<h2>Distributions</h2>")
-    for n in names:
-        x = np.array([r[n] for r in ok if r[n] is not None], float)
+    mixed = [(n, units_of(rows, n)) for n in names if len(units_of(rows, n)) > 1]
+    if mixed:
+        parts.append("<p>Values in different units are never pooled: one histogram, and one outlier rule, per "
+                     "parameter and unit (" + esc("; ".join(
+                         f"{n}: " + ", ".join(f"{u or 'no unit'} ({sum(1 for r in ok if r[n] is not None and r[n + '_unit'] == u)})"
+                                             for u in us) for n, us in mixed)) + ").</p>")
+    for n, unit in [(n, u) for n in names for u in units_of(rows, n)]:
+        sel = [r for r in ok if r[n] is not None and r[n + "_unit"] == unit]
+        x = np.array([r[n] for r in sel], float)
         if not len(x):
             continue
-        out = np.array([n in r["outliers"].split(";") for r in ok if r[n] is not None], bool)
+        out = np.array([n in r["outliers"].split(";") for r in sel], bool)
         fig = Figure(figsize=(3.6, 2.4))
         ax = fig.add_axes((0.16, 0.14, 0.8, 0.74))
         ax.hist(x[~out] if (~out).any() else x, bins=min(30, max(5, len(x) // 5)), color="#4a7ab0")
@@ -220,14 +244,17 @@ def render_html(rows, names, tolerances=None) -> str:
                 for v in (lo, hi):
                     ax.axvline(v, color="k", ls="--", lw=0.8)
                 break
-        ax.set_title(n, fontsize=9)
+        title = f"{n} ({unit})" if unit else n
+        ax.set_title(f"{title}, {len(x)} units", fontsize=9)
         ax.tick_params(labelsize=7)
-        parts.append(f"<div class='fig'><img alt='{esc(n)}' src='data:image/png;base64,{_png(fig)}'></div>")
+        parts.append(f"<div class='fig'><img alt='{esc(title)}' title='{esc(title)}' "
+                     f"src='data:image/png;base64,{_png(fig)}'></div>")
     parts.append("<h2>Table</h2><table><tr><th>unit</th><th>state</th><th>status</th><th>chi2/dof</th>"
                  "<th>input</th></tr>")
     for r in rows:
         chi = "" if r["chi2_dof"] is None else f"{r['chi2_dof']:.3f}"
         parts.append(f"<tr><td>{esc(r['unit'])}</td><td>{esc(r['state'])}</td><td>{esc(r['status'])}</td>"
                      f"<td>{chi}</td><td>{esc(r['input'])}</td></tr>")
-    parts.append("</table><p>Every value, its u and unit: fleet.csv, fleet.parquet and results/.</p></body></html>\n")
+    parts.append("</table><p>Every value, its u and unit (columns NAME, NAME_u, NAME_unit): fleet.csv, fleet.parquet "
+                 "and results/.</p></body></html>\n")
     return "".join(parts)

@@ -83,6 +83,13 @@ class CompensationTable:
     def K_unit(self) -> str:
         return f"g/{self.output_unit}"
 
+    @property
+    def extrapolated(self) -> np.ndarray:
+        """(n,) bool: the grid points outside the calibrated range (written only with
+        ``allow_outside``, marked EXTRAPOLATED in every format)."""
+        lo, hi = self.temperature_range_C
+        return (self.grid_C < lo - 1e-9) | (self.grid_C > hi + 1e-9)
+
     # -- applying it as a firmware would ------------------------------------------------
     def apply(self, w, temperature_C) -> np.ndarray:
         """``A = Ca^-1(T) (K(T) W - S(T))`` with K, S and Ca^-1 linearly interpolated in T (g).
@@ -116,6 +123,7 @@ class CompensationTable:
                 r[f"Ca_{ab}"], r[f"u_Ca_{ab}"], r[f"interp_Ca_{ab}"] = (
                     float(self.angles[i, j]), float(self.u_angles[i, j]), float(self.interp_angles[i, j]))
             r["Ca_inv"] = self.Ca_inv[i].tolist()
+            r["extrapolated"] = bool(self.extrapolated[i])
             rows.append(r)
         return {"format": FORMAT, "version": VERSION, "unit": self.unit, "output_unit": self.output_unit,
                 "source_sha256": self.source_sha256, "reference_temperature_C": self.reference_temperature_C,
@@ -125,24 +133,35 @@ class CompensationTable:
                           "u": "standard uncertainty (k = 1) in the quantity's unit",
                           "interp": "bound of linear interpolation on [T_i, T_i+1], the quantity's unit"},
                 "apply": "A_IMU = Ca_inv(T) (K(T) W - S(T)), each interpolated linearly in T",
+                "extrapolated": "a row with extrapolated true is EXTRAPOLATED: outside the calibrated range, "
+                                "where the thermal model is not valid",
                 "hysteresis_arcsec": self.hysteresis_arcsec, "rows": rows, "notes": list(self.notes)}
 
     def to_csv(self) -> str:
         d = self.to_dict()
-        cols = [k for k in d["rows"][0] if k != "Ca_inv"] + [f"Ca_inv_{i}{j}" for i in range(3) for j in range(3)]
-        out = [f"# format = {FORMAT}", f"# version = {VERSION}", f"# unit = {self.unit}",
-               f"# source_sha256 = {self.source_sha256}", f"# K unit = {self.K_unit}; S unit = g; Ca unit = arcsec; "
-               "u_* standard uncertainty; interp_* bound of linear interpolation to the next row",
+        cols = [k for k in d["rows"][0] if k not in ("Ca_inv", "extrapolated")] + \
+            [f"Ca_inv_{i}{j}" for i in range(3) for j in range(3)] + ["extrapolated"]
+        out = [f"# format = {FORMAT}", f"# version = {VERSION}", f"# unit = {_one_line(self.unit)}",
+               f"# source_sha256 = {self.source_sha256}", f"# K unit = {_one_line(self.K_unit)}; S unit = g; Ca unit = "
+               "arcsec; u_* standard uncertainty; interp_* bound of linear interpolation to the next row",
+               f"# calibrated range = {self.temperature_range_C[0]:.1f}..{self.temperature_range_C[1]:.1f} degC; "
+               "extrapolated = 1: the row is EXTRAPOLATED (outside the calibrated range, where the thermal model is "
+               "not valid)",
                f"# apply = {d['apply']}; mid-line of the hysteresis loop",
-               "# hysteresis_arcsec = " + json.dumps(self.hysteresis_arcsec), ",".join(cols)]
+               "# hysteresis_arcsec = " + json.dumps(self.hysteresis_arcsec)]
+        out += [f"# note = {_one_line(n)}" for n in self.notes]
+        out.append(",".join(cols))
         for r in d["rows"]:
-            vals = [r[c] for c in cols if not c.startswith("Ca_inv_")] + [x for row in r["Ca_inv"] for x in row]
-            out.append(",".join(f"{v:.10g}" for v in vals))
+            vals = [r[c] for c in cols[:-10]] + [x for row in r["Ca_inv"] for x in row]
+            out.append(",".join(f"{v:.10g}" for v in vals) + f",{int(r['extrapolated'])}")
         return "\n".join(out) + "\n"
 
     def to_c_header(self, prefix: str = "triadcal_comp") -> str:
         n = len(self.grid_C)
         guard = f"{prefix.upper()}_H"
+
+        ext = self.extrapolated
+        row_note = [f"/* {T:g} degC" + (", EXTRAPOLATED */" if x else " */") for T, x in zip(self.grid_C, ext)]
 
         def arr(name, a, unit, shape):
             a = np.asarray(a, float)
@@ -150,21 +169,28 @@ class CompensationTable:
             def lit(x):
                 return "{" + ", ".join(lit(y) for y in x) + "}" if np.ndim(x) else _c_float(x)
 
-            body = ",\n".join("    " + lit(row) for row in a)
-            return f"/* {unit} */\nstatic const float {prefix}_{name}[{n}]{shape} = {{\n{body}\n}};\n"
+            body = "\n".join("    " + lit(row) + ("," if i < n - 1 else " ") + " " + row_note[i]
+                             for i, row in enumerate(a))
+            return f"/* {_c_comment(unit)} */\nstatic const float {prefix}_{name}[{n}]{shape} = {{\n{body}\n}};\n"
 
         T = ", ".join(_c_float(x) for x in self.grid_C)
-        lines = [f"/* Compensation table of accelerometer triad {self.unit}, written by triadcal export-compensation.",
+        flags = ", ".join(str(int(x)) for x in ext)
+        notes = [f" * Note: {_c_comment(x)}" for x in self.notes]
+        lines = [f"/* Compensation table of accelerometer triad {_c_comment(self.unit)}, written by triadcal "
+                 "export-compensation.",
                  f" * Result SHA-256 {self.source_sha256}. Reference temperature {self.reference_temperature_C:g} degC;",
                  f" * calibrated range {self.temperature_range_C[0]:.1f}..{self.temperature_range_C[1]:.1f} degC.",
                  " * Apply: A_IMU[g] = Ca_inv(T) * (K(T) * W - S(T)), K, S, Ca_inv interpolated linearly in T.",
                  " * Mid-line of the hysteresis loop; half-widths (arcsec): "
                  + (", ".join(f"{k} {v:.3g}" for k, v in self.hysteresis_arcsec.items()) or "none modelled") + ".",
-                 f" * Largest interpolation bound: K {np.max(self.interp_K):.3g} {self.K_unit}, S "
+                 f" * Largest interpolation bound: K {np.max(self.interp_K):.3g} {_c_comment(self.K_unit)}, S "
                  f"{np.max(self.interp_S):.3g} g, angles {np.max(self.interp_angles):.3g} arcsec.",
-                 " * u_* arrays: standard uncertainty (k = 1) of each entry. */",
+                 " * u_* arrays: standard uncertainty (k = 1) of each entry.",
+                 f" * {prefix}_extrapolated[i] = 1: row i is EXTRAPOLATED (outside the calibrated range, where the "
+                 f"thermal model is not valid): {int(ext.sum())} of {n} rows."] + notes + [" */",
                  f"#ifndef {guard}", f"#define {guard}", f"#define {prefix.upper()}_N {n}",
                  f"/* degC */\nstatic const float {prefix}_T_C[{n}] = {{{T}}};",
+                 f"/* 1: EXTRAPOLATED row */\nstatic const unsigned char {prefix}_extrapolated[{n}] = {{{flags}}};",
                  arr("K", self.K, self.K_unit, "[3]"), arr("S", self.S, "g", "[3]"),
                  arr("Ca_inv", self.Ca_inv, "1 (rows X, Y, Z)", "[3][3]"),
                  arr("u_K", self.u_K, self.K_unit, "[3]"), arr("u_S", self.u_S, "g", "[3]"),
@@ -183,6 +209,22 @@ class CompensationTable:
             atomic_write_text(path, self.to_c_header())
         else:
             raise InputError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
+
+
+def _one_line(text) -> str:
+    """Text for one comment line: control characters (a newline would end a CSV comment) become spaces."""
+    return "".join(c if c.isprintable() else " " for c in str(text))
+
+
+def _c_comment(text) -> str:
+    """Text safe inside a C ``/* */`` comment under ``gcc -Wall -Wextra -Werror``: ``*/`` would end it
+    and ``/*`` inside it is a warning (-Wcomment), a backslash at a line end splices lines; non-ASCII
+    characters and control characters become ``?`` or a space (a serial is free text)."""
+    t = _one_line(text).replace("\\", "/")
+    t = "".join(c if ord(c) < 128 else "?" for c in t)
+    while "*/" in t or "/*" in t:
+        t = t.replace("*/", "* /").replace("/*", "/ *")
+    return t.replace("??", "? ?")                    # no trigraph
 
 
 def _c_float(x: float) -> str:
