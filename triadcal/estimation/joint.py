@@ -451,12 +451,11 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     u_a = np.sqrt(np.diag(cov))
     units_of = {n: parameter_unit(model, n, campaign.output_unit) for n in problem.names}
     budgets = {}
-    if "bench_nonorth" in problem.index:
-        # measured by the fit: its Type B row is the estimate's own u
-        systematics = [t for t in systematics if t.kind != "axes_nonorthogonality"]
     if systematics:
-        from ..uncertainty.typeb import propagate
+        from ..uncertainty.typeb import propagate, propagated_sources
 
+        systematics = propagated_sources(systematics, problem.index)   # bench_nonorth measured: its own u
+    if systematics:
         p_hat = model.to_internal({**{n: float(v) for n, v in zip(problem.names, sol.x)}, **fixed})
         tb = propagate(systematics, model, p_hat, campaign.covariates(), campaign.gravity_g, campaign.w,
                        sol.J, noise.sigma, problem.names, campaign.output_unit, sol.weights, u_a,

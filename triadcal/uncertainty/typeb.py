@@ -242,6 +242,17 @@ def effects_with_lab(effects: Sequence[str], sources: Sequence[SystematicSource]
     return effects, ""
 
 
+def propagated_sources(sources: Sequence[SystematicSource], parameter_names) -> list:
+    """The sources propagated as Type B into a fit's budgets: all of ``sources`` but the bench
+    axes' non-orthogonality when the fit estimates it (``bench_nonorth`` among ``parameter_names``,
+    :func:`effects_with_lab`): then its row is the estimate's own u. Used by the joint fit
+    (:func:`triadcal.estimation.joint.fit_joint`) and by the certificate's check that a result
+    was fitted with the lab file it is issued under, so that the two agree by construction."""
+    if "bench_nonorth" not in set(parameter_names):
+        return list(sources)
+    return [s for s in sources if s.kind != "axes_nonorthogonality"]
+
+
 def budget_of(name: str, p) -> Optional[Budget]:
     """The :class:`Budget` of a parameter read from a result (``ParameterValue.uncertainty``,
     the results JSON's rows), or None when it has none (Type A only)."""

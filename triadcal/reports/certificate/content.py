@@ -379,16 +379,14 @@ def _lab_disagrees(result: CalibrationResult, lab: LabConfig) -> list:
     rows = [row for p in result.parameters.values() for row in (p.uncertainty.get("budget") or [])
             if isinstance(row, dict)]
     if result.method != "classical" and any(p.U is not None for p in result.parameters.values()):
-        from ...uncertainty.typeb import systematic_sources
+        from ...uncertainty.typeb import propagated_sources, systematic_sources
 
         try:
             declared = systematic_sources(lab, str(result.extra.get("output_unit") or "V"))
         except InputError:
             declared = []
         missing, changed = [], []
-        for src in declared:
-            if src.kind == "axes_nonorthogonality" and "bench_nonorth" in result.parameters:
-                continue               # measured by the fit: its row is the estimate's own u (joint.py)
+        for src in propagated_sources(declared, result.parameters):   # as the fit propagated them
             held = [row for row in rows if row.get("source") == src.source]
             if not held:
                 missing.append(f"{src.source} ({src.key} = {src.u:g} {src.unit})")
