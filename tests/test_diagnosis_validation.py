@@ -61,6 +61,7 @@ def test_left_out_groups_hold_the_forms_and_orders_of_the_effect():
     assert all(set(forms) <= set(left_out_group(e)) for e, forms in SAME_EFFECT.items())
 
 
+@pytest.mark.slow   # 15 s; CI runs it with the slow tests (the quick suite's 10-minute budget)
 def test_left_out_mode_rows_confusion_and_json(tmp_path):
     """One condition at half magnitude, one seed: the same campaign diagnosed twice (in vocabulary,
     left out); both verdicts in the row, both matrices in the result, the table and the JSON."""

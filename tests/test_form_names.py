@@ -231,7 +231,9 @@ def test_sample_with_a_lag_the_data_do_not_hold_is_refused(tmp_path, capsys):
     assert doc["fit"]["thermal_lag"]["held_in_posterior"] is True
 
 
-@pytest.mark.parametrize("name", ANSWERABLE)
+# the history form's sample takes 15 s: slow (CI runs it), to keep the quick suite under its 10 minutes
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "thermal_lag_history" else n
+                                  for n in ANSWERABLE])
 def test_sample_accepts_every_name_the_diagnosis_answers(oblique_campaign, tmp_path, name, capsys):
     """``sample --effects MODEL,NAME`` (a short chain: the test is of the names, not of convergence)
     writes a result with a status for every answerable name, never "unknown effect"."""

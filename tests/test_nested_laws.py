@@ -24,6 +24,7 @@ def test_the_warmup_holds_the_drift():
     assert NESTED_LIMIT == {"bias_warmup": "bias_drift"}
 
 
+@pytest.mark.slow   # 12 s; CI runs it with the slow tests (the quick suite's 10-minute budget)
 def test_a_warmup_ranked_first_that_does_not_beat_its_limit_gives_way_to_the_drift():
     """Seed 1019: the warm-up's delta elpd 148.3 against the drift's 147.7, its tau 22 +- 12 h on a
     13 h campaign: a rate. The drift is named, and the evidence says why the first-ranked law was not.

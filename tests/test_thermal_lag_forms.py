@@ -324,6 +324,7 @@ def test_fit_command_takes_the_thermal_lag_form(tmp_path, capsys):
     assert rc == 1 and "--thermal-lag-form housing" in capsys.readouterr().err     # a refused input
 
 
+@pytest.mark.slow   # 13 s; CI runs it with the slow tests (the quick suite's 10-minute budget)
 def test_fit_command_bridges_the_gaps(tmp_path, capsys):
     """`triadcal fit --thermal-lag-form air --bridge-gaps` on a stepped campaign read at its visits:
     without the option the history gate refuses the record's gaps; with it the bridge is profiled
