@@ -164,6 +164,29 @@ def single_temperature_reference(campaign: Campaign, reference_temperature_C: fl
                 f"not at {ref:g} degC (reference_temperature_C says which)")
 
 
+#: P(chi2 this small) below which the stated noise overstates the data's scatter (the goodness of
+#: fit gate's level, GateConfig.gof_p_min, on the lower tail)
+OVERSTATED_P = 1e-3
+
+
+def overstated_noise_note(chi2: float, dof: int, noise_description: str, bench_errors: bool) -> Optional[str]:
+    """A note when the residuals scatter improbably less than the stated noise predicts
+    (P(chi2 <= observed) < :data:`OVERSTATED_P` with ``dof`` degrees of freedom), or None. The
+    answer is not wrong but every u is conservative by up to ``1/sqrt(chi2/dof)``: an outside
+    probe's campaign with its ``sd_*`` tripled gave chi2/dof 0.116 on 508 dof and intervals three
+    times too wide with no word (the status stays ok: a u too large is no confident wrong answer,
+    but the user must know)."""
+    p_low = float(stats.chi2.cdf(chi2, dof))
+    if p_low >= OVERSTATED_P:
+        return None
+    ratio = chi2 / dof
+    what = "the output noise plus the lab's bench errors" if bench_errors else f"the stated noise ({noise_description})"
+    return (f"the data scatter less than {what} predicts (chi2/dof = {ratio:.3g} on {dof} dof, P(chi2 this small) = "
+            f"{p_low:.2g}): the stated noise is about {1 / math.sqrt(max(ratio, 1e-12)):.2g} times the scatter, so "
+            "every u is conservative by up to that factor; check the sd_*, u_w_* or Q_V2s of the data"
+            + (" and the lab file's bench errors" if bench_errors else ""))
+
+
 def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]:
     """Parameters the data cannot determine, with the reason, from the design of the campaign."""
     problems = {}
@@ -478,12 +501,10 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         notes.append(f"Levenberg-Marquardt stopped after {sol.iterations} iterations without meeting its "
                      "convergence test (cost still falling or a non-vanishing gradient); the values are not an optimum")
     p_gap = float(stats.chi2.sf(chi2, dof)) if noise.known and dof > 0 else None
-    if bench_errors is not None and dof > 0:
-        p_low = float(stats.chi2.cdf(chi2, dof))
-        if p_low < 1e-3:
-            notes.append(f"the data scatter less than the output noise plus the lab's bench errors predict "
-                         f"(chi2/dof = {chi2_dof:.3g}, P(chi2 this small) = {p_low:.2g}): the stated bench errors "
-                         "are larger than this campaign shows, so u is conservative; check the lab file's values")
+    if noise.known and dof > 0 and loss == "l2":
+        note = overstated_noise_note(chi2, dof, noise.description, bench_errors is not None)
+        if note:
+            notes.append(note)
     fit = {"chi2_dof": chi2_dof, "n_obs": n_obs, "n_params": n_par, "iterations": sol.iterations,
            "loss": loss if loss != "student_t" else f"student_t(nu={nu:g})",
            "noise": noise.description, "noise_known": noise.known,
