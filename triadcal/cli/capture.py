@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ..errors import InputError
 
+import sys
 import tempfile
 
 from ._common import add_output_options, float_list, output
@@ -174,6 +175,11 @@ def run(args) -> int:
     out.say(f"the readout: {r.accepted_samples} samples accepted; {r.corrupted_frames} corrupted, "
             f"{r.missing_frames} missing and {r.duplicate_frames} duplicated frames; {r.garbage_bytes} garbage "
             f"bytes; {r.reconnects} reconnections, {r.stalls} stalls and {r.redone_visits} visits redone")
+    if r.invalid_frames or r.clock_faults:
+        out.say(f"the readout also had {r.invalid_frames} frames refused (values not finite or out of range) and "
+                f"{r.clock_faults} clock faults (restarts, clock steps, sequence resets); see raw/events.jsonl")
+    for w in r.warnings:
+        print(f"warning: {w}", file=sys.stderr)
     if r.noise:
         q = r.noise["Q_V2s"]
         out.say(f"white-noise intensity from the Allan variance: Q = {q[0]:.3g}, {q[1]:.3g}, {q[2]:.3g} "

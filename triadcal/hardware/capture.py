@@ -10,10 +10,9 @@ machine; the instruments' protocols and drivers are in protocols/ and drivers/.
 
 from __future__ import annotations
 
-from ..errors import InputError, TriadcalError
+from ..errors import InputError
 
 import time
-from collections import deque
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping, Optional, Sequence
@@ -33,17 +32,16 @@ from .noise import NoiseEstimate, allan_noise
 from .protocols import Frame
 from ..io.atomic import atomic_write_json, atomic_write_text, read_json
 from ..io.formats import require_format
-from .storage import EventLog, FolderLocked, RawStore, folder_lock, read_raw
+from .storage import TORN_MARK, EventLog, FolderLocked, RawStore, folder_lock, read_raw
+from .runner import CaptureError, _max_temperature_rate, _Runner  # noqa: F401 - importable from here
+from .session_checks import (check_session_metadata, dated_metadata, setpoint_missed,  # noqa: F401 - importable
+                             storage_error)
 
 CSV_NAME = "campaign.csv"
 STATE_NAME = "capture.json"
 RAW_NAME = "raw/imu_samples.csv"
 EVENTS_NAME = "raw/events.jsonl"
 REPORT_NAME = "capture_report.json"
-
-
-class CaptureError(TriadcalError, RuntimeError):
-    """The campaign cannot go on (instrument silent, not stable in time, mismatched resume)."""
 
 
 @dataclass
@@ -106,6 +104,9 @@ class CaptureReport:
     redone_visits: int
     noise: Optional[dict] = None
     wall_seconds: float = 0.0
+    invalid_frames: int = 0            # refused by runner.frame_problem (event invalid_frame)
+    clock_faults: int = 0              # instrument restarts, clock steps, sequence resets (runner.py)
+    warnings: list = field(default_factory=list)   # what the operator must know (setpoint not reached)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -137,100 +138,11 @@ def plan_from_csv(path) -> dict:
     return plan
 
 
-class _Runner:
-    """Pumps frames from the reader into the raw store and the campaign's logic."""
-
-    def __init__(self, stream: StreamThread, raw: RawStore, events: EventLog, session: int,
-                 settings: CaptureSettings):
-        self.stream, self.raw, self.events, self.session = stream, raw, events, session
-        self.settings = settings
-        self.phase = "idle"
-        self.visit_tag = ""
-        self.window: Optional[tuple] = None       # (t0 or None, t1 or None, list)
-        self.last_seq: Optional[int] = None
-        self.last_time: Optional[float] = None
-        self.now: Optional[float] = None          # instrument time of the latest frame
-        self.accepted = self.duplicates = self.missing = 0
-        self.temps: deque = deque()
-        self._last_frame_wall = time.monotonic()
-        self.dt_estimates: deque = deque(maxlen=256)
-
-    def pump(self, timeout: float = 0.02) -> int:
-        batch = self.stream.get(timeout)
-        if not batch:
-            if time.monotonic() - self._last_frame_wall > self.settings.silence_timeout_wall_s:
-                raise CaptureError(f"no frame from the IMU for {self.settings.silence_timeout_wall_s:g} s "
-                                   "(wall clock); check the cable and run the same command again to resume")
-            return 0
-        self._last_frame_wall = time.monotonic()
-        accepted: list[Frame] = []
-        for f in batch:
-            if self.last_seq is not None:
-                if f.seq <= self.last_seq:
-                    if f.time_s < self.last_time - 1.0:          # the instrument restarted
-                        self.events.write("instrument_restart", seq=f.seq, time_s=f.time_s)
-                    else:
-                        self.duplicates += 1
-                        continue
-                elif f.seq > self.last_seq + 1:
-                    self.missing += f.seq - self.last_seq - 1
-                if f.time_s > self.last_time and f.seq == self.last_seq + 1:
-                    self.dt_estimates.append(f.time_s - self.last_time)
-            self.last_seq, self.last_time = f.seq, f.time_s
-            accepted.append(f)
-        if not accepted:
-            return 0
-        self.accepted += len(accepted)
-        self.now = accepted[-1].time_s
-        # split by phase: frames inside an open recording window are 'record'
-        if self.window is not None:
-            t0, t1, got = self.window
-            rec = [f for f in accepted if f.time_s >= t0 and f.time_s < t1]
-            before = [f for f in accepted if f.time_s < t0]
-            after = [f for f in accepted if f.time_s >= t1]
-            if before:
-                self.raw.append(before, self.session, self.phase, self.visit_tag)
-            if rec:
-                self.raw.append(rec, self.session, "record", self.visit_tag)
-                got.extend(rec)
-            if after:
-                self.raw.append(after, self.session, "idle", self.visit_tag)
-        else:
-            self.raw.append(accepted, self.session, self.phase, self.visit_tag)
-        if self.phase == "soak":
-            for f in accepted:
-                self.temps.append((f.time_s, f.t))
-        return len(accepted)
-
-    def wait_first_frame(self) -> None:
-        while self.now is None:
-            self.pump(0.05)
-
-    @property
-    def rate_hz(self) -> Optional[float]:
-        if not self.dt_estimates:
-            return None
-        return 1.0 / float(np.median(self.dt_estimates))
-
-
-def _max_temperature_rate(temps: deque, window_s: float, now: float) -> Optional[float]:
-    """Largest |slope| (degC/s) of the three temperatures over the last window, or None
-    while the window is not yet covered."""
-    while temps and temps[0][0] < now - window_s:
-        temps.popleft()
-    if len(temps) < 3 or temps[-1][0] - temps[0][0] < 0.9 * window_s:
-        return None
-    t = np.array([x[0] for x in temps])
-    T = np.array([x[1] for x in temps])
-    tc = t - t.mean()
-    slope = (tc @ (T - T.mean(axis=0))) / (tc @ tc)
-    return float(np.max(np.abs(slope)))
-
-
-def _open_session(out, state_path, plan, setpoints_C, directions, labels, settings):
+def _open_session(out, state_path, plan, setpoints_C, directions, labels, settings, metadata=None):
     """The capture state of the folder (resume) or a new one, the rows already captured, and a
     new session recorded (written atomically before anything moves): ``(state, rows,
     done_before, session)``. A folder that holds another campaign (plan, setpoints, tau, unit)
+    or whose rows were captured with other header metadata (:func:`check_session_metadata`)
     is refused naming what differs."""
     identity = {"plan": {k: list(v) for k, v in plan.items()}, "setpoints_C": setpoints_C,
                 "tau_s": settings.tau_s, "unit": settings.unit}
@@ -247,6 +159,8 @@ def _open_session(out, state_path, plan, setpoints_C, directions, labels, settin
     else:
         state = {"format": "triadcal.capture", "version": 1, **identity, "sessions": []}
     rows = _read_rows(out / CSV_NAME, labels, setpoints_C, directions)
+    if metadata is not None:
+        check_session_metadata(state, metadata, out, read_bench_csv(out / CSV_NAME).metadata if rows else None)
     done_before = len(rows)
     session = len(state["sessions"]) + 1
     state["sessions"].append({"session": session, "started_wall": time.time(), "visits_before": done_before})
@@ -272,6 +186,9 @@ def capture(out_dir, *, plan: Mapping[str, tuple], setpoints_C: Sequence[float],
                             settings=settings, progress=progress, extra_metadata=extra_metadata)
     except FolderLocked as exc:
         raise CaptureError(str(exc)) from None
+    except OSError as exc:
+        storage_error(exc, out_dir)
+        raise
 
 
 def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progress, extra_metadata) -> CaptureReport:
@@ -303,25 +220,8 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
     total = len(labels) * len(setpoints_C)
     notify = progress or (lambda ev: None)
 
-    # -- state: what the directory already holds --------------------------------------
-    state_path = out / STATE_NAME
-    state, rows, done_before, session = _open_session(out, state_path, plan, setpoints_C, directions, labels,
-                                                      settings)
-
-    raw = RawStore(out / RAW_NAME)
-    events = EventLog(out / EVENTS_NAME)
-    events.write("session_start", session=session, visits_done=done_before, total=total,
-                 stabilisation=settings.stabilisation.describe())
-    imu.open()
-    stream = StreamThread(imu)
-    stream.start()
-    run = _Runner(stream, raw, events, session, settings)
-    redone = 0
-    first_start = state["sessions"][0]["started_wall"]
     metadata = {
         "generator": f"triadcal {__version__} capture",
-        # the date the data were taken (UTC, first session): the calibration date a certificate states
-        "date": time.strftime("%Y-%m-%d", time.gmtime(first_start)),
         "bench": settings.bench_name,
         "local_g_m_s2": repr(settings.local_g_m_s2),
         "output_unit": settings.output_unit,
@@ -332,6 +232,25 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
         **({"operator": settings.operator} if settings.operator else {}),
         **(extra_metadata or {}),
     }
+
+    # -- state: what the directory already holds --------------------------------------
+    state_path = out / STATE_NAME
+    state, rows, done_before, session = _open_session(out, state_path, plan, setpoints_C, directions, labels,
+                                                      settings, metadata)
+    metadata = dated_metadata(metadata, state)
+
+    raw = RawStore(out / RAW_NAME)
+    events = EventLog(out / EVENTS_NAME)
+    if raw.torn_marked:          # the last session was killed mid-line: its torn line is marked, not read
+        events.write("raw_torn_line", path=RAW_NAME, text="the raw file ended in a torn line (a killed session); "
+                     f"marked {TORN_MARK!r} and skipped by the reader")
+    events.write("session_start", session=session, visits_done=done_before, total=total,
+                 stabilisation=settings.stabilisation.describe())
+    imu.open()
+    stream = StreamThread(imu)
+    stream.start()
+    run = _Runner(stream, raw, events, session, settings)
+    redone = 0
     noise_est: Optional[NoiseEstimate] = None
     try:
         run.wait_first_frame()
@@ -363,8 +282,9 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
                         break
                     redone += 1
                 else:
-                    raise CaptureError(f"position {label} at {sp:g} degC: too few samples in "
-                                       f"{settings.max_attempts} attempts (see {EVENTS_NAME})")
+                    raise CaptureError(f"position {label} at {sp:g} degC: no clean window in {settings.max_attempts} "
+                                       f"attempts, the last one {VISIT_PROBLEMS[run.visit_problem]} (events "
+                                       f"{run.visit_problem} in {EVENTS_NAME})")
                 raw.sync()   # every sample of the visit is on disk before the visit counts
                 row.update(unit=settings.unit, setpoint_C=sp, direction=direction, position=label,
                            axis1_deg=a1, axis2_deg=a2, tau_s=settings.tau_s, raw_visit=tag)
@@ -406,7 +326,8 @@ def finish_session(out: Path, imu, run: "_Runner", events: EventLog, session: in
         visits_done_before=done_before, visits_done=done, accepted_samples=run.accepted,
         duplicate_frames=run.duplicates, missing_frames=run.missing, corrupted_frames=ps.corrupted,
         garbage_bytes=ps.garbage_bytes, reconnects=ls.reconnects, disconnects=ls.disconnects,
-        stalls=ls.stalls, redone_visits=redone,
+        stalls=ls.stalls, redone_visits=redone, invalid_frames=getattr(run, "invalid", 0),
+        clock_faults=getattr(run, "clock_faults", 0), warnings=list(getattr(run, "warnings", [])),
         noise=None if noise_est is None else {
             "Q_V2s": list(noise_est.Q_V2s), "bias_instability_V": list(noise_est.bias_instability_V),
             "floor_reached": list(noise_est.floor_reached), "taus_s": noise_est.taus_s.tolist(),
@@ -449,6 +370,10 @@ def soak(run: "_Runner", chamber, events: EventLog, settings: CaptureSettings, i
                     "rate_C_per_min": None if rate is None else rate * 60.0,
                     "chamber_C": _safe(chamber.temperature_C)})
     events.write("stable", index=index, setpoint_C=sp, after_s=run.now - t_start)
+    missed = setpoint_missed(sp, [T for _, T in run.temps], _safe(chamber.temperature_C))
+    if missed:
+        events.write("setpoint_missed", index=index, setpoint_C=sp, text=missed)
+        run.warnings.append(f"{what}: {missed}")
 
 
 def _safe(fn):
@@ -458,11 +383,21 @@ def _safe(fn):
         return None
 
 
+#: what each refusal of a window says (the events of :func:`_visit`)
+VISIT_PROBLEMS = {"visit_incomplete": "had too few samples",
+                  "visit_clock_fault": "held a restart or a step of the IMU's clock",
+                  "visit_overfull": "held more samples than its length and the rate allow"}
+#: a window holding more than this times the samples its length and the rate allow is not one
+#: period of one stream (two streams interleaved, a clock running slow): the visit is redone
+OVERFULL = 1.25
+
+
 def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettings, tag: str,
            a1: float, a2: float, notify, info: dict) -> Optional[dict]:
     """Move, settle, record one window; the row's values, or None when too few samples came."""
     run.phase, run.visit_tag = "move", tag
     notify({"event": "move", **info})
+    faults = run.clock_faults
     bench.move_to(a1, a2)
     t_move = run.now
     while True:
@@ -496,8 +431,19 @@ def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettin
     run.phase = "idle"
     rate = run.rate_hz or 1.0
     expected = settings.tau_s * rate
+    if run.clock_faults != faults:
+        # a restart or clock step during the move, settling or window: the window's frames may
+        # come from two periods of the unit (runner.py); redo the visit
+        events.write("visit_clock_fault", tag=tag, n_samples=len(got), expected=expected)
+        run.visit_problem = "visit_clock_fault"
+        return None
     if len(got) < max(2, settings.min_coverage * expected):
         events.write("visit_incomplete", tag=tag, n_samples=len(got), expected=expected)
+        run.visit_problem = "visit_incomplete"
+        return None
+    if len(got) > OVERFULL * expected + 2:
+        events.write("visit_overfull", tag=tag, n_samples=len(got), expected=expected)
+        run.visit_problem = "visit_overfull"
         return None
     w = np.array([f.w for f in got])
     t = np.array([f.t for f in got])

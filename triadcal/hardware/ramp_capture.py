@@ -61,13 +61,13 @@ from ..io.bench_csv import BenchCSVError, format_bench_csv, read_bench_csv
 from ..io.formats import require_format
 from ..planning.ramp import RampPlan, read_ramp_plan  # noqa: F401 - read_ramp_plan: the capture's API
 from .capture import (CSV_NAME, EVENTS_NAME, RAW_NAME, STATE_NAME, CaptureError, CaptureReport,
-                      CaptureSettings, _campaign, _campaign_noise, _Runner, _visit, finish_session, soak,
-                      imu_metadata)
+                      CaptureSettings, VISIT_PROBLEMS, _campaign, _campaign_noise, _Runner, _visit, check_session_metadata,
+                      dated_metadata, finish_session, soak, imu_metadata, storage_error)
 from .drivers.bench import Bench, BenchError
 from .drivers.chamber import Chamber
 from .drivers.imu import ImuReadout, StreamThread
 from .noise import NoiseEstimate
-from .storage import EventLog, FolderLocked, RawStore, folder_lock, read_events
+from .storage import TORN_MARK, EventLog, FolderLocked, RawStore, folder_lock, read_events
 
 RAMP_STATE_FORMAT = "triadcal.ramp_capture"
 #: program seconds between two setpoints written (a real chamber: 10 s is 0.17 degC at 1 degC/min)
@@ -218,23 +218,21 @@ def not_stationary(frames, previous_sd) -> Optional[str]:
     return None
 
 
-class _TeeStream:
-    """The reader thread's queue as the runner sees it, keeping ``(time_s, mean reading)`` of every
-    frame for the directions (the last ``keep_s`` instrument seconds)."""
+class _History:
+    """``(time_s, mean reading)`` of every accepted frame (the runner's continuous clock, runner.py),
+    for the directions: the last ``keep_s`` seconds. Fed by :meth:`_RampRunner.observe`."""
 
-    def __init__(self, stream: StreamThread, keep_s: float = 4 * DIRECTION_SPAN_S):
-        self.stream, self.keep_s = stream, keep_s
+    def __init__(self, keep_s: float = 4 * DIRECTION_SPAN_S):
+        self.keep_s = keep_s
         self.history: deque = deque()
 
-    def get(self, timeout: float):
-        batch = self.stream.get(timeout)
-        for f in batch:
+    def add(self, frames) -> None:
+        for f in frames:
             self.history.append((f.time_s, float(np.mean(f.t))))
-        if batch:
-            end = batch[-1].time_s
+        if frames:
+            end = frames[-1].time_s
             while self.history and self.history[0][0] < end - self.keep_s:
                 self.history.popleft()
-        return batch
 
 
 class _RampRunner(_Runner):
@@ -242,8 +240,10 @@ class _RampRunner(_Runner):
     runs, each pump writes the program's value as the setpoint once ``step_s`` of program time
     has passed since the last write (and logs it as ``ramp_setpoint``, fsync'd: the resume point)."""
 
-    def __init__(self, *args, chamber: Chamber, program: RampProgram, step_s: float, offset_of, **kw):
+    def __init__(self, *args, chamber: Chamber, program: RampProgram, step_s: float, offset_of,
+                 history: Optional[_History] = None, **kw):
         super().__init__(*args, **kw)
+        self.history = history
         self.chamber, self.program, self.step_s = chamber, program, float(step_s)
         self.offset_of = offset_of
         self.running = False
@@ -286,11 +286,12 @@ class _RampRunner(_Runner):
         self.writes += 1
         self.events.write("ramp_setpoint", program_s=p, setpoint_C=sp, time_s=self.now + self.offset_of())
 
+    def observe(self, frames: list) -> None:
+        if self.history is not None:
+            self.history.add(frames)
+
     def pump(self, timeout: float = 0.02) -> int:
-        before = self.now
-        n = super().pump(timeout)
-        if self.running and before is not None and self.now is not None and self.now < before:
-            self.t0 -= before - self.now       # the instrument's clock restarted: the program does not rewind
+        n = super().pump(timeout)      # on the continuous clock: a restarted instrument does not rewind it
         if self.window is not None:
             self.last_window = self.window[2]
         if self.running and self.now is not None and (self.last_p is None or self.last_p < self.program.duration_s):
@@ -314,7 +315,7 @@ def _identity(plan: RampPlan, settings: CaptureSettings) -> dict:
             "tau_s": float(settings.tau_s), "unit": settings.unit}
 
 
-def _open_ramp_session(out: Path, plan: RampPlan, settings: CaptureSettings, labels: list):
+def _open_ramp_session(out: Path, plan: RampPlan, settings: CaptureSettings, labels: list, metadata=None):
     """The ramp capture state of ``out`` (resume) or a new one, the rows already captured and a
     new session recorded: ``(state, rows, done_before, session)``. A folder holding a stepped
     capture or another ramp campaign is refused naming what differs."""
@@ -337,6 +338,8 @@ def _open_ramp_session(out: Path, plan: RampPlan, settings: CaptureSettings, lab
     else:
         state = {"format": RAMP_STATE_FORMAT, "version": 1, **identity, "sessions": []}
     rows = _read_ramp_rows(out / CSV_NAME, labels)
+    if metadata is not None:
+        check_session_metadata(state, metadata, out, read_bench_csv(out / CSV_NAME).metadata if rows else None)
     done_before = len(rows)
     session = len(state["sessions"]) + 1
     state["sessions"].append({"session": session, "started_wall": time.time(), "visits_before": done_before})
@@ -401,6 +404,9 @@ def capture_ramp(out_dir, *, plan: RampPlan, imu: ImuReadout, bench: Bench, cham
                                  progress, extra_metadata)
     except FolderLocked as exc:
         raise CaptureError(str(exc)) from None
+    except OSError as exc:
+        storage_error(exc, out_dir)
+        raise
 
 
 def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, extra_metadata) -> CaptureReport:
@@ -424,27 +430,10 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
     total = int(plan.n_visits)          # the plan's count (20 s moves); the bench's own moves decide
     notify = progress or (lambda ev: None)
 
-    state, rows, done_before, session = _open_ramp_session(out, plan, settings, labels)
-    state_path = out / STATE_NAME
-    previous = [e for e in read_events(out / EVENTS_NAME) if e.get("kind") == "ramp_setpoint"]
-    raw = RawStore(out / RAW_NAME)
-    events = EventLog(out / EVENTS_NAME)
     ramp_text = (":".join(f"{v:g}" for v in plan.program_C) + f" degC at {plan.rate_C_per_min:g} degC/min, "
                  f"hold {plan.hold_s:g} s")
-    events.write("session_start", session=session, visits_done=done_before, total=total, ramp=ramp_text,
-                 stabilisation=settings.stabilisation.describe())
-    imu.open()
-    stream = StreamThread(imu)
-    stream.start()
-    offset_box = {"offset": float(state.get("time_offset_s", 0.0) or 0.0)}
-    tee = _TeeStream(stream)
-    run = _RampRunner(tee, raw, events, session, settings, chamber=chamber, program=program, step_s=step_s,
-                      offset_of=lambda: offset_box["offset"])
-    redone = 0
-    first_start = state["sessions"][0]["started_wall"]
     metadata = {
         "generator": f"triadcal {__version__} capture --ramp",
-        "date": time.strftime("%Y-%m-%d", time.gmtime(first_start)),
         "bench": settings.bench_name,
         "local_g_m_s2": repr(settings.local_g_m_s2),
         "output_unit": settings.output_unit,
@@ -464,6 +453,25 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
         **({"operator": settings.operator} if settings.operator else {}),
         **(extra_metadata or {}),
     }
+    state, rows, done_before, session = _open_ramp_session(out, plan, settings, labels, metadata)
+    metadata = dated_metadata(metadata, state)
+    state_path = out / STATE_NAME
+    previous = [e for e in read_events(out / EVENTS_NAME) if e.get("kind") == "ramp_setpoint"]
+    raw = RawStore(out / RAW_NAME)
+    events = EventLog(out / EVENTS_NAME)
+    if raw.torn_marked:          # the last session was killed mid-line: its torn line is marked, not read
+        events.write("raw_torn_line", path=RAW_NAME, text="the raw file ended in a torn line (a killed session); "
+                     f"marked {TORN_MARK!r} and skipped by the reader")
+    events.write("session_start", session=session, visits_done=done_before, total=total, ramp=ramp_text,
+                 stabilisation=settings.stabilisation.describe())
+    imu.open()
+    stream = StreamThread(imu)
+    stream.start()
+    offset_box = {"offset": float(state.get("time_offset_s", 0.0) or 0.0)}
+    tee = _History()
+    run = _RampRunner(stream, raw, events, session, settings, chamber=chamber, program=program, step_s=step_s,
+                      offset_of=lambda: offset_box["offset"], history=tee)
+    redone = 0
     noise_est: Optional[NoiseEstimate] = None
     try:
         run.wait_first_frame()
@@ -499,6 +507,7 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
                 tag = f"r{i:04d}-{label}-{session}.{attempt}"
                 run.last_window = None
                 row = _visit(run, bench, events, settings, tag, a1, a2, notify, info)
+                last_why = VISIT_PROBLEMS[run.visit_problem]
                 if row is not None:
                     why = not_stationary(run.last_window or [], [r["sd"] for r in rows[-12:]])
                     if why is None:
@@ -509,10 +518,11 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
                         why = (f"the unit's temperature turned within the window (rate {rates['start'] * 60:+.3g} "
                                f"then {rates['end'] * 60:+.3g} degC/min): both hysteresis branches in one visit")
                     events.write("visit_redone", tag=tag, why=why)
+                    last_why = why
                 redone += 1
             else:
-                raise CaptureError(f"visit {i + 1} ({label}) of the ramp: too few samples in "
-                                   f"{settings.max_attempts} attempts (see {EVENTS_NAME})")
+                raise CaptureError(f"visit {i + 1} ({label}) of the ramp: no clean window in {settings.max_attempts} "
+                                   f"attempts, the last one {last_why} (see {EVENTS_NAME})")
             raw.sync()       # every sample of the visit is on disk before the visit counts
             mid = row.pop("mid_instrument_s")
             p_mid = run.program_s(mid)

@@ -24,7 +24,7 @@ from .drivers.chamber import Chamber
 from ..io.atomic import atomic_write_json, atomic_write_text
 from .storage import EventLog, FolderLocked, folder_lock
 from .capture import (CSV_NAME, EVENTS_NAME, REPORT_NAME, STATE_NAME, CaptureError, CaptureReport, CaptureSettings,
-                      _campaign, _max_temperature_rate, _open_session)
+                      _campaign, _max_temperature_rate, _open_session, dated_metadata, storage_error)
 
 
 ANALOG_TEMPERATURE = ("chamber: the chamber's process value (air temperature), read before and after each "
@@ -57,6 +57,9 @@ def capture_voltmeter(out_dir, *, plan: Mapping[str, tuple], setpoints_C: Sequen
                                       progress=progress, extra_metadata=extra_metadata)
     except FolderLocked as exc:
         raise CaptureError(str(exc)) from None
+    except OSError as exc:
+        storage_error(exc, out_dir)
+        raise
 
 
 def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber, settings, time_scale, poll_s,
@@ -91,18 +94,10 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
     def pause(instrument_s: float) -> None:
         time.sleep(max(0.0, instrument_s) / time_scale)
 
-    state_path = out / STATE_NAME
-    state, rows, done_before, session = _open_session(out, state_path, plan, setpoints_C, directions, labels,
-                                                      settings)
-    events = EventLog(out / EVENTS_NAME)
     crit = settings.stabilisation
     stab_text = crit.describe().replace("every accelerometer temperature", "the chamber's PV")
-    events.write("session_start", session=session, visits_done=done_before, total=total,
-                 stabilisation=stab_text, voltmeter=voltmeter.describe(), samples_per_window=n_per_window)
-    first_start = state["sessions"][0]["started_wall"]
     metadata = {
         "generator": f"triadcal {__version__} capture",
-        "date": time.strftime("%Y-%m-%d", time.gmtime(first_start)),
         "bench": settings.bench_name,
         "local_g_m_s2": repr(settings.local_g_m_s2),
         "output_unit": "V",
@@ -114,6 +109,13 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
         **({"operator": settings.operator} if settings.operator else {}),
         **(extra_metadata or {}),
     }
+    state_path = out / STATE_NAME
+    state, rows, done_before, session = _open_session(out, state_path, plan, setpoints_C, directions, labels,
+                                                      settings, metadata)
+    metadata = dated_metadata(metadata, state)
+    events = EventLog(out / EVENTS_NAME)
+    events.write("session_start", session=session, visits_done=done_before, total=total,
+                 stabilisation=stab_text, voltmeter=voltmeter.describe(), samples_per_window=n_per_window)
     last_end = max((r["time_s"] + r["tau_s"] / 2 for r in rows), default=0.0)
     c0 = clock()
 

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Optional
 
 from ...errors import InputError
-from .bench import Bench, BenchError
+from .bench import DEFAULT_TOLERANCE_DEG, Bench, BenchError, angle_difference, within_tolerance  # noqa: F401
 
 PROFILE_DIR = Path(__file__).resolve().parent.parent / "profiles"
 
@@ -101,7 +101,7 @@ class BenchProfile:
     timeout_s: float = 0.5
     retries: int = 3
     delay_s: float = 0.0
-    tolerance_deg: float = 0.01
+    tolerance_deg: float = DEFAULT_TOLERANCE_DEG
     settle_polls: int = 3
     emulator: dict = field(default_factory=dict)
     source: str = ""
@@ -117,12 +117,6 @@ def wrap_angle(deg: float, wrap: str) -> float:
     if wrap == "360":
         return deg % 360.0
     return deg
-
-
-def angle_difference(a: float, b: float, wrap: str) -> float:
-    """a - b, modulo 360 when the axis wraps."""
-    d = a - b
-    return (d + 180.0) % 360.0 - 180.0 if wrap != "none" else d
 
 
 def template_fields(template: str) -> set:
@@ -242,7 +236,8 @@ def parse_profile(doc: dict, src: str = "<profile>") -> BenchProfile:
         xonxoff=bool(tr.get("xonxoff", False)), write_terminator=str(tr.get("write_terminator", "\r")),
         read_terminator=str(tr.get("read_terminator", "\r\n")), timeout_s=float(tr.get("timeout_s", 0.5)),
         retries=int(tr.get("retries", 3)), delay_s=float(tr.get("delay_s", 0.0)),
-        tolerance_deg=float(settle.get("tolerance_deg", 0.01)), settle_polls=polls, emulator=dict(emu),
+        tolerance_deg=float(settle.get("tolerance_deg", DEFAULT_TOLERANCE_DEG)), settle_polls=polls,
+        emulator=dict(emu),
         source=src)
 
 
@@ -316,6 +311,16 @@ class TemplateBench(Bench):
                              f"not match the profile's {name} pattern {self.profile.responses[name].pattern!r}")
         return m
 
+    def _group(self, name: str, command: str, reply: str, group: int = 1) -> str:
+        """Group ``group`` of the profile's ``name`` pattern in ``reply`` (stripped);
+        :class:`BenchError` naming the answer when the pattern or the group does not match."""
+        m = self._match(name, command, reply)
+        value = m.group(group) if m.re.groups >= group else None
+        if value is None:
+            raise BenchError(f"bench {self.profile.name} on {self.port}: answer {reply!r} to {command!r} has "
+                             f"no group {group} of the profile's {name} pattern {m.re.pattern!r}")
+        return value.strip()
+
     # -- the controller's error buffer ---------------------------------------------------
     def check_error(self, axis: Optional[AxisSpec] = None) -> None:
         """Read the error buffer once (when the profile has an ``error`` command); raise
@@ -324,8 +329,8 @@ class TemplateBench(Bench):
             return
         cmd = self._command("error", axis or self.profile.axes[0])
         reply = self._query(cmd)
+        code = self._group("error", cmd, reply)
         m = self._match("error", cmd, reply)
-        code = m.group(1).strip()
         if code != self.profile.responses["no_error"]:
             message = m.group(2).strip() if m.re.groups >= 2 and m.group(2) else ""
             raise BenchControllerError(f"bench {self.profile.name} on {self.port}: controller error {code}"
@@ -357,12 +362,14 @@ class TemplateBench(Bench):
     def axis_position(self, ax: AxisSpec) -> float:
         cmd = self._command("position", ax)
         reply = self._query(cmd)
-        m = self._match("position", cmd, reply)
+        text = self._group("position", cmd, reply)
         try:
-            value = float(m.group(1))
+            value = float(text)
         except ValueError:
-            raise BenchError(f"bench {self.profile.name} on {self.port}: {m.group(1)!r} in {reply!r} is not a "
-                             "number") from None
+            value = math.nan
+        if not math.isfinite(value):
+            raise BenchError(f"bench {self.profile.name} on {self.port}: {text!r} in the answer {reply!r} to "
+                             f"{cmd!r} is not a finite number")
         return ax.to_degrees(value)
 
     def position(self) -> tuple[float, float]:
@@ -372,14 +379,13 @@ class TemplateBench(Bench):
     def axis_done(self, ax: AxisSpec) -> bool:
         cmd = self._command("done", ax)
         reply = self._query(cmd)
-        return self._match("done", cmd, reply).group(1).strip() == self.profile.responses["done_value"]
+        return self._group("done", cmd, reply) == self.profile.responses["done_value"]
 
     def in_position(self) -> bool:
         ok = all(self.axis_done(ax) for ax in self.profile.axes)
         if ok and self.target is not None:
-            pos = self.position()
-            near = all(abs(angle_difference(p, t, ax.wrap)) <= self.profile.tolerance_deg
-                       for p, t, ax in zip(pos, self.target, self.profile.axes))
+            near = within_tolerance(self.position(), self.target, self.profile.tolerance_deg,
+                                    [ax.wrap for ax in self.profile.axes])
             if not near:
                 self.check_error()         # stopped short: a limit or a fault says why
             ok = near

@@ -1,0 +1,264 @@
+"""Faults of the IMU readout a checksum does not catch (an outside probe, eleventh session):
+values that are not numbers, a restart, clock steps, a wrapped sequence counter; a resume with
+other settings; a chamber that does not reach its setpoint.
+
+The rules are tested on the frame pump (``hardware/runner.py``) with frames built here, and end
+to end through real pseudo-terminals: an NMEA IMU written here from the sentence format of
+docs/hardware.md (not with triadcal's encoder), the bench and chamber of ``triadcal emulate``.
+"""
+
+import json
+import math
+import os
+import threading
+import time
+import tty
+
+import numpy as np
+import pytest
+
+from triadcal.hardware.capture import (CSV_NAME, EVENTS_NAME, RAW_NAME, STATE_NAME, CaptureError, CaptureSettings, Stabilisation,
+                                       capture, load_port_config, open_instruments, setpoint_missed)
+from triadcal.hardware.emulator import EmulatorTiming, emulate
+from triadcal.hardware.protocols import Frame
+from triadcal.hardware.runner import _Runner, frame_problem
+from triadcal.hardware.storage import EventLog, RawStore, read_events, read_raw
+from triadcal.io.bench_csv import read_bench_csv
+
+FAST_STAB = Stabilisation(rate_C_per_min=0.01, window_s=20.0, hold_s=20.0, timeout_s=3000.0)
+PLAN = {"P1": (0.0, 0.0), "P2": (90.0, 0.0), "P3": (180.0, 0.0)}
+
+
+# -- the frame pump, frame by frame ---------------------------------------------------------------
+class Frames:
+    """A reader that hands the pump the frames given, one batch per call."""
+
+    def __init__(self, batches):
+        self.batches = list(batches)
+
+    def get(self, timeout):
+        return self.batches.pop(0) if self.batches else []
+
+
+def pump_all(tmp_path, frames, temperature_required=True):
+    events = EventLog(tmp_path / "events.jsonl")
+    raw = RawStore(tmp_path / "raw.csv")
+    run = _Runner(Frames([[f] for f in frames]), raw, events, 1, CaptureSettings(),
+                  temperature_required=temperature_required)
+    times = []
+    for _ in frames:
+        if run.pump(0.0):
+            times.append(run.now)
+    raw.close()
+    events.close()
+    return run, times, [e["kind"] for e in read_events(tmp_path / "events.jsonl")]
+
+
+def good(seq, t, w=(1.0, -2.0, 0.5), T=(25.0, 25.0, 25.0)):
+    return Frame(seq, t, tuple(w), tuple(T))
+
+
+@pytest.mark.parametrize("bad, field", [
+    (good(5, 0.5, w=(math.nan, 0, 0)), "w_x"), (good(5, 0.5, w=(0, math.inf, 0)), "w_y"),
+    (good(5, 0.5, w=(0, 0, 1e12)), "w_z"), (good(5, 0.5, T=(25, 25, 9999.0)), "t_z"),
+    (good(5, 0.5, T=(math.nan, 25, 25)), "t_x"), (good(5, math.nan), "time_s"),
+    (good(5, 0.5, T=(-300.0, 25, 25)), "t_x")])
+def test_a_frame_with_a_value_that_is_not_a_reading_is_refused_and_counted(tmp_path, bad, field):
+    """Checksums hold; the values do not (before: written into campaign.csv, which then could
+    neither be fitted nor resumed; a NaN time held the soak for ever)."""
+    assert field in frame_problem(bad)
+    frames = [good(k, 0.1 * k) for k in range(5)] + [bad] + [good(k, 0.1 * k) for k in range(6, 10)]
+    run, times, kinds = pump_all(tmp_path, frames)
+    assert run.invalid == 1 and run.accepted == 9 and kinds.count("invalid_frame") == 1
+    raw = read_raw(tmp_path / "raw.csv")
+    assert len(raw["seq"]) == 9 and 5 not in raw["seq"].tolist()
+    assert np.all(np.isfinite(raw["w"])) and np.all(raw["t"] < 300)
+
+
+def test_no_temperature_is_allowed_only_for_an_imu_without_one(tmp_path):
+    f = good(0, 0.0, T=(math.nan,) * 3)
+    assert frame_problem(f, temperature_required=False) is None
+    assert "t_x" in frame_problem(f, temperature_required=True)
+
+
+def test_a_wrapped_sequence_counter_goes_on_instead_of_waiting_for_ever(tmp_path):
+    """uint32 wrap with the clock running: before, every later frame was a duplicate."""
+    top = 2 ** 32
+    frames = [good((top - 5 + k) % top, 100.0 + 0.1 * k) for k in range(12)]
+    run, times, kinds = pump_all(tmp_path, frames)
+    assert run.accepted == 12 and run.duplicates == 0 and run.missing == 0
+    assert kinds == ["sequence_reset"] and run.clock_faults == 1
+    np.testing.assert_allclose(np.diff(times), 0.1, atol=1e-9)
+
+
+def test_a_restart_keeps_the_clock_continuous(tmp_path):
+    frames = [good(1000 + k, 500.0 + 0.1 * k) for k in range(10)] + [good(k, 0.1 * k) for k in range(10)]
+    run, times, kinds = pump_all(tmp_path, frames)
+    assert kinds == ["instrument_restart"] and run.clock_faults == 1 and run.accepted == 20
+    assert np.all(np.diff(times) > 0)
+    np.testing.assert_allclose(np.diff(times), 0.1, atol=1e-9)     # one sample interval across it
+    raw = read_raw(tmp_path / "raw.csv")
+    np.testing.assert_allclose(raw["time_s"], times)               # the raw file has the same clock
+
+
+@pytest.mark.parametrize("jump", [1e5, -300.0, -0.5])
+def test_a_clock_step_is_logged_and_bridged(tmp_path, jump):
+    """A +1e5 s jump had the capture wait for the bench until its move timeout and blame it; a
+    step back was accepted without a word."""
+    frames = [good(k, 0.1 * k) for k in range(10)] + [good(k, 0.1 * k + jump) for k in range(10, 20)]
+    run, times, kinds = pump_all(tmp_path, frames)
+    assert kinds == ["clock_step"] and run.clock_faults == 1
+    np.testing.assert_allclose(np.diff(times), 0.1, atol=1e-6)
+
+
+def test_duplicates_and_gaps_are_no_clock_faults(tmp_path):
+    frames = ([good(k, 0.1 * k) for k in range(10)] + [good(9, 0.9), good(8, 0.95)]       # repeated, counter back by 1
+              + [good(k, 0.1 * k) for k in range(15, 25)])                                  # 5 frames lost
+    run, times, kinds = pump_all(tmp_path, frames)
+    assert run.duplicates == 2 and run.missing == 5 and run.clock_faults == 0 and kinds == []
+
+
+def test_setpoint_missed_says_which_and_by_how_much():
+    assert setpoint_missed(20.0, [(20.4, 20.5, 20.6)], 20.3) is None
+    assert "70.20 degC, +90.20" in setpoint_missed(-20.0, [(70.2, 70.2, 70.2)], None)
+    assert "-3276.8" in setpoint_missed(20.0, [], -3276.8)
+    assert "PV is 17.00 degC, -3.00" in setpoint_missed(20.0, [(19.0, 19.0, 19.0)], 17.0)
+
+
+# -- end to end: an IMU of our own on a pty, the emulator's bench and chamber --------------------------
+class FakeNmeaImu(threading.Thread):
+    """$TCIMU sentences (docs/hardware.md) on a pty at ``rate_hz`` of a clock ``scale`` times the
+    wall clock's; ``mutate(seq, t, w, T) -> (seq, t, w, T)`` injects the fault."""
+
+    def __init__(self, link, scale=120.0, rate_hz=10.0, mutate=None):
+        super().__init__(daemon=True)
+        self.master, slave = os.openpty()
+        tty.setraw(slave)
+        self.slave = slave
+        os.symlink(os.ttyname(slave), link)
+        os.set_blocking(self.master, False)
+        self.scale, self.rate, self.mutate = scale, rate_hz, mutate or (lambda *a: a)
+        self.stop_event = threading.Event()
+        self.rng = np.random.default_rng(5)
+
+    def sentence(self, seq, t, w, T):
+        body = ("TCIMU,%d,%.4f,%.9f,%.9f,%.9f,%.4f,%.4f,%.4f" % ((seq, t) + tuple(w) + tuple(T))).encode()
+        x = 0
+        for b in body:
+            x ^= b
+        return b"$" + body + b"*%02X\r\n" % x
+
+    def run(self):
+        t0, seq = time.monotonic(), 0
+        while not self.stop_event.is_set():
+            target = int((time.monotonic() - t0) * self.scale * self.rate)
+            out = b""
+            while seq < target:
+                w = tuple(np.array([1.0, -2.0, 0.5]) + self.rng.normal(0, 1e-4, 3))
+                out += self.sentence(*self.mutate(seq, seq / self.rate, w, (25.0, 25.0, 25.0)))
+                seq += 1
+            try:
+                if out:
+                    os.write(self.master, out)
+                os.read(self.master, 4096)
+            except (BlockingIOError, OSError):
+                pass
+            time.sleep(0.01)
+
+    def close(self):
+        self.stop_event.set()
+        self.join(2.0)
+        os.close(self.master)
+        os.close(self.slave)
+
+
+@pytest.fixture
+def rig(tmp_path):
+    """``run(mutate, **settings) -> (report, campaign)`` with a fresh fake IMU each call."""
+    timing = EmulatorTiming(time_scale=120.0, rate_hz=10.0, self_heating_time_constant_s=0.0)
+    em = emulate(tmp_path / "emu", effects=["bench_tilt"], timing=timing, seed=2).start()
+    made = []
+
+    def run(mutate=None, out="out", **kw):
+        link = tmp_path / f"imu{len(made)}"
+        imu_fake = FakeNmeaImu(str(link), mutate=mutate)
+        made.append(imu_fake)
+        imu_fake.start()
+        cfg = load_port_config(em.directory / "ports.toml")
+        cfg["imu"] = {**cfg["imu"], "port": str(link), "protocol": "nmea"}
+        imu, bench, chamber = open_instruments(cfg)
+        settings = CaptureSettings(**{"tau_s": 20.0, "settle_s": 2.0, "stabilisation": FAST_STAB,
+                                      "unit": "SN-FAKE-1", **kw})
+        try:
+            report = capture(tmp_path / out, plan=PLAN, setpoints_C=[20.0], imu=imu, bench=bench, chamber=chamber,
+                             settings=settings)
+        finally:
+            bench.close()
+            chamber.close()
+            imu_fake.close()
+        return report, read_bench_csv(tmp_path / out / CSV_NAME)
+
+    yield run
+    em.stop()
+
+
+def test_a_restart_of_the_imu_never_blends_two_periods_into_a_visit(rig, tmp_path):
+    """The IMU reboots every 100 instrument-s (a window is 20 s, the campaign about 150 s), its
+    output shifted by +0.01 V after each reboot: every visit holds one period only, the windows
+    that straddle a reboot are redone (up to 10 attempts: wherever the reboots fall). Before: a
+    visit of 399 samples for 200, w_x halfway."""
+    period = 1000            # frames between reboots
+
+    def reboot(seq, t, w, T):
+        k, s = divmod(seq, period)
+        return s, s / 10.0, (w[0] + 0.01 * k, w[1], w[2]), T
+
+    report, c = rig(reboot, max_attempts=10)
+    assert report.clock_faults >= 1
+    assert c.n_visits == len(PLAN) and np.all(c.n_samples <= 201)
+    steps = (c.w[:, 0] - 1.0) / 0.01
+    np.testing.assert_allclose(steps, np.round(steps), atol=0.02)      # one period each, no blend
+    raw = read_raw(tmp_path / "out" / RAW_NAME)
+    assert np.all(np.diff(raw["time_s"]) > 0)                          # one continuous clock
+    assert np.all(np.diff(c.time_s) > 0)
+
+
+def test_invalid_values_are_kept_out_of_the_campaign_which_fits(rig, tmp_path):
+    def glitch(seq, t, w, T):
+        if seq % 97 == 0:
+            return seq, t, (math.nan, w[1], w[2]), T
+        if seq % 101 == 0:
+            return seq, t, w, (25.0, 25.0, 9999.0)
+        return seq, t, w, T
+
+    report, c = rig(glitch)
+    assert report.invalid_frames > 10
+    assert np.all(np.isfinite(c.w)) and np.all(c.t < 100)
+    kinds = [e["kind"] for e in read_events(tmp_path / "out" / EVENTS_NAME)]
+    assert kinds.count("invalid_frame") == report.invalid_frames
+
+
+def test_a_wrapping_counter_does_not_hang_the_capture(rig):
+    report, c = rig(lambda seq, t, w, T: ((seq + 2 ** 32 - 500) % 2 ** 32, t, w, T))
+    assert c.n_visits == len(PLAN) and report.duplicate_frames == 0 and report.clock_faults == 1
+
+
+def test_a_resume_with_other_settings_is_refused_naming_them(rig, tmp_path):
+    """Before: the header was rebuilt at each session, so --local-g 9.78 relabelled the rows
+    captured at 9.80665 (K_x 2 700 ppm off, status ok)."""
+    rig(None)
+    before = (tmp_path / "out" / CSV_NAME).read_bytes()
+    with pytest.raises(CaptureError, match=r"local_g_m_s2 = '9\.80665' in the captured rows, now '9\.78'"):
+        rig(None, local_g_m_s2=9.78)
+    with pytest.raises(CaptureError, match="settle_s"):
+        rig(None, settle_s=50.0)
+    assert (tmp_path / "out" / CSV_NAME).read_bytes() == before
+    # a folder captured before the state recorded the metadata: compared with campaign.csv's header
+    state_path = tmp_path / "out" / STATE_NAME
+    state = json.loads(state_path.read_text())
+    del state["metadata"]
+    state_path.write_text(json.dumps(state))
+    with pytest.raises(CaptureError, match=r"local_g_m_s2 = '9\.80665' in the captured rows, now '9\.78'"):
+        rig(None, local_g_m_s2=9.78)
+    report, c = rig(None)                      # the same settings resume (nothing left to do)
+    assert report.visits_done == len(PLAN) and report.visits_done_before == len(PLAN)

@@ -1,0 +1,213 @@
+"""The frame pump of a capture: every frame the IMU reader delivers is checked, de-duplicated,
+put on one continuous clock and appended to the raw store (docs/hardware.md, "What a frame
+must be").
+
+A frame is refused (event ``invalid_frame``, counted in the report's ``invalid_frames``, never
+stored, never averaged) when a value is not a finite number (a checksum covers the bytes, not
+the physics: an outside probe's IMU sent NaN, inf and 9999 degC with valid checksums, the
+capture wrote them into campaign.csv and the whole campaign could no longer be fitted or
+resumed), an output beyond the bench CSV's range, or a temperature outside the bench CSV's
+range (``t_*`` in [-273.15, 300] degC; NaN allowed only for an IMU that has no temperature).
+
+The clock. The raw file's and the campaign's times are the instrument's clock made continuous:
+``time_s + shift``, where ``shift`` changes only at a clock fault, each logged with its size:
+
+- ``instrument_restart``: the sequence number and the clock both go back (the IMU rebooted);
+- ``clock_step``: the sequence number goes on but the clock jumps by more than
+  ``max(CLOCK_STEP_MIN_S, CLOCK_STEP_FRACTION x expected)`` from ``k x dt`` (k frames on, dt the
+  median sample interval), or goes back; a +1e5 s jump had the capture wait for the
+  bench until its move timeout, blaming the bench;
+- ``sequence_reset``: the sequence number falls to less than half its last value while the
+  clock goes on (a counter that wrapped at 2^32 or 2^16, or a firmware that restarted its
+  counter): before, every later frame was counted as a duplicate and the capture waited for
+  ever. A smaller step back is a duplicate (dropped, counted), as is a frame whose clock does
+  not advance.
+
+Each of them increments ``clock_faults``: a visit whose settling or recording window holds one
+is redone (a window across an IMU restart averaged two periods of the unit into one visit, 399
+samples for 200, with exit 0).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections import deque
+from typing import Optional
+
+import numpy as np
+
+from ..errors import TriadcalError
+from ..io.bench_csv import MAX_READING, RANGES
+from .protocols import Frame
+
+#: a clock step is a jump this many seconds (at least) away from the expected k x dt
+CLOCK_STEP_MIN_S = 1.0
+#: ... and this fraction of the expected gap (a gap of missing frames grows with k)
+CLOCK_STEP_FRACTION = 0.5
+#: a restart: the clock goes back by more than this (s) while the sequence number does too
+RESTART_BACK_S = 1.0
+T_LOW, T_HIGH = RANGES["t_x"][0], RANGES["t_x"][1]
+
+
+class CaptureError(TriadcalError, RuntimeError):
+    """The campaign cannot go on (instrument silent, not stable in time, mismatched resume)."""
+
+
+def frame_problem(f: Frame, temperature_required: bool = True) -> Optional[str]:
+    """Why ``f`` cannot be a sample of the campaign, or None. See the module docstring."""
+    if not (isinstance(f.time_s, (int, float)) and math.isfinite(f.time_s)):
+        return f"time_s {f.time_s!r} is not a finite number"
+    for a, v in zip("xyz", f.w):
+        if not math.isfinite(v) or abs(v) > MAX_READING:
+            return f"w_{a} {v!r} is not a finite number within +-{MAX_READING:g}"
+    temps = list(f.t)
+    if not temperature_required and all(math.isnan(v) for v in temps):
+        return None
+    for a, v in zip("xyz", temps):
+        if not (math.isfinite(v) and T_LOW <= v <= T_HIGH):
+            return f"t_{a} {v!r} degC is not a finite number within [{T_LOW:g}, {T_HIGH:g}] degC"
+    return None
+
+
+class _Runner:
+    """Pumps frames from the reader into the raw store and the campaign's logic (module docstring)."""
+
+    def __init__(self, stream, raw, events, session: int, settings, temperature_required: bool = True):
+        self.stream, self.raw, self.events, self.session = stream, raw, events, session
+        self.settings = settings
+        self.temperature_required = temperature_required
+        self.phase = "idle"
+        self.visit_tag = ""
+        self.window: Optional[tuple] = None       # (t0, t1, list) on the continuous clock
+        self.last_seq: Optional[int] = None
+        self.last_time: Optional[float] = None    # instrument clock of the latest frame
+        self.shift = 0.0                          # continuous clock = instrument clock + shift
+        self.now: Optional[float] = None          # continuous time of the latest frame
+        self.accepted = self.duplicates = self.missing = self.invalid = 0
+        self.clock_faults = 0
+        self.temps: deque = deque()
+        self.warnings: list = []                 # for the report (capture.setpoint_missed)
+        self.visit_problem = "visit_incomplete"   # why the last window was refused (capture._visit)
+        self._last_frame_wall = time.monotonic()
+        self.dt_estimates: deque = deque(maxlen=256)
+
+    def _silence(self) -> str:
+        imu = getattr(self.stream, "readout", None)
+        stats = getattr(imu, "parser_stats", None)
+        got = (stats.garbage_bytes, stats.corrupted) if stats is not None else (0, 0)
+        if got[0] or got[1]:
+            return (f"no frame decoded from the IMU for {self.settings.silence_timeout_wall_s:g} s (wall clock), "
+                    f"though bytes arrive ({got[0]} bytes outside any frame, {got[1]} corrupted frames so far): "
+                    f"check --imu-protocol ({getattr(imu, 'protocol', '?')}) and the baud rate; run the same "
+                    "command again to resume")
+        return (f"no frame from the IMU for {self.settings.silence_timeout_wall_s:g} s (wall clock); check the "
+                "cable and run the same command again to resume")
+
+    def _dt(self) -> Optional[float]:
+        return float(np.median(self.dt_estimates)) if self.dt_estimates else None
+
+    def _clock_fault(self, kind: str, f: Frame, advance_s: float, **info) -> None:
+        """Continue the continuous clock ``advance_s`` after the last frame at ``f``."""
+        new_shift = self.last_time + self.shift + advance_s - f.time_s
+        self.events.write(kind, seq=f.seq, time_s=f.time_s, last_seq=self.last_seq, last_time_s=self.last_time,
+                          shift_s=new_shift - self.shift, **info)
+        self.shift = new_shift
+        self.clock_faults += 1
+
+    def _admit(self, f: Frame) -> bool:
+        """Sequence and clock rules of the module docstring; False for a duplicate."""
+        if self.last_seq is None:
+            return True
+        dt = self._dt()
+        if f.seq <= self.last_seq:
+            if f.time_s < self.last_time - RESTART_BACK_S:
+                self._clock_fault("instrument_restart", f, dt or 0.0)
+            elif f.time_s > self.last_time and f.seq <= self.last_seq // 2:
+                gap = f.time_s - self.last_time
+                k = max(1, round(gap / dt)) if dt else 1
+                self.missing += k - 1
+                self._clock_fault("sequence_reset", f, gap)
+            else:
+                self.duplicates += 1
+                return False
+            return True
+        k = f.seq - self.last_seq
+        gap = f.time_s - self.last_time
+        self.missing += k - 1
+        expected = k * (dt or 0.0)
+        if gap < 0.0 or (dt and abs(gap - expected) > max(CLOCK_STEP_MIN_S, CLOCK_STEP_FRACTION * expected)):
+            self._clock_fault("clock_step", f, expected, jump_s=gap - expected)
+        elif k == 1:
+            self.dt_estimates.append(gap)
+        return True
+
+    def pump(self, timeout: float = 0.02) -> int:
+        batch = self.stream.get(timeout)
+        if not batch:
+            if time.monotonic() - self._last_frame_wall > self.settings.silence_timeout_wall_s:
+                raise CaptureError(self._silence())
+            return 0
+        self._last_frame_wall = time.monotonic()
+        accepted: list[Frame] = []
+        for f in batch:
+            why = frame_problem(f, self.temperature_required)
+            if why is not None:
+                self.invalid += 1
+                self.events.write("invalid_frame", seq=f.seq, reason=why, phase=self.phase, visit=self.visit_tag)
+                continue
+            if not self._admit(f):
+                continue
+            self.last_seq, self.last_time = f.seq, f.time_s
+            accepted.append(dataclasses.replace(f, time_s=f.time_s + self.shift) if self.shift else f)
+        if not accepted:
+            return 0
+        self.accepted += len(accepted)
+        self.now = accepted[-1].time_s
+        self.observe(accepted)
+        # split by phase: frames inside an open recording window are 'record'
+        if self.window is not None:
+            t0, t1, got = self.window
+            rec = [f for f in accepted if t0 <= f.time_s < t1]
+            before = [f for f in accepted if f.time_s < t0]
+            after = [f for f in accepted if f.time_s >= t1]
+            if before:
+                self.raw.append(before, self.session, self.phase, self.visit_tag)
+            if rec:
+                self.raw.append(rec, self.session, "record", self.visit_tag)
+                got.extend(rec)
+            if after:
+                self.raw.append(after, self.session, "idle", self.visit_tag)
+        else:
+            self.raw.append(accepted, self.session, self.phase, self.visit_tag)
+        if self.phase == "soak":
+            for f in accepted:
+                self.temps.append((f.time_s, f.t))
+        return len(accepted)
+
+    def observe(self, frames: list) -> None:
+        """Called with every batch of accepted frames (continuous clock); for subclasses."""
+
+    def wait_first_frame(self) -> None:
+        while self.now is None:
+            self.pump(0.05)
+
+    @property
+    def rate_hz(self) -> Optional[float]:
+        dt = self._dt()
+        return None if dt is None else 1.0 / dt
+
+
+def _max_temperature_rate(temps: deque, window_s: float, now: float) -> Optional[float]:
+    """Largest |slope| (degC/s) of the three temperatures over the last window, or None
+    while the window is not yet covered."""
+    while temps and temps[0][0] < now - window_s:
+        temps.popleft()
+    if len(temps) < 3 or temps[-1][0] - temps[0][0] < 0.9 * window_s:
+        return None
+    t = np.array([x[0] for x in temps])
+    T = np.array([x[1] for x in temps])
+    tc = t - t.mean()
+    slope = (tc @ (T - T.mean(axis=0))) / (tc @ tc)
+    return float(np.max(np.abs(slope)))

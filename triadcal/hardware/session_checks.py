@@ -1,0 +1,97 @@
+"""Checks of a capture session that are not the frame pump's (runner.py): a resume with the
+header's settings unchanged, a full or read-only disk said as such, a setpoint the chamber did not
+reach. Used by the stepped, ramp and voltmeter captures (docs/hardware.md, "Faults")."""
+
+from __future__ import annotations
+
+import errno
+import math
+from typing import Optional
+
+import numpy as np
+
+from .runner import CaptureError
+
+
+#: metadata of a campaign's header that may change from one session to the next (they describe
+#: the run, not the data: every other key describes the rows already captured)
+SESSION_METADATA = ("generator", "date", "operator")
+
+
+def check_session_metadata(state: dict, metadata: dict, out, header: Optional[dict] = None) -> None:
+    """Record the header's metadata in the capture state at the first session; at a resume,
+    refuse one that differs (but for :data:`SESSION_METADATA`), naming the key: the header is
+    rewritten at every visit, so a resume with ``--local-g 9.78`` relabelled the visits captured
+    at 9.80665 (K_x 2 700 ppm off, 300 U, status ok), and one with another IMU output unit would
+    label volts as g (an outside probe). ``header``: the metadata of the campaign.csv already
+    written, compared key by key too (a state written before this check holds no metadata)."""
+    keep = {k: str(v) for k, v in metadata.items() if k not in SESSION_METADATA}
+    before = state.get("metadata")
+    changed = []
+    if before is not None:
+        changed = [f"{k} = {before.get(k)!r} in the captured rows, now {keep.get(k)!r}"
+                   for k in sorted(set(before) | set(keep)) if before.get(k) != keep.get(k)]
+    elif header:
+        changed = [f"{k} = {header.get(k)!r} in the captured rows, now {v!r}" for k, v in sorted(keep.items())
+                   if str(header.get(k)) != v]
+    if changed:
+        raise CaptureError(f"{out} holds visits captured with other settings ({'; '.join(changed)}): the header "
+                           "describes every row, so a resume must use the same ones (or choose another --out)")
+    state["metadata"] = keep
+
+
+def dated_metadata(metadata: dict, state: dict) -> dict:
+    """``metadata`` with the ``date`` the data were taken (UTC, of the first session: the
+    calibration date a certificate states) after its ``generator``."""
+    import time
+
+    rest = dict(metadata)
+    first_start = state["sessions"][0]["started_wall"]
+    return {"generator": rest.pop("generator"), "date": time.strftime("%Y-%m-%d", time.gmtime(first_start)), **rest}
+
+
+#: errors of the disk, not of an instrument
+STORAGE_ERRNOS = {errno.ENOSPC, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EDQUOT, errno.EIO}
+
+
+def storage_error(exc: OSError, out_dir) -> None:
+    """Raise :class:`CaptureError` for an ``OSError`` of the disk (full, file too large, read-only,
+    no permission): a full disk ended in "internal error (a bug: please report it)" with no word
+    that the visits on disk were kept (an outside probe). Every visit that counts was fsync'd
+    before it counted, so the same command resumes once there is room."""
+    if exc.errno in STORAGE_ERRNOS:
+        raise CaptureError(f"cannot write into {out_dir}: {exc.strerror or exc} "
+                           f"({exc.filename or 'a capture file'}); the visits done are on disk: free space or fix "
+                           "the permission, then run the same command again to resume") from None
+
+
+#: a chamber whose PV is this far (degC) from its setpoint once the unit is stable has not reached it
+#: (a chamber controls to +-0.5 degC or better; its PV is its own sensor, next to the air it controls)
+CHAMBER_MISS_C = 2.0
+#: the unit's temperature sensors this far (degC) from the setpoint: beyond any self-heating or
+#: gradient of a fixture in a working chamber (a few degC)
+UNIT_MISS_C = 10.0
+
+
+def setpoint_missed(sp: float, unit_temps, chamber_C) -> Optional[str]:
+    """Why a setpoint counts as not reached once the unit is stable, or None: the chamber's PV
+    more than :data:`CHAMBER_MISS_C` from it, or not a temperature (a sensor break reads
+    -3276.8 degC on a Modbus controller), or the unit's sensors more than :data:`UNIT_MISS_C` from
+    it. The visits are still valid data (the fit uses the temperatures measured, not the
+    setpoint), so the capture goes on and says so in its report's ``warnings`` and the event log:
+    a chamber stuck at 70 degC through setpoints 20, 70, -40 went by with no word (an outside
+    probe)."""
+    out = []
+    if chamber_C is not None:
+        if not (math.isfinite(chamber_C) and -273.15 <= chamber_C <= 300.0):
+            out.append(f"the chamber's PV reads {chamber_C!r} degC, not a temperature (a sensor break?)")
+        elif abs(chamber_C - sp) > CHAMBER_MISS_C:
+            out.append(f"the chamber's PV is {chamber_C:.2f} degC, {chamber_C - sp:+.2f} degC from the setpoint "
+                       f"(more than {CHAMBER_MISS_C:g})")
+    T = np.asarray(unit_temps, float).reshape(-1, 3) if len(unit_temps) else np.empty((0, 3))
+    if len(T) and np.all(np.isfinite(T)):
+        mean = float(T.mean())
+        if abs(mean - sp) > UNIT_MISS_C:
+            out.append(f"the unit's temperature is {mean:.2f} degC, {mean - sp:+.2f} degC from the setpoint "
+                       f"(more than {UNIT_MISS_C:g})")
+    return "; ".join(out) or None
