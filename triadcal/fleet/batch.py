@@ -65,10 +65,16 @@ def sha256_of(path) -> str:
 
 
 def safe_name(text: str) -> str:
-    """A file-name-safe form of a serial number or state (anything but letters, digits, ``.``,
-    ``-`` and ``_`` becomes ``_``)."""
+    """A file-name-safe form of a serial number or state, one to one: letters, digits, ``.``,
+    ``-`` and single ``_`` stay; a text with anything else (or ``__``, the separator of unit and
+    state in :func:`result_path`, or a leading ``.``) gets those characters as ``_`` and ``~``
+    with the first 10 hex digits of its SHA-256. Before, ``SN/1`` and ``SN_1`` (or unit ``A__B``
+    in state ``x`` and unit ``A`` in state ``B__x``) wrote one file, the last fitted winning with
+    a warning only."""
     s = re.sub(r"[^A-Za-z0-9._-]", "_", text)
-    return s if s.strip(".") else "_" + s
+    if s == text and "__" not in text and not text.startswith(".") and text:
+        return text
+    return f"{s.strip('.') or '_'}~{hashlib.sha256(text.encode('utf-8')).hexdigest()[:10]}"
 
 
 def result_path(out_dir, unit: str, state: str) -> Path:
