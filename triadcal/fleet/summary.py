@@ -29,14 +29,19 @@ BASE_COLUMNS = ("unit", "state", "input", "action", "status", "chi2_dof", "n_obs
 
 # -- tolerances --------------------------------------------------------------------------------
 
-def load_tolerances(path) -> list[tuple[str, float, float]]:
+def load_tolerances(path) -> list[tuple]:
     """A tolerance file (TOML)::
 
         [tolerances]
         "Ca_*" = 120            # |value| <= 120 (the parameter's unit: arcsec)
         K_x = [0.99, 1.01]      # 0.99 <= value <= 1.01
+        K_y = {range = [0.99, 1.01], unit = "g/V"}     # only values in g/V are comparable
+        "S_*" = {limit = 0.01, unit = "g"}
 
-    Names may hold ``*``/``?`` wildcards. Returns ``[(pattern, low, high)]``."""
+    Names may hold ``*``/``?`` wildcards. Returns ``[(pattern, low, high, unit or None)]``. With a
+    unit, a value in another unit is flagged (not comparable); without one, the limit is in the
+    parameter's own unit, and a fleet holding the parameter in two units is refused by
+    :func:`check_tolerance_units` (a K of 0.99-1.01 g/V says nothing of a K in g/counts)."""
     path = Path(path)
     try:
         with open(path, "rb") as fh:
@@ -47,31 +52,73 @@ def load_tolerances(path) -> list[tuple[str, float, float]]:
     if extra or not isinstance(data.get("tolerances"), dict):
         raise InputError(f"{path}: a tolerance file has one section [tolerances] (NAME = limit or [low, high])"
                          + (f"; unknown: {', '.join(extra)}" if extra else ""))
+
+    def num(x):
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+    def bounds(v):
+        if num(v) and v >= 0:
+            return -float(v), float(v)
+        if isinstance(v, list) and len(v) == 2 and all(num(x) for x in v) and v[0] <= v[1]:
+            return float(v[0]), float(v[1])
+        return None
+
     out = []
     for name, v in data["tolerances"].items():
-        def num(x):
-            return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-        if num(v) and v >= 0:
-            out.append((name, -float(v), float(v)))
-        elif isinstance(v, list) and len(v) == 2 and all(num(x) for x in v) and v[0] <= v[1]:
-            out.append((name, float(v[0]), float(v[1])))
-        else:
+        unit = None
+        if isinstance(v, dict):
+            keys = set(v)
+            unit = v.get("unit")
+            if not (keys in ({"limit", "unit"}, {"range", "unit"}) and isinstance(unit, str) and unit.strip()):
+                raise InputError(f"{path}: [tolerances] {name} = {v!r}: a table holds unit = \"...\" and either "
+                                 "limit = L (|value| <= L) or range = [low, high]")
+            v = v.get("limit", v.get("range"))
+        b = bounds(v)
+        if b is None:
             raise InputError(f"{path}: [tolerances] {name} = {v!r}: give a limit >= 0 (|value| <= limit) or "
                              "[low, high] with low <= high")
+        out.append((name, b[0], b[1], unit))
     return out
 
 
+def _tolerance_of(name: str, tolerances):
+    for tol in tolerances or ():
+        if fnmatch.fnmatchcase(name, tol[0]):
+            return tol
+    return None
+
+
 def out_of_tolerance(params: dict, tolerances) -> list[str]:
-    """Names of the parameters of ``params`` (name -> {"value", ...}) outside their tolerance."""
+    """Names of the parameters of ``params`` (name -> {"value", "unit", ...}) outside their
+    tolerance; a value in another unit than its tolerance's is outside, written ``name (unit)``."""
     bad = []
     for name, p in params.items():
+        tol = _tolerance_of(name, tolerances)
+        if tol is None:
+            continue
+        _, low, high, unit = (*tol, None)[:4]
         x = p.get("value")
-        for pattern, low, high in tolerances or ():
-            if fnmatch.fnmatchcase(name, pattern):
-                if x is None or not (low <= x <= high):
-                    bad.append(name)
-                break
+        if unit is not None and p.get("unit") != unit:
+            bad.append(f"{name} (in {p.get('unit')}, tolerance in {unit})")
+        elif x is None or not (low <= x <= high):
+            bad.append(name)
     return bad
+
+
+def check_tolerance_units(records, tolerances) -> None:
+    """Refuse a tolerance without a unit that meets one parameter in several units over the fleet
+    (values in g/V and in g/counts: one limit cannot hold for both), naming them."""
+    seen: dict = {}
+    for r in records:
+        for name, p in ((r.get("result") or {}).get("parameters") or {}).items():
+            tol = _tolerance_of(name, tolerances)
+            if tol is not None and (tol[3] if len(tol) > 3 else None) is None:
+                seen.setdefault((tol[0], name), set()).add(str(p.get("unit")))
+    mixed = {k: u for k, u in seen.items() if len(u) > 1}
+    if mixed:
+        txt = "; ".join(f"{name} in {', '.join(sorted(u))} (tolerance {pat!r})" for (pat, name), u in sorted(mixed.items()))
+        raise InputError(f"the fleet holds a parameter in several units and its tolerance states none: {txt}; give "
+                         "the unit in the tolerance file (NAME = {range = [low, high], unit = \"g/V\"}), one per unit")
 
 
 # -- outliers ----------------------------------------------------------------------------------
@@ -154,6 +201,7 @@ def write_summary(records, out_dir, tolerances=None, html_page: bool = True) -> 
     from ..io.atomic import atomic_path, atomic_write, atomic_write_text
 
     out_dir = Path(out_dir)
+    check_tolerance_units(records, tolerances)
     columns, rows, names = table(records, tolerances)
     files = {"csv": out_dir / "fleet.csv", "parquet": out_dir / "fleet.parquet"}
     if html_page:
@@ -208,7 +256,8 @@ def render_html(rows, names, tolerances=None) -> str:
              f"<p>{len(rows)} unit/state pairs, {len(ok)} with status ok. Outliers: |x &minus; median| &gt; "
              f"{OUTLIER_K:g} &times; {MAD_TO_SD} &times; MAD over the units whose status is ok (at least "
              f"{OUTLIER_MIN_UNITS}, MAD &gt; 0), per parameter."
-             + (" Tolerances: " + esc(", ".join(f"{p} in [{lo:g}, {hi:g}]" for p, lo, hi in tolerances))
+             + (" Tolerances: " + esc(", ".join(f"{t[0]} in [{t[1]:g}, {t[2]:g}]" + (f" {t[3]}" if len(t) > 3 and t[3] else "")
+                                          for t in tolerances))
                 if tolerances else " No tolerance file.") + "</p>"]
     flagged = [r for r in rows if r["status"] != "ok" or r["out_of_tolerance"] or r["outliers"]]
     parts.append("<h2>Flagged units</h2>")
@@ -239,11 +288,10 @@ def render_html(rows, names, tolerances=None) -> str:
         ax.hist(x[~out] if (~out).any() else x, bins=min(30, max(5, len(x) // 5)), color="#4a7ab0")
         for v in x[out]:
             ax.axvline(v, color="red", lw=1)
-        for pattern, lo, hi in tolerances or ():
-            if fnmatch.fnmatchcase(n, pattern):
-                for v in (lo, hi):
-                    ax.axvline(v, color="k", ls="--", lw=0.8)
-                break
+        tol = _tolerance_of(n, tolerances)
+        if tol is not None and (len(tol) < 4 or tol[3] in (None, unit)):    # limits only in their own unit
+            for v in tol[1:3]:
+                ax.axvline(v, color="k", ls="--", lw=0.8)
         title = f"{n} ({unit})" if unit else n
         ax.set_title(f"{title}, {len(x)} units", fontsize=9)
         ax.tick_params(labelsize=7)
