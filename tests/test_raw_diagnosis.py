@@ -81,6 +81,12 @@ def test_planted_k2_is_named_with_its_held_out_shrink():
     assert c["significant"] and c["held_out"]["shrink_ug"] > 0.3 * c["held_out"]["rms_base_ug"]
     assert c["full_fit"]["closes_gap"]
     assert all(r["versus_best"]["beaten"] for r in doc["raw"]["rivals"] if r["testable"])
+    # a named verdict has a one-sentence reason besides its evidence, and its held-out residual is at the
+    # floor (the held-out power against what a term that explains everything leaves there)
+    v = doc["verdict"]
+    assert v["reason"].startswith("scale_nonlinearity closes the significant gap") and "\n" not in v["reason"]
+    assert v["held_out_at_floor"] and c["held_out"]["floor"]["at_floor"] and v["gap_closed"]
+    assert v["size"]["unit"] == "ug/g2" and abs(v["size"]["value"] + 800) < 4 * v["size"]["u"] + 50
     # the evidence names the rival beaten by the fewest paired standard errors, with that margin (> 2)
     margin = {r["term"]: r["versus_best"]["mean_diff"] / r["versus_best"]["se"] for r in doc["raw"]["rivals"]
               if r["testable"]}
