@@ -35,11 +35,14 @@ def register(sub) -> None:
     p.add_argument("--quantisation-lsb", type=float, default=None, metavar="Q",
                    help="the LSB q of a digital output in the file's output unit (one for the three outputs), fixed "
                         "instead of profiled; implies --effects ...,quantisation (docs/model.md, Quantisation)")
-    p.add_argument("--ess", type=float, default=2000, help="bulk and tail ESS requested for every parameter (default 2000)")
+    p.add_argument("--ess", type=float, default=2000,
+                   help="bulk and tail ESS requested for every parameter, a finite number > 0 (default 2000)")
     p.add_argument("--max-steps", type=int, default=20000,
-                   help="stop after this many steps even if not converged (default 20000)")
-    p.add_argument("--walkers", type=int, default=None, help="number of walkers (default 2 x parameters)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+                   help="stop after this many steps even if not converged, at least 20 (the first look's "
+                        "burn-in; default 20000)")
+    p.add_argument("--walkers", type=int, default=None,
+                   help="number of walkers, an even integer >= 2 x the free parameters (default 2 x parameters)")
+    p.add_argument("--seed", type=int, default=0, help="random seed, an integer in 0..2**32-1 (default 0)")
     p.add_argument("--angle-bound-arcsec", type=float, default=3600.0, metavar="ARCSEC",
                    help="answer gate: largest orientation angle accepted as 'ok', arcsec (default 3600 = 1 deg)")
     p.add_argument("--lab", metavar="LAB.toml",
@@ -64,6 +67,10 @@ def run(args) -> int:
 
     if bool(args.data) == bool(args.example):
         raise InputError("give a bench CSV file or --example")
+    from ..estimation.posterior.options import check_sampler_options
+
+    # before anything is read (--walkers needs the model's number of parameters: sample() checks it)
+    check_sampler_options(ess=args.ess, max_steps=args.max_steps, seed=args.seed)
     from ..fleet.select import select_unit_state
 
     data = str(example_path()) if args.example else args.data

@@ -15,6 +15,7 @@ import numpy as np
 
 from .diagnostics import diagnostics, integrated_time, split_rhat_quick
 from .moves import _emcee, make_moves
+from .options import BURN_TAUS, INITIAL_TAU, check_ess, check_max_steps, check_rule, check_seed, walkers_for
 from .targets import LogPosterior
 
 
@@ -78,9 +79,16 @@ def run_sampler(target: LogPosterior, n_walkers: int, *, ess: float = 2000, rhat
     exactly those draws, and every consumer reads it (docs/posterior.md, "One verdict").
 
     ``target`` is a :class:`LogPosterior` (or any object with its ``d``, ``names``, ``model``,
-    ``to_x`` and vectorised ``__call__``)."""
-    emcee = _emcee()
+    ``to_x`` and vectorised ``__call__``).
+
+    The options are checked first (:mod:`.options`): ``n_walkers`` an even integer >= 2 d,
+    ``max_steps`` >= :data:`~.options.MIN_STEPS`, ``ess`` finite > 0, ``seed`` in 0 .. 2**32 - 1;
+    otherwise an :class:`InputError` naming the option."""
     d = target.d
+    ess, max_steps, seed = check_ess(ess), check_max_steps(max_steps), check_seed(seed)
+    check_rule(rhat_max, tau_factor)
+    n_walkers = walkers_for(n_walkers, d)
+    emcee = _emcee()
     rng = np.random.default_rng(seed)
     z0 = rng.standard_normal((n_walkers, d)) * start_scale
     for _ in range(100):                  # every walker starts where the posterior is positive
@@ -108,7 +116,7 @@ def run_sampler(target: LogPosterior, n_walkers: int, *, ess: float = 2000, rhat
     converged = False
     diag = None
     burn = 0
-    tau_last = 4.0
+    tau_last = INITIAL_TAU
     while True:
         while steps < target_steps:
             n_run = min(progress_every, target_steps - steps)
@@ -121,7 +129,7 @@ def run_sampler(target: LogPosterior, n_walkers: int, *, ess: float = 2000, rhat
         # diagnostics of the reported parameters (x), not of the walkers' coordinates
         chain = target.to_x(sampler.get_chain())
         # burn-in: 5 tau of the previous look (the start is already near the posterior)
-        burn = int(min(math.ceil(5 * tau_last), steps // 2))
+        burn = int(min(math.ceil(BURN_TAUS * tau_last), steps // 2))
         kept = steps - burn
         tau_vec = integrated_time(chain[burn:])
         tau = tau_last = float(np.max(tau_vec))

@@ -31,6 +31,7 @@ from ..result import Z95, CalibrationResult
 from .export import write_inference_data, write_target_inference_data
 from .laplace import _transformed_laplace, laplace_approximation
 from .moves import MOVES
+from .options import check_sampler_options, walkers_for
 from .run import MAX_SAVED_DRAWS, run_sampler
 from .summary import (
     PRIOR_DOMINATED_RATIO,
@@ -91,6 +92,8 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     gates = gates or DEFAULT_CONFIG
     if moves not in MOVES:
         raise InputError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
+    # the options first (docs/posterior.md, "Options and their ranges"): before anything is read or fitted
+    check_sampler_options(ess=ess, max_steps=max_steps, seed=seed, rhat_max=rhat_max, tau_factor=tau_factor)
     campaign = _load(data)
     from ..joint import single_temperature_reference
 
@@ -130,6 +133,7 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     effects, added = effects_with_lab(effects, systematics)
     if noise_fx.get("whitening") is not None:      # flicker_noise: estimation/flicker_noise.py
         return _sample_flicker(campaign, effects, noise_fx, added, locals())
+    walkers_for(n_walkers, len(Model(effects, reference_temperature_C).names))   # before the fits
     if least_squares is None and quantised:
         from ..quantisation_form import fit_quantisation
 
@@ -183,9 +187,7 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     x_start = np.array([ls_values.get(n, pri[n].mean) for n in model.names])
     x_map, C = laplace_approximation(problem, pri, x_start)
     Lc = np.linalg.cholesky(C)
-    d = len(model.names)
-    W = int(n_walkers or 2 * d)
-    W += W % 2
+    W = walkers_for(n_walkers, len(model.names))
     target = LogPosterior(campaign, model, sigma, pri, x_map, Lc, block=W // 2, nu=nu, quantisation=quantisation,
                           whitening=whitening)
     run = run_sampler(target, W, ess=ess, rhat_max=rhat_max, tau_factor=tau_factor, max_steps=max_steps,
@@ -298,6 +300,9 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
     holds fixed something the least squares integrate); the result then recommends them."""
     if moves not in MOVES:
         raise InputError(f"unknown moves {moves!r}; choose one of {', '.join(MOVES)}")
+    check_sampler_options(ess=ess, max_steps=max_steps, seed=seed, rhat_max=rhat_max, tau_factor=tau_factor)
+    d = len(target.names)
+    W = walkers_for(n_walkers, d)
     t_start = time.perf_counter()
     problem = ResidualProblem(target)
     if target.transform is None:
@@ -307,9 +312,6 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
     # Cholesky of the column-scaled covariance (parameters differ by 10 orders of magnitude)
     D = np.sqrt(np.diag(C))
     Lc = np.linalg.cholesky(C / np.outer(D, D)) * D[:, None]
-    d = len(target.names)
-    W = int(n_walkers or 2 * d)
-    W += W % 2
     lp = ResidualLogPosterior(target, x_map if target.transform is None else y_map, Lc, block=W // 2)
     if target.transform is not None:
         x_map = np.asarray(target.transform(y_map)).reshape(-1)

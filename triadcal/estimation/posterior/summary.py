@@ -93,9 +93,59 @@ def posterior_notes(intervals: Mapping[str, dict], non_gaussian, prior_dominated
         else:
             notes.append(f"{n}: the least-squares fit could not determine it; only the posterior interval exists")
     if not run.converged:
+        why = "; ".join(stop_rule_failures(run, ess, rhat_max, tau_factor))
         notes.insert(0, f"not converged within {max_steps} steps: the stop rule (chain >= {tau_factor:g} tau, "
-                        f"ESS >= {ess:g}, R-hat < {rhat_max}) did not hold; do not use these intervals")
+                        f"ESS >= {ess:g}, R-hat < {rhat_max}) did not hold: {why}; do not use these intervals")
     return notes
+
+
+def _worst(values, names, bad, pick) -> tuple:
+    """``(value, name, how many fail)`` of the worst parameter by ``pick`` (np.nanargmin or
+    np.nanargmax; a nan, a value that cannot be computed, is the worst) among those ``bad`` flags."""
+    values = np.asarray(values, float)
+    nan = np.flatnonzero(~np.isfinite(values))
+    k = int(nan[0]) if nan.size else int(pick(values))
+    return float(values[k]), names[k], int(np.sum(bad))
+
+
+def _more(n: int) -> str:
+    return f" and {n - 1} more" if n > 1 else ""
+
+
+def stop_rule_failures(run: PosteriorRun, ess, rhat_max, tau_factor) -> list:
+    """What broke the stop rule of a run that did not converge, with the numbers and the parameter:
+    the verdict's own R-hat and bulk/tail ESS (on the saved draws, ``sampler.per_parameter``), the
+    chain's length in autocorrelation times, then the cheap screens of the last look (ESS ~ W N / tau,
+    classic split R-hat), which gate arviz's numbers (docs/posterior.md, Stop rule)."""
+    diag = run.diagnostics
+    names = list(run.names)
+    out = []
+    rhat = np.asarray(diag["rhat"], float)
+    bad = ~(rhat < rhat_max)
+    if bad.any():
+        v, n, k = _worst(rhat, names, bad, np.nanargmax)
+        out.append(f"R-hat {v:.4f} of {n}{_more(k)} >= {rhat_max:g}")
+    for kind in ("bulk", "tail"):
+        e = np.asarray(diag[f"ess_{kind}"], float)
+        bad = ~(e >= ess)
+        if bad.any():
+            v, n, k = _worst(e, names, bad, np.nanargmin)
+            out.append(f"smallest {kind} ESS {v:.0f} ({n}{_more(k)}) < {ess:g}")
+    tau = np.asarray(diag["tau"], float)
+    kept = int(run.kept_z.shape[0])           # saved draws per walker (tau is in the same steps)
+    if not np.all(np.isfinite(tau)) or kept < tau_factor * np.nanmax(tau):
+        v, n, _ = _worst(tau, names, ~np.isfinite(tau), np.nanargmax)
+        out.append(f"chain of {kept} {'saved draws' if run.thin > 1 else 'steps after the burn-in'} per walker "
+                   f"< {tau_factor:g} tau = {tau_factor * v:.0f} (tau {v:.1f} of {n})")
+    if not out and run.checks:
+        last = run.checks[-1]
+        if not last["ess_estimate"] >= ess:
+            out.append(f"the last look's ESS screen (walkers x steps / tau) {last['ess_estimate']:.0f} < {ess:g}")
+        if not last["rhat_classic_max"] < rhat_max:
+            out.append(f"the last look's classic split R-hat {last['rhat_classic_max']:.4f} >= {rhat_max:g}")
+    if not out:
+        out.append("the run stopped before its last look could confirm the rule")
+    return out
 
 
 def intervals_to_use(non_gaussian: Sequence[str], ls_names, prefer_least_squares: Optional[str] = None) -> dict:
