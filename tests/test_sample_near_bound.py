@@ -29,3 +29,21 @@ def test_an_angle_near_the_bound_is_sampled_and_covered(tmp_path, angle):
     p = r.parameters["Ca_zx"]
     assert abs(p.value - truth["Ca_zx"]) < 4 * p.u
     assert MARGIN_OF_POSTERIOR_SD * p.u < 1e-3
+
+
+def test_a_raised_angle_bound_is_the_priors_bound_too(tmp_path):
+    """--angle-bound-arcsec 7200 with a unit at 4000 arcsec: the least-squares fit is ok at 4000, and
+    the posterior samples within the raised bound (before: the prior kept 3600, pulled the angle to
+    3599.95 and ended not converged, chi2/dof 4358, with no word of the bound)."""
+    from triadcal.estimation.gates import GateConfig
+
+    rng = np.random.default_rng(9)
+    truth = {**default_truth(rng), "Ca_zx": 4000.0}
+    text, truth = simulate_campaign(rng, truth=truth, noise_sd=5e-4)
+    path = tmp_path / "a4000.csv"
+    path.write_text(text, encoding="utf-8")
+    r = sample(read_bench_csv(path), EFFECTS, seed=2, max_steps=3000, gates=GateConfig(angle_bound_arcsec=7200.0))
+    assert r.status == "ok", (r.status, r.notes[-2:])
+    p = r.parameters["Ca_zx"]
+    assert abs(p.value - 4000.0) < 4 * p.u
+    assert r.to_dict()["priors"]["Ca_zx"]["bounds"] == pytest.approx([-7200.0, 7200.0])

@@ -65,17 +65,22 @@ class Prior:
 
 
 def default_priors(model: Model, width: float = PRIOR_WIDTH,
-                   overrides: Optional[Mapping[str, Prior]] = None) -> dict[str, Prior]:
-    """The documented weakly informative prior of every parameter of ``model``."""
+                   overrides: Optional[Mapping[str, Prior]] = None,
+                   angle_bound_arcsec: Optional[float] = None) -> dict[str, Prior]:
+    """The documented weakly informative prior of every parameter of ``model``. The angles' bound
+    is the answer gates' (``angle_bound_arcsec``, default ``DEFAULT_CONFIG``'s 3600): a fit with a
+    raised ``--angle-bound-arcsec`` samples within the raised bound (before, the prior kept 3600
+    and pulled a unit at 4000 arcsec to 3599.95, refused as not converged with no word of why)."""
+    bound_arcsec = DEFAULT_CONFIG.angle_bound_arcsec if angle_bound_arcsec is None else float(angle_bound_arcsec)
     priors = {}
     for s in model.parameters:
         low, high, reason = -np.inf, np.inf, ""
         if s.name.startswith("K_") and s.unit == "g/V" and s.name.count("_") == 1:
             low, reason = 0.0, "a scale factor is positive"
         elif s.name.startswith("Ca_") and s.name.count("_") == 1:
-            b = DEFAULT_CONFIG.angle_bound_arcsec * ARCSEC / TO_INTERNAL[s.unit]
+            b = bound_arcsec * ARCSEC / TO_INTERNAL[s.unit]
             low, high, reason = -b, b, ("the answer gates' bound on an orientation angle "
-                                        f"(|angle| <= {DEFAULT_CONFIG.angle_bound_arcsec:g} arcsec)")
+                                        f"(|angle| <= {bound_arcsec:g} arcsec)")
         elif s.name in TIME_CONSTANTS:
             low, reason = 0.0, f"a time constant is not negative ({TIME_CONSTANTS[s.name]})"
         elif s.name in ("tilt_x", "tilt_y"):

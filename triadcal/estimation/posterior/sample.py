@@ -149,7 +149,7 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     # the bench's errors correlate the outputs of oblique poses: the fit was GLS (joint._bench_whitening)
     whitening = getattr(ls_problem, "whitening", None)
     model = Model(effects, reference_temperature_C)
-    pri, scaled = autoscaled_scale_priors(default_priors(model, overrides=priors),
+    pri, scaled = autoscaled_scale_priors(default_priors(model, overrides=priors, angle_bound_arcsec=_bound_of(ls)),
                                           {n: p.value for n, p in ls.parameters.items()}, user=priors or {})
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     sigma = noise.sigma
@@ -160,8 +160,10 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
             raise InputError(f"{campaign.source or 'campaign'}: the noise of the outputs is not in the data "
                              "(no sd_* columns, no Q_V2s metadata) and cannot be estimated from the fit")
         sigma = sigma * math.sqrt(chi2_dof)
-        notes.append(f"output noise not in the data: held at its least-squares estimate ({noise.description}, "
-                     f"chi2/dof = {chi2_dof:.3g}); the posterior does not include the uncertainty of the noise level")
+        notes.append(f"output noise not in the data: held at its least-squares estimate ({noise.description}; "
+                     f"variance per unit weight {chi2_dof:.3g}, the estimate itself, not a test of the model); the "
+                     "posterior does not include the uncertainty of the noise level, and with the noise estimated "
+                     "the model's fit cannot be tested by chi2: `triadcal diagnose` tests the residuals' structure")
     if math.isfinite(nu) and noise_fx.get("t_scale", 1.0) != 1.0:
         sigma = sigma * float(noise_fx["t_scale"])
         notes.append(f"heavy_tails: the Student-t's SD is {noise_fx['t_scale']:.3g} times the output noise's "
@@ -358,3 +360,10 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
     if posterior_path is not None:
         write_target_inference_data(posterior_path, target, run, result)
     return result, run
+
+
+def _bound_of(result) -> float:
+    """The angle bound the least-squares result was judged with (a raised --angle-bound-arcsec)."""
+    from ..gates import config_of
+
+    return config_of(result).angle_bound_arcsec
