@@ -138,6 +138,13 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             raise InputError(f"--method classical is the paper's eq. 2 per setpoint with a linear thermal "
                              f"correction: {', '.join(ignored)} would be ignored; use --method joint for them")
 
+        if lab is not None:
+            from .io.lab import LabConfig, load_lab, with_lab_gravity
+
+            lab = lab if isinstance(lab, LabConfig) else load_lab(lab)
+            # the lab's measured g when the data state none (K takes g one to one): the classical branch
+            # ignored it, K_x 464 ppm off at a site of 9.8112 with status ok (an outside probe)
+            campaign = with_lab_gravity(campaign, lab)
         result = fit_classical(campaign, reference_temperature_C=reference_temperature_C, gates=gates)
         if lab is not None:
             result.notes.append("the classical method does not propagate the lab file's errors into u (Type A "

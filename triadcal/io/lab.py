@@ -184,6 +184,7 @@ def load_lab(path) -> LabConfig:
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: not valid TOML: {exc}") from None
     lab = LabConfig(source=str(path))
+    given: dict = {}                       # attribute -> "[section] key" that set it (synonyms clash)
     for section, table in data.items():
         if section not in LAB_SCHEMA:
             raise InputError(f"{path}: unknown section [{section}]; known: {', '.join(LAB_SCHEMA)}")
@@ -217,11 +218,37 @@ def load_lab(path) -> LabConfig:
                 value = tuple(value)
             elif not isinstance(value, str):
                 value = str(value)  # TOML dates etc. are written as they read
+            if name in given:
+                raise InputError(f"{path}: [{section}] {key} and {given[name]} state the same quantity; give one "
+                                 "(the file's order decided it silently before)")
+            given[name] = f"[{section}] {key}"
             setattr(lab, name, value)
+    for name, limit, why in LAB_U_LIMITS:
+        v = getattr(lab, name, None)
+        if v is not None and v > limit:
+            raise InputError(f"{path}: {given[name]} = {v:g} is above {limit:g}: {why}")
+    if lab.local_g_u_ppm is not None and lab.local_g_m_s2 is None:
+        raise InputError(f"{path}: [gravity] u_ppm = {lab.local_g_u_ppm:g} without local_g_m_s2: a u is that of a "
+                         "measured local gravity; without one the fit uses standard gravity, which differs from a "
+                         "site's g by up to 2 600 ppm; state the measured local_g_m_s2 (or leave out u_ppm)")
     if lab.local_g_m_s2 is not None and not 9.76 <= lab.local_g_m_s2 <= 9.84:
         raise InputError(f"{path}: [gravity] local_g_m_s2 = {lab.local_g_m_s2:g} is not a gravity on the Earth's "
                          "surface (9.76 to 9.84 m/s2)")
     return lab
+
+
+#: upper limits of the lab's uncertainties: (attribute, limit, why); beyond them the linear
+#: propagation of eq. 4-7 and of the fit's Type B budget does not hold (an outside probe: u_ppm = 1e6
+#: and mounting_u_arcsec = 1e6 were propagated linearly, a certificate issued with K = 1.0 +- 2.0 g/V)
+LAB_U_LIMITS = tuple(
+    [(n, 3600.0, "an angle's u above 1 degree (the answer gates' bound) is no small error; the linear "
+                 "propagation of eq. 4-7 and of the fit's budget does not hold there")
+     for n in ("axes_nonorthogonality_u_arcsec", "encoder_zero_u_arcsec", "mounting_u_arcsec",
+               "sigma_position_arcsec", "sigma_wobble_arcsec")]
+    + [("local_g_u_ppm", 3000.0, "the local gravity's u in ppm: standard gravity itself is within 2 600 ppm of "
+                                 "every site's g"),
+       ("voltmeter_gain_u_ppm", 1e5, "a voltmeter's gain u above 10 % is no calibrated meter"),
+       ("temperature_uncertainty_C", 50.0, "a thermometer's u above 50 degC is no measured temperature")])
 
 
 def _iso_date(value, path, section) -> str:

@@ -347,20 +347,29 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
 
 
 def _missing_type_b(result: CalibrationResult, lab: LabConfig) -> list:
-    """A joint or posterior result whose u is Type A only while the lab file declares systematic
-    errors: its U would leave them out of every parameter (the classical method's budget adds
-    them by eq. 4-7 and is not refused)."""
-    if result.method == "classical" or lab.source is None:
+    """A result whose u is Type A only while the lab file declares systematic errors: its U would
+    leave them out of every parameter. A classical result always is (its eq. 4-7 budget is the
+    angles' over the temperature range, not each parameter's U), so it is refused under such a lab
+    file too."""
+    if lab.source is None:
         return []
     from ...uncertainty.typeb import systematic_sources
 
     try:
         declared = systematic_sources(lab, str(result.extra.get("output_unit") or "V"))
-    except InputError:                    # a voltmeter on counts: the fit would have refused it
-        declared = []
+    except InputError as exc:             # a voltmeter on counts: the fit refuses it, so does the certificate
+        return [str(exc)]
     if not declared or any(p.U is not None for p in result.parameters.values()):
         return []
     names = sorted({s.key for s in declared})
+    if result.method == "classical":
+        # the classical method's u are Type A (eq. 2-3); its eq. 4-7 budget is the angles' over the
+        # temperature range, not each parameter's U: the results table would state U without the lab's
+        # errors (an outside probe: Ca_zx 22.0 arcsec off with U 5.8, coverage 0.20-0.26 over 150 campaigns)
+        return [f"the lab file declares systematic errors ({', '.join(names)}), but a classical result's "
+                "uncertainties are Type A only (the method propagates no Type B into each parameter; its eq. 4-7 "
+                "budget covers the angles over the temperature range): fit with --method joint --lab, whose every "
+                "U includes them"]
     return [f"the lab file declares systematic errors ({', '.join(names)}), but the result's uncertainties are "
             "Type A only (it was fitted without them): fit again with --lab so that every parameter's U includes "
             "them"]
