@@ -533,11 +533,20 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                "output_unit": campaign.output_unit, "local_g_m_s2": campaign.local_g_m_s2,
                "source": campaign.source})
     resid = (sol.r.reshape(-1, 3) * noise.sigma)
+    structure = None
+    if not noise.known and loss == "l2" and whitening is None and np.all(np.isfinite(sol.J)):
+        from .structure import structure_gap
+
+        structure = structure_gap(campaign, noise.sigma, sol.r, sol.J, dof, model.reference_temperature_C)
+        if structure is not None:
+            result.fit["structure"] = structure
     evidence = FitEvidence(
         converged=sol.converged, cost_start=cost_start, cost_final=sol.cost, jacobian=sol.J * sw[:, None],
         free_names=problem.names, residual_rms=float(np.sqrt(np.mean(resid ** 2))),
         data_rms=float(np.sqrt(np.mean(campaign.w ** 2))), chi2=chi2, dof=dof, noise_known=noise.known,
-        gof_what="")
+        gof_p_value=None if structure is None else structure["p_value"],
+        gof_ratio=None if structure is None else structure["ratio"],
+        gof_what="" if structure is None else structure["what"])
     apply_gates(result, evidence, config=gates)
     if result.status in ("unphysical_scale", "angle_out_of_range", "model_mismatch"):
         G = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg) * campaign.gravity_g
