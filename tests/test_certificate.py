@@ -560,3 +560,20 @@ def test_a_type_a_result_with_a_lab_that_declares_systematic_errors_is_refused(t
 def test_a_lab_file_that_cannot_be_used_is_refused(tmp_path, text, message):
     with pytest.raises(ValueError, match=message):
         _lab(tmp_path, text)
+
+
+def test_a_posterior_of_another_unit_is_refused(issued, tmp_path):
+    """Before: a certificate of SN-GOLD-0001 was issued with another unit's posterior, its R-hat,
+    ESS and plots (an outside probe); compare refused the same mix-up."""
+    from triadcal.errors import InputError
+    from triadcal.estimation.result import CalibrationResult
+
+    d = issued["dir"]
+
+    result = CalibrationResult.load(d / "result.json")
+    post = fake_posterior(result)
+    post.posterior.attrs["unit"] = "SN-OTHER-0002"
+    post.to_netcdf(tmp_path / "other.nc")
+    with pytest.raises(InputError, match="is a posterior of unit 'SN-OTHER-0002'"):
+        C.certificate(d / "result.json", posterior=tmp_path / "other.nc", lab=d / "lab.toml",
+                      data=d / "campaign.csv", issue_date=ISSUE_DATE)

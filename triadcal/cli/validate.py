@@ -10,8 +10,8 @@ def register(sub) -> None:
     p = sub.add_parser(
         "validate", help="simulation-based calibration: do the intervals cover? (rank histograms, coverage)",
         description="Draw N campaigns from the prior, simulate them, fit each by least squares and by the "
-                    "posterior, and check that the ranks of the true values are uniform and that the 68%% and "
-                    "95%% intervals cover at their nominal rates (Talts et al. 2018).")
+                    "posterior, and check that the ranks of the true values are uniform and that the 68% and "
+                    "95% intervals cover at their nominal rates (Talts et al. 2018).")
     p.add_argument("--campaigns", type=int, default=200, help="number of simulated campaigns, >= 1 (default 200)")
     p.add_argument("--ranks", type=int, default=99,
                    help="posterior draws per campaign, L (ranks 0..L), 1..--ess (default 99)")

@@ -254,6 +254,24 @@ def check_posterior(source, draws: dict, result: CalibrationResult, what: str) -
     * a posterior mean further than ``POSTERIOR_MEAN_TOLERANCE`` standard deviations from the
       result's value (swapped posteriors: before's draws with after's result).
     """
+    check_posterior_identity(source, draws, result, what)
+    idata = None if isinstance(source, dict) else source
+    if idata is not None:
+        from ...reports.certificate.refusal import posterior_diagnostics, refusal_reasons
+
+        diag = posterior_diagnostics(idata, list(result.parameters), result)
+        if diag:
+            plain = set(refusal_reasons(result))
+            reasons = [r for r in refusal_reasons(result, posterior_diag=diag) if r not in plain]
+            if reasons:
+                raise InputError(f"{what}: " + "; ".join(reasons))
+    _check_posterior_means(draws, result, what)
+
+
+def check_posterior_identity(source, draws: dict, result: CalibrationResult, what: str) -> None:
+    """The first checks of :func:`check_posterior`: the posterior is of ``result``'s unit (its
+    ``unit`` attribute), in its parameters' units, with its parameter set. Also used by the
+    certificate, whose convergence checks are its refusal report's."""
     for n, (_, unit_p) in draws.items():
         if n in result.parameters and unit_p is not None and unit_p != result[n].unit:
             raise InputError(f"{what}: {n} is in {unit_p!r}, the result gives {result[n].unit!r}")
@@ -272,15 +290,9 @@ def check_posterior(source, draws: dict, result: CalibrationResult, what: str) -
                ([f"lacks {', '.join(missing)}, which its result has"] if missing and by_triadcal else [])
         raise InputError(f"{what}: its parameter set differs from its result's ({'; '.join(bits)}): a posterior "
                          "of another model or unit; give the posterior written with that result")
-    if idata is not None:
-        from ...reports.certificate.refusal import posterior_diagnostics, refusal_reasons
 
-        diag = posterior_diagnostics(idata, list(result.parameters), result)
-        if diag:
-            plain = set(refusal_reasons(result))
-            reasons = [r for r in refusal_reasons(result, posterior_diag=diag) if r not in plain]
-            if reasons:
-                raise InputError(f"{what}: " + "; ".join(reasons))
+
+def _check_posterior_means(draws: dict, result: CalibrationResult, what: str) -> None:
     off = []
     for n, (d, _) in draws.items():
         if n not in result.parameters or n in _DERIVED or len(d) == 0:

@@ -45,10 +45,17 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
     check_result_for_use(result, str(result_path or f"result of {result.unit}"), need_ok=False)
     if lab is not None and not isinstance(lab, LabConfig):
         lab = load_lab(lab)
-    if posterior is not None and not hasattr(posterior, "posterior"):
-        from ...io.netcdf import read_inference_data
+    if posterior is not None:
+        what = str(posterior) if not hasattr(posterior, "posterior") else "the posterior"
+        if not hasattr(posterior, "posterior"):
+            from ...io.netcdf import read_inference_data
 
-        posterior = read_inference_data(posterior)
+            posterior = read_inference_data(posterior)
+        # the posterior must be the result's (compare's check, reused): a posterior of another unit gave
+        # a certificate with that unit's R-hat, ESS and plots (an outside probe)
+        from ...judgement.compare.correlation import check_posterior_identity, posterior_draws
+
+        check_posterior_identity(posterior, posterior_draws(posterior), result, what)
     if data is not None and not hasattr(data, "n_visits"):
         from ...io.bench_csv import read_bench_csv
 
