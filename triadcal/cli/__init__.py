@@ -59,6 +59,22 @@ def _negative_values(argv: list) -> list:
     return out
 
 
+#: the options that name a file a command writes (``--posterior`` and ``--diagnose`` only where
+#: they are outputs: certificate and compare read a posterior)
+OUTPUT_OPTIONS = ("json", "netcdf", "html", "pdf", "plot", "bench_csv")
+OUTPUT_OPTIONS_OF = {"sample": ("posterior",), "fit-raw": ("posterior", "diagnose")}
+
+
+def _check_output_folders(args) -> None:
+    """Refuse, before any work, an output file whose folder does not exist (io.atomic)."""
+    from ..io.atomic import check_output_folder
+
+    for dest in OUTPUT_OPTIONS + OUTPUT_OPTIONS_OF.get(getattr(args, "command", ""), ()):
+        value = getattr(args, dest, None)
+        if isinstance(value, (str, os.PathLike)) and str(value) not in ("", "-"):
+            check_output_folder(value)
+
+
 def main(argv=None) -> int:
     """Run one command. Exit codes: 0 done, 1 refused input or a failed precondition (one line on
     stderr naming the file and the place), 2 usage, 3 a result whose status is not ok (or no
@@ -77,6 +93,7 @@ def main(argv=None) -> int:
     if not debug:
         warnings.showwarning = _warning_line
     try:
+        _check_output_folders(args)
         code = int(args.func(args) or 0)
         sys.stdout.flush()        # the last block here, where a closed pipe is caught, not at exit
         return code

@@ -51,13 +51,31 @@ def _umask() -> int:
     return mask
 
 
+def check_output_folder(path: PathLike) -> None:
+    """Refuse an output path whose folder does not exist (or is a file), naming it: checked by the
+    commands before they work, so that an hour's sampling is not lost to a typo in ``--json``
+    (before: the error named the internal ``.name.xyz.part`` file, after the work was done)."""
+    parent = Path(path).parent
+    if not parent.is_dir():
+        raise InputError(f"{path}: the folder {parent} does not exist" if not parent.exists() else
+                         f"{path}: {parent} is not a folder")
+
+
+def _temporary(path: Path, suffix: str):
+    try:
+        return tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
+    except FileNotFoundError:
+        check_output_folder(path)
+        raise
+
+
 @contextlib.contextmanager
 def atomic_path(path: PathLike, suffix: str = "") -> Iterator[Path]:
     """A temporary path in the target's folder for a library that writes by path (netCDF,
     matplotlib, reportlab); renamed onto ``path`` when the block ends without error, removed
     otherwise. ``suffix`` (e.g. ``".png"``) for libraries that pick the format by extension."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=(suffix or "") + ".part")
+    fd, tmp = _temporary(path, (suffix or "") + ".part")
     os.close(fd)
     tmp = Path(tmp)
     try:
