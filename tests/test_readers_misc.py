@@ -40,3 +40,13 @@ def test_plan_values(tmp_path, row, needle):
     with pytest.raises(ValueError, match=needle) as e:
         plan_from_csv(p)
     assert f"{p}:3" in str(e.value)
+
+
+def test_fit_given_a_raw_recording_points_to_fit_raw(tmp_path):
+    """A newcomer's probe: `fit` on a raw recording said only "column 'unit' is missing"."""
+    from triadcal.io.bench_csv import BenchCSVError, read_bench_csv
+
+    p = tmp_path / "raw.csv"
+    p.write_text("ax,ay,az\n0.1,0.2,9.8\n0.1,0.2,9.8\n", encoding="utf-8")
+    with pytest.raises(BenchCSVError, match=r"raw recording of static poses\? `triadcal fit-raw"):
+        read_bench_csv(p)

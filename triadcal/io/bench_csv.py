@@ -151,6 +151,10 @@ def _float_column(path, name, strings, line_numbers):
     return v
 
 
+#: column names of a raw recording (fit-raw's defaults, io/raw.py): a hint when ``fit`` is given one
+RAW_HEADER_NAMES = {"acc_x", "acc_y", "acc_z", "ax", "ay", "az", "x", "y", "z", "accel_x", "accel_y", "accel_z"}
+
+
 def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
     """Parse bench CSV v1 text; ``path`` names the source in error messages.
 
@@ -173,7 +177,11 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
             raise BenchCSVError(path, header_line, None, f"column {len(seen)} has an empty name")
     for r in REQUIRED:
         if r not in seen:
-            raise BenchCSVError(path, header_line, r, "required column is missing from the header")
+            raw = [h for h in header if h.lower() in RAW_HEADER_NAMES]
+            hint = (f" (the header names {', '.join(raw)}: a raw recording of static poses? `triadcal fit-raw "
+                    "FILE --rate HZ` calibrates one; `triadcal fit` reads a bench campaign, docs/bench-csv.md)"
+                    if raw and "w_x" not in seen else "")
+            raise BenchCSVError(path, header_line, r, "required column is missing from the header" + hint)
     for group in (("sd_x", "sd_y", "sd_z"), U_W):
         present = [c for c in group if c in seen]
         if present and len(present) != len(group):
@@ -305,7 +313,7 @@ def check_output_unit(c: Campaign, line: int) -> None:
         if not lo <= K <= hi:
             raise BenchCSVError(src, line, None,
                                 f"the readings contradict output_unit = {unit}: median |w| = {med:.6g} {unit} "
-                                f"implies K = {K:.3g} g/{unit}, outside the plausible {lo:g}-{hi:g} g/{unit}")
+                                f"implies K = {K:.4g} g/{unit}, outside the plausible {lo:g}-{hi:g} g/{unit}")
 
 
 def to_float(s: str) -> Optional[float]:
