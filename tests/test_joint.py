@@ -52,7 +52,7 @@ def test_heating_only_campaign_holds_hysteresis_and_says_why():
     result = fit_joint(c)
     assert not any(n.endswith("_hysteresis") for n in result.parameters)
     assert sum("hysteresis" in note and "heating" in note for note in result.notes) == 6
-    with pytest.raises(IdentifiabilityError, match="Ca_xy_hysteresis: hysteresis needs visits on both"):
+    with pytest.raises(IdentifiabilityError, match="Ca_xy_hysteresis, Ca_xz_hysteresis.*: hysteresis needs visits on both"):
         fit_joint(c, unidentifiable="refuse")
 
 

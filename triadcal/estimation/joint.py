@@ -194,7 +194,7 @@ def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]
     T = campaign.t.mean(axis=1)
     branches = set(np.sign(campaign.branch).tolist())
     if "hysteresis" in eff and not {-1.0, 1.0} <= branches:
-        have = {-1.0: "heating", 1.0: "cooling", 0.0: "none"}
+        have = {-1.0: "heating", 1.0: "cooling", 0.0: "visits at a steady temperature (no branch)"}
         for ab in ANGLE_NAMES:
             problems[f"Ca_{ab}_hysteresis"] = (
                 "hysteresis needs visits on both a heating and a cooling branch; the data has only "
@@ -432,9 +432,12 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         problems.update(null_space_problems(J0, probe.names))
     if problems:
         if unidentifiable == "refuse":
+            by_reason: dict = {}
+            for k, v in problems.items():         # one reason once, with every parameter it concerns
+                by_reason.setdefault(v, []).append(k)
             raise IdentifiabilityError(
                 f"{campaign.source or 'campaign'}: the data cannot determine "
-                + "; ".join(f"{k}: {v}" for k, v in problems.items()))
+                + "; ".join(f"{', '.join(ks)}: {v}" for v, ks in by_reason.items()))
         for k, v in problems.items():
             fixed.setdefault(k, model.spec[k].nominal)
             notes.append(f"{k} not estimated, held at {model.spec[k].nominal:g} {model.spec[k].unit}: {v}")
