@@ -290,3 +290,18 @@ def test_swapped_columns_are_refused_without_numpy_warnings(tmp_path):
         warnings.simplefilter("error", RuntimeWarning)
         out = fit_raw(str(path), RATE, labels="part")
     assert out.result.status != "ok"
+
+
+def test_fit_raw_without_unit_says_counts_and_what_the_readings_look_like(tmp_path, capsys):
+    """A recording in m/s2 read with the default --unit counts got K in g/counts and no word."""
+    from pathlib import Path
+
+    from triadcal.cli import main
+
+    data = Path(__file__).resolve().parents[1] / "examples" / "data" / "mikoff_imu0.csv"
+    main(["fit-raw", str(data), "--rate", "100", "--poses", "unknown", "--json", str(tmp_path / "r.json"), "--quiet"])
+    err = capsys.readouterr().err
+    assert "--unit not given: the readings are taken as counts" in err and "looks like m/s2" in err, err
+    main(["fit-raw", str(data), "--rate", "100", "--poses", "unknown", "--unit", "m/s2", "--json",
+          str(tmp_path / "r2.json"), "--quiet"])
+    assert "--unit not given" not in capsys.readouterr().err

@@ -21,7 +21,8 @@ def register(sub) -> None:
                    help="sample rate in Hz (required: a wrong rate is the bug of imucal issue #25)")
     p.add_argument("--columns", default=None, help="accelerometer columns, e.g. acc_x,acc_y,acc_z "
                    "(default: the first of acc_x,acc_y,acc_z / ax,ay,az / x,y,z in the header)")
-    p.add_argument("--unit", choices=("m/s2", "g", "counts"), default="counts", help="unit of the readings")
+    p.add_argument("--unit", choices=("m/s2", "g", "counts"), default=None,
+                   help="unit of the readings (default counts, said in a note with what the readings look like)")
     p.add_argument("--poses", choices=("known", "unknown"), default="known")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--labels", metavar="COLUMN", help="label column naming the poses (imucal's 'part')")
@@ -116,6 +117,8 @@ def run(args) -> int:
     from ..io.bench_csv import LOCAL_G_RANGE_M_S2
     from ..reports.summary import summary_text
 
+    unit_given = args.unit is not None
+    args.unit = args.unit or "counts"
     check_options(args)
     ui = output(args)
     bar = ui.bar(total=args.max_steps, desc="sampling", unit="step") if args.sample else None
@@ -171,9 +174,26 @@ def run(args) -> int:
     if not low <= args.local_g <= high:
         print(f"note: --local-g {args.local_g:g} m/s2, outside Earth's {low}-{high} m/s2, accepted with "
               "--local-g-override", file=sys.stderr)
+    if not unit_given:
+        print(f"note: {unit_note(out)}", file=sys.stderr)
     for note in r.notes:
         print(f"note: {note}", file=sys.stderr)
     return 0 if r.status == "ok" else 3
+
+
+def unit_note(out) -> str:
+    """What --unit counts (the default, not given) means, and what the static readings look like:
+    a recording in m/s2 read as counts got K in g/counts with status ok and no word (a newcomer's
+    probe)."""
+    import numpy as np
+
+    iv = out.detection.intervals
+    acc = out.recording.acc
+    norms = [float(np.linalg.norm(acc[i.start:i.end].mean(axis=0))) for i in iv] if iv else []
+    med = float(np.median(norms)) if norms else float("nan")
+    looks = ("m/s2" if 9.0 < med < 10.6 else "g" if 0.9 < med < 1.1 else None)
+    return (f"--unit not given: the readings are taken as counts (K in g/counts); the static readings' median "
+            f"|a| is {med:.4g}" + (f", which looks like {looks}: give --unit {looks} if it is" if looks else ""))
 
 
 def _write_bench_csv(campaign, args) -> None:
