@@ -347,7 +347,7 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
             ", at the edge of the search" if best.parameter.get("at_grid_edge") else "") + ")"
         left = ("" if best.cv_rms <= EXPLAINED_FACTOR * a.noise_floor else
                 f"; UNEXPLAINED: no form comes within {EXPLAINED_FACTOR:g}x the noise floor (held-out RMS "
-                f"{best.cv_rms / a.noise_floor:.0f}x it): the output has structure none of these forms holds")
+                f"{best.cv_rms / a.noise_floor:.2g}x it): the output has structure none of these forms holds")
         parts.append(f"{a.column}: {a.best}{par}, the simplest form that predicts held-out blocks as well as the "
                      f"best (within one standard error or 1 %), RMS {best.cv_rms:.3g} {unit} against "
                      f"{lin.cv_rms:.3g} for a line (noise floor {a.noise_floor:.2g}){gap}{left}")
