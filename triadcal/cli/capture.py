@@ -170,8 +170,14 @@ def run(args) -> int:
             emulator.stop()
     r = report
     session_visits = r.visits_done - r.visits_done_before
-    out.say(f"wrote {r.csv_path}: {r.visits_done} of {r.visits_total} visits done, {session_visits} of them in "
-            f"this session (session {r.session}), in {r.wall_seconds:.1f} s")
+    if ramp is not None:
+        # a ramp's count is the plan's estimate (20 s moves); the bench's own moves decide how many fit
+        out.say(f"wrote {r.csv_path}: {r.visits_done} visits through the ramp program (the plan estimated "
+                f"{r.visits_total} with 20 s moves; the bench's own moves decide), {session_visits} of them in this "
+                f"session (session {r.session}), in {r.wall_seconds:.1f} s")
+    else:
+        out.say(f"wrote {r.csv_path}: {r.visits_done} of {r.visits_total} visits done, {session_visits} of them in "
+                f"this session (session {r.session}), in {r.wall_seconds:.1f} s")
     out.say(f"the readout: {r.accepted_samples} samples accepted; {r.corrupted_frames} corrupted, "
             f"{r.missing_frames} missing and {r.duplicate_frames} duplicated frames; {r.garbage_bytes} garbage "
             f"bytes; {r.reconnects} reconnections, {r.stalls} stalls and {r.redone_visits} visits redone")
