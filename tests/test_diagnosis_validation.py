@@ -122,6 +122,7 @@ def test_noise_estimated_mode(tmp_path):
     assert_valid(doc, "triadcal.diagnosis_validation")
 
 
+@pytest.mark.slow   # 10-18 s; CI runs it with the slow tests (CI-29: the quick suite took 635 s of its 600)
 def test_cli_magnitudes_and_left_out(tmp_path):
     """The command end to end on clean data alone with --left-out and a magnitude (the README's
     command as the doc harness reduces it): nothing is left out and the table says so (it was an

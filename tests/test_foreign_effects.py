@@ -361,6 +361,7 @@ def _slow_change_verdicts(tmp_path, seed):
         _check_unexplained(diagnose(read_bench_csv(path)), f"{name}_two_turns", seed)
 
 
+@pytest.mark.slow   # 10-18 s; CI runs it with the slow tests (CI-29: the quick suite took 635 s of its 600)
 def test_a_slow_change_of_the_unit_on_one_cycle_is_a_hysteresis_with_a_caveat_and_a_second_turn_tells(tmp_path):
     """A creep of the unit in its fixture or a drift of an angle, linear in time: on one heating and
     cooling each temperature is visited once a branch, so the change is a function of temperature

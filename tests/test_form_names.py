@@ -99,7 +99,8 @@ def oblique_campaign(tmp_path_factory):
     return _write(tmp_path_factory.mktemp("oblique"), "oblique.csv", text)
 
 
-@pytest.mark.parametrize("name", ANSWERABLE)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "thermal_lag_history" else n
+                                  for n in ANSWERABLE])     # the history form's fit: 12 s, slow (CI-29)
 def test_fit_accepts_every_name_the_diagnosis_answers(oblique_campaign, tmp_path, name, capsys):
     """``fit --effects MODEL,NAME`` runs for every answerable name and writes a result whose status
     is one of the statuses (ok, or a gate's refusal with its number): never "unknown effect"."""
@@ -269,7 +270,7 @@ def test_diagnose_again_with_the_named_form_in_the_model(tmp_path, capsys):
     assert_valid(d2, "triadcal.diagnosis")
 
 
-@pytest.mark.parametrize("location", ["housing", "air"])
+@pytest.mark.parametrize("location", [pytest.param("housing", marks=pytest.mark.slow), "air"])   # 11 s: slow (CI-29)
 def test_diagnose_again_with_the_lag_history_in_the_model(tmp_path, location):
     """A lag of 20 min behind a housing or an air thermometer (Euler heat equations): the tempco
     model's diagnosis names ``thermal_lag_history``; with it in the model (the location chosen and

@@ -190,6 +190,7 @@ def test_the_diagnosis_on_second_mechanisms_never_names_a_wrong_effect():
     assert all(s[c]["left_out_confident_wrong_rate"] == 0 for c in sm.CONDITIONS)
 
 
+@pytest.mark.slow   # 10-18 s; CI runs it with the slow tests (CI-29: the quick suite took 635 s of its 600)
 def test_a_settling_bias_is_named_by_its_exponential_tested_at_the_fitted_time_constant():
     """bias_drift~2 seed 1005: the bias settles as r tau (1 - exp(-t/tau)), tau the campaign's 12.8 h.
     bias_warmup is that law; its rival test against the drift must take the warm-up's columns at the

@@ -143,6 +143,7 @@ def _bridged_case(tmp_path, seed, case):
     return r.status
 
 
+@pytest.mark.slow   # 10-18 s; CI runs it with the slow tests (CI-29: the quick suite took 635 s of its 600)
 def test_the_bridged_air_form_answers_a_stepped_campaign(tmp_path):
     """A stepped campaign of tests/independent_bench.py (Euler-integrated chamber, housing and
     element; the thermometer in the air; 30 min soaks read only at the visits): with the gaps bridged
