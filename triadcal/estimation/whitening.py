@@ -115,12 +115,14 @@ def gls_posterior_target(campaign, effects, least_squares, whitening, priors=Non
     from ..models.model import Model
     from .joint import parameter_unit, scaled_covariance
     from .posterior.targets import ResidualTarget
+    from .gates import config_of
     from .priors import autoscaled_scale_priors, default_priors
 
     ls, problem, sol = least_squares
     raw = getattr(problem, "raw", problem)
     model = Model(effects, reference_temperature_C)
-    pri, _ = autoscaled_scale_priors(default_priors(model, overrides=priors, angle_bound_arcsec=_bound_of(ls)),       # noted by the caller
+    bound = config_of(ls).angle_bound_arcsec         # the bound the least-squares result was judged with
+    pri, _ = autoscaled_scale_priors(default_priors(model, overrides=priors, angle_bound_arcsec=bound),  # noted by the caller
                                      {n: p.value for n, p in ls.parameters.items()}, user=priors or {})
     names = tuple(raw.names)
     x = ca.MX.sym("x", len(names))
@@ -135,9 +137,3 @@ def gls_posterior_target(campaign, effects, least_squares, whitening, priors=Non
         cov_ls=scaled_covariance(sol.J) * noise_scale ** 2,
         sigma=sigma, unit_serial=str(campaign.units[0]))
 
-
-def _bound_of(result) -> float:
-    """The angle bound the least-squares result was judged with (a raised --angle-bound-arcsec)."""
-    from .gates import config_of
-
-    return config_of(result).angle_bound_arcsec

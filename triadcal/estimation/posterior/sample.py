@@ -18,7 +18,7 @@ from ...models.effects import DEFAULT_EFFECTS
 from ...models.effects.quantisation import NAME as NAME_QUANTISATION
 from ..quantisation_form import positive_lsb
 from ...models.model import Model
-from ..gates import DEFAULT_CONFIG, GateConfig
+from ..gates import DEFAULT_CONFIG, GateConfig, config_of
 from ..joint import (
     BenchErrors,
     JointProblem,
@@ -149,7 +149,8 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     # the bench's errors correlate the outputs of oblique poses: the fit was GLS (joint._bench_whitening)
     whitening = getattr(ls_problem, "whitening", None)
     model = Model(effects, reference_temperature_C)
-    pri, scaled = autoscaled_scale_priors(default_priors(model, overrides=priors, angle_bound_arcsec=_bound_of(ls)),
+    bound = config_of(ls).angle_bound_arcsec         # the bound the least-squares result was judged with
+    pri, scaled = autoscaled_scale_priors(default_priors(model, overrides=priors, angle_bound_arcsec=bound),
                                           {n: p.value for n, p in ls.parameters.items()}, user=priors or {})
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     sigma = noise.sigma
@@ -361,9 +362,3 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
         write_target_inference_data(posterior_path, target, run, result)
     return result, run
 
-
-def _bound_of(result) -> float:
-    """The angle bound the least-squares result was judged with (a raised --angle-bound-arcsec)."""
-    from ..gates import config_of
-
-    return config_of(result).angle_bound_arcsec
