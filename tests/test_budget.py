@@ -120,3 +120,31 @@ def test_cli_budget_refuses_unknown_unit():
     run = _cli("--thermal", "--accelerometer", "XYZ-1")
     assert run.returncode == 1
     assert "unknown accelerometer 'XYZ-1'" in run.stderr
+
+
+@pytest.mark.parametrize("args, says", [
+    (("--tau", "0"), "--tau (tau_s) = 0: must be > 0"),
+    (("--G", "0"), "--G (G_g) = 0: must be > 0"),
+    (("--Q", "-1"), "--Q (Q_V2s) = -1: must be >= 0"),
+    (("--K", "-1"), "--K (K_g_per_V) = -1: must be > 0"),
+    (("--sigma1", "-5"), "--sigma1 (sigma1_arcsec) = -5: must be >= 0"),
+    (("--sigma2", "nan"), "--sigma2 (sigma2_arcsec) = nan: not finite"),
+    (("--thermal", "--dT", "-0.2"), "--dT (dT_C) = -0.2: must be >= 0"),
+    (("--thermal", "--k-ca", "-1"), "--k-ca (k_ca_arcsec_per_C) = -1: must be >= 0"),
+    (("--thermal", "--T-max", "10"), "--T-max (10 degC) is below --T0 (20 degC)"),
+    (("--thermal", "--cte-body", "inf"), "--cte-body (cte_body_per_C) = inf: not finite"),
+])
+def test_cli_budget_refuses_inputs_that_are_no_budget(args, says):
+    """A zero averaging time or gravity, a negative noise intensity or standard deviation: each
+    used to be an internal error (exit 70) or a budget with a negative part; now exit 1 naming
+    the option and the value."""
+    run = _cli(*args)
+    assert run.returncode == 1, (run.returncode, run.stderr)
+    assert says in run.stderr and "internal error" not in run.stderr
+
+
+def test_budget_function_refuses_the_same_inputs():
+    from triadcal.errors import InputError
+    with pytest.raises(InputError, match="tau_s"):
+        budget(tau_s=0.0)
+    assert budget(Q_V2s=0.0, sigma1_arcsec=0.0, sigma2_arcsec=0.0)[0].total == 0.0

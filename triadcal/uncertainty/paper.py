@@ -156,6 +156,44 @@ def table1_thermal(**kwargs) -> list[Budget]:
     return [thermal_budget(a.name, **kwargs) for a in TABLE_1]
 
 
+#: what each input of :func:`budget` must be: (CLI option, lower bound, bound excluded, why)
+_INPUT_RULES = {
+    "K_g_per_V": ("--K", 0.0, True, "a scale factor magnitude, g/V"),
+    "Q_V2s": ("--Q", 0.0, False, "a white-noise intensity, V^2 s"),
+    "tau_s": ("--tau", 0.0, True, "an averaging time, s"),
+    "sigma1_arcsec": ("--sigma1", 0.0, False, "a standard deviation, arcsec"),
+    "sigma2_arcsec": ("--sigma2", 0.0, False, "a standard deviation, arcsec"),
+    "G_g": ("--G", 0.0, True, "local gravity, g"),
+    "k_ca_arcsec_per_C": ("--k-ca", 0.0, False, "a tempco magnitude, arcsec/degC"),
+    "dT_C": ("--dT", 0.0, False, "a temperature error magnitude, degC"),
+    "cte_body_per_C": ("--cte-body", None, False, "a thermal expansion coefficient, 1/degC"),
+    "cte_accelerometer_per_C": ("--cte-accelerometer", None, False, "a thermal expansion coefficient, 1/degC"),
+    "T_max_C": ("--T-max", None, False, "a temperature, degC"),
+    "T0_C": ("--T0", None, False, "a temperature, degC"),
+}
+
+
+def _check_inputs(**values) -> None:
+    """Refuse an input that is not a finite number of the right sign, naming the option and value
+    (eq. 4 divides by tau and G and takes sqrt(Q); a negative standard deviation is no budget)."""
+    for key, value in values.items():
+        if value is None:
+            continue
+        option, low, excluded, what = _INPUT_RULES[key]
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise InputError(f"{option} ({key}) = {value!r}: not a number; it is {what}") from None
+        if not math.isfinite(v):
+            raise InputError(f"{option} ({key}) = {value!r}: not finite; it is {what}")
+        if low is not None and (v <= low if excluded else v < low):
+            bound = f"> {low:g}" if excluded else f">= {low:g}"
+            raise InputError(f"{option} ({key}) = {v:g}: must be {bound}; it is {what}")
+    if values.get("T_max_C") is not None and values.get("T0_C") is not None and values["T_max_C"] < values["T0_C"]:
+        raise InputError(f"--T-max ({values['T_max_C']:g} degC) is below --T0 ({values['T0_C']:g} degC): eq. 6 "
+                         "takes the maximum temperature above the normal one")
+
+
 def budget(*, thermal: bool = False, accelerometer_name: Optional[str] = None, K_g_per_V: float = 1.0,
            Q_V2s: float = 3e-9, tau_s: float = 30.0, sigma1_arcsec: float = 5.0, sigma2_arcsec: float = 2.0,
            G_g: float = 1.0, k_ca_arcsec_per_C: Optional[float] = None, dT_C: float = 0.2,
@@ -163,6 +201,10 @@ def budget(*, thermal: bool = False, accelerometer_name: Optional[str] = None, K
            T_max_C: float = 85.0, T0_C: float = 20.0) -> list[Budget]:
     """``triadcal budget``: eq. 4 (default), or eq. 5-7 with ``thermal=True`` for one unit of
     Table 1 (``accelerometer_name``) or, without a name, for all of them. Returns budget tables."""
+    _check_inputs(K_g_per_V=K_g_per_V, Q_V2s=Q_V2s, tau_s=tau_s, sigma1_arcsec=sigma1_arcsec,
+                  sigma2_arcsec=sigma2_arcsec, G_g=G_g, k_ca_arcsec_per_C=k_ca_arcsec_per_C, dT_C=dT_C,
+                  cte_body_per_C=cte_body_per_C, cte_accelerometer_per_C=cte_accelerometer_per_C,
+                  T_max_C=T_max_C, T0_C=T0_C)
     if not thermal:
         if accelerometer_name is not None:
             raise InputError("an accelerometer of Table 1 is for the thermal budget: add --thermal (thermal=True)")
