@@ -24,6 +24,7 @@ from triadcal.hardware.protocols import Frame
 from triadcal.hardware.runner import _Runner, frame_problem
 from triadcal.hardware.storage import EventLog, RawStore, read_events, read_raw
 from triadcal.io.bench_csv import read_bench_csv
+from triadcal.errors import InputError
 
 FAST_STAB = Stabilisation(rate_C_per_min=0.01, window_s=20.0, hold_s=20.0, timeout_s=3000.0)
 PLAN = {"P1": (0.0, 0.0), "P2": (90.0, 0.0), "P3": (180.0, 0.0)}
@@ -262,3 +263,35 @@ def test_a_resume_with_other_settings_is_refused_naming_them(rig, tmp_path):
         rig(None, local_g_m_s2=9.78)
     report, c = rig(None)                      # the same settings resume (nothing left to do)
     assert report.visits_done == len(PLAN) and report.visits_done_before == len(PLAN)
+
+
+def test_a_stuck_output_leaves_no_noise_and_says_why(rig, tmp_path):
+    """An output that does not change (a stuck channel) made the Allan fit raise ValueError, which
+    the capture swallowed: campaign.csv came without Q_* and u_w_* and no word. Now the report
+    warns and the header's noise_method says why; the other outputs' rows are kept."""
+    report, c = rig(lambda seq, t, w, T: (seq, t, (w[0], -2.0, w[2]), T))
+    assert c.n_visits == len(PLAN) and c.u_w is None
+    said = [w for w in report.warnings if w.startswith("noise not estimated")]
+    assert len(said) == 1 and "output y is constant within every recording window" in said[0]
+    assert c.metadata["noise_method"].startswith("not estimated: output y is constant")
+    assert not any(k.startswith("Q_") for k in c.metadata)
+
+
+def test_the_allan_noise_of_a_quantised_output_fits_without_its_zero_points():
+    """A coarse output that changes only now and then has an Allan variance of 0 at some taus:
+    the power-law fit leaves those points out (it divided by them: NaN, ValueError)."""
+    from triadcal.hardware.noise import allan_noise, fit_power_law
+
+    rng = np.random.default_rng(3)
+    wins = []
+    for _ in range(6):
+        w = rng.normal(0.0, 1e-3, (256, 3))
+        w[:, 2] = 0.0
+        w[100, 2] = 1e-3                    # one count, once a window
+        wins.append(w)
+    est = allan_noise(wins, 10.0)
+    assert all(np.isfinite(est.Q_V2s)) and est.Q_V2s[0] == pytest.approx(1e-7, rel=0.2)
+    terms, _ = fit_power_law([0.1, 0.2, 0.4], [1e-6, 0.0, 2.5e-7], [100, 50, 25])
+    assert terms[0] == pytest.approx(1e-7, rel=1e-6) and all(np.isfinite(terms))
+    with pytest.raises(InputError, match="output z is constant"):
+        allan_noise([np.column_stack([rng.normal(0, 1e-3, (64, 2)), np.zeros(64)])], 10.0)

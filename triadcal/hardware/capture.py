@@ -296,9 +296,7 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
                         "position": label})
         run.phase, run.visit_tag = "idle", ""
         # -- noise from the recording windows of the visits the CSV points to --
-        noise_est = _campaign_noise(out / RAW_NAME, rows, run.rate_hz)
-        if noise_est is not None:
-            metadata.update(noise_est.metadata())
+        noise_est = campaign_noise(out / RAW_NAME, rows, run, metadata)
         atomic_write_text(out / CSV_NAME, format_bench_csv(_campaign(rows, metadata)))
         notify({"event": "done", "done": len(rows), "total": total})
     finally:
@@ -497,7 +495,24 @@ def _read_rows(path: Path, labels: list, setpoints: list, directions: list) -> l
     return rows
 
 
-def _campaign_noise(raw_path: Path, rows: list, rate_hz: Optional[float]) -> Optional[NoiseEstimate]:
+def campaign_noise(raw_path: Path, rows: list, run, metadata: dict) -> Optional[NoiseEstimate]:
+    """The campaign's noise from the recording windows (:func:`_campaign_noise`), its header keys
+    put in ``metadata``; when it cannot be estimated (a stuck output), ``noise_method`` says why
+    and so does a warning of the run: a header without Q_* and u_w_* is never silent."""
+    est = _campaign_noise(raw_path, rows, run.rate_hz)
+    if isinstance(est, str):
+        metadata["noise_method"] = f"not estimated: {est}"
+        run.warnings.append(f"noise not estimated ({est}); campaign.csv has no Q_* nor u_w_* columns, "
+                            "and a fit estimates the noise from its residuals")
+        return None
+    if est is not None:
+        metadata.update(est.metadata())
+    return est
+
+
+def _campaign_noise(raw_path: Path, rows: list, rate_hz: Optional[float]):
+    """The Allan-deviation noise of the recording windows of ``rows`` (a :class:`NoiseEstimate`),
+    None when there is nothing to estimate from, or the reason (str) it cannot be estimated."""
     if not rows:
         return None
     raw = read_raw(raw_path)
@@ -516,8 +531,9 @@ def _campaign_noise(raw_path: Path, rows: list, rate_hz: Optional[float]) -> Opt
         rate_hz = 1.0 / float(np.median(dt))
     try:
         est = allan_noise(windows, rate_hz)
-    except ValueError:
-        return None
+    except (InputError, ValueError) as exc:
+        # no Q_* / u_w_* in the header: said once, in the report and the CSV (never silently)
+        return str(exc)
     # per-visit standard uncertainty from the power-law fit and the visit times (u_w_* columns)
     u = est.visit_uncertainty([r["time_s"] for r in rows], [r["tau_s"] for r in rows])
     for r, u_i in zip(rows, u):

@@ -109,6 +109,12 @@ def fit_power_law(taus_s, avar, edf) -> tuple:
     taus = np.asarray(taus_s, float)
     y = np.asarray(avar, float)
     rel = np.sqrt(2.0 / np.maximum(np.asarray(edf, float), 1.0))
+    # a point of zero variance (a quantised output that did not change at that tau) has no
+    # relative error to weigh it by: it is left out of the fit, never divided by
+    pos = y > 0
+    if not pos.any():
+        raise InputError("the Allan variance is 0 at every tau: no noise to fit")
+    taus, y, rel = taus[pos], y[pos], rel[pos]
     A_full = np.stack([1.0 / taus, np.ones_like(taus), taus / 3.0], axis=1)
     keep = [0, 1, 2]
     while True:
@@ -160,6 +166,11 @@ def allan_noise(windows: Sequence[np.ndarray], rate_hz: float) -> NoiseEstimate:
             weight[i, idx] += np.asarray(ns)[ok]
     good = weight.min(axis=0) > 0
     avar, weight, taus, edf = avar[:, good] / weight[:, good], weight[:, good], taus[good], edf[good]
+    flat = [a for i, a in enumerate("xyz") if not np.any(avar[i] > 0)]
+    if flat:
+        raise InputError(f"output {', '.join(flat)} is constant within every recording window "
+                         f"({len(windows)} windows, {int(sum(len(w) for w in windows))} samples): a stuck "
+                         "channel, or a resolution coarser than the noise; its noise cannot be estimated")
     adev = np.sqrt(avar)
     short = taus <= 4.0 / rate_hz
     Q = tuple(float(np.sum(weight[i, short] * avar[i, short] * taus[short]) / np.sum(weight[i, short]))

@@ -61,7 +61,7 @@ from ..io.bench_csv import BenchCSVError, format_bench_csv, read_bench_csv
 from ..io.formats import require_format
 from ..planning.ramp import RampPlan, read_ramp_plan  # noqa: F401 - read_ramp_plan: the capture's API
 from .capture import (CSV_NAME, EVENTS_NAME, RAW_NAME, STATE_NAME, CaptureError, CaptureReport,
-                      CaptureSettings, VISIT_PROBLEMS, _campaign, _campaign_noise, _Runner, _visit, check_session_metadata,
+                      CaptureSettings, VISIT_PROBLEMS, _campaign, campaign_noise, _Runner, _visit, check_session_metadata,
                       dated_metadata, finish_session, soak, imu_metadata, storage_error)
 from .drivers.bench import Bench, BenchError
 from .drivers.chamber import Chamber
@@ -549,9 +549,7 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
         run.running = False
         run.phase, run.visit_tag = "idle", ""
         events.write("ramp_end", program_s=program.duration_s, visits=len(rows))
-        noise_est = _campaign_noise(out / RAW_NAME, rows, run.rate_hz)
-        if noise_est is not None:
-            metadata.update(noise_est.metadata())
+        noise_est = campaign_noise(out / RAW_NAME, rows, run, metadata)
         if rows:
             atomic_write_text(out / CSV_NAME, format_bench_csv(_ramp_campaign(rows, metadata)))
         notify({"event": "done", "done": len(rows), "total": len(rows)})
