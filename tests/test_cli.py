@@ -186,3 +186,25 @@ def test_piped_into_a_reader_that_stops_early_ends_cleanly(command, reader, tmp_
     rc = subprocess.run(["bash", "-c", script], cwd=tmp_path, env=env).returncode
     text = err.read_text()
     assert rc == 0 and "Broken pipe" not in text and "Traceback" not in text, (rc, text)
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["fit", str(EXAMPLE_CSV), "--jsn", "x.json"], "triadcal fit: error: unrecognized arguments: --jsn x.json "
+                                                   "(did you mean: --jsn -> --json?)"),
+    (["budget", "--tua", "3"], "triadcal budget: error: unrecognized arguments: --tua 3 (did you mean: --tua -> --tau?)"),
+    (["fit", "a.csv", "b.csv"], "triadcal fit: error: unrecognized arguments: b.csv"),
+])
+def test_a_mistyped_option_gets_the_commands_usage_and_the_likely_option(argv, says, capsys):
+    """A newcomer's typo printed the top level's usage ("triadcal [-h] [--version] COMMAND ...")
+    and no hint; now the command's usage, its name in the error, and the closest option."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert says in err and f"usage: triadcal {argv[0]}" in err
+
+
+def test_an_unknown_top_level_option_keeps_the_top_level_usage(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--bogus"])
+    assert exc.value.code == 2 and "triadcal: error: unrecognized arguments: --bogus" in capsys.readouterr().err

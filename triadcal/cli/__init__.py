@@ -75,6 +75,26 @@ def _check_output_folders(args) -> None:
             check_output_folder(value)
 
 
+def _unrecognised(parser: argparse.ArgumentParser, args, extra: list) -> None:
+    """Arguments no parser took: the command's own usage and error (exit 2), with the option it
+    most likely meant (``--jsn`` -> ``--json``), not the top level's usage."""
+    import difflib
+
+    sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+    command = sub.choices.get(getattr(args, "command", None)) if sub is not None else None
+    if command is None:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    known = [o for a in command._actions for o in a.option_strings if o.startswith("--")]
+    hints = []
+    for e in extra:
+        if e.startswith("--"):
+            close = difflib.get_close_matches(e.split("=", 1)[0], known, n=1, cutoff=0.6)
+            if close:
+                hints.append(f"{e.split('=', 1)[0]} -> {close[0]}")
+    command.error(f"unrecognized arguments: {' '.join(extra)}"
+                  + (f" (did you mean: {', '.join(hints)}?)" if hints else ""))
+
+
 def main(argv=None) -> int:
     """Run one command. Exit codes: 0 done, 1 refused input or a failed precondition (one line on
     stderr naming the file and the place), 2 usage, 3 a result whose status is not ok (or no
@@ -84,7 +104,9 @@ def main(argv=None) -> int:
 
     os.environ.setdefault("XDG_CACHE_HOME", os.path.join(os.path.expanduser("~"), ".cache"))
     parser = build_parser()
-    args = parser.parse_args(_negative_values(sys.argv[1:] if argv is None else list(argv)))
+    args, extra = parser.parse_known_args(_negative_values(sys.argv[1:] if argv is None else list(argv)))
+    if extra:
+        _unrecognised(parser, args, extra)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
