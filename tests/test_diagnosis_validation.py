@@ -260,3 +260,23 @@ def test_validation_left_out_is_unexplained(ci_validation):
     assert not confident, confident
     assert unexplained >= binomial_floor(n_all), (unexplained, n_all)
     assert not failures, failures
+
+
+def test_the_confusion_table_numbers_its_columns_so_no_two_read_alike():
+    """Verdict names cut to 9 characters made angle_tempco, angle_tempco2 and angle_tempco3 all
+    'angle_tem' (a newcomer could not tell the columns apart); the columns are now numbered with
+    a legend naming each verdict in full."""
+    from triadcal.judgement.diagnosis_validation import ValidationResult
+
+    labels = ("angle_tempco", "angle_tempco2", "angle_tempco3", "unexplained", "none")
+    rows = [{"condition": "angle_tempco2", "effect": "angle_tempco2", "verdict": "angle_tempco2"}] * 3 + \
+           [{"condition": "angle_tempco2", "effect": "angle_tempco2", "verdict": "angle_tempco3"}]
+    res = ValidationResult(rows=rows, conditions=("angle_tempco2",), labels=labels, seeds=4,
+                           summary={"angle_tempco2": {"correct_rate": 0.75, "localised_rate": 1.0,
+                                                      "chi2_dof_after_range": [0.9, 1.1]}})
+    lines = res.table().splitlines()
+    assert lines[0] == ("verdict columns: 1 angle_tempco, 2 angle_tempco2, 3 angle_tempco3, 4 unexplained, "
+                        "5 none")
+    head, row = lines[2].split(), lines[3].split()
+    assert head[:5] == ["1", "2", "3", "4", "5"] and "angle_tem" not in lines[2]
+    assert row[:6] == ["angle_tempco2", "0", "3", "1", "0", "0"]

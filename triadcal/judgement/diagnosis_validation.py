@@ -280,11 +280,13 @@ class ValidationResult:
         M = self.confusion(left_out)
         if not conds:           # e.g. only clean data: nothing is left out
             return ["(no effect condition: nothing was left out)"] if left_out else []
-        short = [lab[:9] for lab in self.labels]
+        # columns by number (the legend is :meth:`table`'s first line): verdict names cut to a
+        # width repeated themselves (angle_tempco, angle_tempco2, angle_tempco3 were all "angle_tem")
+        cw = max(3, len(str(len(self.labels))), len(str(int(M.max()) if M.size else 0)))
         w = max(len(c) for c in conds) + 1
         tail = ("   unexpl.  named, gap open  named, gap closed  left out with it" if left_out
                 else "   correct  localised  chi2/dof after (range)")
-        lines = [" " * w + " ".join(f"{s:>9}" for s in short) + tail]
+        lines = [" " * w + " ".join(f"{j + 1:>{cw}}" for j in range(len(self.labels))) + tail]
         for i, c in enumerate(conds):
             s = self.summary[c]
             if left_out:
@@ -296,13 +298,14 @@ class ValidationResult:
                 extra = (f"   {s['correct_rate']:6.0%}   {s['localised_rate']:7.0%}    "
                          + (f"[{rng[0]:.2f}, {rng[1]:.2f}]" if rng else
                             "none (noise estimated)" if self.noise_estimated else "-"))
-            lines.append(f"{c:<{w}}" + " ".join(f"{v:>9d}" for v in M[i]) + extra)
+            lines.append(f"{c:<{w}}" + " ".join(f"{v:>{cw}d}" for v in M[i]) + extra)
         return lines
 
     def table(self) -> str:
         """The confusion matrix as a text table (rows true, columns verdict) with the rates; with
         the left-out mode a second block: the verdicts with the effect's group left out."""
-        lines = self._block(False)
+        lines = ["verdict columns: " + ", ".join(f"{j + 1} {lab}" for j, lab in enumerate(self.labels)),
+                 ""] + self._block(False)
         if self.left_out:
             lines += ["", "left out (the effect and its group removed from the candidates; right verdict "
                           "'unexplained'):"] + self._block(True)
