@@ -524,18 +524,18 @@ def test_expired_equipment_refuses_the_certificate_unless_allowed_and_then_print
     assert current.issued and "due 2027-06-30" in dict(current.identification)["Equipment: bench"]
 
 
-def test_a_classical_result_under_a_lab_with_systematic_errors_is_refused(tmp_path):
-    """A classical result's u are Type A (eq. 2-3); its eq. 4-7 budget is the angles' over the
-    temperature range, not each parameter's U. Before, such a certificate was issued: its results
-    table left the lab's errors out (an outside probe: Ca_zx 22.0 arcsec off with U 5.8, value +- U
-    covering the truth in 20-26 % of 150 campaigns) and said "Type A only: no lab file"."""
+def test_a_classical_result_fitted_without_the_lab_is_refused_under_a_lab_with_systematic_errors(tmp_path):
+    """A classical result fitted without --lab has Type A u only. Before, such a certificate was
+    issued: its results table left the lab's errors out (an outside probe: Ca_zx 22.0 arcsec off
+    with U 5.8, value +- U covering the truth in 20-26 % of 150 campaigns) and said "Type A only:
+    no lab file". Fitted with --lab it propagates them (tests/test_classical_typeb.py)."""
     r = hand_result(method="classical")
     r.extra["local_g_m_s2"] = 9.8112          # fitted with the lab's g (another g is refused)
     text = C.EXAMPLE_LAB_TOML.replace("# local_g_m_s2 = 9.8112", "local_g_m_s2 = 9.8112").replace(
         "# u_ppm = 10", "u_ppm = 10")
     cert = C.build_certificate(r, lab=_lab(tmp_path, text), issue_date=ISSUE_DATE, plots=False)
     assert not cert.issued
-    assert any("classical result" in x and "--method joint --lab" in x and "[fixture] mounting_u_arcsec" in x
+    assert any("classical result" in x and "--method classical --lab" in x and "[fixture] mounting_u_arcsec" in x
                for x in cert.reasons), cert.reasons
     without = C.build_certificate(r, issue_date=ISSUE_DATE, plots=False)     # no lab file: Type A, said so
     assert without.issued

@@ -147,9 +147,12 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             campaign = with_lab_gravity(campaign, lab)
         result = fit_classical(campaign, reference_temperature_C=reference_temperature_C, gates=gates)
         if lab is not None:
-            result.notes.append("the classical method does not propagate the lab file's errors into u (Type A "
-                                "only); its certificate budget adds them by the paper's eq. 4-7; use --method joint "
-                                "for a budget per parameter")
+            from .estimation.classical_typeb import propagate_classical
+            from .uncertainty.typeb import systematic_sources
+
+            result = propagate_classical(
+                result, campaign, systematic_sources(lab, campaign.output_unit),
+                lambda changed: fit_classical(changed, reference_temperature_C=reference_temperature_C, gates=gates))
     elif method == "joint":
         from .estimation.joint import fit_joint
 

@@ -124,6 +124,13 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
     for src, s, sym, key, args in (("bench positioning", s1, "σ1", "[bench] sigma_position_arcsec", (1.0, 0.0)),
                                    ("wobble", s2, "σ2", "[bench] sigma_wobble_arcsec", (0.0, 1.0))):
         stated = in_fit.get("sigma_position_arcsec" if args[0] else "sigma_wobble_arcsec")
+        if result.method == "classical" and result.fit.get("noise_source") == "residuals":
+            # the classical u from the pooled residuals holds every per-visit error the pairs do not
+            # cancel (fit_classical): adding sigma_1 and sigma_2 again counted them twice
+            comps.append(BudgetComponent(src, 0.0, s, sensitivity=0.0, basis=(
+                f"{sym}{'' if s is None else f' = {s:g} arcsec'}: a per-visit error, inside the classical angles' u "
+                "estimated from the residuals (output-noise row)"), equation="eq. 2-4"))
+            continue
         if in_fit.get("in_u") and stated is not None:
             comps.append(BudgetComponent(src, 0.0, float(stated), sensitivity=0.0, basis=(
                 f"{sym} = {float(stated):g} arcsec ({in_fit.get('source', 'lab file')}) modelled per visit in the fit: "

@@ -348,9 +348,8 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
 
 def _missing_type_b(result: CalibrationResult, lab: LabConfig) -> list:
     """A result whose u is Type A only while the lab file declares systematic errors: its U would
-    leave them out of every parameter. A classical result always is (its eq. 4-7 budget is the
-    angles' over the temperature range, not each parameter's U), so it is refused under such a lab
-    file too."""
+    leave them out of every parameter (a classical result too: with --lab the classical fit
+    propagates them, estimation/classical_typeb.py)."""
     if lab.source is None:
         return []
     from ...uncertainty.typeb import systematic_sources
@@ -363,13 +362,12 @@ def _missing_type_b(result: CalibrationResult, lab: LabConfig) -> list:
         return []
     names = sorted({s.key for s in declared})
     if result.method == "classical":
-        # the classical method's u are Type A (eq. 2-3); its eq. 4-7 budget is the angles' over the
-        # temperature range, not each parameter's U: the results table would state U without the lab's
-        # errors (an outside probe: Ca_zx 22.0 arcsec off with U 5.8, coverage 0.20-0.26 over 150 campaigns)
-        return [f"the lab file declares systematic errors ({', '.join(names)}), but a classical result's "
-                "uncertainties are Type A only (the method propagates no Type B into each parameter; its eq. 4-7 "
-                "budget covers the angles over the temperature range): fit with --method joint --lab, whose every "
-                "U includes them"]
+        # a classical result fitted without --lab: Type A only; the results table would state U without
+        # the lab's errors (an outside probe: Ca_zx 22.0 arcsec off with U 5.8, coverage 0.20-0.26 over 150
+        # campaigns). With --lab the classical fit propagates them (estimation/classical_typeb.py)
+        return [f"the lab file declares systematic errors ({', '.join(names)}), but the classical result's "
+                "uncertainties are Type A only (it was fitted without them): fit again with --method classical "
+                "--lab, which propagates them into every parameter's U"]
     return [f"the lab file declares systematic errors ({', '.join(names)}), but the result's uncertainties are "
             "Type A only (it was fitted without them): fit again with --lab so that every parameter's U includes "
             "them"]
@@ -387,7 +385,7 @@ def _lab_disagrees(result: CalibrationResult, lab: LabConfig) -> list:
         return out
     rows = [row for p in result.parameters.values() for row in (p.uncertainty.get("budget") or [])
             if isinstance(row, dict)]
-    if result.method != "classical" and any(p.U is not None for p in result.parameters.values()):
+    if any(p.U is not None for p in result.parameters.values()):
         from ...uncertainty.typeb import propagated_sources, systematic_sources
 
         try:

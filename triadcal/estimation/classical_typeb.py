@@ -1,0 +1,108 @@
+"""The lab's systematic errors (Type B) propagated into every parameter of a classical result.
+
+The classical estimate (eq. 2-3 per setpoint and the linear thermal correction,
+:func:`triadcal.estimation.classical.fit_classical`) is a fixed function ``theta(W)`` of the
+visits' mean outputs. A systematic error ``delta`` of the lab (an encoder zero, the bench axes'
+non-orthogonality, the unit's rotation in its fixture, the local g, a thermometer's offset, a
+voltmeter's gain and offset: :func:`triadcal.uncertainty.typeb.systematic_sources`) changes the
+data by ``dW = F delta`` (``F`` from the model at the classical values,
+:func:`triadcal.uncertainty.typeb.data_change`), so the estimate moves by (JCGM 100 5.1.3)::
+
+    c = d(theta)/d(delta) = (theta(W + F h) - theta(W - F h)) / (2 h)
+
+the classical estimate itself re-run on the changed data: its own sensitivity, whatever the
+pairing cancels (a bench tilt, an axis-2 encoder zero on the half-turn pairs) and whatever it
+does not -- not the sensitivity of 1 the certificate's eq. 4-7 budget assumed for every
+rotation. ``u_c^2 = u_A^2 + sum_s (c_s u_s)^2`` and the covariance ``C_A + sum_s c_s c_s^T u_s^2``
+(the correlations include the shared errors), as for the joint fit
+(:func:`triadcal.uncertainty.typeb.propagate`). docs/classical.md, "The lab's systematic errors".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..models.campaign import Campaign
+from ..models.model import Model
+from .result import CalibrationResult, ParameterValue
+
+#: the Type A row of a classical parameter's budget
+TYPE_A_SOURCE = "classical estimate (eq. 2-3): per-visit errors (output noise, bench positioning and wobble)"
+
+
+def _type_a_dof(result: CalibrationResult, name: str) -> float | None:
+    """Degrees of freedom of a classical parameter's Type A u: those of its line over the setpoints
+    when the Birge ratio widened it (chi2/dof > 1 of its line), else those of the residual noise of
+    its accelerometer (row ``a`` of Ca, K_a, S_a); None (infinite) when the noise was declared."""
+    fit = result.fit
+    base = name[:-len("_tempco")] if name.endswith("_tempco") else name
+    axis = "xyz".index(base.split("_")[1][0])
+    if float((fit.get("chi2_dof_by_parameter") or {}).get(base, 0.0)) > 1.0:
+        n_sp = int(fit.get("n_setpoints") or 0)
+        k = 2 if result.effects else 1
+        return float(n_sp - k) if n_sp > k else None
+    dof = fit.get("residual_dof")
+    if fit.get("noise_source") == "residuals" and isinstance(dof, (list, tuple)) and len(dof) == 3:
+        return float(dof[axis])
+    return None
+
+
+def propagate_classical(result: CalibrationResult, campaign: Campaign, sources: Sequence,
+                        refit: Callable[[Campaign], CalibrationResult]) -> CalibrationResult:
+    """``result`` with every parameter's ``u`` the combined standard uncertainty and its budget
+    (``uncertainty``: ``u_type_a``, ``U``, ``k``, ``budget`` ... as the joint fit writes them), the
+    correlation including the systematic terms and ``fit["systematic_errors"]``. ``refit`` is the
+    classical estimate with the settings ``result`` was made with, applied to a changed campaign.
+    No sources: ``result`` unchanged."""
+    from ..uncertainty.typeb import KINDS, TypeB, data_change, parameter_fields
+
+    if not sources:
+        return result
+    names = tuple(result.parameters)
+    model = Model(tuple(result.effects), result.reference_temperature_C)
+    p = model.to_internal({n: v.value for n, v in result.parameters.items()})
+    cov, w = campaign.covariates(), np.asarray(campaign.w, float)
+    unit = str(result.extra.get("output_unit") or campaign.output_unit)
+    u_a = np.array([result.parameters[n].u for n in names])
+    c = np.zeros((len(sources), len(names)))
+    for i, s in enumerate(sources):
+        F = data_change(s, model, p, cov, campaign.gravity_g, w, unit)
+        h = KINDS[s.kind][1]
+        hi, lo = refit(replace(campaign, w=w + h * F)), refit(replace(campaign, w=w - h * F))
+        missing = [n for n in names if n not in hi.parameters or n not in lo.parameters]
+        if missing:
+            raise InputError(f"the classical estimate on the data changed by {s.source} ({h:g} {s.unit}) lost "
+                             f"{', '.join(missing)}: its sensitivity to that error cannot be formed")
+        c[i] = [(hi.parameters[n].value - lo.parameters[n].value) / (2.0 * h) for n in names]
+    if not np.all(np.isfinite(c)):
+        raise InputError("the sensitivities of the classical parameters to the lab's systematic errors are not finite")
+    # a source that does not reach a parameter leaves c at the rounding level of the difference
+    # quotient of two re-runs (1e-8 arcsec per arcsec): below 1e-6 of the parameter's Type A u, 0
+    u_s = np.array([s.u for s in sources])[:, None]
+    c[np.abs(c) * u_s < 1e-6 * u_a[None, :]] = 0.0
+    tb = TypeB(list(sources), names, c)
+    cov_a = result.covariance(list(names))
+    cov_all = cov_a + tb.covariance()
+    u = np.sqrt(np.diag(cov_all))
+    params = {}
+    for j, n in enumerate(names):
+        pv = result.parameters[n]
+        b = tb.budget(n, pv.unit, float(pv.u), _type_a_dof(result, n), TYPE_A_SOURCE)
+        params[n] = ParameterValue(pv.value, float(u[j]), pv.unit, parameter_fields(b))
+    safe = np.where(u > 0, u, 1.0)
+    out = replace(result, parameters=params, correlation_names=names, correlation=cov_all / np.outer(safe, safe),
+                  fit={**result.fit, "systematic_errors": [
+                      {"source": s.source, "key": s.key, "u": s.u, "unit": s.unit, "distribution": s.distribution,
+                       "equipment": s.equipment} for s in sources]},
+                  notes=list(result.notes))
+    out.notes.append("the lab file's systematic errors are propagated into every parameter's u and U by the "
+                     "classical estimate itself, re-run on the data each error changes (central difference; "
+                     "docs/classical.md)")
+    if not math.isfinite(float(np.max(u))):
+        raise InputError("a classical parameter's combined uncertainty is not finite")
+    return out
