@@ -121,6 +121,9 @@ SLOW_SUBCOMMANDS = {"validate", "validate-diagnosis", "capture", "emulate", "the
 WALLCLOCK_SUBCOMMANDS = {"capture", "emulate", "batch"}
 # exit codes other than 0 that a doc implies, keyed by (doc, command's first words)
 EXPECTED_EXIT: dict = {}
+# the exit code of a command REDUCED here when the reduction itself changes it: 4 SBC campaigns
+# cannot make a conclusive verdict, and validate exits 3 then (docs/posterior.md, "The verdict")
+REDUCED_EXIT = {"validate": 3}
 # commands not run, by their first words, each with the reason
 NOT_RUN = {
     "python3 -m venv": "installs the package into a fresh virtualenv (what CI's clean-clone job does)",
@@ -350,6 +353,8 @@ def _run_block(doc, line, cmds, tmp_path, servers):
             continue
         argv, p = run_doc_command(doc, cmd, tmp_path)
         want = EXPECTED_EXIT.get((doc, _first_words(cmd)), 0)
+        if cmd[1] in REDUCED_EXIT and any(str(a) in REDUCED.get(cmd[1], {}) for a in argv):
+            want = REDUCED_EXIT[cmd[1]]
         assert p.returncode == want, (
             f"{doc}:{line}: `triadcal {' '.join(argv)}` exited {p.returncode}, the doc implies {want}"
             f"\nstdout:\n{p.stdout[-3000:]}\nstderr:\n{p.stderr[-3000:]}")

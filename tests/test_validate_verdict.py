@@ -146,12 +146,15 @@ def test_every_parameter_a_little_low_is_caught_by_the_pooled_tests():
     assert "32 of 32 parameters outside 0.95 +- 0.03 > 4" in msg
 
 
-def test_few_campaigns_pass_only_with_a_note_that_the_tests_could_not_fail(capsys, monkeypatch):
+def test_few_campaigns_are_inconclusive_and_exit_3(capsys, monkeypatch):
+    """With 2 campaigns the rank tests could not have failed: the verdict passes what it could
+    test and says so, and the exit code is 3 (it was 0: a pass no test could have refused)."""
     v = _result(2).verdict()
     assert v["passed"] and not v["conclusive"] and v["campaigns_needed"] == 13
     rc, out, err = _cli(capsys, monkeypatch, _result(2))
-    assert rc == 0
+    assert rc == 3
     assert "could not have failed with 2 campaigns" in out and "run at least 13 campaigns" in err, (out, err)
+    assert "SBC verdict inconclusive" in err and "exit 3" in err
 
 
 def test_verdict_agrees_with_the_slow_tests_rules_at_200():

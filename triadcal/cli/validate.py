@@ -85,4 +85,9 @@ def run(args) -> int:
         out.say(f"summary written to {args.json}")
     if args.plot:
         out.say(f"rank histograms written to {args.plot}")
+    if v["passed"] and weak:
+        # a verdict some of whose tests could not have failed is no pass (exit 3, as a failed one)
+        print(f"SBC verdict inconclusive: {len(weak)} of {len(v['checks'])} tests could not have failed with "
+              f"{s['n_campaigns']} campaigns; exit 3 (run at least {v['campaigns_needed']})", file=sys.stderr)
+        return 3
     return 0 if v["passed"] else 3
