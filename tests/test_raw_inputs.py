@@ -305,3 +305,40 @@ def test_fit_raw_without_unit_says_counts_and_what_the_readings_look_like(tmp_pa
     main(["fit-raw", str(data), "--rate", "100", "--poses", "unknown", "--unit", "m/s2", "--json",
           str(tmp_path / "r2.json"), "--quiet"])
     assert "--unit not given" not in capsys.readouterr().err
+
+
+def test_a_recording_in_mg_is_read_with_unit_mg(tmp_path, capsys):
+    """Loggers often write mg; --unit had no mg, and the default (counts) gave K in g/counts. The
+    real recording of examples/data (m/s2) rewritten in mg gives K 1000 times smaller in g/mg and
+    the same angles; mg readings declared as g are refused (the magnitude check)."""
+    from pathlib import Path
+
+    from triadcal.cli import main
+
+    src = Path(__file__).resolve().parents[1] / "examples" / "data" / "mikoff_imu0.csv"
+    lines = src.read_text().splitlines()
+    head = next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#"))
+    cols = lines[head].split(",")
+    acc = [cols.index(c) for c in cols if c.strip() in ("acc_x", "acc_y", "acc_z", "ax", "ay", "az", "x", "y", "z")][:3]
+    out = lines[:head + 1]
+    for ln in lines[head + 1:]:
+        f = ln.split(",")
+        for j in acc:
+            f[j] = repr(float(f[j]) * 1000.0 / 9.80665)
+        out.append(",".join(f))
+    mg = tmp_path / "mg.csv"
+    mg.write_text("\n".join(out) + "\n")
+    base = ["--rate", "100", "--poses", "unknown", "--quiet"]
+    assert main(["fit-raw", str(src), "--unit", "m/s2", "--json", str(tmp_path / "a.json"), *base]) == 0
+    assert main(["fit-raw", str(mg), "--json", str(tmp_path / "n.json"), *base]) == 0
+    assert "looks like mg: give --unit mg" in capsys.readouterr().err
+    assert main(["fit-raw", str(mg), "--unit", "mg", "--json", str(tmp_path / "b.json"), *base]) == 0
+    a = json.loads((tmp_path / "a.json").read_text())["parameters"]
+    b = json.loads((tmp_path / "b.json").read_text())["parameters"]
+    assert b["K_x"]["unit"] == "g/mg"
+    for ax in "xyz":           # K in g/(m/s2) = K in g/mg * 1000 / 9.80665
+        assert b[f"K_{ax}"]["value"] * 1000.0 / 9.80665 == pytest.approx(a[f"K_{ax}"]["value"], rel=1e-6)
+    for n in [k for k in a if k.startswith("Ca_") and "_" not in k[3:]]:
+        assert b[n]["value"] == pytest.approx(a[n]["value"], abs=1e-3 + 1e-6 * abs(a[n]["value"]))
+    assert main(["fit-raw", str(mg), "--unit", "g", "--json", str(tmp_path / "c.json"), *base]) == 1
+    assert "the readings contradict --unit g" in capsys.readouterr().err

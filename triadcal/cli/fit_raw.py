@@ -21,7 +21,7 @@ def register(sub) -> None:
                    help="sample rate in Hz (required: a wrong rate is the bug of imucal issue #25)")
     p.add_argument("--columns", default=None, help="accelerometer columns, e.g. acc_x,acc_y,acc_z "
                    "(default: the first of acc_x,acc_y,acc_z / ax,ay,az / x,y,z in the header)")
-    p.add_argument("--unit", choices=("m/s2", "g", "counts"), default=None,
+    p.add_argument("--unit", choices=("m/s2", "g", "mg", "counts"), default=None,
                    help="unit of the readings (default counts, said in a note with what the readings look like)")
     p.add_argument("--poses", choices=("known", "unknown"), default="known")
     src = p.add_mutually_exclusive_group()
@@ -191,7 +191,7 @@ def unit_note(out) -> str:
     acc = out.recording.acc
     norms = [float(np.linalg.norm(acc[i.start:i.end].mean(axis=0))) for i in iv] if iv else []
     med = float(np.median(norms)) if norms else float("nan")
-    looks = ("m/s2" if 9.0 < med < 10.6 else "g" if 0.9 < med < 1.1 else None)
+    looks = ("m/s2" if 9.0 < med < 10.6 else "g" if 0.9 < med < 1.1 else "mg" if 900 < med < 1100 else None)
     return (f"--unit not given: the readings are taken as counts (K in g/counts); the static readings' median "
             f"|a| is {med:.4g}" + (f", which looks like {looks}: give --unit {looks} if it is" if looks else ""))
 

@@ -6,7 +6,7 @@
     serial = "SN-0007"
     state = "initial"             # default "initial"
     rate_hz = 100.0
-    unit = "m/s2"                 # m/s2 | g | counts (the readings' unit)
+    unit = "m/s2"                 # m/s2 | g | mg | counts (the readings' unit)
     poses = "unknown"             # known | unknown
     columns = ["ax", "ay", "az"]  # optional
     labels = "part"               # optional: a label column naming the poses (known poses)
@@ -79,8 +79,8 @@ def read_manifest(path) -> list:
                 raise InputError(f"{where}: {k} must be a string, got {v!r}")
             if typ is list and not (isinstance(v, list) and len(v) == 3 and all(isinstance(c, str) for c in v)):
                 raise InputError(f"{where}: columns must be a list of three column names, got {v!r}")
-        if e["unit"] not in ("m/s2", "g", "counts"):
-            raise InputError(f"{where}: unit {e['unit']!r}; choose m/s2, g or counts")
+        if e["unit"] not in ("m/s2", "g", "mg", "counts"):
+            raise InputError(f"{where}: unit {e['unit']!r}; choose m/s2, g, mg or counts")
         if e["poses"] not in ("known", "unknown"):
             raise InputError(f"{where}: poses {e['poses']!r}; choose known or unknown")
         rec = (path.parent / e["path"]).resolve()

@@ -24,7 +24,9 @@ import numpy as np
 from .numbers import MAX_READING, NumberError, parse_number
 
 #: accepted input units and the unit string of K (g per output unit) for each
-INPUT_UNITS = {"m/s2": "g/(m/s2)", "g": "g/g", "counts": "g/count"}
+INPUT_UNITS = {"m/s2": "g/(m/s2)", "g": "g/g", "mg": "g/mg", "counts": "g/count"}
+#: input units fixed by physics: readings per g of standard gravity
+PER_G = {"m/s2": 9.80665, "g": 1.0, "mg": 1000.0}
 DEFAULT_COLUMN_SETS = (("acc_x", "acc_y", "acc_z"), ("ax", "ay", "az"), ("x", "y", "z"))
 
 
@@ -324,19 +326,19 @@ def _read_samples_slow(path, lines, header_at, header, cols, label_column, delim
 
 
 def check_declared_unit(rec: "RawRecording", w_means: np.ndarray, local_g_m_s2: float) -> None:
-    """Refuse readings whose magnitude contradicts the declared unit: for ``g`` and ``m/s2`` the
-    median norm of the static means must lie within a factor 1.5 of the local gravity in that
+    """Refuse readings whose magnitude contradicts the declared unit: for ``g``, ``mg`` and ``m/s2``
+    the median norm of the static means must lie within a factor 1.5 of the local gravity in that
     unit (counts are the instrument's own; the answer gates check their K band)."""
-    if rec.unit not in ("g", "m/s2") or not len(w_means):
+    if rec.unit not in PER_G or not len(w_means):
         return
-    expected = local_g_m_s2 / 9.80665 if rec.unit == "g" else local_g_m_s2
+    expected = local_g_m_s2 / 9.80665 * PER_G[rec.unit]
     med = float(np.median(np.linalg.norm(w_means, axis=1)))
     ratio = med / expected
     if not 1 / 1.5 <= ratio <= 1.5:
         raise RawRecordingError(rec.source, None, None,
                                 f"the readings contradict --unit {rec.unit}: the median |a| of the static "
                                 f"intervals is {med:.6g} {rec.unit}, gravity is {expected:.6g} {rec.unit} "
-                                f"(ratio {ratio:.3g}); state the unit the readings are in (counts, g, m/s2)")
+                                f"(ratio {ratio:.3g}); state the unit the readings are in (counts, g, mg, m/s2)")
 
 
 @dataclass

@@ -279,6 +279,8 @@ def nominal_scale(rec: RawRecording, detection: StaticDetection, gravity_g: floa
         return 1.0 / STANDARD_GRAVITY_M_S2, "nominal: 1 g = 9.80665 m/s2"
     if rec.unit == "g":
         return 1.0, "nominal: readings in g"
+    if rec.unit == "mg":
+        return 1e-3, "nominal: readings in mg (1 g = 1000 mg)"
     if counts_per_g:
         return 1.0 / counts_per_g, f"nominal: {counts_per_g:g} counts/g (datasheet)"
     norms = np.concatenate([np.linalg.norm(rec.acc[iv.start:iv.end], axis=1) for iv in detection.intervals])
