@@ -352,3 +352,15 @@ def test_template_bench_position_answers_are_checked(answer, why):
     finally:
         bench.close()
         inst.close()
+
+
+def test_an_event_log_with_a_bad_line_is_refused_when_reopened_not_appended_to(tmp_path):
+    """A resumed capture appended its session to a log with a broken line 2; the log then could not
+    be read at the next resume or report. Now the reopen refuses it, naming the line, and the
+    file is left as it was."""
+    path = tmp_path / "events.jsonl"
+    text = rec("session_start", session=1) + "[1, 2]\n" + rec("visit", tag="a")
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(InputError, match=r"events.jsonl line 2: not a JSON object"):
+        EventLog(path)
+    assert path.read_text(encoding="utf-8") == text

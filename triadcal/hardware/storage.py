@@ -198,6 +198,10 @@ class EventLog:
 
     def __init__(self, path):
         self.path = Path(path)
+        # a log reopened by a resumed capture is read first: a line that is no record anywhere but
+        # a torn one is refused now, naming the line, not after this session appended to it
+        # (read_events would refuse the whole log at the next resume or report)
+        read_events(self.path)
         torn = self._torn_tail()
         self._fh = open(self.path, "a", encoding="utf-8")
         if torn is not None:
