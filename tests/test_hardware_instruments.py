@@ -280,3 +280,27 @@ def test_an_imu_without_temperature_is_refused_before_anything_moves(tmp_path):
         capture(tmp_path / "run", plan={"P01": (0.0, 0.0)}, setpoints_C=[20.0], imu=NoTemperature(),
                 bench=object(), chamber=object())
     assert not (tmp_path / "run" / "capture.json").exists()
+
+
+def test_the_scpi_bench_tolerance_comes_from_the_instruments_file(tmp_path):
+    """The SCPI bench checks POS? against its target within a tolerance that could not be set from
+    the instruments file (a bench whose encoders read 0.02 deg off could not be used); now
+    [bench] tolerance_deg sets it, checked when the file is read."""
+    path = tmp_path / "instruments.toml"
+    path.write_text('[bench]\ndriver = "scpi"\nport = "loop://"\ntolerance_deg = 0.05\n')
+    bench = open_bench(load_instruments(path)["bench"])
+    assert bench.tolerance_deg == 0.05
+    bench.close()
+    path.write_text('[bench]\ndriver = "scpi"\nport = "loop://"\n')
+    bench = open_bench(load_instruments(path)["bench"])
+    assert bench.tolerance_deg == 0.01
+    bench.close()
+    for value, match in (("0", r"tolerance_deg = 0: must be a number of degrees in \(0, 1\]"),
+                         ('"x"', r"tolerance_deg = 'x'"), ("2.0", r"tolerance_deg = 2.0")):
+        path.write_text(f'[bench]\ndriver = "scpi"\nport = "loop://"\ntolerance_deg = {value}\n')
+        with pytest.raises(InputError, match=match):
+            load_instruments(path)
+    (tmp_path / "lab.toml").write_text(LAB_PROFILE)
+    path.write_text('[bench]\ndriver = "template"\nprofile = "lab.toml"\nport = "loop://"\ntolerance_deg = 0.05\n')
+    with pytest.raises(InputError, match=r"profile's \[settle\] tolerance_deg"):
+        load_instruments(path)

@@ -67,10 +67,12 @@ def open_bench(b: Mapping):
     default) or ``"template"`` with ``profile`` (a TOML path or a shipped profile's name, e.g.
     ``esp301``); ``port`` a device path or any pyserial URL; ``baudrate`` overrides the profile's."""
     from .drivers import ScpiBench
+    from .drivers.bench import DEFAULT_TOLERANCE_DEG
 
     driver = str(b.get("driver", "scpi")).lower()
     if driver == "scpi":
-        return ScpiBench(b["port"], baudrate=int(b.get("baudrate", 115200)))
+        return ScpiBench(b["port"], baudrate=int(b.get("baudrate", 115200)),
+                         tolerance_deg=float(b.get("tolerance_deg", DEFAULT_TOLERANCE_DEG)))
     if driver == "template":
         from .drivers.bench_template import TemplateBench
 
@@ -84,7 +86,7 @@ def open_bench(b: Mapping):
 INSTRUMENT_KEYS = {
     "imu": {"driver", "port", "baud", "rate_hz", *IMU_OPTIONS},
     "chamber": {"driver", "port", "baud", "address", "stopbits", "parity", "loop", "word_order", "timeout_s"},
-    "bench": {"driver", "profile", "port", "baud"},
+    "bench": {"driver", "profile", "port", "baud", "tolerance_deg"},
     "dmm": {"driver", "resource", "resources", "channels", "model", "range_V", "nplc", "backend", "timeout_s",
             "mains_hz", "time_scale"},
 }
@@ -95,7 +97,8 @@ def load_instruments(path) -> dict:
     """An instruments file (TOML; ``triadcal capture --instruments``): sections ``[imu]``
     (``driver`` one of :data:`IMU_DRIVERS`, ``port``, ``baud``, ``rate_hz``), ``[chamber]``
     (``driver`` watlow-f4 | watlow-f4t | espec | modbus, ``port``, ``baud``, ``address``),
-    ``[bench]`` (``driver`` template | scpi, ``profile``, ``port``, ``baud``), ``[dmm]``
+    ``[bench]`` (``driver`` template | scpi, ``profile``, ``port``, ``baud``, ``tolerance_deg`` for
+    scpi: how close to its target an axis must read, degrees, default 0.01), ``[dmm]``
     (``driver = "scpi"``, ``resource`` ...). Unknown sections and keys are refused naming the
     file, the section and the key; the result uses the drivers' own names (``baudrate``,
     ``slave`` / ``address``, ``protocol``) as :func:`open_instruments` takes them. ``[dmm]`` is
@@ -139,6 +142,14 @@ def load_instruments(path) -> dict:
                 raise InputError(f"{path}: [imu] rate_hz must be positive")
         if section == "chamber" and "address" in t and driver != "espec":
             t["slave"] = int(t.pop("address"))
+        if section == "bench" and "tolerance_deg" in t:
+            tol = t["tolerance_deg"]
+            if driver == "template":
+                raise InputError(f"{path}: [bench] tolerance_deg is for the scpi driver; a template bench takes it "
+                                 "from its profile's [settle] tolerance_deg")
+            if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 < float(tol) <= 1.0:
+                raise InputError(f"{path}: [bench] tolerance_deg = {tol!r}: must be a number of degrees in (0, 1] "
+                                 "(how close to its target an axis must read to count as in position)")
         if section == "bench" and driver == "template" and not t.get("profile"):
             raise InputError(f"{path}: [bench] driver = \"template\" needs 'profile'")
         if section == "bench" and t.get("profile"):

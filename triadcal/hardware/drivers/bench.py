@@ -96,7 +96,7 @@ class ScpiBench(Bench):
         self.tolerance_deg = float(tolerance_deg)
         self.target: tuple | None = None          # the last move's commanded angles
         try:
-            self._ser = serial.Serial(port, baudrate, timeout=timeout_s)
+            self._ser = serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s)   # a path or any pyserial URL
         except (serial.SerialException, ValueError) as exc:
             raise BenchError(f"cannot open the bench's port {port}: {exc}") from None
 
