@@ -156,3 +156,15 @@ def test_value_plus_minus_U_covers_the_truth_of_a_classical_fit(tmp_path):
     assert np.mean(covered["others"]) >= 0.92 and math.sqrt(np.mean(np.square(z["others"]))) <= 1.15, lines
     assert np.mean(type_a) < 0.6, lines
     assert ok >= 0.95 * n
+
+
+def test_one_setpoint_has_no_tempcos_and_still_gets_its_budget(tmp_path):
+    """One setpoint: no line over temperature (chi2/dof per parameter None), no tempcos; the
+    propagation crashed on the missing ratio (found by a probe of this change)."""
+    text, _ = simulate_campaign(np.random.default_rng(3), setpoints_C=(20,))
+    (tmp_path / "one.csv").write_text(text)
+    r = api.fit(tmp_path / "one.csv", method="classical", lab=LAB)
+    assert r.effects == () and not any(n.endswith("_tempco") for n in r.parameters)
+    assert _c(r, "Ca_zx", "encoder zero, axis 1") == pytest.approx(1.0, abs=2e-3)
+    assert _c(r, "Ca_zx", "thermometers") == 0.0
+    assert all(p.U is not None for p in r.parameters.values())

@@ -42,7 +42,8 @@ def _type_a_dof(result: CalibrationResult, name: str) -> float | None:
     fit = result.fit
     base = name[:-len("_tempco")] if name.endswith("_tempco") else name
     axis = "xyz".index(base.split("_")[1][0])
-    if float((fit.get("chi2_dof_by_parameter") or {}).get(base, 0.0)) > 1.0:
+    ratio = (fit.get("chi2_dof_by_parameter") or {}).get(base)      # None with one setpoint (no line)
+    if isinstance(ratio, (int, float)) and ratio > 1.0:
         n_sp = int(fit.get("n_setpoints") or 0)
         k = 2 if result.effects else 1
         return float(n_sp - k) if n_sp > k else None
