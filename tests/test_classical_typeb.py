@@ -168,3 +168,20 @@ def test_one_setpoint_has_no_tempcos_and_still_gets_its_budget(tmp_path):
     assert _c(r, "Ca_zx", "encoder zero, axis 1") == pytest.approx(1.0, abs=2e-3)
     assert _c(r, "Ca_zx", "thermometers") == 0.0
     assert all(p.U is not None for p in r.parameters.values())
+
+
+def test_the_certificate_says_why_k_is_not_2_without_a_hysteresis(tmp_path):
+    """k = 2.01 from a finite nu_eff was explained as "the hysteresis being a two-point +-h" on a
+    result with no hysteresis (an outside probe of this change)."""
+    from triadcal.io.lab import load_lab
+    from triadcal.reports import certificate as C
+
+    (tmp_path / "lab.toml").write_text(C.EXAMPLE_LAB_TOML)
+    lab = load_lab(tmp_path / "lab.toml")
+    text, _ = simulate_campaign(np.random.default_rng(3), setpoints_C=(20,))
+    (tmp_path / "one.csv").write_text(text)
+    cert = C.build_certificate(api.fit(tmp_path / "one.csv", method="classical", lab=lab), lab=lab,
+                               issue_date="2026-11-29", plots=False)
+    assert cert.issued, cert.reasons
+    assert "two-point" not in cert.angle_statement
+    assert "effective degrees of freedom" in cert.angle_statement or "k = 2;" in cert.angle_statement

@@ -85,9 +85,16 @@ def angle_uncertainty_statement(cert: "Certificate") -> str:
     thermal = [c for c in b.components if c.source in THERMAL_MODEL_SOURCES]
     parts = ", ".join(f"{c.source} {significant(c.contribution, 2)}" if c.contribution is not None
                       else f"{c.source} not evaluated" for c in thermal)
-    kind = ("k = 2" if abs(b.effective_k - b.coverage_factor) < 1e-9 else
-             f"coverage {100 * b.coverage_probability:.2f} %, k = U/u_c = {b.effective_k:.3g}, the hysteresis "
-             "being a two-point ±h and not a normal distribution")
+    two_point = any(c.distribution == "two-point" and c.contribution for c in b.components)
+    if abs(b.effective_k - b.coverage_factor) < 1e-6:
+        kind = "k = 2"
+    elif two_point:
+        kind = (f"coverage {100 * b.coverage_probability:.2f} %, k = U/u_c = {b.effective_k:.3g}, the hysteresis "
+                "being a two-point ±h and not a normal distribution")
+    else:
+        # no two-point component: k above 2 comes from the finite degrees of freedom of a Type A part
+        kind = (f"coverage {100 * b.coverage_probability:.2f} %, k = {b.effective_k:.3g} from the effective degrees "
+                f"of freedom ν_eff = {b.dof_eff:.3g} (Welch–Satterthwaite)")
     own = (f" It contains the angles' own uncertainty at the reference temperature (U up to "
            f"{max(angle_U):g} {b.unit} in the results table, which applies only at "
            f"{cert.result.reference_temperature_C:g} °C on the mid-line)" if angle_U else " It contains")
