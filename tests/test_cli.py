@@ -208,3 +208,13 @@ def test_an_unknown_top_level_option_keeps_the_top_level_usage(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--bogus"])
     assert exc.value.code == 2 and "triadcal: error: unrecognized arguments: --bogus" in capsys.readouterr().err
+
+
+def test_capture_emulate_refuses_port_options_it_would_ignore(tmp_path, capsys):
+    """`capture --emulate --imu-port /dev/x --chamber-slave 7` exited 0 with both ignored (a
+    newcomer's probe): the emulator makes its own ports. Refused before anything starts."""
+    rc = main(["capture", "--emulate", "--imu-port", "/dev/does-not-exist", "--chamber-slave", "7",
+               "--setpoints", "20", "--out", str(tmp_path / "run"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "--imu-port, --chamber-slave would be ignored" in err, err
+    assert not (tmp_path / "run").exists()

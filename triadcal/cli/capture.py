@@ -108,6 +108,16 @@ def run(args) -> int:
     plan = DEFAULT_PLAN if args.plan == "default" else plan_from_csv(args.plan)
     if args.config and args.instruments:
         raise InputError("give --config (a ports file) or --instruments (an instruments file), not both")
+    if args.emulate:
+        given = [opt for opt, v in (("--config", args.config), ("--instruments", args.instruments),
+                                    ("--imu-port", args.imu_port), ("--imu-protocol", args.imu_protocol),
+                                    ("--imu-rate-hz", args.imu_rate_hz), ("--bench-port", args.bench_port),
+                                    ("--chamber-port", args.chamber_port), ("--chamber-slave", args.chamber_slave))
+                 if v is not None]
+        if given:
+            # the emulator brings its own ports: these were silently ignored (a newcomer's probe)
+            raise InputError(f"--emulate makes its own instruments and ports: {', '.join(given)} would be ignored "
+                             "(the emulator's protocol is --emulate-protocol; drop --emulate for real instruments)")
     cfg = load_port_config(args.config) if args.config else load_instruments(args.instruments) \
         if args.instruments else {}
     # [dmm] without [imu]: an analog unit read by a voltmeter (hardware.voltmeter_capture.capture_voltmeter)
