@@ -356,3 +356,16 @@ def test_espec_emulator_parses_a_manual_style_mon_answer():
         finally:
             chamber.close()
     assert mon == {"temperature_C": 23.0, "humidity_pct": 100.0, "mode": "CONSTANT", "alarms": 0}
+
+
+def test_capture_chamber_slave_reaches_an_espec_chamber():
+    """`capture --chamber-slave N` sets `slave`, which the Espec driver (it reads `address`)
+    ignored silently; both spellings now give the RS-485 address."""
+    from triadcal.hardware.drivers.chamber import open_chamber
+
+    for cfg in ({"driver": "espec", "port": "loop://", "slave": 3}, {"driver": "espec", "port": "loop://", "address": 3}):
+        c = open_chamber(cfg)
+        try:
+            assert c.address == 3
+        finally:
+            c.close()

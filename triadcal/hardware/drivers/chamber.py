@@ -133,7 +133,9 @@ def open_chamber(cfg) -> Chamber:
     if driver == "espec":
         from .espec import EspecChamber
 
-        address = cfg.get("address")
+        # the RS-485 address: `address` of an instruments file, or `slave` (capture --chamber-slave,
+        # which set `slave` only and was silently ignored here)
+        address = cfg.get("address", cfg.get("slave"))
         return EspecChamber(port, baudrate=int(cfg.get("baudrate", 9600)),
                             address=None if address in (None, "", 0) else int(address), **opt)
     raise InputError(f"[chamber] driver {driver!r}: expected one of {', '.join(CHAMBER_DRIVERS)}")
