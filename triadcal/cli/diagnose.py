@@ -32,7 +32,8 @@ def register(sub) -> None:
     p.add_argument("--top", type=int, default=3, help="number of candidates to refit (default 3)")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level (default 0.01)")
     p.add_argument("--draws", type=int, default=400, help="Laplace draws for PSIS-LOO and the PPC (default 400)")
-    p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC")
+    p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
+                   help="T0 of the fitted model's thermal terms, degC (default 20; as fit's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the Laplace draws")
     p.add_argument("--json", metavar="OUT", required=True, help="write the diagnosis here (JSON)")
     p.add_argument("--html", metavar="REPORT", help="write an HTML report with plots here")

@@ -17,7 +17,8 @@ def register(sub) -> None:
     p.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default="s")
     p.add_argument("--temperature-column", required=True, metavar="NAME", help="the unit's temperature, degC")
     p.add_argument("--unit", default="m/s2", help="unit of the outputs (written as given; default m/s2)")
-    p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC")
+    p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
+                   help="temperature at which the branch gap (cooling minus heating) is stated, degC (default 20)")
     p.add_argument("--folds", type=int, default=6, help="contiguous blocks of the cross-validation (default 6)")
     p.add_argument("--json", metavar="OUT.json", help="write the analysis (format triadcal.thermal_cycle)")
     p.add_argument("--plot", metavar="OUT.png", help="draw each axis against temperature and its residuals")
