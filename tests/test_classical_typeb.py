@@ -166,8 +166,46 @@ def test_one_setpoint_has_no_tempcos_and_still_gets_its_budget(tmp_path):
     r = api.fit(tmp_path / "one.csv", method="classical", lab=LAB)
     assert r.effects == () and not any(n.endswith("_tempco") for n in r.parameters)
     assert _c(r, "Ca_zx", "encoder zero, axis 1") == pytest.approx(1.0, abs=2e-3)
-    assert _c(r, "Ca_zx", "thermometers") == 0.0
     assert all(p.U is not None for p in r.parameters.values())
+    # no tempco carries a thermometer's offset into the values: no row of sensitivity 0, its u is
+    # stated with the reference temperature instead
+    assert not any(row["source"] == "thermometers" for row in r.parameters["K_x"].uncertainty["budget"])
+    assert r.fit["reference_temperature_u_C"] == 0.2
+
+
+def test_one_setpoint_values_are_the_units_at_its_true_temperature_stated_with_the_thermometers_u(tmp_path):
+    """An outside probe: at one setpoint the thermometer row had sensitivity 0 and K was 3.2 U from the
+    unit's K at the stated temperature (K tempco 150 ppm/degC, thermometers 0.5 degC off). The values
+    are the unit's at its true temperature; the stated temperature is the thermometers' reading, and
+    the certificate now says so with its u (the thermometers' 0.5 degC)."""
+    from triadcal.io.lab import load_lab
+    from triadcal.reports import certificate as C
+
+    truth = {**{f"K_{a}": 1.0 for a in "xyz"}, **{f"S_{a}": 1e-3 for a in "xyz"},
+             **{f"Ca_{ab}": 30.0 for ab in ("xy", "xz", "yx", "yz", "zx", "zy")},
+             **{f"Ca_{ab}_tempco": 0.0 for ab in ("xy", "xz", "yx", "yz", "zx", "zy")},
+             **{f"K_{a}_tempco": 150.0 for a in "xyz"}, **{f"S_{a}_tempco": 0.0 for a in "xyz"}}
+    text, _ = simulate_campaign(np.random.default_rng(5), truth=truth, setpoints_C=(20,))
+    lines = text.splitlines()
+    head = next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#"))
+    cols = lines[head].split(",")
+    tcols = [cols.index(c) for c in ("t_x", "t_y", "t_z")]
+    for i in range(head + 1, len(lines)):           # the thermometers read 1 degC high
+        f = lines[i].split(",")
+        for j in tcols:
+            f[j] = repr(float(f[j]) + 1.0)
+        lines[i] = ",".join(f)
+    (tmp_path / "one.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "lab.toml").write_text(C.EXAMPLE_LAB_TOML.replace("u_C = 0.2", "u_C = 0.5"))
+    lab = load_lab(tmp_path / "lab.toml")
+    r = api.fit(tmp_path / "one.csv", method="classical", lab=lab)
+    assert r.reference_temperature_C == pytest.approx(21.0, abs=0.05) and r.fit["reference_temperature_u_C"] == 0.5
+    K = r.parameters["K_x"]
+    assert abs(K.value - 1.0) <= K.U                        # the unit's K at its true 20 degC
+    assert abs(K.value - (1.0 + 150e-6)) > K.U              # not its K at the 21 degC read
+    cert = C.build_certificate(r, lab=lab, issue_date="2026-11-29", plots=False)
+    assert cert.issued, cert.reasons
+    assert "as the thermometers read it, u = 0.5 °C" in dict(cert.conditions)["Reference temperature"]
 
 
 def test_the_certificate_says_why_k_is_not_2_without_a_hysteresis(tmp_path):
@@ -185,3 +223,13 @@ def test_the_certificate_says_why_k_is_not_2_without_a_hysteresis(tmp_path):
     assert cert.issued, cert.reasons
     assert "two-point" not in cert.angle_statement
     assert "effective degrees of freedom" in cert.angle_statement or "k = 2;" in cert.angle_statement
+
+
+def test_a_joint_fit_at_one_temperature_states_the_thermometers_u_with_its_temperature_too(tmp_path):
+    text, _ = simulate_campaign(np.random.default_rng(3), setpoints_C=(20,))
+    (tmp_path / "one.csv").write_text(text)
+    r = api.fit(tmp_path / "one.csv", effects=("bench_tilt",), lab=LAB)
+    assert r.fit["reference_temperature_u_C"] == 0.2
+    assert not any(row["source"] == "thermometers" for p in r.parameters.values()
+                   for row in p.uncertainty.get("budget", []))
+    assert any(row["source"] == "fixture mounting, about y" for row in r.parameters["Ca_zx"].uncertainty["budget"])

@@ -60,11 +60,17 @@ def propagate_classical(result: CalibrationResult, campaign: Campaign, sources: 
     correlation including the systematic terms and ``fit["systematic_errors"]``. ``refit`` is the
     classical estimate with the settings ``result`` was made with, applied to a changed campaign.
     No sources: ``result`` unchanged."""
-    from ..uncertainty.typeb import KINDS, TypeB, data_change, parameter_fields
+    from ..uncertainty.typeb import (KINDS, TypeB, data_change, parameter_fields, propagated_sources,
+                                     reference_temperature_note, reference_temperature_u)
 
-    if not sources:
-        return result
     names = tuple(result.parameters)
+    t_u = reference_temperature_u(sources, names)
+    sources = propagated_sources(sources, names)       # one temperature: the thermometers go with T0
+    if not sources:
+        if t_u is not None:
+            result.fit["reference_temperature_u_C"] = t_u
+            result.notes.append(reference_temperature_note(t_u))
+        return result
     model = Model(tuple(result.effects), result.reference_temperature_C)
     p = model.to_internal({n: v.value for n, v in result.parameters.items()})
     cov, w = campaign.covariates(), np.asarray(campaign.w, float)
@@ -99,8 +105,11 @@ def propagate_classical(result: CalibrationResult, campaign: Campaign, sources: 
     out = replace(result, parameters=params, correlation_names=names, correlation=cov_all / np.outer(safe, safe),
                   fit={**result.fit, "systematic_errors": [
                       {"source": s.source, "key": s.key, "u": s.u, "unit": s.unit, "distribution": s.distribution,
-                       "equipment": s.equipment} for s in sources]},
+                       "equipment": s.equipment} for s in sources],
+                       **({"reference_temperature_u_C": t_u} if t_u is not None else {})},
                   notes=list(result.notes))
+    if t_u is not None:
+        out.notes.append(reference_temperature_note(t_u))
     out.notes.append("the lab file's systematic errors are propagated into every parameter's u and U by the "
                      "classical estimate itself, re-run on the data each error changes (central difference; "
                      "docs/classical.md)")

@@ -477,9 +477,11 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     u_a = np.sqrt(np.diag(cov))
     units_of = {n: parameter_unit(model, n, campaign.output_unit) for n in problem.names}
     budgets = {}
+    t_u = None
     if systematics:
-        from ..uncertainty.typeb import propagate, propagated_sources
+        from ..uncertainty.typeb import propagate, propagated_sources, reference_temperature_u
 
+        t_u = reference_temperature_u(systematics, problem.index)      # one temperature: stated with T0
         systematics = propagated_sources(systematics, problem.index)   # bench_nonorth measured: its own u
     if systematics:
         p_hat = model.to_internal({**{n: float(v) for n, v in zip(problem.names, sol.x)}, **fixed})
@@ -521,6 +523,11 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                                  if systematics else None)}
     if "thermal_lag" in model.effect_names:
         fit["temperature_rate"] = campaign.temperature_rate_method()
+    if t_u is not None:
+        from ..uncertainty.typeb import reference_temperature_note
+
+        fit["reference_temperature_u_C"] = t_u
+        notes.append(reference_temperature_note(t_u))
     if not noise.known:
         # weights were 1/sqrt(tau): the residual variance estimates the white-noise intensity Q
         fit["Q_estimate"] = chi2_dof if dof > 0 else None

@@ -242,15 +242,44 @@ def effects_with_lab(effects: Sequence[str], sources: Sequence[SystematicSource]
     return effects, ""
 
 
+def temperature_dependent(parameter_names) -> bool:
+    """Whether a fit has a parameter through which a thermometer's offset reaches the values (a
+    tempco of any order, a thermal lag). Without one (a campaign at one temperature) the values are
+    the unit's at the temperature the thermometers read, and their u is that temperature's own
+    (``reference_temperature_u_C``), not a Type B row of sensitivity 0."""
+    return any("_tempco" in n or n.startswith("thermal_lag") for n in parameter_names)
+
+
 def propagated_sources(sources: Sequence[SystematicSource], parameter_names) -> list:
     """The sources propagated as Type B into a fit's budgets: all of ``sources`` but the bench
     axes' non-orthogonality when the fit estimates it (``bench_nonorth`` among ``parameter_names``,
-    :func:`effects_with_lab`): then its row is the estimate's own u. Used by the joint fit
-    (:func:`triadcal.estimation.joint.fit_joint`) and by the certificate's check that a result
-    was fitted with the lab file it is issued under, so that the two agree by construction."""
-    if "bench_nonorth" not in set(parameter_names):
-        return list(sources)
-    return [s for s in sources if s.kind != "axes_nonorthogonality"]
+    :func:`effects_with_lab`): then its row is the estimate's own u; and but the thermometers when
+    no parameter depends on temperature (:func:`temperature_dependent`: their u is then stated
+    with the reference temperature). Used by the joint and classical fits and by the certificate's
+    check that a result was fitted with the lab file it is issued under, so that they agree by
+    construction."""
+    names = set(parameter_names)
+    out = list(sources)
+    if "bench_nonorth" in names:
+        out = [s for s in out if s.kind != "axes_nonorthogonality"]
+    if not temperature_dependent(names):
+        out = [s for s in out if s.kind != "thermometer"]
+    return out
+
+
+def reference_temperature_note(u_C: float) -> str:
+    """The note of a result whose values hold at the thermometers' reading (one temperature)."""
+    return (f"one temperature: the values are the unit's at the temperature the thermometers read, whose "
+            f"uncertainty (u = {u_C:g} degC, the lab's [thermometers]) is stated with the reference temperature; "
+            "no tempco is determined to carry it into the values (a user at another temperature needs one)")
+
+
+def reference_temperature_u(sources: Sequence[SystematicSource], parameter_names) -> Optional[float]:
+    """u of the reference temperature (degC) when the values are the unit's at the thermometers'
+    reading (no temperature-dependent parameter) and the lab states the thermometers' u; else None."""
+    if temperature_dependent(set(parameter_names)):
+        return None
+    return next((s.u for s in sources if s.kind == "thermometer"), None)
 
 
 def budget_of(name: str, p) -> Optional[Budget]:

@@ -280,7 +280,10 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     if result.temperature_range_C:
         lo, hi = result.temperature_range_C
         cond.append(("Temperature range (accelerometer sensors)", f"{lo:.1f} °C to {hi:.1f} °C"))
-    cond.append(("Reference temperature", f"{result.reference_temperature_C:g} °C"))
+    t_u = result.fit.get("reference_temperature_u_C")
+    cond.append(("Reference temperature", f"{result.reference_temperature_C:g} °C" + (
+        f" (as the thermometers read it, u = {t_u:g} °C; one temperature: the values are the unit's at that "
+        "temperature and hold no tempco)" if isinstance(t_u, (int, float)) else "")))
     if campaign is not None:
         taus = sorted(set(np.round(campaign.tau_s, 6).tolist()))
         cond.append(("Averaging time per position", ", ".join(f"{t:g} s" for t in taus)))
