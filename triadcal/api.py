@@ -147,9 +147,10 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             campaign = with_lab_gravity(campaign, lab)
         result = fit_classical(campaign, reference_temperature_C=reference_temperature_C, gates=gates)
         if lab is not None:
-            from .estimation.classical_typeb import propagate_classical
+            from .estimation.classical_typeb import bench_at_one_setpoint, propagate_classical
             from .uncertainty.typeb import systematic_sources
 
+            result = bench_at_one_setpoint(result, campaign, lab.sigma_position_arcsec, lab.sigma_wobble_arcsec)
             result = propagate_classical(
                 result, campaign, systematic_sources(lab, campaign.output_unit),
                 lambda changed: fit_classical(changed, reference_temperature_C=reference_temperature_C, gates=gates))

@@ -53,6 +53,46 @@ def _type_a_dof(result: CalibrationResult, name: str) -> float | None:
     return None
 
 
+def bench_at_one_setpoint(result: CalibrationResult, campaign: Campaign, sigma_position_arcsec,
+                          sigma_wobble_arcsec) -> CalibrationResult:
+    """At one setpoint (no line over temperature, ``result.effects`` empty) the angles' u from the
+    pooled residuals does not see the bench's geometry: a positioning error moves an output fully
+    where its axis is horizontal and not at all where it is vertical, and the angle takes the first
+    kind of visits only, while the residual variance pools both (an outside probe: five angles with
+    RMS error/u 1.24-1.48, coverage 0.91 at sigma_1 = 5"). With the lab's sigma_1 and sigma_2 the
+    angles' Type A u become ``sqrt(u_res^2 + sd_bench^2)``, ``sd_bench`` the classical estimate's
+    own SD from the bench errors on the campaign's plan (:func:`classical_angle_sd`, eq. 2-4):
+    conservative by the bench part the residuals already hold. Over several setpoints the line's
+    Birge ratio sees that scatter, and nothing is added."""
+    from ..uncertainty.classical_sd import classical_angle_sd
+
+    s1, s2 = float(sigma_position_arcsec or 0.0), float(sigma_wobble_arcsec or 0.0)
+    if result.effects or not (s1 > 0 or s2 > 0):
+        return result
+    plan = dict(zip(campaign.position.tolist(), zip(campaign.axis1_deg.tolist(), campaign.axis2_deg.tolist())))
+    sd = classical_angle_sd(plan, Q_V2s=0.0, tau_s=1.0, sigma_position_arcsec=s1, sigma_wobble_arcsec=s2)
+    names = tuple(result.parameters)
+    cov = result.covariance(list(names))
+    params = dict(result.parameters)
+    for n, extra in sd.items():
+        if n in params:
+            pv = params[n]
+            params[n] = ParameterValue(pv.value, math.sqrt(pv.u ** 2 + extra ** 2), pv.unit, dict(pv.uncertainty))
+            j = names.index(n)
+            cov[j, j] += extra ** 2
+    u = np.sqrt(np.diag(cov))
+    safe = np.where(u > 0, u, 1.0)
+    out = replace(result, parameters=params, correlation_names=names, correlation=cov / np.outer(safe, safe),
+                  fit={**result.fit, "bench_errors": {"sigma_position_arcsec": s1, "sigma_wobble_arcsec": s2,
+                                                      "source": "lab file", "in_u": True,
+                                                      "how": "one setpoint: added to the angles' u through the "
+                                                             "classical estimate of the plan"}},
+                  notes=list(result.notes) + [
+                      f"one setpoint: the lab's bench errors (sigma_1 {s1:g}, sigma_2 {s2:g} arcsec) are added to the "
+                      "angles' u through the classical estimate of the plan (the residuals do not see their geometry)"])
+    return out
+
+
 def propagate_classical(result: CalibrationResult, campaign: Campaign, sources: Sequence,
                         refit: Callable[[Campaign], CalibrationResult]) -> CalibrationResult:
     """``result`` with every parameter's ``u`` the combined standard uncertainty and its budget
