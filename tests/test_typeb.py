@@ -37,10 +37,12 @@ def _c(result, name, source):
 def lab_fit(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("typeb")
     path, truth = _write(tmp, "c")
-    lab = LabConfig(sigma_position_arcsec=1.0, sigma_wobble_arcsec=0.5, encoder_zero_u_arcsec=5.0,
-                    mounting_u_arcsec=10.0, local_g_u_ppm=10.0, temperature_uncertainty_C=0.2,
-                    voltmeter_gain_u_ppm=20.0, voltmeter_offset_u_V=1e-5, source="test")
-    return api.fit(path, effects=EFFECTS, lab=lab), path, tmp
+    return api.fit(path, effects=EFFECTS, lab=LAB_OF_FIT), path, tmp
+
+
+LAB_OF_FIT = LabConfig(sigma_position_arcsec=1.0, sigma_wobble_arcsec=0.5, encoder_zero_u_arcsec=5.0,
+                       mounting_u_arcsec=10.0, local_g_u_ppm=10.0, temperature_uncertainty_C=0.2,
+                       voltmeter_gain_u_ppm=20.0, voltmeter_offset_u_V=1e-5, source="test")
 
 
 def test_sensitivities_are_those_derived_by_hand(lab_fit):
@@ -214,8 +216,7 @@ def test_certificate_prints_each_parameters_budget(lab_fit, tmp_path):
     from triadcal.reports.certificate.html import render_html
 
     r, path, _ = lab_fit
-    cert = build_certificate(r, lab=LabConfig(encoder_zero_u_arcsec=5.0, mounting_u_arcsec=10.0, source="t"),
-                             campaign=read_bench_csv(path), plots=False, issue_date="2026-11-25")
+    cert = build_certificate(r, lab=LAB_OF_FIT, campaign=read_bench_csv(path), plots=False, issue_date="2026-11-25")
     assert cert.issued, cert.reasons
     assert [b.quantity for b in cert.parameter_budgets["Orientation angles"]][:2] == ["Ca_xy", "Ca_xz"]
     assert len(cert.parameter_budgets["Scale factors"]) == 3 and len(cert.parameter_budgets["Biases"]) == 3
@@ -297,3 +298,43 @@ def test_the_labs_local_gravity_is_the_fits_when_the_data_state_none(tmp_path):
     c.metadata["local_g_m_s2"] = "9.80665"
     with pytest.raises(InputError, match="one of them is wrong"):
         with_lab_gravity(c, lab)
+
+
+def test_a_certificate_under_another_lab_file_is_refused_in_both_directions(lab_fit):
+    """An outside probe: a result fitted with a voltmeter got a certificate under a lab file without
+    one (its budgets named equipment this lab does not have), and under one with a rectangular
+    fixture, or sigma_1 = 60" for the fit's 1"; each is now refused, naming what differs."""
+    import dataclasses
+
+    from triadcal.reports.certificate import build_certificate
+
+    r, path, _ = lab_fit
+    assert build_certificate(r, lab=LAB_OF_FIT, plots=False, issue_date="2026-11-25").issued
+    cases = {
+        "without the voltmeter": (dataclasses.replace(LAB_OF_FIT, voltmeter_gain_u_ppm=None, voltmeter_offset_u_V=None),
+                                  "does not declare (voltmeter gain, axis x"),
+        "rectangular fixture": (dataclasses.replace(LAB_OF_FIT, distributions={"fixture": "rectangular"}),
+                                "distribution rectangular in the lab file, normal in the result"),
+        "another sigma_1": (dataclasses.replace(LAB_OF_FIT, sigma_position_arcsec=60.0),
+                            "sigma_position_arcsec = 60 arcsec, but the result's u holds 1"),
+    }
+    for what, (lab, says) in cases.items():
+        cert = build_certificate(r, lab=lab, plots=False, issue_date="2026-11-25")
+        assert not cert.issued and any(says in x for x in cert.reasons), (what, cert.reasons)
+
+
+def test_the_certificate_takes_a_local_g_within_3u_as_the_fit_does(lab_fit):
+    """The fit accepts data whose g lies within 3 u of the lab's; the certificate refused beyond
+    1 u, advising a refit that could not change it (an outside probe)."""
+    import dataclasses
+
+    from triadcal.reports.certificate import build_certificate
+
+    r, _, _ = lab_fit
+    g = r.extra["local_g_m_s2"]
+    near = dataclasses.replace(LAB_OF_FIT, local_g_m_s2=g * (1 + 20e-6))          # 2 u
+    assert not any("local gravity" in x for x in build_certificate(r, lab=near, plots=False,
+                                                                   issue_date="2026-11-25").reasons)
+    far = dataclasses.replace(LAB_OF_FIT, local_g_m_s2=g * (1 + 40e-6))           # 4 u
+    assert any("local gravity" in x and "3 u" in x
+               for x in build_certificate(r, lab=far, plots=False, issue_date="2026-11-25").reasons)

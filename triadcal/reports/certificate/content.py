@@ -403,27 +403,51 @@ def _lab_disagrees(result: CalibrationResult, lab: LabConfig) -> list:
         except InputError:
             declared = []
         missing, changed = [], []
-        for src in propagated_sources(declared, result.parameters):   # as the fit propagated them
+        expected = propagated_sources(declared, result.parameters)   # as the fit propagated them
+        for src in expected:
             held = [row for row in rows if row.get("source") == src.source]
             if not held:
                 missing.append(f"{src.source} ({src.key} = {src.u:g} {src.unit})")
             elif any(not math.isclose(float(row.get("u", math.nan)), src.u, rel_tol=1e-9) for row in held):
                 changed.append(f"{src.source}: {src.key} = {src.u:g} {src.unit} in the lab file, "
                                f"{float(held[0].get('u', math.nan)):g} in the result")
+            elif any(str(row.get("distribution", "normal")) != src.distribution for row in held):
+                changed.append(f"{src.source}: distribution {src.distribution} in the lab file, "
+                               f"{held[0].get('distribution', 'normal')} in the result")
+        # the reverse: Type B rows of a source this lab file does not declare (fitted under another lab
+        # file: its certificate named equipment this lab does not have; an outside probe)
+        names = {s.source for s in expected}
+        extra = sorted({str(row.get("source")) for row in rows if row.get("type") == "B"} - names)
+        if extra:
+            out.append(f"the result's budgets hold systematic errors this lab file does not declare ({', '.join(extra)}): "
+                       "it was fitted with another lab file; fit again with this --lab")
         if missing:
             out.append(f"the lab file declares systematic errors the result's budgets do not hold ({'; '.join(missing)}): "
                        "it was fitted with another lab file; fit again with this --lab")
         if changed:
             out.append(f"the lab file states other uncertainties than the result was fitted with ({'; '.join(changed)}): "
                        "fit again with this --lab")
+    be = result.fit.get("bench_errors") if isinstance(result.fit.get("bench_errors"), dict) else None
+    if be and be.get("in_u") and str(be.get("source", "")).startswith("lab"):
+        # sigma_1 and sigma_2 inside the result's u: those of the lab file it was fitted with
+        for key, stated in (("sigma_position_arcsec", lab.sigma_position_arcsec),
+                            ("sigma_wobble_arcsec", lab.sigma_wobble_arcsec)):
+            used = be.get(key)
+            if isinstance(used, (int, float)) and not math.isclose(float(used), float(stated or 0.0), rel_tol=1e-9,
+                                                                    abs_tol=1e-12):
+                out.append(f"the lab file's [bench] {key} = {float(stated or 0.0):g} arcsec, but the result's u holds "
+                           f"{float(used):g}: it was fitted with another lab file; fit again with this --lab")
     g = result.extra.get("local_g_m_s2")
     if lab.local_g_m_s2 is not None and isinstance(g, (int, float)) and math.isfinite(g):
-        tol_ppm = lab.local_g_u_ppm if lab.local_g_u_ppm else 1.0
+        # the fit's own rule (io.lab.with_lab_gravity): two values within 3 u of the lab's are one
+        # measurement (1 ppm without a u); the certificate used 1 u and refused what the fit accepted
+        tol_ppm = 3.0 * lab.local_g_u_ppm if lab.local_g_u_ppm else 1.0
         diff_ppm = abs(float(g) - lab.local_g_m_s2) / lab.local_g_m_s2 * 1e6
         if diff_ppm > tol_ppm:
             out.append(f"the lab file's local gravity {lab.local_g_m_s2:.5f} m/s² differs from the {float(g):.5f} m/s² "
-                       f"the fit used by {diff_ppm:.3g} ppm (more than its u of {tol_ppm:g} ppm); K is proportional to "
-                       "g: fit again with the lab's g (--lab, or local_g_m_s2 in the data)")
+                       f"the fit used by {diff_ppm:.3g} ppm (more than {tol_ppm:g} ppm: 3 u of the lab's g, or 1 ppm "
+                       "without a u); K is proportional to g: fit again with the lab's g (--lab, or local_g_m_s2 in "
+                       "the data)")
     return out
 
 
