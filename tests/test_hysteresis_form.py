@@ -192,3 +192,28 @@ def test_pi_form_refusals():
         fit_hysteresis_form(c, EFFECTS, "pi", half_width_C=5.0)
     with pytest.raises(InputError, match="choose one of"):
         fit_hysteresis_form(c, EFFECTS, "preisach")
+
+
+def test_a_play_between_the_grid_points_is_fitted_at_its_own_width_and_not_named_a_pi(tmp_path):
+    """An outside probe: a play of r = 17 degC (between the grid's 15 and 20) was fitted at 15 with
+    the interval "15..15", Ca_xy_hysteresis 5.6 u off with status ok, and --hysteresis-form auto
+    named a PI of the two neighbouring grid plays. Data of tests/independent_bench.py (its own
+    backlash on a path of turns smaller than 2r, so r shows)."""
+    from independent_bench import simulate_campaign
+
+    rng = np.random.default_rng(17)
+    truth = {**{f"K_{a}": 1.0 for a in "xyz"}, **{f"S_{a}": 0.0 for a in "xyz"},
+             **{f"Ca_{ab}": 40.0 for ab in H}, **{f"Ca_{ab}_tempco": 0.1 for ab in H},
+             **{f"K_{a}_tempco": 10.0 for a in "xyz"}, **{f"S_{a}_tempco": 5.0 for a in "xyz"},
+             **{f"Ca_{ab}_hysteresis": 3.0 * v for ab, v in H.items()}}
+    text, truth = simulate_campaign(rng, truth=truth, setpoints_C=(20, 40, 60, 35, 10, 30, 55, 70, 40, 5, -15, 20),
+                                    noise_sd=2e-4, hysteresis={"form": "play", "half_widths_C": [17.0], "start": "mid"})
+    (tmp_path / "p.csv").write_text(text)
+    res = api.fit(tmp_path / "p.csv", effects=EFFECTS, hysteresis_form="auto")
+    h = res.fit["hysteresis"]
+    assert h["form"] == "play", (h["form"], h.get("criterion_pi"))
+    lo, hi = h["half_width_interval_C"]
+    assert lo < hi and lo - (hi - lo) <= 17.0 <= hi + (hi - lo), (h["half_width_C"], lo, hi)
+    for ab in H:
+        p = res.parameters[f"Ca_{ab}_hysteresis"]
+        assert abs(p.value - truth[f"Ca_{ab}_hysteresis"]) < 3.5 * p.u, (ab, p.value, p.u)

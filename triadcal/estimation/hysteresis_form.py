@@ -14,8 +14,10 @@ common to the plays) are profiled. The model is linear in ``h`` and nearly linea
 parameters, so the profile is computed by one Gauss-Newton step from the offset form's optimum:
 the hysteresis columns of the Jacobian at unit branch, times each candidate's branch, projected
 off the other parameters' columns (exact for a linear model; the chosen candidate is then refitted
-with the full nonlinear fit, whose chi^2 enters the criterion). The interval of r is where the
-profile's chi^2 <= chi^2_min + 1 (68 %, one parameter).
+with the full nonlinear fit, whose chi^2 enters the criterion). The play's r is searched on
+``PLAY_GRID_C`` and then refined between the grid points around the best (``_refine_play``: a scan
+and Brent's method; the PI's widths stay on the grid). The interval of r is where the profile's
+chi^2 <= chi^2_min + 1 (68 %, one parameter).
 
 **Criterion (nested likelihood ratios, 99 % each).** offset ⊂ play ⊂ pi: the offset is the
 play's r -> 0 limit, the play is the PI with w = 0 (or 1). With a known output noise the play is
@@ -159,6 +161,60 @@ def _profiles(prof: _Profile, grid, want_pi: bool):
     return play, pi
 
 
+#: points of the fine scan of r between the grid's neighbours of the best grid point (geometric)
+FINE_POINTS = 81
+
+
+def _play_chi2(prof: _Profile, r: float, start: str) -> float:
+    B = prof.basis(float(r), start)
+    return float(_chi2_of(B.T @ B, B.T @ prof.r, prof.rr))
+
+
+def _refine_play(prof: _Profile, grid, best: dict) -> list:
+    """The play's profile between the grid points two below and two above the grid's best r, for
+    its start: a geometric scan of ``FINE_POINTS`` and a bounded Brent minimisation around the
+    scan's best. A play whose r lies between grid points was fitted at the nearest one, with an
+    interval of that one point and a biased h (an outside probe: r = 17 degC fitted as 15 "15..15",
+    Ca_xy_hysteresis 5.6 u off, status ok; and two neighbouring grid plays, a PI, named instead of
+    the one play). Returns ``[{"half_width_C", "start", "chi2"}]``."""
+    from scipy.optimize import minimize_scalar
+
+    g = list(grid)
+    i = g.index(best["half_width_C"])
+    lo, hi = g[max(i - 2, 0)], g[min(i + 2, len(g) - 1)]
+    start = best["start"]
+    out = [{"half_width_C": float(r), "start": start, "chi2": _play_chi2(prof, r, start)}
+           for r in np.geomspace(lo, hi, FINE_POINTS)]
+    k = int(np.argmin([p["chi2"] for p in out]))
+    a = out[max(k - 1, 0)]["half_width_C"]
+    b = out[min(k + 1, len(out) - 1)]["half_width_C"]
+    if b > a:
+        m = minimize_scalar(lambda r: _play_chi2(prof, r, start), bounds=(a, b), method="bounded",
+                            options={"xatol": 1e-3 * a})
+        out.append({"half_width_C": float(m.x), "start": start, "chi2": float(m.fun)})
+    return out
+
+
+def _crossings(prof: _Profile, start: str, r_best: float, level: float, by_r: dict, interval: list) -> list:
+    """The interval's ends where the profile crosses ``level`` (chi2_min + 1), by Brent's root
+    finding between the last point below it and the first above on each side; a side on which no
+    profiled point rises above it keeps the farthest point below (the interval of the points)."""
+    from scipy.optimize import brentq
+
+    f = lambda r: _play_chi2(prof, r, start) - level  # noqa: E731
+    pts = sorted(by_r.items())
+    out = list(interval)
+    above_lo = [r for r, c in pts if r < r_best and c > level]
+    if above_lo and f(r_best) < 0:
+        a = max(above_lo)
+        out[0] = brentq(f, a, r_best, xtol=1e-4 * a)
+    above_hi = [r for r, c in pts if r > r_best and c > level]
+    if above_hi and f(r_best) < 0:
+        b = min(above_hi)
+        out[1] = brentq(f, r_best, b, xtol=1e-4 * r_best)
+    return out
+
+
 def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = "auto",
                         half_width_C: Optional[float] = None, **fit_kwargs):
     """Fit with the hysteresis form ``form`` (``offset``, ``play``, ``pi`` or ``auto``: chosen by
@@ -186,7 +242,10 @@ def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = 
     prof = _Profile(campaign, off, effects)
     play_prof, pi_prof = _profiles(prof, grid, want_pi)
     best = min(play_prof, key=lambda p: p["chi2"])
-    r, start = best["half_width_C"], best["start"]
+    if half_width_C is None:
+        play_prof = play_prof + _refine_play(prof, grid, best)
+        best = min(play_prof, key=lambda p: p["chi2"])
+    r, start = round(best["half_width_C"], 4), best["start"]
     play_c = with_play(campaign, r, start)
     play_out = fit_joint(play_c, effects, **fit_kwargs)
     chi2_play = _chi2(play_out)
@@ -208,11 +267,16 @@ def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = 
     lin_min = min(by_r.values())
     inside = [rr for rr, c2 in by_r.items() if c2 <= lin_min + 1.0]
     interval = [min(inside), max(inside)]
-    edge = r in (grid[0], grid[-1]) and half_width_C is None
+    if half_width_C is None:
+        interval = _crossings(prof, start, r, lin_min + 1.0, by_r, interval)
+    interval = [round(interval[0], 4), round(interval[1], 4)]
+    edge = half_width_C is None and (r <= grid[0] * 1.001 or r >= grid[-1] * 0.999)
     block = {"form": "offset", "criterion": crit_play, "chi2_offset": chi2_off, "chi2_play": chi2_play,
              "half_width_C": r, "start": start, "half_width_interval_C": interval, "at_grid_edge": edge,
-             "profile": sorted(({"half_width_C": k, "chi2": v} for k, v in by_r.items()), key=lambda x: x["half_width_C"]),
-             "profile_method": "one Gauss-Newton step from the offset optimum; the chosen form refitted"}
+             "profile": sorted(({"half_width_C": k, "chi2": v} for k, v in by_r.items() if k in grid),
+                               key=lambda x: x["half_width_C"]),
+             "profile_method": ("one Gauss-Newton step from the offset optimum, on the grid and refined between "
+                                "its neighbours of the best (a scan and Brent's method); the chosen form refitted")}
     chosen = "offset"
     if form == "play" or (form == "auto" and prefer_play):
         chosen = "play"
@@ -248,8 +312,8 @@ def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = 
     res = play_out[0]
     res.fit["hysteresis"] = block
     why = "chosen by the user" if form == "play" else crit_play
-    res.notes.append(f"hysteresis form: a play of half-width r = {r:g} degC (68 % interval "
-                     f"{interval[0]:g}..{interval[1]:g} degC on the searched grid) from the {start} state; "
+    res.notes.append(f"hysteresis form: a play of half-width r = {r:.3g} degC (68 % interval "
+                     f"{interval[0]:.3g}..{interval[1]:.3g} degC, profile chi2 + 1) from the {start} state; "
                      f"Ca_ab_hysteresis is the half-width of the saturated loop ({why})"
                      + ("; r lies at the edge of the searched grid" if edge else ""))
     return play_out + (play_c,)
