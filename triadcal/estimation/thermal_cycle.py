@@ -210,6 +210,41 @@ def parsimonious_best(forms: list, per_fold: dict, size: dict) -> FormFit:
     return min(within, key=lambda f: (size[f.name], f.cv_rms))
 
 
+def _least_squares(X, y):
+    c, *_ = np.linalg.lstsq(X, y, rcond=None)
+    return float(np.sum((y - X @ c) ** 2)), c
+
+
+def _best_parameter(f: str, grid_designs: dict, rows, y, design_of) -> tuple:
+    """``(rss, p, c)`` of form ``f`` on ``rows``: the grid's best parameter, then (a lag's tau, a
+    play's half-width) refined between the grid's neighbours of it by Brent's method on log p.
+    A cycle made with tau = 10.6 min was fitted at the grid's 9.8 (8 % off), its held-out RMS 3.3
+    times the noise floor, and called "unexplained" (an outside probe)."""
+    from scipy.optimize import minimize_scalar
+
+    best = None
+    for p, X in grid_designs.items():
+        rss, c = _least_squares(X[rows], y[rows])
+        if best is None or rss < best[0]:
+            best = (rss, p, c)
+    grid = list(grid_designs)
+    if best[1] is None or len(grid) < 3:
+        return best
+    i = grid.index(best[1])
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+
+    def rss_at(logp):
+        return _least_squares(design_of(float(np.exp(logp)))[rows], y[rows])[0]
+
+    m = minimize_scalar(rss_at, bounds=(math.log(lo), math.log(hi)), method="bounded",
+                        options={"xatol": 1e-3})
+    if m.fun < best[0]:
+        p = float(np.exp(m.x))
+        rss, c = _least_squares(design_of(p)[rows], y[rows])
+        best = (rss, p, c)
+    return best
+
+
 def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, branch) -> AxisCycle:
     n = len(y)
     edges = np.linspace(0, n, folds + 1).astype(int)
@@ -219,31 +254,22 @@ def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, bran
     forms, per_fold, size = [], {}, {}
     lin_resid = None
     for f in FORMS:
+        def design_of(p, f=f):
+            return designs[f][p] if p in designs[f] else _design(f, t, T, T_ref, branch, p, cache)
+
         # held-out residuals: on each block, the form (and its parameter) fitted to the others
         sq, fold_mse = [], []
         for k in range(folds):
             test = np.zeros(n, bool)
             test[edges[k]:edges[k + 1]] = True
-            best = None
-            for p, X in designs[f].items():
-                c, *_ = np.linalg.lstsq(X[~test], y[~test], rcond=None)
-                rss = float(np.sum((y[~test] - X[~test] @ c) ** 2))
-                if best is None or rss < best[0]:
-                    best = (rss, p, c)
-            _, p, c = best
-            sq.append((y[test] - designs[f][p][test] @ c) ** 2)
+            _, p, c = _best_parameter(f, designs[f], ~test, y, design_of)
+            sq.append((y[test] - design_of(p)[test] @ c) ** 2)
             fold_mse.append(float(np.mean(sq[-1])))
         cv = float(np.sqrt(np.mean(np.concatenate(sq))))
         per_fold[f] = np.array(fold_mse)
         size[f] = next(iter(designs[f].values())).shape[1] + (0 if _grid(f) == (None,) else 1)
-        best = None
-        for p, X in designs[f].items():
-            c, *_ = np.linalg.lstsq(X, y, rcond=None)
-            rss = float(np.sum((y - X @ c) ** 2))
-            if best is None or rss < best[0]:
-                best = (rss, p, c)
-        rss, p, c = best
-        resid = y - designs[f][p] @ c
+        rss, p, c = _best_parameter(f, designs[f], np.ones(n, bool), y, design_of)
+        resid = y - design_of(p) @ c
         if f == "linear":
             lin_resid = resid
         par = None
@@ -251,7 +277,7 @@ def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, bran
             par = {"tau_min": p / 60.0}
         elif "play" in f:
             par = {"half_width_C": p}
-        if p is not None and p in (_grid(f)[0], _grid(f)[-1]):
+        if p is not None and (p <= _grid(f)[0] * 1.001 or p >= _grid(f)[-1] * 0.999):
             par["at_grid_edge"] = True       # the optimum may lie beyond the searched range
         forms.append(FormFit(f, cv, math.sqrt(rss / n), par, [float(x) for x in c], branch_gap(T, resid, branch, T_ref)))
     best = parsimonious_best(forms, per_fold, size)
