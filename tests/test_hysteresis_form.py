@@ -217,3 +217,15 @@ def test_a_play_between_the_grid_points_is_fitted_at_its_own_width_and_not_named
     for ab in H:
         p = res.parameters[f"Ca_{ab}_hysteresis"]
         assert abs(p.value - truth[f"Ca_{ab}_hysteresis"]) < 3.5 * p.u, (ab, p.value, p.u)
+
+
+def test_a_heating_only_path_says_the_angles_are_the_heating_branchs(tmp_path):
+    """An outside probe: on a heating-only path the hysteresis is held at 0 (it cannot be
+    measured) and the angles are the heating branch's, 33 u from the mid-line, status ok; the note
+    now says whose the angles are."""
+    from independent_bench import simulate_campaign
+
+    text, _ = simulate_campaign(np.random.default_rng(2), setpoints_C=(-20, 20, 60))
+    (tmp_path / "h.csv").write_text(text)
+    r = api.fit(tmp_path / "h.csv", effects=EFFECTS)
+    assert any("the angles are then those of the heating branch, not the mid-line" in n for n in r.notes), r.notes

@@ -195,10 +195,15 @@ def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]
     branches = set(np.sign(campaign.branch).tolist())
     if "hysteresis" in eff and not {-1.0, 1.0} <= branches:
         have = {-1.0: "heating", 1.0: "cooling", 0.0: "visits at a steady temperature (no branch)"}
+        one = [have[b] for b in branches if b != 0.0]
         for ab in ANGLE_NAMES:
             problems[f"Ca_{ab}_hysteresis"] = (
                 "hysteresis needs visits on both a heating and a cooling branch; the data has only "
-                + ", ".join(sorted(have[b] for b in branches)))
+                + ", ".join(sorted(have[b] for b in branches))
+                # an outside probe: the angles of a heating-only path were 33 u from the mid-line, status ok,
+                # and nothing said that they are the branch's
+                + (f" (the angles are then those of the {one[0]} branch, not the mid-line between the branches: "
+                   "they differ from it by the hysteresis, which these data cannot measure)" if len(one) == 1 else ""))
     if np.ptp(T) < TEMPERATURE_SPAN_MIN_C:
         for e, fmt, names in (("angle_tempco", "Ca_{}_tempco", ANGLE_NAMES), ("scale_tempco", "K_{}_tempco", AXES),
                               ("bias_tempco", "S_{}_tempco", AXES)):
