@@ -57,16 +57,19 @@ def _run(p):
     return thermal_cycle(p, ["acc"], time_column="timestamp", temperature_column="temp", time_unit="us").axes[0]
 
 
-def test_a_lag_made_by_an_ode_solver_is_named_with_its_time_constant(tmp_path):
-    tau = 240.0
-
+def _ode_lag(tau):
+    """The output of an element lagging the sensor by ``tau`` (s), solved by scipy's ODE solver."""
     def out(t, T):
         Tf = lambda s: np.interp(s, t, T)  # noqa: E731
         sol = solve_ivp(lambda s, y: (Tf(s) - y) / tau, (t[0], t[-1]), [T[0]], t_eval=t, rtol=1e-9, atol=1e-9,
                         max_step=5.0)
         return -9.6 + 0.004 * (sol.y[0] - 20.0)
+    return out
 
-    a = _run(_cycle(tmp_path, out, "lag.csv"))
+
+def test_a_lag_made_by_an_ode_solver_is_named_with_its_time_constant(tmp_path):
+    tau = 240.0
+    a = _run(_cycle(tmp_path, _ode_lag(tau), "lag.csv"))
     assert a.best in ("lag", "lag_quadratic"), [(f.name, f.cv_rms) for f in a.forms]
     assert a.form(a.best).parameter["tau_min"] == pytest.approx(tau / 60.0, rel=0.15)
     assert a.form(a.best).cv_rms < 1.3 * a.noise_floor
@@ -78,14 +81,7 @@ def test_a_lag_between_the_grid_points_is_found_at_its_own_time_constant(tmp_pat
     at 9.8 min, its held-out RMS 3.3 times the noise floor, and called unexplained. Now the time
     constant is refined between the grid points: the same ODE-made lag, named, at the noise floor."""
     tau = 636.0
-
-    def out(t, T):
-        Tf = lambda s: np.interp(s, t, T)  # noqa: E731
-        sol = solve_ivp(lambda s, y: (Tf(s) - y) / tau, (t[0], t[-1]), [T[0]], t_eval=t, rtol=1e-9, atol=1e-9,
-                        max_step=5.0)
-        return -9.6 + 0.004 * (sol.y[0] - 20.0)
-
-    a = _run(_cycle(tmp_path, out, "lag10.csv"))
+    a = _run(_cycle(tmp_path, _ode_lag(tau), "lag10.csv"))
     assert a.best in ("lag", "lag_quadratic"), [(f.name, f.cv_rms) for f in a.forms]
     assert a.form(a.best).parameter["tau_min"] == pytest.approx(tau / 60.0, rel=0.02)
     assert a.form(a.best).cv_rms < 1.3 * a.noise_floor
