@@ -119,6 +119,36 @@ def generic_basis(campaign: Campaign, sigma: np.ndarray, T0: Optional[float] = N
     return out
 
 
+#: decimals the nominal gravity components are rounded to before their sign is taken: a pose's
+#: component that is 0 comes out of the rotations as +-1e-16, and its sign must be 0, not +-1
+SIGN_DECIMALS = 9
+
+
+def sign_terms(campaign: Campaign) -> dict:
+    """The sign-dependent terms, a rival family only (``verdict._ambiguity``, rivals.py; not among the
+    gap's tests nor after a refit): ``{"orientation_sign": (F (n, 6), labels, diag)}`` in the form of
+    :func:`per_output_terms`, the terms ``g_j sign(g_k)`` for each ordered pair ``j != k`` -- a
+    sensitivity to axis ``j`` that changes with the sign of axis ``k`` (on output ``j``; a misalignment
+    that does, on another output). ``g`` the nominal gravity components, a component that rounds to
+    0 at ``SIGN_DECIMALS`` decimals set to 0 before the sign is taken (sign(0) = 0). No term has a
+    diagonal axis (``diag`` None): ``g_a sign(g_a)`` is ``|g_a|``, already a term of
+    ``orientation_even``.
+
+    Why a rival: on poses where ``|g_k|`` takes one or two values wherever ``g_j g_k != 0`` (the
+    12 positions of bench CSV v1 plus oblique poses at 30 and 45 degrees), ``g_j sign(g_k)`` is
+    close to, or the same column as, ``g_j g_k`` -- a cross-coupling ``Kc_jk`` -- and no other rival
+    has that shape: a sensitivity of x of 1 + 50 ppm sign(a_y) was named ``cross_coupling`` with
+    the gap closed (docs/diagnosis.md, "Rivals")."""
+    n = campaign.n_visits
+    g = np.asarray(_nominal_g(campaign), float).reshape(n, 3)
+    g = np.where(np.round(g, SIGN_DECIMALS) == 0.0, 0.0, g)
+    sg = np.sign(g)
+    ax = "xyz"
+    F = np.column_stack([g[:, j] * sg[:, k] for j, k in _ODD_PAIRS])
+    labels = [f"g_{ax[j]} sign(g_{ax[k]})" for j, k in _ODD_PAIRS]
+    return {"orientation_sign": (F, labels, [None] * len(_ODD_PAIRS))}
+
+
 #: each family's blocks of terms (indices of its per-output terms, ``per_output_terms``): a pattern
 #: concentrated in one block (a cubic in temperature, |g| alone) is tested on that block's columns
 #: too, where its chi2 has fewer dof. Each block is tested split by the output a term lands on

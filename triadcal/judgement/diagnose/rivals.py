@@ -16,13 +16,18 @@ names, built from the generic families (``generic.py``): each term on one output
 on every output, and the "diagonal" term (``|g_a|``, ``g_a^2``, ``u g_a`` ... on output ``a``).
 (b) is what makes a left-out effect visible: when the true effect is not in the list, the
 candidate that closes the gap in its place rarely beats the term that is the true effect's shape.
+(b) holds the sign-dependent terms ``g_j sign(g_k)`` too (``generic.sign_terms``, rivals only): on
+oblique poses at 30 and 45 degrees they are close to, or the same column as, a cross-coupling's
+``g_j g_k``, and a sensitivity of x of 1 + 50 ppm sign(a_y) was named ``cross_coupling`` without them.
 A rival with a column within the span of the base model and ``c`` (the same term written another
 way: ``g_a^2`` for K2; ``g_x^3`` on every output for K3 holds K3's x column) is no rival and is
 skipped: it explains the data by ``c`` itself; so is one within the base span. "The same term"
 is judged on a reference design too (``reference_poses``: the same visits at 64 poses drawn
 uniformly over the sphere): a rival within span(base, c) on the campaign but not on the reference
 is another function that coincides with ``c`` at the campaign's poses -- an alias of the design,
-not ``c`` itself -- and ``c`` does not beat it (S = 0). On a tumble test whose poses put every axis
+not ``c`` itself -- and ``c`` beats it only by what it has beyond it (S = 0 on 0 dof when the alias
+holds all of ``c``; the score test of the rest when it holds part: ``g_x sign(g_y)`` on output x is
+one of cross_coupling's six columns on face-diagonal poses). On a tumble test whose poses put every axis
 along or across gravity (g_a in {-1, 0, 1}) ``K2 g_a^2`` and the asymmetry ``|g_a|`` are the same
 columns; naming either there is a coin toss (a 12-pose campaign with an asymmetry was named K2),
 so the verdict is ``unexplained`` with both named as ambiguous.
@@ -126,23 +131,31 @@ def encompassing(r: np.ndarray, Q: np.ndarray, C: np.ndarray, T: np.ndarray, noi
     base fit (``Q``, ``r``: module docstring). Returns ``None`` when the rival is no rival (within
     the base span, or with a column within span(base, c) and -- when ``same_elsewhere`` is given --
     the same term on the reference design too: ``same_elsewhere(columns)`` True for the columns
-    within span(base, c) but not within the base span alone), else ``(S, k, p)``; an alias of the
-    design (within span(base, c) here, another function elsewhere) gives ``(0.0, 0, 1.0)``. A column
-    within the base span (to ``SAME_TERM_FRACTION``) is the base's shape, no alias of ``c``."""
+    within span(base, c) but not within the base span alone), else ``(S, k, p)``. Against an alias
+    of the design (within span(base, c) here, another function elsewhere) ``c`` is tested on what it
+    has beyond the alias only: its directions outside span(base, t) by more than
+    ``SAME_TERM_FRACTION``; an alias that holds all of ``c`` gives ``(0.0, 0, 1.0)``, one that holds
+    part of it (``g_x sign(g_y)`` on output x against the six columns of ``cross_coupling``) the
+    score test of the rest. A column within the base span (to ``SAME_TERM_FRACTION``) is the base's
+    shape, no alias of ``c``."""
     QT = _orth(Q, T)
     if QT.shape[1] == 0:
         return None
     QC = np.column_stack([Q, _orth(Q, C)])
     within_c = _fractions(QC, T) < SAME_TERM_FRACTION
+    alias = False
     if within_c.any():
         # columns within span(base, c) but not within the base span alone: c's own shape here
         mine = np.flatnonzero(within_c & (_fractions(Q, T) >= SAME_TERM_FRACTION))
         if same_elsewhere is None or mine.size == 0 or same_elsewhere(mine):
             return None
-        return 0.0, 0, 1.0
+        alias = True
     rt = r - QT @ (QT.T @ r)
     Qbt = np.column_stack([Q, QT])
-    sc = _score_mean(_R(rt), C, Qbt)
+    # an alias of the design: c beats it only by what c has beyond it -- the directions of c's
+    # columns outside span(base, t) by more than the same term written another way (none when the
+    # alias holds all of c: S = 0 on 0 dof; K2 against |g_a| on output a on a tumble test)
+    sc = _score_mean(_R(rt), C, Qbt, SAME_TERM_FRACTION if alias else 0.0)
     if sc is None:
         return 0.0, 0, 1.0
     S, k = sc

@@ -26,7 +26,7 @@ from ...models.effects import EFFECTS, NOISE_EFFECTS
 from .candidates import NOISE_MODEL_TERMS, _nominal_g, _problem_on, design_caveat
 from .correlated import SCALE_WANDER_MIMICS, WANDER_MIMICS, wander_ambiguity, wander_rival
 from .fitting import _hat_q
-from .generic import gap_shape, level_words, per_output_terms
+from .generic import gap_shape, level_words, per_output_terms, sign_terms
 from .noise_level import (LEVEL_MIMICS, noise_level_rival, partial_without_level, soak_level_ambiguity,
                           soak_level_rival, uniform_ambiguity)
 from .results import _f, _p_is
@@ -203,6 +203,8 @@ def decide(v: VerdictInputs) -> dict:
             rivals = {c.effect: cols(c) for c in named_rivals}
             sig_rows = np.broadcast_to(np.asarray(sigma, float), (campaign.n_visits, 3))
             rivals.update(generic_rivals(per_output_terms(campaign, T0), sig_rows, base.whitened))
+            # g_j sign(g_k): rivals only, not among the gap's tests (generic.sign_terms)
+            rivals.update(generic_rivals(sign_terms(campaign), sig_rows, base.whitened))
 
             def reference():
                 """The base span, ``best``'s and the rivals' columns on the reference design: the same
@@ -215,6 +217,7 @@ def decide(v: VerdictInputs) -> dict:
                 colr = lambda c: Jr[:, [full.index[n] for n in c.params]]  # noqa: E731
                 rr = {c.effect: colr(c) for c in named_rivals}
                 rr.update(generic_rivals(per_output_terms(ref, T0), sig_rows, lambda v: v / base.s))
+                rr.update(generic_rivals(sign_terms(ref), sig_rows, lambda v: v / base.s))
                 return _hat_q(Jr[:, [full.index[n] for n in base.names]]), colr(best), rr
 
             tests = rival_tests(base.r, Q, cols(best), rivals, noise.known, base.dof, reference)
