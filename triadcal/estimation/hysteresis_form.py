@@ -216,9 +216,10 @@ def _crossings(prof: _Profile, start: str, r_best: float, level: float, by_r: di
 
 
 def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = "auto",
-                        half_width_C: Optional[float] = None, **fit_kwargs):
+                        half_width_C: Optional[float] = None, refine: bool = True, **fit_kwargs):
     """Fit with the hysteresis form ``form`` (``offset``, ``play``, ``pi`` or ``auto``: chosen by
-    the data, see the module); ``half_width_C`` fixes the play's r instead of profiling it.
+    the data, see the module); ``half_width_C`` fixes the play's r instead of profiling it;
+    ``refine=False`` keeps r on the grid (the diagnosis's play candidate, as validated).
     Returns ``(result, problem, solution, campaign)`` of the chosen form, the result's
     ``fit.hysteresis`` saying what was chosen and why."""
     if form not in FORMS:
@@ -242,7 +243,7 @@ def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = 
     prof = _Profile(campaign, off, effects)
     play_prof, pi_prof = _profiles(prof, grid, want_pi)
     best = min(play_prof, key=lambda p: p["chi2"])
-    if half_width_C is None:
+    if half_width_C is None and refine:
         play_prof = play_prof + _refine_play(prof, grid, best)
         best = min(play_prof, key=lambda p: p["chi2"])
     r, start = round(best["half_width_C"], 4), best["start"]
@@ -267,7 +268,7 @@ def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = 
     lin_min = min(by_r.values())
     inside = [rr for rr, c2 in by_r.items() if c2 <= lin_min + 1.0]
     interval = [min(inside), max(inside)]
-    if half_width_C is None:
+    if half_width_C is None and refine:
         interval = _crossings(prof, start, r, lin_min + 1.0, by_r, interval)
     interval = [round(interval[0], 4), round(interval[1], 4)]
     edge = half_width_C is None and (r <= grid[0] * 1.001 or r >= grid[-1] * 0.999)

@@ -338,8 +338,10 @@ def _hysteresis_forms(campaign, full, model, names, base: FitState, noise_known:
     if not h_names:
         return _untestable(want, "the model's hysteresis is not estimated on this design")
     try:
+        # refine=False: the play's r on the grid, as the validation of record ran it (the refinement of
+        # fit --hysteresis-form, 2026-11-29, waits for a full rerun of validate-diagnosis here)
         res, _, _, _ = fit_hysteresis_form(campaign, eff, form="pi" if "hysteresis_pi" in want else "play",
-                                           reference_temperature_C=T0)
+                                           reference_temperature_C=T0, refine=False)
     except InputError as e:
         return _untestable(want, str(e))
     except (TriadcalError, ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError) as e:  # never sink it
