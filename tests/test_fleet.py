@@ -250,3 +250,25 @@ def test_batch_on_a_running_scheduler_given_its_address(fleet_csv, tmp_path, cli
     got.pop("batch", None)
     assert comparable(got) == comparable(ref.to_dict())
     assert client.status == "running"                 # the batch closed its own client, not the cluster
+
+
+def test_a_rerun_with_other_settings_fits_again_instead_of_reusing(tmp_path):
+    """An outside probe: a rerun of batch with --effects, --angle-bound-arcsec or --lab reused every
+    result of the first run (same input SHA-256) and reported them ok, one without the lab's Type B,
+    another without the angle gate's refusal. The task (no cluster needed) now refits when the
+    settings differ, and reuses only the same input with the same settings."""
+    from triadcal.fleet.batch import FitOptions, fit_file_part
+    from triadcal.io.lab import LabConfig
+
+    src = write_multi(tmp_path / "two.csv", 2)
+    out = tmp_path / "out"
+    first = fit_file_part(str(src), str(out), 0, 1, None, FitOptions())
+    assert [r["action"] for r in first] == ["fitted", "fitted"]
+    assert [r["action"] for r in fit_file_part(str(src), str(out), 0, 1, None, FitOptions())] == ["skipped"] * 2
+    tight = fit_file_part(str(src), str(out), 0, 1, None, FitOptions(angle_bound_arcsec=20.0))
+    assert [r["action"] for r in tight] == ["fitted", "fitted"]
+    assert all(r["result"]["status"] == "angle_out_of_range" for r in tight), [r["result"]["status"] for r in tight]
+    lab = LabConfig(encoder_zero_u_arcsec=5.0, mounting_u_arcsec=10.0, source="lab.toml")
+    with_lab = fit_file_part(str(src), str(out), 0, 1, lab, FitOptions(angle_bound_arcsec=20.0))
+    assert [r["action"] for r in with_lab] == ["fitted", "fitted"]
+    assert all("budget" in r["result"]["parameters"]["Ca_xy"] for r in with_lab)

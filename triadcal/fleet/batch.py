@@ -7,7 +7,8 @@ parts (part i of k fits the pairs i, i + k, ...), so one multi-unit file still k
 worker busy. A task writes each result as soon as it is fitted (atomically,
 :mod:`triadcal.io.atomic`), so a batch killed at any moment loses nothing already written, and
 skips a pair whose result file exists and records the SHA-256 of the same input file
-(``batch.input_sha256`` in the result). The numbers are those of :func:`triadcal.api.fit` on
+(``batch.input_sha256`` in the result) and made with the same settings (``batch.settings_sha256``:
+the fit options and the lab file, or a manifest entry's reading options). The numbers are those of :func:`triadcal.api.fit` on
 the same selection: the task calls it, with one BLAS thread (docs/fleet.md).
 """
 
@@ -101,8 +102,27 @@ class FitOptions:
                     angle_bound_arcsec=self.angle_bound_arcsec)
 
 
-def _existing(path: Path, sha: str) -> Optional[dict]:
-    """The result document at ``path`` if it is one of this input file (same SHA-256)."""
+def settings_sha256(*settings) -> str:
+    """SHA-256 of what a fit was given besides its input (the fit options, the lab file, a manifest
+    entry's reading options), in a canonical JSON: a result is reused only when it was made with
+    the same settings. An outside probe's rerun with --effects, --angle-bound-arcsec or --lab reused
+    every result of the first run and reported them ok (one lacked the lab's Type B, another the
+    angle gate's refusal)."""
+    import dataclasses
+    import json
+
+    def plain(x):
+        if dataclasses.is_dataclass(x) and not isinstance(x, type):
+            return dataclasses.asdict(x)
+        return x
+
+    text = json.dumps([plain(s) for s in settings], sort_keys=True, default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _existing(path: Path, sha: str, settings: str) -> Optional[dict]:
+    """The result document at ``path`` if it is one of this input file (same SHA-256) made with the
+    same settings (:func:`settings_sha256`); else None, and the input is fitted again."""
     if not path.exists():
         return None
     from ..io.atomic import read_json
@@ -112,7 +132,8 @@ def _existing(path: Path, sha: str) -> Optional[dict]:
     except InputError:
         return None
     b = d.get("batch") if isinstance(d, dict) else None
-    return d if isinstance(b, dict) and b.get("input_sha256") == sha else None
+    return d if (isinstance(b, dict) and b.get("input_sha256") == sha
+                 and b.get("settings_sha256") == settings) else None
 
 
 def calibration_date(campaign, lab=None) -> str:
@@ -145,10 +166,11 @@ def fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, o
         return [{"unit": "", "state": "", "input": str(input_path), "path": "", "action": "error",
                  "status": "refused", "error": str(exc)}] if part == 0 else []
     todo = pairs(campaign)[part::n_parts]
+    settings = settings_sha256(options.kwargs(), lab)
     for unit, state in todo:
         path = result_path(out_dir, unit, state)
         rec = {"unit": unit, "state": state, "input": str(input_path), "path": str(path)}
-        done = _existing(path, sha)
+        done = _existing(path, sha, settings)
         if done is not None:
             records.append({**rec, "action": "skipped", "result": done})
             continue
@@ -163,7 +185,8 @@ def fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, o
         except InputError as exc:
             records.append({**rec, "action": "error", "status": "refused", "error": str(exc)})
             continue
-        result.extra["batch"] = {"input": str(input_path), "input_sha256": sha, "state": state,
+        result.extra["batch"] = {"input": str(input_path), "input_sha256": sha, "settings_sha256": settings,
+                                 "state": state,
                                  "date": calibration_date(campaign, lab),
                                  "lab": lab.name if lab is not None else ""}
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -188,9 +211,10 @@ def fit_manifest_part(manifest: str, out_dir: str, part: int, n_parts: int) -> l
     records = []
     for e in entries:
         sha = sha256_of(e.path)
+        settings = settings_sha256(e)
         path = result_path(out_dir, e.serial, e.state)
         rec = {"unit": e.serial, "state": e.state, "input": str(e.path), "path": str(path)}
-        done = _existing(path, sha)
+        done = _existing(path, sha, settings)
         if done is not None:
             records.append({**rec, "action": "skipped", "result": done})
             continue
@@ -202,7 +226,8 @@ def fit_manifest_part(manifest: str, out_dir: str, part: int, n_parts: int) -> l
             records.append({**rec, "action": "error", "status": "refused", "error": str(exc)})
             continue
         result = out.result
-        result.extra["batch"] = {"input": str(e.path), "input_sha256": sha, "state": e.state, "date": "",
+        result.extra["batch"] = {"input": str(e.path), "input_sha256": sha, "settings_sha256": settings,
+                                 "state": e.state, "date": "",
                                  "lab": "", "manifest": str(manifest)}
         path.parent.mkdir(parents=True, exist_ok=True)
         result.save(path)
