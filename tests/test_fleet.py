@@ -204,6 +204,20 @@ def test_robust_outlier_rule():
     assert flags[-1] and not flags[:-1].any()
     assert not robust_outliers([1.0, 2.0, 100.0]).any()         # fewer than 5 units: no rule
     assert not robust_outliers([3.0] * 10).any()                # MAD 0: no rule
+    # hand case: nine units at 0 +- 0.1 (MAD 0.1, 1.4826 MAD = 0.148) and one at 1.5, all with
+    # u = 1: the old rule (5 x 0.148 = 0.74) flagged the tenth by its measurement noise (1.5 u);
+    # floored at u, the threshold is 5 x 1 = 5
+    x = np.r_[[-0.1, 0.1] * 4, 0.0, 1.5]
+    assert robust_outliers(x)[-1]                                # without u: the fleet's spread only
+    flags = robust_outliers(x, u=np.ones(10))
+    assert not flags.any()
+    assert robust_outliers(np.r_[x[:-1], 5.2], u=np.ones(10))[-1]  # 5.2 u off: flagged
+    # a poorly measured unit (u = 10) 20 from the median: within 5 of its own u, not an outlier;
+    # the same deviation with u = 1 is
+    x2 = np.r_[np.random.default_rng(1).normal(0, 1, 20), 20.0]
+    u2 = np.r_[np.ones(20), 10.0]
+    assert not robust_outliers(x2, u=u2)[-1] and robust_outliers(x2, u=np.ones(21))[-1]
+    assert robust_outliers([3.0] * 9 + [9.0], u=[1.0] * 10)[-1]      # MAD 0, u 1: 6 u off is flagged
 
 
 def test_history_add_show_noop_verdict_plot(tmp_path, capsys):

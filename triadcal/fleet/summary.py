@@ -17,8 +17,9 @@ import numpy as np
 
 from ..errors import InputError
 
-#: the outlier rule: |x - median| > OUTLIER_K * 1.4826 * MAD over the units whose status is ok,
-#: for every parameter with at least OUTLIER_MIN_UNITS such units and a MAD > 0
+#: the outlier rule: |x - median| > OUTLIER_K * max(1.4826 * MAD, u) over the units whose status is
+#: ok, for every parameter with at least OUTLIER_MIN_UNITS such units (u: the unit's own standard
+#: uncertainty of x, so that a fleet tighter than its measurements does not flag a unit by its noise)
 OUTLIER_K = 5.0
 MAD_TO_SD = 1.4826
 OUTLIER_MIN_UNITS = 5
@@ -123,19 +124,26 @@ def check_tolerance_units(records, tolerances) -> None:
 
 # -- outliers ----------------------------------------------------------------------------------
 
-def robust_outliers(values, k: float = OUTLIER_K) -> np.ndarray:
-    """Boolean mask of the values with |x - median| > k * 1.4826 * MAD (NaN: never an
-    outlier). No flag when fewer than OUTLIER_MIN_UNITS values are finite or the MAD is 0."""
+def robust_outliers(values, u=None, k: float = OUTLIER_K) -> np.ndarray:
+    """Boolean mask of the values with |x - median| > k * max(1.4826 * MAD, u_i) (NaN: never an
+    outlier). ``u``: each value's own standard uncertainty (None or NaN: not known). The fleet's
+    spread 1.4826 MAD estimates the SD of a normal fleet (one wild unit cannot mask it); a unit's
+    own u floors it, so that a fleet whose units differ less than their measurement does (a MAD
+    below the u) does not flag a unit by its measurement noise, nor a poorly measured unit by a
+    deviation within its own u. No flag when fewer than OUTLIER_MIN_UNITS values are finite, nor
+    where the scale is 0 (a MAD of 0 and no u)."""
     x = np.asarray(values, float)
+    uu = np.full(len(x), np.nan) if u is None else np.asarray(u, float)
+    if uu.shape != x.shape:
+        raise ValueError(f"u has shape {uu.shape}, values {x.shape}")
     ok = np.isfinite(x)
     flags = np.zeros(len(x), bool)
     if ok.sum() < OUTLIER_MIN_UNITS:
         return flags
     med = np.median(x[ok])
-    mad = np.median(np.abs(x[ok] - med))
-    if not mad > 0:
-        return flags
-    flags[ok] = np.abs(x[ok] - med) > k * MAD_TO_SD * mad
+    spread = MAD_TO_SD * np.median(np.abs(x[ok] - med))
+    scale = np.fmax(spread, np.where(np.isfinite(uu) & (uu >= 0), uu, np.nan))   # fmax: NaN u -> spread
+    flags[ok] = (scale[ok] > 0) & (np.abs(x[ok] - med) > k * scale[ok])
     return flags
 
 
@@ -176,7 +184,8 @@ def table(records, tolerances=None):
         for unit in units_of(rows, n):
             x = np.array([row[n] if (row[n] is not None and ok[i] and row[n + "_unit"] == unit) else np.nan
                           for i, row in enumerate(rows)], float)
-            for i in np.flatnonzero(robust_outliers(x)):
+            u = np.array([row[n + "_u"] if row[n + "_u"] is not None else np.nan for row in rows], float)
+            for i in np.flatnonzero(robust_outliers(x, u)):
                 flagged[int(i)].append(n)
     for i, row in enumerate(rows):
         row["outliers"] = ";".join(flagged[i])
@@ -254,8 +263,8 @@ def render_html(rows, names, tolerances=None) -> str:
              "td,th{border:1px solid #ccc;padding:2px 6px}.bad{background:#fdd}.fig{display:inline-block;margin:4px}"
              "</style></head><body><h1>Fleet summary</h1>",
              f"<p>{len(rows)} unit/state pairs, {len(ok)} with status ok. Outliers: |x &minus; median| &gt; "
-             f"{OUTLIER_K:g} &times; {MAD_TO_SD} &times; MAD over the units whose status is ok (at least "
-             f"{OUTLIER_MIN_UNITS}, MAD &gt; 0), per parameter."
+             f"{OUTLIER_K:g} &times; max({MAD_TO_SD} &times; MAD, u) over the units whose status is ok (at least "
+             f"{OUTLIER_MIN_UNITS}; u: the unit's own standard uncertainty), per parameter."
              + (" Tolerances: " + esc(", ".join(f"{t[0]} in [{t[1]:g}, {t[2]:g}]" + (f" {t[3]}" if len(t) > 3 and t[3] else "")
                                           for t in tolerances))
                 if tolerances else " No tolerance file.") + "</p>"]
