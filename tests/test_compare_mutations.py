@@ -151,6 +151,49 @@ def test_same_calibration_is_never_a_pass_and_names_both_files(fits, tmp_path, c
     assert compare(fits["before"], fits["again"]).overall == "pass"   # two calibrations: a pass
 
 
+# -- 3b. two fits of one data set are not two calibrations ------------------------------------------
+def test_two_fits_of_the_same_data_are_never_judged(fits, tmp_path, capsys):
+    """The joint and the classical fit of one campaign (or one fit with and without the lab file)
+    differ by their estimators, not by a drift: compare said "pass" (a probe of the twelfth
+    session). The data's SHA-256 (of the visits, not of the file) names the pair."""
+    from triadcal.api import simulate
+    from triadcal.estimation.classical import fit_classical
+    from triadcal.io.bench_csv import read_bench_csv, write_bench_csv
+    from triadcal.models.simulate import Schedule
+
+    _, campaign = simulate(effects=EFFECTS, schedule=Schedule(setpoints_C=(20.0,), soak_s=600.0), seed=1)
+    classical = fit_classical(campaign)
+    assert classical.status == "ok"
+    assert classical.extra["data_sha256"] == fits["before"].extra["data_sha256"]
+    assert fits["again"].extra["data_sha256"] != fits["before"].extra["data_sha256"]
+    for other in (classical, fits["before_lab"]):
+        c = compare(fits["before"], other)
+        assert c.overall == "inconclusive" and "two fits of the same data" in c.notes[0], c.notes
+    # the hash is of the visits: the campaign written to a file and read back keeps it
+    write_bench_csv(campaign, tmp_path / "c.csv")
+    assert read_bench_csv(tmp_path / "c.csv").data_sha256 == campaign.data_sha256
+    # through the CLI: exit 5 (inconclusive), and the saved comparison loads; a stored pass or fail
+    # of such a pair is refused by the reader
+    fits["before"].save(tmp_path / "joint.json")
+    classical.save(tmp_path / "classical.json")
+    code = _cli(tmp_path / "joint.json", tmp_path / "classical.json", "--exit-code", "--json", tmp_path / "c.json")
+    err = capsys.readouterr().err
+    assert code == 5 and "two fits of the same data" in err, err
+    d = json.loads((tmp_path / "c.json").read_text())
+    assert ComparisonResult.from_dict(d, "c.json").overall == "inconclusive"
+    for forged in ("pass", "fail"):
+        with pytest.raises(InputError, match="two fits of the same data"):
+            ComparisonResult.from_dict({**d, "overall": forged}, "c.json")
+    # a result with a malformed hash is refused by name
+    bad = json.loads((tmp_path / "joint.json").read_text())
+    bad["data_sha256"] = "xyz"
+    from triadcal.estimation.result import CalibrationResult
+    with pytest.raises(InputError, match="data_sha256"):
+        CalibrationResult.from_dict(bad, "joint.json")
+    # two calibrations (two data sets) are still judged
+    assert compare(fits["before"], fits["again"]).overall == "pass"
+
+
 # -- 4. an angle missing from one side ---------------------------------------------------------------
 def test_missing_angle_keeps_the_overall_from_pass(fits):
     after = copy.deepcopy(fits["again"])

@@ -105,6 +105,7 @@ def test_the_unmutated_result_certifies_and_compares(tmp_path, capsys, good):
     import copy
     second = copy.deepcopy(good)                 # a second calibration (the same one twice is never a pass)
     second["parameters"]["Ca_xy"]["value"] += 0.1
+    second["data_sha256"] = "0" * 64             # ... of other data (two fits of one data are never judged)
     a, b = _write(tmp_path, good, "a.json"), _write(tmp_path, second, "b.json")
     code, out, err = _run(capsys, ["compare", str(a), str(b), "--json", str(tmp_path / "c.json")])
     assert code == 0 and "overall: pass" in out

@@ -437,7 +437,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         temperature_range_C=(float(T.min()), float(T.max())), fit=fit,
         correlation_names=tuple(corr_names), correlation=corr, notes=notes,
         extra={"per_setpoint": per_setpoint, "output_unit": unit_out,
-               "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source})
+               "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source, "data_sha256": campaign.data_sha256})
     apply_gates(result, FitEvidence(converged=True, n_obs=3 * campaign.n_visits, n_free=15 * len(per_block),
                                     extra=[redundancy] + ([tilt] if tilt is not None else [])), config=gates)
     if result.status != "ok":

@@ -546,7 +546,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         extra={"fixed": {k: {"value": v, "unit": model.spec[k].unit} for k, v in fixed.items()},
                "unidentifiable": dict(problems),
                "output_unit": campaign.output_unit, "local_g_m_s2": campaign.local_g_m_s2,
-               "source": campaign.source})
+               "source": campaign.source, "data_sha256": campaign.data_sha256})
     resid = (sol.r.reshape(-1, 3) * noise.sigma)
     structure = None
     if not noise.known and loss == "l2" and whitening is None and np.all(np.isfinite(sol.J)):

@@ -10,6 +10,7 @@ from __future__ import annotations
 from ..errors import InputError
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
@@ -152,6 +153,9 @@ class CalibrationResult:
         r.optional_string(d, "input_unit")
         if d.get("source") is not None and not isinstance(d["source"], str):
             raise r.error("source", f"is a {_kind(d['source'])}, expected a string or null")
+        sha = d.get("data_sha256")
+        if sha is not None and not (isinstance(sha, str) and re.fullmatch(r"[0-9a-f]{64}", sha)):
+            raise r.error("data_sha256", f"= {sha!r} is not a SHA-256 (64 lowercase hex digits)")
         g = d.get("local_g_m_s2")
         if g is not None:
             g = r.number_value(g, "local_g_m_s2")

@@ -204,6 +204,22 @@ class Campaign:
         return "sd_*/sqrt(n_samples) of each visit"
 
     @property
+    def data_sha256(self) -> str:
+        """SHA-256 of what was measured: the unit, setpoints, directions, times, poses (axis angles),
+        mean outputs w and temperatures t of every visit, in order (float64 bytes), not the file's
+        name or formatting. Two results with the same ``data_sha256`` are fits of one data set, not
+        two calibrations (``compare`` says so)."""
+        import hashlib
+
+        h = hashlib.sha256()
+        for a in (self.unit, self.direction, self.position):
+            h.update("\x1f".join(map(str, a)).encode())
+            h.update(b"\x1e")
+        for a in (self.setpoint_C, self.time_s, self.axis1_deg, self.axis2_deg, self.w, self.t):
+            h.update(np.ascontiguousarray(np.asarray(a, dtype="<f8")).tobytes())
+        return h.hexdigest()
+
+    @property
     def time_origin_s(self) -> float:
         """The zero of the clock of the terms that change in time (``bias_drift``, ``tilt_drift``,
         ``tilt_settling``, the warm-ups), in s on the ``time_s`` clock: the campaign's start. The

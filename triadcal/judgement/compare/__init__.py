@@ -66,6 +66,7 @@ from .pair import (  # noqa: F401
     joint_test,
     overall_verdict,
     same_calibration,
+    same_data,
 )
 from .sequence import (  # noqa: F401
     SequenceComparison,

@@ -39,6 +39,14 @@ def same_calibration(before: CalibrationResult, after: CalibrationResult) -> boo
     return all(before[n].value == after[n].value and before[n].u == after[n].u for n in before.parameters)
 
 
+def same_data(before: CalibrationResult, after: CalibrationResult) -> Optional[str]:
+    """The ``data_sha256`` both results carry when they are fits of one data set (the same visits,
+    whatever the method or options): their differences are the estimators', not a drift of the
+    unit. None when either result lacks it or they differ."""
+    a, b = before.extra.get("data_sha256"), after.extra.get("data_sha256")
+    return a if a and a == b else None
+
+
 #: two single-temperature calibrations whose temperatures differ by at most this (degC) are compared:
 #: one chamber setpoint, within its stability and the unit's self-heating
 SAME_TEMPERATURE_C = 0.2
@@ -272,12 +280,21 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                      f"{before.method}{f', source {src}' if src else ''}; every parameter's value and u identical): "
                      "its drift is zero by construction and u(d), which treats them as two independent calibrations, "
                      "says nothing about the unit; compare two calibrations")
+    data = same_data(before, after)
+    if data and not same_calibration(before, after):
+        notes.insert(0, NOT_PASS_NOTE + f"{tag_b} and {tag_a} are two fits of the same data (data_sha256 "
+                     f"{data[:12]}..., methods {before.method} and {after.method}): their differences are those "
+                     "of the estimators and options, not a drift of the unit, and u(d), which treats them as two "
+                     "independent calibrations, is not the uncertainty of that difference; compare two "
+                     "calibrations")
     if missing_angles:
         where = "; ".join(f"{n} missing from " + " and ".join(
             t for t, r in ((tag_b, before), (tag_a, after)) if n not in r.parameters) for n in missing_angles)
         notes.insert(0, NOT_PASS_NOTE + f"{where}: every calibration of eq. 1 holds the six angles, so the drift "
                      "of the unit's axes is not judged in full")
     if overall == "pass" and (same_calibration(before, after) or missing_angles):
+        overall = "inconclusive"
+    if data:  # a "fail" between two fits of one data set would name a drift the unit never had
         overall = "inconclusive"
     return ComparisonResult(
         parameters=params, overall=overall, level=level,
@@ -334,6 +351,7 @@ def _type_b_variance(p) -> float:
 def _describe(r: CalibrationResult) -> dict:
     d = {"unit": r.unit, "method": r.method, "status": r.status,
          "reference_temperature_C": r.reference_temperature_C}
-    if r.extra.get("source"):
-        d["source"] = r.extra["source"]
+    for k in ("source", "data_sha256"):
+        if r.extra.get(k):
+            d[k] = r.extra[k]
     return d
