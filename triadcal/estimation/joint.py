@@ -555,13 +555,23 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         structure = structure_gap(campaign, noise.sigma, sol.r, sol.J, dof, model.reference_temperature_C)
         if structure is not None:
             result.fit["structure"] = structure
+    from .structure import structure_outcome, structure_shift
+
+    if loss == "l2" and whitening is None and np.all(np.isfinite(sol.J)) and np.all(np.isfinite(u)):
+        shift = structure_shift(campaign, noise.sigma, sol.r, sol.J, dof, model.reference_temperature_C, u,
+                                problem.names, noise.known, 1.0 if noise.known else math.sqrt(max(chi2_dof, 0.0)))
+        if shift is not None:
+            result.fit["structure_shift"] = {k: v for k, v in shift.items()}
+        shift_gate = structure_outcome(shift)
+    else:
+        shift_gate = structure_outcome(None, "not testable: a robust loss or a whitened (1/f) fit")
     evidence = FitEvidence(
         converged=sol.converged, cost_start=cost_start, cost_final=sol.cost, jacobian=sol.J * sw[:, None],
         free_names=problem.names, residual_rms=float(np.sqrt(np.mean(resid ** 2))),
         data_rms=float(np.sqrt(np.mean(campaign.w ** 2))), chi2=chi2, dof=dof, noise_known=noise.known,
         gof_p_value=None if structure is None else structure["p_value"],
         gof_ratio=None if structure is None else structure["ratio"],
-        gof_what="" if structure is None else structure["what"])
+        gof_what="" if structure is None else structure["what"], extra=[shift_gate])
     apply_gates(result, evidence, config=gates)
     if result.status in ("unphysical_scale", "angle_out_of_range", "model_mismatch"):
         G = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg) * campaign.gravity_g
