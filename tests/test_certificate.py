@@ -20,6 +20,7 @@ os.environ.setdefault("XDG_CACHE_HOME", "/tmp/xdg")
 
 from triadcal.api import simulate  # noqa: E402
 from triadcal.estimation.result import CalibrationResult, ParameterValue, round_to_uncertainty  # noqa: E402
+from triadcal.estimation.gates import FitEvidence, apply_gates  # noqa: E402
 from triadcal.io.bench_csv import write_bench_csv  # noqa: E402
 from triadcal.models.effects import DEFAULT_EFFECTS  # noqa: E402
 from triadcal.models.model import Model  # noqa: E402
@@ -62,11 +63,17 @@ def hand_result(unit: str = "SN-HAND-0001", status: str = "ok", method: str = "j
                                                 "contribution": u, "dof": None, "key": ""}]}
         params[n] = ParameterValue(s.nominal + s.typical * rng.normal(), u, s.unit,
                                    extra if typeb and method != "classical" else {})
-    return CalibrationResult(unit=unit, method=method, parameters=params, status=status,
-                             effects=tuple(DEFAULT_EFFECTS), temperature_range_C=(-39.7, 70.3),
-                             fit={"chi2_dof": 1.01, "n_obs": 540, "n_params": len(params), "gap_p_value": 0.4,
-                                  "noise_known": True},
-                             extra={"local_g_m_s2": 9.80665, "output_unit": "V"})
+    r = CalibrationResult(unit=unit, method=method, parameters=params, status=status,
+                          effects=tuple(DEFAULT_EFFECTS), temperature_range_C=(-39.7, 70.3),
+                          fit={"chi2_dof": 1.01, "n_obs": 540, "n_params": len(params), "gap_p_value": 0.4,
+                               "noise_known": True},
+                          extra={"local_g_m_s2": 9.80665, "output_unit": "V"})
+    # the gates a fit records (a status ok needs them on file: the reader refuses one without); the
+    # status asked for is kept
+    apply_gates(r, FitEvidence(converged=True, chi2=1.01 * (540 - len(params)), dof=540 - len(params),
+                               noise_known=True))
+    r.status = status
+    return r
 
 
 def fake_posterior(result, chains=4, draws=400, seed=1, shift_chain=None):

@@ -59,6 +59,9 @@ def make_result(values, u=2.0, unit_name="SN-1", corr=None, method="joint", extr
     r.extra["fixed"] = {n: {"value": m.spec[n].nominal, "unit": m.spec[n].unit} for n in m.names if n not in params}
     if corr is not None:
         r.correlation_names, r.correlation = ANGLES, np.asarray(corr, float)
+    # the gates a fit records (a status ok needs them on file: the reader refuses one without)
+    from triadcal.estimation.gates import FitEvidence, apply_gates
+    apply_gates(r, FitEvidence(converged=True))
     return r
 
 

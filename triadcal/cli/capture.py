@@ -33,7 +33,9 @@ def register(sub) -> None:
     p.add_argument("--settle-s", type=float, default=5.0, help="wait after in-position, s (default 5)")
     p.add_argument("--unit", default=None, help="serial number of the unit (default SN-UNKNOWN, or the emulator's)")
     p.add_argument("--operator", default="")
-    p.add_argument("--local-g", type=float, default=None, metavar="M_S2", help="local gravity, m/s^2")
+    p.add_argument("--local-g", type=float, default=None, metavar="M_S2",
+                   help="local gravity, m/s^2, written to the bench CSV (without it the file states none: a fit "
+                        "assumes standard gravity and says so, and a certificate needs the lab file's [gravity])")
     p.add_argument("--stab-rate", type=float, default=0.01, metavar="DEGC_PER_MIN",
                    help="stable when every |dT/dt| < this (default 0.01 degC/min)")
     p.add_argument("--stab-window-s", type=float, default=120.0, help="slope window, s (default 120)")
@@ -89,7 +91,6 @@ def run(args) -> int:
                                     load_instruments, load_port_config, open_instruments, plan_from_csv)
     from ..hardware.drivers.bench import BenchError
     from ..models.campaign import DEFAULT_PLAN
-    from ..models.units import STANDARD_GRAVITY_M_S2
 
     out = output(args)
     if (args.setpoints is None) == (args.ramp is None):
@@ -145,7 +146,7 @@ def run(args) -> int:
             f", bench profile {emulator.bench_profile_ref})" if emulator.bench_server is not None else ")")
     settings = CaptureSettings(
         tau_s=args.tau_s, settle_s=args.settle_s, unit=unit or "SN-UNKNOWN", operator=args.operator,
-        local_g_m_s2=args.local_g or STANDARD_GRAVITY_M_S2,
+        local_g_m_s2=args.local_g,
         stabilisation=Stabilisation(args.stab_rate, args.stab_window_s, args.stab_hold_s, args.stab_timeout_s))
     if dmm_cfg is not None:
         if args.emulate or args.imu_port or args.imu_protocol or args.imu_rate_hz:

@@ -207,7 +207,7 @@ def _shared_equipment(args) -> tuple:
 
 def _load_checked(path: str):
     """A result file, validated and refused (one line naming the file) unless it is an answer."""
-    from ..estimation.gates import check_result_for_use
+    from ..estimation.result_checks import check_result_for_use
     from ..estimation.result import CalibrationResult
 
     result = CalibrationResult.load(path)

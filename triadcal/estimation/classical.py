@@ -237,7 +237,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         raise InputError(f"{src}: a fit takes one unit in one mechanical state; found units {units} and "
                          f"states {sorted(set(campaign.state.tolist()))} (select one, e.g. with Campaign.select)")
     G = campaign.gravity_g
-    notes: list[str] = []
+    notes: list[str] = [campaign.gravity_note()] if campaign.gravity_note() else []
     blocks = campaign.setpoint_blocks
     up = campaign.up_axis()
     block_ids = sorted(np.unique(blocks), key=lambda b: float(np.min(campaign.time_s[blocks == b])))
@@ -437,7 +437,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         temperature_range_C=(float(T.min()), float(T.max())), fit=fit,
         correlation_names=tuple(corr_names), correlation=corr, notes=notes,
         extra={"per_setpoint": per_setpoint, "output_unit": unit_out,
-               "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source, "data_sha256": campaign.data_sha256})
+               "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source, "data_sha256": campaign.data_sha256, "local_g_stated": campaign.local_g_stated})
     apply_gates(result, FitEvidence(converged=True, n_obs=3 * campaign.n_visits, n_free=15 * len(per_block),
                                     extra=[redundancy] + ([tilt] if tilt is not None else [])), config=gates)
     if result.status != "ok":

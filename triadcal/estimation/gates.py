@@ -12,8 +12,6 @@ so that a change to a threshold is seen against all the others.
 
 from __future__ import annotations
 
-from ..errors import InputError
-
 import math
 from dataclasses import dataclass, field
 from typing import Mapping, Optional, Sequence
@@ -581,39 +579,6 @@ def apply_gates(result, evidence: FitEvidence, *, config: GateConfig = DEFAULT_C
     return result
 
 
-class RefusedResult(InputError):
-    """A result that a consumer (certificate, compare, ...) will not use; the message is one line."""
-
-
-def check_result_for_use(result, source: str = "result", *, need_ok: bool = True,
-                         config: Optional[GateConfig] = None) -> None:
-    """Refuse (raise :class:`RefusedResult`, one line naming ``source``) a result a consumer must not
-    use: status other than ok, no parameters, missing scale factors, values or u that are not
-    finite, negative u, a gate that fails on the result alone."""
-    why = result_problems(result, need_ok=need_ok, config=config_of(result) if config is None else config)
-    if why:
-        raise RefusedResult(f"{source}: refused: " + "; ".join(why))
-
-
-def result_problems(result, *, need_ok: bool = True, config: Optional[GateConfig] = None) -> list[str]:
-    """Reasons why ``result`` cannot be used (empty list: it can); ``config`` defaults to the
-    result's own (:func:`config_of`)."""
-    config = config_of(result) if config is None else config
-    why = []
-    if need_ok and result.status != "ok":
-        why.append(f"status is {result.status!r}, not 'ok'")
-    if not result.parameters:
-        why.append("it holds no parameters")
-        return why
-    try:
-        T = float(result.reference_temperature_C)
-    except (TypeError, ValueError):
-        T = float("nan")
-    if not math.isfinite(T) or not -100.0 <= T <= 200.0:
-        why.append(f"reference_temperature_C = {result.reference_temperature_C!r} is not a temperature in degC "
-                   "between -100 and 200")
-    for o in result_gates(result.parameters, output_unit=result.extra.get("output_unit"),
-                          local_g_m_s2=result.extra.get("local_g_m_s2"), config=config):
-        if o.passed is False:
-            why.append(f"gate {o.gate} fails ({o.status}): {o.reason}")
-    return why
+# the consumers' checks (certificate, compare, compensation) live in result_checks.py; imported here
+# too, where they were first written
+from .result_checks import RefusedResult, check_result_for_use, result_problems  # noqa: E402,F401

@@ -414,6 +414,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     model = Model(effects, reference_temperature_C)
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     notes = [moved] if moved else []
+    if campaign.gravity_note():
+        notes.append(campaign.gravity_note())
     if bench_errors is not None:
         whitening = _bench_whitening(campaign, model, noise, bench_errors, whitening, notes)
     if bench_errors is None and not systematics:
@@ -546,7 +548,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         extra={"fixed": {k: {"value": v, "unit": model.spec[k].unit} for k, v in fixed.items()},
                "unidentifiable": dict(problems),
                "output_unit": campaign.output_unit, "local_g_m_s2": campaign.local_g_m_s2,
-               "source": campaign.source, "data_sha256": campaign.data_sha256})
+               "source": campaign.source, "data_sha256": campaign.data_sha256, "local_g_stated": campaign.local_g_stated})
     resid = (sol.r.reshape(-1, 3) * noise.sigma)
     structure = None
     if not noise.known and loss == "l2" and whitening is None and np.all(np.isfinite(sol.J)):

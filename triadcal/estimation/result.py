@@ -34,6 +34,8 @@ FORMAT = "triadcal.result"
 #: the estimators that write results (docs/results-json.md)
 METHODS = ("classical", "joint", "posterior")
 VERSION = 1
+#: the largest |value| or u a result may hold: its square (a variance) must be a finite double
+MAX_MAGNITUDE = 1e150
 
 
 @dataclass
@@ -153,6 +155,8 @@ class CalibrationResult:
         r.optional_string(d, "input_unit")
         if d.get("source") is not None and not isinstance(d["source"], str):
             raise r.error("source", f"is a {_kind(d['source'])}, expected a string or null")
+        if "local_g_stated" in d and not isinstance(d["local_g_stated"], bool):
+            raise r.error("local_g_stated", f"is a {_kind(d['local_g_stated'])}, expected true or false")
         sha = d.get("data_sha256")
         if sha is not None and not (isinstance(sha, str) and re.fullmatch(r"[0-9a-f]{64}", sha)):
             raise r.error("data_sha256", f"= {sha!r} is not a SHA-256 (64 lowercase hex digits)")
@@ -175,6 +179,10 @@ class CalibrationResult:
             value, u = r.number(v, "value", where), r.number(v, "u", where)
             if u < 0:
                 raise r.error(f"{where}.u", f"= {u!r} is negative (a standard uncertainty is >= 0)")
+            for key, x in (("value", value), ("u", u)):
+                if abs(x) > MAX_MAGNITUDE:      # its square (a variance) overflows a double
+                    raise r.error(f"{where}.{key}", f"= {x!r} is beyond {MAX_MAGNITUDE:g}: not a measured quantity "
+                                                    "(its square, a variance, is not a finite number)")
             params[k] = ParameterValue(value, u, unit, _read_uncertainty(r, v, where, u))
         if not params:
             raise r.error("parameters", "is empty: the result holds no parameters")
@@ -197,10 +205,22 @@ class CalibrationResult:
             if trange[0] > trange[1]:
                 raise r.error("temperature_range_C", f"= [{trange[0]:g}, {trange[1]:g}]: low is above high "
                                                      "(the range is [lowest, highest] temperature in the data)")
-        ref = d.get("reference_temperature_C", 20.0)
+        if "reference_temperature_C" not in d:
+            # read as 20 degC before: a result fitted at 55 degC was then compared and certified as at 20
+            raise r.error("reference_temperature_C", "is missing: the temperature the values are at (a required key "
+                                                     "of a result)")
+        ref = d["reference_temperature_C"]
         intervals = r.mapping(d, "intervals")
         _check_intervals(r, intervals)
         _check_gates(r, d.get("gates"), "gates" in d)
+        if status == "ok" and "gates" not in d:
+            raise r.error("gates", "is missing: status 'ok' is what the answer gates give, and a result that records "
+                                   "none cannot show it passed them")
+        if status == "ok":
+            failed = [f"{o['gate']} ({o['status']})" for o in d["gates"]["outcomes"] if o["passed"] is False]
+            if failed:
+                raise r.error("status", f"is 'ok' but the result records its gate {', '.join(failed)} as failed: "
+                                        "a failing gate gives its own status, never 'ok'")
         return cls(
             unit=serial, method=method, parameters=params, status=status, effects=effects,
             reference_temperature_C=r.number_value(ref, "reference_temperature_C"),

@@ -23,7 +23,6 @@ from .. import __version__
 from ..io.bench_csv import BenchCSVError, format_bench_csv, read_bench_csv
 from ..models.campaign import Campaign
 from ..models.simulate import Schedule
-from ..models.units import STANDARD_GRAVITY_M_S2
 from .drivers.bench import Bench, BenchError
 from .drivers.bench_template import BenchControllerError
 from .drivers.chamber import Chamber
@@ -75,7 +74,9 @@ class CaptureSettings:
     unit: str = "SN-UNKNOWN"
     bench_name: str = "two-axis bench"
     operator: str = ""
-    local_g_m_s2: float = STANDARD_GRAVITY_M_S2
+    #: the local gravity the operator stated (m/s^2); None: not stated, and the bench CSV then has no
+    #: ``local_g_m_s2`` (a fit assumes standard gravity and says so; a certificate needs the value)
+    local_g_m_s2: Optional[float] = None
     output_unit: str = "V"
     min_coverage: float = 0.9          # fraction of the expected samples a window must hold
     max_attempts: int = 3              # per visit, then give up
@@ -223,7 +224,7 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
     metadata = {
         "generator": f"triadcal {__version__} capture",
         "bench": settings.bench_name,
-        "local_g_m_s2": repr(settings.local_g_m_s2),
+        **({} if settings.local_g_m_s2 is None else {"local_g_m_s2": repr(settings.local_g_m_s2)}),
         "output_unit": settings.output_unit,
         **{k: v for k, v in imu_metadata(imu).items() if k != "output_unit" or settings.output_unit == "V"},
         "raw_samples": RAW_NAME,

@@ -435,7 +435,7 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
     metadata = {
         "generator": f"triadcal {__version__} capture --ramp",
         "bench": settings.bench_name,
-        "local_g_m_s2": repr(settings.local_g_m_s2),
+        **({} if settings.local_g_m_s2 is None else {"local_g_m_s2": repr(settings.local_g_m_s2)}),
         "output_unit": settings.output_unit,
         **{k: v for k, v in imu_metadata(imu).items() if k != "output_unit" or settings.output_unit == "V"},
         "raw_samples": RAW_NAME,

@@ -99,7 +99,7 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
     metadata = {
         "generator": f"triadcal {__version__} capture",
         "bench": settings.bench_name,
-        "local_g_m_s2": repr(settings.local_g_m_s2),
+        **({} if settings.local_g_m_s2 is None else {"local_g_m_s2": repr(settings.local_g_m_s2)}),
         "output_unit": "V",
         "readout": f"voltmeter: {voltmeter.describe()}",
         "samples_per_window": f"{n_per_window} (SAMP:COUN = round(tau_s * mains_hz / NPLC), at least 2)",

@@ -111,7 +111,24 @@ class Campaign:
 
     @property
     def local_g_m_s2(self) -> float:
+        """The local gravity the data state (metadata ``local_g_m_s2``), m/s^2; standard gravity
+        when they state none (:attr:`local_g_stated` is then False)."""
         return float(self.metadata.get("local_g_m_s2", STANDARD_GRAVITY_M_S2))
+
+    @property
+    def local_g_stated(self) -> bool:
+        """Whether the data state their local gravity. K and S are in g of that gravity: assumed
+        standard (9.80665) where the site's is 9.78-9.83, a K is off by up to 0.3 % (260 u on the
+        example's design for 9.81) although the fit cannot tell; a certificate needs it stated."""
+        return "local_g_m_s2" in self.metadata
+
+    def gravity_note(self) -> Optional[str]:
+        """The note of a result whose data state no local gravity (None when they state it)."""
+        if self.local_g_stated:
+            return None
+        return ("the data state no local gravity (# local_g_m_s2): standard gravity 9.80665 m/s^2 assumed, so K and S "
+                "are in g of it; a site's is 9.78-9.83 m/s^2 (up to 0.3 % in K, beyond these u): state it for a "
+                "certificate")
 
     @property
     def gravity_g(self) -> float:

@@ -268,7 +268,7 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
     """The table of ``result`` on ``grid_C`` (see the module). Refuses a result that is not ok,
     effects a table of T cannot hold, and grid points outside the calibrated range (the thermal
     model is not valid there) unless ``allow_outside`` (then said in the notes)."""
-    from ..estimation.gates import check_result_for_use
+    from ..estimation.result_checks import check_result_for_use
 
     check_result_for_use(result, f"result of {result.unit}")
     other = [e for e in result.effects if e not in TABLE_EFFECTS]

@@ -8,7 +8,7 @@ import os
 from typing import Mapping, Optional, Sequence, Union
 import numpy as np
 from scipy import stats
-from ...estimation.gates import check_result_for_use
+from ...estimation.result_checks import check_result_for_use
 from ...estimation.result import CalibrationResult
 from ...io.lab import DISTRIBUTION_SECTIONS, EQUIPMENT_SECTIONS
 from .rule import (check_tolerance, combined_covariance, coverage_factors, decide, decide_from_draws, drift_uncertainty,
@@ -110,6 +110,18 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         raise InputError(f"reference temperatures differ ({before.reference_temperature_C:g} vs "
                          f"{after.reference_temperature_C:g} degC): refit one of them at the other's "
                          "reference temperature so the angles are comparable")
+    # angles held by definition (under `fixed` and not `unidentifiable`: an angle the data could not
+    # determine is a missing angle, below, not a frame)
+    frame = {tag: sorted(n for n in (r.extra.get("fixed") or {}) if _is_angle(n) and n not in r.parameters
+                         and n not in (r.extra.get("unidentifiable") or {}))
+             for tag, r in (("before", before), ("after", after))}
+    if frame["before"] != frame["after"]:
+        # fit-raw --poses unknown defines its frame by Ca_yx = Ca_zx = Ca_zy = 0 (the gravity-norm
+        # method): its angles are not the known-pose fit's, and their difference is the frames'
+        held = "; ".join(f"{tag}: {', '.join(v) if v else 'none'}" for tag, v in frame.items())
+        raise InputError(f"the angles are in different frames: the angles held fixed by the fit's definition of its "
+                         f"frame differ ({held}); a drift compares two calibrations in one frame (both with known "
+                         "poses, or both with --poses unknown)")
     if before.method != after.method:
         notes.append(f"methods differ ({before.method} vs {after.method}): a drift also contains the "
                      "difference between the estimators")

@@ -182,7 +182,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     reasons = refusal_reasons(result, posterior_diag=post_diag, diagnosis=diagnosis)
     data_date = campaign.metadata.get("date", "") if campaign is not None else ""
     expired = lab.expired(data_date or lab.calibration_date or issue_date)
-    reasons += _missing_type_b(result, lab) + _lab_disagrees(result, lab)
+    reasons += _missing_type_b(result, lab) + _lab_disagrees(result, lab) + _unstated_gravity(result, lab)
     if expired and not allow_expired_equipment:
         reasons += [f"{e}; recalibrate it, or issue with --allow-expired-equipment, which prints the expiry on "
                     "the certificate" for e in expired]
@@ -354,6 +354,18 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         ps = report_plots(result, campaign, idata)
         cert.plots, cert.skipped_plots = ps.plots, ps.skipped
     return cert
+
+
+def _unstated_gravity(result: CalibrationResult, lab: LabConfig) -> list:
+    """A result whose data stated no local gravity (``local_g_stated`` false: the fit assumed standard
+    gravity), certified without a lab file that states it. K and S are in g of the gravity assumed,
+    and a site's is 9.78-9.83 m/s^2: 9.81 where 9.80665 was assumed put K 260 u off with status ok
+    (an outside probe); the certificate would state that K to 1 ppm."""
+    if result.extra.get("local_g_stated") is not False or lab.local_g_m_s2 is not None:
+        return []
+    return ["the data state no local gravity: the fit took standard gravity (9.80665 m/s^2), and K and S are in g of "
+            "it where a site's is 9.78-9.83 m/s^2 (up to 0.3 % in K); state the measured value in the data "
+            "(# local_g_m_s2 = ..., capture --local-g) and fit again, or in the lab file ([gravity] local_g_m_s2)"]
 
 
 def _missing_type_b(result: CalibrationResult, lab: LabConfig) -> list:

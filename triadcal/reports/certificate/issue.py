@@ -9,7 +9,7 @@ from ...errors import InputError
 from pathlib import Path
 from typing import Optional
 
-from ...estimation.gates import check_result_for_use
+from ...estimation.result_checks import check_result_for_use
 from ...estimation.result import CalibrationResult
 from ...io.atomic import read_json
 from ...io.formats import require_format

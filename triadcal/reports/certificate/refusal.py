@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from typing import Optional
 
-from ...estimation.gates import result_problems
+from ...estimation.result_checks import result_problems
 from ...estimation.result import CalibrationResult
 
 #: a model-data gap is significant below this p-value of chi^2 with known noise (as in the joint fit)
