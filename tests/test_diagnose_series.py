@@ -57,6 +57,7 @@ def quadratic_and_cubic_bias(seed: int):
     return parse_bench_csv(txt)
 
 
+@pytest.mark.slow          # 5-10 s: slow since the thirteenth session (the quick suite's 10 min)
 def test_a_quadratic_and_cubic_bias_is_named_as_the_series():
     c = quadratic_and_cubic_bias(0)
     d = diagnose(c, MODEL, **OPTS)

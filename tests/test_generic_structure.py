@@ -386,6 +386,7 @@ def test_the_scale_family_keeps_its_size(example):
     assert hits >= stats.binom.ppf(0.001, 1000, 0.05 / 4), hits
 
 
+@pytest.mark.slow          # 5-10 s: slow since the thirteenth session (the quick suite's 10 min)
 def test_the_tests_that_tell_positioning_errors_from_heavy_tails_are_calibrated(example):
     """generic.position_variance_test (asked after heavy_tails' refit) and generic.tails_test (after
     position_error's) on residuals of the linear fit of pure noise, 1000 draws each: the rejection

@@ -197,6 +197,7 @@ def test_a_clean_recording_is_null(tmp_path):
         assert "evidence" not in v
 
 
+@pytest.mark.slow          # 5-10 s: slow since the thirteenth session (the quick suite's 10 min)
 def test_the_held_out_floor_test_has_its_size():
     """The held-out floor test under its null, on interval means made with numpy (40 poses, an SD of
     58 ug, the floors exact): a genuine g-dependent misalignment (15 parameters with the base), 150

@@ -87,6 +87,7 @@ def test_the_fit_recovers_the_settling_within_its_uncertainty():
     assert p["tilt_settle_tau"].unit == "h"
 
 
+@pytest.mark.slow          # 5-10 s: slow since the thirteenth session (the quick suite's 10 min)
 def test_the_diagnosis_names_the_settling_over_a_constant_rate():
     c, _ = bench(1, "settle")
     d = diagnose(c, MODEL, **OPTS)

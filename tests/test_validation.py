@@ -35,6 +35,7 @@ def test_rank_statistics_detect_a_miscalibrated_posterior():
     assert s["methods"]["posterior"]["rank_uniform_bonferroni"] is False
 
 
+@pytest.mark.slow          # 5-10 s: slow since the thirteenth session (the quick suite's 10 min)
 def test_small_sbc_runs_and_plots(tmp_path):
     result = sbc(4, n_ranks=19, seed=3, processes=1, ess=300)
     P = len(Model().names)
