@@ -35,7 +35,11 @@ def test_joint_recovers_truth_within_4u(preset):
 
 
 def test_every_effect_of_the_model_is_recovered():
-    effects = ["bench_tilt", "thermal_lag", "angle_tempco", "hysteresis", "scale_tempco", "bias_tempco",
+    # not thermal_lag: the simulator writes it in the rate form T - tau dT/dt, which a stepped campaign's
+    # exponential approach makes a biased form of the physical first-order lag, and the lag_form gate
+    # refuses it (tests/test_lag_form.py); its recovery is tested on ramps (tests/test_ramp_rate.py) and
+    # over the history (tests/test_thermal_lag_forms.py)
+    effects = ["bench_tilt", "angle_tempco", "hysteresis", "scale_tempco", "bias_tempco",
                "bias_drift", "scale_nonlinearity", "scale_asymmetry"]
     truth = preset_truth("a18-silicon", effects, noise=NoiseModel(temp_noise_C=0.0))
     sched = Schedule(soak_s=1800.0)   # short soak: the unit is still moving, so the lag is seen

@@ -533,6 +533,8 @@ def test_result_json_round_trip(tmp_path):
     r.correlation = np.array([[1.0, 0.25], [0.25, 1.0]])
     r.notes = ["simulated"]
     r.extra = {"software": "triadcal test"}
+    from triadcal.estimation.gates import FitEvidence, apply_gates
+    apply_gates(r, FitEvidence(converged=True))        # status ok is read back only with its gates
     path = tmp_path / "result.json"
     r.save(path)
     d = json.loads(path.read_text())

@@ -567,13 +567,18 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         shift_gate = structure_outcome(shift)
     else:
         shift_gate = structure_outcome(None, "not testable: a robust loss or a whitened (1/f) fit")
+    extra_gates = [shift_gate]
+    if "thermal_lag" in params:          # the rate form (the history forms leave the effect out of the model)
+        from .lag_validity import rate_form_check
+
+        extra_gates.append(rate_form_check(campaign, params["thermal_lag"].value, params["thermal_lag"].u))
     evidence = FitEvidence(
         converged=sol.converged, cost_start=cost_start, cost_final=sol.cost, jacobian=sol.J * sw[:, None],
         free_names=problem.names, residual_rms=float(np.sqrt(np.mean(resid ** 2))),
         data_rms=float(np.sqrt(np.mean(campaign.w ** 2))), chi2=chi2, dof=dof, noise_known=noise.known,
         gof_p_value=None if structure is None else structure["p_value"],
         gof_ratio=None if structure is None else structure["ratio"],
-        gof_what="" if structure is None else structure["what"], extra=[shift_gate])
+        gof_what="" if structure is None else structure["what"], extra=extra_gates)
     apply_gates(result, evidence, config=gates)
     if result.status in ("unphysical_scale", "angle_out_of_range", "model_mismatch"):
         G = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg) * campaign.gravity_g
