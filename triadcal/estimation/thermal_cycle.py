@@ -34,6 +34,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..io.raw import RawRecordingError
 from ..models.thermal_history import first_order_lag, play_operator
 
 FORMAT = "triadcal.thermal_cycle"
@@ -49,6 +50,13 @@ EXPLAINED_FACTOR = 3.0
 STILL_RATE_C_MIN = 0.2
 #: m/s^2 per g (the conversion constant only: the recording's own g is not known)
 G0 = 9.80665
+#: a chamber moves the unit's temperature at a few degC/min (thermal-shock chambers at some tens):
+#: a cycle whose temperature span would be crossed faster than this, on average, has a wrong time axis
+MAX_SWEEP_C_MIN = 60.0
+#: a one-pose chamber cycle lasting longer than this (s; 30 days) has a wrong time axis
+MAX_CYCLE_S = 30 * 86400.0
+#: the time units of ``--time-unit`` in seconds
+TIME_UNITS_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 
 
 @dataclass
@@ -290,11 +298,14 @@ def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, bran
 
 def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, temperature_column: str):
     """``(t_s, T, y)`` of a recording with named columns (comma, tab or semicolon separated: the
-    header line that names every column decides). Every field must be a finite number; a bad one
-    is refused with the file, line and column; nothing is dropped."""
+    header line that names every column decides). Every row must have the header's number of
+    fields (a field added or lost shifts the columns after it: refused with the file, line and
+    field count, as :func:`triadcal.io.raw.read_raw_csv` does); every field read must be a finite
+    number, a bad one refused with the file, line and column; nothing is dropped. A time axis no
+    chamber cycle has (:func:`check_time_axis`) is refused."""
     import csv
 
-    scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+    scale = TIME_UNITS_S
     if time_unit not in scale:
         raise InputError(f"--time-unit {time_unit!r}: choose one of {', '.join(scale)}")
     cols = list(columns)
@@ -306,12 +317,12 @@ def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, t
             lines = fh.read().splitlines()
     except OSError as exc:
         raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    header_at, index, sep = None, None, None
+    header_at, index, sep, header = None, None, None, None
     for k, line in enumerate(lines[:200]):
         for d in (",", "\t", ";"):
             fields = [f.strip() for f in next(csv.reader([line], delimiter=d), [])]
             if all(c in fields for c in want):
-                header_at, index, sep = k, [fields.index(c) for c in want], d
+                header_at, index, sep, header = k, [fields.index(c) for c in want], d, fields
                 break
         if header_at is not None:
             break
@@ -322,6 +333,12 @@ def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, t
         if not line.strip():
             continue
         fields = next(csv.reader([line], delimiter=sep))
+        if len(fields) != len(header):
+            # a field too many or too few shifts every column after it: the raw reader's rule
+            raise RawRecordingError(str(path), k, header[len(fields)] if len(fields) < len(header) else None,
+                                    f"{len(fields)} fields, the header has {len(header)} (a field added or lost "
+                                    "shifts the columns after it; nothing is read from a row that does not match "
+                                    "the header)")
         row = []
         for c, j in zip(want, index):
             try:
@@ -340,7 +357,44 @@ def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, t
     if np.any(np.diff(t) <= 0):
         k = int(np.flatnonzero(np.diff(t) <= 0)[0])
         raise InputError(f"{path}:{header_at + k + 3}: column '{time_column}': the time does not increase")
+    check_time_axis(path, a[:, 0], a[:, 1], time_column, time_unit)
     return t, a[:, 1], a[:, 2:]
+
+
+def _span(seconds: float) -> str:
+    for limit, div, name in ((120.0, 1.0, "s"), (7200.0, 60.0, "min"), (172800.0, 3600.0, "h"),
+                             (2 * 365.25 * 86400.0, 86400.0, "days")):
+        if seconds < limit:
+            return f"{seconds / div:.3g} {name}"
+    return f"{seconds / (365.25 * 86400.0):.3g} years"
+
+
+def check_time_axis(path, stamps, T, time_column: str, time_unit: str) -> None:
+    """Refuse a time axis no chamber cycle has: with the stated ``--time-unit`` the temperature
+    would cross its span faster than :data:`MAX_SWEEP_C_MIN` on average, or the cycle would last
+    longer than :data:`MAX_CYCLE_S`. The message gives the duration, the implied sample rate and
+    the time units that would make the cycle plausible. Before, timestamps in ms read as us (the
+    cycle 1000 times too short) were refused as "the temperature only rises or only falls"."""
+    stamps, T = np.asarray(stamps, float), np.asarray(T, float)
+    span_s = float(stamps[-1] - stamps[0])
+    dT = float(np.ptp(T))
+
+    def plausible(unit):
+        d = span_s * TIME_UNITS_S[unit]
+        return d > 0 and d <= MAX_CYCLE_S and dT / (d / 60.0) <= MAX_SWEEP_C_MIN
+
+    if plausible(time_unit):
+        return
+    d = span_s * TIME_UNITS_S[time_unit]
+    rate_hz = (len(stamps) - 1) / d if d > 0 else float("inf")
+    why = (f"the temperature would cross its {dT:.3g} degC span at {dT / (d / 60.0):.3g} degC/min on average, "
+           f"faster than any chamber (more than {MAX_SWEEP_C_MIN:g} degC/min)" if d <= MAX_CYCLE_S else
+           f"longer than any chamber cycle (more than {MAX_CYCLE_S / 86400.0:g} days)")
+    others = [u for u in TIME_UNITS_S if u != time_unit and plausible(u)]
+    hint = "; ".join(f"with --time-unit {u} it would last {_span(span_s * TIME_UNITS_S[u])}" for u in others)
+    raise InputError(f"{path}: column '{time_column}': the time axis is implausible with --time-unit {time_unit}: "
+                     f"{len(stamps)} samples over {_span(d)} ({rate_hz:.3g} samples per second), {why}. "
+                     f"Check --time-unit" + (f" ({hint})" if hint else ""))
 
 
 def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature_column: str, time_unit: str = "s",

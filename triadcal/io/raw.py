@@ -183,18 +183,25 @@ def _metadata_fields(line: str) -> list:
     return [line.strip()]
 
 
-#: header lines before the column names that state the sample rate (docs/raw.md, Reading)
-RATE_KEYS = ("Fs", "rate_hz", "sample_rate_hz")
-_RATE_LINE = re.compile(r"^\s*(" + "|".join(RATE_KEYS) + r")\s*(?:[,;\t=:]|\s)(.*)$")
+#: header lines before the column names that state the sample rate (docs/raw.md, Reading): the
+#: keys, matched whatever their case (``Fs``, ``fs``, ``FS``), with an optional unit in the key
+#: (``Sample rate (Hz)``, ``rate_hz``) and an optional comment mark before it (``# Fs = 100 Hz``)
+RATE_KEYS = ("Fs", "rate_hz", "sample_rate_hz", "sample rate", "sampling rate", "sampling frequency", "ODR",
+             "output data rate")
+_RATE_KEY = (r"(?:fs|odr|output[ _]data[ _]rate|(?:sample|sampling)[ _]?(?:rate|frequency|freq)"
+             r"|rate(?=[ _]?(?:\(hz\)|\[hz\]|hz)))(?:[ _]?(?:\(hz\)|\[hz\]|hz))?")
+_RATE_LINE = re.compile(r"^\s*(?:#+|//|%)?\s*(" + _RATE_KEY + r")\s*(?:[,;\t=:]|\s)(.*)$", re.IGNORECASE)
 _RATE_VALUE = re.compile(r"^(.*?)\s*(k?hz)?$", re.IGNORECASE)
 
 
 def _file_rate(path: str, line_number: int, line: str) -> Optional[float]:
     """The sample rate (Hz) a header line states, None when it states none. A rate line is one
-    whose first field is a key of :data:`RATE_KEYS`, separated by a comma, tab, semicolon,
-    ``=``, ``:`` or blanks; its value is a number with an optional unit ``Hz`` or ``kHz``
-    (``Fs,100``, ``Fs,200 Hz``, ``Fs<TAB>200``, ``rate_hz = 0.2 kHz``). A rate line whose value
-    cannot be read is refused: a rate the reader ignored could not be checked against ``--rate``."""
+    whose first field is a key of :data:`RATE_KEYS` in any case (``Fs``, ``fs``, ``ODR``,
+    ``Sample rate (Hz)``), after an optional comment mark (``#``, ``//``, ``%``), separated by
+    a comma, tab, semicolon, ``=``, ``:`` or blanks; its value is a number with an optional unit
+    ``Hz`` or ``kHz`` (``Fs,100``, ``fs,100``, ``Fs,200 Hz``, ``Fs<TAB>200``, ``rate_hz = 0.2 kHz``,
+    ``# Fs = 100 Hz``). A rate line whose value cannot be read is refused: a rate the reader
+    ignored could not be checked against ``--rate`` (a lowercase ``fs,100`` was, before)."""
     m = _RATE_LINE.match(line)
     if m is None:
         return None

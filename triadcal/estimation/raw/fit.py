@@ -88,6 +88,17 @@ def static_intervals_of(rec: RawRecording, *, labels: Optional[str] = None, inte
     return det
 
 
+def samples_sha256(rec: RawRecording) -> str:
+    """SHA-256 (64 lowercase hex digits) of the recording's accelerometer samples in order, as
+    little-endian float64 bytes row by row: what was measured, not the file's name, format, rate,
+    labels or the options of the fit, so two fits of one recording (known poses and ``--poses
+    unknown``, another interval file, ``--sample``) carry the same hash and ``compare`` calls them
+    two fits of one data set (``Campaign.data_sha256`` is the bench CSV's)."""
+    import hashlib
+
+    return hashlib.sha256(np.ascontiguousarray(np.asarray(rec.acc, dtype="<f8")).tobytes()).hexdigest()
+
+
 def check_raw_options(local_g_m_s2: float, local_g_override: bool = False, *, window_s: float = 1.0,
                       threshold: float = 4.0, min_duration_s: float = 2.0) -> None:
     """The options of :func:`fit_raw` that the data cannot check, before anything is read (the library,
@@ -203,8 +214,11 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
         "rms_norm_residual_of_means_m_s2": {"before": before["means"], "after": after["means"]},
         "before_scaling": how, "local_g_m_s2": local_g_m_s2})
     result.extra.update({"input_unit": rec.unit, "output_unit": rec.unit, "local_g_m_s2": local_g_m_s2,
-                         "source": rec.source, "rate_hz": rec.rate_hz,
+                         "source": rec.source, "data_sha256": samples_sha256(rec), "rate_hz": rec.rate_hz,
                          "static_intervals": det.to_dict(rec.rate_hz)})
+    for note in avg.notes:
+        if note not in result.notes:
+            result.notes.append(note)
     if json_path is not None:
         result.save(json_path)
     if bench_csv_path is not None:

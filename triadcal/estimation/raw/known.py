@@ -124,6 +124,23 @@ class KnownPoseProblem:
         return ((self.w[None] - W) / self.se[None]).reshape(m, -1)
 
 
+def _proposal_factor(C: np.ndarray) -> np.ndarray:
+    """A square root ``L`` (``L L^T = C``) of the tilts' Laplace covariance for the proposal: the
+    Cholesky factor (with a 1e-12 relative jitter), or, when ``C`` is not positive definite in
+    floating point (a pseudo-inverse of a Jacobian conditioned beyond 1e12, e.g. when the placement
+    SD runs to the grid's 20 deg edge), the symmetric factor of ``C`` with its eigenvalues raised
+    to 1e-12 of the largest. Before, such a ``C`` ended in numpy's LinAlgError (exit 70)."""
+    C = 0.5 * (C + C.T)
+    scale = float(np.max(np.abs(np.diag(C)))) if C.size else 0.0
+    if not np.isfinite(scale) or scale <= 0:
+        scale = 1.0
+    try:
+        return np.linalg.cholesky(C + 1e-12 * scale * np.eye(len(C)))
+    except np.linalg.LinAlgError:
+        ev, V = np.linalg.eigh(np.nan_to_num(C))
+        return V * np.sqrt(np.maximum(ev, 1e-12 * max(float(ev.max()), scale)))[None, :]
+
+
 def marginal_posterior(problem: KnownPoseProblem, x_map: np.ndarray, cov_laplace: np.ndarray,
                        J_map: np.ndarray, n_draws: int = 2000, seed: int = 0, dof: float = 6.0):
     """Posterior mean and covariance with the placement tilts integrated out.
@@ -142,7 +159,7 @@ def marginal_posterior(problem: KnownPoseProblem, x_map: np.ndarray, cov_laplace
     rng = np.random.default_rng(seed)
     nu = len(UNIT_NAMES)
     t_map, Ct = x_map[nu:], cov_laplace[nu:, nu:]
-    L = np.linalg.cholesky(Ct + 1e-12 * np.max(np.diag(Ct)) * np.eye(len(t_map)))
+    L = _proposal_factor(Ct)
     z = rng.standard_normal((n_draws, len(t_map)))
     chi = rng.chisquare(dof, n_draws) / dof
     T = t_map + (z / np.sqrt(chi)[:, None]) @ L.T
@@ -405,7 +422,8 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
            "n_nuisance": 2 * k, "chi2_dof": chi2 / dof if dof > 0 else None,
            "placement_rms_estimate_deg": float(np.sqrt(np.mean(tilts ** 2))) / 3600.0,
            "iterations": sol.iterations, "build_seconds": problem.build_seconds, "solve_seconds": solve_seconds,
-           "noise": "standard error of each pose mean: max(sd/sqrt(n), batch means)",
+           "noise": "standard error of each pose mean: max(sd/sqrt(n), batch means); sd floored by the pooled "
+                    "SD of all the intervals for intervals of fewer than 50 samples",
            "estimator": estimator, "importance_ess": ess, "n_draws": n_draws,
            "prior_sensitivity": sensitivity, "placement_sd_from_data": evidence,
            "angle_uncertainty": {"source": "hand placement (with output noise)", "equation": "eq. 1",

@@ -5,7 +5,8 @@ as a bench CSV campaign on the default plan's positions (docs/raw.md).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -40,7 +41,9 @@ class PoseAverages:
     """Mean reading of each static interval and its standard uncertainty.
 
     ``se`` is the larger of the white-noise ``sd / sqrt(n)`` and a batch-means estimate
-    (10 consecutive batches), so slowly correlated noise does not shrink it.
+    (10 consecutive batches), so slowly correlated noise does not shrink it. ``sd`` is the
+    interval's own sample SD, floored by the pooled SD of all the intervals when the interval
+    has fewer than :data:`MIN_OWN_SD_SAMPLES` samples (:func:`pose_averages`).
     """
 
     label: list
@@ -52,6 +55,15 @@ class PoseAverages:
     se: np.ndarray
     time_s: np.ndarray
     tau_s: np.ndarray
+    #: each interval's own sample SD per axis (NaN for a 1-sample interval); ``sd`` is the SD used
+    sd_own: Optional[np.ndarray] = None
+    #: the pooled sample SD per axis over all intervals (:func:`pooled_sd`) and its degrees of freedom
+    sd_pooled: Optional[np.ndarray] = None
+    pooled_dof: int = 0
+    #: indices of the intervals whose SD is floored by the pooled SD (fewer than MIN_OWN_SD_SAMPLES)
+    pooled_floor: list = field(default_factory=list)
+    #: what the fit should say about the averages (short intervals, the pool's size)
+    notes: list = field(default_factory=list)
 
 
 #: a static interval with at least this fraction of one channel's samples on the recording's extreme
@@ -111,28 +123,119 @@ def refuse_clipped(rec: RawRecording, detection: StaticDetection) -> None:
                        "leave the interval out (--intervals)")
 
 
+#: an interval with fewer samples than this gets the pooled SD of the recording's intervals as the
+#: floor of its own (its own SD is uncertain by more than 10 %, 1/sqrt(2 (n - 1)), and too short for
+#: the batch means that check correlated noise: the same 50 = 5 x 10 batches)
+MIN_OWN_SD_SAMPLES = 50
+
+
+def pooled_sd(x_blocks) -> tuple:
+    """``(sd, dof)``: the pooled sample SD per column over blocks of samples (GUM 4.2.4: the
+    within-block variances weighted by their degrees of freedom ``n_i - 1``); blocks of one sample
+    add nothing. ``sd`` is NaN when no block has two samples."""
+    ss, dof = 0.0, 0
+    for x in x_blocks:
+        if len(x) >= 2:
+            ss = ss + np.sum((x - x.mean(axis=0)) ** 2, axis=0)
+            dof += len(x) - 1
+    if dof == 0:
+        return np.full(np.shape(x_blocks[0])[1:] if len(x_blocks) else (3,), np.nan), 0
+    return np.sqrt(ss / dof), dof
+
+
 def pose_averages(rec: RawRecording, detection: StaticDetection, batches: int = 10) -> PoseAverages:
+    """Each static interval's mean, SD and the standard uncertainty of its mean (docs/raw.md, "The
+    noise of each interval's mean"). Every interval is used, none dropped: the noise is one
+    instrument's, so an interval of fewer than :data:`MIN_OWN_SD_SAMPLES` samples has as its SD the
+    larger of its own and the pooled SD of all the intervals (:func:`pooled_sd`), and a 1-sample
+    interval the pooled SD; ``notes`` names them. Before, a face of 2 samples whose SD happened to
+    be small gave K_x 9.7 u off with status ok, and a 1-sample interval was left out without a word."""
     refuse_clipped(rec, detection)
-    w, sd, n, se, t, tau, lab, s0, e0 = [], [], [], [], [], [], [], [], []
-    for iv in detection.intervals:
-        x = rec.acc[iv.start:iv.end]
-        if len(x) < 2:
-            continue
+    refuse_wrapped(rec, detection)
+    ivs = list(detection.intervals)
+    blocks = [rec.acc[iv.start:iv.end] for iv in ivs]
+    sd_pool, dof_pool = pooled_sd(blocks)
+    if dof_pool == 0:
+        raise StaticIntervalError(f"{rec.source}: no static interval with at least 2 samples: the noise of the "
+                                  "means cannot be estimated (give intervals of more samples)")
+    w, sd, sd_own, n, se, t, tau, lab, s0, e0, floored = [], [], [], [], [], [], [], [], [], [], []
+    for k, (iv, x) in enumerate(zip(ivs, blocks)):
         m = x.mean(axis=0)
-        s = x.std(axis=0, ddof=1)
+        own = x.std(axis=0, ddof=1) if len(x) >= 2 else np.full(x.shape[1], np.nan)
+        s = own
+        if len(x) < MIN_OWN_SD_SAMPLES:
+            s = np.fmax(own, sd_pool)           # fmax: the pool where the own SD is NaN (one sample)
+            floored.append(k)
         white = s / math.sqrt(len(x))
         if len(x) >= 5 * batches:
             bm = np.array([b.mean(axis=0) for b in np.array_split(x, batches)])
             white = np.maximum(white, bm.std(axis=0, ddof=1) / math.sqrt(batches))
-        w.append(m), sd.append(s), n.append(len(x)), se.append(white)
+        w.append(m), sd.append(s), sd_own.append(own), n.append(len(x)), se.append(white)
         t.append((iv.start + iv.end - 1) / 2 / rec.rate_hz), tau.append(len(x) / rec.rate_hz)
         lab.append(iv.label), s0.append(iv.start), e0.append(iv.end)
-    if not w:
-        raise StaticIntervalError(f"{rec.source}: no static interval with at least 2 samples")
     se = np.array(se)
     se = np.maximum(se, 1e-12 * np.maximum(np.abs(np.array(w)), 1.0))   # an exactly constant input
+    notes = []
+    if floored:
+        names = ", ".join(f"{ivs[k].label or k + 1} (samples {ivs[k].start}..{ivs[k].end - 1}, {ivs[k].n} "
+                          f"sample{'s' if ivs[k].n != 1 else ''})" for k in floored)
+        notes.append(f"{len(floored)} static interval{'s' if len(floored) != 1 else ''} of fewer than "
+                     f"{MIN_OWN_SD_SAMPLES} samples: {names}; each is used with the larger of its own SD and the "
+                     f"pooled SD of all {len(ivs)} intervals ({', '.join(f'{v:.3g}' for v in sd_pool)} {rec.unit}, "
+                     f"{dof_pool} dof) as its noise: a few samples' own SD can be small by chance (docs/raw.md)")
+    if dof_pool < 30:
+        notes.append(f"the pooled noise SD of the static intervals has only {dof_pool} degrees of freedom: the "
+                     f"uncertainties are themselves uncertain by about {100 / math.sqrt(2 * dof_pool):.0f} % "
+                     "(record longer static intervals)")
     return PoseAverages(lab, np.array(s0), np.array(e0), np.array(w), np.array(sd), np.array(n), se,
-                        np.array(t), np.array(tau))
+                        np.array(t), np.array(tau), np.array(sd_own), sd_pool, dof_pool, floored, notes)
+
+
+def wrapped_intervals(rec: RawRecording, detection: StaticDetection) -> list:
+    """``[(interval, axis, bits, low, high, sd, sd_unwrapped), ...]``: static intervals in which a
+    channel of whole, non-negative counts jumps between the bottom and the top of a ``bits``-bit
+    range the way signed (two's-complement) counts read as unsigned do: readings just below zero
+    appear just below ``2^bits``. Unwrapped (``v - 2^bits`` for ``v >= 2^(bits-1)``), the interval's
+    samples of that channel scatter ten times less than as read. Before, the imucal session with its
+    16-bit counts read as unsigned ended in an internal error (exit 70, LinAlgError) after the fit had
+    pushed the placement SD to the grid's 20 deg edge (an outside probe)."""
+    out = []
+    for iv in detection.intervals:
+        x = rec.acc[iv.start:iv.end]
+        if len(x) < 2:
+            continue
+        for a in range(x.shape[1]):
+            v = x[:, a]
+            top = float(v.max())
+            if v.min() < 0 or top < 255 or not np.all(v == np.round(v)):
+                continue
+            bits = int(math.floor(math.log2(top))) + 1          # the smallest range holding the readings
+            full = float(2 ** bits)
+            high = v >= full / 2
+            if not (high.any() and (~high).any()):
+                continue
+            u = np.where(high, v - full, v)
+            sd, sd_u = float(v.std(ddof=1)), float(u.std(ddof=1))
+            if sd > 10.0 * max(sd_u, 0.5):
+                out.append((iv, a, bits, (float(v[~high].min()), float(v[~high].max())),
+                            (float(v[high].min()), float(v[high].max())), sd, sd_u))
+    return out
+
+
+def refuse_wrapped(rec: RawRecording, detection: StaticDetection) -> None:
+    """Refuse a recording with a wrapped channel (:func:`wrapped_intervals`), naming the interval."""
+    wrapped = wrapped_intervals(rec, detection)
+    if not wrapped:
+        return
+    parts = [f"{'xyz'[a] if a < 3 else a} in the interval {iv.label or '(unlabelled)'} (samples {iv.start}-"
+             f"{iv.end - 1}) jumps between {lo[0]:g}..{lo[1]:g} and {hi[0]:g}..{hi[1]:g} (SD {sd:.4g}; "
+             f"{sd_u:.3g} with the values from {2 ** (bits - 1)} up taken as negative, minus {2 ** bits})"
+             for iv, a, bits, lo, hi, sd, sd_u in wrapped]
+    bits = wrapped[0][2]
+    more = f"; and {len(parts) - 3} more" if len(parts) > 3 else ""
+    raise InputError(f"{rec.source}: the readings look like signed {bits}-bit (two's-complement) counts read as "
+                     f"unsigned: " + "; ".join(parts[:3]) + more + f". Convert the columns to signed counts (subtract "
+                     f"{2 ** bits} from every value of {2 ** (bits - 1)} or more) and fit again")
 
 
 def bench_campaign(avg: PoseAverages, rec: RawRecording, serial: str, local_g_m_s2: float,

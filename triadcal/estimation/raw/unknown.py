@@ -28,7 +28,7 @@ from .detection import (
     StaticDetection,
     StaticIntervalError,
 )
-from .poses import NORM_ANGLES, NORM_NAMES, PoseAverages
+from .poses import MIN_OWN_SD_SAMPLES, NORM_ANGLES, NORM_NAMES, PoseAverages, pooled_sd
 
 
 # --------------------------------------------------------------------------------------
@@ -175,11 +175,18 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
     # so slowly correlated noise does not shrink it. |A| does not change when the unit turns,
     # so motion inside an interval does not inflate this floor; it shortens the mean vector
     # instead, which the residual sees (the slow-motion case of issue 14)
+    # An interval of fewer than MIN_OWN_SD_SAMPLES samples has the larger of its own and the pooled
+    # sample variance of |A| (a 1-sample interval the pooled one): the averages' rule (pose_averages)
     K, S, Ca = norm_matrices(sol.x)
+    norms = [np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[s_:e_]), axis=1)
+             for s_, e_ in zip(avg.start, avg.end)]
+    pooled = float(pooled_sd([a[:, None] for a in norms])[0][0]) ** 2
     var_means = []
-    for s_, e_, m in zip(avg.start, avg.end, avg.n):
-        a = np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[s_:e_]), axis=1)
-        v = np.var(a, ddof=1) / m if m > 1 else 0.0
+    for a, m in zip(norms, avg.n):
+        v = float(np.var(a, ddof=1)) if m > 1 else float("nan")
+        if m < MIN_OWN_SD_SAMPLES:
+            v = float(np.fmax(v, pooled))
+        v /= m
         if m >= 50:
             bm = np.array([b.mean() for b in np.array_split(a, 10)])
             v = max(v, float(np.var(bm, ddof=1)) / 10)
@@ -208,6 +215,18 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
                      f"(directions {ORIENTATION_SEPARATION_DEG:g} deg apart or more): the gravity-norm model's "
                      f"{len(NORM_NAMES)} parameters need poses spread over the sphere, so K, S and the angles "
                      "cannot be told apart (a thermal run in one pose calibrates no scale factor)")
+    if avg.pooled_floor:
+        med = float(np.median(var_means))
+        loud = [k for k in avg.pooled_floor if med > 0 and var_means[k] > 4.0 * med]
+        if loud:
+            notes.append("the gravity-norm fit weights every interval equally: the short interval"
+                         f"{'s' if len(loud) > 1 else ''} "
+                         + ", ".join(f"{avg.label[k] or k + 1} ({int(avg.n[k])} sample{'s' if avg.n[k] != 1 else ''}, "
+                                     f"the noise of its mean {math.sqrt(var_means[k] / med):.2g} times the median "
+                                     "interval's)" for k in loud)
+                         + (" raise" if len(loud) > 1 else " raises")
+                         + " the noise floor and the uncertainties of every parameter; leave "
+                         + ("them" if len(loud) > 1 else "it") + " out (--intervals) if not a pose")
     if dof <= 0:
         notes.append(f"{n} static intervals for {len(NORM_NAMES)} parameters: no residual degrees of freedom, so "
                      "the misfit of the model cannot be judged; the uncertainties carry the sample noise only "
