@@ -185,6 +185,23 @@ def test_a_one_sample_interval_is_used_and_named(tmp_path):
     assert f"samples {one_at}..{one_at}, 1 sample)" in note
 
 
+def test_the_diagnosis_uses_the_one_sample_interval_too(tmp_path):
+    """raw_diagnosis.interval_data skipped intervals under 2 samples and weighted a short one by its
+    own SD: it now takes every interval of the fit, a short one with the pooled SD as a floor."""
+    from triadcal.judgement.raw_diagnosis import interval_data
+
+    w, labels = make_samples(twelve_poses())
+    p = write_recording(tmp_path / "twelve.csv", w, labels)
+    last = np.flatnonzero(labels == "p3")[-19:]              # the end of a pose the intervals leave out (20 samples)
+    iv, n = _intervals_csv(tmp_path / "iv.csv", labels,
+                           extra=[(int(last[2]), int(last[2]) + 1), (int(last[10]), int(last[10]) + 2)])
+    out = fit_raw(str(p), RATE, poses="unknown", intervals=str(iv))
+    d = interval_data(out)
+    assert len(d.n_samples) == n == 14 and sorted(d.n_samples)[:2] == [1, 2]
+    long_sd = float(np.median(d.sd[d.n_samples >= 50]))
+    assert np.all(d.sd[d.n_samples < 50] >= 0.5 * long_sd)            # not a 2-sample SD that happens to be tiny
+
+
 def test_no_interval_of_two_samples_is_refused_with_the_reason(tmp_path):
     w, labels = make_samples(twelve_poses())
     p = write_recording(tmp_path / "twelve.csv", w, labels)

@@ -98,13 +98,24 @@ def interval_data(rawfit, temperature=None, batches: int = 10) -> IntervalData:
             raise InputError(f"temperature sample {bad} is not a finite number ({temperature[bad]!r} degC)")
     K, S, Ca = result_matrices(res)
     local = res.fit.get("local_g_m_s2") or res.extra.get("local_g_m_s2") or STANDARD_GRAVITY_M_S2
+    from ..estimation.raw.poses import MIN_OWN_SD_SAMPLES, pooled_sd
+
     A, sig, sd, n, s0, e0, t, lab, temp = [], [], [], [], [], [], [], [], []
-    for iv in det.intervals:
-        if iv.end - iv.start < 2:
-            continue
+    # every interval is used, as the fit uses them (estimation/raw/poses.pose_averages): one of fewer
+    # than MIN_OWN_SD_SAMPLES samples has the larger of its own SD of the norm and the pooled one (a
+    # 1-sample interval the pooled one); before, intervals under 2 samples were skipped unsaid and a
+    # 2-sample interval's own SD, however small, weighted it
+    norms = [np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[iv.start:iv.end]), axis=1)
+             for iv in det.intervals]
+    pooled = float(pooled_sd([x[:, None] for x in norms])[0][0]) if norms else float("nan")
+    for iv, nrm in zip(det.intervals, norms):
         a = calibrated_acceleration(K, S, Ca, rec.acc[iv.start:iv.end])
-        nrm = np.linalg.norm(a, axis=1)
-        s = float(nrm.std(ddof=1))
+        s = float(nrm.std(ddof=1)) if len(nrm) > 1 else float("nan")
+        if len(nrm) < MIN_OWN_SD_SAMPLES:
+            s = float(np.fmax(s, pooled))
+        if not math.isfinite(s):
+            raise InputError(f"{rec.source or 'the recording'}: the interval {iv.label or iv.start} has "
+                             f"{len(nrm)} sample(s) and no other interval gives the noise its mean needs")
         se = s / math.sqrt(len(nrm))
         if len(nrm) >= 5 * batches:
             bm = np.array([b.mean() for b in np.array_split(nrm, batches)])
