@@ -36,6 +36,14 @@ def test_a_result_without_its_reference_temperature_is_refused(good):
         _load(d)
 
 
+@pytest.mark.parametrize("key", ["effects", "temperature_range_C", "intervals", "fit", "notes"])
+def test_a_result_missing_a_key_every_fit_writes_is_refused(good, key):
+    d = copy.deepcopy(good)
+    del d[key]
+    with pytest.raises(InputError, match=f"{key}.*missing"):
+        _load(d)
+
+
 def test_status_ok_needs_its_gates_and_no_failed_one(good):
     d = copy.deepcopy(good)
     del d["gates"]

@@ -144,6 +144,9 @@ class CalibrationResult:
         from .gates import STATUSES
         if status not in STATUSES:
             raise r.error("status", f"{status!r} is not one of {', '.join(STATUSES)}")
+        for key in ("effects", "temperature_range_C", "intervals", "fit", "notes"):
+            if key not in d:        # every result this package writes has them (to_dict)
+                raise r.error(key, "is missing (a required key of a result; docs/results-json.md)")
         effects = tuple(r.string_list(d, "effects", required=False))
         from ..models.effects import EFFECTS
 

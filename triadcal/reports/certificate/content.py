@@ -361,7 +361,8 @@ def _unstated_gravity(result: CalibrationResult, lab: LabConfig) -> list:
     gravity), certified without a lab file that states it. K and S are in g of the gravity assumed,
     and a site's is 9.78-9.83 m/s^2: 9.81 where 9.80665 was assumed put K 260 u off with status ok
     (an outside probe); the certificate would state that K to 1 ppm."""
-    if result.extra.get("local_g_stated") is not False or lab.local_g_m_s2 is not None:
+    stated = result.extra.get("local_g_stated")
+    if lab.local_g_m_s2 is not None or (stated is not False and result.extra.get("local_g_m_s2") is not None):
         return []
     return ["the data state no local gravity: the fit took standard gravity (9.80665 m/s^2), and K and S are in g of "
             "it where a site's is 9.78-9.83 m/s^2 (up to 0.3 % in K); state the measured value in the data "
