@@ -128,3 +128,24 @@ def test_data_without_local_gravity_are_fitted_but_not_certified(tmp_path):
     # a capture writes the local gravity only when the operator states it (it wrote 9.80665 as if measured)
     from triadcal.hardware.capture import CaptureSettings
     assert CaptureSettings().local_g_m_s2 is None
+
+
+def test_a_certificate_with_data_that_are_not_the_results_is_refused(tmp_path):
+    """certificate --data with another campaign of the same unit was accepted: its plots and
+    conditions would be of data the result was not fitted to."""
+    from triadcal.api import example_path
+
+    text = example_path().read_text()
+    (tmp_path / "a.csv").write_text(text)
+    assert main(["fit", str(tmp_path / "a.csv"), "--json", str(tmp_path / "a.json")]) == 0
+    lines = text.splitlines(keepends=True)
+    i = next(k for k, ln in enumerate(lines) if ln.startswith("unit,")) + 1
+    cols = lines[i].split(",")
+    cols[8] = repr(float(cols[8]) + 1e-7)            # w_x of the first visit: other data
+    lines[i] = ",".join(cols)
+    (tmp_path / "b.csv").write_text("".join(lines))
+    code = main(["certificate", str(tmp_path / "a.json"), "--data", str(tmp_path / "b.csv"),
+                 "--html", str(tmp_path / "c.html")])
+    assert code == 3 and "not those the result was fitted to" in (tmp_path / "c.html").read_text()
+    assert main(["certificate", str(tmp_path / "a.json"), "--data", str(tmp_path / "a.csv"),
+                 "--html", str(tmp_path / "d.html")]) == 0

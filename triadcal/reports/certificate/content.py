@@ -183,6 +183,11 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     data_date = campaign.metadata.get("date", "") if campaign is not None else ""
     expired = lab.expired(data_date or lab.calibration_date or issue_date)
     reasons += _missing_type_b(result, lab) + _lab_disagrees(result, lab) + _unstated_gravity(result, lab)
+    sha = result.extra.get("data_sha256")
+    if campaign is not None and sha and campaign.data_sha256 != sha:
+        # the data the certificate shows (plots, averaging times, date) must be those the result was fitted to
+        reasons.append(f"the data given ({campaign.source or 'campaign'}) are not those the result was fitted to: their "
+                       f"SHA-256 {campaign.data_sha256[:12]}... differs from the result's data_sha256 {sha[:12]}...")
     if expired and not allow_expired_equipment:
         reasons += [f"{e}; recalibrate it, or issue with --allow-expired-equipment, which prints the expiry on "
                     "the certificate" for e in expired]
