@@ -1,0 +1,306 @@
+"""Bench CSV files that an outside tester found read silently into a confident wrong calibration
+(status ok), now refused with the file, the line and the field (docs/bench-csv.md):
+
+1. a metadata key mistyped (``# local_g = 9.78``, ``# Local_G_m_s2 = 9.78``, ``# output_units = mV``)
+   or written with ':' (``# local_g_m_s2: 9.78``): it was dropped and the default used;
+2. t_x t_y t_z in degF (68 at a 20 degC setpoint);
+3. heating and cooling swapped: every hysteresis term changed sign.
+
+Each mutated file is made from a valid one -- the example campaign, or a campaign of
+tests/independent_bench.py (made without the package's model code) -- and the valid file itself
+is read too.
+"""
+
+import csv
+import io
+
+import numpy as np
+import pytest
+from independent_bench import RampProgram, StepProgram, simulate_campaign, simulate_lag_campaign
+
+from triadcal.api import example_path
+from triadcal.io.bench_csv import BenchCSVError, read_bench_csv
+
+SWAP = {"heating": "cooling", "cooling": "heating", "none": "none"}
+
+
+class Table:
+    """A bench CSV split into its comment lines, header and rows, mutated and written back."""
+
+    def __init__(self, text: str):
+        lines = text.splitlines()
+        k = next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#"))
+        self.comments = lines[:k]
+        self.header = next(csv.reader([lines[k]]))
+        self.rows = [r for r in csv.reader(lines[k + 1:]) if r]
+
+    def line_of_row(self, i: int) -> int:
+        """1-based line of data row ``i`` in the written file (comments, then the header)."""
+        return len(self.comments) + 2 + i
+
+    def line_of_comment(self, start: str) -> int:
+        return next(j for j, ln in enumerate(self.comments) if ln.startswith(start)) + 1
+
+    def col(self, name):
+        j = self.header.index(name)
+        return [r[j] for r in self.rows]
+
+    def map(self, name, f):
+        j = self.header.index(name)
+        for r in self.rows:
+            r[j] = f(r[j])
+
+    def write(self, path):
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(self.header)
+        w.writerows(self.rows)
+        path.write_text("\n".join(self.comments) + ("\n" if self.comments else "") + buf.getvalue())
+        return path
+
+
+def example_table() -> Table:
+    return Table(example_path().read_text())
+
+
+def independent_table(**kw) -> Table:
+    kw.setdefault("setpoints_C", (20.0, 50.0, 80.0, 50.0, 20.0, -10.0, -40.0, -10.0, 20.0))
+    text, _ = simulate_campaign(np.random.default_rng(7), **kw)
+    return Table(text)
+
+
+def lag_table(program=None) -> Table:
+    text, _ = simulate_lag_campaign(np.random.default_rng(3), program=program, dt_s=2.0)
+    return Table(text)
+
+
+def refused(path) -> BenchCSVError:
+    with pytest.raises(BenchCSVError) as info:
+        read_bench_csv(path)
+    err = info.value
+    assert err.path == str(path) and str(err).startswith(f"{path}:{err.line}:")
+    return err
+
+
+def fahrenheit(s: str) -> str:
+    return repr(float(s) * 1.8 + 32.0)
+
+
+@pytest.fixture(params=["example", "independent"])
+def valid(request):
+    return example_table() if request.param == "example" else independent_table()
+
+
+def test_the_valid_files_read(tmp_path, valid):
+    c = read_bench_csv(valid.write(tmp_path / "valid.csv"))
+    assert c.n_visits == len(valid.rows)
+
+
+# -- 1. metadata keys ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("line, key, known", [
+    ("# local_g = 9.78", "local_g", "local_g_m_s2"),
+    ("# Local_G_m_s2 = 9.78", "Local_G_m_s2", "local_g_m_s2"),
+    ("# local_g_ms2 = 9.78", "local_g_ms2", "local_g_m_s2"),
+    ("# local g m s2 = 9.78", "local g m s2", "local_g_m_s2"),
+    ("# q_v2s = 3e-9", "q_v2s", "Q_V2s"),
+    ("# power_on = 0", "power_on", "power_on_s"),
+])
+def test_a_mistyped_local_g_or_other_known_key_is_refused(tmp_path, valid, line, key, known):
+    table = valid
+    table.comments = [ln for ln in table.comments if not ln.startswith(("# local_g_m_s2", "# Q_V2s", "# power_on_s"))]
+    table.comments.insert(1, line)
+    err = refused(table.write(tmp_path / "typo.csv"))
+    assert err.line == 2 and err.column is None            # a metadata line: the key is named
+    assert f"metadata key '{key}'" in err.problem and f"did you mean '{known}'" in err.problem
+
+
+def test_output_units_mv_is_refused_not_read_as_volts(tmp_path, valid):
+    table = valid
+    line = table.line_of_comment("# output_unit")
+    table.comments[line - 1] = "# output_units = mV"
+    err = refused(table.write(tmp_path / "units.csv"))
+    assert err.line == line and "'output_units'" in err.problem and "did you mean 'output_unit'" in err.problem
+
+
+@pytest.mark.parametrize("line, known", [("# local_g_m_s2: 9.78", "local_g_m_s2"),
+                                         ("# output_unit: mV", "output_unit"),
+                                         ("# Local_G_m_s2 : 9.78", "local_g_m_s2")])
+def test_a_metadata_line_with_a_colon_is_refused(tmp_path, valid, line, known):
+    table = valid
+    j = table.line_of_comment(f"# {known}")
+    table.comments[j - 1] = line
+    err = refused(table.write(tmp_path / "colon.csv"))
+    assert err.line == j and "':'" in err.problem and f"'# {known} = " in err.problem
+
+
+def test_free_keys_and_prose_comments_still_read(tmp_path, valid):
+    table = valid
+    table.comments += ["# a free comment without a key", "# Note: K is in g/V, see the lab book",
+                       "# note = a = b", "# operator=J. Doe", "# input_unit = V", "# temperature = placeholder",
+                       "# bench_id = 7", "# output = analog", "# power = 5 W", "# the local g: measured in 2024",
+                       "# ramp_rate = 1", "", "# t_override = false"]
+    c = read_bench_csv(table.write(tmp_path / "free.csv"))
+    assert c.metadata["note"] == "a = b" and c.metadata["bench_id"] == "7" and c.metadata["output"] == "analog"
+    assert "Note: K is in g/V, see the lab book" not in c.metadata and c.output_unit == "V"
+
+
+# -- 2. temperatures in degF ---------------------------------------------------------------------
+
+def test_temperatures_in_fahrenheit_are_refused(tmp_path, valid):
+    table = valid
+    for col in ("t_x", "t_y", "t_z"):
+        table.map(col, fahrenheit)
+    err = refused(table.write(tmp_path / "degF.csv"))
+    assert err.column == "t_x" and "degF" in err.problem and "(t - 32)/1.8" in err.problem
+    assert "1.8 setpoint_C" in err.problem                 # the slope over the setpoints
+    sp, t = np.array(table.col("setpoint_C"), float), np.array(table.col("t_x"), float)
+    first = int(np.flatnonzero(np.abs(t - sp) >= 10.0)[0])  # the first row that shows it
+    assert err.line == table.line_of_row(first)
+
+
+def test_one_column_in_fahrenheit_is_named(tmp_path):
+    table = independent_table()
+    table.map("t_y", fahrenheit)
+    err = refused(table.write(tmp_path / "degF_y.csv"))
+    assert err.column == "t_y" and err.line == table.line_of_row(0)     # 20 degC -> 68
+
+
+def test_a_cold_campaign_in_fahrenheit_is_refused(tmp_path):
+    table = independent_table(setpoints_C=(-40.0, -25.0, -10.0))       # degF and degC meet at -40
+    for col in ("t_x", "t_y", "t_z"):
+        table.map(col, fahrenheit)
+    err = refused(table.write(tmp_path / "cold.csv"))
+    assert err.column == "t_x" and err.line == table.line_of_row(12)    # the first row at -25 degC
+
+
+def test_one_setpoint_in_fahrenheit_is_refused_and_the_override_reads_it(tmp_path):
+    table = independent_table(setpoints_C=(20.0,))
+    for col in ("t_x", "t_y", "t_z"):
+        table.map(col, fahrenheit)
+    err = refused(table.write(tmp_path / "one.csv"))
+    assert err.column == "t_x" and err.line == table.line_of_row(0) and "t_override" in err.problem
+    table.comments.append("# t_override = true")                   # an oven-controlled unit at 68 degC
+    assert read_bench_csv(table.write(tmp_path / "oven.csv")).t[0, 0] > 60.0
+
+
+def test_a_ramp_in_fahrenheit_is_refused(tmp_path):
+    table = lag_table()                 # setpoint_C: the target of each leg, so t is far from it
+    read_bench_csv(table.write(tmp_path / "ramp.csv"))
+    for col in ("t_x", "t_y", "t_z"):
+        table.map(col, fahrenheit)
+    err = refused(table.write(tmp_path / "ramp_degF.csv"))
+    t, hi = np.array(table.col("t_x"), float), max(float(v) for v in table.col("setpoint_C"))
+    assert err.column == "t_x" and err.line == table.line_of_row(int(np.flatnonzero(t > hi + 20.0)[0]))
+    assert "above the highest setpoint" in err.problem
+
+
+@pytest.mark.parametrize("case", ["self-heating 8 degC", "oven-controlled", "lagging", "cold", "hot", "ramp"])
+def test_legitimate_temperatures_still_read(tmp_path, case):
+    if case == "self-heating 8 degC":
+        table = independent_table()
+        table.map("t_x", lambda s: repr(float(s) + 8.0))
+    elif case == "oven-controlled":                       # the sensors read the oven, not the chamber
+        table = independent_table(setpoints_C=(-40.0, -10.0, 20.0))
+        for col in ("t_x", "t_y", "t_z"):
+            table.map(col, lambda s: repr(65.0 + 0.01 * float(s)))
+    elif case == "lagging":                                # visits before the unit has settled
+        table = lag_table(StepProgram(soak_min=15.0))
+    elif case == "cold":
+        table = independent_table(setpoints_C=(-45.0, -40.0, -35.0))
+    elif case == "hot":                                    # a downhole tool's range
+        table = independent_table(setpoints_C=(20.0, 85.0, 150.0, 175.0))
+    else:
+        table = lag_table(RampProgram(points_C=(20.0, -40.0, 85.0, 20.0), rate_C_per_min=2.0, hold_min=20.0))
+    read_bench_csv(table.write(tmp_path / "ok.csv"))
+
+
+# -- 3. heating and cooling swapped --------------------------------------------------------------
+
+def test_swapped_directions_are_refused(tmp_path, valid):
+    table = valid
+    table.map("direction", SWAP.get)
+    err = refused(table.write(tmp_path / "swapped.csv"))
+    sp, d = table.col("setpoint_C"), table.col("direction")
+    first = next(i for i in range(1, len(sp)) if sp[i] != sp[i - 1])     # the second setpoint block
+    assert err.column == "direction" and err.line == table.line_of_row(first)
+    want = "heating" if float(sp[first]) > float(sp[first - 1]) else "cooling"
+    assert (f"the setpoint went from {float(sp[first - 1]):g} degC (line {table.line_of_row(first - 1)}) to "
+            f"{float(sp[first]):g} degC: that is {want}, not {d[first]}") in err.problem
+
+
+def test_a_slow_marked_ramp_swapped_is_refused_by_most_of_its_labels(tmp_path):
+    table = lag_table(RampProgram(points_C=(20.0, 5.0, 35.0), rate_C_per_min=0.1))
+    table.comments.append("# ramp = 20:5:35 degC at 0.1 degC/min")
+    read_bench_csv(table.write(tmp_path / "slow.csv"))
+    table.map("direction", SWAP.get)
+    err = refused(table.write(tmp_path / "slow_swapped.csv"))
+    assert err.column == "direction" and "are against their rate" in err.problem
+
+
+def test_one_block_relabelled_is_refused(tmp_path):
+    table = example_table()             # 20 none, 35 55 70 heating, 55 cooling, ...
+    rows = [i for i, (s, d) in enumerate(zip(table.col("setpoint_C"), table.col("direction")))
+            if s == "55.0" and d == "cooling"]
+    for i in rows:
+        table.rows[i][table.header.index("direction")] = "heating"
+    err = refused(table.write(tmp_path / "one_block.csv"))
+    assert err.column == "direction" and err.line == table.line_of_row(rows[0])
+    assert "from 70 degC" in err.problem and "to 55 degC: that is cooling, not heating" in err.problem
+
+
+def test_swapped_ramp_directions_are_refused(tmp_path):
+    table = lag_table()                 # direction: the sign of the unit's rate; setpoint_C: the leg's target
+    read_bench_csv(table.write(tmp_path / "ramp.csv"))
+    table.map("direction", SWAP.get)
+    err = refused(table.write(tmp_path / "ramp_swapped.csv"))
+    assert err.column == "direction" and "that is heating, not cooling" in err.problem
+    # a file that says it is a ramp: the label against the rate of the temperature readings
+    table.comments.append("# ramp = 20:-40:70:20 degC at 1 degC/min")
+    err = refused(table.write(tmp_path / "ramp_marked.csv"))
+    assert err.column == "direction" and "falls at" in err.problem
+    i = err.line - table.line_of_row(0)
+    t = [np.mean([float(r[table.header.index(c)]) for c in ("t_x", "t_y", "t_z")]) for r in table.rows]
+    assert table.col("direction")[i] == "heating" and t[i + 1] < t[i - 1]
+
+
+@pytest.mark.parametrize("case", ["none", "repeated setpoint", "1 degC steps", "measured setpoint", "ramp",
+                                  "ramp with holds", "ramp marked", "two units", "after shock"])
+def test_legitimate_directions_still_read(tmp_path, case):
+    if case == "1 degC steps":
+        table = independent_table(setpoints_C=(20.0, 21.0, 22.0, 23.0, 22.0, 21.0))
+    elif case == "measured setpoint":   # the chamber's reading written as setpoint_C: an overshoot settling
+        table = independent_table(setpoints_C=(20.0, 35.8, 35.5, 35.2, 35.0, 20.0))
+        j = table.header.index("direction")
+        for r in table.rows[12:60]:
+            r[j] = "heating"
+    elif case == "none":                # a setpoint reached with no known history
+        table = example_table()
+        j = table.header.index("direction")
+        for r in table.rows[24:36]:
+            r[j] = "none"
+    elif case == "repeated setpoint":   # keeps the previous direction (docs/model.md)
+        table = independent_table(setpoints_C=(20.0, 20.0, 50.0, 50.0, 20.0))
+    elif case in ("ramp", "ramp marked"):   # the unit keeps its direction for a while after the program turns
+        table = lag_table()
+        if case == "ramp marked":
+            table.comments.append("# ramp = 20:-40:70:20 degC at 1 degC/min")
+    elif case == "ramp with holds":
+        table = lag_table(RampProgram(points_C=(20.0, 60.0, 30.0, 70.0), rate_C_per_min=0.5, hold_min=30.0))
+    elif case == "two units":           # interleaved in time, each with its own history
+        a, b = independent_table(unit="SN-A"), independent_table(unit="SN-B", setpoints_C=(80.0, 20.0, -40.0))
+        jt = a.header.index("time_s")
+        for r in b.rows:
+            r[jt] = repr(float(r[jt]) + 25.0)
+        table = a
+        table.rows = sorted(a.rows + b.rows, key=lambda r: float(r[jt]))
+    else:                               # a second state starts its own history
+        a, b = independent_table(), independent_table(setpoints_C=(80.0, 20.0))
+        jt, js, jd = a.header.index("time_s"), a.header.index("state"), a.header.index("direction")
+        for r in b.rows:
+            r[jt], r[js] = repr(float(r[jt]) + 1e6), "after-shock"
+        for r in b.rows[:12]:           # the lab knows it came from a hot shock test
+            r[jd] = "cooling"
+        table = a
+        table.rows = a.rows + b.rows
+    read_bench_csv(table.write(tmp_path / "ok.csv"))
