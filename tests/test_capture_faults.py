@@ -246,10 +246,11 @@ def test_a_wrapping_counter_does_not_hang_the_capture(rig):
 
 def test_a_resume_with_other_settings_is_refused_naming_them(rig, tmp_path):
     """Before: the header was rebuilt at each session, so --local-g 9.78 relabelled the rows
-    captured at 9.80665 (K_x 2 700 ppm off, status ok)."""
+    captured at 9.80665 (K_x 2 700 ppm off, status ok). A first session without --local-g states
+    none (the thirteenth session: it wrote 9.80665 as if measured), and a resume cannot add one."""
     rig(None)
     before = (tmp_path / "out" / CSV_NAME).read_bytes()
-    with pytest.raises(CaptureError, match=r"local_g_m_s2 = '9\.80665' in the captured rows, now '9\.78'"):
+    with pytest.raises(CaptureError, match=r"local_g_m_s2 = not stated in the captured rows, now '9\.78'"):
         rig(None, local_g_m_s2=9.78)
     with pytest.raises(CaptureError, match="settle_s"):
         rig(None, settle_s=50.0)
@@ -259,7 +260,7 @@ def test_a_resume_with_other_settings_is_refused_naming_them(rig, tmp_path):
     state = json.loads(state_path.read_text())
     del state["metadata"]
     state_path.write_text(json.dumps(state))
-    with pytest.raises(CaptureError, match=r"local_g_m_s2 = '9\.80665' in the captured rows, now '9\.78'"):
+    with pytest.raises(CaptureError, match=r"local_g_m_s2 = not stated in the captured rows, now '9\.78'"):
         rig(None, local_g_m_s2=9.78)
     report, c = rig(None)                      # the same settings resume (nothing left to do)
     assert report.visits_done == len(PLAN) and report.visits_done_before == len(PLAN)

@@ -27,13 +27,17 @@ def check_session_metadata(state: dict, metadata: dict, out, header: Optional[di
     written, compared key by key too (a state written before this check holds no metadata)."""
     keep = {k: str(v) for k, v in metadata.items() if k not in SESSION_METADATA}
     before = state.get("metadata")
+
+    def said(v):
+        return "not stated" if v is None else repr(v)
+
     changed = []
     if before is not None:
-        changed = [f"{k} = {before.get(k)!r} in the captured rows, now {keep.get(k)!r}"
+        changed = [f"{k} = {said(before.get(k))} in the captured rows, now {said(keep.get(k))}"
                    for k in sorted(set(before) | set(keep)) if before.get(k) != keep.get(k)]
     elif header:
-        changed = [f"{k} = {header.get(k)!r} in the captured rows, now {v!r}" for k, v in sorted(keep.items())
-                   if str(header.get(k)) != v]
+        changed = [f"{k} = {said(header.get(k))} in the captured rows, now {said(v)}" for k, v in sorted(keep.items())
+                   if header.get(k) is None or str(header.get(k)) != v]
     if changed:
         raise CaptureError(f"{out} holds visits captured with other settings ({'; '.join(changed)}): the header "
                            "describes every row, so a resume must use the same ones (or choose another --out)")
