@@ -249,6 +249,7 @@ def test_a_left_out_flicker_floor_is_not_a_drift():
     assert d.verdict["wander_rival"]["p_value"] < 1e-3, d.verdict["wander_rival"]          # 6.4e-5
 
 
+@pytest.mark.slow          # 5-7 s: slow since the thirteenth session (the quick suite's 10 min)
 def test_a_scale_tempco_beats_a_scale_that_wanders():
     """The validation's cubic scale tempco (m = 1, seed 1000, in the vocabulary) keeps its name
     against a scale factor that wanders (correlated.SCALE_WANDER_MIMICS; the kernel times g_a g_a,

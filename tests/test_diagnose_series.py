@@ -95,6 +95,7 @@ def test_a_single_order_needs_no_series():
     assert not any(x.refit and "series" in x.refit for x in d.candidates)
 
 
+@pytest.mark.slow          # 5-7 s: slow since the thirteenth session (the quick suite's 10 min)
 def test_the_exponential_bias_law_is_named_in_its_family():
     """The second mechanism of the bias tempco (2 c theta^2 (e^x - 1 - x), theta 40 degC; numpy,
     not the model's term): one order leaves chi2/dof 2.1 (seed 1000), the quadratic and cubic

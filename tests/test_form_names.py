@@ -270,7 +270,8 @@ def test_diagnose_again_with_the_named_form_in_the_model(tmp_path, capsys):
     assert_valid(d2, "triadcal.diagnosis")
 
 
-@pytest.mark.parametrize("location", [pytest.param("housing", marks=pytest.mark.slow), "air"])   # 11 s: slow (CI-29)
+@pytest.mark.slow          # 8-12 s each: slow (CI-29; the air case since the thirteenth session)
+@pytest.mark.parametrize("location", ["housing", "air"])
 def test_diagnose_again_with_the_lag_history_in_the_model(tmp_path, location):
     """A lag of 20 min behind a housing or an air thermometer (Euler heat equations): the tempco
     model's diagnosis names ``thermal_lag_history``; with it in the model (the location chosen and
