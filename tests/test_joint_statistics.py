@@ -29,10 +29,16 @@ def runs():
     truth = preset_truth("ak18-quartz")
     names = None
     est, u, classical = [], [], []
+    refused = []
     for seed in range(N):
         c = campaign(truth, seed)
         r = fit_joint(c)
-        assert r.status == "ok"
+        if r.status != "ok":
+            # a correct model is refused only by a gate's false alarm: the structure gate's level is
+            # Holm 1e-3, so over 1000 campaigns at most 4 (P(5 or more) = 0.004 at p = 1e-3); one
+            # (seed 191, orientation_even at Holm p 5.7e-4) when the gate was written
+            refused.append((seed, r.status, [o["gate"] for o in r.extra["gates"]["outcomes"] if o["passed"] is False]))
+            continue
         cl = fit_classical(c)
         classical.append([cl[n].value for n in ANGLES])
         if names is None:
@@ -47,6 +53,7 @@ def runs():
     _, J = problem.residuals_and_jacobian(x)
     crb = np.linalg.inv(J.T @ J)
     crb_sd = {n: np.sqrt(crb[i, i]) for i, n in enumerate(problem.names)}
+    assert len(refused) <= 4 and all(g == ["structure"] for _, _, g in refused), refused
     return truth, names, np.array(est), np.array(u), crb_sd, np.array(classical)
 
 
