@@ -238,15 +238,21 @@ def test_a_slow_marked_ramp_swapped_is_refused_by_most_of_its_labels(tmp_path):
     assert err.column == "direction" and "are against their rate" in err.problem
 
 
-def test_one_block_relabelled_is_refused(tmp_path):
+def test_one_block_against_the_sequence_reads_but_most_blocks_are_refused(tmp_path):
+    """One block whose label contradicts the setpoint sequence is what a unit taken past the next
+    setpoint without a logged visit gives (a preconditioning excursion: 70 -> 85 unlogged -> 55
+    'heating'), which an outside tester's legitimate files did: it reads. Most of the blocks
+    against their labels is a swapped file: refused, naming the first."""
     table = example_table()             # 20 none, 35 55 70 heating, 55 cooling, ...
     rows = [i for i, (s, d) in enumerate(zip(table.col("setpoint_C"), table.col("direction")))
             if s == "55.0" and d == "cooling"]
     for i in rows:
         table.rows[i][table.header.index("direction")] = "heating"
-    err = refused(table.write(tmp_path / "one_block.csv"))
-    assert err.column == "direction" and err.line == table.line_of_row(rows[0])
-    assert "from 70 degC" in err.problem and "to 55 degC: that is cooling, not heating" in err.problem
+    read_bench_csv(table.write(tmp_path / "one_block.csv"))
+    table = example_table()
+    table.map("direction", SWAP.get)         # every block against its label
+    err = refused(table.write(tmp_path / "swapped.csv"))
+    assert err.column == "direction" and "setpoint changes checked contradict" in err.problem
 
 
 def test_swapped_ramp_directions_are_refused(tmp_path):
@@ -304,3 +310,25 @@ def test_legitimate_directions_still_read(tmp_path, case):
         table = a
         table.rows = a.rows + b.rows
     read_bench_csv(table.write(tmp_path / "ok.csv"))
+
+
+@pytest.mark.parametrize("line, refused_", [
+    ("# Power on 07:55", False), ("# Override: none", False), ("# Ramps: 1 degC/min between setpoints", False),
+    ("# Quantisation: none (DMM)", False), ("# Power on: 08:00 local time", False), ("# Date: see log book", False),
+    ("# Bench: two-axis rate table", False), ("# Operator: J. Smith", False), ("# Local gravity measured 2025", False),
+    ("# local_g_m_s2: 9.78", True), ("# Q_V2s: 3e-9", True), ("# output_unit: mV", True),
+    ("# Local gravity = 9.8123", True), ("# local_g = 9.78", True), ("# Local_G_m_s2 = 9.78", True)])
+def test_prose_comments_read_and_metadata_meant_as_such_is_refused(tmp_path, line, refused_):
+    """An outside tester's prose comments ('# Power on: 08:00 local time', '# Override: none') were
+    refused as near-miss metadata, with suggested fixes that did not parse; '# Local gravity =
+    9.8123' was ignored (standard gravity taken). A ':' line is refused only for a key the model
+    reads with a value of its kind."""
+    from triadcal.api import example_path
+
+    text = example_path().read_text().replace("# Q_V2s = 3e-09\n", "# Q_V2s = 3e-09\n" + line + "\n")
+    (tmp_path / "m.csv").write_text(text)
+    if refused_:
+        with pytest.raises(BenchCSVError):
+            read_bench_csv(tmp_path / "m.csv")
+    else:
+        read_bench_csv(tmp_path / "m.csv")

@@ -13,6 +13,7 @@ import csv
 import io
 import math
 import os
+import re
 from pathlib import Path
 from typing import Optional, Union
 
@@ -132,6 +133,8 @@ def near_metadata_key(key: str) -> Optional[str]:
         return None
     if norm in lower:
         return lower[norm]
+    if "gravity" in norm or norm.startswith("local_g"):
+        return "local_g_m_s2"       # '# Local gravity = 9.8123' was ignored: standard gravity taken
     for low, k in lower.items():
         if norm.startswith(low) and len(norm) - len(low) <= 2:
             return k
@@ -139,6 +142,26 @@ def near_metadata_key(key: str) -> Optional[str]:
             return k
     close = difflib.get_close_matches(norm, list(lower), n=1, cutoff=METADATA_CUTOFF)
     return lower[close[0]] if close else None
+
+
+#: the keys whose ':' form is refused (:func:`_check_comment_key`): those the fit reads as numbers,
+#: flags or the output unit -- a value ignored there changes the answer
+COLON_CHECKED = ("local_g_m_s2", "local_g_override", "output_unit", "Q_V2s", "power_on_s", "quantisation_lsb",
+                 "t_override")
+
+
+def _value_of_kind(key: str, value: str) -> bool:
+    """Whether ``value`` is what ``key`` holds: a flag, a unit, or a number."""
+    v = value.split()[0] if value.split() else ""
+    if key.endswith("override"):
+        return v.lower() in ("true", "false")
+    if key == "output_unit":
+        return v in ("V", "mV", "uV", "counts", "A", "mA", "uA", "g", "mg", "ug", "m/s2", "m/s^2")
+    try:
+        float(v)
+    except ValueError:
+        return False
+    return True
 
 
 def _check_comment_key(path, lineno, body):
@@ -161,9 +184,13 @@ def _check_comment_key(path, lineno, body):
                                 f"{body.split('=', 1)[1].strip()}')")
         return
     if ":" in body:
+        # prose is written 'Key: text' too ('# Power on: 08:00 local time', '# Date: see log book'):
+        # a ':' line is refused only when its key is exactly one the model reads (any case, spaces for
+        # underscores) and its value is of that key's kind -- a number, true/false, or an output unit
         left, value = (s.strip() for s in body.split(":", 1))
-        known = left if left in KNOWN_METADATA else near_metadata_key(left)
-        if known is not None and value:
+        norm = re.sub(r"[\s\-]+", "_", left).lower()
+        known = next((k for k in COLON_CHECKED if k.lower() == norm), None)
+        if known is not None and value and _value_of_kind(known, value):
             raise BenchCSVError(path, lineno, None,
                                 f"metadata line '# {body}' uses ':' where the format has '=': it would be a "
                                 f"comment and '{known}' ignored; write '# {known} = {value}'")
@@ -441,6 +468,11 @@ DIRECTION_RATE_NOISE_C_PER_MIN = 0.02
 OPPOSITE = {"heating": "cooling", "cooling": "heating"}
 
 
+#: the direction check refuses a stepped file when at least this many of its setpoint changes, and
+#: more than half of those checked, contradict their heating/cooling labels
+DIRECTION_MIN_AGAINST = 2
+
+
 def _check_directions(path, c: Campaign) -> None:
     """Refuse a ``direction`` that contradicts the file's own thermal history (docs/bench-csv.md,
     "Three misreads refused"), for each unit, state and cycle in time order.
@@ -490,11 +522,14 @@ def _check_directions(path, c: Campaign) -> None:
             continue
         sp = np.asarray(c.setpoint_C, float)[idx]
         starts = [0] + [k for k in range(1, len(idx)) if abs(sp[k] - sp[k - 1]) > SETPOINT_SAME_C] + [len(idx)]
+        checked, against = 0, []
         for b in range(1, len(starts) - 1):
             S, P, last = sp[starts[b]], sp[starts[b] - 1], int(idx[starts[b] - 1])
             if abs(S - P) < SETPOINT_STEP_C:
                 continue                # too small a change to say (a setpoint written as measured)
             want, turned = ("heating" if S > P else "cooling"), False
+            labels = {str(c.direction[i]) for i in idx[starts[b]:starts[b + 1]]}
+            checked += bool(labels & {"heating", "cooling"})
             for i in idx[starts[b]:starts[b + 1]]:
                 d = str(c.direction[i])
                 turned = turned or d == want
@@ -503,11 +538,20 @@ def _check_directions(path, c: Campaign) -> None:
                 moved = (T[i] - T[last]) * np.sign(S - P)
                 if not turned and d == str(c.direction[last]) and moved <= CARRY_OVER_FRACTION * abs(S - P):
                     continue            # the unit has not turned yet: the previous block's direction goes on
-                raise BenchCSVError(
-                    path, int(lines[i]), "direction",
-                    f"the setpoint went from {P:g} degC (line {int(lines[last])}) to {S:g} degC: that is {want}, "
-                    f"not {d} (direction says how the chamber arrived at this setpoint from the previous one); "
-                    "are heating and cooling swapped?")
+                against.append((i, P, S, want, d, last))
+                break
+        # swapped labels contradict (nearly) every block; a unit taken beyond the next setpoint and back
+        # without logging it (a preconditioning excursion) contradicts one or a few, rightly: refuse only
+        # when at least MIN_AGAINST blocks and more than half of those checked contradict the sequence
+        if len(against) >= DIRECTION_MIN_AGAINST and len(against) > 0.5 * checked:
+            i, P, S, want, d, last = against[0]
+            raise BenchCSVError(
+                path, int(lines[i]), "direction",
+                f"the setpoint went from {P:g} degC (line {int(lines[last])}) to {S:g} degC: that is {want}, "
+                f"not {d} (direction says how the chamber arrived at this setpoint from the previous one), and "
+                f"{len(against)} of the {checked} setpoint changes checked contradict their labels so; are heating "
+                "and cooling swapped? (a unit taken past a setpoint without a logged visit contradicts only its "
+                "own block; give such excursions visits, or their own cycle numbers)")
 
 
 def _group_rate(c: Campaign, idx) -> np.ndarray:
