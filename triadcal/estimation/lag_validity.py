@@ -8,7 +8,7 @@ each setpoint exponentially with a time constant ``tau_a``, and the rate form th
 biased by ``tau_r^2 / (tau_a + tau_r)``. :func:`rate_form_check` estimates ``tau_a`` from the
 visits' temperature readings (one exponential approach per setpoint block with a common time
 constant, profiled on a log grid; its 95 % profile interval) and refuses the fit's ``tau`` when
-even the longest ``tau_a`` of that interval leaves a bias larger than the stated ``u(tau)``.
+even the longest ``tau_a`` of that interval leaves a bias larger than three times the stated ``u(tau)`` (:data:`BIAS_U_MAX`).
 """
 
 from __future__ import annotations
@@ -23,6 +23,13 @@ from scipy import stats
 TAU_GRID_MIN = np.geomspace(0.5, 5000.0, 161)
 #: blocks with fewer visits say nothing of a curvature
 MIN_VISITS = 4
+#: the bias, in u, beyond which the rate form's tau is refused. The formula is that of a pure
+#: exponential approach; a chamber that ramps to each setpoint (1 degC/min) approaches otherwise,
+#: and there the formula overstates the bias by up to about 1.5 times: an outside tester's 1 min lag
+#: read 1.01-1.04 +- 0.02-0.04 (z 0.4-1.75) where the formula gave 1.2-2.3 u, refused at 1 u in 10
+#: of 10. At 3 u by the formula the interval value +- 2u misses the lag by the formula's lower
+#: estimate; the probe's 7 min lag (11 u) and the 10 min chain (46 u) stay refused
+BIAS_U_MAX = 3.0
 
 
 def approach_time_constant(campaign) -> Optional[dict]:
@@ -65,10 +72,11 @@ def approach_time_constant(campaign) -> Optional[dict]:
 def rate_form_check(campaign, tau_min: float, u_tau_min: float):
     """The answer gate ``lag_form`` (status ``model_mismatch``) of a joint fit with the rate-form
     ``thermal_lag`` = ``tau_min`` +- ``u_tau_min``: fails when the rate form's bias
-    ``tau^2 / (tau_a + tau)``, with the longest ``tau_a`` the readings allow, exceeds ``u``."""
+    ``tau^2 / (tau_a + tau)``, with the longest ``tau_a`` the readings allow, exceeds
+    :data:`BIAS_U_MAX` ``u``."""
     from .gates import GateOutcome
 
-    threshold = "bias tau^2 / (tau_a,high + tau) <= u(tau)"
+    threshold = f"bias tau^2 / (tau_a,high + tau) <= {BIAS_U_MAX:g} u(tau)"
     if not (math.isfinite(tau_min) and math.isfinite(u_tau_min)) or tau_min <= 0:
         return GateOutcome("lag_form", None, "model_mismatch", "not testable: the lag is not a positive number")
     if campaign.dTdt_C_per_min is not None:
@@ -81,7 +89,7 @@ def rate_form_check(campaign, tau_min: float, u_tau_min: float):
                            f"not testable: fewer than two setpoint blocks of {MIN_VISITS} visits or more (a ramp "
                            "campaign: its legs are straight, the rate form exact)")
     bias = tau_min ** 2 / (a["tau_high_min"] + tau_min)
-    ok = bias <= u_tau_min
+    ok = bias <= BIAS_U_MAX * u_tau_min
     txt = (f"the thermometers approach each setpoint with a time constant of {a['tau_min']:.3g} min (95 % up to "
            f"{a['tau_high_min']:.3g} min, {a['blocks']} blocks); the rate form T - tau dT/dt is first order in "
            f"tau against it and reads tau = {tau_min:.3g} +- {u_tau_min:.2g} min biased by at least {bias:.2g} min")
