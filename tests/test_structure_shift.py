@@ -138,3 +138,17 @@ def test_false_refusals_over_200_clean_campaigns(drop_noise):
         if _gate(r, "structure")["passed"] is False:
             refused.append(seed)
     assert len(refused) <= 2, refused
+
+
+def test_a_singular_jacobian_is_not_a_crash(example):
+    """A parameter with no effect on the data (a zero Jacobian column) makes the QR's R singular:
+    the gate is then not testable (the identifiable gate refuses the fit), never an exit 70."""
+    from triadcal.estimation.joint import scaled_covariance
+    from triadcal.estimation.structure import structure_shift
+
+    r, problem, sol = fit_joint(example, return_problem=True)
+    J = sol.J.copy()
+    J[:, 0] = 0.0
+    u = np.sqrt(np.diag(scaled_covariance(sol.J)))
+    out = structure_shift(example, problem.sigma, sol.r, J, sol.r.size - J.shape[1], 20.0, u, problem.names, True)
+    assert out is None or isinstance(out["passed"], bool)

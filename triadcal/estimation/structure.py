@@ -200,7 +200,10 @@ def structure_shift(campaign, sigma: np.ndarray, r: np.ndarray, J: np.ndarray, d
 
     if dof < 2:
         return None
-    rows = shift_rows(campaign, sigma, r, J, dof, reference_temperature_C, u, names, noise_known, noise_scale)
+    try:
+        rows = shift_rows(campaign, sigma, r, J, dof, reference_temperature_C, u, names, noise_known, noise_scale)
+    except np.linalg.LinAlgError:       # a Jacobian with a null column: the identifiable gate refuses the fit
+        return None
     if not rows:
         return None
     for row, p in zip(rows, _holm([row["p_raw"] for row in rows])):
