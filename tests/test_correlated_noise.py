@@ -102,6 +102,7 @@ def test_size_on_a_linear_null():
     assert np.mean(fam < 0.01) < 0.01 + 4.5 * math.sqrt(0.01 * 0.99 / 500)
 
 
+@pytest.mark.slow          # 5-7 s: slow since the thirteenth session (CI quick 573 of 600 s)
 def test_a_random_walk_is_found():
     """A random walk of the bias (cumulative sums of numpy normals: not the kernel's Gauss-Markov
     form) whose expected rho at the longest correlation time lies 12 null SD above the null mean,

@@ -337,6 +337,7 @@ def test_thermal_lag_history_on_a_record_with_gaps_is_refused_until_the_location
         assert abs(lag["value"] - th) < 3 * lag["u"], lag
 
 
+@pytest.mark.slow          # 5-7 s: slow since the thirteenth session (CI quick 573 of 600 s)
 def test_the_diagnose_again_loop_through_the_hysteresis_forms(tmp_path):
     """A Prandtl-Ishlinskii hysteresis (two backlashes of 3 and 25 degC, weights 0.5; independent
     bench): under the offset model and under the play the verdict is ``hysteresis_pi``; with

@@ -98,6 +98,7 @@ def test_the_diagnosis_names_the_settling_over_a_constant_rate():
     assert form["beats_simpler"] and abs(form["tau_h"] - TAU_H) < 0.3 * TAU_H, form
 
 
+@pytest.mark.slow          # 5-7 s: slow since the thirteenth session (CI quick 573 of 600 s)
 def test_a_constant_rate_is_named_tilt_drift_not_a_settling():
     c, _ = bench(2, "rate")
     d = diagnose(c, MODEL, **OPTS)

@@ -150,6 +150,7 @@ def test_a_positioning_error_on_poses_visited_once_keeps_its_name_and_caveat(tmp
     assert "every pose is visited once" in v["caveat"]
 
 
+@pytest.mark.slow          # 5-7 s: slow since the thirteenth session (CI quick 573 of 600 s)
 def test_a_positioning_error_of_the_validation_keeps_its_name():
     """The validation's position_error at m = 0.5 (the weaker magnitude), seed 1012, the
     smallest likelihood ratio of seeds 1000-1019 (LR 15.7, p 3.8e-5): named, its pattern significant."""
@@ -172,6 +173,7 @@ def test_the_shape_of_a_gap_with_no_pattern_is_its_level():
     assert gap_shape({"chi2": 0.02, "kurtosis": 0.5, "score:x": 1e-12}, 0.01) == []
 
 
+@pytest.mark.slow          # 5-7 s: slow since the thirteenth session (CI quick 573 of 600 s)
 def test_a_white_excess_is_unexplained_with_the_shape_of_a_level_and_no_partial_answer(tmp_path):
     """A white excess of 1 SE (seeds 1 and 3, chi2/dof 2.0 and 2.1): no generic family rejects and
     the tails are normal, so the shape is the level alone (p_holm ~ 1e-20) and the reason says the
