@@ -5,9 +5,6 @@ exponentially, is refused when its first-order bias exceeds u(tau).
 The bias formula is checked against an ODE solution (scipy); the gate on campaigns of
 tests/independent_bench.py, whose heat equations are integrated there (no project model code)."""
 
-import os
-import tempfile
-
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -15,7 +12,7 @@ from scipy.integrate import solve_ivp
 from independent_bench import StepProgram, simulate_lag_campaign
 from triadcal.estimation.joint import fit_joint
 from triadcal.estimation.lag_validity import approach_time_constant
-from triadcal.io.bench_csv import read_bench_csv
+from triadcal.io.bench_csv import parse_bench_csv
 from triadcal.models.effects import DEFAULT_EFFECTS
 from triadcal.models.effects.thermal_lag import rate_form_time_constant
 
@@ -36,13 +33,7 @@ def test_rate_form_time_constant_against_the_heat_equation():
 def _campaign(seed, tau_element_min, soak_min=60.0):
     text, truth = simulate_lag_campaign(np.random.default_rng(seed), program=StepProgram(soak_min=soak_min),
                                         tau_element_min=tau_element_min, location="housing", tau_housing_min=20.0)
-    fd, path = tempfile.mkstemp(suffix=".csv")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    try:
-        return read_bench_csv(path), truth
-    finally:
-        os.unlink(path)
+    return parse_bench_csv(text), truth
 
 
 def _gate(r):

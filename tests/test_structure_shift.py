@@ -5,16 +5,13 @@ The shift formula is checked against two explicit least-squares fits (numpy, no 
 its null distribution by simulation; the gate on campaigns of tests/independent_bench.py (no
 project model code), clean and with a quadratic angle tempco the linear model lacks."""
 
-import os
-import tempfile
-
 import numpy as np
 import pytest
 
 from independent_bench import default_truth, simulate_campaign
 from triadcal.estimation.joint import fit_joint
 from triadcal.estimation.structure import SHIFT_U_MAX, hausman_shift
-from triadcal.io.bench_csv import read_bench_csv
+from triadcal.io.bench_csv import parse_bench_csv
 from triadcal.models.effects import DEFAULT_EFFECTS
 
 
@@ -28,13 +25,7 @@ def _campaign(seed, tempco2=None, drop_noise=False):
         h = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
         keep = [i for i, c in enumerate(lines[h].split(",")) if not (c.startswith("sd_") or c == "n_samples")]
         text = "\n".join(lines[:h] + [",".join(ln.split(",")[i] for i in keep) for ln in lines[h:]]) + "\n"
-    fd, path = tempfile.mkstemp(suffix=".csv")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    try:
-        return read_bench_csv(path), truth
-    finally:
-        os.unlink(path)
+    return parse_bench_csv(text), truth
 
 
 def _gate(result, name):
