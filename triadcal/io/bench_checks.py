@@ -1,0 +1,292 @@
+"""The bench CSV reader's checks of misreads (docs/bench-csv.md, "Three misreads refused"):
+metadata keys close to the ones triadcal reads, temperatures in degF, and heating/cooling labels
+against the setpoint sequence. Each file these refuse used to read silently and give a confident
+wrong calibration; :func:`triadcal.io.bench_csv.parse_bench_csv` calls them."""
+
+from __future__ import annotations
+
+import re
+from typing import Optional
+
+import numpy as np
+
+from ..models.campaign import Campaign
+from .bench_csv import BenchCSVError
+
+#: metadata keys that triadcal reads (``metadata.get`` / ``metadata[...]`` across the package):
+#: a key that differs from one of them only by case, or is a close misspelling, is refused
+#: rather than ignored (docs/bench-csv.md, "Three misreads refused")
+KNOWN_METADATA = ("local_g_m_s2", "local_g_override", "output_unit", "Q_V2s", "power_on_s", "quantisation_lsb",
+                  "u_w_method", "dTdt_method", "ramp", "date", "bench", "t_override")
+#: metadata keys triadcal's own writers put in a file (simulate, capture and its noise estimate,
+#: fit-raw, the lab file):
+#: accepted as they are, however close to a known key they look (``input_unit``, ``temperature``)
+WRITTEN_METADATA = ("generator", "seed", "ramp_setpoint", "ramp_labels", "raw_samples", "stabilisation",
+                    "settle_s", "plan", "operator", "imu_protocol", "imu_temperature", "noise_method", "readout",
+                    "samples_per_window", "unit_temperature", "source", "rate_hz", "input_unit", "temperature",
+                    "emulator", "local_g_source",
+                    *(f"Q_{a}_V2s" for a in "xyz"), *(f"bias_instability_{a}_V" for a in "xyz"))   # hardware/noise.py
+#: difflib ratio at or above which a key is a misspelling of a known key
+METADATA_CUTOFF = 0.8
+
+
+def near_metadata_key(key: str) -> Optional[str]:
+    """The known metadata key (:data:`KNOWN_METADATA`) that ``key`` is most likely a mistyped
+    form of, or None: the same key in another case or with spaces or hyphens for underscores;
+    a known key with up to 2 characters more (``output_units``); the start of a known key of
+    at least 5 characters and 55 % of its length (``local_g`` for ``local_g_m_s2``); or a
+    difflib ratio of at least :data:`METADATA_CUTOFF`. Exact known or written keys are None."""
+    import difflib
+
+    if key in KNOWN_METADATA or key in WRITTEN_METADATA:
+        return None
+    norm = re.sub(r"[\s\-]+", "_", key.lstrip("#").strip()).lower()
+    lower = {k.lower(): k for k in KNOWN_METADATA}
+    if not norm:
+        return None
+    if norm in lower:
+        return lower[norm]
+    if "gravity" in norm or norm.startswith("local_g"):
+        return "local_g_m_s2"       # '# Local gravity = 9.8123' was ignored: standard gravity taken
+    for low, k in lower.items():
+        if norm.startswith(low) and len(norm) - len(low) <= 2:
+            return k
+        if low.startswith(norm) and len(norm) >= 5 and len(norm) >= 0.55 * len(low):
+            return k
+    close = difflib.get_close_matches(norm, list(lower), n=1, cutoff=METADATA_CUTOFF)
+    return lower[close[0]] if close else None
+
+
+#: the keys whose ':' form is refused (:func:`check_comment_key`): those the fit reads as numbers,
+#: flags or the output unit -- a value ignored there changes the answer
+COLON_CHECKED = ("local_g_m_s2", "local_g_override", "output_unit", "Q_V2s", "power_on_s", "quantisation_lsb",
+                 "t_override")
+
+
+def _value_of_kind(key: str, value: str) -> bool:
+    """Whether ``value`` is what ``key`` holds: a flag, a unit, or a number."""
+    v = value.split()[0] if value.split() else ""
+    if key.endswith("override"):
+        return v.lower() in ("true", "false")
+    if key == "output_unit":
+        return v in ("V", "mV", "uV", "counts", "A", "mA", "uA", "g", "mg", "ug", "m/s2", "m/s^2")
+    try:
+        float(v)
+    except ValueError:
+        return False
+    return True
+
+
+def check_comment_key(path, lineno, body):
+    """Refuse a ``#`` line that was meant as metadata of a known key but will not be read as
+    it: ``key: value`` instead of ``key = value``, or a key mistyped (case, spelling)."""
+    if "=" in body:
+        key = body.split("=", 1)[0].strip()
+        if ":" in key:                                  # '# local_g_m_s2: 9.78 = measured'
+            left = key.split(":", 1)[0].strip()
+            known = left if left in KNOWN_METADATA else near_metadata_key(left)
+            if known is not None:
+                raise BenchCSVError(path, lineno, None,
+                                    f"metadata line '# {body}' has ':' after the key '{left}', so its key would be "
+                                    f"{key!r} and '{known}' ignored: a metadata line is '# {known} = value'")
+        near = near_metadata_key(key)
+        if near is not None:
+            raise BenchCSVError(path, lineno, None,
+                                f"metadata key {key!r} is not one triadcal reads: did you mean {near!r}? (a key "
+                                f"close to a known one is refused rather than ignored; write '# {near} = "
+                                f"{body.split('=', 1)[1].strip()}')")
+        return
+    if ":" in body:
+        # prose is written 'Key: text' too ('# Power on: 08:00 local time', '# Date: see log book'):
+        # a ':' line is refused only when its key is exactly one the model reads (any case, spaces for
+        # underscores) and its value is of that key's kind -- a number, true/false, or an output unit
+        left, value = (s.strip() for s in body.split(":", 1))
+        norm = re.sub(r"[\s\-]+", "_", left).lower()
+        known = next((k for k in COLON_CHECKED if k.lower() == norm), None)
+        if known is not None and value and _value_of_kind(known, value):
+            raise BenchCSVError(path, lineno, None,
+                                f"metadata line '# {body}' uses ':' where the format has '=': it would be a "
+                                f"comment and '{known}' ignored; write '# {known} = {value}'")
+
+
+#: degF check (docs/bench-csv.md, "Three misreads refused"), each t_* column on its own.
+#: Setpoints spanning at least FAHRENHEIT_SPAN_C: the least-squares slope of t on setpoint_C in
+#: FAHRENHEIT_SLOPE (degF: 1.8; degC: about 1, less with a thermal lag), the median |t - setpoint|
+#: at least FAHRENHEIT_MIN_OFFSET_C, and the median |(t - 32)/1.8 - setpoint| at most
+#: FAHRENHEIT_MAX_RESIDUAL_C or a quarter of the median |t - setpoint|, whichever is more.
+FAHRENHEIT_SPAN_C = 10.0
+FAHRENHEIT_SLOPE = (1.4, 2.2)
+FAHRENHEIT_MIN_OFFSET_C = 5.0
+FAHRENHEIT_MAX_RESIDUAL_C = 5.0
+#: one setpoint (a span below FAHRENHEIT_SPAN_C): only the offset tells, so it must be larger
+FAHRENHEIT_MIN_OFFSET_ONE_SETPOINT_C = 20.0
+#: a ramp (setpoint_C the target of a leg, so t is far from it): at least FAHRENHEIT_HOT_SHARE of the
+#: visits read FAHRENHEIT_HOT_C above the highest setpoint, t spans at least FAHRENHEIT_HOT_C and
+#: 1.2 times the setpoints, and (t - 32)/1.8 lies within FAHRENHEIT_HOT_C / 2 of the setpoints' range
+FAHRENHEIT_HOT_C = 20.0
+FAHRENHEIT_HOT_SHARE = 0.2
+
+
+def _fahrenheit(t, S):
+    """Why the readings ``t`` of one column look like degF against the setpoints ``S``, or None."""
+    d, u = t - S, (t - 32.0) / 1.8
+    md, mf = float(np.median(np.abs(d))), float(np.median(np.abs(u - S)))
+    span = float(np.ptp(S))
+    close = mf <= max(FAHRENHEIT_MAX_RESIDUAL_C, 0.25 * md)
+    why = (f"median |t - setpoint_C| over the {len(t)} visits {md:.3g} degC, while (t - 32)/1.8 is within "
+           f"{mf:.2g} degC of the setpoint (median)")
+    if span >= FAHRENHEIT_SPAN_C:
+        b, a = np.polyfit(S, t, 1)
+        if FAHRENHEIT_SLOPE[0] <= b <= FAHRENHEIT_SLOPE[1] and md >= FAHRENHEIT_MIN_OFFSET_C and close:
+            return np.abs(d) >= 0.5 * md, why + f"; t = {a:.3g} + {b:.3g} setpoint_C (degF: 32 + 1.8 setpoint_C)"
+    elif md >= FAHRENHEIT_MIN_OFFSET_ONE_SETPOINT_C and close:
+        return np.abs(d) >= 0.5 * md, why
+    lo, hi = float(np.min(S)), float(np.max(S))
+    hot = t > hi + FAHRENHEIT_HOT_C
+    inside = (u >= lo - FAHRENHEIT_HOT_C / 2) & (u <= hi + FAHRENHEIT_HOT_C / 2)
+    if (hot.mean() >= FAHRENHEIT_HOT_SHARE and inside.all()
+            and np.ptp(t) >= max(FAHRENHEIT_HOT_C, 1.2 * span)):
+        return hot, (f"{100 * hot.mean():.0f} % of the visits read more than {FAHRENHEIT_HOT_C:g} degC above the "
+                     f"highest setpoint, {hi:g} degC, while (t - 32)/1.8 lies within the setpoints' "
+                     f"{lo:g} to {hi:g} degC")
+    return None
+
+
+def check_temperature_unit(path, c: Campaign) -> None:
+    """Refuse t_* columns that read as degF against the setpoints (:func:`_fahrenheit`,
+    docs/bench-csv.md, "Three misreads refused"); ``# t_override = true`` skips the check."""
+    S = np.asarray(c.setpoint_C, float)
+    for j, col in enumerate(("t_x", "t_y", "t_z")):
+        t = np.asarray(c.t[:, j], float)
+        found = _fahrenheit(t, S)
+        if found is None:
+            continue
+        shows, why = found
+        i = int(np.flatnonzero(shows)[0])           # the first visit, in file order, that shows it
+        raise BenchCSVError(
+            path, int(c.lines[i]) if c.lines is not None else i + 1, col,
+            f"{col} = {t[i]:g} at setpoint_C {S[i]:g}: the temperatures look like degF, not degC ({why}); the "
+            "t_* columns are degC: convert with (t - 32)/1.8. If they are degC readings (an oven-controlled "
+            "unit far from the chamber's setpoint), add the line '# t_override = true'")
+
+
+#: consecutive visits (of one unit, state and cycle, in time order) whose setpoints differ by at most
+#: this (degC) are one block of the direction check
+SETPOINT_SAME_C = 0.01
+#: a block whose setpoint differs from the previous block's by less than this (degC) is not checked
+SETPOINT_STEP_C = 1.0
+#: a visit labelled with the previous block's direction against a setpoint change is the unit not yet
+#: turned (a ramp as the unit sees it) only while its temperature has moved toward the new setpoint
+#: by at most this fraction of the step since the previous block's last visit
+CARRY_OVER_FRACTION = 0.25
+#: in a ramp file, a direction opposed to the visit's temperature rate by more than this (degC/min) is refused
+DIRECTION_RATE_C_PER_MIN = 0.2
+#: ... or when more than half the labelled visits whose rate is at least this (degC/min) are against it
+DIRECTION_RATE_NOISE_C_PER_MIN = 0.02
+OPPOSITE = {"heating": "cooling", "cooling": "heating"}
+
+
+#: the direction check refuses a stepped file when at least this many of its setpoint changes, and
+#: more than half of those checked, contradict their heating/cooling labels
+DIRECTION_MIN_AGAINST = 2
+
+
+def check_directions(path, c: Campaign) -> None:
+    """Refuse a ``direction`` that contradicts the file's own thermal history (docs/bench-csv.md,
+    "Three misreads refused"), for each unit, state and cycle in time order.
+
+    A ramp file (metadata ``ramp`` or the column ``dTdt_C_per_min``: ``simulate --ramp``,
+    ``capture --ramp``) labels each visit with the sign of the unit's rate (docs/hardware.md):
+    ``heating`` is refused where the reading falls faster than :data:`DIRECTION_RATE_C_PER_MIN`,
+    ``cooling`` where it rises that fast. Any other file: after the first block of visits at one
+    setpoint, ``heating`` needs a setpoint above the previous block's and ``cooling`` one below
+    (``none`` is always accepted; a change below :data:`SETPOINT_STEP_C` is not checked), except at the start of a block, before any visit with the
+    expected label, for visits that keep the previous block's last label while the unit's
+    temperature has not moved toward the new setpoint by more than :data:`CARRY_OVER_FRACTION`
+    of the step (a ramp labelled as the unit sees it, which turns after the program)."""
+    n = c.n_visits
+    if n < 2:
+        return
+    lines = c.lines if c.lines is not None else np.arange(1, n + 1)
+    groups: dict = {}
+    for i, key in enumerate(zip(c.unit.tolist(), c.state.tolist(), np.asarray(c.cycle).tolist())):
+        groups.setdefault(key, []).append(i)
+    ramp = "ramp" in c.metadata or c.dTdt_C_per_min is not None
+    T = np.mean(np.asarray(c.t, float), axis=1)
+    for idx in groups.values():
+        idx = np.array(idx)[np.argsort(c.time_s[idx], kind="stable")]
+        if len(idx) < 2:
+            continue
+        if ramp:
+            rate = _group_rate(c, idx)
+            sign = np.array([{"heating": 1.0, "cooling": -1.0}.get(d, 0.0) for d in c.direction[idx]])
+            bad = np.flatnonzero(sign * rate < -DIRECTION_RATE_C_PER_MIN)
+            moving = (sign != 0) & (np.abs(rate) >= DIRECTION_RATE_NOISE_C_PER_MIN)
+            against = moving & (sign * rate < 0)
+            most = ""
+            if not len(bad) and moving.sum() >= 10 and against.sum() > 0.5 * moving.sum():
+                bad = np.flatnonzero(against)       # a slow ramp: most labels against their rates
+                most = (f"; {int(against.sum())} of the {int(moving.sum())} labelled visits moving faster than "
+                        f"{DIRECTION_RATE_NOISE_C_PER_MIN:g} degC/min are against their rate")
+            if len(bad):
+                i, r = int(idx[bad[0]]), float(rate[bad[0]])
+                src = ("dTdt_C_per_min" if c.dTdt_C_per_min is not None
+                       else "central differences of the mean t_* within its block")
+                raise BenchCSVError(
+                    path, int(lines[i]), "direction",
+                    f"direction '{c.direction[i]}', but the unit's temperature {'falls' if r < 0 else 'rises'} at "
+                    f"{abs(r):.3g} degC/min during this visit ({src}{most}): in a ramp file the direction is the "
+                    "sign of the unit's rate (heating on a rise, cooling on a fall); are heating and cooling swapped?")
+            continue
+        sp = np.asarray(c.setpoint_C, float)[idx]
+        starts = [0] + [k for k in range(1, len(idx)) if abs(sp[k] - sp[k - 1]) > SETPOINT_SAME_C] + [len(idx)]
+        checked, against = 0, []
+        for b in range(1, len(starts) - 1):
+            S, P, last = sp[starts[b]], sp[starts[b] - 1], int(idx[starts[b] - 1])
+            if abs(S - P) < SETPOINT_STEP_C:
+                continue                # too small a change to say (a setpoint written as measured)
+            want, turned = ("heating" if S > P else "cooling"), False
+            labels = {str(c.direction[i]) for i in idx[starts[b]:starts[b + 1]]}
+            checked += bool(labels & {"heating", "cooling"})
+            for i in idx[starts[b]:starts[b + 1]]:
+                d = str(c.direction[i])
+                turned = turned or d == want
+                if d != OPPOSITE[want]:
+                    continue
+                moved = (T[i] - T[last]) * np.sign(S - P)
+                if not turned and d == str(c.direction[last]) and moved <= CARRY_OVER_FRACTION * abs(S - P):
+                    continue            # the unit has not turned yet: the previous block's direction goes on
+                against.append((i, P, S, want, d, last))
+                break
+        # swapped labels contradict (nearly) every block; a unit taken beyond the next setpoint and back
+        # without logging it (a preconditioning excursion) contradicts one or a few, rightly: refuse only
+        # when at least MIN_AGAINST blocks and more than half of those checked contradict the sequence
+        if len(against) >= DIRECTION_MIN_AGAINST and len(against) > 0.5 * checked:
+            i, P, S, want, d, last = against[0]
+            raise BenchCSVError(
+                path, int(lines[i]), "direction",
+                f"the setpoint went from {P:g} degC (line {int(lines[last])}) to {S:g} degC: that is {want}, "
+                f"not {d} (direction says how the chamber arrived at this setpoint from the previous one), and "
+                f"{len(against)} of the {checked} setpoint changes checked contradict their labels so; are heating "
+                "and cooling swapped? (a unit taken past a setpoint without a logged visit contradicts only its "
+                "own block; give such excursions visits, or their own cycle numbers)")
+
+
+def _group_rate(c: Campaign, idx) -> np.ndarray:
+    """Rate of the unit's temperature reading (degC/min) at the visits ``idx`` (one unit, state
+    and cycle, in time order): ``dTdt_C_per_min`` when the file has it, else central differences
+    of the mean of t_x, t_y, t_z within each run of visits of one setpoint and direction (one-sided
+    at its ends, 0 for a run of one visit), so a soak between two setpoints is not a rate."""
+    if c.dTdt_C_per_min is not None:
+        return np.asarray(c.dTdt_C_per_min, float)[idx]
+    T = np.mean(np.asarray(c.t, float)[idx], axis=1)
+    time = np.asarray(c.time_s, float)[idx]
+    key = list(zip(c.setpoint_C[idx].tolist(), c.direction[idx].tolist()))
+    out = np.zeros(len(idx))
+    start = 0
+    for k in range(1, len(idx) + 1):
+        if k == len(idx) or key[k] != key[start]:
+            if k - start >= 2 and np.all(np.diff(time[start:k]) > 0):
+                out[start:k] = np.gradient(T[start:k], time[start:k]) * 60.0
+            start = k
+    return out
