@@ -550,28 +550,10 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                "output_unit": campaign.output_unit, "local_g_m_s2": campaign.local_g_m_s2,
                "source": campaign.source, "data_sha256": campaign.data_sha256, "local_g_stated": campaign.local_g_stated})
     resid = (sol.r.reshape(-1, 3) * noise.sigma)
-    structure = None
-    if not noise.known and loss == "l2" and whitening is None and np.all(np.isfinite(sol.J)):
-        from .structure import structure_gap
+    from .structure import residual_checks
 
-        structure = structure_gap(campaign, noise.sigma, sol.r, sol.J, dof, model.reference_temperature_C)
-        if structure is not None:
-            result.fit["structure"] = structure
-    from .structure import structure_outcome, structure_shift
-
-    if loss == "l2" and whitening is None and np.all(np.isfinite(sol.J)) and np.all(np.isfinite(u)):
-        shift = structure_shift(campaign, noise.sigma, sol.r, sol.J, dof, model.reference_temperature_C, u,
-                                problem.names, noise.known, 1.0 if noise.known else math.sqrt(max(chi2_dof, 0.0)))
-        if shift is not None:
-            result.fit["structure_shift"] = {k: v for k, v in shift.items()}
-        shift_gate = structure_outcome(shift)
-    else:
-        shift_gate = structure_outcome(None, "not testable: a robust loss or a whitened (1/f) fit")
-    extra_gates = [shift_gate]
-    if "thermal_lag" in params:          # the rate form (the history forms leave the effect out of the model)
-        from .lag_validity import rate_form_check
-
-        extra_gates.append(rate_form_check(campaign, params["thermal_lag"].value, params["thermal_lag"].u))
+    structure, extra_gates = residual_checks(result, campaign, noise, sol, dof, chi2_dof, model.reference_temperature_C,
+                                             u, problem.names, plain=loss == "l2" and whitening is None)
     evidence = FitEvidence(
         converged=sol.converged, cost_start=cost_start, cost_final=sol.cost, jacobian=sol.J * sw[:, None],
         free_names=problem.names, residual_rms=float(np.sqrt(np.mean(resid ** 2))),

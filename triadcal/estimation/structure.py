@@ -236,3 +236,33 @@ def structure_outcome(row: Optional[dict], why_not: str = ""):
                 "the answer although the noise test may pass; run `triadcal diagnose` and refit with the "
                 "missing effect")
     return GateOutcome("structure", row["passed"], "model_mismatch", txt, row["lower_u"], threshold)
+
+
+def residual_checks(result, campaign, noise, sol, dof: int, chi2_dof: float, reference_temperature_C: float,
+                    u: np.ndarray, names, plain: bool):
+    """The joint fit's checks of its residuals and model form: ``(structure, gates)``. ``structure``:
+    :func:`structure_gap` with the noise estimated (the goodness of fit's evidence, also
+    ``result.fit["structure"]``), else None; ``gates``: the ``structure`` gate
+    (:func:`structure_shift`, its evidence in ``result.fit["structure_shift"]``) and, with the rate-form
+    ``thermal_lag`` in the result, the ``lag_form`` gate (:mod:`.lag_validity`). ``plain``: least
+    squares without a robust loss or whitening, the fits these tests are made for."""
+    structure = None
+    finite = plain and bool(np.all(np.isfinite(sol.J)))
+    if finite and not noise.known:
+        structure = structure_gap(campaign, noise.sigma, sol.r, sol.J, dof, reference_temperature_C)
+        if structure is not None:
+            result.fit["structure"] = structure
+    if finite and np.all(np.isfinite(u)):
+        shift = structure_shift(campaign, noise.sigma, sol.r, sol.J, dof, reference_temperature_C, u, names,
+                                noise.known, 1.0 if noise.known else float(np.sqrt(max(chi2_dof, 0.0))))
+        if shift is not None:
+            result.fit["structure_shift"] = dict(shift)
+        gates = [structure_outcome(shift)]
+    else:
+        gates = [structure_outcome(None, "not testable: a robust loss or a whitened (1/f) fit")]
+    if "thermal_lag" in result.parameters:    # the rate form (the history forms leave the effect out of the model)
+        from .lag_validity import rate_form_check
+
+        lag = result.parameters["thermal_lag"]
+        gates.append(rate_form_check(campaign, lag.value, lag.u))
+    return structure, gates
