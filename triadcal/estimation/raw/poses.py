@@ -109,13 +109,17 @@ def clipped_intervals(rec: RawRecording, detection: StaticDetection) -> list:
     return out
 
 
+def _channel_in(iv, a: int) -> str:
+    """``"x in the interval LABEL (samples s-e)"``: where a refusal of one channel's readings is."""
+    return f"{'xyz'[a] if a < 3 else a} in the interval {iv.label or '(unlabelled)'} (samples {iv.start}-{iv.end - 1})"
+
+
 def refuse_clipped(rec: RawRecording, detection: StaticDetection) -> None:
     """Refuse a recording with a clipped static interval (:func:`clipped_intervals`), naming it."""
     clipped = clipped_intervals(rec, detection)
     if not clipped:
         return
-    parts = [f"{'xyz'[a] if a < 3 else a} in the interval {iv.label or '(unlabelled)'} (samples {iv.start}-{iv.end - 1}): "
-             f"{count} of {n} samples on the recording's {'largest' if ext == float(np.max(rec.acc[:, a])) else 'smallest'}"
+    parts = [f"{_channel_in(iv, a)}: {count} of {n} samples on the recording's {'largest' if ext == float(np.max(rec.acc[:, a])) else 'smallest'}"
              f" value {ext:g} {rec.unit}, where its noise elsewhere puts at most {bound:.1%} on one value"
              for iv, a, ext, count, n, bound in clipped]
     raise InputError(f"{rec.source}: a channel is clipped at full scale: " + "; ".join(parts)
@@ -227,8 +231,7 @@ def refuse_wrapped(rec: RawRecording, detection: StaticDetection) -> None:
     wrapped = wrapped_intervals(rec, detection)
     if not wrapped:
         return
-    parts = [f"{'xyz'[a] if a < 3 else a} in the interval {iv.label or '(unlabelled)'} (samples {iv.start}-"
-             f"{iv.end - 1}) jumps between {lo[0]:g}..{lo[1]:g} and {hi[0]:g}..{hi[1]:g} (SD {sd:.4g}; "
+    parts = [f"{_channel_in(iv, a)} jumps between {lo[0]:g}..{lo[1]:g} and {hi[0]:g}..{hi[1]:g} (SD {sd:.4g}; "
              f"{sd_u:.3g} with the values from {2 ** (bits - 1)} up taken as negative, minus {2 ** bits})"
              for iv, a, bits, lo, hi, sd, sd_u in wrapped]
     bits = wrapped[0][2]
