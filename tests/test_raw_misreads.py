@@ -298,6 +298,48 @@ def test_fit_raw_results_carry_the_samples_sha256(tmp_path, capsys):
     assert fit_raw(str(p2), RATE, poses="unknown", labels="part").result.extra["data_sha256"] != want
 
 
+def test_the_fit_of_the_bench_csv_fit_raw_wrote_is_the_same_data(tmp_path, capsys):
+    """fit-raw --bench-csv averages the recording into a bench CSV; a `fit` of that file hashed the
+    averages (another data_sha256), so compare judged it and the recording's fit-raw as two
+    calibrations ("pass"). The file now carries the recording's hash, the fit's result
+    derived_from_sha256, and compare says inconclusive whichever side each is on; the saved
+    comparison with a stored "pass" is refused by its reader."""
+    from triadcal.judgement.compare.pair import compare, same_data
+    from triadcal.io.bench_csv import read_bench_csv
+    from triadcal.api import fit
+
+    w, labels = make_samples(twelve_poses())
+    p = write_recording(tmp_path / "twelve.csv", w, labels)
+    want = hashlib.sha256(np.ascontiguousarray(w, dtype="<f8").tobytes()).hexdigest()
+    raw = fit_raw(str(p), RATE, labels="part", bench_csv_path=tmp_path / "avg.csv").result
+    campaign = read_bench_csv(tmp_path / "avg.csv")
+    assert campaign.metadata["raw_samples_sha256"] == want and campaign.derived_from_sha256 == want
+    bench = fit(campaign)
+    assert bench.extra["data_sha256"] != want and bench.extra["derived_from_sha256"] == want
+    assert same_data(raw, bench) == want and same_data(bench, raw) == want
+    raw.save(tmp_path / "raw.json")
+    bench.save(tmp_path / "bench.json")
+    loaded = CalibrationResult.load(tmp_path / "bench.json")
+    assert loaded.extra["derived_from_sha256"] == want
+    for a, b in ((raw, loaded), (loaded, raw)):
+        c = compare(a, b)
+        assert c.overall == "inconclusive" and "two fits of the same data" in c.notes[0], c.notes
+    rc, err = run_cli(capsys, "compare", tmp_path / "raw.json", tmp_path / "bench.json", "--json", tmp_path / "c.json")
+    d = json.loads((tmp_path / "c.json").read_text())
+    assert d["overall"] == "inconclusive" and d["after"]["derived_from_sha256"] == want
+    from triadcal.judgement.compare.results import ComparisonResult
+    d["overall"] = "pass"
+    (tmp_path / "c2.json").write_text(json.dumps(d))
+    with pytest.raises(InputError, match="two fits of the same data"):
+        ComparisonResult.load(tmp_path / "c2.json")
+    # a mangled hash in a result is refused by the reader, naming the field
+    bad = json.loads((tmp_path / "bench.json").read_text())
+    bad["derived_from_sha256"] = "abc"
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(InputError, match="derived_from_sha256"):
+        CalibrationResult.load(tmp_path / "bad.json")
+
+
 def test_the_sampled_result_carries_the_same_sha256(tmp_path):
     w, labels = make_samples(twelve_poses())
     p = write_recording(tmp_path / "twelve.csv", w, labels)

@@ -22,7 +22,7 @@ import numpy as np
 from ..models.campaign import Campaign, nominal_gravity
 from ..models.kinematics import gravity_in_imu
 from ..models.sensor import ANGLE_NAMES, AXES
-from ..models.units import ARCSEC, PPM, UG
+from ..models.units import ARCSEC, PPM, UG, scale_factor_unit
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates
 from .classical_tilt import tilt_leak_gate
 from .hints import orientation_hints
@@ -437,7 +437,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         temperature_range_C=(float(T.min()), float(T.max())), fit=fit,
         correlation_names=tuple(corr_names), correlation=corr, notes=notes,
         extra={"per_setpoint": per_setpoint, "output_unit": unit_out,
-               "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source, "data_sha256": campaign.data_sha256, "local_g_stated": campaign.local_g_stated})
+               "local_g_m_s2": campaign.local_g_m_s2, **campaign.provenance()})
     apply_gates(result, FitEvidence(converged=True, n_obs=3 * campaign.n_visits, n_free=15 * len(per_block),
                                     extra=[redundancy] + ([tilt] if tilt is not None else [])), config=gates)
     if result.status != "ok":
@@ -527,7 +527,7 @@ def redundancy_gate(chi2: np.ndarray, dof: np.ndarray, noise_known: bool, noise_
 
 
 def _scale_unit(output_unit: str) -> str:
-    return "g/V" if output_unit == "V" else f"g/{output_unit}"
+    return scale_factor_unit(output_unit)
 
 
 def _reporting(name: str, value: float, u: float, output_unit: str) -> dict:

@@ -28,7 +28,7 @@ from ..models.effects import DEFAULT_EFFECTS
 from ..models.kinematics import tilt_polar
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES
-from ..models.units import ARCSEC, DEG
+from ..models.units import ARCSEC, DEG, scale_factor_unit
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
 from .hints import orientation_hints
 from .result import CalibrationResult, ParameterValue
@@ -552,7 +552,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         extra={"fixed": {k: {"value": v, "unit": model.spec[k].unit} for k, v in fixed.items()},
                "unidentifiable": dict(problems),
                "output_unit": campaign.output_unit, "local_g_m_s2": campaign.local_g_m_s2,
-               "source": campaign.source, "data_sha256": campaign.data_sha256, "local_g_stated": campaign.local_g_stated})
+               **campaign.provenance()})
     resid = (sol.r.reshape(-1, 3) * noise.sigma)
     from .structure import residual_checks
 
@@ -578,7 +578,7 @@ def parameter_unit(model: Model, name: str, output_unit: str) -> str:
     """Reporting unit of ``name``: a scale factor is in g per output unit (``g/mV`` for a file in
     mV), every other unit as the model's parameter table says."""
     unit = model.spec[name].unit
-    return f"g/{output_unit}" if unit == "g/V" else unit
+    return scale_factor_unit(output_unit) if unit == "g/V" else unit
 
 
 def tilt_polar_values(x: np.ndarray, cov: np.ndarray, index: dict) -> dict:

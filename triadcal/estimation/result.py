@@ -160,9 +160,10 @@ class CalibrationResult:
             raise r.error("source", f"is a {_kind(d['source'])}, expected a string or null")
         if "local_g_stated" in d and not isinstance(d["local_g_stated"], bool):
             raise r.error("local_g_stated", f"is a {_kind(d['local_g_stated'])}, expected true or false")
-        sha = d.get("data_sha256")
-        if sha is not None and not (isinstance(sha, str) and re.fullmatch(r"[0-9a-f]{64}", sha)):
-            raise r.error("data_sha256", f"= {sha!r} is not a SHA-256 (64 lowercase hex digits)")
+        for key in ("data_sha256", "derived_from_sha256"):
+            sha = d.get(key)
+            if sha is not None and not (isinstance(sha, str) and re.fullmatch(r"[0-9a-f]{64}", sha)):
+                raise r.error(key, f"= {sha!r} is not a SHA-256 (64 lowercase hex digits)")
         g = d.get("local_g_m_s2")
         if g is not None:
             g = r.number_value(g, "local_g_m_s2")

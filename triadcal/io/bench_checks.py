@@ -24,7 +24,7 @@ KNOWN_METADATA = ("local_g_m_s2", "local_g_override", "output_unit", "Q_V2s", "p
 WRITTEN_METADATA = ("generator", "seed", "ramp_setpoint", "ramp_labels", "raw_samples", "stabilisation",
                     "settle_s", "plan", "operator", "imu_protocol", "imu_temperature", "noise_method", "readout",
                     "samples_per_window", "unit_temperature", "source", "rate_hz", "input_unit", "temperature",
-                    "emulator", "local_g_source",
+                    "emulator", "local_g_source", "raw_samples_sha256",
                     *(f"Q_{a}_V2s" for a in "xyz"), *(f"bias_instability_{a}_V" for a in "xyz"))   # hardware/noise.py
 #: difflib ratio at or above which a key is a misspelling of a known key
 METADATA_CUTOFF = 0.8

@@ -21,10 +21,11 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from ..models.units import scale_factor_unit
 from .numbers import MAX_READING, NumberError, parse_number
 
 #: accepted input units and the unit string of K (g per output unit) for each
-INPUT_UNITS = {"m/s2": "g/(m/s2)", "g": "g/g", "mg": "g/mg", "counts": "g/count"}
+INPUT_UNITS = {u: scale_factor_unit(u) for u in ("m/s2", "g", "mg", "counts")}
 #: input units fixed by physics: readings per g of standard gravity
 PER_G = {"m/s2": 9.80665, "g": 1.0, "mg": 1000.0}
 DEFAULT_COLUMN_SETS = (("acc_x", "acc_y", "acc_z"), ("ax", "ay", "az"), ("x", "y", "z"))

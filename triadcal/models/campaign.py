@@ -6,12 +6,13 @@ The data object every estimator takes, whether it came from bench CSV v1
 
 from __future__ import annotations
 
-from ..errors import InputError
-
+import re
 from dataclasses import dataclass, field, replace
 from typing import Optional
 
 import numpy as np
+
+from ..errors import InputError
 
 from .effects.hysteresis import BRANCH
 from .kinematics import gravity_in_imu
@@ -235,6 +236,22 @@ class Campaign:
         for a in (self.setpoint_C, self.time_s, self.axis1_deg, self.axis2_deg, self.w, self.t):
             h.update(np.ascontiguousarray(np.asarray(a, dtype="<f8")).tobytes())
         return h.hexdigest()
+
+    @property
+    def derived_from_sha256(self) -> Optional[str]:
+        """The ``data_sha256`` of the raw recording this file's visits were averaged from (``fit-raw
+        --bench-csv`` writes it as ``# raw_samples_sha256 = ...``), or None: a fit of the file and
+        the fit-raw of the recording are fits of one data set (``compare`` says so)."""
+        sha = str(self.metadata.get("raw_samples_sha256", "")).strip()
+        return sha if re.fullmatch(r"[0-9a-f]{64}", sha) else None
+
+    def provenance(self) -> dict:
+        """What a result says of its data: the source, ``data_sha256`` and, for a file averaged from a
+        raw recording, ``derived_from_sha256``; and whether the local g was stated."""
+        d = {"source": self.source, "data_sha256": self.data_sha256, "local_g_stated": self.local_g_stated}
+        if self.derived_from_sha256:
+            d["derived_from_sha256"] = self.derived_from_sha256
+        return d
 
     @property
     def time_origin_s(self) -> float:

@@ -14,6 +14,32 @@ PPM = 1e-6
 UG = 1e-6                             #: g per micro-g
 STANDARD_GRAVITY_M_S2 = 9.80665       #: g_n, m/s^2 per g
 
+#: output units a file may spell another way: the spelling a scale factor's unit uses
+_OUTPUT_SPELLING = {"counts": "count", "lsb": "count", "LSB": "count", "m/s^2": "m/s2", "m s^-2": "m/s2"}
+
+
+def scale_factor_unit(output_unit: str) -> str:
+    """The unit of a scale factor K (g per output unit) for outputs in ``output_unit``: ``g/V``,
+    ``g/mV``, ``g/count`` (for counts, LSB), ``g/(m/s2)`` (a compound unit in parentheses). One
+    spelling everywhere, so that a fit of a raw recording and a fit of the bench CSV averaged from
+    it carry the same unit (compare, fleet and history compare units as strings)."""
+    u = _OUTPUT_SPELLING.get(str(output_unit).strip(), str(output_unit).strip())
+    return f"g/({u})" if "/" in u else f"g/{u}"
+
+
+def canonical_scale_unit(unit: str) -> str:
+    """A scale factor's unit in :func:`scale_factor_unit`'s spelling: ``g/counts`` and ``g/count``,
+    ``g/m/s2`` and ``g/(m/s2)`` are one unit (results written before 2026-11-30 spell them
+    apart); any other unit unchanged."""
+    u = str(unit).strip()
+    if not u.startswith("g/"):
+        return u
+    rest = u[2:]
+    if rest.startswith("(") and rest.endswith(")"):
+        rest = rest[1:-1]
+    return scale_factor_unit(rest)
+
+
 #: internal value = reporting value * TO_INTERNAL[unit]
 TO_INTERNAL = {
     "arcsec": ARCSEC,

@@ -45,7 +45,7 @@ from ..estimation.result import CalibrationResult
 from ..models.effects import BENCH_EFFECTS
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES, dcm
-from ..models.units import ARCSEC
+from ..models.units import ARCSEC, scale_factor_unit
 
 FORMAT = "triadcal.compensation"
 VERSION = 1
@@ -81,7 +81,7 @@ class CompensationTable:
 
     @property
     def K_unit(self) -> str:
-        return f"g/{self.output_unit}"
+        return scale_factor_unit(self.output_unit)
 
     @property
     def extrapolated(self) -> np.ndarray:

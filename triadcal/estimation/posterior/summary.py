@@ -292,7 +292,7 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
                "flags": _flags_block(non_gaussian, prior_dominated), "intervals_to_use": rec,
                "sampler": sampler_info(run, names, total_seconds, ess, rhat_max, tau_factor, max_steps),
                "output_unit": campaign.output_unit,
-               "local_g_m_s2": campaign.local_g_m_s2, "source": campaign.source, "data_sha256": campaign.data_sha256, "local_g_stated": campaign.local_g_stated})
+               "local_g_m_s2": campaign.local_g_m_s2, **campaign.provenance()})
     # the least-squares answer's own gates (fit, rank, physics) carry over: a posterior of a
     # model that does not fit the data is no better an answer than its least-squares fit
     ls_gate = GateOutcome("least_squares", ls.status in ("ok", "not_converged"),

@@ -7,7 +7,7 @@ from __future__ import annotations
 from ...errors import InputError
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional, Sequence, Union
 
 import numpy as np
@@ -226,5 +226,7 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
             raise InputError("--bench-csv needs known poses: free orientations have no bench angles")
         from ...io.bench_csv import write_bench_csv
 
-        write_bench_csv(campaign, bench_csv_path)
+        # the file's fit and this one are fits of one data set: compare must say so (Campaign.derived_from_sha256)
+        write_bench_csv(replace(campaign, metadata={**campaign.metadata,
+                                                    "raw_samples_sha256": samples_sha256(rec)}), bench_csv_path)
     return RawFit(result, det, avg, rec, campaign, sol, run)

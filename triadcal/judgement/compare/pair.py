@@ -10,6 +10,7 @@ import numpy as np
 from scipy import stats
 from ...estimation.result_checks import check_result_for_use
 from ...estimation.result import CalibrationResult
+from ...models.units import canonical_scale_unit
 from ...io.lab import DISTRIBUTION_SECTIONS, EQUIPMENT_SECTIONS
 from .rule import (check_tolerance, combined_covariance, coverage_factors, decide, decide_from_draws, drift_uncertainty,
                    normalised_error, probability_exceeds, rule_text)
@@ -39,12 +40,22 @@ def same_calibration(before: CalibrationResult, after: CalibrationResult) -> boo
     return all(before[n].value == after[n].value and before[n].u == after[n].u for n in before.parameters)
 
 
+def shared_sha256(before: Mapping, after: Mapping) -> Optional[str]:
+    """The hash two results' descriptions (``extra``, or the compare JSON's ``before``/``after``)
+    share when they are fits of one data set: the same ``data_sha256`` (the same visits, whatever
+    the method or options), or one's ``derived_from_sha256`` (a bench CSV averaged from a raw
+    recording by ``fit-raw --bench-csv``) equal to the other's hash. None otherwise."""
+    def hashes(d):
+        return {d.get(k) for k in ("data_sha256", "derived_from_sha256") if isinstance(d.get(k), str) and d.get(k)}
+
+    common = hashes(before) & hashes(after)
+    return sorted(common)[0] if common else None
+
+
 def same_data(before: CalibrationResult, after: CalibrationResult) -> Optional[str]:
-    """The ``data_sha256`` both results carry when they are fits of one data set (the same visits,
-    whatever the method or options): their differences are the estimators', not a drift of the
-    unit. None when either result lacks it or they differ."""
-    a, b = before.extra.get("data_sha256"), after.extra.get("data_sha256")
-    return a if a and a == b else None
+    """The hash both results share when they are fits of one data set (:func:`shared_sha256`):
+    their differences are the estimators', not a drift of the unit. None when they share none."""
+    return shared_sha256(before.extra, after.extra)
 
 
 #: two single-temperature calibrations whose temperatures differ by at most this (degC) are compared:
@@ -157,7 +168,7 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
 
     names = [n for n in before.parameters if n in after.parameters and n not in BENCH_PARAMETERS]
     for n in names:
-        if before[n].unit != after[n].unit:
+        if canonical_scale_unit(before[n].unit) != canonical_scale_unit(after[n].unit):
             raise InputError(f"{n}: unit {before[n].unit!r} before and {after[n].unit!r} after")
     only = sorted(set(before.parameters) ^ set(after.parameters))
     if only:
@@ -363,7 +374,7 @@ def _type_b_variance(p) -> float:
 def _describe(r: CalibrationResult) -> dict:
     d = {"unit": r.unit, "method": r.method, "status": r.status,
          "reference_temperature_C": r.reference_temperature_C}
-    for k in ("source", "data_sha256"):
+    for k in ("source", "data_sha256", "derived_from_sha256"):
         if r.extra.get(k):
             d[k] = r.extra[k]
     return d

@@ -253,8 +253,10 @@ class ComparisonResult:
         stored = d["overall"]
         # two fits of one data set (the same data_sha256 before and after) are inconclusive whatever
         # the rule gives: their difference is the estimators', not the unit's
-        sha_b, sha_a = [d[k].get("data_sha256") if isinstance(d.get(k), dict) else None for k in ("before", "after")]
-        one_data = bool(sha_b) and sha_b == sha_a
+        from .pair import shared_sha256
+
+        sha_b = shared_sha256(*[d[k] if isinstance(d.get(k), dict) else {} for k in ("before", "after")])
+        one_data = bool(sha_b)
         if one_data and stored != "inconclusive":
             raise InputError(f"{source}: overall verdict {stored!r}, but before and after are two fits of the same "
                              f"data (data_sha256 {sha_b}): the verdict of such a pair is 'inconclusive'")
