@@ -176,7 +176,7 @@ def test_readings_x1000_declared_as_m_s2_are_not_ok(example):
     c.w = c.w * 9806.65
     c.sd = c.sd * 9806.65
     r = fit_joint(c)
-    assert r.status == "unphysical_scale" and r["K_x"].unit == "g/m/s2", _gate_notes(r)
+    assert r.status == "unphysical_scale" and r["K_x"].unit == "g/(m/s2)", _gate_notes(r)
     # the same readings /1000 (a real m/s^2 file) pass
     c.w, c.sd = c.w / 1000, c.sd / 1000
     assert fit_joint(c).status == "ok"

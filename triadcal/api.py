@@ -224,7 +224,8 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             result, problem, solution = fit_quantisation(campaign, effects, quantisation_lsb, **{
                 k: v for k, v in kwargs.items() if k != "return_problem"})
         elif hysteresis_form == "offset" and hysteresis_half_width_C is None:
-            result, problem, solution = fit_joint(campaign, effects, **kwargs)
+            # one noise level per output when the data hold none (joint.per_output_scale)
+            result, problem, solution = fit_joint(campaign, effects, noise_per_output=True, **kwargs)
         else:
             from .estimation.hysteresis_form import fit_hysteresis_form
 

@@ -173,8 +173,13 @@ class GateOutcome:
 # gates that need only the result
 # ------------------------------------------------------------------------------------------
 def scale_output_unit(k_unit: str) -> Optional[str]:
-    """The output unit of a scale factor's unit string: ``"g/V"`` -> ``"V"``."""
-    return k_unit[2:] if isinstance(k_unit, str) and k_unit.startswith("g/") else None
+    """The output unit of a scale factor's unit string: ``"g/V"`` -> ``"V"``, ``"g/(m/s2)"`` ->
+    ``"m/s2"`` (a compound unit is written in parentheses: models/units.scale_factor_unit; before
+    that was read, a fit-raw result in m/s2 had its K's band unchecked)."""
+    if not (isinstance(k_unit, str) and k_unit.startswith("g/")):
+        return None
+    u = k_unit[2:]
+    return u[1:-1] if u.startswith("(") and u.endswith(")") else u
 
 
 def scale_band(output_unit: Optional[str], local_g_m_s2: Optional[float] = None,

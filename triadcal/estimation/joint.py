@@ -43,8 +43,11 @@ class IdentifiabilityError(InputError):
 
 
 # the noise of the mean outputs and the bench's random errors: noise_model.py (re-exported here)
+from .one_temperature import (TEMPERATURE_SPAN_MIN_C, sensor_temperatures,  # noqa: E402,F401
+                              single_temperature_reference)
 from .noise_model import (WOBBLE_TO_POSITION, BenchErrors, NoiseSource, _bench_whitening,  # noqa: E402,F401
-                          bench_errors_from_replicates, noise_of, replicate_groups, with_bench_errors)
+                          bench_errors_from_replicates, noise_of, per_output_scale, replicate_groups,
+                          with_bench_errors)
 
 
 class JointProblem:
@@ -138,30 +141,6 @@ def start_values(campaign: Campaign, model: Model) -> dict:
             if bb != a:
                 start[f"Ca_{a}{bb}"] = K * b[j] / ARCSEC
     return {n: start.get(n, model.spec[n].nominal) for n in model.names}
-
-
-#: a campaign whose accelerometers' mean temperature spans less than this (degC) is at one temperature
-TEMPERATURE_SPAN_MIN_C = 1.0
-
-
-def single_temperature_reference(campaign: Campaign, reference_temperature_C: float) -> tuple:
-    """``(reference_temperature_C, note)``: the requested reference, or, for a campaign at one
-    temperature (its accelerometers' mean temperature spans less than :data:`TEMPERATURE_SPAN_MIN_C`),
-    that temperature's mean (rounded to 0.01 degC) and a note saying so. No temperature coefficient
-    can be determined there (:func:`identifiability_problems` holds them at 0), so values at another
-    temperature would be those of the data relabelled: a campaign at 50 degC reported its K at
-    "20 degC" with status ok, 419 u from the unit's K at 20 degC (an outside probe). As the
-    classical method does (docs/classical.md, "One setpoint temperature")."""
-    T = np.asarray(campaign.t, float).mean(axis=1)
-    ref = float(reference_temperature_C)
-    if not len(T) or not np.all(np.isfinite(T)) or np.ptp(T) >= TEMPERATURE_SPAN_MIN_C:
-        return ref, None
-    Tm = round(float(np.mean(T)), 2)
-    if abs(Tm - ref) < 0.005:
-        return ref, None
-    return Tm, (f"one temperature: the accelerometers' mean temperature spans {np.ptp(T):.2f} degC, so no "
-                f"temperature coefficient is determined and the values are at the mean temperature {Tm:.2f} degC, "
-                f"not at {ref:g} degC (reference_temperature_C says which)")
 
 
 #: P(chi2 this small) below which the stated noise overstates the data's scatter (the goodness of
@@ -379,12 +358,18 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
               fix: Optional[dict] = None, unidentifiable: str = "fix", max_iter: int = 100,
               return_problem: bool = False, gates: GateConfig = DEFAULT_CONFIG,
               bench_errors: Optional[BenchErrors] = None, systematics: Sequence = (), output_map=None,
-              whitening=None):
+              whitening=None, noise_per_output: bool = False):
     """Fit the joint model to a campaign (``triadcal fit --method joint``).
 
     ``whitening``: correlated output noise (``flicker_noise``): an
     :class:`~triadcal.estimation.flicker_noise.AxisWhitening` applied to the normalised residuals and
     the Jacobian, so the fit is generalised least squares on the full covariance.
+
+    ``noise_per_output``: with the noise not in the data (no sd_*, u_w or Q), estimate one noise
+    level per output (:func:`per_output_scale`), not one for the three. ``triadcal fit`` and
+    ``sample`` do (``api.fit``); the default is off because the forms and the diagnosis compare the
+    chi^2 of several fits, which must share their weights (a scale per fit makes every chi^2 its
+    dof).
 
     ``output_map``: a map of the model outputs applied after eq. 1 (:class:`JointProblem`; the
     quantisation of a digital output, :func:`triadcal.estimation.quantisation_form.fit_quantisation`).
@@ -418,6 +403,9 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     model = Model(effects, reference_temperature_C)
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     notes = [moved] if moved else []
+    sensor_note, sensor_gate, sensor_temps = sensor_temperatures(campaign)
+    if sensor_note:
+        notes.append(sensor_note)
     if campaign.gravity_note():
         notes.append(campaign.gravity_note())
     if bench_errors is not None:
@@ -468,6 +456,11 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     r0 = problem.residuals(x0)
     cost_start = float(np.sum(robust_weights(r0, loss, nu) * r0 * r0))
     sol = levenberg_marquardt(problem, x0, loss=loss, nu=nu, max_iter=max_iter)
+    q_per_output = None
+    if not noise.known and loss == "l2" and whitening is None and noise_per_output:
+        sol, noise, q_per_output = per_output_scale(problem, sol, noise, max_iter)
+        if q_per_output is not None:                 # the start's cost with the weights the answer has
+            cost_start = float(np.sum(problem.residuals(x0) ** 2))
     solve_seconds = time.perf_counter() - t0
 
     n_obs, n_par = sol.r.size, len(problem.names)
@@ -534,6 +527,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                                  if systematics else None)}
     if "thermal_lag" in model.effect_names:
         fit["temperature_rate"] = campaign.temperature_rate_method()
+    if sensor_temps is not None:                     # one temperature: where each row's values are
+        fit["sensor_temperatures_C"] = sensor_temps
     if t_u is not None:
         from ..uncertainty.typeb import reference_temperature_note
 
@@ -542,6 +537,9 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     if not noise.known:
         # weights were 1/sqrt(tau): the residual variance estimates the white-noise intensity Q
         fit["Q_estimate"] = chi2_dof if dof > 0 else None
+        if q_per_output is not None and dof > 0:
+            fit["Q_estimate_per_output"] = [float(q * chi2_dof) for q in q_per_output]
+            fit["Q_estimate"] = float(np.mean(fit["Q_estimate_per_output"]))
         fit["Q_unit"] = f"{campaign.output_unit}^2 s"
     T = campaign.t
     result = CalibrationResult(
@@ -564,7 +562,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         data_rms=float(np.sqrt(np.mean(campaign.w ** 2))), chi2=chi2, dof=dof, noise_known=noise.known,
         gof_p_value=None if structure is None else structure["p_value"],
         gof_ratio=None if structure is None else structure["ratio"],
-        gof_what="" if structure is None else structure["what"], extra=extra_gates)
+        gof_what="" if structure is None else structure["what"],
+        extra=extra_gates + ([sensor_gate] if sensor_gate is not None else []))
     apply_gates(result, evidence, config=gates)
     if result.status in ("unphysical_scale", "angle_out_of_range", "model_mismatch"):
         G = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg) * campaign.gravity_g

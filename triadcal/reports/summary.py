@@ -25,7 +25,7 @@ def coverage_factor(result: CalibrationResult) -> tuple[float, str]:
     return 2.0, "coverage about 95 %"
 
 
-def _estimated_noise_text(chi2_dof: float, noise: str, output_unit) -> str:
+def _estimated_noise_text(chi2_dof: float, noise: str, output_unit, q_per_output=None) -> str:
     """What the summary says of the fit when the data hold no noise level: no chi2/dof (the
     scatter itself set the level, so it is 1 by construction in its own units and a number printed
     there would mean nothing), but the level estimated and from what. With the weights 1/sqrt(tau_s)
@@ -34,7 +34,10 @@ def _estimated_noise_text(chi2_dof: float, noise: str, output_unit) -> str:
     from ..estimation.noise_model import RELATIVE_WEIGHTS
 
     unit = output_unit or "V"
-    if RELATIVE_WEIGHTS in noise:
+    if RELATIVE_WEIGHTS in noise and isinstance(q_per_output, list) and len(q_per_output) == 3:
+        level = (f"Q = {', '.join(f'{q:.3g}' for q in q_per_output)} {unit}^2 s, the white-noise intensities of "
+                 "the x, y, z outputs")
+    elif RELATIVE_WEIGHTS in noise:
         level = f"Q = {chi2_dof:.3g} {unit}^2 s, the output's white-noise intensity"
     else:
         level = f"residual scale {chi2_dof ** 0.5:.3g} in the units of the weights"
@@ -54,7 +57,8 @@ def summary_text(result: CalibrationResult) -> str:
         bits = []
         c = fit.get("chi2_dof")
         if isinstance(c, (int, float)) and c == c and fit.get("noise_known") is False:
-            bits.append(_estimated_noise_text(c, str(fit.get("noise") or ""), result.extra.get("output_unit")))
+            bits.append(_estimated_noise_text(c, str(fit.get("noise") or ""), result.extra.get("output_unit"),
+                                              fit.get("Q_estimate_per_output")))
         elif isinstance(c, (int, float)) and c == c:
             bits.append(f"chi2/dof = {c:.3f}")
         elif isinstance(fit.get("noise_floor_ratio"), (int, float)):

@@ -144,7 +144,8 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     elif least_squares is None:
         least_squares = fit_joint(campaign, effects, reference_temperature_C=reference_temperature_C,
                                   return_problem=True, gates=gates, bench_errors=bench_errors,
-                                  systematics=systematics, loss=noise_fx["loss"], nu=noise_fx["nu"])
+                                  systematics=systematics, loss=noise_fx["loss"], nu=noise_fx["nu"],
+                                  noise_per_output=True)
     ls, ls_problem, ls_sol = least_squares
     # the bench's errors correlate the outputs of oblique poses: the fit was GLS (joint._bench_whitening)
     whitening = getattr(ls_problem, "whitening", None)
@@ -160,9 +161,13 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
         if not (chi2_dof and np.isfinite(chi2_dof)):
             raise InputError(f"{campaign.source or 'campaign'}: the noise of the outputs is not in the data "
                              "(no sd_* columns, no Q_V2s metadata) and cannot be estimated from the fit")
-        sigma = sigma * math.sqrt(chi2_dof)
+        q = ls.fit.get("Q_estimate_per_output")        # one level per output (joint.per_output_scale)
+        per_output = isinstance(q, list) and len(q) == 3 and all(np.isfinite(v) and v > 0 for v in q)
+        sigma = sigma * (np.sqrt(np.asarray(q, float))[None, :] if per_output else math.sqrt(chi2_dof))
         notes.append(f"output noise not in the data: held at its least-squares estimate ({noise.description}; "
-                     f"variance per unit weight {chi2_dof:.3g}, the estimate itself, not a test of the model); the "
+                     + (f"variance per unit weight per output {', '.join(f'{v:.3g}' for v in q)}" if per_output
+                        else f"variance per unit weight {chi2_dof:.3g}")
+                     + ", the estimate itself, not a test of the model); the "
                      "posterior does not include the uncertainty of the noise level, and with the noise estimated "
                      "the model's fit cannot be tested by chi2: `triadcal diagnose` tests the residuals' structure")
     if math.isfinite(nu) and noise_fx.get("t_scale", 1.0) != 1.0:

@@ -1,0 +1,75 @@
+"""A campaign at one temperature: no temperature coefficient is determined, so the values are
+those at the data's temperature, and the result must say which temperature that is -- for each
+accelerometer, since each row of the model is tied to its own sensor's temperature
+(docs/model.md)."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from ..models.campaign import Campaign
+from ..models.sensor import AXES
+from .gates import GateOutcome
+
+
+#: a campaign whose accelerometers' mean temperature spans less than this (degC) is at one temperature
+TEMPERATURE_SPAN_MIN_C = 1.0
+
+
+def single_temperature_reference(campaign: Campaign, reference_temperature_C: float) -> tuple:
+    """``(reference_temperature_C, note)``: the requested reference, or, for a campaign at one
+    temperature (its accelerometers' mean temperature spans less than :data:`TEMPERATURE_SPAN_MIN_C`),
+    that temperature's mean (rounded to 0.01 degC) and a note saying so. No temperature coefficient
+    can be determined there (:func:`identifiability_problems` holds them at 0), so values at another
+    temperature would be those of the data relabelled: a campaign at 50 degC reported its K at
+    "20 degC" with status ok, 419 u from the unit's K at 20 degC (an outside probe). As the
+    classical method does (docs/classical.md, "One setpoint temperature")."""
+    T = np.asarray(campaign.t, float).mean(axis=1)
+    ref = float(reference_temperature_C)
+    if not len(T) or not np.all(np.isfinite(T)) or np.ptp(T) >= TEMPERATURE_SPAN_MIN_C:
+        return ref, None
+    Tm = round(float(np.mean(T)), 2)
+    if abs(Tm - ref) < 0.005:
+        return ref, None
+    return Tm, (f"one temperature: the accelerometers' mean temperature spans {np.ptp(T):.2f} degC, so no "
+                f"temperature coefficient is determined and the values are at the mean temperature {Tm:.2f} degC, "
+                f"not at {ref:g} degC (reference_temperature_C says which)")
+
+
+#: in a campaign at one temperature, sensors whose means differ by this much (degC) are named in a
+#: note: each accelerometer's values are at its own sensor's temperature
+SENSOR_SPREAD_NOTE_C = 0.1
+
+
+def sensor_temperatures(campaign: Campaign) -> tuple[Optional[str], Optional[GateOutcome], Optional[dict]]:
+    """``(note, gate, temperatures)`` for a campaign at one temperature whose three sensors read
+    apart: K_a, S_a and the angles Ca_ab of accelerometer a are at the mean of t_a, not at the
+    sensors' mean that ``reference_temperature_C`` states. A note names each temperature when they
+    spread by :data:`SENSOR_SPREAD_NOTE_C` or more; the gate ``one_reference_temperature`` refuses
+    (status ``unidentifiable``) when they spread by :data:`TEMPERATURE_SPAN_MIN_C` or more, since no
+    one reference temperature then describes the result and no tempco is determined to move the
+    values to one (an outside probe: sensors at +4, -3, 0 degC, 10 of 10 ok with a median largest
+    error of 17 u at the stated temperature; +1, -0.5, +0.3 degC: 4 of 10 over 4 u). (None, None,
+    None) for a campaign over a temperature range, whose tempcos carry each row to T_ref."""
+    T = np.asarray(campaign.t, float)
+    if not len(T) or not np.all(np.isfinite(T)) or np.ptp(T.mean(axis=1)) >= TEMPERATURE_SPAN_MIN_C:
+        return None, None, None
+    Ta = T.mean(axis=0)
+    spread = float(np.ptp(Ta))
+    temps = {a: round(float(v), 2) for a, v in zip(AXES, Ta)}
+    if spread < SENSOR_SPREAD_NOTE_C:
+        return None, None, temps
+    where = ", ".join(f"t_{a} {v:.2f}" for a, v in temps.items())
+    note = (f"one temperature, sensors apart: each accelerometer's K, S and angles Ca_ab are at its own sensor's "
+            f"mean temperature ({where} degC; the model ties row a to t_a), not at the {float(np.mean(Ta)):.2f} "
+            "degC that reference_temperature_C states")
+    passed = spread < TEMPERATURE_SPAN_MIN_C
+    reason = (f"the accelerometers' sensors read {spread:.2f} degC apart ({where}) in a campaign at one temperature: "
+              + ("each row's values are at its own sensor's temperature (noted)" if passed else
+                 "no one reference temperature describes the result, and no temperature coefficient is determined to "
+                 "carry the values to one; calibrate over a temperature range (the tempcos then carry each row to "
+                 "T_ref), or check the sensors' columns"))
+    return note, GateOutcome("one_reference_temperature", passed, "unidentifiable", reason, spread,
+                             f"< {TEMPERATURE_SPAN_MIN_C:g} degC"), temps
