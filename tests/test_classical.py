@@ -35,12 +35,13 @@ def test_tilt_cancels_without_noise():
     result = fit_classical(simulate_campaign(truth, schedule=ONE_SETPOINT, seed=3))
     for n in ANGLES:
         assert abs(result[n].value - truth.parameters[n]) < 0.01, n
-    # eq. 2 normalises by the measured norm, which a tilt shortens by cos(delta): K and S
-    # come out divided by cos(delta) (4.2e-8 for 60"), a second-order bias of the method
-    cos_delta = math.cos(60.0 * ARCSEC)
+    # eq. 2 normalises by the measured norm, which a tilt shortens by cos(delta): K and S come out
+    # divided by cos(delta) (4.2e-8 for 60"); the tilt estimated from the redundant positions
+    # multiplies them back (2026-11-30), so without noise they are the truth
+    assert result.extra["per_setpoint"][0]["tilt_arcsec"] == pytest.approx(60.0, abs=1e-3)
     for a in "xyz":
-        assert result[f"K_{a}"].value == pytest.approx(truth.parameters[f"K_{a}"] / cos_delta, rel=1e-12)
-        assert result[f"S_{a}"].value == pytest.approx(truth.parameters[f"S_{a}"] / cos_delta, rel=1e-9)
+        assert result[f"K_{a}"].value == pytest.approx(truth.parameters[f"K_{a}"], rel=1e-12)
+        assert result[f"S_{a}"].value == pytest.approx(truth.parameters[f"S_{a}"], rel=1e-9)
     assert result.method == "classical"
     assert "tilt_delta" not in result.parameters and "Ca_xy_tempco" not in result.parameters
     assert any("single setpoint" in n for n in result.notes)
@@ -69,7 +70,7 @@ def test_mean_versus_own_sensor_temperature():
     truth = preset_truth("ak18-quartz", effects=["bench_tilt", "angle_tempco"],
                          noise=NoiseModel(Q_V2s=0, temp_noise_C=0))
     c = simulate_campaign(truth, schedule=Schedule(soak_s=30000.0), seed=0)
-    mean, own = fit_classical(c), fit_classical(c, temperature="own")
+    mean, own = fit_classical(c, temperature="mean"), fit_classical(c)      # own: the default
     offsets = {"x": 0.0, "y": 0.05, "z": -0.05}   # self-heating minus its mean over the sensors
     for n in ANGLES:
         tc = truth.parameters[n + "_tempco"]

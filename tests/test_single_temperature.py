@@ -65,3 +65,78 @@ def test_two_calibrations_at_one_setpoint_are_compared_with_a_note():
     other, _ = _at(60.0, 10)
     with pytest.raises(InputError, match="reference temperatures differ"):
         compare(rb, fit_joint(other, EFFECTS))
+
+
+def _sensors_apart(offsets_C, seed=5, setpoints_C=(50.0,)):
+    """Setpoints (one, 50 degC, by default) whose three sensors read ``offsets_C`` apart: the outputs are made at
+    each accelerometer's own sensor temperature (K and S through independent_bench's tempco laws,
+    applied by its extra_scale / extra_bias hooks), and the file's t_* carry the offsets."""
+    off = np.asarray(offsets_C, float)
+    truth0 = None
+
+    def scale(k, t, temps):
+        return 1e-6 * np.array([truth0[f"K_{a}_tempco"] for a in "xyz"]) * off / (
+            1.0 + 1e-6 * np.array([truth0[f"K_{a}_tempco"] for a in "xyz"]) * (temps - T0_C))
+
+    def bias(k, t, temps, G, direction):
+        return 1e-6 * np.array([truth0[f"S_{a}_tempco"] for a in "xyz"]) * off
+
+    from independent_bench import default_truth
+    truth0 = default_truth(np.random.default_rng(100 + seed))
+    text, truth = simulate_campaign(np.random.default_rng(seed), truth=truth0, setpoints_C=setpoints_C,
+                                    extra_scale=scale, extra_bias=bias)
+    c = parse_bench_csv(text)
+    c.t[:] = c.t + off[None, :]
+    return c, truth
+
+
+def test_sensors_apart_at_one_temperature_name_each_rows_temperature():
+    """Sensors 0.5, -0.3, 0 degC apart (self-heating): ok, and a note and fit.sensor_temperatures_C
+    name each sensor's mean; K_a and S_a are the unit's at its own sensor's temperature within 4 u
+    (the truth by hand from independent_bench's laws, K (1 + k1 dT), S + s1 dT)."""
+    c, truth = _sensors_apart((0.5, -0.3, 0.0))
+    r = fit_joint(c, EFFECTS)
+    assert r.status == "ok", r.notes
+    temps = r.fit["sensor_temperatures_C"]
+    assert any("each accelerometer's K, S and angles Ca_ab are at its own sensor's" in n for n in r.notes), r.notes
+    for i, a in enumerate("xyz"):
+        Ta = float(np.mean(c.t[:, i]))
+        assert temps[a] == pytest.approx(Ta, abs=0.006)
+        K = truth[f"K_{a}"] * (1.0 + 1e-6 * truth[f"K_{a}_tempco"] * (Ta - T0_C))
+        S = truth[f"S_{a}"] + 1e-6 * truth[f"S_{a}_tempco"] * (Ta - T0_C)
+        assert abs(r[f"K_{a}"].value - K) < 4 * r[f"K_{a}"].u, (a, r[f"K_{a}"], K)
+        assert abs(r[f"S_{a}"].value - S) < 4 * r[f"S_{a}"].u, (a, r[f"S_{a}"], S)
+
+
+def test_sensors_a_degree_or_more_apart_at_one_temperature_are_refused():
+    """Sensors +4, -3, 0 degC apart: no one reference temperature describes the result (an outside
+    probe: ok 10 of 10, a median largest error of 17 u at the stated temperature); the gate
+    one_reference_temperature refuses, status unidentifiable, naming the three temperatures."""
+    c, _ = _sensors_apart((4.0, -3.0, 0.0))
+    r = fit_joint(c, EFFECTS)
+    gate = next(o for o in r.extra["gates"]["outcomes"] if o["gate"] == "one_reference_temperature")
+    assert r.status == "unidentifiable" and gate["passed"] is False, gate
+    assert gate["value"] == pytest.approx(7.0, abs=0.05) and "t_x 54." in gate["reason"]
+    # sensors alike: no note, no gate
+    c, _ = _at(50.0, 5)
+    r = fit_joint(c, EFFECTS)
+    assert not any(o["gate"] == "one_reference_temperature" for o in r.extra["gates"]["outcomes"])
+    assert not any("sensors apart" in n for n in r.notes)
+
+
+def test_classical_fits_each_row_on_its_own_sensor_by_default():
+    """Five setpoints, sensors +1, -0.5, +0.3 degC apart (an outside probe: the paper's mean-temperature
+    convention put K and S a median 8 u from the unit's at T_ref, status ok, 10 of 10): the classical
+    method now regresses each row on its own sensor, as every result means, and K_a, S_a at 20 degC
+    are the unit's within 4 u; the paper's convention (temperature="mean") is off by
+    tempco * offset, more than 4 u for K_x here."""
+    from triadcal.estimation.classical import fit_classical
+
+    c, truth = _sensors_apart((1.0, -0.5, 0.3), seed=3, setpoints_C=(-40, -10, 20, 50, 80))
+    own, mean = fit_classical(c), fit_classical(c, temperature="mean")
+    assert own.status == "ok" and own.fit["temperature"] == "each accelerometer's own sensor t_a"
+    for a in "xyz":
+        assert abs(own[f"K_{a}"].value - truth[f"K_{a}"]) < 4 * own[f"K_{a}"].u, (a, own[f"K_{a}"], truth[f"K_{a}"])
+        assert abs(own[f"S_{a}"].value - truth[f"S_{a}"]) < 4 * own[f"S_{a}"].u, (a, own[f"S_{a}"], truth[f"S_{a}"])
+    worst = max(abs(mean[f"{q}_{a}"].value - truth[f"{q}_{a}"]) / mean[f"{q}_{a}"].u for q in "KS" for a in "xyz")
+    assert worst > 4, worst

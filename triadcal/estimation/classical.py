@@ -2,7 +2,7 @@
 
 :func:`fit_classical` pairs each setpoint block's visits by the IMU axis pointing up (from
 the bench kinematics), computes Ca, K and S in closed form with first-order uncertainties,
-and fits each against the mean accelerometer temperature (Birge-scaled line).
+and fits each against its accelerometer's own sensor temperature (Birge-scaled line).
 Its SD for the bench's noise model is :mod:`triadcal.uncertainty.classical_sd`.
 Derivation/design: docs/classical.md (What it computes; Standard deviation of the classical angle).
 Over 500 lines because the estimator, its error propagation and its own redundancy gate read as
@@ -202,14 +202,19 @@ def _quantity_names():
     return names + [f"K_{a}" for a in AXES] + [f"S_{a}" for a in AXES]
 
 
+#: a bench tilt (arcsec) from which the correction of K and S by cos(tilt) is named in a note (at
+#: 300" it is 1.1 ppm)
+TILT_NOTE_ARCSEC = 300.0
+
+
 def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
-                  noise: str = "residuals", temperature: str = "mean",
+                  noise: str = "residuals", temperature: str = "own",
                   gates: GateConfig = DEFAULT_CONFIG) -> CalibrationResult:
     """The paper's classical calibration (``triadcal fit --method classical``).
 
     Eq. 2-3 at every setpoint block with the up/down pairing of the bench kinematics,
     then the paper's linear thermal correction of every angle, scale factor and bias
-    against the setpoint's mean accelerometer temperature (values at
+    against the setpoint's mean temperature of its own sensor (values at
     ``reference_temperature_C`` plus ``*_tempco``). With a single setpoint temperature
     no tempco can be formed: they are absent, and the values are reported at the
     measured mean temperature (``reference_temperature_C`` of the result says which).
@@ -221,11 +226,14 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     of the file (output noise only). The per-setpoint estimates are in
     ``result.extra["per_setpoint"]``.
 
-    ``temperature``: ``"mean"`` (the paper) regresses every quantity on the mean of
-    ``t_x t_y t_z``; ``"own"`` regresses row ``a`` of Ca, ``K_a`` and ``S_a`` on
-    accelerometer ``a``'s own sensor ``t_a`` (the convention of the joint model). The
-    slopes agree; the values at the reference temperature differ by
-    ``tempco * (offset of t_a from the mean)``.
+    ``temperature``: ``"own"`` (the default) regresses row ``a`` of Ca, ``K_a`` and ``S_a`` on
+    accelerometer ``a``'s own sensor ``t_a``, the convention of every result (docs/model.md: the
+    joint model ties row a to t_a); ``"mean"`` (the paper) regresses every quantity on the mean
+    of ``t_x t_y t_z``. The slopes agree; the values at the reference temperature differ by
+    ``tempco * (offset of t_a from the mean)`` (an outside probe: sensors +1, -0.5, +0.3 degC
+    apart put the mean convention's K and S 8 u, median, from the unit's at T_ref, status ok).
+    At one setpoint the rows are at their own sensors' temperatures; a note names them, and
+    sensors 1 degC or more apart are refused (:func:`.one_temperature.sensor_temperatures`).
     """
     if noise not in NOISE_SOURCES:
         raise InputError(f"unknown noise source {noise!r}: choose one of {', '.join(NOISE_SOURCES)}")
@@ -274,13 +282,21 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                     notes.append(f"{where}: the up/down groups of {bb} are not half-turn pairs; a bench tilt "
                                  f"enters Ca_{a}{bb.lower()} with factor {np.max(np.abs(leak[k, ai])):.3g}")
         sqrt_tau = np.sqrt(campaign.tau_s[idx])
+        tilts = []
         for ai in range(3):
-            row = row_estimate(campaign.w[idx, ai], pair, G, ai, where)[0][:3]
+            v_row = row_estimate(campaign.w[idx, ai], pair, G, ai, where)[0]
+            row = v_row[:3]
             X = residual_design(campaign.axis1_deg[idx], campaign.axis2_deg[idx], row) * sqrt_tau[:, None]
             y = campaign.w[idx, ai] * sqrt_tau
             coef, *_ = np.linalg.lstsq(X, y, rcond=None)
             rank = np.linalg.matrix_rank(X)
             e = y - X @ coef
+            if rank == X.shape[1] and len(idx) > rank:      # the tilt columns determined on this block
+                # (output units) x K / g: radians, with its covariance from the residuals; an axis
+                # sees one tilt component well and the other barely (inverse-covariance weights)
+                f = v_row[3] / G
+                C = np.linalg.inv(X.T @ X)[4:6, 4:6] * float(e @ e) / (len(idx) - rank) * f * f
+                tilts.append((coef[4:6] * f, C))
             rss[ai] += float(np.sum(e ** 2))
             dof[ai] += len(idx) - rank
             # leverages of the per-setpoint model, for the studentised residuals
@@ -296,7 +312,8 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                 red_chi2[ai] += float(np.sum((yk - Xk @ ck) ** 2))
         off = [leak[k, ai] for k, bb in enumerate(IMU_AXES) for ai, a in enumerate(AXES) if a != bb.lower()]
         per_block.append(dict(idx=idx, pair=pair, setpoint_C=sp, direction=direction, cycle=cycle, where=where,
-                              leak=float(np.max(np.abs(off))) if off else 0.0))
+                              leak=float(np.max(np.abs(off))) if off else 0.0,
+                              tilt=_combined_tilt(tilts)))
 
     # -- output noise ------------------------------------------------------------------
     sd_sigma = campaign.output_sigma()
@@ -338,17 +355,26 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     temps = np.zeros(len(per_block))
     temps_own = np.zeros((len(per_block), 3))
     per_setpoint = []
+    tilt_notes = []
     for k, blk in enumerate(per_block):
         idx, pair = blk["idx"], blk["pair"]
         vals, us = {}, {}
+        # a bench tilt delta scales the vertical gravity by cos(delta): eq. 2's K and S come out divided
+        # by it (docs/classical.md). The block's redundant positions estimate the tilt (the per-setpoint
+        # model's tilt columns), and K, S are multiplied back (an outside probe: a 0.2-0.5 deg tilt left
+        # K 20-35 ppm, up to 27 u, high with status ok; 60" is 4e-8)
+        t_hat = blk.get("tilt")
+        cos_tilt = 1.0 if t_hat is None else math.sqrt(max(0.0, 1.0 - float(t_hat @ t_hat)))
+        if t_hat is not None:
+            tilt_notes.append(math.degrees(math.acos(cos_tilt)) * 3600.0)
         for ai, a in enumerate(AXES):
             v, J = row_estimate(campaign.w[idx, ai], pair, G, ai, blk["where"])
             V = np.sum(J * J * (sigma[idx, ai] ** 2)[None, :], axis=1)
             for bi, b in enumerate(AXES):
                 if b != a:
                     vals[f"Ca_{a}{b}"], us[f"Ca_{a}{b}"] = v[bi], V[bi]
-            vals[f"K_{a}"], us[f"K_{a}"] = v[3], V[3]
-            vals[f"S_{a}"], us[f"S_{a}"] = v[4], V[4]
+            vals[f"K_{a}"], us[f"K_{a}"] = v[3] * cos_tilt, V[3] * cos_tilt ** 2
+            vals[f"S_{a}"], us[f"S_{a}"] = v[4] * cos_tilt, V[4] * cos_tilt ** 2
         est[k] = [vals[n] for n in qnames]
         var[k] = [us[n] for n in qnames]
         temps[k] = float(np.mean(campaign.t[idx]))
@@ -356,12 +382,18 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         per_setpoint.append({
             "setpoint_C": blk["setpoint_C"], "direction": blk["direction"], "cycle": blk["cycle"],
             "mean_temperature_C": temps[k], "sensor_temperature_C": [float(x) for x in temps_own[k]],
+            "tilt_arcsec": None if t_hat is None else float(math.degrees(math.acos(cos_tilt)) * 3600.0),
             "time_s": float(np.mean(campaign.time_s[idx])),
             "n_visits": int(len(idx)),
             "parameters": {n: _reporting(n, est[k, j], math.sqrt(var[k, j]), campaign.output_unit)
                            for j, n in enumerate(qnames)},
         })
 
+    if tilt_notes and max(tilt_notes) >= TILT_NOTE_ARCSEC:
+        worst = max(tilt_notes)
+        notes.append(f"bench tilt estimated from the redundant positions of each setpoint: up to {worst:.0f}\" "
+                     f"({np.median(tilt_notes):.0f}\" median); K and S were multiplied by cos(tilt) (up to "
+                     f"{(1.0 - math.cos(math.radians(worst / 3600.0))) * 1e6:.3g} ppm), which eq. 2 divides them by")
     # -- the paper's linear thermal correction -------------------------------------------
     distinct = len(set(round(t, 6) for t in (b["setpoint_C"] for b in per_block)))
     slope = distinct >= 2
@@ -379,9 +411,11 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     chi2_by, chi2_sum, dof_sum = {}, 0.0, 0
     off_line = []
     unit_out = campaign.output_unit
+    slopes = np.zeros(len(qnames))              # per degC, internal units (the drift check's)
     for j, n in enumerate(qnames):
         T_j = temps if temperature == "mean" else temps_own[:, AXES.index(n.split("_")[1][0])]
         line = thermal_line(T_j, est[:, j], var[:, j], T_ref, slope)
+        slopes[j] = float(line.coef[1]) if slope else 0.0
         chi2_by[n] = line.chi2_dof
         p_line = _line_p(line, var[:, j])
         if p_line is not None and p_line < gates.gof_p_min and line.chi2_dof > gates.gof_ratio_max:
@@ -420,7 +454,9 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
            "chi2_dof": (chi2_sum / dof_sum) if dof_sum > 0 else None,
            "chi2_dof_by_parameter": chi2_by,
            "n_setpoints": len(per_block), "n_visits": int(campaign.n_visits),
-           "thermal_model": ("straight line against the setpoint's mean accelerometer temperature, weighted "
+           "thermal_model": ("straight line against the setpoint's "
+                             + ("mean accelerometer temperature" if temperature == "mean"
+                                else "mean of each accelerometer's own sensor") + ", weighted "
                              "least squares, covariance scaled by max(1, chi2/dof) (Birge ratio)")
            if slope else "none (single setpoint temperature)",
            "noise_source": use, "noise": noise_desc, **fit_noise}
@@ -431,6 +467,17 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     tilt = tilt_leak_gate(campaign, per_block, sigma, gates, noise_dof=dof_total if use == "residuals" else None)
     if tilt is not None:
         fit["tilt_leak"] = tilt.to_dict()
+    drift = None
+    if slope:
+        from .classical_drift import DRIFT_BIAS_U_NOTE, drift_bias, drift_gate
+
+        spread = max(float(np.max(np.ptp(campaign.t[b["idx"]], axis=0))) for b in per_block)
+        drift = drift_gate(drift_bias(campaign, per_block, est, var, slopes, qnames, G, temperature == "own"),
+                           ordered, spread)
+        if drift is not None:
+            fit["temperature_drift"] = drift.to_dict()
+            if drift.passed and drift.value is not None and drift.value > DRIFT_BIAS_U_NOTE:
+                notes.append(drift.reason)
     result = CalibrationResult(
         unit=units[0], method="classical", parameters=ordered, status="ok",
         effects=THERMAL_EFFECTS if slope else (), reference_temperature_C=T_ref,
@@ -438,13 +485,39 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         correlation_names=tuple(corr_names), correlation=corr, notes=notes,
         extra={"per_setpoint": per_setpoint, "output_unit": unit_out,
                "local_g_m_s2": campaign.local_g_m_s2, **campaign.provenance()})
+    sensor_gate = None
+    if temperature == "own" and not slope:           # one setpoint: each row at its own sensor's temperature
+        from .one_temperature import sensor_temperatures
+
+        sensor_note, sensor_gate, sensor_temps = sensor_temperatures(campaign)
+        if sensor_note:
+            result.notes.append(sensor_note)
+        if sensor_temps is not None:
+            result.fit["sensor_temperatures_C"] = sensor_temps
     apply_gates(result, FitEvidence(converged=True, n_obs=3 * campaign.n_visits, n_free=15 * len(per_block),
-                                    extra=[redundancy] + ([tilt] if tilt is not None else [])), config=gates)
+                                    extra=[redundancy] + [g for g in (tilt, drift, sensor_gate) if g is not None]),
+                config=gates)
     if result.status != "ok":
         g = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3)
         for hint in orientation_hints(campaign.w, g):
             result.notes.append(f"hint: {hint}")
     return result
+
+
+def _combined_tilt(tilts) -> Optional[np.ndarray]:
+    """The block's tilt (rad, base x and y) from each axis's estimate and covariance, by inverse-
+    covariance weighting; its squared norm less the trace of its covariance (the noise's share of
+    |t|^2), so that cos(tilt) is not biased by the noise. None when no axis determines it."""
+    try:
+        W = [np.linalg.inv(C) for _, C in tilts]
+        cov = np.linalg.inv(sum(W))
+    except (np.linalg.LinAlgError, ValueError, TypeError):
+        return None
+    t = cov @ sum(w @ t for w, (t, _) in zip(W, tilts))
+    if not np.all(np.isfinite(t)):
+        return None
+    norm2 = max(float(t @ t) - float(np.trace(cov)), 0.0)
+    return t * math.sqrt(norm2 / float(t @ t)) if float(t @ t) > 0 else t
 
 
 def _worst_studentised(resid, rss, dof, campaign: Campaign):
