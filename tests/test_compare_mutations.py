@@ -305,3 +305,22 @@ def test_sequence_names_its_states(fits):
     seq = compare_sequence([fits["before"], fits["before"]], ["s0", "s1"])
     assert seq.steps[0].overall == "inconclusive" and "s0 and s1 are the same calibration" in seq.steps[0].notes[0]
     assert all(a in seq.steps[0].parameters for a in ANGLES)
+
+
+# -- an edited u of 0, and what the reason says of a remount ------------------------------------------
+def test_a_u_of_zero_is_refused_and_the_reason_names_a_remount(fits, tmp_path, capsys):
+    """An outside probe edited one angle's u to 0 in a result: compare took it and said pass (the
+    drift judged against nothing). No estimate from measured data has u = 0: refused, naming the
+    parameter. And without lab files the correlation's reason said the bench's systematic errors
+    cancel in the drift, while a remounted unit (fixture seating N(0, 10")) failed 10 of 10: it now
+    names the seating as in the drift and in no u."""
+    c = compare(fits["before"], fits["again"])
+    assert "seating of the unit in its fixture" in c.correlation["reason"] and "--lab" in c.correlation["reason"]
+    edited = copy.deepcopy(fits["again"])
+    edited.parameters["Ca_xy"] = edited.parameters["Ca_xy"].__class__(edited["Ca_xy"].value, 0.0, "arcsec")
+    with pytest.raises(InputError, match=r"Ca_xy: u = 0"):
+        compare(fits["before"], edited)
+    fits["before"].save(tmp_path / "b.json")
+    edited.save(tmp_path / "a.json")
+    assert _cli(tmp_path / "b.json", tmp_path / "a.json") != 0
+    assert "Ca_xy: u = 0" in capsys.readouterr().err

@@ -183,3 +183,19 @@ def test_history_table_gives_each_value_its_unit_and_separates_columns():
     assert len(cells) == 3, row                      # name and two cells, at least two spaces apart
     s_row = next(ln for ln in text.splitlines() if ln.strip().startswith("S_x"))
     assert len([c for c in s_row.split("  ") if c.strip()]) == 3, s_row
+
+
+def test_history_says_when_calibrations_share_a_date():
+    """An outside probe recorded five results without --date: all got today's date and the history
+    compared them in the order they were added, with no word. A note now names the pairs with one
+    date; distinct dates give none."""
+    from triadcal.fleet.history import history_text
+
+    def cal(i, date):
+        return {"id": i, "date": date, "state": "initial", "lab": "",
+                "result": {"method": "joint", "status": "ok",
+                           "parameters": {"Ca_xy": {"value": 10.0 + i, "u": 0.5, "unit": "arcsec"}}}}
+
+    text = history_text("SN-D", [cal(1, "2026-11-30"), cal(2, "2026-11-30"), cal(3, "2026-12-01")])
+    assert "note: #1 and #2 have the same date" in text and "#2 and #3" not in text
+    assert "note:" not in history_text("SN-D", [cal(1, "2026-11-29"), cal(2, "2026-11-30")])

@@ -54,6 +54,14 @@ def result_problems(result, *, need_ok: bool = True, config: Optional[GateConfig
     if not math.isfinite(T) or not -100.0 <= T <= 200.0:
         why.append(f"reference_temperature_C = {result.reference_temperature_C!r} is not a temperature in degC "
                    "between -100 and 200")
+    # a parameter estimated from noisy data has u > 0: a u of 0 is an edited or broken file, and a
+    # drift judged against it is judged against nothing (an outside probe: compare took u = 0 and
+    # said pass)
+    if need_ok and result.status == "ok":
+        zero = [n for n, p in result.parameters.items() if p.u == 0]
+        if zero:
+            why.append(f"{', '.join(zero[:6])}{' ...' if len(zero) > 6 else ''}: u = 0, which no estimate from "
+                       "measured data has (status ok needs u > 0)")
     for o in result_gates(result.parameters, output_unit=result.extra.get("output_unit"),
                           local_g_m_s2=result.extra.get("local_g_m_s2"), config=config):
         if o.passed is False:

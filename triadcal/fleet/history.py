@@ -191,6 +191,13 @@ def history_text(serial: str, calibrations) -> str:
         lines += ["", "  compare (consecutive, significance only):"]
         for i, v in enumerate(vs, 1):
             lines.append(f"    #{i} -> #{i + 1}: {v}")
+    # an outside probe: five results recorded without --date all got today's date and the history
+    # compared them in the order they were added, not the order of the events, with no word
+    same = [i for i in range(1, len(calibrations)) if calibrations[i]["date"] == calibrations[i - 1]["date"]]
+    if same:
+        lines += ["", "  note: " + ", ".join(f"#{i} and #{i + 1}" for i in same) + " have the same date, so they are "
+                  "listed (and compared) in the order they were recorded, which need not be the order of the events; "
+                  "record each with --date (or a result or lab file that states it)"]
     return "\n".join(lines)
 
 

@@ -97,8 +97,14 @@ def derive_correlation(before: CalibrationResult, after: CalibrationResult,
                             "independent errors (each on its own bench setup, the conservative case), so they add "
                             "in quadrature; if both ran on the same equipment with no adjustment between them, "
                             "share it (--shared-bench, --lab with [compare] shared_equipment)")
-    return 0.0, base + ("The bench's systematic errors cancel in the drift and are not in these uncertainties, so "
-                        "there is nothing to subtract")
+    # an outside probe: a unit remounted between its calibrations (its fixture rotation N(0, 10")
+    # each time), unchanged, failed 10 of 10 with this note saying the systematic errors cancel
+    return 0.0, base + ("Neither u holds the lab's systematic errors. Those that repeat identically in both "
+                        "calibrations (the bench's encoder zeros and non-orthogonality, unadjusted between them) "
+                        "cancel in the drift; those that do not repeat are in the drift and in no u here: above all "
+                        "the seating of the unit in its fixture when it was remounted between the calibrations (a "
+                        "10\" remount fails an unchanged unit), and the bench's if it was adjusted. Fit both with "
+                        "--lab ([fixture] mounting_u_arcsec) to have them in u")
 
 
 @dataclass
