@@ -324,3 +324,16 @@ def test_a_u_of_zero_is_refused_and_the_reason_names_a_remount(fits, tmp_path, c
     edited.save(tmp_path / "a.json")
     assert _cli(tmp_path / "b.json", tmp_path / "a.json") != 0
     assert "Ca_xy: u = 0" in capsys.readouterr().err
+
+
+def test_two_results_of_one_source_without_hashes_are_noted(fits):
+    """data_sha256 removed from both: the pair cannot be known as one data set; same source names
+    get a note (the verdict stays the rule's: the source is a name, not the data)."""
+    a, b = copy.deepcopy(fits["before"]), copy.deepcopy(fits["again"])
+    for r in (a, b):
+        r.extra.pop("data_sha256", None)
+        r.extra["source"] = "campaign.csv"
+    c = compare(a, b)
+    assert any("name the same source (campaign.csv) and do not both carry data_sha256" in n for n in c.notes)
+    b.extra["source"] = "other.csv"
+    assert not any("name the same source" in n for n in compare(a, b).notes)
