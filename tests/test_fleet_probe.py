@@ -33,14 +33,15 @@ def test_fleet_summary_gives_each_unit_and_never_pools_units(tmp_path):
     columns, rows, _ = table(recs)
     assert "K_x_unit" in columns and "Ca_xy_unit" in columns
     by = {r["unit"]: r for r in rows}
-    assert by["SN-C"]["K_x_unit"] == "g/counts" and by["SN-V0"]["K_x_unit"] == "g/V"
+    # the unit in one spelling (a result written before 2026-11-30 says g/counts: models/units.py)
+    assert by["SN-C"]["K_x_unit"] == "g/count" and by["SN-V0"]["K_x_unit"] == "g/V"
     # pooled, the one g/counts unit is a "5 sigma outlier" of the g/V ones: it is not one
     assert "K_x" not in by["SN-C"]["outliers"]
     files, _ = write_summary(recs, tmp_path)
     got = {r["unit"]: r for r in csv.DictReader(files["csv"].open(encoding="utf-8"))}
-    assert got["SN-C"]["K_x_unit"] == "g/counts" and got["SN-V3"]["K_x_unit"] == "g/V"
+    assert got["SN-C"]["K_x_unit"] == "g/count" and got["SN-V3"]["K_x_unit"] == "g/V"
     page = files["html"].read_text(encoding="utf-8")
-    assert "K_x (g/V)" in page and "K_x (g/counts)" in page and "never pooled" in page
+    assert "K_x (g/V)" in page and "K_x (g/count)" in page and "never pooled" in page
     # an outlier within one unit is still found
     recs[2]["result"]["parameters"]["K_x"]["value"] = 1.5
     _, rows, _ = table(recs)

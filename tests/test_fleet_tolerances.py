@@ -30,7 +30,7 @@ def test_a_limit_with_a_unit_flags_a_value_in_another(tmp_path):
 def test_a_limit_without_a_unit_on_a_fleet_of_two_units_is_refused(tmp_path):
     tol = tol_file(tmp_path, "K_x = [0.99, 1.01]\n")
     fleet = [record("A", 1.0, "g/V"), record("B", 6.1e-5, "g/counts")]
-    with pytest.raises(InputError, match=r"K_x in g/V, g/counts"):
+    with pytest.raises(InputError, match=r"K_x in g/V, g/count\b"):
         check_tolerance_units(fleet, tol)
     with pytest.raises(InputError, match="several units"):
         write_summary(fleet, tmp_path, tol, html_page=False)
@@ -42,3 +42,13 @@ def test_a_limit_without_a_unit_on_a_fleet_of_two_units_is_refused(tmp_path):
 def test_a_bad_table_is_refused(tmp_path, text):
     with pytest.raises(InputError, match="K_x"):
         tol_file(tmp_path, text)
+
+
+def test_one_unit_in_two_spellings_is_one_unit(tmp_path):
+    """K in counts is written g/count since 2026-11-30 (models/units.scale_factor_unit), g/counts
+    before: a tolerance in either spelling applies to both, and a fleet of both is one unit."""
+    tol = tol_file(tmp_path, 'K_x = {range = [5e-5, 7e-5], unit = "g/counts"}\n')
+    assert out_of_tolerance({"K_x": {"value": 6.1e-5, "unit": "g/count"}}, tol) == []
+    assert out_of_tolerance({"K_x": {"value": 6.1e-5, "unit": "g/counts"}}, tol) == []
+    bare = tol_file(tmp_path, "K_x = 1.0\n")
+    check_tolerance_units([record("A", 6.1e-5, "g/count"), record("B", 6.0e-5, "g/counts")], bare)   # no refusal

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..models.units import canonical_scale_unit
 
 #: the outlier rule: |x - median| > OUTLIER_K * max(1.4826 * MAD, u) over the units whose status is
 #: ok, for every parameter with at least OUTLIER_MIN_UNITS such units (u: the unit's own standard
@@ -99,7 +100,7 @@ def out_of_tolerance(params: dict, tolerances) -> list[str]:
             continue
         _, low, high, unit = (*tol, None)[:4]
         x = p.get("value")
-        if unit is not None and p.get("unit") != unit:
+        if unit is not None and canonical_scale_unit(p.get("unit", "")) != canonical_scale_unit(unit):
             bad.append(f"{name} (in {p.get('unit')}, tolerance in {unit})")
         elif x is None or not (low <= x <= high):
             bad.append(name)
@@ -114,7 +115,7 @@ def check_tolerance_units(records, tolerances) -> None:
         for name, p in ((r.get("result") or {}).get("parameters") or {}).items():
             tol = _tolerance_of(name, tolerances)
             if tol is not None and (tol[3] if len(tol) > 3 else None) is None:
-                seen.setdefault((tol[0], name), set()).add(str(p.get("unit")))
+                seen.setdefault((tol[0], name), set()).add(canonical_scale_unit(str(p.get("unit"))))
     mixed = {k: u for k, u in seen.items() if len(u) > 1}
     if mixed:
         txt = "; ".join(f"{name} in {', '.join(sorted(u))} (tolerance {pat!r})" for (pat, name), u in sorted(mixed.items()))
@@ -175,7 +176,8 @@ def table(records, tolerances=None):
             p = params.get(n) or {}
             row[n] = p.get("value")
             row[n + "_u"] = p.get("u")
-            row[n + "_unit"] = p.get("unit", "") if n in params else ""
+            # one spelling of a unit (g/counts and g/count, written before and after 2026-11-30, are one)
+            row[n + "_unit"] = canonical_scale_unit(p.get("unit", "")) if n in params else ""
         rows.append(row)
     ok = np.array([row["status"] == "ok" for row in rows], bool)
     flagged = {i: [] for i in range(len(rows))}
