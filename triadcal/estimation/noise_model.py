@@ -249,6 +249,18 @@ def bench_errors_from_replicates(campaign: Campaign, model: Model, wobble_ratio:
                                                       "the positioning error)"))
 
 
+def output_variances(r, n_params: int) -> Optional[np.ndarray]:
+    """Each output's variance per unit weight from a fit's normalised residuals ``r`` (3 n,
+    visit-major), ``sum_visits r_a^2 / (n - p/3)``; None when too few dof remain or a variance is
+    not positive and finite (the weights are then left alone)."""
+    r = np.asarray(r, float).reshape(-1, 3)
+    dof_a = r.shape[0] - n_params / 3.0
+    if dof_a < 2:
+        return None
+    s2 = np.sum(r * r, axis=0) / dof_a
+    return s2 if np.all(np.isfinite(s2)) and np.all(s2 > 0) else None
+
+
 def per_output_scale(problem, sol, noise: NoiseSource, max_iter: int):
     """With the noise estimated from the residuals, one noise level per output, not one for all
     three: the outputs of a triad need not share a noise level (another accelerometer, another
@@ -263,10 +275,8 @@ def per_output_scale(problem, sol, noise: NoiseSource, max_iter: int):
     from ..models.sensor import AXES
     from .joint import levenberg_marquardt
 
-    r = sol.r.reshape(-1, 3)
-    dof_a = r.shape[0] - len(problem.names) / 3.0
-    s2 = np.sum(r * r, axis=0) / max(dof_a, 1.0)
-    if dof_a < 2 or not np.all(np.isfinite(s2)) or not np.all(s2 > 0):
+    s2 = output_variances(sol.r, len(problem.names))
+    if s2 is None:
         return sol, noise, None
     problem.sigma = noise.sigma * np.sqrt(s2)[None, :]
     refit = levenberg_marquardt(problem, sol.x, loss="l2", max_iter=max_iter)
