@@ -23,7 +23,7 @@ from triadcal.io.bench_csv import parse_bench_csv
 SD = 5e-4
 
 
-def _file(seed, n=10, setpoints=(-40, -20, 0, 20, 40, 60, 80, 60, 20, -40), loud=None):
+def _file(seed, n=10, setpoints=(-40, -20, 0, 20, 40, 60, 80, 60, 20, -40), loud=None, pose_scale=None):
     """A campaign whose visits average ``n`` samples each; ``loud``: (visit, factor) of a visit
     whose samples have ``factor`` times the SD."""
     truth = default_truth(np.random.default_rng(100 + seed))
@@ -40,6 +40,7 @@ def _file(seed, n=10, setpoints=(-40, -20, 0, 20, 40, 60, 80, 60, 20, -40), loud
         f = lines[i].split(",")
         exact.append([float(f[j]) for j in iw])
         scale = loud[1] if loud is not None and loud[0] == k else 1.0
+        scale *= (pose_scale or {}).get(f[cols.index("position")], 1.0)
         for jw, js in zip(iw, isd):
             x = float(f[jw]) + rng.normal(0.0, SD * scale, n)
             f[jw], f[js] = repr(float(x.mean())), repr(float(x.std(ddof=1)))
@@ -124,3 +125,35 @@ def test_three_samples_a_visit_alone_in_its_block_are_not_a_noise_level():
     noise = noise_of(campaign)
     assert not noise.known
     assert "fewer than 5 samples after pooling" in noise.description and "n_samples = 3" in noise.description
+
+
+def test_a_noisier_pose_is_pooled_across_the_setpoints():
+    """The four Z-up/down poses 3 times noisier (an outside probe): Bartlett refuses every block's
+    pooling, and weighting by each visit's 9-dof sd_* gave an angle tempco 5.5 u off with status ok.
+    Those visits are now pooled by pose across the setpoints (Bartlett within each pose): the
+    weights follow the poses, and four campaigns are ok with every angle within 4 u."""
+    louder = {p: 3.0 for p in ("P09", "P10", "P11", "P12")}
+    for seed in range(4):
+        campaign, truth = _file(seed, pose_scale=louder)
+        noise = noise_of(campaign)
+        assert noise.known and "pooled by pose across the setpoints" in noise.description, noise.description
+        z_up = np.isin(campaign.position, list(louder))
+        assert np.all(noise.sigma[z_up].mean(axis=0) > 2.5 * noise.sigma[~z_up].mean(axis=0))
+        r = fit_joint(campaign)
+        assert r.status == "ok"
+        for n, p in r.parameters.items():
+            if n.startswith("Ca_") and n in truth:
+                assert abs(p.value - truth[n]) < 4 * p.u, (seed, n)
+
+
+def test_sd_that_pool_nowhere_are_not_a_noise_level():
+    """Every visit's noise its own (a factor drawn per visit, 0.3-3): neither setpoint nor pose
+    pools them, and a fit weighted by 9-dof sd_* would have errors its u does not describe: the noise
+    is estimated from the residuals and the description says why."""
+    rng = np.random.default_rng(5)
+    campaign, _ = _file(0)
+    factors = np.exp(rng.uniform(np.log(0.3), np.log(3.0), campaign.n_visits))
+    from dataclasses import replace as _replace
+    noisy = _replace(campaign, sd=campaign.sd * factors[:, None])
+    noise = noise_of(noisy)
+    assert not noise.known and "rest on their own n_samples - 1 < 100 samples" in noise.description

@@ -131,6 +131,9 @@ def noise_of(campaign: Campaign) -> NoiseSource:
 POOL_DOF_BELOW = 100
 #: Bartlett's test of equal variances within a block: below this p its visits keep their own sd_*
 HOMOGENEITY_P = 1e-3
+#: more than this fraction of visit-axes left on their own few-sample sd_* (neither their setpoint's nor
+#: their pose's pooled) and the sd_* do not weight the fit: the noise is estimated from the residuals
+OWN_SD_MAX_FRACTION = 0.1
 #: fewer degrees of freedom than this leave 1/s^2 without a usable mean (E[1/s^2] needs nu > 2, its
 #: variance nu > 4): the noise is then estimated from the residuals
 DOF_MIN = 5
@@ -164,21 +167,42 @@ def sd_weights(campaign: Campaign) -> tuple[Optional[np.ndarray], str]:
     var = sd * sd
     nu = np.repeat((n - 1.0)[:, None], 3, axis=1)
     small = (nu[:, 0] < POOL_DOF_BELOW) & (nu[:, 0] >= 1)
-    pooled = kept = 0
+    own = np.repeat(small[:, None], 3, axis=1)          # small-nu visit-axes still on their own sd_*
+
+    def pool(idx, a) -> bool:
+        if len(idx) < 2 or bartlett_p(var[idx, a], nu[idx, a]) < HOMOGENEITY_P:
+            return False
+        tot = float(np.sum(nu[idx, a]))
+        var[idx, a] = float(np.sum(nu[idx, a] * var[idx, a])) / tot
+        nu[idx, a] = tot
+        own[idx, a] = False
+        return True
+
+    pooled = kept = by_pose = 0
     if np.any(small):
         blocks = campaign.setpoint_blocks
         for b in np.unique(blocks[small]):
             idx = np.flatnonzero((blocks == b) & small)
-            if len(idx) < 2:
-                continue
             for a in range(3):
-                if bartlett_p(var[idx, a], nu[idx, a]) < HOMOGENEITY_P:
+                if pool(idx, a):
+                    pooled += 1
+                elif len(idx) >= 2:
                     kept += 1
-                    continue
-                tot = float(np.sum(nu[idx, a]))
-                var[idx, a] = float(np.sum(nu[idx, a] * var[idx, a])) / tot
-                nu[idx, a] = tot
-                pooled += 1
+        # what a block could not pool, by pose across the campaign: a pose's noise (one whose axis is
+        # vertical, a resonance of the bench at one angle) is the same at every setpoint (an outside
+        # probe: Z-up poses 3x noisier refused every block's pooling, and the fit weighted by 9-dof
+        # sd_* was ok with an angle tempco 5.5 u off)
+        for a in range(3):
+            rest = np.flatnonzero(own[:, a])
+            for pos in np.unique(campaign.position[rest]):
+                if pool(rest[campaign.position[rest] == pos], a):
+                    by_pose += 1
+        if np.mean(own) > OWN_SD_MAX_FRACTION:
+            i, a = np.argwhere(own)[0]
+            return None, (f"sd_* of {int(np.sum(own))} of {own.size} visit-axes rest on their own n_samples - 1 < "
+                          f"{POOL_DOF_BELOW} samples and differ from their setpoint's and their pose's (Bartlett p < "
+                          f"{HOMOGENEITY_P:g}; e.g. line {_line(campaign, i)}, {'xyz'[a]}): weights that uncertain give "
+                          "an answer whose errors their u does not describe")
     if np.any(nu < DOF_MIN):
         i, a = np.argwhere(nu < DOF_MIN)[0]
         return None, (f"sd_* of {int(np.sum(nu < DOF_MIN))} visit-axes rest on fewer than {DOF_MIN} samples after "
@@ -188,7 +212,9 @@ def sd_weights(campaign: Campaign) -> tuple[Optional[np.ndarray], str]:
     how = "sd_*/sqrt(n_samples) of each visit, x sqrt(nu/(nu-2)) for the uncertainty of sd_* (nu = n_samples - 1)"
     if pooled or kept:
         how += (f"; with n_samples - 1 < {POOL_DOF_BELOW}, sd_* pooled per axis within {pooled} setpoint block-axes"
-                + (f" (not in {kept}, where Bartlett's test p < {HOMOGENEITY_P:g} says the variances differ)" if kept else ""))
+                + (f" (not in {kept}, where Bartlett's test p < {HOMOGENEITY_P:g} says the variances differ"
+                   + (f"; those pooled by pose across the setpoints in {by_pose} pose-axes" if by_pose else "")
+                   + f"; {int(np.sum(own))} visit-axes on their own sd_*)" if kept else ""))
     return sigma, how
 
 
@@ -261,6 +287,10 @@ def output_variances(r, n_params: int) -> Optional[np.ndarray]:
     return s2 if np.all(np.isfinite(s2)) and np.all(s2 > 0) else None
 
 
+#: passes of the per-output rescaling at most (they stop when the outputs' variances agree to 1 %)
+PER_OUTPUT_PASSES = 8
+
+
 def per_output_scale(problem, sol, noise: NoiseSource, max_iter: int):
     """With the noise estimated from the residuals, one noise level per output, not one for all
     three: the outputs of a triad need not share a noise level (another accelerometer, another
@@ -275,11 +305,22 @@ def per_output_scale(problem, sol, noise: NoiseSource, max_iter: int):
     from ..models.sensor import AXES
     from .joint import levenberg_marquardt
 
-    s2 = output_variances(sol.r, len(problem.names))
-    if s2 is None:
+    # iterated: a shared parameter (the tilt) fitted with the first weights carries the noisiest
+    # output's scatter into the others' residuals (an outside probe: outputs 80x apart gave Q_z 8x
+    # its truth after one pass); each pass rescales by the refit's variances until they agree
+    s2 = np.ones(3)
+    refit = sol
+    for _ in range(PER_OUTPUT_PASSES):
+        step = output_variances(refit.r, len(problem.names))
+        if step is None:
+            break
+        s2 = s2 * step
+        problem.sigma = noise.sigma * np.sqrt(s2)[None, :]
+        refit = levenberg_marquardt(problem, refit.x, loss="l2", max_iter=max_iter)
+        if np.max(np.abs(step / np.mean(step) - 1.0)) < 0.01:
+            break
+    if refit is sol:
         return sol, noise, None
-    problem.sigma = noise.sigma * np.sqrt(s2)[None, :]
-    refit = levenberg_marquardt(problem, sol.x, loss="l2", max_iter=max_iter)
     how = (noise.description + "; one scale per output (the outputs' variances per unit weight "
            + ", ".join(f"{a} {v:.3g}" for a, v in zip(AXES, s2)) + ", estimated apart)")
     return refit, NoiseSource(problem.sigma, False, how), s2

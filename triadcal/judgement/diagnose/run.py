@@ -30,7 +30,7 @@ from ...estimation.joint import (
     null_space_problems,
     start_values,
 )
-from ...estimation.noise_model import NoiseSource, output_variances
+from ...estimation.noise_model import HOMOGENEITY_P, NoiseSource, bartlett_p, output_variances
 from .candidates import (
     FORM_CANDIDATES,
     NOISE_MODEL_TERMS,
@@ -148,10 +148,17 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         # base model plus every generic family (temperature, time, orientation, direction): a withheld
         # effect on one output must not pass for its noise (from the base residuals alone, a bias tempco
         # of the validation was 'unexplained' after its refit)
+        # (columns normalised: the rank, and so the dof, must not depend on the output's unit). Only when
+        # the outputs' levels differ (Bartlett p < 1e-3 over the three): data whose outputs share a level
+        # keep the one scale, and every verdict of the validation with it
         A = np.column_stack([base.J] + [base.whitened(B) for B in generic_basis(campaign, sigma, T0).values()])
+        norms = np.linalg.norm(A, axis=0)
+        A = A[:, norms > 0] / norms[norms > 0]
         coef, *_ = np.linalg.lstsq(A, base.r, rcond=None)
-        s2 = output_variances(base.r - A @ coef, int(np.linalg.matrix_rank(A)))
-        if s2 is not None:
+        rank = int(np.linalg.matrix_rank(A))
+        s2 = output_variances(base.r - A @ coef, rank)
+        dof_a = len(base.r) / 3.0 - rank / 3.0
+        if s2 is not None and bartlett_p(s2, np.full(3, dof_a)) < HOMOGENEITY_P:
             sigma = sigma * np.sqrt(s2 / np.mean(s2))[None, :]
             full.sigma = sigma
             noise = NoiseSource(sigma, False, noise.description + "; one scale per output (variances per unit "
