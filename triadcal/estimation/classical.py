@@ -24,7 +24,7 @@ from ..models.kinematics import gravity_in_imu
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, PPM, UG, scale_factor_unit
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates
-from .classical_tilt import tilt_leak_gate
+from .classical_tilt import combined_tilt, tilt_leak_gate, tilt_note
 from .hints import orientation_hints
 from .result import CalibrationResult, ParameterValue
 
@@ -202,11 +202,6 @@ def _quantity_names():
     return names + [f"K_{a}" for a in AXES] + [f"S_{a}" for a in AXES]
 
 
-#: a bench tilt (arcsec) from which the correction of K and S by cos(tilt) is named in a note (at
-#: 300" it is 1.1 ppm)
-TILT_NOTE_ARCSEC = 300.0
-
-
 def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                   noise: str = "residuals", temperature: str = "own",
                   gates: GateConfig = DEFAULT_CONFIG) -> CalibrationResult:
@@ -313,7 +308,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         off = [leak[k, ai] for k, bb in enumerate(IMU_AXES) for ai, a in enumerate(AXES) if a != bb.lower()]
         per_block.append(dict(idx=idx, pair=pair, setpoint_C=sp, direction=direction, cycle=cycle, where=where,
                               leak=float(np.max(np.abs(off))) if off else 0.0,
-                              tilt=_combined_tilt(tilts)))
+                              tilt=combined_tilt(tilts)))
 
     # -- output noise ------------------------------------------------------------------
     sd_sigma = campaign.output_sigma()
@@ -365,8 +360,9 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         # K 20-35 ppm, up to 27 u, high with status ok; 60" is 4e-8)
         t_hat = blk.get("tilt")
         cos_tilt = 1.0 if t_hat is None else math.sqrt(max(0.0, 1.0 - float(t_hat @ t_hat)))
-        if t_hat is not None:
-            tilt_notes.append(math.degrees(math.acos(cos_tilt)) * 3600.0)
+        tilt_arcsec = None if t_hat is None else math.degrees(math.acos(cos_tilt)) * 3600.0
+        if tilt_arcsec is not None:
+            tilt_notes.append(tilt_arcsec)
         for ai, a in enumerate(AXES):
             v, J = row_estimate(campaign.w[idx, ai], pair, G, ai, blk["where"])
             V = np.sum(J * J * (sigma[idx, ai] ** 2)[None, :], axis=1)
@@ -382,18 +378,15 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         per_setpoint.append({
             "setpoint_C": blk["setpoint_C"], "direction": blk["direction"], "cycle": blk["cycle"],
             "mean_temperature_C": temps[k], "sensor_temperature_C": [float(x) for x in temps_own[k]],
-            "tilt_arcsec": None if t_hat is None else float(math.degrees(math.acos(cos_tilt)) * 3600.0),
+            "tilt_arcsec": tilt_arcsec,
             "time_s": float(np.mean(campaign.time_s[idx])),
             "n_visits": int(len(idx)),
             "parameters": {n: _reporting(n, est[k, j], math.sqrt(var[k, j]), campaign.output_unit)
                            for j, n in enumerate(qnames)},
         })
 
-    if tilt_notes and max(tilt_notes) >= TILT_NOTE_ARCSEC:
-        worst = max(tilt_notes)
-        notes.append(f"bench tilt estimated from the redundant positions of each setpoint: up to {worst:.0f}\" "
-                     f"({np.median(tilt_notes):.0f}\" median); K and S were multiplied by cos(tilt) (up to "
-                     f"{(1.0 - math.cos(math.radians(worst / 3600.0))) * 1e6:.3g} ppm), which eq. 2 divides them by")
+    if tilt_note(tilt_notes):
+        notes.append(tilt_note(tilt_notes))
     # -- the paper's linear thermal correction -------------------------------------------
     distinct = len(set(round(t, 6) for t in (b["setpoint_C"] for b in per_block)))
     slope = distinct >= 2
@@ -504,22 +497,6 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     return result
 
 
-def _combined_tilt(tilts) -> Optional[np.ndarray]:
-    """The block's tilt (rad, base x and y) from each axis's estimate and covariance, by inverse-
-    covariance weighting; its squared norm less the trace of its covariance (the noise's share of
-    |t|^2), so that cos(tilt) is not biased by the noise. None when no axis determines it."""
-    try:
-        W = [np.linalg.inv(C) for _, C in tilts]
-        cov = np.linalg.inv(sum(W))
-    except (np.linalg.LinAlgError, ValueError, TypeError):
-        return None
-    t = cov @ sum(w @ t for w, (t, _) in zip(W, tilts))
-    if not np.all(np.isfinite(t)):
-        return None
-    norm2 = max(float(t @ t) - float(np.trace(cov)), 0.0)
-    return t * math.sqrt(norm2 / float(t @ t)) if float(t @ t) > 0 else t
-
-
 def _worst_studentised(resid, rss, dof, campaign: Campaign):
     """The largest internally studentised residual of the per-setpoint models,
     ``|e_i| / (s_a sqrt(1 - h_ii))`` with ``s_a^2 = RSS_a / dof_a``: ``(t, n, where)``."""
@@ -599,16 +576,12 @@ def redundancy_gate(chi2: np.ndarray, dof: np.ndarray, noise_known: bool, noise_
                            if noise_source == "sd" else ""))
 
 
-def _scale_unit(output_unit: str) -> str:
-    return scale_factor_unit(output_unit)
-
-
 def _reporting(name: str, value: float, u: float, output_unit: str) -> dict:
     """One per-setpoint quantity in its reporting unit (arcsec for angles)."""
     if name.startswith("Ca_"):
         return {"value": float(value / ARCSEC), "u": float(u / ARCSEC), "unit": "arcsec"}
     if name.startswith("K_"):
-        return {"value": float(value), "u": float(u), "unit": _scale_unit(output_unit)}
+        return {"value": float(value), "u": float(u), "unit": scale_factor_unit(output_unit)}
     return {"value": float(value), "u": float(u), "unit": "g"}
 
 
@@ -621,7 +594,7 @@ def _to_reporting(name: str, line: Line, slope: bool, output_unit: str):
         Jm = np.diag(f[: len(line.coef)])
         coef = line.coef * f[: len(line.coef)]
     elif name.startswith("K_"):
-        units = (_scale_unit(output_unit), "ppm/degC")
+        units = (scale_factor_unit(output_unit), "ppm/degC")
         if slope:
             b = line.coef[1]
             coef = np.array([a, b / a / PPM])

@@ -16,10 +16,14 @@ mean output divided by its standard uncertainty (the noise the method uses), is 
 estimable tilt directions' count as dof when there is no tilt (a nested linear test; Seber & Lee
 2003, ch. 4). Significant at the goodness-of-fit gate's level (p < ``gof_p_min``): the gate fails
 with status ``model_mismatch`` and says to fit with ``--method joint``, which estimates the tilt.
+
+On every plan the same tilt columns give the tilt's size (:func:`combined_tilt`), by which eq. 2's
+K and S, divided by cos(tilt), are multiplied back (``fit_classical``; :func:`tilt_note`).
 """
 
 from __future__ import annotations
 
+import math
 from typing import Optional
 
 import numpy as np
@@ -74,3 +78,35 @@ def tilt_leak_gate(campaign, blocks, sigma: np.ndarray, config: GateConfig = DEF
               + (f" < {config.gof_p_min:g}: the bench is tilted, and the classical angles and biases carry it "
                  "(their u does not); fit with --method joint, which estimates the tilt" if fails else ""))
     return GateOutcome("tilt_leak", not fails, "model_mismatch", reason, p, f"p >= {config.gof_p_min:g}")
+
+
+#: a bench tilt (arcsec) from which the correction of K and S by cos(tilt) is named in a note (at
+#: 300" it is 1.1 ppm)
+TILT_NOTE_ARCSEC = 300.0
+
+
+def combined_tilt(tilts) -> Optional[np.ndarray]:
+    """The block's tilt (rad, base x and y) from each axis's estimate and covariance, by inverse-
+    covariance weighting; its squared norm less the trace of its covariance (the noise's share of
+    |t|^2), so that cos(tilt) is not biased by the noise. None when no axis determines it."""
+    try:
+        W = [np.linalg.inv(C) for _, C in tilts]
+        cov = np.linalg.inv(sum(W))
+    except (np.linalg.LinAlgError, ValueError, TypeError):
+        return None
+    t = cov @ sum(w @ t for w, (t, _) in zip(W, tilts))
+    if not np.all(np.isfinite(t)):
+        return None
+    norm2 = max(float(t @ t) - float(np.trace(cov)), 0.0)
+    return t * math.sqrt(norm2 / float(t @ t)) if float(t @ t) > 0 else t
+
+
+def tilt_note(tilts_arcsec) -> Optional[str]:
+    """The note on the correction of K and S by cos(tilt) (eq. 2 divides them by it), when the
+    blocks' tilts reach :data:`TILT_NOTE_ARCSEC`; None otherwise."""
+    if not tilts_arcsec or max(tilts_arcsec) < TILT_NOTE_ARCSEC:
+        return None
+    worst = max(tilts_arcsec)
+    return (f"bench tilt estimated from the redundant positions of each setpoint: up to {worst:.0f}\" "
+            f"({np.median(tilts_arcsec):.0f}\" median); K and S were multiplied by cos(tilt) (up to "
+            f"{(1.0 - math.cos(math.radians(worst / 3600.0))) * 1e6:.3g} ppm), which eq. 2 divides them by")
