@@ -19,7 +19,7 @@ from typing import Mapping, Optional, Sequence
 import numpy as np
 from scipy import stats
 
-from ..models.units import STANDARD_GRAVITY_M_S2
+from ..models.units import STANDARD_GRAVITY_M_S2, scale_output_unit
 
 #: status of each gate when it fails, in order of precedence (the first failing one is the
 #: result's status; all failures are listed in ``result.extra["gates"]`` and the notes)
@@ -172,16 +172,6 @@ class GateOutcome:
 # ------------------------------------------------------------------------------------------
 # gates that need only the result
 # ------------------------------------------------------------------------------------------
-def scale_output_unit(k_unit: str) -> Optional[str]:
-    """The output unit of a scale factor's unit string: ``"g/V"`` -> ``"V"``, ``"g/(m/s2)"`` ->
-    ``"m/s2"`` (a compound unit is written in parentheses: models/units.scale_factor_unit; before
-    that was read, a fit-raw result in m/s2 had its K's band unchecked)."""
-    if not (isinstance(k_unit, str) and k_unit.startswith("g/")):
-        return None
-    u = k_unit[2:]
-    return u[1:-1] if u.startswith("(") and u.endswith(")") else u
-
-
 def scale_band(output_unit: Optional[str], local_g_m_s2: Optional[float] = None,
                rel: float = DEFAULT_CONFIG.scale_band_rel) -> Optional[tuple[float, float, str]]:
     """Accepted band ``(low, high, why)`` of K (g per output unit), or None when the unit is unknown.

@@ -6,6 +6,7 @@ Reporting units follow docs/results-json.md.
 """
 
 import math
+from typing import Optional
 
 ARCSEC = math.pi / (180.0 * 3600.0)   #: radians per arcsecond
 DEG = math.pi / 180.0                 #: radians per degree
@@ -27,17 +28,22 @@ def scale_factor_unit(output_unit: str) -> str:
     return f"g/({u})" if "/" in u else f"g/{u}"
 
 
+def scale_output_unit(k_unit) -> Optional[str]:
+    """The output unit of a scale factor's unit string: ``"g/V"`` -> ``"V"``, ``"g/(m/s2)"`` ->
+    ``"m/s2"`` (a compound unit is written in parentheses, :func:`scale_factor_unit`; before the
+    gates read it so, a fit-raw result in m/s2 had its K's band unchecked); None for another unit."""
+    if not (isinstance(k_unit, str) and k_unit.strip().startswith("g/")):
+        return None
+    u = k_unit.strip()[2:]
+    return u[1:-1] if u.startswith("(") and u.endswith(")") else u
+
+
 def canonical_scale_unit(unit: str) -> str:
     """A scale factor's unit in :func:`scale_factor_unit`'s spelling: ``g/counts`` and ``g/count``,
     ``g/m/s2`` and ``g/(m/s2)`` are one unit (results written before 2026-11-30 spell them
     apart); any other unit unchanged."""
-    u = str(unit).strip()
-    if not u.startswith("g/"):
-        return u
-    rest = u[2:]
-    if rest.startswith("(") and rest.endswith(")"):
-        rest = rest[1:-1]
-    return scale_factor_unit(rest)
+    out = scale_output_unit(unit)
+    return str(unit).strip() if out is None else scale_factor_unit(out)
 
 
 #: internal value = reporting value * TO_INTERNAL[unit]
