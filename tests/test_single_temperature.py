@@ -60,7 +60,7 @@ def test_two_calibrations_at_one_setpoint_are_compared_with_a_note():
     dT = abs(rb.reference_temperature_C - ra.reference_temperature_C)
     assert 0 < dT <= 0.2
     out = compare(rb, ra)
-    assert any("one temperature each" in n for n in out.notes), out.notes
+    assert any("one temperature: the rows are at" in n for n in out.notes), out.notes
     # another setpoint is another temperature: refused
     other, _ = _at(60.0, 10)
     with pytest.raises(InputError, match="reference temperatures differ"):
@@ -106,6 +106,48 @@ def test_sensors_apart_at_one_temperature_name_each_rows_temperature():
         S = truth[f"S_{a}"] + 1e-6 * truth[f"S_{a}_tempco"] * (Ta - T0_C)
         assert abs(r[f"K_{a}"].value - K) < 4 * r[f"K_{a}"].u, (a, r[f"K_{a}"], K)
         assert abs(r[f"S_{a}"].value - S) < 4 * r[f"S_{a}"].u, (a, r[f"S_{a}"], S)
+
+
+def test_sensors_apart_certificate_and_compare_use_each_rows_temperature(tmp_path):
+    """Sensors +0.45, -0.4, 0 degC apart (an outside probe: S_x 7.6 u from the unit's at the stated mean
+    temperature, status ok): the certificate states each row's temperature, and compare judges the
+    rows' temperatures, not the means: against a calibration with its sensors alike at the same mean
+    it notes 0.45 degC; against one whose rows are 0.85 degC off in X it refuses."""
+    from triadcal.reports.certificate.content import build_certificate
+
+    c, truth = _sensors_apart((0.45, -0.4, 0.0), seed=11)
+    r = fit_joint(c, EFFECTS)
+    assert r.status == "ok", r.notes
+    cert = build_certificate(r, campaign=c)
+    rows = dict(cert.conditions)
+    line = rows["Temperature of each accelerometer's values"]
+    for a in "xyz":
+        assert f"{a.upper()} (K_{a}, S_{a}" in line and f"{r.fit['sensor_temperatures_C'][a]:.2f} °C" in line, line
+    assert "next row" in rows["Reference temperature"]
+    from triadcal.reports.compensation import compensation_table
+    # (a model with tempcos at one temperature holds them fixed, and the table refuses it for lacking them)
+    table = compensation_table(fit_joint(c, ["bench_tilt"]), [r.reference_temperature_C], allow_outside=True)
+    assert any("sensors apart" in n and f"x {r.fit['sensor_temperatures_C']['x']:.2f}" in n for n in table.notes)
+    # the same unit with its sensors alike at the same mean: row x 0.45 degC from it, which no tempco
+    # carries: refused, naming the rows (before, the means agreed and compare said nothing)
+    same, _ = _sensors_apart((0.0, 0.0, 0.0), seed=12)
+    same.t[:] = same.t + (np.mean(c.t) - np.mean(same.t))
+    r0 = fit_joint(same, EFFECTS)
+    assert r0.status == "ok" and abs(r0.reference_temperature_C - r.reference_temperature_C) <= 0.011
+    with pytest.raises(InputError, match="accelerometers' temperatures differ .*per accelerometer x 50.4"):
+        compare(r, r0)
+    # sensors +0.15, -0.1, 0 degC apart against alike: within 0.2 degC, compared with a note naming row x
+    near, _ = _sensors_apart((0.15, -0.1, 0.0), seed=13)
+    near.t[:] = near.t + (np.mean(same.t) - np.mean(near.t))
+    out = compare(r0, fit_joint(near, EFFECTS))
+    note = next(n for n in out.notes if "one temperature: the rows are at" in n)
+    assert "(row x)" in note and "0.1" in note, note
+    # a results file whose sensor temperatures were edited to 1 degC apart, status ok: refused by the readers
+    from triadcal.estimation.result_checks import result_problems
+    r.fit["sensor_temperatures_C"] = {"x": 51.0, "y": 50.0, "z": 50.0}
+    assert any("one_reference_temperature" in w for w in result_problems(r))
+    r.fit["sensor_temperatures_C"] = {"x": float("nan"), "y": 50.0, "z": 50.0}
+    assert any("fit.sensor_temperatures_C.x" in w for w in result_problems(r))
 
 
 def test_sensors_a_degree_or_more_apart_at_one_temperature_are_refused():

@@ -9,6 +9,7 @@ from typing import Optional
 
 import numpy as np
 
+from ..errors import InputError
 from ..models.campaign import Campaign
 from ..models.sensor import AXES
 from .gates import GateOutcome
@@ -73,3 +74,42 @@ def sensor_temperatures(campaign: Campaign) -> tuple[Optional[str], Optional[Gat
                  "T_ref), or check the sensors' columns"))
     return note, GateOutcome("one_reference_temperature", passed, "unidentifiable", reason, spread,
                              f"< {TEMPERATURE_SPAN_MIN_C:g} degC"), temps
+
+
+def sensor_temperature_problems(result) -> list[str]:
+    """What is wrong with a result's recorded ``fit.sensor_temperatures_C`` (empty: nothing, or not
+    recorded): it must map x, y and z to temperatures in degC between -100 and 200, and, in a result
+    with status ok, spread by less than :data:`TEMPERATURE_SPAN_MIN_C` (the gate
+    ``one_reference_temperature`` refuses from there)."""
+    fit = result.fit if isinstance(getattr(result, "fit", None), dict) else {}
+    if "sensor_temperatures_C" not in fit:
+        return []
+    temps = fit["sensor_temperatures_C"]
+    field = "fit.sensor_temperatures_C"
+    if not isinstance(temps, dict) or sorted(temps) != sorted(AXES):
+        return [f"{field} = {temps!r} is not a mapping of x, y and z to temperatures (degC)"]
+    bad = [a for a in AXES if isinstance(temps[a], bool) or not isinstance(temps[a], (int, float))
+           or not np.isfinite(temps[a]) or not -100.0 <= temps[a] <= 200.0]
+    if bad:
+        return [f"{field}.{a} = {temps[a]!r} is not a temperature in degC between -100 and 200" for a in bad]
+    spread = max(temps.values()) - min(temps.values())
+    if getattr(result, "status", None) == "ok" and spread >= TEMPERATURE_SPAN_MIN_C:
+        return [f"status is 'ok' but {field} spread {spread:.2f} degC, which the gate one_reference_temperature "
+                f"refuses (>= {TEMPERATURE_SPAN_MIN_C:g} degC)"]
+    return []
+
+
+def row_temperatures_C(result) -> dict:
+    """The temperature (degC) at which each accelerometer's row of ``result`` holds -- K_a, S_a and
+    the angles Ca_ab: each sensor's own mean temperature for a calibration at one temperature that
+    recorded them (``fit.sensor_temperatures_C``, :func:`sensor_temperatures`; row a of the model is
+    tied to t_a, eq. in docs/model.md, and no tempco moves it), else ``reference_temperature_C`` for
+    every row (the tempcos carry each row there). Raises :class:`~triadcal.errors.InputError` for a
+    recorded value that :func:`sensor_temperature_problems` rejects."""
+    why = sensor_temperature_problems(result)
+    if why:
+        raise InputError("; ".join(why))
+    temps = (result.fit or {}).get("sensor_temperatures_C") if isinstance(result.fit, dict) else None
+    if temps:
+        return {a: float(temps[a]) for a in AXES}
+    return {a: float(result.reference_temperature_C) for a in AXES}

@@ -67,6 +67,8 @@ def result_problems(result, *, need_ok: bool = True, config: Optional[GateConfig
         if o.passed is False:
             why.append(f"gate {o.gate} fails ({o.status}): {o.reason}")
     why.extend(_recorded_contradictions(result, config))
+    from .one_temperature import sensor_temperature_problems
+    why.extend(sensor_temperature_problems(result))
     return why
 
 

@@ -41,6 +41,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..estimation.one_temperature import row_temperatures_C
 from ..estimation.result import CalibrationResult
 from ..models.effects import BENCH_EFFECTS
 from ..models.model import Covariates, Model
@@ -293,6 +294,11 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
     if "thermal_lag" in result.effects:
         notes.append("steady state: the sensing element's lag behind its sensor (thermal_lag) is not in a table "
                      "of T; apply it to the temperature before the lookup")
+    rows_T = row_temperatures_C(result)
+    if max(rows_T.values()) - min(rows_T.values()) >= 0.005:
+        notes.append("one temperature, sensors apart: each accelerometer's K, S and angles hold at its own sensor's "
+                     "temperature (" + ", ".join(f"{a} {v:.2f}" for a, v in rows_T.items()) + " degC), no tempco "
+                     "carries them to another")
     unit_effects = [e for e in result.effects if e not in BENCH_EFFECTS]
     model = Model(unit_effects, result.reference_temperature_C)
     missing = [n for n in model.names if n not in result.parameters]

@@ -8,6 +8,7 @@ import os
 from typing import Mapping, Optional, Sequence, Union
 import numpy as np
 from scipy import stats
+from ...estimation.one_temperature import row_temperatures_C
 from ...estimation.result_checks import check_result_for_use
 from ...estimation.result import CalibrationResult
 from ...models.units import canonical_scale_unit
@@ -67,6 +68,35 @@ def _has_tempcos(r) -> bool:
     return any("_tempco" in n for n in r.parameters)
 
 
+def _temperature_notes(before: CalibrationResult, after: CalibrationResult) -> list[str]:
+    """The pair's temperatures, row by row (:func:`.row_temperatures_C`: K_a, S_a and Ca_ab hold at
+    t_a in a calibration at one temperature whose sensors read apart): refuse (InputError) rows at
+    temperatures more than :data:`SAME_TEMPERATURE_C` apart, or reference temperatures that differ
+    where both calibrations have tempcos (refit one at the other's); a note for rows up to
+    :data:`SAME_TEMPERATURE_C` apart, whose drift also holds the unmeasured tempcos times that. An
+    outside probe: sensors at +0.45, -0.4, 0 degC in one calibration and at one temperature in the
+    other, both means 20 degC, compared silently."""
+    tb, ta = row_temperatures_C(before), row_temperatures_C(after)
+    dT = {a: abs(tb[a] - ta[a]) for a in tb}
+    worst = max(dT, key=dT.get)
+    where = ", ".join(f"{a} {tb[a]:.2f} -> {ta[a]:.2f}" for a in tb)
+    both_tempcos = _has_tempcos(before) and _has_tempcos(after)
+    if both_tempcos and before.reference_temperature_C != after.reference_temperature_C or \
+            dT[worst] > SAME_TEMPERATURE_C:
+        what = ("reference temperatures differ" if before.reference_temperature_C != after.reference_temperature_C
+                else "the accelerometers' temperatures differ")
+        raise InputError(f"{what} ({before.reference_temperature_C:g} vs "
+                         f"{after.reference_temperature_C:g} degC; per accelerometer {where} degC): refit one of "
+                         "them at the other's reference temperature so the values are comparable" +
+                         ("" if both_tempcos else f" (at one temperature, no tempco carries them: rows may differ "
+                          f"by at most {SAME_TEMPERATURE_C:g} degC)"))
+    if dT[worst] < 0.005:
+        return []
+    return [f"one temperature: the rows are at {where} degC (before -> after): the drift also holds the unit's "
+            f"temperature coefficients times up to {dT[worst]:.2f} degC (row {worst}), which neither calibration "
+            "measured"]
+
+
 def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_arcsec: Optional[float] = 30.0,
             tolerances: Optional[Mapping[str, float]] = None, posterior_before=None, posterior_after=None,
             correlation: Union[str, float] = "auto", level: float = 0.95,
@@ -110,17 +140,7 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     if before.unit != after.unit:
         raise InputError(f"before is unit {before.unit!r} and after is unit {after.unit!r}: a drift compares "
                          "two calibrations of the same unit")
-    dT = abs(before.reference_temperature_C - after.reference_temperature_C)
-    if 0 < dT <= SAME_TEMPERATURE_C and not (_has_tempcos(before) or _has_tempcos(after)):
-        # two calibrations at one temperature each (no tempco: the values are at the mean temperature
-        # of the data, docs/compare.md), at the same setpoint within the chamber's stability
-        notes.append(f"one temperature each, {before.reference_temperature_C:.2f} and "
-                     f"{after.reference_temperature_C:.2f} degC: the drift also holds the unit's temperature "
-                     f"coefficients times {dT:.2f} degC, which neither calibration measured")
-    elif dT > 0:
-        raise InputError(f"reference temperatures differ ({before.reference_temperature_C:g} vs "
-                         f"{after.reference_temperature_C:g} degC): refit one of them at the other's "
-                         "reference temperature so the angles are comparable")
+    notes.extend(_temperature_notes(before, after))
     # angles held by definition (under `fixed` and not `unidentifiable`: an angle the data could not
     # determine is a missing angle, below, not a frame)
     frame = {tag: sorted(n for n in (r.extra.get("fixed") or {}) if _is_angle(n) and n not in r.parameters

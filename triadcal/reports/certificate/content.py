@@ -17,6 +17,7 @@ from typing import Optional
 import numpy as np
 
 from ... import __version__
+from ...estimation.one_temperature import row_temperatures_C
 from ...estimation.result import significant, CalibrationResult, round_to_uncertainty
 from ...models.effects import EFFECTS
 from ...models.model import Model
@@ -286,9 +287,21 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         lo, hi = result.temperature_range_C
         cond.append(("Temperature range (accelerometer sensors)", f"{lo:.1f} °C to {hi:.1f} °C"))
     t_u = result.fit.get("reference_temperature_u_C")
+    rows_T = row_temperatures_C(result)
+    apart = max(rows_T.values()) - min(rows_T.values()) >= 0.005
     cond.append(("Reference temperature", f"{result.reference_temperature_C:g} °C" + (
-        f" (as the thermometers read it, u = {t_u:g} °C; one temperature: the values are the unit's at that "
-        "temperature and hold no tempco)" if isinstance(t_u, (int, float)) else "")))
+        f" (as the thermometers read it, u = {t_u:g} °C; one temperature: the values are the unit's at "
+        + ("its sensors' temperatures, next row," if apart else "that temperature") + " and hold no tempco)"
+        if isinstance(t_u, (int, float)) else (" (the sensors' mean; the values are at each sensor's own "
+                                               "temperature, next row)" if apart else ""))))
+    if apart:
+        # one temperature, sensors apart: row a (K_a, S_a, Ca_ab) is at t_a, not at the sensors' mean
+        def row(a):
+            return ", ".join(n for n in result.parameters if n in (f"K_{a}", f"S_{a}") or n.startswith(f"Ca_{a}"))
+        cond.append(("Temperature of each accelerometer's values", "; ".join(
+            f"{a.upper()} ({row(a)}) {v:.2f} °C" for a, v in rows_T.items())
+            + " — each accelerometer's own temperature sensor, which its row of the model is tied to; no "
+            "temperature coefficient was determined to carry them to one temperature"))
     if campaign is not None:
         taus = sorted(set(np.round(campaign.tau_s, 6).tolist()))
         cond.append(("Averaging time per position", ", ".join(f"{t:g} s" for t in taus)))
