@@ -218,7 +218,8 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
     file's clock) returning the change of the two tilt components (arcsec, arrays), added to
     ``tilt_arcsec`` (a bench that drifts or settles during the campaign). Random per visit: ``e1, e2 ~ N(0, sigma_position_arcsec)`` and
     a wobble ``~ N(0, sigma_wobble_arcsec)``. The mean output of each visit gets white noise of
-    SD ``noise_sd / sqrt(n_samples)``; ``sd_*`` columns say ``noise_sd``.
+    SD ``noise_sd / sqrt(n_samples)``; ``sd_*`` columns say ``noise_sd`` (a float, or a function of
+    the setpoint in degC: noise that grows with temperature).
 
     Effects outside the project's vocabulary, as functions of the schedule (for open-world checks of
     the diagnosis): ``encoder_error(axis1_rad, axis2_rad) -> (e1, e2)`` arcsec added to the angles
@@ -306,7 +307,12 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
         if extra_bias is not None:
             S = S + np.asarray(extra_bias(k, time_s[k], temps[k], G[k], direction[k]), float)
         W[k] = (_nonlinear_response(Ca, ang, G[k], truth) + S) / K
-    W += rng.normal(0.0, noise_sd / math.sqrt(n_samples), size=W.shape)
+    if callable(noise_sd):                  # an SD per setpoint (honest sd_* columns say it)
+        sd_k = np.array([float(noise_sd(x)) for x in sp])
+        W += rng.normal(0.0, 1.0, size=W.shape) * (sd_k / math.sqrt(n_samples))[:, None]
+    else:
+        sd_k = np.full(n, float(noise_sd))
+        W += rng.normal(0.0, noise_sd / math.sqrt(n_samples), size=W.shape)
 
     lines = ["# generator = tests/independent_bench.py",
              "# bench = independent simulated two-axis bench",
@@ -318,7 +324,7 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
         row = [unit, repr(float(sp[k])), direction[k], repr(float(time_s[k])), pos[k],
                repr(float(a1_cmd[k])), repr(float(a2_cmd[k])), repr(float(tau_s)),
                *(repr(float(v)) for v in W[k]), *(repr(float(v)) for v in temps[k]),
-               "0", "initial", *([repr(float(noise_sd))] * 3), str(int(n_samples))]
+               "0", "initial", *([repr(float(sd_k[k]))] * 3), str(int(n_samples))]
         lines.append(",".join(row))
     truth.setdefault("tilt_x", float(tilt_arcsec[0]))
     truth.setdefault("tilt_y", float(tilt_arcsec[1]))

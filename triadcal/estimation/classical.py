@@ -5,8 +5,9 @@ the bench kinematics), computes Ca, K and S in closed form with first-order unce
 and fits each against its accelerometer's own sensor temperature (Birge-scaled line).
 Its SD for the bench's noise model is :mod:`triadcal.uncertainty.classical_sd`.
 Derivation/design: docs/classical.md (What it computes; Standard deviation of the classical angle).
-Over 500 lines because the estimator, its error propagation and its own redundancy gate read as
-one derivation; each is a separate function.
+Over 500 lines because the estimator and its error propagation read as one derivation; each is a
+separate function. Its redundancy gate is :mod:`.classical_redundancy`, its tilt estimate and gate
+:mod:`.classical_tilt`, its temperature-drift check :mod:`.classical_drift`.
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ from ..models.campaign import Campaign, nominal_gravity
 from ..models.kinematics import gravity_in_imu
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, PPM, UG, scale_factor_unit
-from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates
+from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
+from .classical_redundancy import leverages, redundancy_gate, worst_studentised, worst_studentised_known
 from .classical_tilt import combined_tilt, tilt_leak_gate, tilt_note
 from .hints import orientation_hints
 from .result import CalibrationResult, ParameterValue
@@ -251,6 +253,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     dof = np.zeros(3, int)
     red_chi2 = np.zeros(3)
     resid: list = [[], [], []]
+    design_w: list = [[], [], []]           # per block: design, outputs, known variances, visits (when known)
     from .joint import noise_of
 
     known = noise_of(campaign)
@@ -294,17 +297,17 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                 tilts.append((coef[4:6] * f, C))
             rss[ai] += float(np.sum(e ** 2))
             dof[ai] += len(idx) - rank
-            # leverages of the per-setpoint model, for the studentised residuals
-            U_, sv, _ = np.linalg.svd(X, full_matrices=False)
-            Ur = U_[:, sv > sv[0] * 1e-10] if len(sv) and sv[0] > 0 else U_[:, :0]
-            resid[ai].append((e, np.sum(Ur ** 2, axis=1), idx))
-            if known.known and len(idx) > rank:
+            # residuals and leverages of the per-setpoint model, for the studentised residuals
+            resid[ai].append((e, leverages(X), idx))
+            if known.known:
                 # the same model weighted by the known noise of each mean output: its chi^2
-                # is the disagreement of the redundant positions against that noise
+                # is the disagreement of the redundant positions against that noise, and its
+                # residuals are studentised against a noise that may differ from visit to visit
                 Xk = X / sqrt_tau[:, None] / known.sigma[idx, ai][:, None]
                 yk = campaign.w[idx, ai] / known.sigma[idx, ai]
                 ck, *_ = np.linalg.lstsq(Xk, yk, rcond=None)
-                red_chi2[ai] += float(np.sum((yk - Xk @ ck) ** 2))
+                red_chi2[ai] += float(np.sum((yk - Xk @ ck) ** 2)) if len(idx) > rank else 0.0
+                design_w[ai].append((X / sqrt_tau[:, None], campaign.w[idx, ai], known.sigma[idx, ai] ** 2, idx))
         off = [leak[k, ai] for k, bb in enumerate(IMU_AXES) for ai, a in enumerate(AXES) if a != bb.lower()]
         per_block.append(dict(idx=idx, pair=pair, setpoint_C=sp, direction=direction, cycle=cycle, where=where,
                               leak=float(np.max(np.abs(off))) if off else 0.0,
@@ -454,7 +457,10 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
            if slope else "none (single setpoint temperature)",
            "noise_source": use, "noise": noise_desc, **fit_noise}
     T = campaign.t
-    worst = _worst_studentised(resid, rss, dof, campaign)
+    # against the known noise of each visit plus the bench's own scatter, else the unweighted
+    # residuals (their level pooled where the blocks agree on it)
+    worst = (worst_studentised_known(design_w, dof, campaign) if known.known
+             else worst_studentised(resid, rss, dof, campaign))
     redundancy = redundancy_gate(red_chi2, dof, known.known, known.description, gates, use, worst)
     fit["redundancy"] = redundancy.to_dict()
     tilt = tilt_leak_gate(campaign, per_block, sigma, gates, noise_dof=dof_total if use == "residuals" else None)
@@ -495,85 +501,6 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         for hint in orientation_hints(campaign.w, g):
             result.notes.append(f"hint: {hint}")
     return result
-
-
-def _worst_studentised(resid, rss, dof, campaign: Campaign):
-    """The largest internally studentised residual of the per-setpoint models,
-    ``|e_i| / (s_a sqrt(1 - h_ii))`` with ``s_a^2 = RSS_a / dof_a``: ``(t, n, where)``."""
-    best, n, where = 0.0, 0, ""
-    for ai, parts in enumerate(resid):
-        if dof[ai] <= 0 or rss[ai] <= 0:
-            continue
-        s_a = math.sqrt(rss[ai] / dof[ai])
-        for e, h, idx in parts:
-            keep = h < 1 - 1e-9
-            n += int(np.sum(keep))
-            if not np.any(keep):
-                continue
-            t = np.abs(e[keep]) / (s_a * np.sqrt(1 - h[keep]))
-            k = int(np.argmax(t))
-            if t[k] > best:
-                i = idx[keep][k]
-                line = f", line {int(campaign.lines[i])}" if campaign.lines is not None else ""
-                best, where = float(t[k]), f"w_{AXES[ai]} at position {campaign.position[i]}{line}"
-    return best, n, where
-
-
-def redundancy_gate(chi2: np.ndarray, dof: np.ndarray, noise_known: bool, noise_what: str,
-                    config: GateConfig = DEFAULT_CONFIG, noise_source: str = "sd",
-                    worst: tuple = (0.0, 0, "")) -> GateOutcome:
-    """The classical method's own check of its redundancy: the positions beyond the five
-    quantities per output and setpoint (eq. 2-3 use the up/down differences and the balanced
-    mean; the per-setpoint linear model of :func:`residual_design` leaves ``dof`` residual
-    degrees of freedom) must agree.
-
-    Two tests, both reported, and the gate fails (status ``inconsistent_redundancy``) on either:
-
-    - *an outlier*: the largest internally studentised residual ``t`` over the ``n`` residuals,
-      Bonferroni p-value ``min(1, 2 n Phi(-t))`` < ``gof_p_min`` (one mislabelled or mis-read
-      position; ``worst`` is ``(t, n, where)``).
-    - *the scatter against the known noise* (``chi2`` per output, chi^2 with ``sum(dof)``
-      dof under the model), when the uncertainties come from that noise (``noise_source``
-      "sd"): significant (p < ``gof_p_min``) and material (chi2/dof > ``gof_ratio_max``), as the
-      goodness-of-fit gate. With the default ``noise_source`` "residuals" the scatter itself
-      sets the uncertainties, bench positioning errors included, so its ratio to the output
-      noise is reported (how much the bench adds) but does not fail the gate.
-    """
-    from scipy import stats
-
-    n = int(np.sum(dof))
-    if n <= 0:
-        return GateOutcome("redundancy", None, "inconsistent_redundancy",
-                           "not testable: the plan has no redundant positions (no residual degrees of freedom)")
-    t, n_res, where = worst
-    p_out = min(1.0, 2 * max(n_res, 1) * float(stats.norm.sf(t))) if n_res else 1.0
-    out_fails = p_out < config.gof_p_min
-    parts = [f"largest studentised residual {t:.3g} ({where}; Bonferroni p = {p_out:.2g} over {n_res})"]
-    scatter_fails = False
-    ratio = None
-    if noise_known:
-        total = float(np.sum(chi2))
-        p = float(stats.chi2.sf(total, n))
-        ratio = total / n
-        per = ", ".join(f"w_{a}: {c / max(d, 1):.3g}" for a, c, d in zip(AXES, chi2, dof))
-        scatter_fails = noise_source == "sd" and p < config.gof_p_min and ratio > config.gof_ratio_max
-        parts.append(f"scatter chi2/dof = {ratio:.4g} against the known noise ({noise_what}; {n} dof, p = {p:.2g}; "
-                     f"{per})" + ("" if noise_source == "sd" else
-                                  ": informative only, the uncertainties come from the residuals themselves"))
-    else:
-        parts.append("scatter not testable against a known noise (no sd_* columns or Q_V2s)")
-    reason = "; ".join(parts)
-    if out_fails:
-        reason += (f"; p < {config.gof_p_min:g}: one position disagrees with the others (a mislabelled position, "
-                   "a mis-read visit, or a swapped or inverted column)")
-    if scatter_fails:
-        reason += (f"; p < {config.gof_p_min:g} and ratio > {config.gof_ratio_max:g}: the positions scatter beyond "
-                   "the noise the uncertainties assume")
-    return GateOutcome("redundancy", not (out_fails or scatter_fails), "inconsistent_redundancy", reason,
-                       ratio if ratio is not None else t,
-                       f"Bonferroni p >= {config.gof_p_min:g}" + (
-                           f"; chi2/dof <= {config.gof_ratio_max:g} or p >= {config.gof_p_min:g}"
-                           if noise_source == "sd" else ""))
 
 
 def _reporting(name: str, value: float, u: float, output_unit: str) -> dict:
