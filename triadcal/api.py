@@ -59,6 +59,23 @@ def example_path():
     return files("triadcal") / "data" / "example_campaign.csv"
 
 
+def _output_variances(campaign, effects, kwargs) -> Optional[list]:
+    """The outputs' relative noise variances from a base fit with one noise level per output
+    (:func:`~triadcal.estimation.noise_model.per_output_scale`), or None: the noise is in the data,
+    the loss is robust, or the base fit cannot be made (the form's own fit then says why)."""
+    from .estimation.joint import fit_joint, noise_of
+
+    if noise_of(campaign).known or kwargs.get("loss", "l2") != "l2" or kwargs.get("whitening") is not None:
+        return None
+    try:
+        base = fit_joint(campaign, effects, noise_per_output=True,
+                         **{k: v for k, v in kwargs.items() if k not in ("return_problem", "output_variances")})
+    except InputError:
+        return None
+    q = base.fit.get("Q_estimate_per_output")
+    return [3.0 * float(v) / float(sum(q)) for v in q] if q else None
+
+
 def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS,
         reference_temperature_C: float = 20.0, loss: str = "l2", strict: bool = False,
         json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0, lab=None,
@@ -190,6 +207,11 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             kwargs["whitening"] = noise_fx["whitening"]
         order_block = None
         initial_effects = effects
+        if thermal_order != "1" or thermal_lag_form != "rate" or quantised or hysteresis_form != "offset" \
+                or hysteresis_half_width_C is not None:
+            # the forms compare the chi^2 of several fits, which must share their weights: one noise
+            # level per output, from a base fit, for all of them (as the plain fit has its own)
+            kwargs["output_variances"] = _output_variances(campaign, effects, kwargs)
         if thermal_order != "1":
             from .estimation.thermal_order import choose_thermal_order
 

@@ -358,7 +358,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
               fix: Optional[dict] = None, unidentifiable: str = "fix", max_iter: int = 100,
               return_problem: bool = False, gates: GateConfig = DEFAULT_CONFIG,
               bench_errors: Optional[BenchErrors] = None, systematics: Sequence = (), output_map=None,
-              whitening=None, noise_per_output: bool = False):
+              whitening=None, noise_per_output: bool = False, output_variances=None):
     """Fit the joint model to a campaign (``triadcal fit --method joint``).
 
     ``whitening``: correlated output noise (``flicker_noise``): an
@@ -369,7 +369,9 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     level per output (:func:`per_output_scale`), not one for the three. ``triadcal fit`` and
     ``sample`` do (``api.fit``); the default is off because the forms and the diagnosis compare the
     chi^2 of several fits, which must share their weights (a scale per fit makes every chi^2 its
-    dof).
+    dof). ``output_variances``: those relative variances per output ``[s_x^2, s_y^2, s_z^2]``, given
+    (from a base fit with ``noise_per_output``): every candidate of a form or of the thermal order
+    then shares one set of weights that tells the outputs' levels apart (``api.fit``).
 
     ``output_map``: a map of the model outputs applied after eq. 1 (:class:`JointProblem`; the
     quantisation of a digital output, :func:`triadcal.estimation.quantisation_form.fit_quantisation`).
@@ -446,6 +448,14 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
             f"{campaign.source or 'campaign'}: {3 * campaign.n_visits} observations ({campaign.n_visits} visits x 3 axes) "
             f"for {n_free} free parameters of the model {', '.join(model.effect_names) or '(core only)'}: "
             "a fit needs more observations than parameters (use a full campaign, or fewer --effects)")
+    q_per_output = None
+    if output_variances is not None and not noise.known and loss == "l2" and whitening is None:
+        q_per_output = np.asarray(output_variances, float)
+        if q_per_output.shape != (3,) or not np.all(np.isfinite(q_per_output)) or np.any(q_per_output <= 0):
+            raise InputError(f"output_variances = {output_variances!r}: three relative variances > 0 (x, y, z)")
+        noise = NoiseSource(noise.sigma * np.sqrt(q_per_output)[None, :], False, noise.description + (
+            "; one scale per output, from the base fit (the outputs' variances per unit weight "
+            + ", ".join(f"{a} {v:.3g}" for a, v in zip(AXES, q_per_output)) + ")"))
     problem = JointProblem(campaign, model, noise.sigma, fixed, output_map=output_map)
     if whitening is not None:
         from .whitening import WhitenedProblem
@@ -456,8 +466,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     r0 = problem.residuals(x0)
     cost_start = float(np.sum(robust_weights(r0, loss, nu) * r0 * r0))
     sol = levenberg_marquardt(problem, x0, loss=loss, nu=nu, max_iter=max_iter)
-    q_per_output = None
-    if not noise.known and loss == "l2" and whitening is None and noise_per_output:
+    if not noise.known and loss == "l2" and whitening is None and noise_per_output and q_per_output is None:
         sol, noise, q_per_output = per_output_scale(problem, sol, noise, max_iter)
         if q_per_output is not None:                 # the start's cost with the weights the answer has
             cost_start = float(np.sum(problem.residuals(x0) ** 2))
