@@ -14,7 +14,7 @@ import pytest
 
 from triadcal.cli import main
 from triadcal.judgement.compare import ComparisonResult, read_published_table
-from triadcal.estimation.result import CalibrationResult
+from triadcal.estimation.result import CalibrationResult, content_sha256
 
 
 @pytest.fixture(scope="module")
@@ -25,9 +25,19 @@ def good(tmp_path_factory):
     return json.loads(path.read_text())
 
 
+def _signed(doc):
+    """``doc`` with its checksum made anew (content_sha256): an edited document as a writer that signs
+    what it writes would leave it, so that the consumers' own checks, not the checksum, must refuse it
+    (test_an_edit_that_keeps_the_old_checksum_is_refused covers the checksum)."""
+    d = copy.deepcopy(doc)
+    if isinstance(d, dict) and "content_sha256" in d:
+        d["content_sha256"] = content_sha256(d)
+    return d
+
+
 def _write(tmp_path, doc, name="r.json"):
     p = tmp_path / name
-    p.write_text(json.dumps(doc) if not isinstance(doc, str) else doc)
+    p.write_text(json.dumps(_signed(doc)) if not isinstance(doc, str) else doc)
     return p
 
 
@@ -135,7 +145,7 @@ def test_not_json_and_nan_tokens_are_refused_naming_the_line(tmp_path, capsys, g
 
 def test_null_means_not_finite_when_read_by_the_library(good):
     d = _mut(good, _set_param("K_x", "value", None))
-    r = CalibrationResult.from_dict(d, "x.json")
+    r = CalibrationResult.from_dict(_signed(d), "x.json")
     assert math.isnan(r["K_x"].value)
 
 
@@ -144,7 +154,7 @@ def test_summary_states_the_failing_gates_and_no_dash(good):
 
     d = _mut(good, lambda d: d.__setitem__("status", "model_mismatch"))
     d["gates"]["outcomes"][0].update(passed=False, status="model_mismatch", reason="chi2/dof = 9 with p = 1e-9")
-    text = summary_text(CalibrationResult.from_dict(d))
+    text = summary_text(CalibrationResult.from_dict(_signed(d)))
     assert "FAILED gate" in text and "chi2/dof = 9 with p = 1e-9" in text
     assert "chi2/dof = -" not in text
 
@@ -193,7 +203,7 @@ def test_the_printed_coverage_is_the_interval_written(good):
 
     d = copy.deepcopy(good)
     d["intervals"] = {n: {"level": 0.95, "low": 0.0, "high": 1.0, "dof": 1} for n in d["parameters"]}
-    text = summary_text(CalibrationResult.from_dict(d))
+    text = summary_text(CalibrationResult.from_dict(_signed(d)))
     assert "U (k=12.7)" in text and "Student's t with 1 residual degrees of freedom" in text
     assert "U = 2u" not in text
     assert "U (k=2)" in summary_text(CalibrationResult.from_dict(good))
@@ -212,7 +222,7 @@ def test_a_result_with_an_unknown_method_or_effect_is_refused(tmp_path, field, v
     d = fit(None, method="classical").to_dict()
     d[field] = value
     with pytest.raises(ResultFormatError, match=message):
-        CalibrationResult.from_dict(d, "r.json")
+        CalibrationResult.from_dict(_signed(d), "r.json")
 
 
 @pytest.mark.parametrize("change, message", [
@@ -255,3 +265,32 @@ def test_summary_with_the_noise_estimated_prints_no_ratio_but_the_level_and_its_
     # one level per output (joint.per_output_scale), each from ~1/3 of the dof: 3 SD a factor 1 +- 0.33
     qs = [float(v) for v in re.search(r"Q = ([0-9.e+-]+), ([0-9.e+-]+), ([0-9.e+-]+) V\^2 s", out).groups()]
     assert all(abs(q / 3e-9 - 1.0) < 0.33 for q in qs), qs
+
+
+EDITS = {
+    # an outside probe's hand edits, each a plausible result on its own, that no field check can see
+    "reference temperature 20 -> 25": lambda d: d.__setitem__("reference_temperature_C", 25.0),
+    "K_x x 1000": lambda d: d["parameters"]["K_x"].__setitem__("value", d["parameters"]["K_x"]["value"] * 1000),
+    "u of Ca_xy 1e-12": _set_param("Ca_xy", "u", 1e-12),
+    "correlation names reversed": lambda d: d["correlation"].__setitem__("names", d["correlation"]["names"][::-1]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(EDITS))
+def test_an_edit_that_keeps_the_old_checksum_is_refused(tmp_path, capsys, good, case):
+    """A saved result carries content_sha256 of its own content; certificate, compare and
+    export-compensation refuse a file edited after the fit, naming the file and the field (before: the
+    edited reference temperature was certified and exported, K_x 69 u off at the stated 25 degC)."""
+    assert good["content_sha256"] == content_sha256(good)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(_mut(good, EDITS[case])))           # the old checksum kept
+    for argv in (["certificate", str(bad), "--html", str(tmp_path / "c.html")],
+                 ["compare", str(_write(tmp_path, good, "a.json")), str(bad)],
+                 ["export-compensation", str(bad), "-o", str(tmp_path / "t.json")]):
+        code, out, err = _run(capsys, argv)
+        assert code != 0 and "bad.json" in err and "content_sha256 does not match" in err, (argv, err)
+    assert not (tmp_path / "c.html").exists() or "issued" not in (tmp_path / "c.html").read_text()
+    # the same edit in a document without the key (another writer) is read: its own checks then judge it
+    d = _mut(good, EDITS[case])
+    d.pop("content_sha256")
+    CalibrationResult.from_dict(d, "unsigned.json")

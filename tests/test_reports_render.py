@@ -71,7 +71,11 @@ def _certificates(d):
     _cli("certificate", "result.json", "--data", example_path(), "--html", "certificate.html",
          "--pdf", "certificate.pdf", "--date", ISSUE_DATE, cwd=d)
     doc = json.loads((d / "result.json").read_text())
-    (d / "not_converged.json").write_text(json.dumps(dict(doc, status="not_converged")))
+    from triadcal.estimation.result import content_sha256
+
+    nc = dict(doc, status="not_converged")
+    nc["content_sha256"] = content_sha256(nc)          # as the fit would have written it
+    (d / "not_converged.json").write_text(json.dumps(nc))
     _cli("certificate", "not_converged.json", "--html", "refusal.html", "--pdf", "refusal.pdf", "--date",
          ISSUE_DATE, cwd=d, status=3)
 

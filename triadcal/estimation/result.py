@@ -38,6 +38,44 @@ VERSION = 1
 MAX_MAGNITUDE = 1e150
 
 
+#: the key of a result document's checksum of its own content (:func:`content_sha256`)
+CONTENT_HASH_KEY = "content_sha256"
+
+
+def content_sha256(d: dict) -> str:
+    """SHA-256 of a result document without its ``content_sha256`` key, as canonical JSON (keys
+    sorted, no whitespace, ASCII, non-finite numbers as null, each number as Python's shortest
+    round-trip repr). ``save`` writes it; :meth:`CalibrationResult.from_dict` refuses a document
+    whose content no longer matches it: a value, a unit, a u or the reference temperature edited
+    after the fit is not the fit's answer (an outside probe: reference_temperature_C changed from
+    20 to 25 in a saved result was certified and exported, K_x 69 u off at the stated 25 degC; K_x
+    x 1000 and a u of 1e-12 were accepted). It guards against accidental and careless edits, not
+    against forgery (anyone can recompute it); a document without it (another writer, or triadcal
+    before 2026-11-30) is read as before."""
+    import hashlib
+    import json
+
+    from ..io.atomic import json_text
+
+    body = json.loads(json_text({k: v for k, v in d.items() if k != CONTENT_HASH_KEY}, None))
+    canon = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+    return hashlib.sha256(canon.encode("ascii")).hexdigest()
+
+
+def _check_content_hash(r, d: dict) -> None:
+    """Refuse (one line, the field named) a document whose ``content_sha256`` is not a SHA-256 or
+    does not match its content (:func:`content_sha256`); nothing when the key is absent."""
+    if CONTENT_HASH_KEY not in d:
+        return
+    sha = d[CONTENT_HASH_KEY]
+    if not (isinstance(sha, str) and re.fullmatch(r"[0-9a-f]{64}", sha)):
+        raise r.error(CONTENT_HASH_KEY, f"= {sha!r} is not a SHA-256 (64 lowercase hex digits)")
+    if content_sha256(d) != sha:
+        raise r.error(CONTENT_HASH_KEY, "does not match the result's content: the file was changed after triadcal "
+                                        "wrote it (a hand edit, a merge, a tool that rewrote its numbers), so its "
+                                        "values are not the fit's answer; refit the data, or restore the file")
+
+
 @dataclass
 class ParameterValue:
     """A value with its standard uncertainty (k = 1) in ``unit``.
@@ -119,7 +157,7 @@ class CalibrationResult:
         if self.correlation is not None:
             d["correlation"] = {"names": list(self.correlation_names),
                                 "matrix": np.round(np.asarray(self.correlation), 6).tolist()}
-        d.update(self.extra)
+        d.update({k: v for k, v in self.extra.items() if k != CONTENT_HASH_KEY})   # recomputed by save
         return d
 
     @classmethod
@@ -225,6 +263,7 @@ class CalibrationResult:
             if failed:
                 raise r.error("status", f"is 'ok' but the result records its gate {', '.join(failed)} as failed: "
                                         "a failing gate gives its own status, never 'ok'")
+        _check_content_hash(r, d)
         return cls(
             unit=serial, method=method, parameters=params, status=status, effects=effects,
             reference_temperature_C=r.number_value(ref, "reference_temperature_C"),
@@ -233,10 +272,13 @@ class CalibrationResult:
             notes=r.string_list(d, "notes", required=False), extra={k: v for k, v in d.items() if k not in known})
 
     def save(self, path) -> None:
-        """Write results-json v1 atomically; a non-finite number is written as null."""
+        """Write results-json v1 atomically; a non-finite number is written as null; with the
+        document's own checksum (:func:`content_sha256`), which every reader checks."""
         from ..io.atomic import atomic_write_json
 
-        atomic_write_json(path, self.to_dict())
+        d = self.to_dict()
+        d[CONTENT_HASH_KEY] = content_sha256(d)
+        atomic_write_json(path, d)
 
     @classmethod
     def load(cls, path) -> "CalibrationResult":
