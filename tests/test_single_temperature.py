@@ -118,15 +118,26 @@ def test_sensors_apart_certificate_and_compare_use_each_rows_temperature(tmp_pat
     c, truth = _sensors_apart((0.45, -0.4, 0.0), seed=11)
     r = fit_joint(c, EFFECTS)
     assert r.status == "ok", r.notes
-    cert = build_certificate(r, campaign=c)
+    # (with tempcos in the model the certificate refuses: the data cannot determine them)
+    r_bt = fit_joint(c, ["bench_tilt"])
+    assert r_bt.status == "ok" and r_bt.fit["sensor_temperatures_C"] == r.fit["sensor_temperatures_C"]
+    cert = build_certificate(r_bt, campaign=c)
     rows = dict(cert.conditions)
     line = rows["Temperature of each accelerometer's values"]
     for a in "xyz":
         assert f"{a.upper()} (K_{a}, S_{a}" in line and f"{r.fit['sensor_temperatures_C'][a]:.2f} °C" in line, line
     assert "next row" in rows["Reference temperature"]
+    # and every sentence that says where the values hold says it per accelerometer (an outside probe:
+    # sections 4 and 6 and the console said "at the reference temperature 50.02 degC")
+    from triadcal.reports.certificate.html import render_html, results_intro
+    own = f"each accelerometer's own temperature (X {r.fit['sensor_temperatures_C']['x']:.2f}"
+    assert own in results_intro(cert)
+    page = render_html(cert)
+    assert cert.issued and cert.inverse_matrix is not None and f"Ca⁻¹ at {own}" in page
+    assert f"temperature {r.reference_temperature_C:g} °C" not in page.replace("Reference temperature", "")
     from triadcal.reports.compensation import compensation_table
     # (a model with tempcos at one temperature holds them fixed, and the table refuses it for lacking them)
-    table = compensation_table(fit_joint(c, ["bench_tilt"]), [r.reference_temperature_C], allow_outside=True)
+    table = compensation_table(r_bt, [r.reference_temperature_C], allow_outside=True)
     assert any("sensors apart" in n and f"x {r.fit['sensor_temperatures_C']['x']:.2f}" in n for n in table.notes)
     # the same unit with its sensors alike at the same mean: row x 0.45 degC from it, which no tempco
     # carries: refused, naming the rows (before, the means agreed and compare said nothing)

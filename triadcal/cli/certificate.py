@@ -55,6 +55,7 @@ def _format_of(path) -> str:
 
 def run(args) -> int:
     from ..reports.certificate import EXAMPLE_LAB_TOML, certificate
+    from ..reports.certificate.content import values_temperature
 
     if args.lab_example:
         print(EXAMPLE_LAB_TOML, end="")            # asked for: printed even with --quiet
@@ -87,10 +88,10 @@ def run(args) -> int:
         say(f"certificate {cert.number} issued for {cert.result.unit}: {written}")
         b = cert.budget
         if cert.parameter_budgets:
-            say(f"  {len(cert.rows)} parameters, U (95.45 %) at {cert.result.reference_temperature_C:g} °C from each "
+            say(f"  {len(cert.rows)} parameters, U (95.45 %) at {values_temperature(cert.result)} from each "
                 f"parameter's budget: the {cert.source_of_u} (Type A) and the lab's systematic errors (Type B)")
         else:
-            say(f"  {len(cert.rows)} parameters, U (k = 2) at {cert.result.reference_temperature_C:g} °C from the "
+            say(f"  {len(cert.rows)} parameters, U (k = 2) at {values_temperature(cert.result)} from the "
                 f"{cert.source_of_u} (Type A only)")
         if cert.angle_statement:
             say(f"  {cert.angle_statement} Largest component: {b.components[0].source}.")

@@ -74,6 +74,18 @@ class Certificate:
 THERMAL_MODEL_SOURCES = ("hysteresis", "thermal-model residual", "temperature measurement")
 
 
+def values_temperature(result: CalibrationResult) -> str:
+    """Where the values of ``result`` hold, for the certificate's sentences: "the reference temperature
+    T0 °C", or, at one temperature with sensors apart (:func:`row_temperatures_C`), each accelerometer's
+    own temperature (an outside probe: section 3 listed them while sections 4 and 6 and the console
+    said "at the reference temperature 20.02 °C", X's row being 0.43 °C from it)."""
+    rows_T = row_temperatures_C(result)
+    if max(rows_T.values()) - min(rows_T.values()) >= 0.005:
+        return ("each accelerometer's own temperature (" + ", ".join(f"{a.upper()} {v:.2f}" for a, v in rows_T.items())
+                + " °C, section 3)")
+    return f"the reference temperature {result.reference_temperature_C:g} °C"
+
+
 def angle_uncertainty_statement(cert: "Certificate") -> str:
     """The one angle uncertainty a user of the matrix needs: U of an angle when Ca^-1 and the
     thermal model are applied at a temperature in the range (the budget's U, k = 2), what it
@@ -98,7 +110,7 @@ def angle_uncertainty_statement(cert: "Certificate") -> str:
                 f"of freedom ν_eff = {b.dof_eff:.3g} (Welch–Satterthwaite)")
     own = (f" It contains the angles' own uncertainty at the reference temperature (U up to "
            f"{max(angle_U):g} {b.unit} in the results table, which applies only at "
-           f"{cert.result.reference_temperature_C:g} °C on the mid-line)" if angle_U else " It contains")
+           f"{values_temperature(cert.result)} on the mid-line)" if angle_U else " It contains")
     return (f"Using the matrix: when Ca⁻¹ and the thermal model are applied at a temperature within the "
             f"calibrated range, the uncertainty of each orientation angle is U = {significant(b.expanded_U, 2)} "
             f"{b.unit} ({kind}; u_c = {significant(b.total, 3)} {b.unit}).{own}, the bench's errors, and the "

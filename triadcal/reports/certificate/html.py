@@ -14,7 +14,7 @@ from ... import __version__
 from ...estimation.result import significant
 from ...uncertainty.budget import Budget
 from ..notation import display_unit
-from .content import Certificate
+from .content import Certificate, values_temperature
 
 # =========================================================================================
 # HTML
@@ -156,13 +156,13 @@ def budget_matrix(budgets: list) -> tuple[list, list, list]:
 
 def results_intro(cert: Certificate) -> str:
     """The sentence above the results table (HTML and PDF)."""
-    T0 = cert.result.reference_temperature_C
+    at = values_temperature(cert.result)
     if cert.parameter_budgets:
-        return (f"Value and expanded uncertainty U (coverage probability 95.45 %) of every parameter at the reference "
-                f"temperature {T0:g} °C. U comes from each parameter's budget: the {cert.source_of_u} (Type A) and "
-                "the lab's systematic errors (Type B), section 7.")
-    return (f"Value and expanded uncertainty U (k = 2, coverage probability about 95 %) of every parameter at the "
-            f"reference temperature {T0:g} °C. U comes from the {cert.source_of_u}.")
+        return (f"Value and expanded uncertainty U (coverage probability 95.45 %) of every parameter at {at}. U comes "
+                f"from each parameter's budget: the {cert.source_of_u} (Type A) and the lab's systematic errors "
+                "(Type B), section 7.")
+    return (f"Value and expanded uncertainty U (k = 2, coverage probability about 95 %) of every parameter at {at}. "
+            f"U comes from the {cert.source_of_u}.")
 
 
 def render_html(cert: Certificate) -> str:
@@ -218,7 +218,7 @@ def render_html(cert: Certificate) -> str:
     if cert.inverse_matrix is not None:
         h.append("<h2>6. Inverse matrix to apply to readings</h2>")
         h.append(f"<p>A_IMU = Ca⁻¹ · (K·W − S), with K and S of the table at the reading's temperature. "
-                 f"Ca⁻¹ at {r.reference_temperature_C:g} °C (mid-line), rows and columns X, Y, Z; an off-diagonal "
+                 f"Ca⁻¹ at {values_temperature(r)} (mid-line), rows and columns X, Y, Z; an off-diagonal "
                  "element is close to minus the corresponding angle in radians and carries its U:</p>")
         h.append("<table class='matrix'>" + "".join(
             "<tr>" + "".join(f"<td>{_matrix_str(x)}</td>" for x in row) + "</tr>" for row in cert.inverse_matrix)

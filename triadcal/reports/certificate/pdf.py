@@ -10,7 +10,7 @@ import os
 from ... import __version__
 from ...io.atomic import atomic_path
 from ..notation import display_unit
-from .content import Certificate
+from .content import Certificate, values_temperature
 from .html import PARAMETER_BUDGETS_TEXT, results_intro, STATEMENTS, _matrix_str, budget_matrix, budget_table
 
 # =========================================================================================
@@ -154,7 +154,7 @@ def render_pdf(cert: Certificate, path) -> None:
             story.append(KeepTogether([
                 P("6. Inverse matrix to apply to readings", "h2"),
                 P(f"A_IMU = Ca⁻¹ · (K·W − S), with K and S of the table at the reading's temperature. Ca⁻¹ at "
-                  f"{r.reference_temperature_C:g} °C (mid-line), rows and columns X, Y, Z; an off-diagonal element is "
+                  f"{values_temperature(r)} (mid-line), rows and columns X, Y, Z; an off-diagonal element is "
                   "close to minus the corresponding angle in radians and carries its U:"), Spacer(1, 3), mt]))
         b = cert.budget
         head, body, totals = budget_table(b)
