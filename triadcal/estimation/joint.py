@@ -46,8 +46,8 @@ class IdentifiabilityError(InputError):
 from .one_temperature import (TEMPERATURE_SPAN_MIN_C, sensor_temperatures,  # noqa: E402,F401
                               single_temperature_reference)
 from .noise_model import (WOBBLE_TO_POSITION, BenchErrors, NoiseSource, _bench_whitening,  # noqa: E402,F401
-                          bench_errors_from_replicates, noise_of, per_output_scale, replicate_groups,
-                          with_bench_errors)
+                          bench_errors_from_replicates, given_output_scale, noise_of, per_output_scale,
+                          replicate_groups, with_bench_errors)
 
 
 class JointProblem:
@@ -369,9 +369,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     level per output (:func:`per_output_scale`), not one for the three. ``triadcal fit`` and
     ``sample`` do (``api.fit``); the default is off because the forms and the diagnosis compare the
     chi^2 of several fits, which must share their weights (a scale per fit makes every chi^2 its
-    dof). ``output_variances``: those relative variances per output ``[s_x^2, s_y^2, s_z^2]``, given
-    (from a base fit with ``noise_per_output``): every candidate of a form or of the thermal order
-    then shares one set of weights that tells the outputs' levels apart (``api.fit``).
+    dof); ``output_variances`` gives them one (:func:`given_output_scale`, ``api.fit``).
 
     ``output_map``: a map of the model outputs applied after eq. 1 (:class:`JointProblem`; the
     quantisation of a digital output, :func:`triadcal.estimation.quantisation_form.fit_quantisation`).
@@ -450,12 +448,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
             "a fit needs more observations than parameters (use a full campaign, or fewer --effects)")
     q_per_output = None
     if output_variances is not None and not noise.known and loss == "l2" and whitening is None:
-        q_per_output = np.asarray(output_variances, float)
-        if q_per_output.shape != (3,) or not np.all(np.isfinite(q_per_output)) or np.any(q_per_output <= 0):
-            raise InputError(f"output_variances = {output_variances!r}: three relative variances > 0 (x, y, z)")
-        noise = NoiseSource(noise.sigma * np.sqrt(q_per_output)[None, :], False, noise.description + (
-            "; one scale per output, from the base fit (the outputs' variances per unit weight "
-            + ", ".join(f"{a} {v:.3g}" for a, v in zip(AXES, q_per_output)) + ")"))
+        noise, q_per_output = given_output_scale(noise, output_variances)
     problem = JointProblem(campaign, model, noise.sigma, fixed, output_map=output_map)
     if whitening is not None:
         from .whitening import WhitenedProblem

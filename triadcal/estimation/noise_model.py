@@ -291,6 +291,21 @@ def output_variances(r, n_params: int) -> Optional[np.ndarray]:
 PER_OUTPUT_PASSES = 8
 
 
+def given_output_scale(noise: NoiseSource, output_variances) -> tuple[NoiseSource, np.ndarray]:
+    """``noise`` (estimated, relative weights) with the outputs' relative variances
+    ``[s_x^2, s_y^2, s_z^2]`` of a base fit's :func:`per_output_scale` applied, and those variances:
+    every candidate fit of a form then shares one set of weights (``fit_joint(output_variances=)``)."""
+    from ..errors import InputError
+    from ..models.sensor import AXES
+
+    q = np.asarray(output_variances, float)
+    if q.shape != (3,) or not np.all(np.isfinite(q)) or np.any(q <= 0):
+        raise InputError(f"output_variances = {output_variances!r}: three relative variances > 0 (x, y, z)")
+    how = (noise.description + "; one scale per output, from the base fit (the outputs' variances per unit weight "
+           + ", ".join(f"{a} {v:.3g}" for a, v in zip(AXES, q)) + ")")
+    return NoiseSource(noise.sigma * np.sqrt(q)[None, :], False, how), q
+
+
 def per_output_scale(problem, sol, noise: NoiseSource, max_iter: int):
     """With the noise estimated from the residuals, one noise level per output, not one for all
     three: the outputs of a triad need not share a noise level (another accelerometer, another
