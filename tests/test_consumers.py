@@ -278,19 +278,35 @@ EDITS = {
 
 @pytest.mark.parametrize("case", sorted(EDITS))
 def test_an_edit_that_keeps_the_old_checksum_is_refused(tmp_path, capsys, good, case):
-    """A saved result carries content_sha256 of its own content; certificate, compare and
-    export-compensation refuse a file edited after the fit, naming the file and the field (before: the
-    edited reference temperature was certified and exported, K_x 69 u off at the stated 25 degC)."""
+    """A saved result carries content_sha256 of its own content; compare and export-compensation refuse
+    a file edited after the fit, naming the file and the key, and the certificate is a refusal report
+    that says so (before: the edited reference temperature was certified and exported, K_x 69 u off at
+    the stated 25 degC)."""
     assert good["content_sha256"] == content_sha256(good)
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(_mut(good, EDITS[case])))           # the old checksum kept
-    for argv in (["certificate", str(bad), "--html", str(tmp_path / "c.html")],
-                 ["compare", str(_write(tmp_path, good, "a.json")), str(bad)],
-                 ["export-compensation", str(bad), "-o", str(tmp_path / "t.json")]):
+    assert CalibrationResult.load(bad).content_mismatch
+    for argv in (["compare", str(_write(tmp_path, good, "a.json")), str(bad)],
+                 ["export-compensation", str(bad), "-o", str(tmp_path / "t.json")],
+                 ["history", "--add", str(bad), "--db", str(tmp_path / "h.sqlite")]):
         code, out, err = _run(capsys, argv)
         assert code != 0 and "bad.json" in err and "content_sha256 does not match" in err, (argv, err)
-    assert not (tmp_path / "c.html").exists() or "issued" not in (tmp_path / "c.html").read_text()
-    # the same edit in a document without the key (another writer) is read: its own checks then judge it
+    code, out, err = _run(capsys, ["certificate", str(bad), "--html", str(tmp_path / "c.html")])
+    page = (tmp_path / "c.html").read_text()
+    assert code == 3 and "issued" not in out and "content_sha256 does not match" in page, (code, out, err)
+    # the same edit in a document without the key (another writer) is read as it stands
     d = _mut(good, EDITS[case])
     d.pop("content_sha256")
-    CalibrationResult.from_dict(d, "unsigned.json")
+    assert CalibrationResult.from_dict(d, "unsigned.json").content_mismatch is None
+
+
+def test_an_edited_value_the_gates_reject_is_named_before_the_checksum(tmp_path, capsys, good):
+    """The fields' own reasons come first: a negative K_x kept with the old checksum is refused naming
+    K_x, the checksum after it; a status edited to not_converged gives the refusal report (exit 3)."""
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(_mut(good, _set_param("K_x", "value", -1.0))))
+    code, out, err = _run(capsys, ["compare", str(_write(tmp_path, good, "a.json")), str(bad)])
+    assert code != 0 and err.index("K_x") < err.index("content_sha256 does not match"), err
+    bad.write_text(json.dumps(_mut(good, lambda d: d.__setitem__("status", "not_converged"))))
+    code, out, err = _run(capsys, ["certificate", str(bad), "--html", str(tmp_path / "c.html")])
+    assert code == 3 and "not_converged" in (tmp_path / "c.html").read_text()

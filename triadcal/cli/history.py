@@ -47,7 +47,9 @@ def run(args) -> int:
             d = read_json(f)
             from ..estimation.result import CalibrationResult
 
-            CalibrationResult.from_dict(d, str(f))            # validated before it is recorded
+            r = CalibrationResult.from_dict(d, str(f))        # validated before it is recorded
+            if r.content_mismatch:
+                raise InputError(f"{f}: {r.content_mismatch}")
             added = db.add(d, lab=lab, date=args.date)
             out.say(f"{f}: {'recorded' if added else 'already recorded (no change)'} in {path}")
         if not args.serial:

@@ -51,7 +51,9 @@ def content_sha256(d: dict) -> str:
     20 to 25 in a saved result was certified and exported, K_x 69 u off at the stated 25 degC; K_x
     x 1000 and a u of 1e-12 were accepted). It guards against accidental and careless edits, not
     against forgery (anyone can recompute it); a document without it (another writer, or triadcal
-    before 2026-11-30) is read as before."""
+    before 2026-11-30) is read as before. :meth:`CalibrationResult.from_dict` records a mismatch
+    (``content_mismatch``) and every consumer refuses the result for it, after the reasons its
+    fields give; the certificate lists it in its refusal report."""
     import hashlib
     import json
 
@@ -62,18 +64,21 @@ def content_sha256(d: dict) -> str:
     return hashlib.sha256(canon.encode("ascii")).hexdigest()
 
 
-def _check_content_hash(r, d: dict) -> None:
-    """Refuse (one line, the field named) a document whose ``content_sha256`` is not a SHA-256 or
-    does not match its content (:func:`content_sha256`); nothing when the key is absent."""
+def _check_content_hash(r, d: dict) -> Optional[str]:
+    """Refuse (one line, the field named) a ``content_sha256`` that is not a SHA-256; the reason, for
+    the consumers, when it does not match the document's content (:func:`content_sha256`); None when
+    it matches or is absent. The consumers (:func:`.result_checks.result_problems`) refuse such a
+    document after the reasons its fields give, so that a value the gates reject is named."""
     if CONTENT_HASH_KEY not in d:
-        return
+        return None
     sha = d[CONTENT_HASH_KEY]
     if not (isinstance(sha, str) and re.fullmatch(r"[0-9a-f]{64}", sha)):
         raise r.error(CONTENT_HASH_KEY, f"= {sha!r} is not a SHA-256 (64 lowercase hex digits)")
     if content_sha256(d) != sha:
-        raise r.error(CONTENT_HASH_KEY, "does not match the result's content: the file was changed after triadcal "
-                                        "wrote it (a hand edit, a merge, a tool that rewrote its numbers), so its "
-                                        "values are not the fit's answer; refit the data, or restore the file")
+        return ("content_sha256 does not match the result's content: the file was changed after triadcal wrote it "
+                "(a hand edit, a merge, a tool that rewrote its numbers), so its values are not the fit's answer; "
+                "refit the data, or restore the file")
+    return None
 
 
 @dataclass
@@ -121,6 +126,10 @@ class CalibrationResult:
     correlation: Optional[np.ndarray] = None
     notes: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)
+    #: set by :meth:`from_dict` when the document's content_sha256 does not match its content (the
+    #: reason, one line); the consumers' checks (:func:`.result_checks.result_problems`) refuse it,
+    #: after the reasons they find in the fields themselves. Not written.
+    content_mismatch: Optional[str] = field(default=None, compare=False, repr=False)
 
     # -- access --------------------------------------------------------------------
     def __getitem__(self, name: str) -> ParameterValue:
@@ -263,13 +272,14 @@ class CalibrationResult:
             if failed:
                 raise r.error("status", f"is 'ok' but the result records its gate {', '.join(failed)} as failed: "
                                         "a failing gate gives its own status, never 'ok'")
-        _check_content_hash(r, d)
+        mismatch = _check_content_hash(r, d)
         return cls(
             unit=serial, method=method, parameters=params, status=status, effects=effects,
             reference_temperature_C=r.number_value(ref, "reference_temperature_C"),
             temperature_range_C=trange, intervals=intervals, fit=fit,
             correlation_names=names, correlation=matrix,
-            notes=r.string_list(d, "notes", required=False), extra={k: v for k, v in d.items() if k not in known})
+            notes=r.string_list(d, "notes", required=False), extra={k: v for k, v in d.items() if k not in known},
+            content_mismatch=mismatch)
 
     def save(self, path) -> None:
         """Write results-json v1 atomically; a non-finite number is written as null; with the

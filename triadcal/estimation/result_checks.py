@@ -24,13 +24,17 @@ class RefusedResult(InputError):
 
 
 def check_result_for_use(result, source: str = "result", *, need_ok: bool = True,
-                         config: Optional[GateConfig] = None) -> None:
+                         config: Optional[GateConfig] = None, content: bool = True) -> None:
     """Refuse (raise :class:`RefusedResult`, one line naming ``source``) a result a consumer must not
     use: status other than ok, no parameters, missing scale factors, values or u that are not
-    finite, negative u, a gate that fails on the result alone."""
+    finite, negative u, a gate that fails on the result alone, a document edited after the fit
+    (``content_mismatch``; with ``content=False`` left to the caller, as the certificate's refusal
+    report lists it)."""
     from .gates import config_of
 
     why = result_problems(result, need_ok=need_ok, config=config_of(result) if config is None else config)
+    if not content and getattr(result, "content_mismatch", None):
+        why = [w for w in why if w != result.content_mismatch]
     if why:
         raise RefusedResult(f"{source}: refused: " + "; ".join(why))
 
@@ -69,6 +73,8 @@ def result_problems(result, *, need_ok: bool = True, config: Optional[GateConfig
     why.extend(_recorded_contradictions(result, config))
     from .one_temperature import sensor_temperature_problems
     why.extend(sensor_temperature_problems(result))
+    if getattr(result, "content_mismatch", None):      # last: the fields' own reasons name the field first
+        why.append(result.content_mismatch)
     return why
 
 

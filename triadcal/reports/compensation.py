@@ -36,7 +36,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -265,13 +265,13 @@ def _terms(model: Model, p: dict, T: np.ndarray):
 
 
 def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, source_sha256: str = "",
-                       allow_outside: bool = False) -> CompensationTable:
+                       allow_outside: bool = False, source: Optional[str] = None) -> CompensationTable:
     """The table of ``result`` on ``grid_C`` (see the module). Refuses a result that is not ok,
     effects a table of T cannot hold, and grid points outside the calibrated range (the thermal
     model is not valid there) unless ``allow_outside`` (then said in the notes)."""
     from ..estimation.result_checks import check_result_for_use
 
-    check_result_for_use(result, f"result of {result.unit}")
+    check_result_for_use(result, source or f"result of {result.unit}")
     other = [e for e in result.effects if e not in TABLE_EFFECTS]
     # (every effect of TABLE_EFFECTS is a polynomial of order <= 3 in T: the interpolation bound's premise)
     if other:
@@ -354,13 +354,13 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
 
 
 def export_compensation(result_path, out_path, fmt: str = "json", grid: str = "-40:85:5",
-                        allow_outside: bool = False) -> CompensationTable:
+                        allow_outside: bool = False, source: Optional[str] = None) -> CompensationTable:
     """Read a result file, build its table (:func:`compensation_table`) and write it."""
     if fmt not in FORMATS:
         raise InputError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
     digest = hashlib.sha256(Path(result_path).read_bytes()).hexdigest()
-    table = compensation_table(CalibrationResult.load(result_path), parse_grid(grid), source_sha256=digest,
-                               allow_outside=allow_outside)
+    table = compensation_table(CalibrationResult.load(result_path), parse_grid(grid), source=str(result_path),
+                               source_sha256=digest, allow_outside=allow_outside)
     table.write(out_path, fmt)
     return table
 

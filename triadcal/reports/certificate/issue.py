@@ -42,7 +42,7 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
     # or outside its unit's band, an angle beyond the gate, no reference temperature) is
     # refused outright, one line, before any file is written; a result whose estimator said
     # "not ok" gets the refusal report below
-    check_result_for_use(result, str(result_path or f"result of {result.unit}"), need_ok=False)
+    check_result_for_use(result, str(result_path or f"result of {result.unit}"), need_ok=False, content=False)
     if lab is not None and not isinstance(lab, LabConfig):
         lab = load_lab(lab)
     if posterior is not None:

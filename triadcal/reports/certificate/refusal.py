@@ -93,7 +93,8 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
         reasons.append(f"the estimator reports status '{result.status}' (a certificate needs 'ok')"
                        + (": " + "; ".join(failed) if failed else
                           (": " + "; ".join(result.notes) if result.notes else "")))
-    reasons += [f"the result fails an answer gate: {why}" for why in result_problems(result, need_ok=False)]
+    reasons += [why if why == result.content_mismatch else f"the result fails an answer gate: {why}"
+                for why in result_problems(result, need_ok=False)]
     unid = unidentified_parameters(result)
     if unid:
         reasons.append("the data could not determine " + "; ".join(f"{k} ({v})" for k, v in unid.items())
