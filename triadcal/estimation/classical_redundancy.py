@@ -3,14 +3,15 @@ positions beyond the five quantities per output and setpoint must agree with eac
 (an outlier test on the studentised residuals of the per-setpoint linear models) and as a whole
 (their scatter against a known noise).
 
-The outlier test studentises each residual with the noise level of the output it belongs to. That
-level is pooled over the setpoint blocks only where the blocks agree on it (Bartlett's test, p >=
-:data:`~.noise_model.HOMOGENEITY_P`); where they do not -- the output noise grows with temperature,
-or one setpoint's bench vibrated -- each block's residuals are studentised by the block's own level,
-externally (the residual left out of its own level), so that the honest noisier block is not one
-outlier: an outside probe gave honest data with noise x exp((T - 20)/60) status
-``inconsistent_redundancy`` 6 times in 20 (the hot block's residuals against the pooled level,
-Bonferroni p 0.0006), while the scatter against the known noise was 0.95 of it."""
+The outlier test studentises each residual by the noise it has, which may differ from setpoint to
+setpoint. With a known noise per visit (sd_* columns, Q) the models are weighted by the visit's
+known variance plus the bench's own scatter, estimated per output (:func:`bench_scatter`,
+Paule-Mandel), so one level holds in every block. Without it, the residuals are studentised by one
+level pooled over the blocks, and where Bartlett's test says the blocks' levels differ a residual
+must also stand out against its own block's level (:func:`worst_studentised`). An outside probe
+gave honest data with the noise x exp((T - 20)/60) status ``inconsistent_redundancy`` 6 times in 20
+(the hot block's residuals against one pooled level, Bonferroni p 0.0006), while the scatter against
+the known noise was 0.95 of it."""
 
 from __future__ import annotations
 
@@ -148,8 +149,11 @@ def worst_studentised_known(design, dof, campaign: Campaign) -> tuple:
     the bench's own scatter (:func:`bench_scatter`, per output), their pooled level then one in every
     block whatever the noise of each visit. An outside probe: honest sd_* with the noise x exp((T -
     20)/60) refused 6 of 20 against one level pooled over blocks; on tests/independent_bench.py with
-    the noise x exp((T - 20)/30), 61 of 300 refused before, none now, and a 12 sigma mis-read visit at
-    -40 degC caught 14 of 20 (2 of 20 before)."""
+    the noise x exp((T - 20)/30), 61 of 300 refused before, none now (with 2 arcsec of bench scatter
+    per visit: 21 of 100 before, 1 now); a visit mis-read by 30 sigma at 80 degC caught 20 of 20, as
+    before. The price: the estimated scatter takes up part of a small error in a quiet block, so a 12
+    sigma mis-read at -40 degC (1.7 times the noise at 20 degC) is caught 0 of 20 (2 before), and a 10
+    sigma one at 20 degC 5 of 20 (1 before)."""
     resid, rss, taus = [], np.zeros(3), []
     for ai, blocks in enumerate(design):
         t2, chi2, r = bench_scatter(blocks) if blocks else (0.0, 0.0, [])
