@@ -65,6 +65,12 @@ def test_two_calibrations_at_one_setpoint_are_compared_with_a_note():
     other, _ = _at(60.0, 10)
     with pytest.raises(InputError, match="reference temperatures differ"):
         compare(rb, fit_joint(other, EFFECTS))
+    # against a calibration over a range, which can be refitted at this one's temperature: it must be
+    text, _ = simulate_campaign(np.random.default_rng(11), setpoints_C=(40.0, 60.0))
+    ranged = parse_bench_csv(text)
+    with pytest.raises(InputError, match="reference temperatures differ"):       # 0.1 degC apart
+        compare(rb, fit_joint(ranged, EFFECTS, reference_temperature_C=rb.reference_temperature_C - 0.1))
+    compare(rb, fit_joint(ranged, EFFECTS, reference_temperature_C=rb.reference_temperature_C))
 
 
 def _sensors_apart(offsets_C, seed=5, setpoints_C=(50.0,)):

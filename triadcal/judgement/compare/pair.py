@@ -72,7 +72,7 @@ def _temperature_notes(before: CalibrationResult, after: CalibrationResult) -> l
     """The pair's temperatures, row by row (:func:`.row_temperatures_C`: K_a, S_a and Ca_ab hold at
     t_a in a calibration at one temperature whose sensors read apart): refuse (InputError) rows at
     temperatures more than :data:`SAME_TEMPERATURE_C` apart, or reference temperatures that differ
-    where both calibrations have tempcos (refit one at the other's); a note for rows up to
+    where a calibration has tempcos (refit it at the other's); a note for rows up to
     :data:`SAME_TEMPERATURE_C` apart, whose drift also holds the unmeasured tempcos times that. An
     outside probe: sensors at +0.45, -0.4, 0 degC in one calibration and at one temperature in the
     other, both means 20 degC, compared silently."""
@@ -81,8 +81,9 @@ def _temperature_notes(before: CalibrationResult, after: CalibrationResult) -> l
     worst = max(dT, key=dT.get)
     where = ", ".join(f"{a} {tb[a]:.2f} -> {ta[a]:.2f}" for a in tb)
     both_tempcos = _has_tempcos(before) and _has_tempcos(after)
-    if both_tempcos and before.reference_temperature_C != after.reference_temperature_C or \
-            dT[worst] > SAME_TEMPERATURE_C:
+    # a calibration with tempcos can be refitted at the other's reference temperature: then it must be
+    if (_has_tempcos(before) or _has_tempcos(after)) and before.reference_temperature_C != after.reference_temperature_C \
+            or dT[worst] > SAME_TEMPERATURE_C:
         what = ("reference temperatures differ" if before.reference_temperature_C != after.reference_temperature_C
                 else "the accelerometers' temperatures differ")
         raise InputError(f"{what} ({before.reference_temperature_C:g} vs "
