@@ -116,7 +116,7 @@ def bench_scatter(blocks) -> tuple:
     ``1 / (s2 + tau2)`` leave ``chi2 = dof`` (0 when the known noise alone explains the scatter).
     ``blocks``: ``(D, y, s2, idx)`` per setpoint block (design, mean outputs, known variances,
     visits); ``resid``: ``(e, h, idx)`` per block of that weighted fit, for :func:`worst_studentised`."""
-    def fit(t2):
+    def fit(t2, residuals=False):
         chi2, out = 0.0, []
         for D, y, s2, idx in blocks:
             w = 1.0 / np.sqrt(s2 + t2)
@@ -124,11 +124,12 @@ def bench_scatter(blocks) -> tuple:
             c, *_ = np.linalg.lstsq(Dw, yw, rcond=None)
             e = yw - Dw @ c
             chi2 += float(e @ e)
-            out.append((e, leverages(Dw), idx))
+            if residuals:                       # the leverages of the final weights only
+                out.append((e, leverages(Dw), idx))
         return chi2, out
 
     dof = sum(len(y) - np.linalg.matrix_rank(D) for D, y, _, _ in blocks)
-    chi2, resid = fit(0.0)
+    chi2, resid = fit(0.0, residuals=True)
     if dof <= 0 or chi2 <= dof:
         return 0.0, chi2, resid
     lo, hi = 0.0, max(float(np.median(np.concatenate([s2 for _, _, s2, _ in blocks]))), 1e-300)
@@ -139,7 +140,7 @@ def bench_scatter(blocks) -> tuple:
         lo, hi = (mid, hi) if fit(mid)[0] > dof else (lo, mid)
         if hi - lo <= 1e-6 * hi:
             break
-    chi2, resid = fit(hi)
+    chi2, resid = fit(hi, residuals=True)
     return hi, chi2, resid
 
 

@@ -99,6 +99,17 @@ def sensor_temperature_problems(result) -> list[str]:
     return []
 
 
+#: rows whose temperatures differ by less than this (degC) are at one temperature (the 0.01 degC
+#: the results write them to)
+ROWS_APART_C = 0.005
+
+
+def rows_apart(rows_T: dict) -> float:
+    """The spread of the rows' temperatures (:func:`row_temperatures_C`), 0 below :data:`ROWS_APART_C`."""
+    spread = max(rows_T.values()) - min(rows_T.values())
+    return spread if spread >= ROWS_APART_C else 0.0
+
+
 def row_temperatures_C(result) -> dict:
     """The temperature (degC) at which each accelerometer's row of ``result`` holds -- K_a, S_a and
     the angles Ca_ab: each sensor's own mean temperature for a calibration at one temperature that

@@ -41,7 +41,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..estimation.one_temperature import row_temperatures_C
+from ..estimation.one_temperature import row_temperatures_C, rows_apart
 from ..estimation.result import CalibrationResult
 from ..models.effects import BENCH_EFFECTS
 from ..models.model import Covariates, Model
@@ -295,7 +295,7 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
         notes.append("steady state: the sensing element's lag behind its sensor (thermal_lag) is not in a table "
                      "of T; apply it to the temperature before the lookup")
     rows_T = row_temperatures_C(result)
-    if max(rows_T.values()) - min(rows_T.values()) >= 0.005:
+    if rows_apart(rows_T):
         notes.append("one temperature, sensors apart: each accelerometer's K, S and angles hold at its own sensor's "
                      "temperature (" + ", ".join(f"{a} {v:.2f}" for a, v in rows_T.items()) + " degC), no tempco "
                      "carries them to another")

@@ -8,7 +8,7 @@ import os
 from typing import Mapping, Optional, Sequence, Union
 import numpy as np
 from scipy import stats
-from ...estimation.one_temperature import row_temperatures_C
+from ...estimation.one_temperature import ROWS_APART_C, row_temperatures_C
 from ...estimation.result_checks import check_result_for_use
 from ...estimation.result import CalibrationResult
 from ...models.units import canonical_scale_unit
@@ -91,7 +91,7 @@ def _temperature_notes(before: CalibrationResult, after: CalibrationResult) -> l
                          "them at the other's reference temperature so the values are comparable" +
                          ("" if both_tempcos else f" (at one temperature, no tempco carries them: rows may differ "
                           f"by at most {SAME_TEMPERATURE_C:g} degC)"))
-    if dT[worst] < 0.005:
+    if dT[worst] < ROWS_APART_C:
         return []
     return [f"one temperature: the rows are at {where} degC (before -> after): the drift also holds the unit's "
             f"temperature coefficients times up to {dT[worst]:.2f} degC (row {worst}), which neither calibration "

@@ -17,7 +17,7 @@ from typing import Optional
 import numpy as np
 
 from ... import __version__
-from ...estimation.one_temperature import row_temperatures_C
+from ...estimation.one_temperature import row_temperatures_C, rows_apart
 from ...estimation.result import significant, CalibrationResult, round_to_uncertainty
 from ...models.effects import EFFECTS
 from ...models.model import Model
@@ -80,7 +80,7 @@ def values_temperature(result: CalibrationResult) -> str:
     own temperature (an outside probe: section 3 listed them while sections 4 and 6 and the console
     said "at the reference temperature 20.02 °C", X's row being 0.43 °C from it)."""
     rows_T = row_temperatures_C(result)
-    if max(rows_T.values()) - min(rows_T.values()) >= 0.005:
+    if rows_apart(rows_T):
         return ("each accelerometer's own temperature (" + ", ".join(f"{a.upper()} {v:.2f}" for a, v in rows_T.items())
                 + " °C, section 3)")
     return f"the reference temperature {result.reference_temperature_C:g} °C"
@@ -300,7 +300,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         cond.append(("Temperature range (accelerometer sensors)", f"{lo:.1f} °C to {hi:.1f} °C"))
     t_u = result.fit.get("reference_temperature_u_C")
     rows_T = row_temperatures_C(result)
-    apart = max(rows_T.values()) - min(rows_T.values()) >= 0.005
+    apart = bool(rows_apart(rows_T))
     cond.append(("Reference temperature", f"{result.reference_temperature_C:g} °C" + (
         f" (as the thermometers read it, u = {t_u:g} °C; one temperature: the values are the unit's at "
         + ("its sensors' temperatures, next row," if apart else "that temperature") + " and hold no tempco)"
