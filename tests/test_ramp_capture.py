@@ -399,3 +399,48 @@ def test_a_rate_below_the_settled_rate_keeps_the_branch():
     assert visit_direction(slope, se, "cooling") == "heating"                  # the rule of before
     assert visit_direction(-0.0208 / 60.0, 0.0003 / 60.0, "heating", at_rest=at_rest) == "cooling"
     assert visit_direction(0.5 / 60.0, 0.4 / 60.0, "cooling", at_rest=at_rest) == "cooling"   # within 3 SE
+
+
+def test_a_turn_after_a_resume_is_labelled_by_the_windows_own_rate():
+    """CI, 2026-11-30: after a SIGKILL and resume, a window whose own readings rose at 0.204 degC/min
+    was labelled ``cooling`` and the reader refused the file its capture wrote (a ramp label against
+    its row's rate by more than 0.2 degC/min). Made here with numpy, not the emulator: the test's
+    program (20 -> 10 -> 20 degC at 2 degC/min), chamber air and unit as two first-order lags (60 s,
+    120 s, explicit Euler), the capture killed at program time 200 s and the chamber holding that
+    setpoint for 300 s before the program goes on; readings at 5 Hz, sd 0.006 degC; the history
+    starts at the resume, as a new run's does. The quadratic through the 150 s before the window
+    straddles the unit's turn and lags it: on its own it labelled ``cooling`` windows whose true rate
+    was up to +0.2 degC/min (60 of 1 840 windows with |rate| > 0.05, seeds 0-19). With the window's
+    own line deciding first, every label is the sign of the true rate."""
+    from types import SimpleNamespace
+
+    from triadcal.hardware.ramp_capture import visit_rate_se
+
+    def program(t):              # program time stops for the 300 s the capture is down
+        p = np.where(t < 200.0, t, np.where(t < 500.0, 200.0, t - 300.0))
+        return np.interp(p, [0.0, 300.0, 600.0], [20.0, 10.0, 20.0])
+    program.duration_s = 1500.0
+
+    t, _, unit, _ = euler_thermal_history(program, tau_chamber_min=1.0, tau_housing_min=2.0, dt_s=0.1)
+    true_rate = np.gradient(unit, t) * 60.0
+    ts, us = t[::2], unit[::2]
+    at_rest = Stabilisation().rate_C_per_min / 60.0
+    n = wrong_old = wrong = 0
+    for seed in range(20):
+        y = us + np.random.default_rng(seed).normal(0.0, 0.006, ts.size)
+        history = np.c_[ts, y][ts >= 500.0]
+        previous = "cooling"
+        for mid in np.arange(530.0, 1000.0, 5.0):
+            w = (ts >= mid - 10.0) & (ts <= mid + 10.0)
+            frames = [SimpleNamespace(time_s=a, t=(b, b, b)) for a, b in zip(ts[w], y[w])]
+            r = window_rates(history, mid - 10.0, mid + 10.0)
+            old = visit_direction(r["mean"], r["mean_se"], previous, at_rest=at_rest)
+            new = visit_direction(r["mean"], r["mean_se"], previous, at_rest=at_rest, own=visit_rate_se(frames))
+            rate = true_rate[(t >= mid - 10.0) & (t <= mid + 10.0)].mean()
+            if abs(rate) > 0.05:
+                want = "heating" if rate > 0 else "cooling"
+                n, wrong_old, wrong = n + 1, wrong_old + (old != want), wrong + (new != want)
+            previous = new
+    assert n == 1840
+    assert wrong_old >= 30, wrong_old          # the mechanism is there (60 seen)
+    assert wrong == 0, wrong

@@ -21,7 +21,8 @@ Each visit is a bench CSV row: the window's means (``w``, ``t``, ``sd``, ``n_sam
 middle as ``time_s`` (campaign time), the position, and the two labels a ramp campaign carries
 (as the simulator's :class:`~triadcal.models.simulate.RampSchedule`): ``setpoint_C`` the target of
 the program's leg at the window's middle, ``direction`` the sign of the unit's rate over the window
-(``heating`` on a rise: the ramp as the unit sees it; :func:`window_rates`, :func:`visit_direction`).
+(``heating`` on a rise: the ramp as the unit sees it; :func:`visit_rate_se`, :func:`window_rates`,
+:func:`visit_direction`).
 A window whose outputs are not those of a unit at rest (:func:`not_stationary`: the bench still
 moving) or in which the unit's temperature turned (:func:`turned_within`: both hysteresis branches
 in one visit) is recorded again at the same position. Extra columns: ``raw_visit`` (the samples of
@@ -153,11 +154,22 @@ def visit_rate(frames) -> float:
     chamber's and the unit's time constants. The direction's quadratic (:func:`window_rates`, with
     the 150 s before the window) is less noisy but not unbiased: on the tests' fast unit (300 s,
     600 s) its slope was 0.5 % steep and thermal_lag 0.6 SD short (docs/hardware.md)."""
+    return visit_rate_se(frames)[0]
+
+
+def visit_rate_se(frames) -> tuple[float, float]:
+    """:func:`visit_rate` and its ordinary least-squares standard error (degC/s; infinite with fewer
+    than 3 frames), from the line's residuals: with the window's curvature in them, an upper bound."""
     pts = np.array([(f.time_s, float(np.mean(f.t))) for f in frames or ()], float).reshape(-1, 2)
     if len(pts) < 2 or not np.ptp(pts[:, 0]) > 0:
-        return 0.0
+        return 0.0, math.inf
     x = pts[:, 0] - pts[:, 0].mean()
-    return float(x @ (pts[:, 1] - pts[:, 1].mean()) / (x @ x))
+    y = pts[:, 1] - pts[:, 1].mean()
+    slope = float(x @ y / (x @ x))
+    if len(pts) < 3:
+        return slope, math.inf
+    res = y - slope * x
+    return slope, float(math.sqrt(float(res @ res) / (len(pts) - 2) / float(x @ x)))
 
 
 #: how ``dTdt_C_per_min`` is measured (metadata ``dTdt_method`` of a ramp capture's campaign.csv)
@@ -179,7 +191,8 @@ def turned_within(rates: dict) -> bool:
     return bool(s * e < 0 and max(abs(s) / rates["start_se"], abs(e) / rates["end_se"]) > 3.0)
 
 
-def visit_direction(slope: float, se: float, previous: str, at_rest: float = 0.0) -> str:
+def visit_direction(slope: float, se: float, previous: str, at_rest: float = 0.0,
+                    own: tuple[float, float] = (0.0, math.inf)) -> str:
     """``heating`` / ``cooling`` by the sign of the window's rate when it is 3 standard errors from
     0 and faster than ``at_rest`` (same unit as ``slope``: the rate below which the capture counts
     the unit as settled, ``Stabilisation.rate_C_per_min``); otherwise the previous visit's (at a
@@ -187,9 +200,18 @@ def visit_direction(slope: float, se: float, previous: str, at_rest: float = 0.0
     branch the unit is on until its turn shows). A rate that is significant but below ``at_rest`` is
     no move of the element: at the program's start the readings still creep up by ~0.001 degC/min
     with the electronics' self-heating, many SE at 2 Hz, while the chamber is about to cool; labelled
-    ``heating`` by it, the first visit of a CI run's ramp took the wrong branch (|z| 22 in the fit)."""
-    if abs(slope) > 3.0 * se and abs(slope) > at_rest:
-        return "heating" if slope > 0 else "cooling"
+    ``heating`` by it, the first visit of a CI run's ramp took the wrong branch (|z| 22 in the fit).
+
+    ``own``: the window's own line (:func:`visit_rate_se`, the row's ``dTdt_C_per_min``), which
+    decides first when it passes the same two tests. The quadratic through the 150 s before the
+    window is less noisy but lags a turn: a CI run (2026-11-30, a unit with 60 s and 120 s time
+    constants) labelled ``cooling`` a window whose own readings rose at 0.204 degC/min, and the
+    reader refused the file its capture wrote (docs/bench-csv.md: a ramp label against its row's
+    rate by more than 0.2 degC/min); a numpy turn of such a unit gives the quadratic -0.2 degC/min
+    where the window's line gives +0.2 (tests/test_ramp_capture.py)."""
+    for s, e in (own, (slope, se)):
+        if abs(s) > 3.0 * e and abs(s) > at_rest:
+            return "heating" if s > 0 else "cooling"
     return previous
 
 
@@ -528,10 +550,10 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
             p_mid = run.program_s(mid)
             rates = window_rates(tee.history, mid - settings.tau_s / 2, mid + settings.tau_s / 2)
             slope, se = rates["mean"], rates["mean_se"]
-            dTdt = visit_rate(run.last_window)
+            dTdt, dTdt_se = visit_rate_se(run.last_window)
             first_leg = "heating" if program.knot_C[1] > program.knot_C[0] else "cooling"
             direction = visit_direction(slope, se, rows[-1]["direction"] if rows else first_leg,
-                                        at_rest=settings.stabilisation.rate_C_per_min / 60.0)
+                                        at_rest=settings.stabilisation.rate_C_per_min / 60.0, own=(dTdt, dTdt_se))
             row.update(unit=settings.unit, setpoint_C=program.target(p_mid), direction=direction, position=label,
                        axis1_deg=a1, axis2_deg=a2, tau_s=settings.tau_s, raw_visit=tag,
                        program_C=program.value(min(p_mid, program.duration_s)), dTdt_C_per_min=dTdt * 60.0)
