@@ -199,3 +199,35 @@ def test_classical_fits_each_row_on_its_own_sensor_by_default():
         assert abs(own[f"S_{a}"].value - truth[f"S_{a}"]) < 4 * own[f"S_{a}"].u, (a, own[f"S_{a}"], truth[f"S_{a}"])
     worst = max(abs(mean[f"{q}_{a}"].value - truth[f"{q}_{a}"]) / mean[f"{q}_{a}"].u for q in "KS" for a in "xyz")
     assert worst > 4, worst
+
+
+def test_rows_apart_carry_the_unmeasured_tempcos_in_the_drifts_u():
+    """An outside probe: two calibrations at one temperature each of a unit that did not move, its K_x
+    tempco 100 ppm/degC, the second 0.15 degC warmer: K_x's drift (15 ppm, the tempco's) was judged
+    against u(d) alone (z -5.1) and `--param-tolerance K_x` gave fail. Now u(d) of each K, S and angle
+    holds the rectangular term of compare.TEMPCO_BOUND x dT (300 ppm/degC x 0.15 degC / sqrt 3 = 26
+    ppm for K). Here the tempco is the bound's 300 ppm/degC (45 ppm, about 7 u(d) without the term):
+    the unmoved unit is not a fail; a K that moved by 500 ppm is still one."""
+    from independent_bench import default_truth
+
+    from triadcal.judgement.compare.pair import TEMPCO_BOUND
+
+    truth = default_truth(np.random.default_rng(100))
+    truth["K_x_tempco"] = 300.0            # the bound itself: the largest tempco it admits (the probe's: 100)
+
+    def fit_at(setpoint, seed, k_change=0.0):
+        t = dict(truth, K_x=truth["K_x"] * (1.0 + k_change))
+        text, _ = simulate_campaign(np.random.default_rng(seed), truth=t, setpoints_C=(setpoint,))
+        return fit_joint(parse_bench_csv(text), EFFECTS)
+
+    rb, ra = fit_at(50.0, 21), fit_at(50.15, 22)
+    out = compare(rb, ra, tolerances={"K_x": 5e-6 * rb["K_x"].value})
+    d = out.parameters["K_x"]
+    u_tc = TEMPCO_BOUND["K"] * rb["K_x"].value * abs(ra.reference_temperature_C - rb.reference_temperature_C) / np.sqrt(3)
+    assert d.u == pytest.approx(np.hypot(np.hypot(rb["K_x"].u, ra["K_x"].u), u_tc), rel=1e-9)
+    assert abs(d.drift / np.hypot(rb["K_x"].u, ra["K_x"].u)) > 3          # the tempco's 45 ppm, 7 u(d) before
+    assert d.verdict != "fail" and out.overall != "fail", (d.verdict, out.overall)
+    assert any("bounds K 300 ppm" in n for n in out.notes), out.notes
+    moved = fit_at(50.15, 23, k_change=500e-6)
+    out = compare(rb, moved, tolerances={"K_x": 50e-6 * rb["K_x"].value})
+    assert out.parameters["K_x"].verdict == "fail"

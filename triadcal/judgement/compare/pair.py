@@ -68,14 +68,37 @@ def _has_tempcos(r) -> bool:
     return any("_tempco" in n for n in r.parameters)
 
 
-def _temperature_notes(before: CalibrationResult, after: CalibrationResult) -> list[str]:
+#: bounds of the temperature coefficients a calibration at one temperature does not measure, per
+#: degC: K relative (1e-6 = 1 ppm), S in g, the angles in arcsec. For the rows of two such
+#: calibrations that are apart, the drift's u holds a rectangular term of half-width bound x dT.
+#: The largest the project knows, with margin: its silicon preset's K 130 ppm, S 120 ug, angles
+#: 4.9"/degC (the paper's A-18); consumer MEMS datasheets' sensitivity +-0.02 %/degC (MPU-6050)
+#: and zero-g offset up to ~0.8 mg/degC (ADXL345 class)
+TEMPCO_BOUND = {"K": 300e-6, "S": 1e-3, "Ca": 10.0}
+
+
+def tempco_u(name: str, value: float, row_dT: Mapping[str, float]) -> float:
+    """The drift's u from a temperature coefficient neither calibration measured, for the rows
+    ``row_dT`` (degC apart, per accelerometer): ``TEMPCO_BOUND x dT / sqrt(3)`` (rectangular, JCGM
+    100 4.3.7) for K_a (relative to its value), S_a and Ca_ab (row a); 0 for any other parameter.
+    An outside probe: two calibrations of an unmoved unit with K's tempco 100 ppm/degC, rows
+    0.15 degC apart, gave K_x's drift z -5.1 and the verdict fail."""
+    kind, _, rest = name.partition("_")
+    if kind not in TEMPCO_BOUND or len(rest) not in (1, 2) or rest[0] not in row_dT or (kind == "Ca") != (len(rest) == 2):
+        return 0.0
+    scale = abs(value) if kind == "K" else 1.0
+    return TEMPCO_BOUND[kind] * scale * row_dT[rest[0]] / math.sqrt(3.0)
+
+
+def _temperature_notes(before: CalibrationResult, after: CalibrationResult) -> tuple[list[str], dict]:
     """The pair's temperatures, row by row (:func:`.row_temperatures_C`: K_a, S_a and Ca_ab hold at
     t_a in a calibration at one temperature whose sensors read apart): refuse (InputError) rows at
     temperatures more than :data:`SAME_TEMPERATURE_C` apart, or reference temperatures that differ
     where a calibration has tempcos (refit it at the other's); a note for rows up to
     :data:`SAME_TEMPERATURE_C` apart, whose drift also holds the unmeasured tempcos times that. An
     outside probe: sensors at +0.45, -0.4, 0 degC in one calibration and at one temperature in the
-    other, both means 20 degC, compared silently."""
+    other, both means 20 degC, compared silently. Returns ``(notes, dT)``: ``dT`` the rows' distance
+    (degC) per accelerometer, all 0 when no row is :data:`ROWS_APART_C` apart."""
     tb, ta = row_temperatures_C(before), row_temperatures_C(after)
     dT = {a: abs(tb[a] - ta[a]) for a in tb}
     worst = max(dT, key=dT.get)
@@ -92,10 +115,12 @@ def _temperature_notes(before: CalibrationResult, after: CalibrationResult) -> l
                          ("" if both_tempcos else f" (at one temperature, no tempco carries them: rows may differ "
                           f"by at most {SAME_TEMPERATURE_C:g} degC)"))
     if dT[worst] < ROWS_APART_C:
-        return []
+        return [], {a: 0.0 for a in dT}
     return [f"one temperature: the rows are at {where} degC (before -> after): the drift also holds the unit's "
             f"temperature coefficients times up to {dT[worst]:.2f} degC (row {worst}), which neither calibration "
-            "measured"]
+            "measured; u(d) of each K, S and angle holds a rectangular term of half-width bound x dT of its row, "
+            f"bounds K {TEMPCO_BOUND['K'] * 1e6:g} ppm, S {TEMPCO_BOUND['S'] * 1e6:g} ug, angles "
+            f"{TEMPCO_BOUND['Ca']:g} arcsec per degC"], dT
 
 
 def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_arcsec: Optional[float] = 30.0,
@@ -141,7 +166,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     if before.unit != after.unit:
         raise InputError(f"before is unit {before.unit!r} and after is unit {after.unit!r}: a drift compares "
                          "two calibrations of the same unit")
-    notes.extend(_temperature_notes(before, after))
+    t_notes, row_dT = _temperature_notes(before, after)
+    notes.extend(t_notes)
     # angles held by definition (under `fixed` and not `unidentifiable`: an angle the data could not
     # determine is a missing angle, below, not a frame)
     frame = {tag: sorted(n for n in (r.extra.get("fixed") or {}) if _is_angle(n) and n not in r.parameters
@@ -239,7 +265,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                 raise InputError(f"{n}: the shared systematic errors' covariance {cov_shared:.6g} exceeds "
                                  f"u_b u_a = {b.u * a.u:.6g}: a result's u is smaller than its own budget rows")
             rho_n = max(-1.0, min(1.0, rho_n))
-        u = drift_uncertainty(b.u, a.u, rho_n)
+        u_tc = tempco_u(n, b.value, row_dT)
+        u = math.hypot(drift_uncertainty(b.u, a.u, rho_n), u_tc)
         z = d / u if u > 0 else (math.inf if d else 0.0)
         verdict, significant = decide(d, u, T, level)
         pd = ParameterDrift(
@@ -264,6 +291,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                 s0 = math.sqrt(np.var(db) + np.var(da))
                 s_rho = drift_uncertainty(float(np.std(db)), float(np.std(da)), rho)
                 draws = draws.mean() + (draws - draws.mean()) * (s_rho / s0 if s0 > 0 else 1.0)
+            if u_tc > 0.0:         # the unmeasured tempcos of rows apart (tempco_u), as a normal term
+                draws = draws + np.random.default_rng(2).normal(0.0, u_tc, len(draws))
             verdict, significant, p = decide_from_draws(draws, T, level)
             pd.verdict, pd.significant, pd.p_exceeds = verdict, significant, p
             pd.basis, pd.n_draws = "posterior", int(min(len(db), len(da)))
@@ -286,6 +315,7 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         d = np.array([params[n].drift for n in angles])
         cov = combined_covariance(before.covariance(angles), after.covariance(angles), rho,
                                   cross=shared.cross(angles) if shared.sources else None)
+        cov = cov + np.diag([tempco_u(n, before[n].value, row_dT) ** 2 for n in angles])
         joint = joint_test(d, cov, angles, level)
 
     bench = {}
