@@ -63,12 +63,18 @@ def test_two_calibrations_at_one_setpoint_are_compared_with_a_note():
     assert any("one temperature: the rows are at" in n for n in out.notes), out.notes
     # another setpoint is another temperature: refused
     other, _ = _at(60.0, 10)
-    with pytest.raises(InputError, match="reference temperatures differ"):
+    with pytest.raises(InputError, match="reference temperatures differ .*10.00 degC apart in row x.*calibrate again"):
         compare(rb, fit_joint(other, EFFECTS))
+    # exactly 0.2 degC apart (written to 0.01 degC: 50.2 - 50.0 is 0.20000000000000284): compared
+    shifted = parse_bench_csv(simulate_campaign(np.random.default_rng(9), setpoints_C=(50.1,))[0])
+    shifted.t[:] = shifted.t + (rb.reference_temperature_C + 0.2 - np.mean(shifted.t))
+    rs = fit_joint(shifted, EFFECTS)
+    assert abs(rs.reference_temperature_C - rb.reference_temperature_C) == pytest.approx(0.2, abs=1e-9)
+    compare(rb, rs)
     # against a calibration over a range, which can be refitted at this one's temperature: it must be
     text, _ = simulate_campaign(np.random.default_rng(11), setpoints_C=(40.0, 60.0))
     ranged = parse_bench_csv(text)
-    with pytest.raises(InputError, match="reference temperatures differ"):       # 0.1 degC apart
+    with pytest.raises(InputError, match="reference temperatures differ.*refit after, which has tempcos"):
         compare(rb, fit_joint(ranged, EFFECTS, reference_temperature_C=rb.reference_temperature_C - 0.1))
     compare(rb, fit_joint(ranged, EFFECTS, reference_temperature_C=rb.reference_temperature_C))
 
@@ -165,6 +171,15 @@ def test_sensors_apart_certificate_and_compare_use_each_rows_temperature(tmp_pat
     assert any("one_reference_temperature" in w for w in result_problems(r))
     r.fit["sensor_temperatures_C"] = {"x": float("nan"), "y": 50.0, "z": 50.0}
     assert any("fit.sensor_temperatures_C.x" in w for w in result_problems(r))
+    # edited apart from the file's other temperatures (a probe, with the checksum removed: compare judged
+    # the edited rows, K_x z 11.6, fail): the sensors' mean against the reference, the readings' range
+    good = dict(r0.fit["sensor_temperatures_C"])
+    r0.fit["sensor_temperatures_C"] = {a: v + 0.2 for a, v in good.items()}
+    assert any("average" in w and "reference_temperature_C" in w for w in result_problems(r0)), result_problems(r0)
+    r0.fit["sensor_temperatures_C"] = good
+    assert not result_problems(r0)
+    r0.temperature_range_C = (20.0, 50.0)
+    assert any("temperature_range_C spans 30.00 degC" in w for w in result_problems(r0)), result_problems(r0)
 
 
 def test_sensors_a_degree_or_more_apart_at_one_temperature_are_refused():
@@ -201,33 +216,53 @@ def test_classical_fits_each_row_on_its_own_sensor_by_default():
     assert worst > 4, worst
 
 
-def test_rows_apart_carry_the_unmeasured_tempcos_in_the_drifts_u():
+def test_rows_apart_carry_the_unmeasured_tempcos_as_a_bound_taken_at_its_worst():
     """An outside probe: two calibrations at one temperature each of a unit that did not move, its K_x
     tempco 100 ppm/degC, the second 0.15 degC warmer: K_x's drift (15 ppm, the tempco's) was judged
-    against u(d) alone (z -5.1) and `--param-tolerance K_x` gave fail. Now u(d) of each K, S and angle
-    holds the rectangular term of compare.TEMPCO_BOUND x dT (300 ppm/degC x 0.15 degC / sqrt 3 = 26
-    ppm for K). Here the tempco is the bound's 300 ppm/degC (45 ppm, about 7 u(d) without the term):
-    the unmoved unit is not a fail; a K that moved by 500 ppm is still one."""
+    against u(d) alone (z -5.1) and `--param-tolerance K_x` gave fail. With the tempco as a
+    rectangular u (bound/sqrt 3) a unit at the bound still failed (a second probe: K tolerance 20 ppm,
+    6 of 25; the angles' joint test, 14 of 25). Now each K, S and angle's drift holds a bias within
+    +-compare.TEMPCO_BOUND x dT (tempco_bound), taken at its worst by the rule. Here every tempco is at
+    its bound, one sign (K 300 ppm/degC, angles 10"/degC; S 100 ug/degC; K's 45 ppm is about 7 u(d)),
+    over 5 seed pairs: never fail, with the K tolerance of 20 ppm or without any tolerance (the joint
+    test); a unit that moved (K 500 ppm, an angle 60") still fails."""
     from independent_bench import default_truth
 
     from triadcal.judgement.compare.pair import TEMPCO_BOUND
 
     truth = default_truth(np.random.default_rng(100))
-    truth["K_x_tempco"] = 300.0            # the bound itself: the largest tempco it admits (the probe's: 100)
+    truth.update({f"K_{a}_tempco": 300.0 for a in "xyz"})
+    truth.update({f"S_{a}_tempco": 100.0 for a in "xyz"})     # 1 mg/degC: the 0.01 degC jitter of the readings fails chi2
+    truth.update({f"Ca_{ab}_tempco": 10.0 for ab in ("xy", "xz", "yx", "yz", "zx", "zy")})
 
-    def fit_at(setpoint, seed, k_change=0.0):
-        t = dict(truth, K_x=truth["K_x"] * (1.0 + k_change))
+    def fit_at(setpoint, seed, **change):
+        t = dict(truth)
+        for k, v in change.items():
+            t[k] = t[k] * (1.0 + v) if k.startswith("K_") else t[k] + v
         text, _ = simulate_campaign(np.random.default_rng(seed), truth=t, setpoints_C=(setpoint,))
-        return fit_joint(parse_bench_csv(text), EFFECTS)
+        r = fit_joint(parse_bench_csv(text), EFFECTS)
+        assert r.status == "ok", r.notes
+        return r
 
-    rb, ra = fit_at(50.0, 21), fit_at(50.15, 22)
-    out = compare(rb, ra, tolerances={"K_x": 5e-6 * rb["K_x"].value})
-    d = out.parameters["K_x"]
-    u_tc = TEMPCO_BOUND["K"] * rb["K_x"].value * abs(ra.reference_temperature_C - rb.reference_temperature_C) / np.sqrt(3)
-    assert d.u == pytest.approx(np.hypot(np.hypot(rb["K_x"].u, ra["K_x"].u), u_tc), rel=1e-9)
-    assert abs(d.drift / np.hypot(rb["K_x"].u, ra["K_x"].u)) > 3          # the tempco's 45 ppm, 7 u(d) before
-    assert d.verdict != "fail" and out.overall != "fail", (d.verdict, out.overall)
-    assert any("bounds K 300 ppm" in n for n in out.notes), out.notes
-    moved = fit_at(50.15, 23, k_change=500e-6)
+    for seed in range(5):
+        rb, ra = fit_at(50.0, 40 + 2 * seed), fit_at(50.15, 41 + 2 * seed)
+        dT = abs(ra.reference_temperature_C - rb.reference_temperature_C)
+        out = compare(rb, ra, tolerances={"K_x": 20e-6 * rb["K_x"].value})
+        d = out.parameters["K_x"]
+        assert d.bound == pytest.approx(TEMPCO_BOUND["K"] * rb["K_x"].value * dT, rel=1e-12)
+        assert d.u == pytest.approx(np.hypot(rb["K_x"].u, ra["K_x"].u), rel=1e-9)
+        assert abs(d.drift) / d.u > 3                            # the tempco's 45 ppm, ~7 u(d)
+        assert d.verdict != "fail" and out.overall != "fail", (seed, d.verdict, out.overall)
+        assert any("tempco_bound" in n and "bounds K 300 ppm" in n for n in out.notes), out.notes
+        free = compare(rb, ra, tolerance_arcsec=None)
+        assert free.overall != "fail" and not free.joint.significant, (seed, free.joint)
+        for n in ("K_x", "K_y", "K_z", "Ca_xy", "Ca_zy"):       # at the bound: never significant beyond it
+            assert abs(free.parameters[n].z) < 4, (seed, n, free.parameters[n])
+    moved = fit_at(50.15, 99, K_x=500e-6, Ca_xy=60.0)
     out = compare(rb, moved, tolerances={"K_x": 50e-6 * rb["K_x"].value})
-    assert out.parameters["K_x"].verdict == "fail"
+    assert out.parameters["K_x"].verdict == "fail" and out.parameters["Ca_xy"].verdict == "fail"
+    assert out.overall == "fail"
+    # the bound goes into the comparison's JSON and its reader checks the verdicts with it
+    from triadcal.judgement.compare.results import ComparisonResult
+    back = ComparisonResult.from_dict(out.to_dict())
+    assert back.parameters["K_x"].bound == out.parameters["K_x"].bound > 0

@@ -96,7 +96,31 @@ def sensor_temperature_problems(result) -> list[str]:
     if getattr(result, "status", None) == "ok" and spread >= TEMPERATURE_SPAN_MIN_C:
         return [f"status is 'ok' but {field} spread {spread:.2f} degC, which the gate one_reference_temperature "
                 f"refuses (>= {TEMPERATURE_SPAN_MIN_C:g} degC)"]
-    return []
+    # the file's other temperatures must be those of the same data (an outside probe edited them apart,
+    # with the checksum removed, and compare judged the rows' edited temperatures: K_x z 11.6, fail)
+    why = []
+    ref, mean = getattr(result, "reference_temperature_C", None), float(np.mean(list(temps.values())))
+    if isinstance(ref, (int, float)) and np.isfinite(ref) and abs(mean - ref) > SENSOR_MEAN_TOLERANCE_C:
+        why.append(f"{field} average {mean:.3f} degC but reference_temperature_C is {ref:g}: a calibration at one "
+                   "temperature states its values at its sensors' mean (each rounded to 0.01 degC)")
+    rng = getattr(result, "temperature_range_C", None)
+    if rng is not None and len(rng) == 2 and all(isinstance(v, (int, float)) and np.isfinite(v) for v in rng):
+        lo, hi = float(min(rng)), float(max(rng))
+        if hi - lo > RANGE_AT_ONE_TEMPERATURE_C:
+            why.append(f"temperature_range_C spans {hi - lo:.2f} degC ({lo:g} to {hi:g}) in a result that records "
+                       f"{field} (a calibration at one temperature, its readings within "
+                       f"{RANGE_AT_ONE_TEMPERATURE_C:g} degC)")
+        elif not all(lo - SENSOR_MEAN_TOLERANCE_C <= v <= hi + SENSOR_MEAN_TOLERANCE_C for v in temps.values()):
+            why.append(f"{field} = {temps!r} lies outside temperature_range_C [{lo:g}, {hi:g}]")
+    return why
+
+
+#: |mean of fit.sensor_temperatures_C - reference_temperature_C| allowed (degC): both are rounded to
+#: 0.01 degC from one data set's temperatures
+SENSOR_MEAN_TOLERANCE_C = 0.02
+#: the readings of a calibration at one temperature span at most its visits' means' 1 degC
+#: (TEMPERATURE_SPAN_MIN_C) plus the sensors' spread (< 1 degC); this bound leaves margin
+RANGE_AT_ONE_TEMPERATURE_C = 3.0
 
 
 #: rows whose temperatures differ by less than this (degC) are at one temperature (the 0.01 degC

@@ -272,7 +272,9 @@ DRIFT_VISIBLE_MIN = 0.05
 def drift_confounding(campaign, J: np.ndarray, names, u: np.ndarray, noise_scale: float = 1.0) -> Optional[dict]:
     """What a bias drift the model leaves out does to the answer, per output ``a``: the drift
     ``S_a(t) = S_a + d (t - t_mid)`` (``t_mid`` the campaign's middle; d in ug/h; the model's
-    ``bias_drift`` with another origin), whose residual signature is ``b = (t - t_mid) dr/dS_a``.
+    ``bias_drift`` with another origin: a model without it holds one bias for the campaign, for a
+    drifting unit its bias near the middle, so S_a's move is from there, not from the start),
+    whose residual signature is ``b = (t - t_mid) dr/dS_a``.
     Left out, the least-squares fit absorbs its part in the model's span: every parameter moves by
     ``(J'J)^-1 J'b`` per ug/h (``moves_u_per_ug_h``, in each parameter's u, the three largest);
     the rest shows in the residuals: ``visible_fraction`` = |(I - P_J) b| / |b|, and the drift the

@@ -63,6 +63,9 @@ class ParameterDrift:
     basis: str = "normal"
     n_draws: Optional[int] = None
     judged: bool = True
+    #: a bias of the drift known only to lie within +-bound (the unmeasured tempcos of rows apart,
+    #: ``compare.tempco_bound``), taken at its worst by the rule (:func:`.rule.decide`)
+    bound: float = 0.0
 
     @property
     def U(self) -> float:
@@ -77,6 +80,8 @@ class ParameterDrift:
         for k in ("before", "after", "u_before", "u_after", "n_draws"):
             if getattr(self, k) is not None:
                 d[k] = getattr(self, k)
+        if self.bound > 0:
+            d["tempco_bound"] = self.bound
         return {k: _finite(v) for k, v in d.items()}
 
     @classmethod
@@ -110,7 +115,7 @@ class ParameterDrift:
                    p_value=num.nan("p_value"), significant=bool(d.get("significant", False)),
                    p_exceeds=num.opt("p_exceeds", 0.0, 1.0), verdict=d["verdict"], basis=str(d.get("basis", "normal")),
                    n_draws=None if d.get("n_draws") is None else int(num.req("n_draws", low=0.0)),
-                   judged=bool(d.get("judged", True)))
+                   judged=bool(d.get("judged", True)), bound=num.opt("tempco_bound", low=0.0, default=0.0))
 
 
 class _Fields:
@@ -288,6 +293,9 @@ def check_verdict(p: ParameterDrift, level: float, source: str = "<dict>", signi
     where = f"{source}: parameters.{p.name}"
     if p.basis not in BASES:
         raise InputError(f"{where}.basis {p.basis!r} is not one of {BASES}")
+    if p.bound > 0 and p.basis != "normal":
+        raise InputError(f"{where}: tempco_bound = {p.bound:.6g} on a {p.basis} verdict (a bound is judged on "
+                         "drift and u(d) only)")
     T = "none" if p.tolerance is None else f"{p.tolerance:g}"
     if p.basis == "posterior":
         if p.tolerance is not None and p.p_exceeds is None:
@@ -297,13 +305,14 @@ def check_verdict(p: ParameterDrift, level: float, source: str = "<dict>", signi
         expected = verdict_from_probability(p.p_exceeds, p.significant, p.tolerance, level)
         numbers = f"P(|d| > T) = {p.p_exceeds}, significant = {str(p.significant).lower()}, T = {T}"
     else:
-        expected, significant = decide(p.drift, p.u, p.tolerance, level)
-        numbers = f"drift = {p.drift:.6g}, u(d) = {p.u:.6g}, T = {T}"
+        expected, significant = decide(p.drift, p.u, p.tolerance, level, p.bound)
+        numbers = (f"drift = {p.drift:.6g}, u(d) = {p.u:.6g}, T = {T}"
+                   + (f", tempco_bound = {p.bound:.6g}" if p.bound > 0 else ""))
         if significance_stated and significant != p.significant:
             raise InputError(f"{where}.significant = {str(p.significant).lower()} contradicts its numbers "
                              f"({numbers}, level {level:g}): the rule gives {str(significant).lower()}")
         if p.tolerance is not None and p.p_exceeds is not None:
-            pe = probability_exceeds(p.drift, p.u, p.tolerance)
+            pe = probability_exceeds(p.drift, p.u, p.tolerance, p.bound)
             if not math.isclose(p.p_exceeds, pe, rel_tol=1e-6, abs_tol=1e-9):
                 raise InputError(f"{where}.p_exceeds = {p.p_exceeds:.6g} contradicts its numbers ({numbers}): "
                                  f"P(|d| > T) = {pe:.6g}")

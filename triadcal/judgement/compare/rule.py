@@ -91,24 +91,35 @@ def normalised_error(drift: float, u_before: float, u_after: float, rho: float =
     return abs(drift) / U if U > 0 else (0.0 if drift == 0 else math.inf)
 
 
-def probability_exceeds(drift: float, u: float, tolerance: Optional[float]) -> Optional[float]:
-    """``P(|true drift| > T)`` for a normal state of knowledge ``N(drift, u^2)``."""
+def probability_exceeds(drift: float, u: float, tolerance: Optional[float], bound: float = 0.0) -> Optional[float]:
+    """``P(|true drift| > T)`` for a normal state of knowledge ``N(drift, u^2)``; with a ``bound``
+    (a bias of the drift known only to lie within +-bound: the unmeasured tempcos of rows apart,
+    ``compare.tempco_bound``), its largest value over that interval, at ``|drift| + bound``."""
     if tolerance is None:
         return None
+    d = abs(drift) + bound
     if u <= 0:
-        return float(abs(drift) > tolerance)
-    return float(stats.norm.sf((tolerance - drift) / u) + stats.norm.cdf((-tolerance - drift) / u))
+        return float(d > tolerance)
+    return float(stats.norm.sf((tolerance - d) / u) + stats.norm.cdf((-tolerance - d) / u))
 
 
-def decide(drift: float, u: float, tolerance: Optional[float], level: float = 0.95) -> tuple[str, bool]:
-    """Verdict and significance of one drift under the module's rule (normal approximation)."""
+def decide(drift: float, u: float, tolerance: Optional[float], level: float = 0.95,
+           bound: float = 0.0) -> tuple[str, bool]:
+    """Verdict and significance of one drift under the module's rule (normal approximation).
+
+    ``bound``: a bias of the drift known only to lie within +-bound (not a distribution: the
+    unmeasured tempcos of rows apart times their distance), taken at its worst for each decision:
+    significant when ``|d| - bound > k2 u``, pass when ``|d| + bound + k1 u <= T``, fail when
+    significant and ``|d| - bound > T``. As a rectangular u (bound/sqrt 3) it let an unmoved unit
+    at the bound fail (an outside probe: K tolerance 20 ppm, rows 0.05 degC apart, 6 of 25)."""
     k2, k1 = coverage_factors(level)
-    significant = abs(drift) > k2 * u if u > 0 else drift != 0
+    near = max(abs(drift) - bound, 0.0)
+    significant = near > k2 * u if u > 0 else near > 0
     if tolerance is None:
         return ("fail" if significant else "pass"), bool(significant)
-    if abs(drift) + k1 * u <= tolerance:
+    if abs(drift) + bound + k1 * u <= tolerance:
         return "pass", bool(significant)
-    if significant and abs(drift) > tolerance:
+    if significant and near > tolerance:
         return "fail", bool(significant)
     return "inconclusive", bool(significant)
 
@@ -159,7 +170,11 @@ def rule_text(level: float, tolerance_arcsec: Optional[float], tolerances: Mappi
         f"tolerance): fail when the joint chi2 test of the angle drifts is significant at {pct} and an angle "
         f"fails (without a tolerance: when the joint test is significant); pass when every judged parameter "
         f"passes (without a tolerance: and the joint test is not significant); inconclusive otherwise. "
-        f"En (ISO 13528, U = 2u) is reported, not used in the verdict.")
+        f"En (ISO 13528, U = 2u) is reported, not used in the verdict. Where two calibrations at one "
+        f"temperature each have rows at temperatures apart, a drift also holds the unit's unmeasured "
+        f"tempcos times that distance, a bias within +-h (tempco_bound: h = bound x dT), taken at its worst: "
+        f"|d| - h for significance and fail (and in z, p_value and En), |d| + h for pass and P(|d| > T); the "
+        f"joint test's D2 is its least value over the biases within +-h.")
     if posterior:
         text += (f" Where posterior draws are given, the same rule on the draws of the drift: significant "
                  f"when 0 is outside the central {pct} interval, pass when P(|d| > T) <= {1 - level:.3g}, "
