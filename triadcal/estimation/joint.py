@@ -24,6 +24,7 @@ import numpy as np
 from scipy import stats
 
 from ..models.campaign import Campaign, nominal_gravity
+from .dense_call import DenseCall
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.kinematics import tilt_polar
 from ..models.model import Covariates, Model
@@ -81,21 +82,26 @@ class JointProblem:
         g = ca.SX.sym("g")
         w = ca.vertcat(*model.predict(p, cov, g))
         per_visit = ca.Function("visit", [x, c, g], [w, ca.jacobian(w, x)])
-        self._mapped = per_visit.map(self.n, "serial")
-        self._predict = ca.Function("visit_w", [x, c, g], [w]).map(self.n, "serial")
+        # x and g are shared by every visit (not repeated by the map), so that the numeric calls
+        # below take them as they are (DenseCall: no DM conversion of the 3 x n*npar Jacobian)
+        self._mapped = DenseCall(per_visit.map("visits", "serial", self.n, [0, 2], []))
+        visit_w = ca.Function("visit_w", [x, c, g], [w])
+        self._predict = visit_w.map(self.n, "serial")
+        self._predict_dense = DenseCall(visit_w.map("visits_w", "serial", self.n, [0, 2], []))
         self.cov_matrix = campaign.covariate_matrix()
         self.gravity_g = campaign.gravity_g
         self.build_seconds = time.perf_counter() - t0
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         """Model outputs (n, 3) at ``x``."""
-        w = np.asarray(self._predict(x, self.cov_matrix, self.gravity_g)).T
+        (w,) = self._predict_dense(x, self.cov_matrix, self.gravity_g)
+        w = w.T
         return w if self.output_map is None else w + self.output_map(w)[0]
 
     def residuals_and_jacobian(self, x: np.ndarray):
         w, J = self._mapped(x, self.cov_matrix, self.gravity_g)
-        w = np.asarray(w).T                                   # (n, 3)
-        J = np.asarray(J).reshape(3, self.n, len(self.names))  # columns of visit k: k*npar..
+        w = w.T                                               # (n, 3)
+        J = J.reshape(3, self.n, len(self.names))  # columns of visit k: k*npar..
         J = J.transpose(1, 0, 2)                              # (n, 3, npar)
         if self.output_map is not None:
             e, de = self.output_map(w)

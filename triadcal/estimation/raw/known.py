@@ -25,6 +25,7 @@ from ..gates import (
     GateConfig,
     apply_gates,
 )
+from ..dense_call import DenseCall
 from ..hints import orientation_hints
 from ..joint import Solution, levenberg_marquardt, scaled_covariance, start_values
 from ..result import CalibrationResult, ParameterValue
@@ -69,7 +70,7 @@ class KnownPoseProblem:
                          branch=0.0, time_s=0.0)
         wm = ca.vertcat(*self.model.predict(p, cov, g))
         f = ca.Function("pose", [x, t, c, g], [wm, ca.jacobian(wm, x), ca.jacobian(wm, t)])
-        self._mapped = f.map(self.n, "serial")
+        self._mapped = DenseCall(f.map("poses", "serial", self.n, [0, 3], []))   # x, g shared
         self._pose = ca.Function("pose_w", [x, t, c, g], [wm])
         self.cov_matrix = np.vstack([np.radians(axis1_deg), np.radians(axis2_deg)])
         self.gravity_g = float(gravity_g)
@@ -79,9 +80,9 @@ class KnownPoseProblem:
         nu = len(UNIT_NAMES)
         xu, tilts = x[:nu], x[nu:].reshape(self.n, 2)
         wm, Jx, Jt = self._mapped(xu, tilts.T, self.cov_matrix, self.gravity_g)
-        wm = np.asarray(wm).T                                             # (n, 3)
-        Jx = np.asarray(Jx).reshape(3, self.n, nu).transpose(1, 0, 2)      # (n, 3, 12)
-        Jt = np.asarray(Jt).reshape(3, self.n, 2).transpose(1, 0, 2)       # (n, 3, 2)
+        wm = wm.T                                                          # (n, 3)
+        Jx = Jx.reshape(3, self.n, nu).transpose(1, 0, 2)                  # (n, 3, 12)
+        Jt = Jt.reshape(3, self.n, 2).transpose(1, 0, 2)                   # (n, 3, 2)
         r_data = ((self.w - wm) / self.se).reshape(-1)
         J = np.zeros((5 * self.n + 6, len(x)))
         J[:3 * self.n, :nu] = (-Jx / self.se[:, :, None]).reshape(-1, nu)

@@ -22,6 +22,7 @@ from ..gates import (
     GateConfig,
     apply_gates,
 )
+from ..dense_call import DenseCall
 from ..joint import levenberg_marquardt, scaled_covariance
 from ..result import CalibrationResult, ParameterValue
 from .detection import (
@@ -62,7 +63,7 @@ class NormProblem:
         g = ca.SX.sym("g")
         r = ca.norm_2(_calibrated_symbolic(x, wk)) - g
         f = ca.Function("interval", [x, wk, g], [r, ca.jacobian(r, x)])
-        self._mapped = f.map(self.n, "serial")
+        self._mapped = DenseCall(f.map("intervals", "serial", self.n, [0, 2], []))   # x, g shared
         self._interval = ca.Function("norm_interval", [x, wk, g], [r])
         self.build_seconds = time.perf_counter() - t0
 
@@ -72,8 +73,8 @@ class NormProblem:
 
     def residuals_and_jacobian(self, x: np.ndarray):
         r, J = self._mapped(x, self.w.T, self.gravity_g)
-        return (np.asarray(r).reshape(-1) / self.RESIDUAL_UNIT_G,
-                np.asarray(J).reshape(self.n, len(self.names)) / self.RESIDUAL_UNIT_G)
+        return (r.reshape(-1) / self.RESIDUAL_UNIT_G,
+                J.reshape(self.n, len(self.names)) / self.RESIDUAL_UNIT_G)
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         return self.residuals_and_jacobian(x)[0]
