@@ -7,7 +7,6 @@ the best, likelihood ratio, PSIS-LOO and cross-branch prediction; the noise cand
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 from scipy import optimize, stats
@@ -22,6 +21,7 @@ from ...estimation.joint import (
     identifiability_problems,
 )
 from .fitting import FitState, _chol, _fit
+from .psis import psis_loo
 
 
 def _nominal_g(campaign):
@@ -106,8 +106,6 @@ def _loo(state: FitState, n_draws: int, rng, var_scale=None, nu=math.inf):
     """PSIS-LOO elpd with Laplace draws from the LS covariance, linearised residuals.
 
     The left-out unit is a visit (its three outputs together): pointwise values per visit."""
-    import arviz as az  # (its cache folder is the entry point's business: XDG_CACHE_HOME)
-
     p = len(state.names)
     L = _chol(state.cov)
     delta = rng.standard_normal((n_draws, p)) @ L.T
@@ -115,13 +113,8 @@ def _loo(state: FitState, n_draws: int, rng, var_scale=None, nu=math.inf):
     rr = state.r[None, :] + delta @ state.J.T
     ll = _loglik_pointwise(rr, var_scale, nu) - (math.log(state.s) if state.s != 1.0 else 0.0)
     ll = ll.reshape(n_draws, -1, 3).sum(axis=2)
-    idata = az.from_dict(posterior={"theta": delta[None, :, 0]}, log_likelihood={"obs": ll[None]})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = az.loo(idata, pointwise=True)
-    pointwise = np.asarray(res.loo_i).reshape(-1)
-    k = np.asarray(res.pareto_k).reshape(-1)
-    return float(res.elpd_loo), float(res.se), pointwise, float(np.max(k))
+    elpd, se, pointwise, k = psis_loo(ll)       # arviz.loo's numbers, vectorised (psis.py)
+    return elpd, se, pointwise, float(np.max(k))
 
 
 def _loglik_total(state: FitState, var_scale=None, nu=math.inf) -> float:

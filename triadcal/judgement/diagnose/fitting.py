@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from ...estimation.joint import (
     JointProblem,
@@ -144,9 +144,13 @@ def _hat_q(J):
 
 
 def _chi2_logsf(S, k):
-    """log P(chi2_k > S), with the Wilson-Hilferty normal form where scipy underflows."""
-    v = float(stats.chi2.logsf(S, k))
-    if math.isfinite(v):
-        return v
+    """log P(chi2_k > S), with the Wilson-Hilferty normal form where the tail underflows.
+
+    ``special.chdtrc`` is the function ``stats.chi2.sf`` evaluates (the same numbers), without the
+    distribution object's argument handling: 2 us a call instead of 230 us, and the diagnosis asks
+    it some 3 000 times a campaign."""
+    v = float(special.chdtrc(k, S))
+    if v > 0.0:
+        return math.log(v)
     z = ((S / k) ** (1.0 / 3.0) - (1.0 - 2.0 / (9.0 * k))) / math.sqrt(2.0 / (9.0 * k))
-    return float(stats.norm.logsf(z))
+    return float(special.log_ndtr(-z))

@@ -156,7 +156,7 @@ METHODS_TEXT = {
              "null moments of the linearised fit (hat matrix; excess chi2 by Satterthwaite's scaled chi2); "
              "Holm's correction over all tests; posterior predictive p of the slice chi2 from Laplace draws",
     "which": "score (Lagrange multiplier) test at the fitted point with the new parameters at 0; the top "
-             "candidates refitted: likelihood ratio, PSIS-LOO elpd (arviz.loo) from Laplace draws of the LS "
+             "candidates refitted: likelihood ratio, PSIS-LOO elpd (arviz.loo's algorithm, vectorised) from Laplace draws of the LS "
              "covariance with linearised residuals, prediction across heating/cooling branches; ranked by "
              "delta elpd among the refitted, then by score p-value; form candidates (hysteresis_play, "
              "hysteresis_pi, thermal_lag_history) have no score test: always refitted (r, start, tau profiled "
