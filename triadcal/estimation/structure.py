@@ -309,8 +309,10 @@ def drift_confounding(campaign, J: np.ndarray, names, u: np.ndarray, noise_scale
     return out or None
 
 
-def drift_note(conf: dict) -> Optional[str]:
-    """The result's note when a bias drift is invisible on some output (:func:`drift_confounding`)."""
+def drift_note(conf: dict, stated_u: Optional[float] = None) -> Optional[str]:
+    """The result's note when a bias drift is invisible on some output (:func:`drift_confounding`);
+    ``stated_u``: the unit's drift u the lab states (``[item] bias_drift_u_ug_per_h``), propagated
+    into the budget (uncertainty/typeb.py), which the note then says instead of assuming no drift."""
     blind = {a: c for a, c in conf.items() if c["visible_fraction"] < DRIFT_VISIBLE_MIN}
     if not blind:
         return None
@@ -319,9 +321,12 @@ def drift_note(conf: dict) -> Optional[str]:
     worst = min(c["visible_fraction"] for c in blind.values())
     return (f"the schedule cannot show a bias drift in time on output(s) {', '.join(blind)}: "
             f"{100 * worst:.1g} % of a drift's signature is outside the model (the temperatures visited in time "
-            f"order), so no test of the residuals sees one, and a drift of 1 ug/h would move {moves}. The values "
-            "hold for a unit whose bias does not drift during the campaign; a schedule that returns to its first "
-            "temperature tells the two apart (docs/plan.md), and `--effects ...,bias_drift` fits both")
+            f"order), so no test of the residuals sees one, and a drift of 1 ug/h would move {moves}. "
+            + ("The values hold for a unit whose bias does not drift during the campaign" if stated_u is None else
+               f"The budget holds the drift the lab states for the unit ([item] bias_drift_u_ug_per_h = {stated_u:g} "
+               "ug/h, a Type B row about the campaign's middle); a unit drifting more is not covered")
+            + "; a schedule that returns to its first temperature tells the two apart (docs/plan.md), and "
+            "`--effects ...,bias_drift` fits both")
 
 
 def residual_checks(result, campaign, noise, sol, dof: int, chi2_dof: float, reference_temperature_C: float,
@@ -347,7 +352,9 @@ def residual_checks(result, campaign, noise, sol, dof: int, chi2_dof: float, ref
         conf = drift_confounding(campaign, sol.J, names, u, 1.0 if noise.known else float(np.sqrt(max(chi2_dof, 0.0))))
         if conf is not None:
             result.fit["bias_drift_confounding"] = conf
-            note = drift_note(conf)
+            stated = next((e["u"] for e in result.fit.get("systematic_errors") or []
+                           if e.get("key") == "[item] bias_drift_u_ug_per_h"), None)
+            note = drift_note(conf, stated)
             if note:
                 result.notes.append(note)
     else:

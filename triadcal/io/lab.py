@@ -56,6 +56,10 @@ class LabConfig:
     voltmeter: str = ""
     voltmeter_gain_u_ppm: Optional[float] = None
     voltmeter_offset_u_V: Optional[float] = None
+    #: the unit's own stability: u of its bias drift rate during the campaign (ug/h; ``[item]
+    #: bias_drift_u_ug_per_h``, from its datasheet or history): a Type B row of every parameter a
+    #: drift would move, about the campaign's middle (docs/lab.md, "The unit's bias drift")
+    bias_drift_u_ug_per_h: Optional[float] = None
     #: the distribution of each section's systematic terms: {section: "normal" | "rectangular" |
     #: "arcsine"}; the stated value is always the standard uncertainty (docs/lab.md)
     distributions: dict = field(default_factory=dict)
@@ -86,7 +90,8 @@ LAB_SCHEMA = {
             "certificate_prefix": ("certificate_prefix", str), "place": ("place", str)},
     "signatory": {"name": ("signatory_name", str), "title": ("signatory_title", str)},
     "customer": {"name": ("customer_name", str), "address": ("customer_address", str)},
-    "item": {"description": ("item_description", str), "calibration_date": ("calibration_date", str)},
+    "item": {"description": ("item_description", str), "calibration_date": ("calibration_date", str),
+             "bias_drift_u_ug_per_h": ("bias_drift_u_ug_per_h", float)},
     "bench": {"name": ("bench", str), "sigma_position_arcsec": ("sigma_position_arcsec", float),
               "sigma_wobble_arcsec": ("sigma_wobble_arcsec", float),
               "positioning_sd_arcsec": ("sigma_position_arcsec", float),
@@ -109,7 +114,10 @@ EQUIPMENT_KEYS = ("instrument", "certificate", "due")
 EQUIPMENT_SECTIONS = ("bench", "fixture", "chamber", "thermometers", "gravity", "voltmeter")
 #: sections whose systematic terms may state their ``distribution`` (the values are standard
 #: uncertainties whatever the distribution: a rectangular +-a is stated as a/sqrt(3))
-DISTRIBUTION_SECTIONS = ("bench", "fixture", "thermometers", "gravity", "voltmeter")
+DISTRIBUTION_SECTIONS = ("bench", "fixture", "thermometers", "gravity", "voltmeter", "item")
+#: equipment whose systematic errors two calibrations on one bench may share (``[compare]
+#: shared_equipment``): the lab's, not the unit's own drift, which is a new error in every campaign
+SHAREABLE_SECTIONS = ("bench", "fixture", "thermometers", "gravity", "voltmeter")
 DISTRIBUTIONS = ("normal", "rectangular", "arcsine")
 
 
@@ -133,6 +141,8 @@ address = "2 Customer Street, Springfield"
 description = "accelerometer triad (IMU accelerometer block)"
 # the date the data were taken; needed only when the data carry none (capture writes it)
 # calibration_date = "YYYY-MM-DD"
+# bias_drift_u_ug_per_h = 0.1   # u of the unit's bias drift rate during the campaign (its stability)
+# distribution = "rectangular"  # e.g. a datasheet's bound b stated as u = b / sqrt(3)
 
 [bench]
 name = "two-axis rate-and-position table, thermal chamber"
@@ -212,9 +222,9 @@ def load_lab(path) -> LabConfig:
                     raise InputError(f"{path}: [{section}] {key} must be a non-negative number, got {value!r}")
                 value = float(value)
             elif typ is list:
-                if not isinstance(value, list) or not all(v in DISTRIBUTION_SECTIONS for v in value):
+                if not isinstance(value, list) or not all(v in SHAREABLE_SECTIONS for v in value):
                     raise InputError(f"{path}: [{section}] {key} must be a list of equipment sections from "
-                                     f"{', '.join(DISTRIBUTION_SECTIONS)}, got {value!r}")
+                                     f"{', '.join(SHAREABLE_SECTIONS)}, got {value!r}")
                 value = tuple(value)
             elif not isinstance(value, str):
                 value = str(value)  # TOML dates etc. are written as they read
@@ -248,7 +258,9 @@ LAB_U_LIMITS = tuple(
     + [("local_g_u_ppm", 3000.0, "the local gravity's u in ppm: standard gravity itself is within 2 600 ppm of "
                                  "every site's g"),
        ("voltmeter_gain_u_ppm", 1e5, "a voltmeter's gain u above 10 % is no calibrated meter"),
-       ("temperature_uncertainty_C", 50.0, "a thermometer's u above 50 degC is no measured temperature")])
+       ("temperature_uncertainty_C", 50.0, "a thermometer's u above 50 degC is no measured temperature"),
+       ("bias_drift_u_ug_per_h", 1e4, "a bias drifting by 10 mg per hour is no unit to calibrate (the budget "
+                                      "would hold nothing but the drift)")])
 
 
 def _iso_date(value, path, section) -> str:

@@ -51,7 +51,8 @@ class SystematicSource:
 KINDS = {"encoder_zero_1": ("arcsec", 10.0), "encoder_zero_2": ("arcsec", 10.0),
          "axes_nonorthogonality": ("arcsec", 10.0), "fixture": ("arcsec", 10.0),
          "gravity": ("ppm", 10.0), "thermometer": ("degC", 0.1),
-         "voltmeter_gain": ("ppm", 10.0), "voltmeter_offset": ("V", 1e-5)}
+         "voltmeter_gain": ("ppm", 10.0), "voltmeter_offset": ("V", 1e-5),
+         "bias_drift": ("ug/h", 1.0)}
 
 #: the equipment whose systematic errors are the same in two calibrations on one bench with no
 #: adjustment between them (``compare --shared-bench``)
@@ -90,6 +91,9 @@ def systematic_sources(lab, output_unit: str = "V") -> list:
     for i, a in enumerate("xyz"):
         add(f"voltmeter gain, axis {a}", "[voltmeter] gain_u_ppm", gain, "voltmeter_gain", "voltmeter", i)
         add(f"voltmeter offset, axis {a}", "[voltmeter] offset_u_V", offset, "voltmeter_offset", "voltmeter", i)
+    for i, a in enumerate("xyz"):
+        add(f"bias drift of the unit during the campaign, axis {a}", "[item] bias_drift_u_ug_per_h",
+            getattr(lab, "bias_drift_u_ug_per_h", None), "bias_drift", "item", i)
     return out
 
 
@@ -113,6 +117,8 @@ def data_change(source: SystematicSource, model, p: dict, cov, gravity_g: float,
         F = np.zeros_like(w)
         F[:, source.axis] = 1.0 / VOLTS[output_unit]
         return F
+    if k == "bias_drift":
+        return _drift_change(source, model, p, cov, gravity_g, w, h)
 
     def at(step):
         c, g = cov, gravity_g
@@ -132,6 +138,33 @@ def data_change(source: SystematicSource, model, p: dict, cov, gravity_g: float,
             # the sensors are truly warmer by step than the thermometers read
             c = replace(cov, temp=tuple(t + step for t in cov.temp))
         return np.stack([np.asarray(v, float) * np.ones(len(w)) for v in model.predict(p, c, g)], axis=1)
+
+    return (at(h) - at(-h)) / (2.0 * h)
+
+
+def _drift_change(source: SystematicSource, model, p: dict, cov, gravity_g: float, w: np.ndarray, h: float):
+    """``F`` of the unit's bias drift on output ``source.axis``, per ug/h: the model's own
+    ``bias_drift`` term (models/effects/bias_drift.py, ``S(t) = S + d t``) with its clock's origin
+    at the campaign's middle, ``t -> t - (t_first + t_last)/2``. A model without the drift holds one
+    bias for the campaign; for a drifting unit that is its bias near the middle, so the values hold
+    there and the budget's row is what an unknown drift of u ug/h moves them by from it (the tempcos
+    most, when the temperatures were visited in order: estimation/structure.py,
+    ``drift_confounding``). A campaign whose clock does not move has no drift to fear: F = 0."""
+    from ..models.model import Model
+
+    t = np.asarray(cov.time_s, float) * np.ones(len(w))
+    if not np.ptp(t) > 0:
+        return np.zeros_like(w)
+    names = tuple(e.name for e in model.effects)
+    drift = model if "bias_drift" in names else Model(names + ("bias_drift",), model.reference_temperature_C)
+    c = replace(cov, time_s=t - 0.5 * (t.min() + t.max()))
+    name = f"S_{'xyz'[source.axis]}_drift"
+    base = {n: p.get(n, drift.spec[n].nominal * drift.spec[n].to_internal) for n in drift.names}
+
+    def at(step):
+        q = dict(base)
+        q[name] = base[name] + step * drift.spec[name].to_internal
+        return np.stack([np.asarray(v, float) * np.ones(len(w)) for v in drift.predict(q, c, gravity_g)], axis=1)
 
     return (at(h) - at(-h)) / (2.0 * h)
 
@@ -176,8 +209,9 @@ class TypeB:
                                 sensitivity_unit="1", type="A", dof=dof_a,
                                 basis="the fit's standard uncertainty")]
         for s, c in zip(self.sources, self.c[:, j]):
+            per = f"({s.unit})" if "/" in s.unit else s.unit          # ug/degC per (ug/h)
             rows.append(BudgetComponent(s.source, float(abs(c) * s.u), s.u, unit=s.unit, sensitivity=float(c),
-                                        sensitivity_unit=f"{unit}/{s.unit}", basis=s.key,
+                                        sensitivity_unit=f"{unit}/{per}", basis=s.key,
                                         distribution=s.distribution, type="B"))
         return Budget(name, rows, unit)
 
@@ -253,7 +287,8 @@ def temperature_dependent(parameter_names) -> bool:
 def propagated_sources(sources: Sequence[SystematicSource], parameter_names) -> list:
     """The sources propagated as Type B into a fit's budgets: all of ``sources`` but the bench
     axes' non-orthogonality when the fit estimates it (``bench_nonorth`` among ``parameter_names``,
-    :func:`effects_with_lab`): then its row is the estimate's own u; and but the thermometers when
+    :func:`effects_with_lab`): then its row is the estimate's own u; but the unit's bias drift of an
+    output whose drift the fit estimates (``S_a_drift``); and but the thermometers when
     no parameter depends on temperature (:func:`temperature_dependent`: their u is then stated
     with the reference temperature). Used by the joint and classical fits and by the certificate's
     check that a result was fitted with the lab file it is issued under, so that they agree by
@@ -262,6 +297,9 @@ def propagated_sources(sources: Sequence[SystematicSource], parameter_names) -> 
     out = list(sources)
     if "bench_nonorth" in names:
         out = [s for s in out if s.kind != "axes_nonorthogonality"]
+    drifts = {n for n in names if n.startswith("S_") and n.endswith("_drift")}
+    if drifts:      # the fit measures the drift of these outputs: its u is the estimate's own
+        out = [s for s in out if not (s.kind == "bias_drift" and f"S_{'xyz'[s.axis]}_drift" in drifts)]
     if not temperature_dependent(names):
         out = [s for s in out if s.kind != "thermometer"]
     return out

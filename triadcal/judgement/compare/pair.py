@@ -12,7 +12,7 @@ from ...estimation.one_temperature import ROWS_APART_C, row_temperatures_C
 from ...estimation.result_checks import check_result_for_use
 from ...estimation.result import CalibrationResult
 from ...models.units import canonical_scale_unit
-from ...io.lab import DISTRIBUTION_SECTIONS, EQUIPMENT_SECTIONS
+from ...io.lab import EQUIPMENT_SECTIONS, SHAREABLE_SECTIONS
 from .rule import (check_tolerance, combined_covariance, coverage_factors, decide, decide_from_draws, drift_uncertainty,
                    normalised_error, probability_exceeds, rule_text)
 from .correlation import (CORRELATION_TERMS, check_posterior, derive_correlation, posterior_draws, posterior_drift,
@@ -23,7 +23,7 @@ from .results import ANGLES, BENCH_PARAMETERS, ComparisonResult, JointTest, Para
 #: equipment that can be shared: the lab-file sections with systematic errors of their own (Type B
 #: rows, triadcal.uncertainty.typeb), the list the lab file's ``[compare] shared_equipment`` accepts.
 #: ``[chamber]`` has none: its ``temperature_uncertainty_C`` is the thermometers' row ``[thermometers] u_C``
-SHAREABLE_EQUIPMENT = DISTRIBUTION_SECTIONS
+SHAREABLE_EQUIPMENT = SHAREABLE_SECTIONS
 
 
 #: an overall verdict held back from pass (a same calibration, an angle missing on one side) says so in
