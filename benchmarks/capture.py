@@ -37,7 +37,6 @@ def producer(master: int, rate: float, seconds: float, protocol: str, ready, res
     time.sleep(0.1)
     t0 = time.monotonic()
     k = lost = 0
-    pending = b""
     while k < n:
         due = min(n, int((time.monotonic() - t0) * rate) + 1)
         if due > k:
