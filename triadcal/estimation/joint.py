@@ -12,8 +12,6 @@ when the noise is estimated rather than known.
 
 from __future__ import annotations
 
-from ..errors import InputError
-
 import math
 import time
 from dataclasses import dataclass, field
@@ -23,11 +21,12 @@ import casadi as ca
 import numpy as np
 from scipy import stats
 
+from ..errors import InputError
 from ..models.campaign import Campaign, nominal_gravity
-from .dense_call import DenseCall
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.kinematics import tilt_polar
 from ..models.model import Covariates, Model
+from .dense_call import DenseCall
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, DEG, scale_factor_unit
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
@@ -82,27 +81,22 @@ class JointProblem:
         g = ca.SX.sym("g")
         w = ca.vertcat(*model.predict(p, cov, g))
         per_visit = ca.Function("visit", [x, c, g], [w, ca.jacobian(w, x)])
-        # x and g are shared by every visit (not repeated by the map), so that the numeric calls
-        # below take them as they are (DenseCall: no DM conversion of the 3 x n*npar Jacobian)
+        # x, g shared by the visits; numeric calls through DenseCall (no DM conversion of the Jacobian)
         self._mapped = DenseCall(per_visit.map("visits", "serial", self.n, [0, 2], []))
-        visit_w = ca.Function("visit_w", [x, c, g], [w])
-        self._predict = visit_w.map(self.n, "serial")
-        self._predict_dense = DenseCall(visit_w.map("visits_w", "serial", self.n, [0, 2], []))
+        self._predict = ca.Function("visit_w", [x, c, g], [w]).map("visits_w", "serial", self.n, [0, 2], [])
+        self._predict_dense = DenseCall(self._predict)
         self.cov_matrix = campaign.covariate_matrix()
         self.gravity_g = campaign.gravity_g
         self.build_seconds = time.perf_counter() - t0
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         """Model outputs (n, 3) at ``x``."""
-        (w,) = self._predict_dense(x, self.cov_matrix, self.gravity_g)
-        w = w.T
+        w = self._predict_dense(x, self.cov_matrix, self.gravity_g)[0].T
         return w if self.output_map is None else w + self.output_map(w)[0]
 
     def residuals_and_jacobian(self, x: np.ndarray):
-        w, J = self._mapped(x, self.cov_matrix, self.gravity_g)
-        w = w.T                                               # (n, 3)
-        J = J.reshape(3, self.n, len(self.names))  # columns of visit k: k*npar..
-        J = J.transpose(1, 0, 2)                              # (n, 3, npar)
+        w, J = self._mapped(x, self.cov_matrix, self.gravity_g)        # (3, n), (3, n npar): visit k at k npar
+        w, J = w.T, J.reshape(3, self.n, len(self.names)).transpose(1, 0, 2)   # (n, 3), (n, 3, npar)
         if self.output_map is not None:
             e, de = self.output_map(w)
             w, J = w + e, J * (1.0 + de)[:, :, None]
