@@ -13,7 +13,7 @@ import pytest
 
 from independent_bench import simulate_campaign
 from triadcal.estimation.classical import fit_classical
-from triadcal.estimation.classical_redundancy import bench_scatter
+from triadcal.estimation.classical_redundancy import bench_scatter, leverages
 from triadcal.io.bench_csv import parse_bench_csv
 
 N_SAMPLES = 3000
@@ -99,3 +99,53 @@ def test_bench_scatter_recovers_a_hand_made_variance():
         t2, chi2, resid = bench_scatter(blocks)
         assert check(t2), (extra, t2)
         assert len(resid) == 40 and chi2 == pytest.approx(400.0, rel=1e-3) if t2 > 0 else chi2 <= 400.0
+
+
+def _bench_scatter_by_block(blocks):
+    """The reference: every block by numpy.linalg.lstsq on its own, tau^2 by bisection to 1e-9."""
+    def chi2(t2):
+        out = 0.0
+        for D, y, s2, _ in blocks:
+            w = 1.0 / np.sqrt(s2 + t2)
+            c, *_ = np.linalg.lstsq(D * w[:, None], y * w, rcond=None)
+            out += float(np.sum((y * w - (D * w[:, None]) @ c) ** 2))
+        return out
+
+    dof = sum(len(y) - np.linalg.matrix_rank(D) for D, y, _, _ in blocks)
+    if chi2(0.0) <= dof:
+        return 0.0, chi2(0.0)
+    lo, hi = 0.0, 1.0
+    while chi2(hi) > dof:
+        lo, hi = hi, 4.0 * hi
+    while hi - lo > 1e-9 * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if chi2(mid) > dof else (lo, mid)
+    return hi, chi2(hi)
+
+
+def test_bench_scatter_stacked_equals_the_block_by_block_least_squares():
+    """The blocks of one shape are solved as one stack: the same tau^2 (1e-6), chi^2, residuals and
+    leverages as each block by lstsq, with blocks of two sizes and one whose design is rank deficient
+    (a repeated column: lstsq keeps one, the leverages count one)."""
+    rng = np.random.default_rng(11)
+    blocks = []
+    for b in range(9):
+        n = 12 if b % 3 else 8
+        D = np.column_stack([np.ones(n), rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)])
+        if b == 4:
+            D[:, 2] = D[:, 1]
+        s2 = rng.uniform(0.5, 2.0, n)
+        blocks.append((D, D @ np.array([1.0, 0.3, -0.2]) + rng.normal(0.0, np.sqrt(s2 + 1.5)), s2, np.arange(n) + 20 * b))
+    t2, chi2, resid = bench_scatter(blocks)
+    t2_ref, chi2_ref = _bench_scatter_by_block(blocks)
+    assert t2 > 0.5 and t2 == pytest.approx(t2_ref, rel=1e-6) and chi2 == pytest.approx(chi2_ref, rel=1e-6)
+    for (D, y, s2, idx), (e, h, i) in zip(blocks, resid):
+        w = 1.0 / np.sqrt(s2 + t2)
+        c, *_ = np.linalg.lstsq(D * w[:, None], y * w, rcond=None)
+        assert np.array_equal(i, idx)
+        assert np.allclose(e, y * w - (D * w[:, None]) @ c, rtol=0, atol=1e-10)
+        assert h == pytest.approx(leverages(D * w[:, None]), abs=1e-12)
+        assert np.sum(h) == pytest.approx(np.linalg.matrix_rank(D))
+    # below the known noise: no scatter, chi^2 of the unweighted-by-tau fit
+    quiet = [(D, D @ np.ones(D.shape[1]) + rng.normal(0.0, 0.5 * np.sqrt(s2)), s2, idx) for D, _, s2, idx in blocks]
+    assert bench_scatter(quiet)[0] == 0.0 and bench_scatter(quiet)[1] == pytest.approx(_bench_scatter_by_block(quiet)[1])

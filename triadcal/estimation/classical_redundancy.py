@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
 
 from ..models.campaign import Campaign
 from ..models.sensor import AXES
@@ -109,39 +109,61 @@ def worst_studentised(resid, rss, dof, campaign: Campaign, what: str = "") -> tu
     return best
 
 
+def _weighted_fit(groups, t2: float, n_blocks: int = 0) -> tuple:
+    """``(chi2, per_block)`` of the per-setpoint models weighted by ``1 / (s2 + t2)``: ``groups``
+    holds ``(D, y, s2, order)`` stacked over the blocks of one shape (``order``: their places in
+    the caller's list). Each block's residual is its weighted outputs less their projection on the
+    columns of its weighted design that ``numpy.linalg.lstsq`` keeps (singular values above ``eps
+    max(n, p)`` of the largest); chi^2 sums them. With ``n_blocks``, ``per_block[i]`` is ``(e, h)``
+    of block i, ``h`` the leverages of :func:`leverages` (its own rank rule)."""
+    chi2, per_block = 0.0, [None] * n_blocks
+    for D, y, s2, order in groups:
+        w = 1.0 / np.sqrt(s2 + t2)
+        Dw, yw = D * w[..., None], y * w
+        U_, sv, _ = np.linalg.svd(Dw, full_matrices=False)
+        keep = sv > sv[:, :1] * (np.finfo(float).eps * max(Dw.shape[1:]))
+        e = yw - np.einsum("bnk,bk->bn", U_, np.einsum("bnk,bn->bk", U_, yw) * keep)
+        chi2 += float(np.sum(e * e))
+        if n_blocks:
+            h = np.sum(U_ ** 2 * ((sv > sv[:, :1] * 1e-10) & (sv[:, :1] > 0))[:, None, :], axis=2)
+            for k, i in enumerate(order):
+                per_block[i] = (e[k], h[k])
+    return chi2, per_block
+
+
 def bench_scatter(blocks) -> tuple:
     """``(tau2, chi2, resid)`` of one output: the variance ``tau2`` (output unit^2) that the bench's own
     errors add to every visit's mean output beyond its known noise ``s2``, by Paule & Mandel (1982,
     J. Res. NBS 87, 377): the smallest ``tau2 >= 0`` at which the per-setpoint models weighted by
     ``1 / (s2 + tau2)`` leave ``chi2 = dof`` (0 when the known noise alone explains the scatter).
     ``blocks``: ``(D, y, s2, idx)`` per setpoint block (design, mean outputs, known variances,
-    visits); ``resid``: ``(e, h, idx)`` per block of that weighted fit, for :func:`worst_studentised`."""
-    def fit(t2, residuals=False):
-        chi2, out = 0.0, []
-        for D, y, s2, idx in blocks:
-            w = 1.0 / np.sqrt(s2 + t2)
-            Dw, yw = D * w[:, None], y * w
-            c, *_ = np.linalg.lstsq(Dw, yw, rcond=None)
-            e = yw - Dw @ c
-            chi2 += float(e @ e)
-            if residuals:                       # the leverages of the final weights only
-                out.append((e, leverages(Dw), idx))
-        return chi2, out
+    visits); ``resid``: ``(e, h, idx)`` per block of that weighted fit, for :func:`worst_studentised`.
 
-    dof = sum(len(y) - np.linalg.matrix_rank(D) for D, y, _, _ in blocks)
-    chi2, resid = fit(0.0, residuals=True)
+    chi^2 falls monotonically with ``tau2``; its root is bracketed by quadrupling and found by
+    Brent's method to 1e-7 of ``tau2``, the blocks of one shape solved as one stack
+    (tests/test_classical_redundancy.py holds them to the block-by-block least squares)."""
+    if not blocks:
+        return 0.0, 0.0, []
+    shapes: dict = {}
+    for i, (D, y, s2, _) in enumerate(blocks):
+        shapes.setdefault(np.shape(D), []).append((D, y, s2, i))
+    groups = [tuple(np.stack(z) for z in zip(*g)) for g in shapes.values()]
+
+    def fit(t2):
+        chi2, per = _weighted_fit(groups, t2, len(blocks))
+        return chi2, [(e, h, idx) for (e, h), (_, _, _, idx) in zip(per, blocks)]
+
+    dof = sum(int(np.sum(D.shape[1] - np.linalg.matrix_rank(D))) for D, _, _, _ in groups)
+    chi2, resid = fit(0.0)
     if dof <= 0 or chi2 <= dof:
         return 0.0, chi2, resid
+    excess = lambda t2: _weighted_fit(groups, t2)[0] - dof      # noqa: E731
     lo, hi = 0.0, max(float(np.median(np.concatenate([s2 for _, _, s2, _ in blocks]))), 1e-300)
-    while fit(hi)[0] > dof:
+    while excess(hi) > 0:
         lo, hi = hi, hi * 4.0
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if fit(mid)[0] > dof else (lo, mid)
-        if hi - lo <= 1e-6 * hi:
-            break
-    chi2, resid = fit(hi, residuals=True)
-    return hi, chi2, resid
+    t2 = optimize.brentq(excess, lo, hi, xtol=1e-300, rtol=1e-7)
+    chi2, resid = fit(t2)
+    return t2, chi2, resid
 
 
 def worst_studentised_known(design, dof, campaign: Campaign) -> tuple:

@@ -343,13 +343,13 @@ def levenberg_marquardt(problem: JointProblem, x0: np.ndarray, loss: str = "l2",
             converged = bool(np.linalg.norm(g) <= 1e-6 * max(1.0, np.sqrt(cost)))
             break
         # done when the cost no longer falls and every step is tiny against its uncertainty
-        u = np.sqrt(np.abs(np.diag(np.linalg.pinv(H)))) / d
         x, r, J, wts = x_new, r_new, J_new, w_new
         lam = max(lam / 10.0, 1e-12)
-        small_step = np.all(np.abs(step) <= 1e-4 * u) and np.all(u > 0)
-        if small_step and cost - cost_new <= 1e-9 * max(cost_new, 1.0):
-            converged = True
-            break
+        if cost - cost_new <= 1e-9 * max(cost_new, 1.0):
+            u = np.sqrt(np.abs(np.diag(np.linalg.pinv(H)))) / d
+            if np.all(np.abs(step) <= 1e-4 * u) and np.all(u > 0):
+                converged = True
+                break
     return Solution(x, float(np.sum(wts * r * r)), it, converged, r, J, wts)
 
 
