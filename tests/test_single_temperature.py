@@ -71,12 +71,18 @@ def test_two_calibrations_at_one_setpoint_are_compared_with_a_note():
     rs = fit_joint(shifted, EFFECTS)
     assert abs(rs.reference_temperature_C - rb.reference_temperature_C) == pytest.approx(0.2, abs=1e-9)
     compare(rb, rs)
-    # against a calibration over a range, which can be refitted at this one's temperature: it must be
+    # against a calibration over a range: carried by its own tempcos to this one's rows, whatever its
+    # reference (tests/test_compare_carry.py; it was refused before unless refitted at this temperature)
     text, _ = simulate_campaign(np.random.default_rng(11), setpoints_C=(40.0, 60.0))
     ranged = parse_bench_csv(text)
-    with pytest.raises(InputError, match="reference temperatures differ.*refit after, which has tempcos"):
-        compare(rb, fit_joint(ranged, EFFECTS, reference_temperature_C=rb.reference_temperature_C - 0.1))
-    compare(rb, fit_joint(ranged, EFFECTS, reference_temperature_C=rb.reference_temperature_C))
+    out = compare(rb, fit_joint(ranged, EFFECTS, reference_temperature_C=rb.reference_temperature_C - 0.1))
+    assert any("carried by its own temperature terms" in n for n in out.notes), out.notes
+    assert all(p.bound == 0.0 for p in out.parameters.values())
+    # two calibrations over ranges at different references: one must be refitted at the other's
+    other = fit_joint(parse_bench_csv(simulate_campaign(np.random.default_rng(12), setpoints_C=(40.0, 60.0))[0]),
+                      EFFECTS, reference_temperature_C=45.0)
+    with pytest.raises(InputError, match="reference temperatures differ.*refit before or after, which has tempcos"):
+        compare(fit_joint(ranged, EFFECTS, reference_temperature_C=50.0), other)
 
 
 def _sensors_apart(offsets_C, seed=5, setpoints_C=(50.0,)):

@@ -18,6 +18,8 @@ from .rule import (check_tolerance, combined_covariance, coverage_factors, decid
 from .correlation import (CORRELATION_TERMS, check_posterior, derive_correlation, posterior_draws, posterior_drift,
                           read_posterior, shared_errors)
 from .results import ANGLES, BENCH_PARAMETERS, ComparisonResult, JointTest, ParameterDrift
+from .carry import ROW_QUANTITIES, carry_rows
+from ...models.sensor import AXES
 
 
 #: equipment that can be shared: the lab-file sections with systematic errors of their own (Type B
@@ -93,23 +95,54 @@ def tempco_bound(name: str, value: float, row_dT: Mapping[str, float]) -> float:
 
 
 def _temperature_notes(before: CalibrationResult, after: CalibrationResult,
-                       tags: tuple = ("before", "after")) -> tuple[list[str], dict]:
+                       tags: tuple = ("before", "after")) -> tuple:
     """The pair's temperatures, row by row (:func:`.row_temperatures_C`: K_a, S_a and Ca_ab hold at
-    t_a in a calibration at one temperature whose sensors read apart): refuse (InputError) rows at
-    temperatures more than :data:`SAME_TEMPERATURE_C` apart, or reference temperatures that differ
-    where a calibration has tempcos (refit it at the other's); a note for rows up to
-    :data:`SAME_TEMPERATURE_C` apart, whose drift also holds the unmeasured tempcos times that. An
-    outside probe: sensors at +0.45, -0.4, 0 degC in one calibration and at one temperature in the
-    other, both means 20 degC, compared silently. Returns ``(notes, dT)``: ``dT`` the rows' distance
-    (degC) per accelerometer, all 0 when no row is :data:`ROWS_APART_C` apart."""
+    t_a in a calibration at one temperature whose sensors read apart).
+
+    One with tempcos and one without: the one with tempcos is carried by its own temperature terms to
+    the other's rows (:func:`.carry.carry_rows`, within its calibrated range), whatever the two
+    reference temperatures; its hysteresis loop, if it has one, becomes a bound of the angles'
+    drifts (the check's branch unknown). Both with tempcos: the reference temperatures must agree
+    (refit one at the other's). Neither: refuse (InputError) rows more than :data:`SAME_TEMPERATURE_C`
+    apart; a note for rows up to that, whose drift also holds the unmeasured tempcos times their
+    distance. An outside probe: sensors at +0.45, -0.4, 0 degC in one calibration and at one
+    temperature in the other, both means 20 degC, compared silently. Returns ``(notes, dT, before,
+    after, carried)``: ``dT`` the rows' distance (degC) per accelerometer, all 0 when no row is
+    :data:`ROWS_APART_C` apart; ``before``/``after`` the results as compared (one carried);
+    ``carried`` the bound per carried parameter (0 without a loop)."""
     tb, ta = row_temperatures_C(before), row_temperatures_C(after)
     dT = {a: abs(tb[a] - ta[a]) for a in tb}
     worst = max(dT, key=dT.get)
     where = ", ".join(f"{a} {tb[a]:.2f} -> {ta[a]:.2f}" for a in tb)
     tempcos = [tag for tag, r in zip(tags, (before, after)) if _has_tempcos(r)]
     pair = f"{tags[0]} and {tags[1]}"
+    if len(tempcos) == 1:
+        i = tags.index(tempcos[0])
+        ranged, target = (before, ta) if i == 0 else (after, tb)
+        moved, bounds, names = carry_rows(ranged, target, f"{tags[i]} (with tempcos)")
+        notes = []
+        if names:
+            notes.append(f"{tags[i]}, calibrated over {ranged.temperature_range_C[0]:.2f}...{ranged.temperature_range_C[1]:.2f}"
+                         f" degC with its reference at {ranged.reference_temperature_C:g} degC, is carried by its own "
+                         f"temperature terms to the rows of {tags[1 - i]} at one temperature ("
+                         + ", ".join(f"{a} {target[a]:.2f}" for a in AXES) + " degC): " + ", ".join(names)
+                         + "; their u hold the tempcos' u and correlations (GUM eq. 13)")
+        if bounds:
+            notes.append(f"{tags[i]} has a thermal hysteresis loop and {tags[1 - i]}, at one temperature, does not say "
+                         "on which branch it was: the drift of " + ", ".join(bounds) + " holds a bias within +-the "
+                         "loop's half-width (tempco_bound), taken at its worst by the rule")
+        # rows of a quantity the tempcos did not carry (no tempco of its family) keep dT and its bound
+        left = [n for n in ROW_QUANTITIES if n in ranged.parameters and n not in names and dT[n.split("_", 1)[1][0]] > 0]
+        if left and dT[worst] > SAME_TEMPERATURE_C + 1e-9:
+            raise InputError(f"{pair}: {tags[i]} has no tempcos of {', '.join(left)}, whose rows differ by up to "
+                             f"{dT[worst]:.2f} degC ({where} degC): calibrate again at the other's temperature")
+        if names or bounds:
+            carried = {n: 0.0 for n in names}
+            carried.update(bounds)
+            dT_left = dT if dT[worst] >= ROWS_APART_C else {a: 0.0 for a in dT}
+            return (notes, dT_left) + ((moved, after) if i == 0 else (before, moved)) + (carried,)
     # a calibration with tempcos can be refitted at the other's reference temperature: then it must be
-    if tempcos and before.reference_temperature_C != after.reference_temperature_C:
+    if len(tempcos) == 2 and before.reference_temperature_C != after.reference_temperature_C:
         raise InputError(f"{pair}: reference temperatures differ ({before.reference_temperature_C:g} vs "
                          f"{after.reference_temperature_C:g} degC): refit {' or '.join(tempcos)}, which has "
                          "tempcos, at the other's reference temperature so the values are comparable")
@@ -124,14 +157,14 @@ def _temperature_notes(before: CalibrationResult, after: CalibrationResult,
                          f"{SAME_TEMPERATURE_C:g} degC, since no tempco carries the values; calibrate again at the "
                          "other's setpoint, or over a range of temperatures")
     if dT[worst] < ROWS_APART_C:
-        return [], {a: 0.0 for a in dT}
+        return [], {a: 0.0 for a in dT}, before, after, {}
     who = ("neither calibration measured" if not tempcos else
            f"{' and '.join(tag for tag in tags if tag not in tempcos)} at one temperature did not measure")
     return [f"one temperature: the rows are at {where} degC ({tags[0]} -> {tags[1]}): the drift also holds the "
             f"unit's temperature coefficients times up to {dT[worst]:.2f} degC (row {worst}), which {who}; each "
             "K, S and angle's drift holds a bias within +-bound x dT of its row (tempco_bound), taken at its worst "
             f"by the rule, bounds K {TEMPCO_BOUND['K'] * 1e6:g} ppm, S {TEMPCO_BOUND['S'] * 1e6:g} ug, angles "
-            f"{TEMPCO_BOUND['Ca']:g} arcsec per degC"], dT
+            f"{TEMPCO_BOUND['Ca']:g} arcsec per degC"], dT, before, after, {}
 
 
 def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_arcsec: Optional[float] = 30.0,
@@ -177,7 +210,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     if before.unit != after.unit:
         raise InputError(f"before is unit {before.unit!r} and after is unit {after.unit!r}: a drift compares "
                          "two calibrations of the same unit")
-    t_notes, row_dT = _temperature_notes(before, after, (tag_b, tag_a))
+    originals = {"before": before, "after": after}        # a posterior is checked against its own result
+    t_notes, row_dT, before, after, carried = _temperature_notes(before, after, (tag_b, tag_a))
     notes.extend(t_notes)
     # angles held by definition (under `fixed` and not `unidentifiable`: an angle the data could not
     # determine is a missing angle, below, not a frame)
@@ -250,8 +284,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     post_b = post_a = None
     if posterior_before is not None:
         posts = []
-        for tag, source, r, name in (("before", posterior_before, before, tag_b), ("after", posterior_after, after,
-                                                                                    tag_a)):
+        for tag, source, name in (("before", posterior_before, tag_b), ("after", posterior_after, tag_a)):
+            r = originals[tag]
             what = (f"posterior {source} (of the {tag} calibration {name})" if isinstance(source, (str, os.PathLike))
                     else f"the posterior of the {tag} calibration ({name})")
             data = read_posterior(source)
@@ -276,7 +310,7 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                 raise InputError(f"{n}: the shared systematic errors' covariance {cov_shared:.6g} exceeds "
                                  f"u_b u_a = {b.u * a.u:.6g}: a result's u is smaller than its own budget rows")
             rho_n = max(-1.0, min(1.0, rho_n))
-        h = tempco_bound(n, b.value, row_dT)
+        h = carried[n] if n in carried else tempco_bound(n, b.value, row_dT)
         u = drift_uncertainty(b.u, a.u, rho_n)
         near = math.copysign(max(abs(d) - h, 0.0), d)          # the drift less its bound (the rule's worst)
         z = near / u if u > 0 else (math.inf if near else 0.0)
@@ -286,7 +320,7 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
             rho=rho_n, tolerance=T, En=normalised_error(near, b.u, a.u, rho_n), z=z,
             p_value=float(2 * stats.norm.sf(abs(z))), significant=significant,
             p_exceeds=probability_exceeds(d, u, T, h), verdict=verdict, judged=judged, bound=h)
-        if h > 0 and post_b is not None:
+        if (h > 0 or n in carried) and post_b is not None:
             bounded.append(n)
         elif post_b is not None and n in post_b and n in post_a:
             (db, unit_b), (da, unit_a) = post_b[n], post_a[n]
@@ -314,8 +348,9 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         if missing:
             notes.append("no posterior draws for " + ", ".join(missing) + ": judged on (value, u)")
         if bounded:
-            notes.append("judged on (value, u) with their tempco_bound, not on posterior draws (a bound is no "
-                         "distribution): " + ", ".join(bounded))
+            notes.append("judged on (value, u), not on posterior draws (a bound is no distribution; draws at the "
+                         "range calibration's reference temperature are not those of the carried rows): "
+                         + ", ".join(bounded))
         if type_b_added:
             notes.append("posterior draws hold the Type A part only: the lab's systematic errors (Type B rows, "
                          + ("minus the shared ones, " if shared.sources else "independent, ")
@@ -456,7 +491,7 @@ def _type_b_variance(p) -> float:
 def _describe(r: CalibrationResult) -> dict:
     d = {"unit": r.unit, "method": r.method, "status": r.status,
          "reference_temperature_C": r.reference_temperature_C}
-    for k in ("source", "data_sha256", "derived_from_sha256"):
+    for k in ("source", "data_sha256", "derived_from_sha256", "rows_carried_to_C"):
         if r.extra.get(k):
             d[k] = r.extra[k]
     return d

@@ -232,6 +232,13 @@ class ComparisonResult:
                 raise InputError(f"{source}: {key} is not an object")
         if d.get("notes") is not None and not isinstance(d["notes"], list):
             raise InputError(f"{source}: notes is not a list")
+        for side in ("before", "after"):
+            carried = (d.get(side) or {}).get("rows_carried_to_C")
+            if carried is not None:
+                if not isinstance(carried, Mapping) or sorted(carried) != ["x", "y", "z"]:
+                    raise InputError(f"{source}: {side}.rows_carried_to_C is not a mapping of x, y and z to degC")
+                for a in "xyz":
+                    _Fields(f"{source}: {side}.rows_carried_to_C", carried).req(a, -100.0, 200.0)
         level = _Fields(f"{source}: comparison", d).opt("level", 0.0, 1.0, default=0.95)
         if d.get("overall") not in VERDICTS:
             raise InputError(f"{source}: overall verdict {d.get('overall')!r} is not one of {VERDICTS}")
