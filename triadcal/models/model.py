@@ -43,6 +43,15 @@ class Covariates:
     #: zero for an estimator, a Type B input of the budget (:func:`kinematics.fixture_rotated`)
     fixture: tuple = (0.0, 0.0, 0.0)
 
+    @classmethod
+    def at_rest(cls, temps_C, branch=0.0) -> "Covariates":
+        """A unit at rest at the temperatures ``temps_C`` of its three sensors (degC; each a number
+        or an array), the rates 0, on hysteresis ``branch`` (0: the loop's mid-line), at the time
+        origin: what :meth:`Model.terms` needs for K, S and the angles at a temperature (a
+        compensation table, a result carried to another temperature)."""
+        z = 0.0 * np.asarray(temps_C[0], float)
+        return cls(axis1=z, axis2=z, temp=tuple(temps_C), temp_rate=(z, z, z), branch=z + branch, time_s=z)
+
     def take(self, index) -> "Covariates":
         """The covariates of a subset of visits (numpy only)."""
         def t(v):

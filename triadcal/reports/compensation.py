@@ -255,9 +255,7 @@ def parse_grid(text: str) -> np.ndarray:
 def _terms(model: Model, p: dict, T: np.ndarray):
     """K (n, 3), S (n, 3), angles (n, 6, arcsec) of the model at temperatures T (all sensors at T,
     steady state, mid-line)."""
-    z = np.zeros_like(T)
-    cov = Covariates(axis1=z, axis2=z, temp=(T, T, T), temp_rate=(z, z, z), branch=z, time_s=z)
-    K, S, angles = model.terms(p, cov)
+    K, S, angles = model.terms(p, Covariates.at_rest((T, T, T)))
     K = np.stack([np.broadcast_to(np.asarray(k, float), T.shape) for k in K], axis=1)
     S = np.stack([np.broadcast_to(np.asarray(s, float), T.shape) for s in S], axis=1)
     A = np.stack([np.broadcast_to(np.asarray(angles[ab], float), T.shape) / ARCSEC for ab in ANGLE_NAMES], axis=1)

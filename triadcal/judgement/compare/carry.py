@@ -46,9 +46,7 @@ def _row_of(name: str) -> str:
 def _terms(model: Model, p: Mapping, temps_C: Mapping[str, float], branch: float) -> dict:
     """K_a, S_a and Ca_ab (internal units) of ``model`` at rest at the temperatures ``temps_C`` per
     accelerometer and the hysteresis ``branch`` (0 mid-line, +-1 the loop's branches)."""
-    cov = Covariates(axis1=0.0, axis2=0.0, temp=tuple(float(temps_C[a]) for a in AXES), temp_rate=(0.0, 0.0, 0.0),
-                     branch=branch, time_s=0.0)
-    K, S, angles = model.terms(p, cov)
+    K, S, angles = model.terms(p, Covariates.at_rest(tuple(float(temps_C[a]) for a in AXES), branch))
     out = {f"K_{a}": float(K[i]) for i, a in enumerate(AXES)}
     out.update({f"S_{a}": float(S[i]) for i, a in enumerate(AXES)})
     out.update({f"Ca_{ab}": float(angles[ab]) for ab in ANGLE_NAMES})
