@@ -216,10 +216,13 @@ def _crossings(prof: _Profile, start: str, r_best: float, level: float, by_r: di
 
 
 def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = "auto",
-                        half_width_C: Optional[float] = None, refine: bool = True, **fit_kwargs):
+                        half_width_C: Optional[float] = None, refine: bool = True, profile_only: bool = False,
+                        **fit_kwargs):
     """Fit with the hysteresis form ``form`` (``offset``, ``play``, ``pi`` or ``auto``: chosen by
     the data, see the module); ``half_width_C`` fixes the play's r instead of profiling it;
-    ``refine=False`` keeps r on the grid (the diagnosis's play candidate, as validated).
+    ``refine=False`` keeps r on the grid (the diagnosis's play candidate, as validated);
+    ``profile_only``: the profiles' optimum only (r, start, its interval, at_grid_edge and the PI's
+    widths, weights and start; the diagnosis refits the forms itself), no form refitted or chosen.
     Returns ``(result, problem, solution, campaign)`` of the chosen form, the result's
     ``fit.hysteresis`` saying what was chosen and why."""
     if form not in FORMS:
@@ -247,6 +250,21 @@ def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = 
         play_prof = play_prof + _refine_play(prof, grid, best)
         best = min(play_prof, key=lambda p: p["chi2"])
     r, start = round(best["half_width_C"], 4), best["start"]
+    by_r = {}
+    for p in play_prof:
+        by_r[p["half_width_C"]] = min(by_r.get(p["half_width_C"], np.inf), p["chi2"])
+    lin_min = min(by_r.values())
+    inside = [rr for rr, c2 in by_r.items() if c2 <= lin_min + 1.0]
+    interval = [min(inside), max(inside)]
+    if half_width_C is None and refine:
+        interval = _crossings(prof, start, r, lin_min + 1.0, by_r, interval)
+    interval = [round(interval[0], 4), round(interval[1], 4)]
+    edge = half_width_C is None and (r <= grid[0] * 1.001 or r >= grid[-1] * 0.999)
+    bp = min(pi_prof, key=lambda p: p["chi2"]) if want_pi else None
+    if profile_only:
+        return {"half_width_C": r, "start": start, "half_width_interval_C": interval, "at_grid_edge": edge,
+                **({"pi_half_widths_C": bp["half_widths_C"], "pi_weights": bp["weights"], "pi_start": bp["start"]}
+                   if want_pi else {})}
     play_c = with_play(campaign, r, start)
     play_out = fit_joint(play_c, effects, **fit_kwargs)
     chi2_play = _chi2(play_out)
@@ -262,16 +280,6 @@ def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = 
         return daic > AIC_MARGIN, f"AIC falls by {daic:.4g} ({what}; chosen when > {AIC_MARGIN:g}, noise estimated)"
 
     prefer_play, crit_play = compare(chi2_off, chi2_play, 2, LR_THRESHOLD, "chi2_offset - chi2_play")
-    by_r = {}
-    for p in play_prof:
-        by_r[p["half_width_C"]] = min(by_r.get(p["half_width_C"], np.inf), p["chi2"])
-    lin_min = min(by_r.values())
-    inside = [rr for rr, c2 in by_r.items() if c2 <= lin_min + 1.0]
-    interval = [min(inside), max(inside)]
-    if half_width_C is None and refine:
-        interval = _crossings(prof, start, r, lin_min + 1.0, by_r, interval)
-    interval = [round(interval[0], 4), round(interval[1], 4)]
-    edge = half_width_C is None and (r <= grid[0] * 1.001 or r >= grid[-1] * 0.999)
     block = {"form": "offset", "criterion": crit_play, "chi2_offset": chi2_off, "chi2_play": chi2_play,
              "half_width_C": r, "start": start, "half_width_interval_C": interval, "at_grid_edge": edge,
              "profile": sorted(({"half_width_C": k, "chi2": v} for k, v in by_r.items() if k in grid),
@@ -283,7 +291,6 @@ def fit_hysteresis_form(campaign: Campaign, effects: Sequence[str], form: str = 
         chosen = "play"
     pi_out = pi_c = None
     if want_pi:
-        bp = min(pi_prof, key=lambda p: p["chi2"])
         pi_c = with_pi(campaign, bp["half_widths_C"], bp["weights"], bp["start"])
         pi_out = fit_joint(pi_c, effects, **fit_kwargs)
         chi2_pi = _chi2(pi_out)

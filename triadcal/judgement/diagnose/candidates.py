@@ -333,13 +333,12 @@ def _hysteresis_forms(campaign, full, model, names, base: FitState, noise_known:
     try:
         # refine=False: the play's r on the grid, as the validation of record ran it (the refinement of
         # fit --hysteresis-form, 2026-11-29, waits for a full rerun of validate-diagnosis here)
-        res, _, _, _ = fit_hysteresis_form(campaign, eff, form="pi" if "hysteresis_pi" in want else "play",
-                                           reference_temperature_C=T0, refine=False)
+        block = fit_hysteresis_form(campaign, eff, form="pi" if "hysteresis_pi" in want else "play",
+                                    reference_temperature_C=T0, refine=False, profile_only=True)
     except InputError as e:
         return _untestable(want, str(e))
     except (TriadcalError, ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError) as e:  # never sink it
         return _untestable(want, f"the form's fit failed on these data ({type(e).__name__}: {e})")
-    block = res.fit["hysteresis"]
     new_h = [n for n in h_names if n not in names]
     names_f = list(names) + new_h
     off = base if not new_h else _fit(full, names_f, base.x_full, noise_known)
