@@ -29,7 +29,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ...errors import InputError
+from ...errors import InputError, TriadcalError
 from ...estimation.result import CalibrationResult, ParameterValue
 from ...models.model import Covariates, Model
 from ...models.sensor import ANGLE_NAMES, AXES
@@ -93,7 +93,11 @@ def carry_rows(result: CalibrationResult, targets_C: Mapping[str, float], what: 
                          + ", ".join(f"{a} {t:.2f}" for a, t in outside.items())
                          + " degC, outside it: its tempcos are not extrapolated (calibrate over a range that holds "
                          "that temperature, or at one temperature both times)")
-    model = Model(tuple(result.effects), T0)
+    try:
+        model = Model(tuple(result.effects), T0)
+    except (KeyError, ValueError, TriadcalError) as e:
+        raise InputError(f"{what}: its effects {list(result.effects)} are not a model this version can carry to "
+                         f"another temperature ({e})") from None
     fixed = {n: float(v["value"] if isinstance(v, Mapping) else v) for n, v in (result.extra.get("fixed") or {}).items()
              if n in model.spec and not isinstance(v, (str, bool))}
     names = [n for n in result.parameters if n in model.spec]
@@ -117,7 +121,7 @@ def carry_rows(result: CalibrationResult, targets_C: Mapping[str, float], what: 
     own = {n: names.index(n) for n in rows}
     # carried: a row quantity that depends on any parameter but itself (a tempco of its family)
     moved = [n for i, n in enumerate(rows)
-             if np.any(np.abs(np.delete(G[i], own[n])) > 0.0) or abs(G[i, own[n]] - 1.0) > 1e-12]
+             if np.any(np.abs(np.delete(G[i], own[n])) > 0.0) or abs(G[i, own[n]] - 1.0) > 1e-8]
     values = carried(theta)
     loop = {n: float(max(abs(a - m), abs(b - m))) for n, a, b, m in zip(rows, carried(theta, 1.0), carried(theta, -1.0),
                                                                           values)}
