@@ -181,3 +181,20 @@ def test_shared_equipment_is_subtracted_from_the_carried_rows_as_from_a_refit(tm
     shared, alone = compare(ranged, one, shared_equipment=("bench",)), compare(ranged, one)
     ratio = {ab: shared.parameters[f"Ca_{ab}"].u / alone.parameters[f"Ca_{ab}"].u for ab in ANGLES}
     assert max(ratio.values()) <= 1 + 1e-9 and ratio["xz"] < 0.95 and ratio["zx"] < 0.95, ratio
+
+
+def test_through_the_cli_from_result_files(tmp_path):
+    """The result files as written (JSON round trip: correlation matrix, temperature range) through
+    `triadcal compare`: the comparison file names the carried side's rows and its rule says how."""
+    import json
+
+    from triadcal.cli import main
+
+    truth = _truth(5)
+    fit_joint(_campaign(truth, 307), EFFECTS).save(tmp_path / "ranged.json")
+    fit_joint(_campaign(truth, 407, setpoints_C=(23.0,)), EFFECTS).save(tmp_path / "check.json")
+    assert main(["compare", str(tmp_path / "check.json"), str(tmp_path / "ranged.json"),
+                 "--json", str(tmp_path / "cmp.json")]) == 0
+    d = json.loads((tmp_path / "cmp.json").read_text())
+    assert set(d["after"]["rows_carried_to_C"]) == {"x", "y", "z"} and "rows_carried_to_C" not in d["before"]
+    assert "carried to the other's rows by its own temperature terms" in d["rule"] and d["overall"] != "fail"

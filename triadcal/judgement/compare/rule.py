@@ -174,7 +174,10 @@ def rule_text(level: float, tolerance_arcsec: Optional[float], tolerances: Mappi
         f"temperature each have rows at temperatures apart, a drift also holds the unit's unmeasured "
         f"tempcos times that distance, a bias within +-h (tempco_bound: h = bound x dT), taken at its worst: "
         f"|d| - h for significance and fail (and in z, p_value and En), |d| + h for pass and P(|d| > T); the "
-        f"joint test's D2 is its least value over the biases within +-h.")
+        f"joint test's D2 is its least value over the biases within +-h. A calibration over a temperature range "
+        f"against one at one temperature is carried to the other's rows by its own temperature terms (u by GUM "
+        f"propagation, within its calibrated range); its hysteresis loop, if any, is such a bound h on each angle "
+        f"(the branch unknown).")
     if posterior:
         text += (f" Where posterior draws are given, the same rule on the draws of the drift: significant "
                  f"when 0 is outside the central {pct} interval, pass when P(|d| > T) <= {1 - level:.3g}, "
