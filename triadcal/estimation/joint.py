@@ -24,14 +24,14 @@ from scipy import stats
 from ..errors import InputError
 from ..models.campaign import Campaign, nominal_gravity
 from ..models.effects import DEFAULT_EFFECTS
-from ..models.kinematics import tilt_polar
 from ..models.model import Covariates, Model
 from .dense_call import DenseCall
 from ..models.sensor import ANGLE_NAMES, AXES
-from ..models.units import ARCSEC, DEG, scale_factor_unit
+from ..models.units import ARCSEC, scale_factor_unit
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
 from .hints import orientation_hints
 from .result import CalibrationResult, ParameterValue
+from .tilt_polar import tilt_polar_values
 
 #: covariates of one visit, in the order of the mapped function's second input
 COVARIATES = ("axis1", "axis2", "t_x", "t_y", "t_z", "rate_x", "rate_y", "rate_z", "branch", "time_s")
@@ -497,7 +497,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         type_a = "fit: output noise" + (", bench's random errors per visit" if bench_errors is not None else "")
         dof_a = None if noise.known else float(dof)
         budgets = {n: tb.budget(n, units_of[n], float(ua), dof_a, type_a) for n, ua in zip(problem.names, u_a)}
-        cov = cov + tb.covariance()
+        cov_a, cov = cov, cov + tb.covariance()
     u = np.sqrt(np.diag(cov))
     corr = cov / np.outer(u, u)
 
@@ -507,7 +507,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                                 parameter_fields(budgets[n]) if n in budgets else {})
               for n, v, s in zip(problem.names, sol.x, u)}
     if "tilt_x" in problem.index and "tilt_y" in problem.index:
-        params.update(tilt_polar_values(sol.x, cov, problem.index))
+        params.update(tilt_polar_values(sol.x, cov, problem.index, *((tb, cov_a, dof_a, type_a) if budgets else ())))
     if not sol.converged:
         notes.append(f"Levenberg-Marquardt stopped after {sol.iterations} iterations without meeting its "
                      "convergence test (cost still falling or a non-vanishing gradient); the values are not an optimum")
@@ -580,21 +580,3 @@ def parameter_unit(model: Model, name: str, output_unit: str) -> str:
     mV), every other unit as the model's parameter table says."""
     unit = model.spec[name].unit
     return scale_factor_unit(output_unit) if unit == "g/V" else unit
-
-
-def tilt_polar_values(x: np.ndarray, cov: np.ndarray, index: dict) -> dict:
-    """tilt_delta (arcsec) and tilt_beta (deg) with delta-method uncertainties."""
-    i, j = index["tilt_x"], index["tilt_y"]
-    tx, ty = x[i] * ARCSEC, x[j] * ARCSEC
-    delta, beta = tilt_polar(tx, ty)
-    r = math.hypot(tx, ty)
-    C = cov[np.ix_([i, j], [i, j])] * ARCSEC ** 2
-    if r > 0:
-        gd = np.array([tx, ty]) / r / math.sqrt(max(1 - r * r, 1e-300))
-        gb = np.array([-ty, tx]) / (r * r)
-        ud = math.sqrt(gd @ C @ gd)
-        ub = math.sqrt(gb @ C @ gb)
-    else:
-        ud, ub = math.sqrt(np.trace(C) / 2), math.pi
-    return {"tilt_delta": ParameterValue(float(delta) / ARCSEC, ud / ARCSEC, "arcsec"),
-            "tilt_beta": ParameterValue(float(beta) / DEG, min(ub, math.pi) / DEG, "deg")}

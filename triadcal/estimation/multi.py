@@ -28,7 +28,8 @@ from ..models.effects import DEFAULT_EFFECTS
 from ..models.model import Model
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
 from .joint import (BenchErrors, JointProblem, Solution, fit_joint, levenberg_marquardt, noise_of, parameter_unit,
-                    scaled_covariance, tilt_polar_values, with_bench_errors)
+                    scaled_covariance, with_bench_errors)
+from .tilt_polar import tilt_polar_values
 from .result import CalibrationResult, ParameterValue
 
 #: parameters of the bench, shared by every unit mounted on it
@@ -193,7 +194,7 @@ def fit_joint_units(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS
         Ck = cov[np.ix_(idx, idx)]
         uk = np.sqrt(np.diag(Ck))
         units_of = {n: parameter_unit(model, n, subs[k].output_unit) for n in names}
-        fields = {}
+        fields, derived = {}, ()
         if tb is not None:
             from ..uncertainty.typeb import TypeB, parameter_fields
 
@@ -206,11 +207,12 @@ def fit_joint_units(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS
             type_a = "fit: output noise" + (", bench's random errors per visit" if bench_errors is not None else "")
             fields = {n: parameter_fields(own.budget(n, units_of[n], float(a), None if known else float(dof), type_a))
                       for n, a in zip(names, ua)}
+            derived = (own, cov_a[np.ix_(idx, idx)], None if known else float(dof), type_a)
         params = {n: ParameterValue(float(v), float(s), units_of[n], fields.get(n, {}))
                   for n, v, s in zip(names, xk, uk)}
         index = {n: i for i, n in enumerate(names)}
         if "tilt_x" in index and "tilt_y" in index:
-            params.update(tilt_polar_values(xk, Ck, index))
+            params.update(tilt_polar_values(xk, Ck, index, *derived))
         rk = problems[k].residuals(xk)
         nk = rk.size
         chi2k = float(np.sum(rk ** 2))
