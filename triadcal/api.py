@@ -170,7 +170,8 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
             result = bench_at_one_setpoint(result, campaign, lab.sigma_position_arcsec, lab.sigma_wobble_arcsec)
             result = propagate_classical(
                 result, campaign, systematic_sources(lab, campaign.output_unit),
-                lambda changed: fit_classical(changed, reference_temperature_C=reference_temperature_C, gates=gates))
+                lambda changed: fit_classical(changed, reference_temperature_C=reference_temperature_C, gates=gates,
+                                              values_only=True))
     elif method == "joint":
         from .estimation.joint import fit_joint
 

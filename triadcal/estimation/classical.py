@@ -206,7 +206,7 @@ def _quantity_names():
 
 def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                   noise: str = "residuals", temperature: str = "own",
-                  gates: GateConfig = DEFAULT_CONFIG) -> CalibrationResult:
+                  gates: GateConfig = DEFAULT_CONFIG, values_only: bool = False):
     """The paper's classical calibration (``triadcal fit --method classical``).
 
     Eq. 2-3 at every setpoint block with the up/down pairing of the bench kinematics,
@@ -222,6 +222,9 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     output noise, bench positioning and wobble); ``"sd"`` uses ``sd_* / sqrt(n_samples)``
     of the file (output noise only). The per-setpoint estimates are in
     ``result.extra["per_setpoint"]``.
+
+    ``values_only``: return the values ``{name: value}`` only, before the gates (no result and so no
+    status: the re-runs of :func:`.classical_typeb.propagate_classical` need the estimate's values).
 
     ``temperature``: ``"own"`` (the default) regresses row ``a`` of Ca, ``K_a`` and ``S_a`` on
     accelerometer ``a``'s own sensor ``t_a``, the convention of every result (docs/model.md: the
@@ -441,6 +444,8 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         for nm in (base, base + "_tempco"):
             if nm in params:
                 ordered[nm] = params[nm]
+    if values_only:                  # the estimate's values, for a sensitivity; no result, so no status
+        return {n: p.value for n, p in ordered.items()}
     cov_all = _block_diag(blocks_cov)
     u_all = np.sqrt(np.diag(cov_all))
     corr = cov_all / np.outer(np.where(u_all > 0, u_all, 1.0), np.where(u_all > 0, u_all, 1.0))

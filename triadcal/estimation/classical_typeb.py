@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -94,11 +94,12 @@ def bench_at_one_setpoint(result: CalibrationResult, campaign: Campaign, sigma_p
 
 
 def propagate_classical(result: CalibrationResult, campaign: Campaign, sources: Sequence,
-                        refit: Callable[[Campaign], CalibrationResult]) -> CalibrationResult:
+                        refit: Callable[[Campaign], Mapping[str, float]]) -> CalibrationResult:
     """``result`` with every parameter's ``u`` the combined standard uncertainty and its budget
     (``uncertainty``: ``u_type_a``, ``U``, ``k``, ``budget`` ... as the joint fit writes them), the
     correlation including the systematic terms and ``fit["systematic_errors"]``. ``refit`` is the
-    classical estimate with the settings ``result`` was made with, applied to a changed campaign.
+    classical estimate's values (``fit_classical(..., values_only=True)``) with the settings ``result``
+    was made with, applied to a changed campaign.
     No sources: ``result`` unchanged."""
     from ..uncertainty.typeb import (KINDS, TypeB, data_change, parameter_fields, propagated_sources,
                                      reference_temperature_note, reference_temperature_u)
@@ -121,11 +122,11 @@ def propagate_classical(result: CalibrationResult, campaign: Campaign, sources: 
         F = data_change(s, model, p, cov, campaign.gravity_g, w, unit)
         h = KINDS[s.kind][1]
         hi, lo = refit(replace(campaign, w=w + h * F)), refit(replace(campaign, w=w - h * F))
-        missing = [n for n in names if n not in hi.parameters or n not in lo.parameters]
+        missing = [n for n in names if n not in hi or n not in lo]
         if missing:
             raise InputError(f"the classical estimate on the data changed by {s.source} ({h:g} {s.unit}) lost "
                              f"{', '.join(missing)}: its sensitivity to that error cannot be formed")
-        c[i] = [(hi.parameters[n].value - lo.parameters[n].value) / (2.0 * h) for n in names]
+        c[i] = [(hi[n] - lo[n]) / (2.0 * h) for n in names]
     if not np.all(np.isfinite(c)):
         raise InputError("the sensitivities of the classical parameters to the lab's systematic errors are not finite")
     # a source that does not reach a parameter leaves c at the rounding level of the difference
