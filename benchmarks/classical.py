@@ -11,9 +11,9 @@ the largest relative difference of tau^2 (must be < 1e-5) and the time of one cl
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
+from raw import best_of          # benchmarks/raw.py's: the best of ``repeat`` wall times, and the last output
 
 from triadcal.estimation import classical as C
 from triadcal.estimation.classical import fit_classical
@@ -43,15 +43,6 @@ def bisection_scatter(blocks):
         if hi - lo <= 1e-6 * hi:
             break
     return hi
-
-
-def best_of(fn, repeat):
-    times, out = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), out
 
 
 def main(argv=None) -> None:
