@@ -198,3 +198,24 @@ def test_through_the_cli_from_result_files(tmp_path):
     d = json.loads((tmp_path / "cmp.json").read_text())
     assert set(d["after"]["rows_carried_to_C"]) == {"x", "y", "z"} and "rows_carried_to_C" not in d["before"]
     assert "carried to the other's rows by its own temperature terms" in d["rule"] and d["overall"] != "fail"
+
+
+def test_a_loop_on_an_angle_without_a_tempco_adds_to_its_unmeasured_tempco_bound():
+    """A range calibration with a loop but no angle tempcos, against a check whose rows are 0.1 degC from
+    its reference: K and S are carried (bound 0); each angle keeps the bound of its unmeasured tempco
+    (10"/degC x dT) and adds the loop's half-width to it, both taken at their worst."""
+    from triadcal.judgement.compare.pair import tempco_bound
+
+    truth = {**_truth(6), **{f"Ca_{ab}_tempco": 0.0 for ab in ANGLES}, **{f"Ca_{ab}_hysteresis": 15.0 for ab in ANGLES}}
+    effects = ["bench_tilt", "scale_tempco", "bias_tempco", "hysteresis"]
+    check = fit_joint(_campaign(truth, 408, setpoints_C=(23.0,)), ["bench_tilt"])
+    ranged = fit_joint(_campaign(truth, 308, setpoints_C=(-40, -10, 20, 50, 80, 50, 20, -10, -40), hysteresis={"form": "offset"}),
+                       effects, reference_temperature_C=round(check.reference_temperature_C + 0.1, 2))
+    assert ranged.status == check.status == "ok"
+    out = compare(ranged, check)
+    dT = {a: abs(ranged.reference_temperature_C - check.reference_temperature_C) for a in "xyz"}
+    for ab in ANGLES:
+        n = f"Ca_{ab}"
+        expect = abs(ranged[f"{n}_hysteresis"].value) + tempco_bound(n, ranged[n].value, dT)
+        assert out.parameters[n].bound == pytest.approx(expect, rel=1e-9), n
+    assert out.parameters["K_x"].bound == 0.0 and out.parameters["S_z"].bound == 0.0

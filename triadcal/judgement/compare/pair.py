@@ -137,9 +137,11 @@ def _temperature_notes(before: CalibrationResult, after: CalibrationResult,
             raise InputError(f"{pair}: {tags[i]} has no tempcos of {', '.join(left)}, whose rows differ by up to "
                              f"{dT[worst]:.2f} degC ({where} degC): calibrate again at the other's temperature")
         if names or bounds:
-            carried = {n: 0.0 for n in names}
-            carried.update(bounds)
             dT_left = dT if dT[worst] >= ROWS_APART_C else {a: 0.0 for a in dT}
+            carried = {n: 0.0 for n in names}
+            # a loop on a quantity not carried (no tempco of its family) adds to its unmeasured tempco's bound
+            carried.update({n: h + (0.0 if n in names else tempco_bound(n, before[n].value, dT_left))
+                            for n, h in bounds.items()})
             return (notes, dT_left) + ((moved, after) if i == 0 else (before, moved)) + (carried,)
     # a calibration with tempcos can be refitted at the other's reference temperature: then it must be
     if len(tempcos) == 2 and before.reference_temperature_C != after.reference_temperature_C:
