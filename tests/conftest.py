@@ -51,8 +51,9 @@ def cli_reports(tmp_path_factory):
 
 
 # Tests that run emulated hardware on the wall clock (a capture through ptys, a dask cluster's start)
-# are marked `wallclock`: CI runs the slow statistical tests on two workers (pytest-xdist) and these
-# alone, one at a time, so that no other test competes with their clock (.ci/run).
+# are marked `wallclock`: CI runs the statistical tests on two workers (pytest-xdist) and these apart
+# from them, two at a time (they mostly wait on their paced instruments), so that no CPU-bound
+# statistical test competes with their clock (.ci/run).
 WALLCLOCK_FILES = ("test_hardware_", "test_instruments_end_to_end.py", "test_ramp_capture.py", "test_fleet.py")
 
 
