@@ -449,7 +449,10 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     q_per_output = None
     if output_variances is not None and not noise.known and loss == "l2" and whitening is None:
         noise, q_per_output = given_output_scale(noise, output_variances)
-    problem = JointProblem(campaign, model, noise.sigma, fixed, output_map=output_map)
+    if probe.fixed == fixed and probe.sigma is noise.sigma:
+        problem = probe         # the same problem: built from the same campaign, model, weights and fixed terms
+    else:
+        problem = JointProblem(campaign, model, noise.sigma, fixed, output_map=output_map)
     if whitening is not None:
         from .whitening import WhitenedProblem
 

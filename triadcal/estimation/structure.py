@@ -144,7 +144,7 @@ def shift_rows(campaign, sigma: np.ndarray, r: np.ndarray, J: np.ndarray, dof: i
     "k", "z", "p_raw", "p_set", "set", "shift_u", "sd_u", "lower_u"}`` (``z`` the signed shift over its
     SD; ``p_set`` the set's own p of all its shifts at once, :func:`hausman_shift`'s ``score``, chi2 with
     ``k`` dof with a known noise, ``k F(k, dof - k)`` otherwise; ``set`` the set's index)."""
-    from scipy import special, stats
+    from scipy import special
 
     from ..judgement.diagnose.generic import SUB_BLOCKS, block_columns, generic_basis, per_output_terms
 
@@ -170,7 +170,9 @@ def shift_rows(campaign, sigma: np.ndarray, r: np.ndarray, J: np.ndarray, dof: i
             continue
         sd = noise_scale * sd
         chi2 = chi2 / noise_scale ** 2
-        p_set = float(stats.chi2.sf(chi2, rk) if noise_known else stats.f.sf(chi2 / rk, rk, max(dof - rk, 1)))
+        # scipy.stats' chi2.sf and f.sf are these special functions behind argument checks that
+        # cost 0.35 ms a call (41 calls a fit): the same numbers
+        p_set = float(special.chdtrc(rk, chi2) if noise_known else special.fdtrc(rk, max(dof - rk, 1), chi2 / rk))
         use = (u > 0) & (sd > 1e-3 * u)                       # a shift of SD < 0.001 u: never material
         z = np.where(use, shift / np.where(use, sd, 1.0), 0.0)
         p = 2.0 * (special.ndtr(-np.abs(z)) if noise_known else special.stdtr(max(dof - rk, 1), -np.abs(z)))
