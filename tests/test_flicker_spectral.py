@@ -68,3 +68,23 @@ def test_reml_tau_lands_at_the_cholesky_likelihoods_maximum(per_visit_sigma):
                             options={"xatol": 1e-8, "fatol": 1e-10, "maxiter": 4000})
     assert ll >= -res.fun - 1e-6
     np.testing.assert_allclose(tau[tau > 1e-3], np.exp(res.x)[tau > 1e-3], rtol=2e-3)
+
+
+def test_the_eigendecomposition_of_an_equal_matrix_is_reused_and_of_another_is_not():
+    """SpectralREML's eigendecompositions (a diagnosis repeats them on one campaign's kernels):
+    an equal matrix (a new array, every element equal) gets the stored result, read-only; a
+    matrix one element apart is decomposed again; the values are numpy's."""
+    _, G, _, _ = _problem(False, seed=11, n=40)
+    A = 0.5 * (G[0] + G[0].T)
+    w, V = fl._eigh_cached(A)
+    w0, V0 = np.linalg.eigh(A)
+    assert np.array_equal(w, w0) and np.array_equal(V, V0)
+    w2, V2 = fl._eigh_cached(A.copy())
+    assert w2 is w and V2 is V
+    assert not V.flags.writeable and not w.flags.writeable
+    with pytest.raises(ValueError):
+        V[0, 0] = 1.0
+    B = A.copy()
+    B[3, 5] = B[5, 3] = A[3, 5] + 1e-9
+    wb, Vb = fl._eigh_cached(B)
+    assert wb is not w and np.array_equal(wb, np.linalg.eigh(B)[0])
