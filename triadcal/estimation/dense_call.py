@@ -29,7 +29,12 @@ class DenseCall:
 
     def __init__(self, f: ca.Function):
         self.f = f
-        for i in range(f.n_in()):
+        # the shapes, read once: each casadi query is a call through SWIG (on a small function, such
+        # as a known-pose fit's, they took as long as the evaluation)
+        self._n_in = f.n_in()
+        self._in_shapes = [(f.size1_in(i), f.size2_in(i)) for i in range(self._n_in)]
+        self._out_shapes = [(f.size1_out(i), f.size2_out(i)) for i in range(f.n_out())]
+        for i in range(self._n_in):
             if not f.sparsity_in(i).is_dense():
                 raise ValueError(f"{f.name()}: input {i} is sparse; DenseCall takes dense inputs only")
         self._state = None
@@ -55,25 +60,24 @@ class DenseCall:
         self._state = (buf, evaluate, ins, outs, scatter)
 
     def __call__(self, *args):
-        f = self.f
-        if len(args) != f.n_in():
-            raise TypeError(f"{f.name()}: {f.n_in()} arguments expected, got {len(args)}")
+        if len(args) != self._n_in:
+            raise TypeError(f"{self.f.name()}: {self._n_in} arguments expected, got {len(args)}")
         with self._lock:
             if self._state is None:
                 self._setup()
             _, evaluate, ins, outs, scatter = self._state
             for i, a in enumerate(args):
                 a = np.asarray(a, dtype=float)
-                shape = (f.size1_in(i), f.size2_in(i))
+                shape = self._in_shapes[i]
                 if a.ndim == 2 and a.shape != shape:
-                    raise ValueError(f"{f.name()}: input {i} has shape {a.shape}, {shape} expected")
+                    raise ValueError(f"{self.f.name()}: input {i} has shape {a.shape}, {shape} expected")
                 if a.size != ins[i].size:
-                    raise ValueError(f"{f.name()}: input {i} has {a.size} elements, {ins[i].size} expected")
+                    raise ValueError(f"{self.f.name()}: input {i} has {a.size} elements, {ins[i].size} expected")
                 ins[i][:] = a.ravel(order="F")
             evaluate()
             res = []
             for i, out in enumerate(outs):
-                shape = (f.size1_out(i), f.size2_out(i))
+                shape = self._out_shapes[i]
                 if scatter[i] is None:
                     res.append(out.reshape(shape, order="F").copy())
                 else:

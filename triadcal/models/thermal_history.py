@@ -9,7 +9,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import signal
 
 
 def first_order_lag(t_s, T, tau_s: float, start=None) -> np.ndarray:
@@ -36,6 +35,8 @@ def first_order_lag(t_s, T, tau_s: float, start=None) -> np.ndarray:
         a0 = math.exp(-float(dt[0]) / tau_s)
         stv = np.diff(x) / dt * tau_s
         b = x[1:] - stv + a0 * (stv - x[:-1])
+        from scipy import signal      # here, not at the top: importing scipy.signal takes 1 s, and every
+                                      # command imports this module (through models.effects)
         y = signal.lfilter([1.0], [1.0, -a0], b, zi=[a0 * prev])[0]
         return np.concatenate([[prev], y])
     a = np.exp(-dt / tau_s).tolist()
