@@ -137,7 +137,7 @@ BUDGET_GROUPS = ("Orientation angles", "Scale factors", "Biases")
 def _group(name: str) -> str:
     if name.startswith("tilt_") or name == "bench_nonorth":
         return GROUPS[6]
-    if name.endswith("_tempco"):
+    if "_tempco" in name:  # every order: Ca_xy_tempco, K_x_tempco2, S_z_tempco3
         return GROUPS[3]
     if name.endswith("_hysteresis"):
         return GROUPS[4]
@@ -171,6 +171,68 @@ def parameter_rows(result: CalibrationResult) -> list:
         rows.append(ParameterRow(name, desc, _group(name), v, U, p.unit))
     order = {g: i for i, g in enumerate(GROUPS)}
     return sorted(rows, key=lambda r: order[r.group])  # stable: keeps the file's order in a group
+
+
+def _tempco_terms(result: CalibrationResult, kind: str, symbol: str) -> list:
+    """``symbol_tempco·dT``, ``symbol_tempco2·dT²``, ``symbol_tempco3·dT³`` for the orders of ``kind``'s
+    tempcos (K, S, Ca) that the result has on any axis."""
+    have = {n.split("_tempco", 1)[1] for n in result.parameters if n.startswith(kind + "_") and "_tempco" in n}
+    return [f"{symbol}_tempco{o}·dT{power}" for o, power in (("", ""), ("2", "²"), ("3", "³")) if o in have]
+
+
+def thermal_model_lines(result: CalibrationResult) -> list:
+    """Section 5: how each K_a, S_a and Ca_ab of the table moves with temperature, written from the
+    result's own terms (docs/model.md: linear, quadratic and cubic tempcos, K's as factors, the
+    hysteresis branch and its form, the element's lag), with the unit factor a reader needs (K's
+    coefficients in ppm are relative, S's in µg where S is in g), and the range where it holds.
+    A reader applying only ``x + x_tempco·(T − T0)`` to a result with quadratic and cubic terms was
+    off by 9″ in an angle and 3 000 ppm in K at the range's ends (an outside probe)."""
+    T0 = result.reference_temperature_C
+    hyst = "hysteresis" in result.effects and any(n.endswith("_hysteresis") for n in result.parameters)
+    terms_K = _tempco_terms(result, "K", "K_a")
+    terms_S = _tempco_terms(result, "S", "S_a")
+    terms_Ca = _tempco_terms(result, "Ca", "Ca_ab")
+    tm = []
+    if terms_K or terms_S or terms_Ca or hyst:
+        tm.append(f"Each term of the table is given at the reference temperature T0 = {T0:g} °C. At a temperature T "
+                  "of the accelerometer's own sensor (dT = T − T0 in °C; K_a, S_a and the angles Ca_ab of row a "
+                  "follow the sensor of accelerometer a), with the coefficients of the table in its units:")
+        if terms_K:
+            tm.append("K_a(T) = K_a · " + " · ".join(f"(1 + 10⁻⁶·{t})" for t in terms_K)
+                      + (": the coefficients, in ppm, are relative and each is its own factor, so multiply the factors, "
+                         "do not add the terms" if len(terms_K) > 1 else ": the coefficient, in ppm, is relative") + ";")
+        if terms_S:
+            tm.append("S_a(T) = S_a + 10⁻⁶·(" + " + ".join(terms_S)
+                      + "): S_a in g, its coefficients in µg;")
+        if terms_Ca or hyst:
+            form = (result.fit.get("hysteresis") or {}).get("form", "offset") if hyst else None
+            tm.append("Ca_ab(T) = Ca_ab" + "".join(f" + {t}" for t in terms_Ca)
+                      + (" + Ca_ab_hysteresis·b" if hyst else "") + " (arcsec)"
+                      + ("" if not hyst else
+                         ", with b = +1 on the cooling branch and −1 on the heating branch" if form == "offset" else
+                         ", with b the branch of a play of half-width "
+                         f"{(result.fit.get('hysteresis') or {}).get('half_width_C', float('nan')):g} °C on the "
+                         "temperature's history, between −1 (heating, saturated) and +1 (cooling, saturated)"
+                         if form == "play" else
+                         ", with b the branch of the fitted sum of plays on the temperature's history, between −1 "
+                         "(heating, saturated) and +1 (cooling, saturated)")
+                      + ("; the matrix below is the mid-line (b = 0)" if hyst else "") + ".")
+        if "thermal_lag" in result.effects and "thermal_lag" in result.parameters:
+            lag = result.fit.get("thermal_lag") or {}
+            if lag.get("form") == "history":
+                what = ("two first-order stages (the housing behind the chamber air by thermal_lag_housing, the "
+                        "element behind the housing by thermal_lag)" if lag.get("location") == "air" else
+                        "one first-order stage of time constant thermal_lag")
+                tm.append(f"T is the sensing element's temperature, which follows the sensor's through {what}; at "
+                          "a settled temperature it is the sensor's reading.")
+            else:
+                tm.append("T is the sensing element's temperature, T = T_sensor − thermal_lag · dT_sensor/dt (the "
+                          "lag in minutes, the rate in °C/min); at a settled temperature it is the sensor's reading.")
+    if result.temperature_range_C:
+        lo, hi = result.temperature_range_C
+        tm.append(f"The thermal model applies from {lo:.1f} °C to {hi:.1f} °C (the range of the calibration); "
+                  "it is not valid outside that range.")
+    return tm
 
 
 def certificate_number(result: CalibrationResult, prefix: str, issue_date: str) -> str:
@@ -341,18 +403,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         return cert
     # results -----------------------------------------------------------------------------
     cert.rows = parameter_rows(result)
-    T0 = result.reference_temperature_C
-    tm = []
-    if any(n.endswith("_tempco") for n in result.parameters) or "hysteresis" in result.effects:
-        tm.append(f"Each term x of the table is given at the reference temperature T0 = {T0:g} °C; at a "
-                  f"temperature T of the accelerometer's own sensor: x(T) = x + x_tempco · (T − T0)"
-                  + (", and for the orientation angles ± Ca_ab_hysteresis on the cooling (+) and the "
-                     "heating (−) branch; the matrix below is the mid-line" if "hysteresis" in result.effects else "")
-                  + ".")
-    if result.temperature_range_C:
-        lo, hi = result.temperature_range_C
-        tm.append(f"The thermal model applies from {lo:.1f} °C to {hi:.1f} °C (the range of the calibration); "
-                  "it is not valid outside that range.")
+    tm = thermal_model_lines(result)
     cert.thermal_model = tm
     try:
         cert.inverse_matrix = np.linalg.inv(result.matrix())
