@@ -195,6 +195,32 @@ def test_a_ramp_in_fahrenheit_is_refused(tmp_path):
     assert "above the highest setpoint" in err.problem
 
 
+@pytest.mark.parametrize("col", ["t_x", "t_z"])
+def test_a_stuck_thermometer_is_refused(tmp_path, valid, col):
+    """An outside probe: t_z = 20.35 on every visit of a -20...60 degC campaign crashed the classical
+    fit (a singular matrix, exit 70) and made the joint one hold K_z, S_z and its angles at nominal
+    and blame a missing effect. Now the reader names the column; with the override the classical fit
+    refuses with the reason instead of crashing."""
+    valid.map(col, lambda v: "20.35")
+    err = refused(valid.write(tmp_path / "stuck.csv"))
+    assert err.column == col and err.line == valid.line_of_row(0)
+    assert "stuck or disconnected thermometer" in err.problem and "t_override" in err.problem
+    valid.comments.append("# t_override = true")
+    from triadcal.errors import InputError
+    from triadcal.estimation.classical import fit_classical
+
+    c = read_bench_csv(valid.write(tmp_path / "override.csv"))
+    with pytest.raises(InputError, match=f"the {col[-1]} accelerometer's sensor is 20.35 degC at every setpoint"):
+        fit_classical(c)
+
+
+def test_one_setpoint_with_one_thermometer_steady_reads(tmp_path):
+    """At one setpoint every sensor may hold its value: nothing spans 1 degC, nothing is stuck."""
+    table = independent_table(setpoints_C=(20.0,))
+    table.map("t_z", lambda v: "20.35")
+    assert read_bench_csv(table.write(tmp_path / "one.csv")).t[0, 2] == 20.35
+
+
 @pytest.mark.parametrize("case", ["self-heating 8 degC", "oven-controlled", "lagging", "cold", "hot", "ramp"])
 def test_legitimate_temperatures_still_read(tmp_path, case):
     if case == "self-heating 8 degC":

@@ -401,6 +401,17 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         T_ref = float(np.mean(temps))
         notes.append(f"a single setpoint temperature: no thermal correction and no tempcos; the values are at the "
                      f"accelerometers' mean temperature {T_ref:.2f} degC, not at {reference_temperature_C:g} degC")
+    dirs = set(np.asarray(campaign.direction).astype(str).tolist())
+    if slope and not {"heating", "cooling"} <= dirs:
+        # an outside probe: 20 degC (none) then 60 degC (heating), angle hysteresis 2-6 arcsec: the angle
+        # tempcos 3.9-6.4 u off, status ok, no word; on both branches the lines' scatter shows it (Birge)
+        seen = sorted(d for d in dirs if d in ("heating", "cooling")) or ["no branch"]
+        notes.append(f"the setpoints were visited on {' and '.join(seen)} only"
+                     + (" (and at steady temperatures)" if "none" in dirs and seen != ["no branch"] else "")
+                     + ": a thermal hysteresis of the angles is not seen (on both branches the lines' scatter "
+                       "shows it and widens u), so the angles hold up to its half-width h and, where visits of "
+                       "different history lie at different temperatures, the tempcos up to h over the span between "
+                       "them; visit both branches to measure it (--method joint estimates h)")
     if not np.all(var > 0):
         notes.append("the per-setpoint variances are zero (no output noise); the thermal line is unweighted and "
                      "its uncertainty comes from its scatter alone")
@@ -413,6 +424,11 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     slopes = np.zeros(len(qnames))              # per degC, internal units (the drift check's)
     for j, n in enumerate(qnames):
         T_j = temps if temperature == "mean" else temps_own[:, AXES.index(n.split("_")[1][0])]
+        if slope and np.ptp(T_j) == 0.0:
+            # a stuck thermometer the reader let through (# t_override = true): no line to fit
+            raise InputError(f"{campaign.source}: the temperature of the {n.split('_')[1][0]} accelerometer's sensor "
+                             f"is {T_j[0]:g} degC at every setpoint while the setpoints differ: the thermal line of "
+                             f"{n} cannot be fitted (a stuck thermometer? repair the column)")
         line = thermal_line(T_j, est[:, j], var[:, j], T_ref, slope)
         slopes[j] = float(line.coef[1]) if slope else 0.0
         chi2_by[n] = line.chi2_dof

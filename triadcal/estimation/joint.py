@@ -186,7 +186,12 @@ def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]
                 # an outside probe: the angles of a heating-only path were 33 u from the mid-line, status ok,
                 # and nothing said that they are the branch's
                 + (f" (the angles are then those of the {one[0]} branch, not the mid-line between the branches: "
-                   "they differ from it by the hysteresis, which these data cannot measure)" if len(one) == 1 else ""))
+                   "they differ from it by the hysteresis h, which these data cannot measure"
+                   # an outside probe: none at 20 degC, heating at 60 degC, h 2-6 arcsec: the angle tempcos
+                   # 3.4-5.6 u off (h/40 degC), status ok, and this note spoke of the angles only
+                   + (f"; and the visits of no branch lie at other temperatures than the {one[0]} branch's, so the "
+                      "angle tempcos take up h over the temperatures between them as well" if 0.0 in branches else "")
+                   + ")" if len(one) == 1 else ""))
     if np.ptp(T) < TEMPERATURE_SPAN_MIN_C:
         for e, fmt, names in (("angle_tempco", "Ca_{}_tempco", ANGLE_NAMES), ("scale_tempco", "K_{}_tempco", AXES),
                               ("bias_tempco", "S_{}_tempco", AXES)):

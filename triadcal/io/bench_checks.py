@@ -170,6 +170,41 @@ def check_temperature_unit(path, c: Campaign) -> None:
             "unit far from the chamber's setpoint), add the line '# t_override = true'")
 
 
+#: a t_* column of one unit that spans at most this (degC) over its visits ...
+STUCK_SPAN_C = 0.01
+#: ... while another of its t_* columns spans at least this (degC) is a stuck thermometer
+STUCK_OTHER_SPAN_C = 1.0
+
+
+def check_stuck_thermometer(path, c: Campaign) -> None:
+    """Refuse a ``t_*`` column that reads one value (within :data:`STUCK_SPAN_C`) on every visit of
+    a unit while another of its sensors spans :data:`STUCK_OTHER_SPAN_C` or more: a stuck or
+    disconnected thermometer (docs/bench-csv.md, "A stuck thermometer"). Read, its accelerometer's
+    tempcos had no temperature to follow: the classical fit stopped on a singular matrix, and the
+    joint fit held K_z, S_z and its angles at their nominal values and blamed a missing effect (an
+    outside probe: t_z = 20.35 on every visit of a -20...60 degC campaign). ``# t_override = true``
+    skips it, as the degF check."""
+    units = np.asarray(c.unit).astype(str)
+    for u in dict.fromkeys(units.tolist()):
+        idx = np.flatnonzero(units == u)
+        t = np.asarray(c.t[idx], float)
+        span = np.ptp(t, axis=0)
+        j_other = int(np.argmax(span))
+        if span[j_other] < STUCK_OTHER_SPAN_C:
+            continue
+        for j, col in enumerate(("t_x", "t_y", "t_z")):
+            if span[j] <= STUCK_SPAN_C:
+                other = ("t_x", "t_y", "t_z")[j_other]
+                S = np.asarray(c.setpoint_C, float)[idx]
+                raise BenchCSVError(
+                    path, int(c.lines[idx[0]]) if c.lines is not None else int(idx[0]) + 1, col,
+                    f"{col} reads {t[0, j]:g} degC on every visit of unit {u!r} (spread {span[j]:.3g} degC) while "
+                    f"{other} spans {t[:, j_other].min():g} to {t[:, j_other].max():g} degC and the setpoints "
+                    f"{S.min():g} to {S.max():g} degC: a stuck or disconnected thermometer, which the tempcos of "
+                    f"its accelerometer's row cannot follow; repair or replace the column (if the sensor truly "
+                    "held one temperature, add the line '# t_override = true')")
+
+
 #: consecutive visits (of one unit, state and cycle, in time order) whose setpoints differ by at most
 #: this (degC) are one block of the direction check
 SETPOINT_SAME_C = 0.01
