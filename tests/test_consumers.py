@@ -294,10 +294,14 @@ def test_an_edit_that_keeps_the_old_checksum_is_refused(tmp_path, capsys, good, 
     code, out, err = _run(capsys, ["certificate", str(bad), "--html", str(tmp_path / "c.html")])
     page = (tmp_path / "c.html").read_text()
     assert code == 3 and "issued" not in out and "content_sha256 does not match" in page, (code, out, err)
-    # the same edit in a document without the key (another writer) is read as it stands
+    # the same edit in a document without the key (another writer) is read as it stands, by compare
+    # and the others; the certificate refuses it (an outside probe: Ca_xy + 50 arcsec, key deleted, certified)
     d = _mut(good, EDITS[case])
     d.pop("content_sha256")
     assert CalibrationResult.from_dict(d, "unsigned.json").content_mismatch is None
+    unsigned = _write(tmp_path, d, "unsigned.json")
+    code, out, err = _run(capsys, ["certificate", str(unsigned), "--html", str(tmp_path / "u.html")])
+    assert code == 3 and "holds no content_sha256" in (tmp_path / "u.html").read_text(), (code, out, err)
 
 
 def test_an_edited_value_the_gates_reject_is_named_before_the_checksum(tmp_path, capsys, good):

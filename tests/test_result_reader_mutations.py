@@ -215,6 +215,14 @@ def test_a_negative_u_is_refused_by_the_reader(joint, tmp_path):
     refused(tmp_path, bad, "parameters.Ca_xy.u", "negative")
 
 
+@pytest.mark.parametrize("serial", ["", "   "])
+def test_a_result_without_a_serial_is_refused(joint, tmp_path, serial):
+    """compare identifies the unit by its serial: two results with "" got a pass (an outside probe)."""
+    bad = copy.deepcopy(joint)
+    bad["unit"] = serial
+    refused(tmp_path, bad, "unit", "empty")
+
+
 # -- 5. schema violations ------------------------------------------------------------------------
 def test_a_budget_row_that_breaks_the_schema_is_refused(joint_lab, tmp_path):
     for key, value, where in (("u", -3.0, "budget[0].u"), ("contribution", -1.0, "budget[0].contribution"),

@@ -130,6 +130,10 @@ class CalibrationResult:
     #: reason, one line); the consumers' checks (:func:`.result_checks.result_problems`) refuse it,
     #: after the reasons they find in the fields themselves. Not written.
     content_mismatch: Optional[str] = field(default=None, compare=False, repr=False)
+    #: set by :meth:`from_dict` when the document holds no content_sha256 (another writer, or triadcal
+    #: before 2026-11-30): read as before, but a certificate is refused for it (nothing shows that its
+    #: values are the fit's answer). Not written.
+    content_unhashed: bool = field(default=False, compare=False, repr=False)
 
     # -- access --------------------------------------------------------------------
     def __getitem__(self, name: str) -> ParameterValue:
@@ -184,6 +188,11 @@ class CalibrationResult:
                  "temperature_range_C", "parameters", "intervals", "fit", "notes", "correlation"}
         r = _Reader(source)
         serial = r.string(d, "unit")
+        if not serial.strip():
+            # the serial is what compare, history and the certificate identify the unit by: two results
+            # with "" compared to a verdict (an outside probe); the bench CSV reader refuses an empty one
+            raise r.error("unit", "is empty: the result names no unit (serial number), so nothing can tell "
+                                  "whose calibration it is")
         method = r.string(d, "method")
         if method not in METHODS:
             raise r.error("method", f"{method!r} is not one of {', '.join(METHODS)}")
@@ -279,7 +288,7 @@ class CalibrationResult:
             temperature_range_C=trange, intervals=intervals, fit=fit,
             correlation_names=names, correlation=matrix,
             notes=r.string_list(d, "notes", required=False), extra={k: v for k, v in d.items() if k not in known},
-            content_mismatch=mismatch)
+            content_mismatch=mismatch, content_unhashed=CONTENT_HASH_KEY not in d)
 
     def save(self, path) -> None:
         """Write results-json v1 atomically; a non-finite number is written as null; with the

@@ -95,6 +95,12 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
                           (": " + "; ".join(result.notes) if result.notes else "")))
     reasons += [why if why == result.content_mismatch else f"the result fails an answer gate: {why}"
                 for why in result_problems(result, need_ok=False)]
+    if result.content_unhashed:
+        # an outside probe: with its content_sha256 deleted, a result whose Ca_xy was edited by +50 arcsec
+        # was certified (compare and history still read such files, as the contract says)
+        reasons.append("the result file holds no content_sha256 (written by another tool, or by triadcal before "
+                       "2026-11-30), so nothing shows that its values are the fit's answer: a certificate is issued "
+                       "only for a result as triadcal saved it; fit the data again with this version")
     unid = unidentified_parameters(result)
     if unid:
         reasons.append("the data could not determine " + "; ".join(f"{k} ({v})" for k, v in unid.items())
