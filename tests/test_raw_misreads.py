@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_raw_inputs import FACES, RATE, make_samples, twelve_poses, write_recording  # noqa: E402
+from test_raw_inputs import FACES, RATE, STATIC, make_samples, twelve_poses, write_recording  # noqa: E402
 
 from triadcal.cli import main as cli_main  # noqa: E402
 from triadcal.errors import InputError  # noqa: E402
@@ -371,3 +371,83 @@ def test_lines_that_only_look_like_a_rate_are_metadata(tmp_path):
     p.write_text("\n".join(["fs,fast", *src[:100]]) + "\n")
     with pytest.raises(RawRecordingError, match="states a sample rate that cannot be read"):
         read_raw_csv(p, 50)
+
+
+# -- 6. a time column against --rate; free poses cannot check the columns' labels ------------------
+@pytest.mark.parametrize("name,scale,step,ok", [
+    ("time_s", 1.0, 1.0, True), ("time_s", 1.0, 2.0, False),            # the probe's: 50 Hz read at 100
+    ("timestamp", 1e6, 1.0, True),                                       # us, as tofupilot's timestamp
+    ("time", 1e3, 1.0, True), ("Time_MS", 1e3, 1.0, True), ("time_ms", 1.0, 1.0, False),
+    ("time_s", 1.0, 1.03, True), ("time_s", 1.0, 1.07, False)])          # 5 %: dropped samples or a rate
+def test_a_time_column_is_checked_against_the_rate(tmp_path, name, scale, step, ok):
+    w, labels = make_samples(twelve_poses())
+    t = 1000.0 + np.arange(len(w)) * step * scale / RATE
+    p = write_recording(tmp_path / "timed.csv", w, labels, extra={name: t})
+    if ok:
+        assert read_raw_csv(p, RATE).n == len(w)
+        return
+    with pytest.raises(RawRecordingError, match=r"the time column steps .* Hz.*\), not the 100 Hz of --rate") as e:
+        read_raw_csv(p, RATE)
+    assert e.value.column == name and e.value.line == 2
+
+
+def test_a_time_that_goes_back_is_refused_with_its_line(tmp_path):
+    w, labels = make_samples(twelve_poses())
+    t = np.arange(len(w)) / RATE
+    t[5000:] -= t[5000]                                                  # two recordings joined
+    p = write_recording(tmp_path / "joined.csv", w, labels, extra={"time_s": t})
+    with pytest.raises(RawRecordingError, match="the time goes back .* at sample 5000: a counter that wrapped") as e:
+        read_raw_csv(p, RATE)
+    assert e.value.line == 2 + 5000 and e.value.column == "time_s"
+
+
+def test_the_real_chamber_run_reads_at_its_rate_and_not_at_another():
+    """tofupilot's run: a ``timestamp`` in us, about 505 403 a row (1.9786 Hz)."""
+    p = DATA / "tofupilot_imu_raw_data.csv"
+    cols = ["imu.acc.x", "imu.acc.y", "imu.acc.z"]
+    assert read_raw_csv(p, 1.9786, cols, unit="m/s2").n == 8400
+    with pytest.raises(RawRecordingError, match="1.97862 Hz if in us"):
+        read_raw_csv(p, 100.0, cols, unit="m/s2")
+
+
+def test_free_poses_say_the_columns_are_taken_as_labelled(tmp_path):
+    """An outside probe: x and y swapped, free poses: ok with K_x the true K_y (389 u off). The
+    norms cannot tell; the result says so."""
+    w, labels = make_samples(twelve_poses())
+    p = write_recording(tmp_path / "free.csv", w[:, [1, 0, 2]])
+    r = fit_raw(str(p), RATE, poses="unknown").result
+    assert [n for n in r.notes if "a swapped or inverted column fits as well and is not detected" in n]
+
+
+def test_six_faces_say_that_the_bias_holds_k2(tmp_path):
+    """An outside probe: six hand-placed faces of a unit with K2 = 3 mg/g^2 on each axis gave status
+    ok with every S 3 mg (30 u) off and no word. Made here with numpy (tilts of 0.3 deg): S is the
+    bias plus K2, to within its u, as the result's note now says; far from the bias alone."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    k2, gain, bias = 3e-3, 2048.0 * 9.81 / 9.80665, np.array([30.0, -20.0, 40.0])
+    blocks, labels = [], []
+    for name, up in FACES.items():
+        g = Rotation.from_rotvec(np.r_[np.radians(0.3) * rng.standard_normal(2), 0.0]).apply(np.asarray(up, float))
+        blocks.append(np.tile(g + k2 * g ** 2, (STATIC, 1)))
+        labels += [name] * STATIC
+    w = np.round(np.vstack(blocks) * gain + bias + 3.0 * rng.standard_normal((6 * STATIC, 3)))
+    p = write_recording(tmp_path / "k2.csv", w, np.array(labels))
+    r = fit_raw(str(p), RATE, labels="part", local_g_m_s2=9.81).result
+    assert r.status == "ok"
+    for i, a in enumerate("xyz"):
+        S = r.parameters[f"S_{a}"]
+        assert abs(S.value - (bias[i] / gain + k2)) < 3 * S.u, (a, S.value, bias[i] / gain + k2, S.u)
+        assert abs(S.value - bias[i] / gain) > 10 * S.u
+    assert [n for n in r.notes if n.startswith("six faces:") and "K2_a adds to it in full" in n
+            and "6 intervals leave no redundancy" in n]
+
+
+def test_samples_written_twice_are_named_in_the_refusal(tmp_path):
+    """An outside probe wrote every row twice: refused as "no static intervals" with a noise SD at the
+    quantisation floor and nothing about the repeats; now the refusal names them."""
+    w, labels = make_samples(twelve_poses())
+    p = write_recording(tmp_path / "twice.csv", np.repeat(w, 2, axis=0))
+    with pytest.raises(InputError, match="50 % of the samples repeat the one before on all three channels"):
+        fit_raw(str(p), 2 * RATE, poses="unknown")

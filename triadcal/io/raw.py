@@ -156,6 +156,7 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
     temp = acc[:, 3] if temperature_column is not None else None
     if temp is not None:
         _check_temperature(path, header_at + 2, temperature_column, temp)
+    _check_time_column(path, offset, header_at, header, delim, float(rate_hz), len(acc))
     return RawRecording(acc[:, :3], float(rate_hz), unit, cols, labels, label_column, metadata, path,
                         header_at + 2, temp, temperature_column)
 
@@ -239,6 +240,66 @@ def _check_temperature(path: str, first_line: int, column: str, temp: np.ndarray
         i = int(bad[0])
         raise RawRecordingError(path, first_line + i, column,
                                 f"temperature {temp[i]:g} degC is outside {low:g} .. {high:g} degC")
+
+
+#: names of a time column (any case) that the reader checks against ``--rate``, with the unit of
+#: their values in seconds; None: the unit is not in the name (s, ms, us and ns are tried)
+TIME_COLUMNS = {"time_s": 1.0, "t_s": 1.0, "time_ms": 1e-3, "timestamp_ms": 1e-3, "t_ms": 1e-3, "time_us": 1e-6,
+                "timestamp_us": 1e-6, "t_us": 1e-6, "time_ns": 1e-9, "timestamp_ns": 1e-9, "time": None,
+                "timestamp": None}
+#: a time column whose mean step differs from 1/--rate (in the unit its name says, or in the closest of
+#: s, ms, us, ns) by more than this fraction is refused
+TIME_RATE_TOLERANCE = 0.05
+
+
+def _check_time_column(path, offset: int, header_at: int, header, delim: str, rate_hz: float, n: int) -> None:
+    """A time column of the recording (:data:`TIME_COLUMNS`), checked against the stated rate: the
+    samples are placed at ``i / rate_hz`` (the time column is not used), so a column that says
+    otherwise is refused, as a header line that states another rate is. Refused: a time that goes
+    back (a wrapped counter, two recordings joined), and a mean step over the recording,
+    ``(t_last - t_first) / (n - 1)``, more than :data:`TIME_RATE_TOLERANCE` from ``1/rate_hz`` in the
+    column's unit (its name's, else the nearest of s, ms, us, ns): another rate, or dropped
+    samples. An outside probe's ``time_s`` stepping 0.02 s was fitted with ``--rate 100`` as if at
+    100 Hz, the intervals' durations twice too short, and a time going backwards was read
+    silently. A column whose values are not all numbers (a date) is not read, and not checked."""
+    names = {h.lower(): h for h in header if h}
+    found = [(names[k], unit) for k, unit in TIME_COLUMNS.items() if k in names]
+    if not found or n < 3:
+        return
+    column, unit = found[0]
+    import pyarrow as pa
+    from pyarrow import csv as pacsv
+
+    try:
+        with open(path, "rb") as source:
+            source.seek(offset)
+            table = pacsv.read_csv(source, parse_options=pacsv.ParseOptions(delimiter=delim),
+                                   convert_options=pacsv.ConvertOptions(include_columns=[column],
+                                                                        column_types={column: pa.float64()}))
+    except (pa.ArrowInvalid, pa.ArrowKeyError, KeyError):
+        return
+    t = table.column(column).to_numpy(zero_copy_only=False)
+    if len(t) != n or not np.all(np.isfinite(t)):
+        return
+    back = np.flatnonzero(np.diff(t) < 0)
+    if len(back):
+        i = int(back[0]) + 1
+        raise RawRecordingError(path, header_at + 2 + i, column,
+                                f"the time goes back from {t[i - 1]:.10g} to {t[i]:.10g} at sample {i}: a counter that "
+                                "wrapped, or two recordings joined; the samples are taken at --rate in file order, so "
+                                "split the file where the time restarts")
+    step = (t[-1] - t[0]) / (n - 1)
+    units = [(unit, "s" if unit == 1.0 else {1e-3: "ms", 1e-6: "us", 1e-9: "ns"}[unit])] if unit is not None else [
+        (1.0, "s"), (1e-3, "ms"), (1e-6, "us"), (1e-9, "ns")]
+    ratios = [(step * scale * rate_hz, name) for scale, name in units]
+    if any(abs(r - 1.0) <= TIME_RATE_TOLERANCE for r, _ in ratios):
+        return
+    implied = ", ".join(f"{rate_hz / r:.6g} Hz" + (f" if in {name}" if unit is None else "") if r > 0 else "no rate"
+                        for r, name in ratios)
+    raise RawRecordingError(path, header_at + 2, column,
+                            f"the time column steps {step:.6g} a sample on average over {n} samples ({implied}), "
+                            f"not the {rate_hz:g} Hz of --rate: the samples are placed at --rate, so give the "
+                            "recording's rate (or, if samples were dropped, fill or split the gaps)")
 
 
 def _line_start(path, k: int, bom: int) -> int:

@@ -161,8 +161,22 @@ def detect_static_intervals(acc: np.ndarray, rate_hz: float, *, window_s: float 
             f"found {len(intervals)} static intervals of at least {min_duration_s:g} s, {min_intervals} needed "
             f"({100 * static.mean():.0f} % of samples look static, longest run {longest:.1f} s; noise SD per axis "
             f"{', '.join(f'{s:.3g}' for s in sigma)}). Check the stated rate, lower --min-static-s, raise "
-            "--static-threshold, or give the intervals with --intervals FILE / --labels COLUMN")
+            "--static-threshold, or give the intervals with --intervals FILE / --labels COLUMN" + _repeats(acc))
     return det
+
+
+def _repeats(acc: np.ndarray) -> str:
+    """A hint when at least 40 % of the samples repeat the one before on all three channels while the
+    noise moves them otherwise: a logger that wrote each sample twice (an outside probe's file was
+    refused as "no static intervals" with a noise SD at the quantisation floor, the repeats named
+    nowhere)."""
+    d = np.diff(acc, axis=0)
+    same = np.all(d == 0.0, axis=1)
+    if len(d) < 10 or same.mean() < 0.4 or not np.any(d[~same] != 0.0):
+        return ""
+    return (f"; {100 * same.mean():.0f} % of the samples repeat the one before on all three channels: each sample "
+            "written twice (or more)? the noise and the rate are then wrong; remove the repeats, or state the rate "
+            "of the repeated samples")
 
 
 #: labels that never mark a static pose (imucal's rotation parts, a simulator's moves, blanks)

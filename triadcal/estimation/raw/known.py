@@ -439,6 +439,16 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
              f"(~{u_angle:.2g} deg) comes from the placement and the angles' prior (SD {misalignment_sd_deg:g} deg), "
              "not from the data; K and S are determined by the data, but at second order (tilt^2) they depend "
              "on both"]
+    # an outside probe: K2 = 3 mg/g^2 on each axis moved every S by 3 mg (30 u), status ok, no word; a bias
+    # drifting 4 mg over the recording moved K by 2-3 u
+    notes.append("six faces: each axis sees +1 g, -1 g and 0 g only, and a pose's placement tilt takes up what its "
+                 "0 g readings say about the bias, so S_a is the bias as the +-1 g readings give it, "
+                 "K_a (W(+1 g) + W(-1 g))/2: an even nonlinearity K2_a adds to it in full (IEEE Std 1293's K0 + K2 g^2), "
+                 + (f"and {k} intervals leave no redundancy beyond the placement tilts" if k <= 9 else
+                    f"and {k} intervals leave {k - 9} degrees of freedom beyond the placement tilts")
+                 + " to test the model with, so a bias that drifts during the recording moves K and S unseen too; "
+                 "free poses (--poses unknown, whose --diagnose names a K2 as scale_nonlinearity) or a bench "
+                 "calibration separate them")
     note = sensitivity_note(sensitivity)
     if note:
         notes.append(note)

@@ -207,7 +207,11 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
                      for nm, v, s in zip(NORM_NAMES, sol.x, u)}
     notes = ["gravity-norm model: a rotation of the IMU frame is unobservable from norms, so the frame is imu_tk's "
              "(Z along the Z sensing axis, the Y sensing axis in the Y-Z plane): Ca_zx = Ca_zy = Ca_yx = 0 by "
-             "definition and only Ca_xy, Ca_xz, Ca_yz are estimated"]
+             "definition and only Ca_xy, Ca_xz, Ca_yz are estimated",
+             # an outside probe: x and y swapped gave ok with K_x the true K_y (389 u off), nothing said
+             "free poses: the norm of gravity is the same whichever column holds which axis and whatever a column's "
+             "sign, so a swapped or inverted column fits as well and is not detected: the columns are taken as "
+             "labelled (a six-face or bench calibration checks them)"]
     # on the calibrated means: the raw ones of offset-binary counts all point near (32768, 32768, 32768)
     # and counted as one orientation (an outside probe); equal raw means stay equal whatever K and S
     k_orient = distinct_orientations(calibrated_acceleration(K, S, Ca, avg.w))
