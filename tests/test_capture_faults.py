@@ -7,6 +7,7 @@ to end through real pseudo-terminals: an NMEA IMU written here from the sentence
 docs/hardware.md (not with triadcal's encoder), the bench and chamber of ``triadcal emulate``.
 """
 
+import dataclasses
 import json
 import math
 import os
@@ -296,3 +297,27 @@ def test_the_allan_noise_of_a_quantised_output_fits_without_its_zero_points():
     assert terms[0] == pytest.approx(1e-7, rel=1e-6) and all(np.isfinite(terms))
     with pytest.raises(InputError, match="output z is constant"):
         allan_noise([np.column_stack([rng.normal(0, 1e-3, (64, 2)), np.zeros(64)])], 10.0)
+
+
+@pytest.mark.parametrize("scale", [1.0, 20.0])
+def test_a_stall_keeps_the_time_that_passed(tmp_path, scale):
+    """An outside probe: the emulator's IMU went quiet for 300 s (its sequence number where it
+    stopped, its clock on by 300 s) and the capture shifted the 300 s away as a clock step: every
+    later row's time_s 300 s early, exit 0. The host saw the silence: with the wall clock's stamps
+    (instrument seconds per wall second 1, or an emulator time scale of 20) the jump is kept; the same jump
+    with no silence is still a clock step, bridged."""
+    dt_wall = 0.1 / scale
+    frames = [dataclasses.replace(good(k, 0.1 * k), wall_s=1000.0 + k * dt_wall) for k in range(30 * int(scale))]
+    n = len(frames)
+    stalled = frames + [dataclasses.replace(good(n + j, 0.1 * (n + j) + 300.0), wall_s=1000.0 + (n + j) * dt_wall
+                                            + 300.0 / scale) for j in range(10)]
+    (tmp_path / "stall").mkdir()
+    (tmp_path / "step").mkdir()
+    run, times, kinds = pump_all(tmp_path / "stall", stalled)
+    assert kinds == ["stall_gap"] and run.clock_faults == 0 and run.stall_gaps == 1
+    assert times[n] - times[n - 1] == pytest.approx(300.1, abs=1e-6)
+    stepped = frames + [dataclasses.replace(good(n + j, 0.1 * (n + j) + 300.0), wall_s=1000.0 + (n + j) * dt_wall)
+                        for j in range(10)]
+    run, times, kinds = pump_all(tmp_path / "step", stepped)
+    assert kinds == ["clock_step"] and run.clock_faults == 1
+    np.testing.assert_allclose(np.diff(times), 0.1, atol=1e-6)

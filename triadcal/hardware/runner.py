@@ -26,6 +26,16 @@ The clock. The raw file's and the campaign's times are the instrument's clock ma
 Each of them increments ``clock_faults``: a visit whose settling or recording window holds one
 is redone (a window across an IMU restart averaged two periods of the unit into one visit, 399
 samples for 200, with exit 0).
+
+A stall is not a clock step: an IMU that went quiet and resumed with its sequence number where it
+stopped and its clock on by the time that passed (the emulator's ``stalls``) jumps forward as a
+clock step does, but the host saw the silence. When the wall-clock silence before the frame
+(:attr:`Frame.wall_s`), times the instrument seconds per wall second of the frames before it (1
+for a real instrument, the emulator's time scale otherwise; over at least
+:data:`RATE_SPAN_WALL_S`), covers at least :data:`STALL_COVER` of the jump, the jump is time that
+passed: it is kept (event ``stall_gap``, no clock fault; a window across it lacks samples and is
+redone by its coverage rule). An outside probe's 300 s stall was shifted away as a clock step,
+the later rows' ``time_s`` 300 s early in campaign.csv and the raw file, exit 0.
 """
 
 from __future__ import annotations
@@ -49,6 +59,11 @@ CLOCK_STEP_FRACTION = 0.5
 #: a restart: the clock goes back by more than this (s) while the sequence number does too
 RESTART_BACK_S = 1.0
 T_LOW, T_HIGH = RANGES["t_x"][0], RANGES["t_x"][1]
+#: a forward clock jump is a stall when the wall-clock silence before it, in instrument seconds,
+#: covers at least this fraction of it (module docstring)
+STALL_COVER = 0.5
+#: the instrument seconds per wall second are measured over frames spanning at least this (wall s)
+RATE_SPAN_WALL_S = 1.0
 
 
 class CaptureError(TriadcalError, RuntimeError):
@@ -92,6 +107,9 @@ class _Runner:
         self.visit_problem = "visit_incomplete"   # why the last window was refused (capture._visit)
         self._last_frame_wall = time.monotonic()
         self.dt_estimates: deque = deque(maxlen=256)
+        self.last_wall = math.nan                 # Frame.wall_s of the latest admitted frame
+        self._flow: deque = deque(maxlen=512)     # (wall_s, continuous time) of admitted frames
+        self.stall_gaps = 0
 
     def _silence(self) -> str:
         imu = getattr(self.stream, "readout", None)
@@ -138,10 +156,35 @@ class _Runner:
         self.missing += k - 1
         expected = k * (dt or 0.0)
         if gap < 0.0 or (dt and abs(gap - expected) > max(CLOCK_STEP_MIN_S, CLOCK_STEP_FRACTION * expected)):
-            self._clock_fault("clock_step", f, expected, jump_s=gap - expected)
+            stall = self._stall(f, gap - expected)
+            if stall is not None:
+                self.stall_gaps += 1
+                self.events.write("stall_gap", seq=f.seq, time_s=f.time_s, last_seq=self.last_seq,
+                                  last_time_s=self.last_time, jump_s=gap - expected, **stall)
+            else:
+                self._clock_fault("clock_step", f, expected, jump_s=gap - expected)
         elif k == 1:
             self.dt_estimates.append(gap)
         return True
+
+    def _instrument_per_wall(self) -> Optional[float]:
+        """Instrument seconds per wall second over the admitted frames of the last
+        :data:`RATE_SPAN_WALL_S` or more (None: too short a span, or no wall stamps)."""
+        if len(self._flow) < 2:
+            return None
+        (w0, c0), (w1, c1) = self._flow[0], self._flow[-1]
+        if not (w1 - w0 >= RATE_SPAN_WALL_S) or c1 <= c0:
+            return None
+        return (c1 - c0) / (w1 - w0)
+
+    def _stall(self, f: Frame, jump_s: float) -> Optional[dict]:
+        """The evidence that the forward jump ``jump_s`` of ``f``'s clock is a stall (time that passed
+        while the host heard nothing), or None (module docstring)."""
+        rate = self._instrument_per_wall()
+        silence = f.wall_s - self.last_wall
+        if jump_s <= 0 or rate is None or not math.isfinite(silence) or silence * rate < STALL_COVER * jump_s:
+            return None
+        return {"silence_wall_s": silence, "instrument_s_per_wall_s": rate}
 
     def pump(self, timeout: float = 0.02) -> int:
         batch = self.stream.get(timeout)
@@ -160,6 +203,10 @@ class _Runner:
             if not self._admit(f):
                 continue
             self.last_seq, self.last_time = f.seq, f.time_s
+            if math.isfinite(f.wall_s):
+                self.last_wall = f.wall_s
+                if not self._flow or f.wall_s - self._flow[-1][0] >= 0.05:   # thinned: 512 span >= 25 s
+                    self._flow.append((f.wall_s, f.time_s + self.shift))
             accepted.append(dataclasses.replace(f, time_s=f.time_s + self.shift) if self.shift else f)
         if not accepted:
             return 0

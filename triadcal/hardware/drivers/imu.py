@@ -10,6 +10,7 @@ the bench and chamber without the stream overflowing.
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import threading
 import time
@@ -191,7 +192,9 @@ class SerialImu(ImuReadout):
             return []
         self._last_data = now
         self._link.bytes_read += len(data)
-        return self._parser.feed(data)
+        # the arrival time of the bytes: the capture tells a stall (silence on the wall clock as long
+        # as the instrument's clock jumped) from a clock step by it (hardware/runner.py)
+        return [dataclasses.replace(f, wall_s=now) for f in self._parser.feed(data)]
 
 
 class StreamThread(threading.Thread):

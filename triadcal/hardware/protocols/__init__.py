@@ -41,6 +41,10 @@ class Frame:
     time_s: float
     w: tuple
     t: tuple
+    #: when the host read the frame's bytes (``time.monotonic()``, s), set by the driver's reader; NaN
+    #: when unknown. Only the capture's clock rules use it (a stall against a clock step); not
+    #: written, not compared.
+    wall_s: float = field(default=float("nan"), compare=False, repr=False)
 
 
 @dataclass
