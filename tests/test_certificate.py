@@ -584,3 +584,30 @@ def test_a_posterior_of_another_unit_is_refused(issued, tmp_path):
     with pytest.raises(InputError, match="is a posterior of unit 'SN-OTHER-0002'"):
         C.certificate(d / "result.json", posterior=tmp_path / "other.nc", lab=d / "lab.toml",
                       data=d / "campaign.csv", issue_date=ISSUE_DATE)
+
+
+@pytest.mark.parametrize("edit,match", [
+    ("shift", "its means disagree with its result's values"),      # Ca_xy's draws moved by 50 of its u
+    ("wide", "its draws are wider than its result's uncertainties")])  # another campaign's, 100x wider
+def test_a_posterior_whose_draws_are_not_the_results_is_refused(issued, tmp_path, edit, match):
+    """An outside probe: the result's own netCDF with Ca_xy's draws moved by +500 arcsec (its stored
+    verdict kept), and another campaign's posterior of the same serial (Ca_xy 300 +- 101 against
+    312.3 +- 0.28), were both certified. The draws' moments are now checked against the result
+    (compare's rule, reused); the result's own posterior is still issued."""
+    from triadcal.errors import InputError
+    from triadcal.estimation.result import CalibrationResult
+
+    d = issued["dir"]
+    result = CalibrationResult.load(d / "result.json")
+    post = fake_posterior(result)
+    post.to_netcdf(tmp_path / "own.nc")
+    cert = C.certificate(d / "result.json", posterior=tmp_path / "own.nc", lab=d / "lab.toml",
+                         data=d / "campaign.csv", issue_date=ISSUE_DATE)
+    assert cert.issued
+    u = result["Ca_xy"].u
+    v = post.posterior["Ca_xy"]
+    post.posterior["Ca_xy"] = v + 50 * u if edit == "shift" else v.mean() + (v - v.mean()) * 100
+    post.to_netcdf(tmp_path / "bad.nc")
+    with pytest.raises(InputError, match=match):
+        C.certificate(d / "result.json", posterior=tmp_path / "bad.nc", lab=d / "lab.toml",
+                      data=d / "campaign.csv", issue_date=ISSUE_DATE)

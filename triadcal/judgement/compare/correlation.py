@@ -233,6 +233,11 @@ def posterior_draws(source) -> dict:
 #: larger of the draws' SD and the result's u) from the result's value is not that result's
 #: posterior: a posterior of the same data and model differs from its result by a fraction of u
 POSTERIOR_MEAN_TOLERANCE = 1.0
+#: ... nor one whose draws' SD of a parameter exceeds this many times the result's u (the result's u
+#: is the posterior's SD, or a least-squares u within a few % of it, or larger with Type B rows: never
+#: much smaller). An outside probe gave the certificate another campaign's posterior, Ca_xy 300 +- 101
+#: arcsec beside a result of 312.3 +- 0.28: the means agreed within one of the draws' SD
+POSTERIOR_SD_RATIO_MAX = 2.0
 
 
 #: a parameter-like variable name (the model's naming, docs/results-json.md)
@@ -258,7 +263,8 @@ def check_posterior(source, draws: dict, result: CalibrationResult, what: str) -
       stored convergence fingerprint differs from the result's (not the file written with it),
       or the draws did not converge;
     * a posterior mean further than ``POSTERIOR_MEAN_TOLERANCE`` standard deviations from the
-      result's value (swapped posteriors: before's draws with after's result).
+      result's value (swapped posteriors: before's draws with after's result), or an SD above
+      ``POSTERIOR_SD_RATIO_MAX`` times its u (:func:`check_posterior_moments`).
     """
     check_posterior_identity(source, draws, result, what)
     idata = None if isinstance(source, dict) else source
@@ -271,7 +277,7 @@ def check_posterior(source, draws: dict, result: CalibrationResult, what: str) -
             reasons = [r for r in refusal_reasons(result, posterior_diag=diag) if r not in plain]
             if reasons:
                 raise InputError(f"{what}: " + "; ".join(reasons))
-    _check_posterior_means(draws, result, what)
+    check_posterior_moments(draws, result, what)
 
 
 def check_posterior_identity(source, draws: dict, result: CalibrationResult, what: str) -> None:
@@ -298,6 +304,28 @@ def check_posterior_identity(source, draws: dict, result: CalibrationResult, wha
                          "of another model or unit; give the posterior written with that result")
 
 
+def check_posterior_moments(draws: dict, result: CalibrationResult, what: str) -> None:
+    """Refuse draws that are not ``result``'s posterior by their moments: a mean further than
+    :data:`POSTERIOR_MEAN_TOLERANCE` standard deviations from the value, or an SD above
+    :data:`POSTERIOR_SD_RATIO_MAX` times the result's u (compare; the certificate)."""
+    wide = []
+    for n, (d, _) in draws.items():
+        if n not in result.parameters or n in _DERIVED or len(d) < 2:
+            continue
+        sd, u = float(np.std(d)), result[n].u
+        if u > 0 and not sd <= POSTERIOR_SD_RATIO_MAX * u:
+            wide.append((sd / u, n, sd, u, result[n].unit))
+    if wide:
+        wide.sort(reverse=True)
+        worst = "; ".join(f"{n}: SD {sd:.4g} against the result's u {u:.4g} {unit} ({k:.3g} times)"
+                          for k, n, sd, u, unit in wide[:3])
+        raise InputError(f"{what}: its draws are wider than its result's uncertainties by more than "
+                         f"{POSTERIOR_SD_RATIO_MAX:g} times ({worst}"
+                         f"{f'; and {len(wide) - 3} more' if len(wide) > 3 else ''}): not this result's posterior; "
+                         "give the netCDF that `triadcal sample` wrote with it")
+    _check_posterior_means(draws, result, what)
+
+
 def _check_posterior_means(draws: dict, result: CalibrationResult, what: str) -> None:
     off = []
     for n, (d, _) in draws.items():
@@ -315,7 +343,7 @@ def _check_posterior_means(draws: dict, result: CalibrationResult, what: str) ->
         raise InputError(f"{what}: its means disagree with its result's values by more than "
                          f"{POSTERIOR_MEAN_TOLERANCE:g} standard deviation ({worst}"
                          f"{f'; and {len(off) - 3} more' if len(off) > 3 else ''}): not this result's posterior "
-                         "(swapped before and after?)")
+                         "(another run's, an edited file, or before and after swapped?)")
 
 
 def posterior_drift(draws_before: np.ndarray, draws_after: np.ndarray, seed: int = 0,

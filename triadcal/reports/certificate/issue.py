@@ -53,9 +53,13 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
             posterior = read_inference_data(posterior)
         # the posterior must be the result's (compare's check, reused): a posterior of another unit gave
         # a certificate with that unit's R-hat, ESS and plots (an outside probe)
-        from ...judgement.compare.correlation import check_posterior_identity, posterior_draws
+        from ...judgement.compare.correlation import check_posterior_identity, check_posterior_moments, posterior_draws
 
-        check_posterior_identity(posterior, posterior_draws(posterior), result, what)
+        draws = posterior_draws(posterior)
+        check_posterior_identity(posterior, draws, result, what)
+        # and its draws must be the result's: an edited file (Ca_xy's draws +500 arcsec, its stored verdict
+        # kept) and another campaign's posterior were certified (an outside probe)
+        check_posterior_moments(draws, result, what)
     if data is not None and not hasattr(data, "n_visits"):
         from ...io.bench_csv import read_bench_csv
 
