@@ -220,3 +220,34 @@ def test_a_warm_up_fitted_to_a_flicker_offset_is_refused_and_the_flicker_named()
     assert wu.refit and "no warm-up is that large" in wu.refit["time_constant_refused"]
     assert d.verdict["effect"] == "flicker_noise", d.verdict
     assert "bias_warmup ranked above it" in d.verdict["evidence"], d.verdict
+
+
+def test_the_warmup_seen_gate_by_hand():
+    from triadcal.estimation.gates import _gate_warmup_seen
+
+    seen = {"S_x_warmup": {"value": 30.0, "u": 10.0}, "S_y_warmup": {"value": 1.0, "u": 10.0},
+            "S_z_warmup": {"value": -1.0, "u": 10.0}}
+    assert _gate_warmup_seen(seen).passed is True                   # one axis at 3 u is enough
+    assert _gate_warmup_seen({"S_x": {"value": 1.0}}).passed is None
+    unseen = {**seen, "S_x_warmup": {"value": -1.8, "u": 5.4}, "K_x_warmup": {"value": 500.0, "u": 20.0}}
+    bad = _gate_warmup_seen(unseen)
+    assert bad.passed is False and bad.status == "unidentifiable"
+    assert "bias warm-up's offsets at power-on are all within 2 u of 0" in bad.reason
+    assert "scale-factor" not in bad.reason                          # K_x_warmup at 25 u is seen
+
+
+def test_a_warm_up_over_before_the_first_visit_is_not_ok():
+    """An outside probe's campaign (its own numpy simulator: tests/data/outside_warmup_over.csv): a
+    2 min warm-up of 2.5, -1.8, 3 mg, the first visit 735 s after power-on (a factor 0.002 left),
+    fitted with bias_warmup: status ok before, tau_w 28 +- 24 min and offsets -1.8 +- 5.4 ug (468 u
+    from the truth). The warmup_seen gate alone refuses it now."""
+    from pathlib import Path
+
+    from triadcal.estimation.joint import fit_joint
+    from triadcal.io.bench_csv import read_bench_csv
+
+    c = read_bench_csv(Path(__file__).parent / "data" / "outside_warmup_over.csv")
+    r = fit_joint(c, ["bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis", "bias_warmup"])
+    failed = [o["gate"] for o in r.extra["gates"]["outcomes"] if o["passed"] is False]
+    assert r.status == "unidentifiable" and failed == ["warmup_seen"], (r.status, failed)
+    assert abs(r.parameters["S_x_warmup"].value - 2500.0) > 100 * r.parameters["S_x_warmup"].u  # what it refuses
