@@ -410,6 +410,8 @@ def _gate_warmup_seen(params: Mapping) -> GateOutcome:
     warm-up of 2 min, 12 min before the first visit (a factor 0.002 left), gave status ok with
     S_warmup_tau = 28 +- 24 min and S_x_warmup = -1.8 +- 5.4 ug where the truth was 2 500 ug (468 u);
     the posterior of the same data did not converge."""
+    if not any(f"{k}_{a}_warmup" in params for k in "SK" for a in "xyz"):
+        return GateOutcome("warmup_seen", None, "unidentifiable", "no warm-up in the result")
     out = []
     for kind, what in (("S", "bias"), ("K", "scale-factor")):
         names = [f"{kind}_{a}_warmup" for a in "xyz" if f"{kind}_{a}_warmup" in params]
@@ -422,8 +424,6 @@ def _gate_warmup_seen(params: Mapping) -> GateOutcome:
             out.append(f"the {what} warm-up's offsets at power-on are all within {WARMUP_SEEN_Z:g} u of 0 ("
                        + ", ".join(f"{n} = {_value(params[n]):.3g} +- {_u(params[n]):.2g} {_unit(params[n])}"
                                    for n in names) + ")")
-    if not any(f"{k}_{a}_warmup" in params for k in "SK" for a in "xyz"):
-        return GateOutcome("warmup_seen", None, "unidentifiable", "no warm-up in the result")
     if out:
         return GateOutcome("warmup_seen", False, "unidentifiable",
                            "; ".join(out) + ": the warm-up is not in the data (over before the first visit, or "

@@ -34,7 +34,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..io.raw import RawRecordingError
+from ..io.raw import TIME_UNITS_S, RawRecordingError
 from ..models.thermal_history import first_order_lag, play_operator
 
 FORMAT = "triadcal.thermal_cycle"
@@ -55,8 +55,7 @@ G0 = 9.80665
 MAX_SWEEP_C_MIN = 60.0
 #: a one-pose chamber cycle lasting longer than this (s; 30 days) has a wrong time axis
 MAX_CYCLE_S = 30 * 86400.0
-#: the time units of ``--time-unit`` in seconds
-TIME_UNITS_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+# the time units of ``--time-unit`` in seconds: TIME_UNITS_S (io/raw.py, shared with its time-column check)
 
 
 @dataclass

@@ -242,10 +242,12 @@ def _check_temperature(path: str, first_line: int, column: str, temp: np.ndarray
                                 f"temperature {temp[i]:g} degC is outside {low:g} .. {high:g} degC")
 
 
+#: seconds per unit of a time column (this reader's check; thermal-cycle's --time-unit)
+TIME_UNITS_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: names of a time column (any case) that the reader checks against ``--rate``, with the unit of
-#: their values in seconds; None: the unit is not in the name (s, ms, us and ns are tried)
-TIME_COLUMNS = {"time_s": 1.0, "t_s": 1.0, "time_ms": 1e-3, "timestamp_ms": 1e-3, "t_ms": 1e-3, "time_us": 1e-6,
-                "timestamp_us": 1e-6, "t_us": 1e-6, "time_ns": 1e-9, "timestamp_ns": 1e-9, "time": None,
+#: their values (:data:`TIME_UNITS_S`); None: the unit is not in the name (every unit is tried)
+TIME_COLUMNS = {"time_s": "s", "t_s": "s", "time_ms": "ms", "timestamp_ms": "ms", "t_ms": "ms", "time_us": "us",
+                "timestamp_us": "us", "t_us": "us", "time_ns": "ns", "timestamp_ns": "ns", "time": None,
                 "timestamp": None}
 #: a time column whose mean step differs from 1/--rate (in the unit its name says, or in the closest of
 #: s, ms, us, ns) by more than this fraction is refused
@@ -289,9 +291,7 @@ def _check_time_column(path, offset: int, header_at: int, header, delim: str, ra
                                 "wrapped, or two recordings joined; the samples are taken at --rate in file order, so "
                                 "split the file where the time restarts")
     step = (t[-1] - t[0]) / (n - 1)
-    units = [(unit, "s" if unit == 1.0 else {1e-3: "ms", 1e-6: "us", 1e-9: "ns"}[unit])] if unit is not None else [
-        (1.0, "s"), (1e-3, "ms"), (1e-6, "us"), (1e-9, "ns")]
-    ratios = [(step * scale * rate_hz, name) for scale, name in units]
+    ratios = [(step * TIME_UNITS_S[name] * rate_hz, name) for name in ([unit] if unit else TIME_UNITS_S)]
     if any(abs(r - 1.0) <= TIME_RATE_TOLERANCE for r, _ in ratios):
         return
     implied = ", ".join(f"{rate_hz / r:.6g} Hz" + (f" if in {name}" if unit is None else "") if r > 0 else "no rate"
