@@ -33,7 +33,7 @@ from ..io.atomic import atomic_write_json, atomic_write_text, read_json
 from ..io.formats import require_format
 from .storage import TORN_MARK, EventLog, FolderLocked, RawStore, folder_lock, read_raw
 from .runner import CaptureError, _max_temperature_rate, _Runner  # noqa: F401 - importable from here
-from .session_checks import (check_session_metadata, dated_metadata, setpoint_missed,  # noqa: F401 - importable
+from .session_checks import (UNIT_MISS_C, check_session_metadata, dated_metadata, setpoint_missed,  # noqa: F401 - importable
                              storage_error)
 
 CSV_NAME = "campaign.csv"
@@ -369,7 +369,15 @@ def soak(run: "_Runner", chamber, events: EventLog, settings: CaptureSettings, i
                     "rate_C_per_min": None if rate is None else rate * 60.0,
                     "chamber_C": _safe(chamber.temperature_C)})
     events.write("stable", index=index, setpoint_C=sp, after_s=run.now - t_start)
-    missed = setpoint_missed(sp, [T for _, T in run.temps], _safe(chamber.temperature_C))
+    try:
+        pv, unread = chamber.temperature_C(), None
+    except OSError as exc:
+        pv, unread = None, exc
+    missed = setpoint_missed(sp, [T for _, T in run.temps], pv)
+    if unread is not None:
+        # an unreadable PV left only the unit's own 10 degC check, silently (an outside probe)
+        missed = "; ".join(x for x in (f"the chamber's PV could not be read ({unread}): the setpoint is checked "
+                                       f"on the unit's own sensors only (within {UNIT_MISS_C:g} degC)", missed) if x)
     if missed:
         events.write("setpoint_missed", index=index, setpoint_C=sp, text=missed)
         run.warnings.append(f"{what}: {missed}")

@@ -24,12 +24,28 @@ from .drivers.chamber import Chamber
 from ..io.atomic import atomic_write_json, atomic_write_text
 from .storage import EventLog, FolderLocked, folder_lock
 from .capture import (CSV_NAME, EVENTS_NAME, REPORT_NAME, STATE_NAME, CaptureError, CaptureReport, CaptureSettings,
-                      _campaign, _max_temperature_rate, _open_session, dated_metadata, storage_error)
+                      _campaign, _max_temperature_rate, _open_session, dated_metadata, setpoint_missed, storage_error)
 
 
 ANALOG_TEMPERATURE = ("chamber: the chamber's process value (air temperature), read before and after each "
                       "visit's window and averaged, copied to t_x, t_y and t_z; the analog unit has no "
                       "temperature output, so it lags and differs from the unit's own temperature")
+
+
+def chamber_pv_C(chamber: Chamber, sp: float) -> float:
+    """The chamber's process value, which this path records as the unit's temperature: a reading
+    that is not a temperature (a Modbus controller's sensor break reads 0x8000, -3276.8 degC) is
+    refused before anything is recorded. It was written to every row as t_x = t_y = t_z = -3276.8
+    (exit 0), a campaign that neither fit nor the same command could then take (an outside probe)."""
+    import math
+
+    pv = chamber.temperature_C()
+    if not (math.isfinite(pv) and -273.15 <= pv <= 300.0):
+        raise CaptureError(f"setpoint {sp:g} degC: the chamber's PV reads {pv!r} degC, not a temperature (a sensor "
+                           "break?); this capture records the PV as the unit's temperature, so nothing is recorded "
+                           "until it reads one (the visits done are kept: fix the sensor, then run the same command "
+                           "again to resume)")
+    return pv
 
 
 def capture_voltmeter(out_dir, *, plan: Mapping[str, tuple], setpoints_C: Sequence[float], voltmeter,
@@ -123,6 +139,7 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
         return clock() - c0 + last_end
 
     redone = 0
+    warnings: list = []
     try:
         notify({"event": "start", "done": done_before, "total": total})
         for k, (sp, direction) in enumerate(zip(setpoints_C, directions)):
@@ -135,7 +152,7 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
             stable_since = None
             while True:
                 now = clock()
-                pv = chamber.temperature_C()
+                pv = chamber_pv_C(chamber, sp)
                 temps.append((now, (pv, pv, pv)))
                 rate = _max_temperature_rate(temps, crit.window_s, now)
                 if rate is not None and rate * 60.0 < crit.rate_C_per_min:
@@ -152,6 +169,13 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
                         "rate_C_per_min": None if rate is None else rate * 60.0, "chamber_C": pv})
                 pause(poll_s)
             events.write("stable", index=k, setpoint_C=sp, after_s=clock() - t_start)
+            # the chamber's PV is the only temperature here: it is checked against the setpoint, as the
+            # IMU path checks it (a chamber stuck at 20 degC through a -15 degC setpoint went by with no
+            # word, an outside probe)
+            missed = setpoint_missed(sp, [], pv)
+            if missed:
+                events.write("setpoint_missed", index=k, setpoint_C=sp, text=missed)
+                warnings.append(f"setpoint {sp:g} degC: {missed}")
             for j, label in enumerate(labels):
                 if k * len(labels) + j < len(rows):
                     continue
@@ -177,14 +201,14 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
                         pause(poll_s)
                     pause(settings.settle_s)
                     notify({"event": "record", **info})
-                    T0, t0 = chamber.temperature_C(), campaign_time()
+                    T0, t0 = chamber_pv_C(chamber, sp), campaign_time()
                     try:
                         avg = voltmeter.measure(n_per_window)
                     except DmmError as exc:
                         events.write("visit_incomplete", tag=tag, error=str(exc))
                         redone += 1
                         continue
-                    T1, t1 = chamber.temperature_C(), campaign_time()
+                    T1, t1 = chamber_pv_C(chamber, sp), campaign_time()
                     break
                 else:
                     raise CaptureError(f"position {label} at {sp:g} degC: the voltmeter failed "
@@ -209,7 +233,8 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
             visits_done_before=done_before, visits_done=len(rows),
             accepted_samples=sum(int(r["n_samples"]) for r in rows[done_before:]),
             duplicate_frames=0, missing_frames=0, corrupted_frames=0, garbage_bytes=0, reconnects=0,
-            disconnects=0, stalls=0, redone_visits=redone, noise=None, wall_seconds=time.monotonic() - wall0)
+            disconnects=0, stalls=0, redone_visits=redone, noise=None, wall_seconds=time.monotonic() - wall0,
+            warnings=warnings)
         events.write("session_end", **{k: v for k, v in report.to_dict().items() if k != "noise"})
         events.close()
         atomic_write_json(out / REPORT_NAME, report.to_dict())

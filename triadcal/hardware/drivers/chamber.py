@@ -25,9 +25,16 @@ from ...errors import InputError, TriadcalError
 
 import time
 from abc import ABC, abstractmethod
+from typing import Optional
 
 import minimalmodbus
 import serial
+
+try:
+    import termios
+    _TERMIOS_ERRORS: tuple = (termios.error,)
+except ImportError:       # not POSIX
+    _TERMIOS_ERRORS = ()
 
 REG_PV = 100
 REG_SP = 300
@@ -52,42 +59,74 @@ class Chamber(ABC):
         pass
 
 
-class ModbusChamber(Chamber):
-    """A Modbus RTU chamber controller (minimalmodbus); calls are retried ``retries`` times."""
+#: what a serial port raises when its device misbehaves or goes away: pyserial's exceptions, the
+#: OS's, minimalmodbus's (IOErrors, ValueErrors) and, on POSIX, ``termios.error``, which is none of
+#: them (a USB adapter unplugged mid-run fails the input flush before each transaction with
+#: termios.error (5, 'Input/output error'); it ended a capture in "internal error", an outside probe)
+PORT_ERRORS: tuple = (OSError, ValueError, serial.SerialException) + _TERMIOS_ERRORS
 
-    def __init__(self, port: str, slave: int = 1, baudrate: int = 19200, timeout_s: float = 0.3,
-                 retries: int = 3):
+
+class ModbusRtuChamber(Chamber):
+    """Common transport of the Modbus RTU chambers: minimalmodbus on a pyserial port (device path
+    or URL), 8 data bits, parity and stop bits configurable, calls retried ``retries`` times, then
+    :class:`ChamberError`; an exception answer of the controller is not retried."""
+
+    name = "Modbus"
+
+    def __init__(self, port: str, *, slave: int = 1, baudrate: int = 9600, parity: str = "N",
+                 stopbits: float = 1, timeout_s: float = 0.5, retries: int = 3, loop: int = 1):
+        if not 1 <= int(slave) <= 247:
+            raise ValueError(f"Modbus slave address {slave}: expected 1..247")
         self.port = port
-        self.retries = retries
-        self._inst = minimalmodbus.Instrument(port, slave, mode=minimalmodbus.MODE_RTU)
-        self._inst.serial.baudrate = baudrate
-        self._inst.serial.timeout = timeout_s
+        self.slave = int(slave)
+        self.retries = int(retries)
+        self.loop = int(loop)
+        ser = open_serial(port, baudrate=baudrate, parity=parity, stopbits=stopbits, timeout_s=timeout_s)
+        self._inst = minimalmodbus.Instrument(ser, self.slave, mode=minimalmodbus.MODE_RTU)
         self._inst.clear_buffers_before_each_transaction = True
 
     def _call(self, what: str, fn, *args, **kw):
-        last = None
-        for _ in range(self.retries):
+        last: Optional[BaseException] = None
+        for _ in range(max(1, self.retries)):
             try:
                 return fn(*args, **kw)
-            except (IOError, ValueError, serial.SerialException) as exc:   # minimalmodbus errors are IOErrors
+            except minimalmodbus.SlaveReportedException as exc:    # an answer: asking again changes nothing
+                raise ChamberError(f"{self.name} chamber on {self.port} (slave {self.slave}): {what} refused by "
+                                   f"the controller: {exc}") from None
+            except PORT_ERRORS as exc:
                 last = exc
                 time.sleep(0.02)
-        raise ChamberError(f"chamber on {self.port}: {what} failed after {self.retries} tries: {last}")
+        raise ChamberError(f"{self.name} chamber on {self.port} (slave {self.slave}): {what} failed "
+                           f"after {self.retries} tries: {last}")
+
+    def close(self) -> None:
+        try:
+            self._inst.serial.close()
+        except Exception:   # noqa: BLE001 - closing a port that went away
+            pass
+
+
+class ModbusChamber(ModbusRtuChamber):
+    """triadcal's own register map (module docstring): PV 100, set point 300, signed int16 tenths;
+    19200 baud 8N1 and a 0.3 s timeout by default."""
+
+    name = "Modbus"
+
+    def __init__(self, port: str, *, baudrate: int = 19200, timeout_s: float = 0.3, **kw):
+        super().__init__(port, baudrate=baudrate, timeout_s=timeout_s, **kw)
 
     def set_setpoint_C(self, value: float) -> None:
         self._call("write setpoint", self._inst.write_register, REG_SP, round(value, 1), 1, signed=True)
         back = self.setpoint_C()
         if abs(back - round(value, 1)) > 0.051:
-            raise ChamberError(f"chamber on {self.port} reads back setpoint {back} degC after writing {value}")
+            raise ChamberError(f"{self.name} chamber on {self.port} reads back setpoint {back} degC after "
+                               f"writing {value}")
 
     def setpoint_C(self) -> float:
         return float(self._call("read setpoint", self._inst.read_register, REG_SP, 1, signed=True))
 
     def temperature_C(self) -> float:
         return float(self._call("read temperature", self._inst.read_register, REG_PV, 1, signed=True))
-
-    def close(self) -> None:
-        self._inst.serial.close()
 
 
 def open_serial(port: str, *, baudrate: int, bytesize: int = 8, parity: str = "N", stopbits: float = 1,
@@ -121,7 +160,7 @@ def open_chamber(cfg) -> Chamber:
     opt = {k: cfg[k] for k in ("stopbits", "parity", "timeout_s") if k in cfg}
     if driver == "modbus":
         return ModbusChamber(port, slave=int(cfg.get("slave", cfg.get("address", 1))),
-                             baudrate=int(cfg.get("baudrate", 19200)))
+                             baudrate=int(cfg.get("baudrate", 19200)), **opt)
     if driver in ("watlow-f4", "watlow-f4t"):
         from .watlow import WatlowF4, WatlowF4T
 

@@ -23,14 +23,11 @@ minimalmodbus, for checking what goes out (tests) and for the docs.
 from __future__ import annotations
 
 import struct
-import time
-from typing import Optional
 
 import minimalmodbus
-import serial
 
 from ..protocols.binary import crc16_modbus
-from .chamber import Chamber, ChamberError, open_serial
+from .chamber import ChamberError, ModbusRtuChamber
 
 F4_PV = {1: 100, 2: 104}
 F4_SP = {1: 300, 2: 319}
@@ -95,44 +92,11 @@ def words_to_float(words, word_order: str = "low-first") -> float:
 
 
 # -- drivers ----------------------------------------------------------------------------
-class _WatlowModbus(Chamber):
-    """Common transport: minimalmodbus on a pyserial port (device path or URL), 8 data bits,
-    parity and stop bits configurable (the F4's manual and implementations differ on the
-    stop bits), calls retried ``retries`` times, then :class:`ChamberError`."""
+class _WatlowModbus(ModbusRtuChamber):
+    """The Watlow controllers' transport (:class:`~.chamber.ModbusRtuChamber`; the F4's manual and
+    implementations differ on the stop bits, so they are configurable)."""
 
     name = "Watlow"
-
-    def __init__(self, port: str, *, slave: int = 1, baudrate: int = 9600, parity: str = "N",
-                 stopbits: float = 1, timeout_s: float = 0.5, retries: int = 3, loop: int = 1):
-        if not 1 <= int(slave) <= 247:
-            raise ValueError(f"Modbus slave address {slave}: expected 1..247")
-        self.port = port
-        self.slave = int(slave)
-        self.retries = int(retries)
-        self.loop = int(loop)
-        ser = open_serial(port, baudrate=baudrate, parity=parity, stopbits=stopbits, timeout_s=timeout_s)
-        self._inst = minimalmodbus.Instrument(ser, self.slave, mode=minimalmodbus.MODE_RTU)
-        self._inst.clear_buffers_before_each_transaction = True
-
-    def _call(self, what: str, fn, *args, **kw):
-        last: Optional[BaseException] = None
-        for _ in range(max(1, self.retries)):
-            try:
-                return fn(*args, **kw)
-            except minimalmodbus.SlaveReportedException as exc:    # an answer: asking again changes nothing
-                raise ChamberError(f"{self.name} chamber on {self.port} (slave {self.slave}): {what} refused by "
-                                   f"the controller: {exc}") from None
-            except (IOError, ValueError, serial.SerialException) as exc:   # minimalmodbus errors are IOErrors
-                last = exc
-                time.sleep(0.02)
-        raise ChamberError(f"{self.name} chamber on {self.port} (slave {self.slave}): {what} failed "
-                           f"after {self.retries} tries: {last}")
-
-    def close(self) -> None:
-        try:
-            self._inst.serial.close()
-        except Exception:   # noqa: BLE001 - closing a port that went away
-            pass
 
 
 class WatlowF4(_WatlowModbus):
