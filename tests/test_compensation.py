@@ -58,6 +58,29 @@ def test_table_applied_to_the_data_gives_residuals_within_u(fitted):
     assert np.array_equal(back.K, table.K) and np.array_equal(back.Ca_inv, table.Ca_inv)
 
 
+def test_the_default_grid_covers_the_coldest_and_hottest_visits(fitted, tmp_path):
+    """The rows end at the calibrated range's ends: every visit of the campaign (data made by the
+    independent bench) lies inside the table, and the table there is the result's model (an outside
+    probe: rows at the multiples of 5 only left -39.8..-35 degC without a row, 288 ug off when held)."""
+    from triadcal.cli import main
+
+    r, campaign, tmp = fitted
+    assert main(["export-compensation", str(tmp / "r.json"), "-o", str(tmp_path / "d.json"), "--quiet"]) == 0
+    table = load_table(tmp_path / "d.json")
+    T = campaign.t.mean(axis=1)
+    assert table.grid_C[0] <= T.min() and T.max() <= table.grid_C[-1]
+    cold = T <= table.grid_C[1]
+    assert cold.any()
+    A = table.apply(campaign.w[cold], T[cold])
+    assert np.max(np.abs(A - r.apply(campaign.w[cold], np.repeat(T[cold, None], 3, axis=1)))) < 1e-6
+    assert not any("without a row" in n for n in table.notes)
+    # a grid that stops short says which temperatures it leaves out
+    short = compensation_table(r, parse_grid("-35:75:5"))
+    assert any("without a row" in n and "-35" in n and "75" in n for n in short.notes)
+    with pytest.raises(InputError, match="increasing"):
+        compensation_table(r, [10.0, 0.0])
+
+
 def test_u_at_the_reference_temperature_is_the_results_u(fitted):
     r, _, _ = fitted
     table = compensation_table(r, parse_grid("-30:60:10"))
@@ -124,8 +147,12 @@ def test_cli_formats_and_the_header_compiles(fitted, tmp_path):
     assert main(["export-compensation", str(tmp / "r.json"), "--format", "csv", "-o", str(tmp_path / "c.csv"),
                  "--quiet"]) == 0
     rows = [ln for ln in (tmp_path / "c.csv").read_text().splitlines() if not ln.startswith("#")]
-    # the default grid: the calibrated range (-40.0x .. 80.0x degC) in 5 degC steps, -40 .. 80
-    assert rows[0].startswith("T_C,K_x,u_K_x,interp_K_x") and len(rows) == 1 + 25
+    # the default grid: the calibrated range's ends (-40.0x, 80.0x degC) and the multiples of 5 between
+    lo, hi = CalibrationResult.load(tmp / "r.json").temperature_range_C
+    assert rows[0].startswith("T_C,K_x,u_K_x,interp_K_x")
+    T_rows = [float(r.split(",")[0]) for r in rows[1:]]
+    assert T_rows[0] == pytest.approx(lo, abs=1e-6) and T_rows[-1] == pytest.approx(hi, abs=1e-6)   # CSV: 7 decimals
+    assert T_rows[1:-1] == [5.0 * k for k in range(math.floor(lo / 5) + 1, math.ceil(hi / 5))]
     assert main(["export-compensation", str(tmp / "r.json"), "--format", "json", "--grid", "-35:75:5",
                  "-o", str(tmp_path / "c.json"), "--quiet"]) == 0
     from test_results_contract import assert_valid

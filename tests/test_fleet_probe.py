@@ -77,9 +77,10 @@ def test_default_grid_says_what_is_wrong():
     with pytest.raises(InputError, match="one temperature") as e:
         default_grid((22.23, 22.36), "one.json")
     assert "single point" in str(e.value) and "--grid '" not in str(e.value)
-    assert default_grid((-40.01, 80.02), "r.json") == "-40:80:5"
-    lo, hi, _ = (float(x) for x in default_grid((21.0, 24.0), "r.json").split(":"))
-    assert (lo, hi) == (21.0, 24.0)
+    g = default_grid((-40.01, 80.02), "r.json")
+    assert g[:3] == [-40.01, -40.0, -35.0] and g[-2:] == [80.0, 80.02] and len(g) == 27
+    assert default_grid((21.0, 24.0), "r.json") == [21.0, 24.0]
+    assert default_grid((-40.0, 80.0), "r.json") == [-40.0 + 5.0 * k for k in range(25)]
 
 
 # -- 4 and 5. a C header safe for any serial; extrapolated rows and notes in every format -----------

@@ -14,7 +14,8 @@ def register(sub) -> None:
     p.add_argument("result", help="calibration result (results-json v1, status ok)")
     p.add_argument("--format", choices=("json", "csv", "c-header"), default="json")
     p.add_argument("--grid", default=None, metavar="LO:HI:STEP",
-                   help="temperature grid in degC, e.g. -40:85:5 (default: the calibrated range in 5 degC steps)")
+                   help="temperature grid in degC, e.g. -40:85:5 (default: the calibrated range's two ends and the "
+                        "multiples of 5 degC between them)")
     p.add_argument("-o", "--out", required=True, metavar="FILE", help="the table file to write")
     p.add_argument("--allow-extrapolation", action="store_true",
                    help="accept grid points outside the calibrated range (marked EXTRAPOLATED in the table)")
@@ -43,10 +44,9 @@ def run(args) -> int:
 
 
 def default_grid(rng, name, allow_extrapolation: bool = False) -> str:
-    """The grid when --grid is not given: the calibrated range in 5 degC steps (its own ends when
-    no two multiples of 5 degC lie in it). A result without a temperature range, or of one
+    """The grid when --grid is not given: the calibrated range's two ends and the multiples of
+    5 degC between them (:func:`grid_with_ends`). A result without a temperature range, or of one
     temperature, is refused with what is wrong, not with a grid the user never typed."""
-    import math
 
     from ..errors import InputError
 
@@ -62,7 +62,16 @@ def default_grid(rng, name, allow_extrapolation: bool = False) -> str:
                 "--allow-extrapolation") + f" (its points outside {lo:.2f}..{hi:.2f} degC are marked EXTRAPOLATED)"
         raise InputError(f"{name}: the result was calibrated at one temperature ({lo:.2f}..{hi:.2f} degC): a table of T would "
                          f"be a single point, and the thermal model is not valid away from it; {hint}")
-    lo5, hi5 = 5.0 * math.ceil(lo / 5.0 - 1e-9), 5.0 * math.floor(hi / 5.0 + 1e-9)
-    if hi5 > lo5:
-        return f"{lo5:g}:{hi5:g}:5"
-    return f"{lo!r}:{hi!r}:{hi - lo!r}"       # a range narrower than the 5 degC step: its two ends
+    return grid_with_ends(lo, hi, 5.0)
+
+
+def grid_with_ends(lo: float, hi: float, step: float) -> list:
+    """``lo``, the multiples of ``step`` strictly inside (lo, hi), and ``hi``: the rows cover the
+    whole calibrated range. With rows at the multiples only, a range of -39.8..70.4 degC got rows
+    -35..70: the coldest setpoint had no row, and a firmware holding the end row below -35 degC
+    was off by up to 288 ug against a u of 5 ug (an outside probe)."""
+    import math
+
+    inner = [step * k for k in range(math.floor(lo / step) + 1, math.ceil(hi / step))
+             if lo + 1e-9 < step * k < hi - 1e-9]
+    return [lo, *inner, hi]

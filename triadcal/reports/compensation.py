@@ -262,6 +262,10 @@ def _terms(model: Model, p: dict, T: np.ndarray):
     return K, S, A
 
 
+#: a calibrated range's end more than this (degC) beyond the grid's end is said in the notes
+GRID_SHORT_C = 0.05
+
+
 def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, source_sha256: str = "",
                        allow_outside: bool = False, source: Optional[str] = None) -> CompensationTable:
     """The table of ``result`` on ``grid_C`` (see the module). Refuses a result that is not ok,
@@ -277,10 +281,17 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
                          "temperature alone: a compensation table of T cannot represent them (refit without them, "
                          "or apply the result with CalibrationResult.apply)")
     grid = np.asarray(grid_C, float)
+    if grid.ndim != 1 or len(grid) < 2 or not np.all(np.isfinite(grid)) or np.any(np.diff(grid) <= 0):
+        raise InputError(f"grid {grid.tolist()!r}: need at least two finite temperatures (degC), increasing")
     notes = []
     rng = result.temperature_range_C
     if rng is None:
         raise InputError("the result has no temperature range (no thermal data): a table of T needs one")
+    short = [f"{a:.2f}..{b:.2f}" for a, b in ((rng[0], grid[0]), (grid[-1], rng[1])) if b - a > GRID_SHORT_C]
+    if short:
+        notes.append(f"the grid {grid[0]:g}..{grid[-1]:g} degC leaves {' and '.join(short)} degC of the calibrated "
+                     f"range {rng[0]:.2f}..{rng[1]:.2f} degC without a row: a reading there is outside this table "
+                     "(the default grid ends at the range's ends)")
     outside = grid[(grid < rng[0] - 1e-9) | (grid > rng[1] + 1e-9)]
     if outside.size and not allow_outside:
         raise InputError(f"grid points {', '.join(f'{x:g}' for x in outside)} degC lie outside the calibrated range "
@@ -351,13 +362,15 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
         hysteresis_arcsec=hyst, source_sha256=source_sha256, notes=notes)
 
 
-def export_compensation(result_path, out_path, fmt: str = "json", grid: str = "-40:85:5",
+def export_compensation(result_path, out_path, fmt: str = "json", grid="-40:85:5",
                         allow_outside: bool = False, source: Optional[str] = None) -> CompensationTable:
-    """Read a result file, build its table (:func:`compensation_table`) and write it."""
+    """Read a result file, build its table (:func:`compensation_table`) and write it; ``grid`` is
+    ``LO:HI:STEP`` (:func:`parse_grid`) or the temperatures themselves (degC, increasing)."""
     if fmt not in FORMATS:
         raise InputError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
     digest = hashlib.sha256(Path(result_path).read_bytes()).hexdigest()
-    table = compensation_table(CalibrationResult.load(result_path), parse_grid(grid), source=str(result_path),
+    grid_C = parse_grid(grid) if isinstance(grid, str) else np.asarray(grid, float)
+    table = compensation_table(CalibrationResult.load(result_path), grid_C, source=str(result_path),
                                source_sha256=digest, allow_outside=allow_outside)
     table.write(out_path, fmt)
     return table
