@@ -57,7 +57,8 @@ def test_another_u_for_a_source_refuses(fitted):
 
 
 def test_another_local_g_refuses(fitted):
-    text = C.EXAMPLE_LAB_TOML.replace("# local_g_m_s2 = 9.8112", "local_g_m_s2 = 9.81")
+    text = C.EXAMPLE_LAB_TOML.replace("# local_g_m_s2 = 9.8112", "local_g_m_s2 = 9.81").replace("# u_ppm = 10",
+                                                                                               "u_ppm = 10")
     cert = C.certificate(fitted / "result.json", lab=_lab(fitted, "g.toml", text), issue_date="2026-11-29")
     assert not cert.issued
     assert any("local gravity 9.81000 m/s² differs from the 9.80665 m/s²" in r and "341 ppm" in r

@@ -21,6 +21,8 @@ def lab(tmp_path, text):
     ("[gravity]\nu_ppm = 10\n", "u_ppm = 10 without local_g_m_s2"),
     ("[fixture]\nmounting_u_arcsec = 1e6\n", r"\[fixture\] mounting_u_arcsec = 1e\+06 is above 3600"),
     ("[gravity]\nlocal_g_m_s2 = 9.81\nu_ppm = 1e6\n", r"\[gravity\] u_ppm = 1e\+06 is above 3000"),
+    ("[gravity]\nlocal_g_m_s2 = 9.81\n", r"local_g_m_s2 = 9.81 without u_ppm"),
+    ("[voltmeter]\noffset_u_V = 2.0\n", r"\[voltmeter\] offset_u_V = 2 is above 0.01"),
     ("[bench]\nsigma_position_arcsec = 5\npositioning_sd_arcsec = 50\n", "state the same quantity"),
     ("[chamber]\ntemperature_uncertainty_C = 0.2\n[thermometers]\nu_C = 0.5\n", "state the same quantity"),
 ])
@@ -38,7 +40,7 @@ def test_the_classical_fit_takes_the_labs_gravity(tmp_path):
     status ok); now the lab's, as the joint fit does."""
     c = simulate_campaign(preset_truth(), seed=3)
     c.metadata.pop("local_g_m_s2", None)
-    l_ = lab(tmp_path, "[gravity]\nlocal_g_m_s2 = 9.8112\n")
+    l_ = lab(tmp_path, "[gravity]\nlocal_g_m_s2 = 9.8112\nu_ppm = 10\n")
     r = api.fit(c, method="classical", lab=l_)
     assert r.extra["local_g_m_s2"] == pytest.approx(9.8112)
     r0 = api.fit(c, method="classical")

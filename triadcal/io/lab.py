@@ -160,7 +160,7 @@ mounting_u_arcsec = 3.0         # u of the unit's rotation in its fixture (syste
 
 [gravity]
 # local_g_m_s2 = 9.8112         # measured local gravity; without it the data's value is standard gravity
-# u_ppm = 10
+# u_ppm = 10                    # its u (ppm), required with it
 
 [chamber]
 name = "thermal chamber -60..+100 °C"
@@ -244,6 +244,13 @@ def load_lab(path) -> LabConfig:
     if lab.local_g_m_s2 is not None and not 9.76 <= lab.local_g_m_s2 <= 9.84:
         raise InputError(f"{path}: [gravity] local_g_m_s2 = {lab.local_g_m_s2:g} is not a gravity on the Earth's "
                          "surface (9.76 to 9.84 m/s2)")
+    if lab.local_g_m_s2 is not None and lab.local_g_u_ppm is None:
+        # the reverse of the u_ppm check: a g without its u was taken as exact, the certificate said
+        # "measured, lab file" with no local-gravity row in K's budget (K's U 8.4 ppm instead of 21.7 at
+        # u_ppm = 10; an outside probe who uncommented only the example's first line)
+        raise InputError(f"{path}: [gravity] local_g_m_s2 = {lab.local_g_m_s2:g} without u_ppm: a measured gravity "
+                         "has an uncertainty, and K takes it one to one; state u_ppm (ppm; a gravimeter survey "
+                         "gives < 0.1, a gravity model 10 to 50)")
     return lab
 
 
@@ -258,6 +265,9 @@ LAB_U_LIMITS = tuple(
     + [("local_g_u_ppm", 3000.0, "the local gravity's u in ppm: standard gravity itself is within 2 600 ppm of "
                                  "every site's g"),
        ("voltmeter_gain_u_ppm", 1e5, "a voltmeter's gain u above 10 % is no calibrated meter"),
+       # 2.0 (meant as 2 uV) gave a certificate with S = 0.0008 +- 4 g (an outside probe)
+       ("voltmeter_offset_u_V", 0.01, "a voltmeter's offset u above 10 mV is no calibrated meter on its volt "
+                                      "ranges (a 6.5-digit meter's is a few uV): a unit slip? the field is in V"),
        ("temperature_uncertainty_C", 50.0, "a thermometer's u above 50 degC is no measured temperature"),
        ("bias_drift_u_ug_per_h", 1e4, "a bias drifting by 10 mg per hour is no unit to calibrate (the budget "
                                       "would hold nothing but the drift)")])
