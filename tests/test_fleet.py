@@ -165,6 +165,15 @@ def test_batch_states_and_history(tmp_path, client):
         assert sorted(c["state"] for c in cals) == ["after-shock", "initial"]
         assert h.add(cals[0]["result"]) is False          # the same result twice: a no-op
         assert len(h.calibrations("SN-0001")) == 2
+        # the result as its file holds it (with content_sha256): the same calibration
+        doc = json.loads((tmp_path / "out" / "results" / "SN-0001__initial.json").read_text())
+        assert "content_sha256" in doc and h.add(doc) is False
+    # a rerun skips every pair and records nothing twice (it recorded the files' documents again: two
+    # calibrations of one unchanged result, an outside probe)
+    rep2 = batch([str(tmp_path / "*.csv")], tmp_path / "out", client=client, history=db, html=False)
+    assert rep2.n_skipped == 4 and rep2.n_fitted == 0
+    with HistoryDB(db) as h:
+        assert len(h.calibrations("SN-0001")) == 2 and len(h.calibrations("SN-0002")) == 2
     assert a.exists() and b.exists()
 
 

@@ -54,3 +54,16 @@ def test_a_missing_recording_is_refused(tmp_path):
     m.write_text('[[recording]]\npath = "nope.csv"\nserial = "A"\nrate_hz = 100.0\nunit = "g"\nposes = "known"\n')
     with pytest.raises(InputError, match="no such file"):
         read_manifest(m)
+
+
+@pytest.mark.parametrize("key", ["serial", "state", "path"])
+def test_an_empty_serial_state_or_path_is_refused(tmp_path, key):
+    """serial = "" was fitted under the recording's file name while the summary said unit ''
+    (an outside probe); state = "" became a state of its own."""
+    (tmp_path / "imu0.csv").write_bytes(RECORDING.read_bytes())
+    entry = {"path": '"imu0.csv"', "serial": '"MPU-0"', "state": '"initial"', "rate_hz": "100.0", "unit": '"m/s2"',
+             "poses": '"unknown"', key: '""'}
+    m = tmp_path / "raw.toml"
+    m.write_text("[[recording]]\n" + "".join(f"{k} = {v}\n" for k, v in entry.items()))
+    with pytest.raises(InputError, match=f"recording 1: {key} is empty"):
+        read_manifest(m)

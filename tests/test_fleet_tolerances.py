@@ -52,3 +52,19 @@ def test_one_unit_in_two_spellings_is_one_unit(tmp_path):
     assert out_of_tolerance({"K_x": {"value": 6.1e-5, "unit": "g/counts"}}, tol) == []
     bare = tol_file(tmp_path, "K_x = 1.0\n")
     check_tolerance_units([record("A", 6.1e-5, "g/count"), record("B", 6.0e-5, "g/counts")], bare)   # no refusal
+
+
+def test_a_tolerance_that_matches_no_parameter_is_refused_and_a_pattern_is_warned(tmp_path):
+    """An outside probe: ``Ca_xyy = 10`` (a typo) checked nothing and two units with Ca_xy = 150
+    arcsec came out ok. A name without wildcards that matches no fitted parameter is refused; a
+    pattern that matches none (a shared file's ``"*_hysteresis"``) is a warning."""
+    fleet = [record("A", 1.0, "g/V"), record("B", 1.001, "g/V")]
+    typo = tol_file(tmp_path, "K_xx = [0.99, 1.01]\n")
+    with pytest.raises(InputError, match=r"tolerance 'K_xx' matches no parameter .*\(K_x\)"):
+        write_summary(fleet, tmp_path, typo, html_page=False)
+    pattern = tol_file(tmp_path, 'K_x = [0.99, 1.01]\n"*_hysteresis" = 60\n')
+    _, flags = write_summary(fleet, tmp_path, pattern, html_page=False)
+    assert flags["tolerances_unmatched"] == [
+        "tolerance pattern '*_hysteresis' matches no parameter of the fleet's results: nothing was checked against it"]
+    _, flags = write_summary(fleet, tmp_path, tol_file(tmp_path, "K_x = [0.99, 1.01]\n"), html_page=False)
+    assert flags["tolerances_unmatched"] == []

@@ -410,6 +410,7 @@ def batch(inputs: Sequence, out_dir, *, lab=None, scheduler: Optional[str] = Non
     from .summary import write_summary
 
     report.files, report.flags = write_summary(records, out_dir, tol, html_page=html)
+    report.warnings.extend(report.flags.get("tolerances_unmatched", []))
     if history is not None:
         from .history import HistoryDB
 

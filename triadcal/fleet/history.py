@@ -1,7 +1,8 @@
 """The calibration history per serial number: an SQLite database (standard library) with one
 table ``calibrations(id, serial, state, date, lab, equipment, result, sha256, added)``;
-``equipment`` and ``result`` are JSON text, ``sha256`` that of the result's JSON text (unique:
-recording the same result twice is a no-op)."""
+``equipment`` and ``result`` are JSON text, ``sha256`` that of the result's JSON text without its own
+``content_sha256`` (unique: recording the same result twice is a no-op, whether or not the document
+carries its checksum)."""
 
 from __future__ import annotations
 
@@ -93,8 +94,16 @@ class HistoryDB:
         """Record a result (results-json document); False when it was already recorded."""
         from ..io.atomic import json_safe
 
+        from ..estimation.result import CONTENT_HASH_KEY
+
         text = json.dumps(json_safe(result), sort_keys=True, allow_nan=False)
-        sha = hashlib.sha256(text.encode("utf-8")).hexdigest()
+        # the identity of a calibration is its content without its own checksum: batch recorded a fit
+        # as fitted (no content_sha256) and, on the rerun that skipped it, as read back from its file
+        # (with it): two calibrations of one unchanged result, and an inconclusive compare between them
+        # (an outside probe)
+        body = json.dumps(json_safe({k: v for k, v in result.items() if k != CONTENT_HASH_KEY}), sort_keys=True,
+                          allow_nan=False)
+        sha = hashlib.sha256(body.encode("utf-8")).hexdigest()
         b = result.get("batch") or {}
         date = date or b.get("date") or result.get("date") or (lab.calibration_date if lab is not None else "") \
             or _dt.datetime.now(_dt.timezone.utc).date().isoformat()

@@ -77,6 +77,10 @@ def read_manifest(path) -> list:
                 raise InputError(f"{where}: {k} must be a positive number, got {v!r}")
             if typ is str and not isinstance(v, str):
                 raise InputError(f"{where}: {k} must be a string, got {v!r}")
+            if k in ("serial", "state", "path") and not v.strip():
+                # serial = "" was fitted under the recording's file name (fit-raw's fallback), while the
+                # summary listed unit '' (an outside probe); state = "" became a state of its own
+                raise InputError(f"{where}: {k} is empty" + ("; leave it out for 'initial'" if k == "state" else ""))
             if typ is list and not (isinstance(v, list) and len(v) == 3 and all(isinstance(c, str) for c in v)):
                 raise InputError(f"{where}: columns must be a list of three column names, got {v!r}")
         if e["unit"] not in ("m/s2", "g", "mg", "counts"):

@@ -123,6 +123,25 @@ def check_tolerance_units(records, tolerances) -> None:
                          "the unit in the tolerance file (NAME = {range = [low, high], unit = \"g/V\"}), one per unit")
 
 
+def check_tolerances_match(records, tolerances) -> list[str]:
+    """Refuse a tolerance name without wildcards that matches no parameter of any fitted result: a
+    typo (``Ca_xyy``) checked nothing, and the units came out "ok" with Ca_xy 15 times its limit (an
+    outside probe). A pattern (``*``, ``?``) that matches nothing is returned, for a warning: a shared
+    tolerance file may hold ``"*_hysteresis"`` for a fleet fitted without hysteresis. A fleet with no
+    fitted result has nothing to match against."""
+    names = {n for r in records for n in ((r.get("result") or {}).get("parameters") or {})}
+    if not names or not tolerances:
+        return []
+    unmatched = [t[0] for t in tolerances if not any(fnmatch.fnmatchcase(n, t[0]) for n in names)]
+    exact = [u for u in unmatched if not any(c in u for c in "*?[")]
+    if exact:
+        raise InputError(f"tolerance {', '.join(repr(u) for u in exact)} matches no parameter of the fleet's "
+                         f"results ({', '.join(sorted(names))}): no unit was checked against it (a typo?); the "
+                         "results are saved, so the same command with the tolerance corrected refits nothing")
+    return [f"tolerance pattern {u!r} matches no parameter of the fleet's results: nothing was checked against it"
+            for u in unmatched]
+
+
 # -- outliers ----------------------------------------------------------------------------------
 
 def robust_outliers(values, u=None, k: float = OUTLIER_K) -> np.ndarray:
@@ -208,10 +227,12 @@ def units_of(rows, name: str) -> list[str]:
 
 def write_summary(records, out_dir, tolerances=None, html_page: bool = True) -> tuple[dict, dict]:
     """Write fleet.csv, fleet.parquet and fleet.html into ``out_dir``; return (files, flags)
-    with flags = {"out_of_tolerance": {unit/state: [names]}, "outliers": {unit/state: [names]}}."""
+    with flags = {"out_of_tolerance": {unit/state: [names]}, "outliers": {unit/state: [names]},
+    "tolerances_unmatched": [warnings of patterns that matched nothing]}."""
     from ..io.atomic import atomic_path, atomic_write, atomic_write_text
 
     out_dir = Path(out_dir)
+    unmatched = check_tolerances_match(records, tolerances)
     check_tolerance_units(records, tolerances)
     columns, rows, names = table(records, tolerances)
     files = {"csv": out_dir / "fleet.csv", "parquet": out_dir / "fleet.parquet"}
@@ -241,7 +262,8 @@ def write_summary(records, out_dir, tolerances=None, html_page: bool = True) -> 
         atomic_write_text(files["html"], render_html(rows, names, tolerances))
     flags = {"out_of_tolerance": {f"{r['unit']}/{r['state']}": r["out_of_tolerance"].split(";")
                                   for r in rows if r["out_of_tolerance"]},
-             "outliers": {f"{r['unit']}/{r['state']}": r["outliers"].split(";") for r in rows if r["outliers"]}}
+             "outliers": {f"{r['unit']}/{r['state']}": r["outliers"].split(";") for r in rows if r["outliers"]},
+             "tolerances_unmatched": unmatched}
     return files, flags
 
 
