@@ -101,6 +101,68 @@ def test_a_relay_hysteresis_on_a_quadratic_tempco_is_named(tmp_path):
     assert a.branch_gap == pytest.approx(0.04, abs=0.005)            # cooling - heating = 2 h
 
 
+def _ode_element(t, T, tau):
+    """The element's temperature lagging ``T`` by ``tau`` (s), by scipy's ODE solver."""
+    Tf = lambda s: np.interp(s, t, T)  # noqa: E731
+    return solve_ivp(lambda s, y: (Tf(s) - y) / tau, (t[0], t[-1]), [T[0]], t_eval=t, rtol=1e-9, atol=1e-9,
+                     max_step=5.0).y[0]
+
+
+def test_a_lag_and_a_relay_hysteresis_at_once_are_named_together(tmp_path):
+    """An outside probe: a 5 min lag plus an offset hysteresis of 3 mm/s2 was named a lag alone,
+    "explained", tau 24 % long (the branch gap taken up by the lag). Here the element by an ODE
+    solver, its branch by a relay written out (the sign of its last move beyond 0.05 degC, held):
+    lag_hysteresis, tau within 15 %, the branch gap closed."""
+    tau, h = 300.0, 0.003
+
+    def out(t, T):
+        Te = _ode_element(t, T, tau)
+        b, ref = np.empty_like(Te), Te[0]
+        state = 1.0
+        for k, x in enumerate(Te):            # a relay: switches after a 0.05 degC move the other way
+            if x < ref - 0.05:
+                state, ref = 1.0, x
+            elif x > ref + 0.05:
+                state, ref = -1.0, x
+            ref = min(ref, x) if state == 1.0 else max(ref, x)
+            b[k] = state
+        return 0.1 + 0.002 * (Te - 20.0) + h * b
+
+    a = _run(_cycle(tmp_path, out, "laghyst.csv"))
+    assert a.best == "lag_hysteresis", [(f.name, f.cv_rms / a.noise_floor) for f in a.forms]
+    assert a.form(a.best).parameter["tau_min"] == pytest.approx(tau / 60.0, rel=0.15)
+    assert a.form(a.best).coefficients[2] == pytest.approx(h, rel=0.15)
+    assert a.form(a.best).cv_rms < 1.3 * a.noise_floor
+    assert abs(a.form(a.best).branch_gap) < 0.1 * abs(a.branch_gap)
+
+
+def test_a_lag_shorter_than_half_a_minute_is_a_lag(tmp_path):
+    """An outside probe: tau = 18 s was named a play or an offset hysteresis in 5 runs of 5 (the
+    search started at 30 s)."""
+    tau = 18.0
+    a = _run(_cycle(tmp_path, lambda t, T: -9.6 + 0.02 * (_ode_element(t, T, tau) - 20.0), "short.csv"))
+    assert a.best == "lag", [(f.name, f.cv_rms / a.noise_floor) for f in a.forms]
+    assert a.form("lag").parameter["tau_min"] == pytest.approx(tau / 60.0, rel=0.15)
+
+
+def test_a_duplicated_column_kelvin_and_a_nan_reference_are_refused(tmp_path):
+    p = _cycle(tmp_path, lambda t, T: 0.1 + 0.002 * (T - 20.0), "ok.csv")
+    lines = p.read_text().splitlines()
+    dup = tmp_path / "dup.csv"
+    dup.write_text("\n".join(["timestamp\ttemp\tacc\tacc"] + [f"{ln}\t0" for ln in lines[1:]]) + "\n")
+    with pytest.raises(InputError, match=r"dup.csv:1: the header names column 'acc' more than once"):
+        _run(dup)
+    kelvin = tmp_path / "k.csv"
+    rows = [ln.split("\t") for ln in lines[1:]]
+    kelvin.write_text("\n".join([lines[0]] + [f"{a}\t{float(b) + 273.15:.5f}\t{c}" for a, b, c in rows]) + "\n")
+    with pytest.raises(InputError, match=r"k.csv:\d+: column 'temp': .* not a chamber temperature .*kelvin"):
+        _run(kelvin)
+    for ref in (float("nan"), float("inf")):
+        with pytest.raises(InputError, match="--reference-temperature"):
+            thermal_cycle(p, ["acc"], time_column="timestamp", temperature_column="temp", time_unit="us",
+                          reference_temperature_C=ref)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
 def test_a_clean_quadratic_is_named_a_quadratic(tmp_path, seed):
     """The simplest form within one standard error or 1 % of the best held-out error

@@ -13,6 +13,10 @@ non-linear parameter, :mod:`triadcal.models.thermal_history` for the operators):
   +1 cooling, -1 heating, 0 still (the joint model's hysteresis term);
 - ``lag``, ``lag_quadratic``: linear / quadratic in the temperature of an element lagging the
   sensor by a first-order time constant tau;
+- ``lag_hysteresis``: linear in the lagging element's temperature ``T_e`` plus ``h b_e``, ``b_e``
+  the element's branch held through soaks (``(play(T_e, 0.1) - T_e) / 0.1``): a lag and an offset
+  hysteresis at once, which a lag alone took up with a biased tau (+24 % at h = 3 mm/s2, +88 % at
+  h = 10), "explained" (an outside probe);
 - ``play``, ``play_quadratic``: linear / quadratic in the play operator of the temperature
   (half-width r; the branches join at the turning points);
 - ``quadratic_play``: quadratic in T plus ``h (play(T, r) - T)``: a play hysteresis on top of a
@@ -39,15 +43,22 @@ from ..models.thermal_history import first_order_lag, play_operator
 
 FORMAT = "triadcal.thermal_cycle"
 VERSION = 1
-FORMS = ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hysteresis", "lag", "lag_quadratic", "play",
-         "play_quadratic", "quadratic_play")
-#: time constants tried for the lag (s) and half-widths for the play (degC)
-TAU_GRID_S = tuple(float(x) for x in np.geomspace(30.0, 7200.0, 36))
+FORMS = ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hysteresis", "lag", "lag_quadratic",
+         "lag_hysteresis", "play", "play_quadratic", "quadratic_play")
+#: time constants tried for the lag (s) and half-widths for the play (degC). The lag's grid starts at
+#: 5 s: from 30 s, an element lagging by 18 s was named a play or an offset hysteresis, "explained",
+#: in 5 runs of 5 (an outside probe)
+TAU_GRID_S = tuple(float(x) for x in np.geomspace(5.0, 7200.0, 47))
+#: the relay of ``lag_hysteresis``: a play of this half-width (degC) on the element's temperature,
+#: scaled to +-1: +1 after cooling, -1 after heating, held through a soak
+RELAY_HALF_WIDTH_C = 0.1
 PLAY_GRID_C = tuple(float(x) for x in np.linspace(0.25, 30.0, 120))
 #: a form "explains" an axis when its held-out RMS is within this factor of the white-noise floor
 EXPLAINED_FACTOR = 3.0
 #: |dT/dt| below which the chamber counts as still (no branch), degC/min
 STILL_RATE_C_MIN = 0.2
+#: the hottest temperature a chamber cycle of an IMU reaches, degC (chambers for IMUs end at +125 to +180)
+MAX_TEMPERATURE_C = 200.0
 #: m/s^2 per g (the conversion constant only: the recording's own g is not known)
 G0 = 9.80665
 #: a chamber moves the unit's temperature at a few degC/min (thermal-shock chambers at some tens):
@@ -148,6 +159,11 @@ def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> 
         d = T - T_ref
     elif form.startswith("lag"):
         d = op("lag", p) - T_ref
+        if form == "lag_hysteresis":
+            if ("relay", p) not in cache:
+                Te = op("lag", p)
+                cache[("relay", p)] = (play_operator(Te, RELAY_HALF_WIDTH_C) - Te) / RELAY_HALF_WIDTH_C
+            return np.stack([one, d, cache[("relay", p)]], axis=1)
     else:
         d = op("play", p) - T_ref
     cols = [one, d]
@@ -321,6 +337,11 @@ def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, t
         for d in (",", "\t", ";"):
             fields = [f.strip() for f in next(csv.reader([line], delimiter=d), [])]
             if all(c in fields for c in want):
+                twice = [c for c in dict.fromkeys(want) if fields.count(c) > 1]
+                if twice:
+                    # the first of two columns of one name was read silently (an outside probe)
+                    raise InputError(f"{path}:{k + 1}: the header names column {', '.join(repr(c) for c in twice)} "
+                                     "more than once: which one holds the data is not known")
                 header_at, index, sep, header = k, [fields.index(c) for c in want], d, fields
                 break
         if header_at is not None:
@@ -356,8 +377,15 @@ def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, t
     if np.any(np.diff(t) <= 0):
         k = int(np.flatnonzero(np.diff(t) <= 0)[0])
         raise InputError(f"{path}:{header_at + k + 3}: column '{time_column}': the time does not increase")
-    check_time_axis(path, a[:, 0], a[:, 1], time_column, time_unit)
-    return t, a[:, 1], a[:, 2:]
+    T = a[:, 1]
+    if T.min() < -273.15 or T.max() > MAX_TEMPERATURE_C:
+        # kelvin read as degC gave "254.4 .. 341.8 degC" and a verdict (an outside probe)
+        k = int(np.argmax((T < -273.15) | (T > MAX_TEMPERATURE_C)))
+        hint = " (kelvin? the column must be in degC)" if T.min() > 200.0 else ""
+        raise InputError(f"{path}:{header_at + k + 2}: column '{temperature_column}': {T[k]:g} is not a chamber "
+                         f"temperature in degC (-273.15 to {MAX_TEMPERATURE_C:g}){hint}")
+    check_time_axis(path, a[:, 0], T, time_column, time_unit)
+    return t, T, a[:, 2:]
 
 
 def _span(seconds: float) -> str:
@@ -401,6 +429,9 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
     """Analyse a one-pose chamber cycle (see the module)."""
     if folds < 3:
         raise InputError("--folds must be at least 3")
+    if not (math.isfinite(reference_temperature_C) and -273.15 <= reference_temperature_C <= MAX_TEMPERATURE_C):
+        # nan ended in "internal error: SVD did not converge" (an outside probe)
+        raise InputError(f"--reference-temperature {reference_temperature_C!r}: give a temperature in degC")
     t, T, y = read_cycle(path, columns, time_column, time_unit, temperature_column)
     if np.ptp(T) < 10.0:
         raise InputError(f"{path}: the temperature spans {np.ptp(T):.1f} degC; a thermal form needs a cycle of at "
@@ -415,6 +446,10 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
              "scale factor and of the bias cannot be told apart, so the forms describe that output, not K and S",
              "noise floor: the SD of sample-to-sample differences / sqrt 2 (white part only); held-out RMS near it "
              "means the form leaves nothing but noise"]
+    if any(a.branch_gap is None for a in axes):
+        notes.append(f"no branch gap at {reference_temperature_C:g} degC: a branch has fewer than 10 samples within "
+                     "+-5 degC of it (the reference temperature outside the cycle's ramps, or a gap in the record); "
+                     "the hysteresis is judged by the forms' held-out errors alone")
     parts = []
     for a in axes:
         lin, best = a.form("linear"), a.form(a.best)
