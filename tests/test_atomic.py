@@ -141,3 +141,32 @@ def test_an_event_log_torn_by_a_kill_is_ended_and_the_next_session_starts_on_its
     assert kinds == ["session_start", "torn_line", "session_start"]
     torn = read_events(path)[1]
     assert torn["line"] == 2 and torn["n_bytes"] == len('{"wall_time": 1.0, "kind": "vis')
+
+
+def test_every_toml_reader_says_utf16_and_skips_a_bom(tmp_path):
+    """An outside probe: a lab file saved as UTF-16 ended in "internal error: UnicodeDecodeError";
+    one with a UTF-8 byte-order mark was "Invalid statement (line 1, column 1)". The lab file, the
+    instruments and capture config files, bench profiles, tolerance files and manifests are read by
+    one reader (io.atomic.read_toml)."""
+    from triadcal.errors import InputError
+    from triadcal.fleet.manifest import read_manifest
+    from triadcal.fleet.summary import load_tolerances
+    from triadcal.hardware.instrument_config import load_instruments
+    from triadcal.io.lab import load_lab
+
+    cases = [(load_lab, "[fixture]\nmounting_u_arcsec = 3.0\n", lambda r: r.mounting_u_arcsec == 3.0),
+             (load_tolerances, "[tolerances]\nK_x = 1.0\n", lambda r: r == [("K_x", -1.0, 1.0, None)]),
+             (load_instruments, "[chamber]\ndriver = \"espec\"\nport = \"loop://\"\n",
+              lambda r: r["chamber"]["driver"] == "espec"),
+             (read_manifest, "[[recording]]\n", None)]
+    for i, (reader, text, ok) in enumerate(cases):
+        p = tmp_path / f"f{i}.toml"
+        p.write_bytes(text.encode("utf-16"))
+        with pytest.raises(InputError, match=r"f\d.toml: not UTF-8 text \(byte 0; it is UTF-16\)"):
+            reader(p)
+        if ok is not None:
+            p.write_bytes(b"\xef\xbb\xbf" + text.encode("utf-8"))
+            assert ok(reader(p))
+        p.write_text("[oops\n", encoding="utf-8")
+        with pytest.raises(InputError, match=r"not valid TOML \(a"):
+            reader(p)

@@ -18,7 +18,6 @@ the entry and the key named."""
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -50,13 +49,12 @@ def is_manifest(path) -> bool:
 def read_manifest(path) -> list:
     """The entries of a manifest, validated (see the module)."""
     path = Path(path)
+    from ..io.atomic import read_toml
+
     try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML: {exc}") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+        data = read_toml(path, "a manifest")
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such manifest") from None
     unknown = [k for k in data if k != "recording"]
     if unknown or not isinstance(data.get("recording"), list) or not data["recording"]:
         raise InputError(f"{path}: a manifest holds [[recording]] entries only"

@@ -10,7 +10,6 @@ import fnmatch
 import html
 import io
 import math
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -45,11 +44,12 @@ def load_tolerances(path) -> list[tuple]:
     parameter's own unit, and a fleet holding the parameter in two units is refused by
     :func:`check_tolerance_units` (a K of 0.99-1.01 g/V says nothing of a K in g/counts)."""
     path = Path(path)
+    from ..io.atomic import read_toml
+
     try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML: {exc}") from None
+        data = read_toml(path, "a tolerance file")
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such tolerance file") from None
     extra = [k for k in data if k != "tolerances"]
     if extra or not isinstance(data.get("tolerances"), dict):
         raise InputError(f"{path}: a tolerance file has one section [tolerances] (NAME = limit or [low, high])"

@@ -15,13 +15,13 @@ from ..errors import InputError
 def load_port_config(path) -> dict:
     """A capture config file (TOML): tables ``[imu]`` (port, protocol, baudrate),
     ``[bench]`` (port, baudrate) and ``[chamber]`` (port, slave, baudrate)."""
-    import tomllib
+
+    from ..io.atomic import read_toml
 
     try:
-        with open(path, "rb") as fh:
-            cfg = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not a valid TOML config file: {exc}") from None
+        cfg = read_toml(path, "a capture config file")
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such config file") from None
     for section in ("imu", "bench", "chamber"):
         if section in cfg and "port" not in cfg[section]:
             raise InputError(f"{path}: [{section}] needs a 'port'")
@@ -105,17 +105,15 @@ def load_instruments(path) -> dict:
     kept as written (``drivers.dmm.open_voltmeter``), plus ``time_scale`` (instrument seconds
     per wall second for :func:`capture_voltmeter`; 1 for real meters, the emulator writes its
     own)."""
-    import tomllib
 
     from .drivers.chamber import CHAMBER_DRIVERS
 
+    from ..io.atomic import read_toml
+
     try:
-        with open(path, "rb") as fh:
-            doc = tomllib.load(fh)
+        doc = read_toml(path, "an instruments file")
     except FileNotFoundError:
         raise InputError(f"{path}: no such instruments file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not a valid TOML instruments file: {exc}") from None
     out: dict = {}
     for section, table in doc.items():
         if section not in INSTRUMENT_KEYS:

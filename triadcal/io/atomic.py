@@ -229,6 +229,32 @@ def _child_path(stack) -> str:
     return f"{path}.{last}" if path else str(last)
 
 
+def read_toml(path, what: str = "a TOML file") -> dict:
+    """A TOML document from ``path`` with one-line errors naming the file: not there (FileNotFoundError
+    is re-raised for the callers that say more), not UTF-8 (a lab file saved as UTF-16 ended in
+    "internal error: UnicodeDecodeError", an outside probe), not valid TOML (line and column). A
+    UTF-8 byte-order mark is skipped, as the CSV readers skip it (it was "Invalid statement (line 1,
+    column 1)"). ``what`` names the kind of file in the messages."""
+    import tomllib
+
+    try:
+        raw = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        utf16 = raw[:2] in (b"\xff\xfe", b"\xfe\xff")
+        raise InputError(f"{path}: not UTF-8 text (byte {exc.start}{'; it is UTF-16' if utf16 else ''}): save the "
+                         f"{what.split(' ', 1)[-1]} as UTF-8") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML ({what}): {exc}") from None
+
+
 def read_json(path):
     """A JSON document from ``path`` with one-line errors naming the file and line: not UTF-8,
     not JSON, NaN or Infinity tokens (not JSON), a key given twice in one object (JSON leaves

@@ -7,7 +7,6 @@ from __future__ import annotations
 from ..errors import InputError
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -188,11 +187,12 @@ def load_lab(path) -> LabConfig:
     ``due`` date. Unknown sections or keys and values of the wrong type are refused with the
     file, section and key named."""
     path = Path(path)
+    from .atomic import read_toml
+
     try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML: {exc}") from None
+        data = read_toml(path, "a lab file")
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such lab file") from None
     lab = LabConfig(source=str(path))
     given: dict = {}                       # attribute -> "[section] key" that set it (synonyms clash)
     for section, table in data.items():

@@ -135,20 +135,18 @@ def load_profile(path_or_name) -> BenchProfile:
     """A profile from a TOML file, or by name from the shipped ones (``"esp301"``).
     Unknown keys, missing commands, bad placeholders and bad regular expressions are refused,
     naming the file, the section and the key."""
-    import tomllib
 
     p = Path(str(path_or_name))
     if not p.suffix and not p.exists():
         p = PROFILE_DIR / f"{p.name}.toml"
     src = str(p)
+    from ...io.atomic import read_toml
+
     try:
-        with open(p, "rb") as fh:
-            doc = tomllib.load(fh)
+        doc = read_toml(p, "a bench profile")
     except FileNotFoundError:
         shipped = ", ".join(sorted(q.stem for q in PROFILE_DIR.glob("*.toml")))
         raise InputError(f"bench profile {path_or_name}: no such file (shipped profiles: {shipped})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{src}: not a valid TOML bench profile: {exc}") from None
     return parse_profile(doc, src)
 
 
