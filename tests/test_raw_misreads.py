@@ -451,3 +451,34 @@ def test_samples_written_twice_are_named_in_the_refusal(tmp_path):
     p = write_recording(tmp_path / "twice.csv", np.repeat(w, 2, axis=0))
     with pytest.raises(InputError, match="50 % of the samples repeat the one before on all three channels"):
         fit_raw(str(p), 2 * RATE, poses="unknown")
+
+
+def test_one_huge_reading_does_not_blind_the_static_detection(tmp_path):
+    """An outside probe: one reading of 1e9 (inside the parser's 1e10 limit) in mikoff's imu0
+    recording put 1e18 into moving_sd's running sum of squares; its differences lost every digit and
+    the fit said "found 4 static intervals". The moving SD against the exact one of every window
+    (numpy's sliding windows), and the recording's fit with and without the spike."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    from triadcal.estimation.raw.detection import moving_sd
+
+    rng = np.random.default_rng(4)
+    x = np.repeat([0.0, 9.81, -9.81, 3.0], 2500)[:, None] + rng.normal(0, 0.02, (10000, 1))
+    x[5001, 0] = 1e9
+    w = 101
+    sd = moving_sd(x, w)[w // 2:w // 2 + len(x) - w + 1, 0]
+    exact = sliding_window_view(x[:, 0], w).std(axis=1, ddof=1)
+    clean = np.ones(len(exact), bool)
+    clean[5001 - w + 1:5002] = False                       # the windows holding the spike
+    np.testing.assert_allclose(sd[clean], exact[clean], rtol=1e-6)      # clean: 1e-8; the clipped spike's 4e6 in the sums
+    assert np.all(sd[~clean] > 1e3 * 0.02)                  # still far from static (>= 100 ranges / sqrt(w))
+    src = ROOT / "examples" / "data" / "mikoff_imu0.csv"
+    lines = src.read_text().splitlines()
+    lines[5001] = "1e9," + ",".join(lines[5001].split(",")[1:])
+    spiked = tmp_path / "spike.csv"
+    spiked.write_text("\n".join(lines) + "\n")
+    a = fit_raw(str(src), 100.0, unit="m/s2", poses="unknown").result
+    b = fit_raw(str(spiked), 100.0, unit="m/s2", poses="unknown").result
+    assert len(b.extra["static_intervals"]) >= len(a.extra["static_intervals"]) - 1
+    for name in ("K_x", "K_y", "K_z", "S_x", "S_y", "S_z"):
+        assert abs(b.parameters[name].value - a.parameters[name].value) < 0.5 * a.parameters[name].u, name
