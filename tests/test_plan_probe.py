@@ -102,3 +102,48 @@ def test_plan_off_ambient_estimates_the_hysteresis_and_its_fit_is_unbiased(tmp_p
         if n.endswith("_tempco") and n.startswith("Ca_") and n in tp:
             tv = tp[n]["value"] if isinstance(tp[n], dict) else tp[n]
             assert abs(p["value"] - tv) <= 3.5 * p["u"], (n, p, tv)
+
+
+def _mutations():
+    """(name, edit of the plan document, field the refusal names) — an outside fuzz probe's list."""
+    def sp(k, key, v):
+        return lambda d: d["setpoints"][k].__setitem__(key, v)
+
+    def pos(k, key, v):
+        return lambda d: d["positions"][k].__setitem__(key, v)
+
+    return [
+        ("label twice", pos(1, "label", "P01"), r"positions\[1\]\.label: 'P01' appears twice"),
+        ("setpoint 1e6", sp(1, "setpoint_C", 1e6), r"setpoints\[1\]\.setpoint_C: 1000000\.0 out of range"),
+        ("setpoint as text", sp(1, "setpoint_C", "-40"), r"setpoints\[1\]\.setpoint_C: expected a finite number"),
+        ("soak -100", sp(1, "soak_s", -100.0), r"setpoints\[1\]\.soak_s: -100\.0 out of range"),
+        ("direction contradicts", lambda d: d["setpoints"][1].__setitem__(
+            "direction", "cooling" if d["setpoints"][1]["direction"] == "heating" else "heating"),
+         r"setpoints\[1\]\.direction: '\w+', but the sequence"),
+        ("angle 1e9", pos(0, "axis1_deg", 1e9), r"positions\[0\]\.axis1_deg: 1000000000\.0 out of range"),
+        ("1.5 repetitions", lambda d: d.__setitem__("repetitions", 1.5), "repetitions: expected a whole number"),
+        ("rate 0", lambda d: d.__setitem__("chamber_rate_C_per_min", 0.0), "chamber_rate_C_per_min: 0.0 out of range"),
+        ("tau as text", lambda d: d.__setitem__("tau_s", "30"), "tau_s: expected a finite number"),
+        ("unknown key", lambda d: d.__setitem__("tau_ms", 30000), "field tau_ms: not a field of a plan"),
+        ("n_visits edited", lambda d: d.__setitem__("n_visits", 44), "n_visits: 44, but"),
+    ]
+
+
+@pytest.mark.parametrize("name, edit, match", _mutations(), ids=[m[0] for m in _mutations()])
+def test_a_plan_file_is_read_field_by_field(tmp_path, name, edit, match):
+    """Before, a stepped plan was read with float() alone: a label given twice dropped a position
+    silently (44 visits for 48), 1e6 degC was simulated into NaN outputs (exit 0), -100 s soaks,
+    1.5 repetitions, text numbers and contradicting directions were accepted."""
+    import copy
+    import json
+
+    from triadcal.planning.plan import Plan, example_plan
+
+    doc = example_plan().to_dict()
+    assert Plan.from_dict(copy.deepcopy(doc), "p.json").n_visits == doc["n_visits"]
+    bad = copy.deepcopy(doc)
+    edit(bad)
+    p = tmp_path / "p.json"
+    p.write_text(json.dumps(bad))
+    with pytest.raises(InputError, match=rf"p.json: field {match}" if not match.startswith("field") else match):
+        Plan.load(p)

@@ -26,7 +26,6 @@ fit's own algebra) and ``U = 2 sqrt(diag(C_A + C_B))``.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field, replace
 from typing import Mapping, Optional, Sequence
 
@@ -135,9 +134,14 @@ class Plan:
 
     @classmethod
     def from_dict(cls, d: Mapping, source: str = "plan") -> "Plan":
-        if d.get("format") != FORMAT or d.get("version") != 1:
-            raise InputError(f"{source}: not a {FORMAT} version 1 document (format={d.get('format')!r}, "
-                             f"version={d.get('version')!r})")
+        """A plan from its document, every field checked (:func:`.plan_fields.check_plan_fields`),
+        the directions and the visit count against the plan built."""
+        from .plan_fields import check_plan_fields
+
+        if not isinstance(d, Mapping) or d.get("format") != FORMAT or d.get("version") != 1:
+            got = (d.get("format"), d.get("version")) if isinstance(d, Mapping) else (type(d).__name__, None)
+            raise InputError(f"{source}: not a {FORMAT} version 1 document (format={got[0]!r}, version={got[1]!r})")
+        check_plan_fields(d, source)
         try:
             sps = d["setpoints"]
             plan = cls(setpoints_C=tuple(float(s["setpoint_C"]) for s in sps),
@@ -151,19 +155,20 @@ class Plan:
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{source}: a plan needs setpoints (setpoint_C, soak_s), positions (label, "
                              f"axis1_deg, axis2_deg) and tau_s: {exc!r}") from None
-        if not plan.setpoints_C or not plan.positions or plan.tau_s <= 0 or plan.repetitions < 1:
-            raise InputError(f"{source}: a plan needs at least one setpoint, one position, tau_s > 0 and "
-                             "repetitions >= 1")
+        for k, (s, want) in enumerate(zip(d["setpoints"], plan.directions())):
+            if "direction" in s and s["direction"] != want:
+                raise InputError(f"{source}: field setpoints[{k}].direction: {s['direction']!r}, but the sequence of "
+                                 f"setpoints makes it {want!r} (the direction is the sequence's, not a choice)")
+        if "n_visits" in d and d["n_visits"] != plan.n_visits:
+            raise InputError(f"{source}: field n_visits: {d['n_visits']!r}, but the plan's setpoints, positions and "
+                             f"repetitions make {plan.n_visits} (an edited plan?)")
         return plan
 
     @classmethod
     def load(cls, path) -> "Plan":
-        try:
-            with open(path, encoding="utf-8") as fh:
-                d = json.load(fh)
-        except (OSError, json.JSONDecodeError) as exc:
-            raise InputError(f"{path}: cannot read the plan: {exc}") from None
-        return cls.from_dict(d, str(path))
+        from ..io.atomic import read_json
+
+        return cls.from_dict(read_json(path), str(path))
 
 
 def example_plan() -> Plan:

@@ -21,7 +21,6 @@ target ends the search.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from typing import Mapping, Optional, Sequence
 
@@ -134,16 +133,7 @@ def check_ramp_fields(d: Mapping, path) -> None:
     ``hold_s``, ``move_s`` >= 0; ``positions`` a non-empty list of objects with a unique non-empty
     ``label`` and bench angles within +-360 deg. Before, ``RampPlan.from_dict`` took a rate of
     Infinity and a label given twice (the second overwrote the first, one position silently lost)."""
-    def number(key, value, *, low=-math.inf, high=math.inf, strict_low=False, where=None):
-        name = where or key
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise InputError(f"{path}: field {name}: expected a finite number, got {value!r}")
-        if value < low or (strict_low and value == low) or value > high:
-            rng = f"> {low:g}" if strict_low else f">= {low:g}"
-            if math.isfinite(high):
-                rng += f" and <= {high:g}"
-            raise InputError(f"{path}: field {name}: {value!r} out of range (must be {rng})")
-        return float(value)
+    from .plan_fields import check_positions, number
 
     for key in ("program_C", "rate_C_per_min", "tau_s", "positions"):
         if key not in d:
@@ -153,34 +143,17 @@ def check_ramp_fields(d: Mapping, path) -> None:
     if not isinstance(prog, list) or len(prog) < 2:
         raise InputError(f"{path}: field program_C: expected a list of at least two temperatures (degC), "
                          f"got {prog!r}")
-    values = [number("program_C", v, low=-273.15, high=1000.0, where=f"program_C[{k}]") for k, v in enumerate(prog)]
+    values = [number(path, f"program_C[{k}]", v, low=-273.15, high=1000.0) for k, v in enumerate(prog)]
     for k in range(1, len(values)):
         if values[k] == values[k - 1]:
             raise InputError(f"{path}: field program_C[{k}]: {values[k]:g} degC repeats program_C[{k - 1}] "
                              "(a leg must change the temperature; use hold_s for a pause)")
-    number("rate_C_per_min", d["rate_C_per_min"], low=0.0, strict_low=True, high=100.0)
-    number("tau_s", d["tau_s"], low=0.0, strict_low=True)
+    number(path, "rate_C_per_min", d["rate_C_per_min"], low=0.0, strict_low=True, high=100.0)
+    number(path, "tau_s", d["tau_s"], low=0.0, strict_low=True)
     for key in ("hold_s", "move_s"):
         if key in d:
-            number(key, d[key], low=0.0)
-    pos = d["positions"]
-    if not isinstance(pos, list) or not pos:
-        raise InputError(f"{path}: field positions: expected a non-empty list of {{label, axis1_deg, axis2_deg}}")
-    seen = set()
-    for k, p in enumerate(pos):
-        if not isinstance(p, dict):
-            raise InputError(f"{path}: field positions[{k}]: expected an object {{label, axis1_deg, axis2_deg}}, "
-                             f"got {p!r}")
-        for key in ("label", "axis1_deg", "axis2_deg"):
-            if key not in p:
-                raise InputError(f"{path}: field positions[{k}].{key} is missing")
-        if not isinstance(p["label"], str) or not p["label"].strip():
-            raise InputError(f"{path}: field positions[{k}].label: expected a non-empty text, got {p['label']!r}")
-        if p["label"] in seen:
-            raise InputError(f"{path}: field positions[{k}].label: {p['label']!r} appears twice")
-        seen.add(p["label"])
-        for key in ("axis1_deg", "axis2_deg"):
-            number(key, p[key], low=-360.0, high=360.0, where=f"positions[{k}].{key}")
+            number(path, key, d[key], low=0.0)
+    check_positions(d, path)
 
 
 def read_ramp_plan(path) -> "RampPlan":
