@@ -281,8 +281,8 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
                          "temperature alone: a compensation table of T cannot represent them (refit without them, "
                          "or apply the result with CalibrationResult.apply)")
     grid = np.asarray(grid_C, float)
-    if grid.ndim != 1 or len(grid) < 2 or not np.all(np.isfinite(grid)) or np.any(np.diff(grid) <= 0):
-        raise InputError(f"grid {grid.tolist()!r}: need at least two finite temperatures (degC), increasing")
+    if grid.ndim != 1 or len(grid) < 1 or not np.all(np.isfinite(grid)) or np.any(np.diff(grid) <= 0):
+        raise InputError(f"grid {grid.tolist()!r}: need finite temperatures (degC), increasing")
     notes = []
     rng = result.temperature_range_C
     if rng is None:
