@@ -159,6 +159,22 @@ def test_temperatures_in_fahrenheit_are_refused(tmp_path, valid):
     assert err.line == table.line_of_row(first)
 
 
+def test_a_file_wholly_in_fahrenheit_is_refused_by_its_setpoints(tmp_path, valid):
+    """An outside probe converted setpoint_C and every t_* of the example campaign to degF: the t_*
+    check compares the two columns, which agree, and the fit said ok with K_x 400 ppm (300 u) and
+    Ca_xy 80 u off. The setpoints are the degF of multiples of 5 degC: refused, with the override."""
+    table = valid
+    for col in ("setpoint_C", "t_x", "t_y", "t_z"):
+        table.map(col, fahrenheit)
+    err = refused(table.write(tmp_path / "all_degF.csv"))
+    sp = np.array(table.col("setpoint_C"), float)
+    first = int(np.flatnonzero(np.abs(sp / 5 - np.round(sp / 5)) > 0.01)[0])
+    assert err.column == "setpoint_C" and err.line == table.line_of_row(first)
+    assert "are the degF of" in err.problem and "(x - 32)/1.8" in err.problem
+    table.comments.append("# t_override = true")
+    assert read_bench_csv(table.write(tmp_path / "override.csv")).n_visits == len(table.rows)
+
+
 def test_one_column_in_fahrenheit_is_named(tmp_path):
     table = independent_table()
     table.map("t_y", fahrenheit)

@@ -170,6 +170,40 @@ def check_temperature_unit(path, c: Campaign) -> None:
             "unit far from the chamber's setpoint), add the line '# t_override = true'")
 
 
+#: distinct setpoints from which their pattern can tell degF: every (s - 32)/1.8 a multiple of 5 degC
+#: while the setpoints as read are not all multiples of 5
+FAHRENHEIT_PATTERN_MIN_SETPOINTS = 4
+
+
+def check_fahrenheit_setpoints(path, c: Campaign) -> None:
+    """Refuse a file whose setpoints read as degF, t_* with them (the t_* check above compares the two
+    columns, so a file converted whole passes it): at least :data:`FAHRENHEIT_PATTERN_MIN_SETPOINTS`
+    distinct setpoints that are the degF of multiples of 5 degC (68, 95, 131, 158, 41, 14, -13, -40)
+    and not multiples of 5 themselves. An outside probe's campaign with every temperature in degF
+    was fitted, status ok: K_x 400 ppm (300 u) and Ca_xy 80 u off, the range "-39.5..158.6 degC".
+    ``# t_override = true`` skips it. A file in degF whose setpoints are not round in degC cannot be
+    told from degC by its numbers (a setpoint of 150 or 175 degC is a downhole tool's range, read as
+    it is)."""
+    S = np.asarray(c.setpoint_C, float)
+    hint = ("if the whole file is in degF, convert setpoint_C and t_* with (x - 32)/1.8; if they are degC, "
+            "add the line '# t_override = true'")
+    distinct = np.unique(np.round(S, 6))
+    if len(distinct) < FAHRENHEIT_PATTERN_MIN_SETPOINTS:
+        return
+    as_c = (distinct - 32.0) / 1.8
+
+    def round5(x):
+        return bool(np.all(np.abs(x / 5.0 - np.round(x / 5.0)) * 5.0 <= 0.05))
+
+    if round5(as_c) and not round5(distinct):
+        i = int(np.flatnonzero(np.abs(S / 5.0 - np.round(S / 5.0)) * 5.0 > 0.05)[0])
+        raise BenchCSVError(
+            path, int(c.lines[i]) if c.lines is not None else i + 1, "setpoint_C",
+            f"setpoint_C = {S[i]:g}: the setpoints {', '.join(f'{x:g}' for x in distinct)} are the degF of "
+            f"{', '.join(f'{x:g}' for x in np.round(as_c, 2))} degC (multiples of 5), and not multiples of 5 "
+            f"themselves: {hint}")
+
+
 #: a t_* column of one unit that spans at most this (degC) over its visits ...
 STUCK_SPAN_C = 0.01
 #: ... while another of its t_* columns spans at least this (degC) is a stuck thermometer

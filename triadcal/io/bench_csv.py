@@ -257,10 +257,12 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
                                 f"metadata 'power_on_s' = {metadata['power_on_s']} s is after the visit of line "
                                 f"{int(lnum[first])} (time_s {campaign.time_s[first]:g} s): a unit is read after it "
                                 "is switched on; the time-dependent terms (drifts, warm-ups) count from power-on")
-    from .bench_checks import check_directions, check_stuck_thermometer, check_temperature_unit
+    from .bench_checks import (check_directions, check_fahrenheit_setpoints, check_stuck_thermometer,
+                               check_temperature_unit)
 
     if metadata.get("t_override", "false").lower() != "true":
         check_temperature_unit(path, campaign)
+        check_fahrenheit_setpoints(path, campaign)
         check_stuck_thermometer(path, campaign)
     check_directions(path, campaign)
     return campaign
