@@ -185,6 +185,12 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
             hint = (f" (the header names {', '.join(raw)}: a raw recording of static poses? `triadcal fit-raw "
                     "FILE --rate HZ` calibrates one; `triadcal fit` reads a bench campaign, docs/bench-csv.md)"
                     if raw and "w_x" not in seen else "")
+            other = next((f"{name} ({sep!r})" for sep, name in (("\t", "tabs"), (";", "semicolons"))
+                          if len(header) == 1 and sep in header[0]), None)
+            if other:
+                # a tab- or semicolon-separated file read as one column: 'unit' was named missing
+                hint = (f" (the header is one field separated by {other}: bench CSV v1 is comma-separated; "
+                        "save it with commas)")
             raise BenchCSVError(path, header_line, r, "required column is missing from the header" + hint)
     for group in (("sd_x", "sd_y", "sd_z"), U_W):
         present = [c for c in group if c in seen]
@@ -325,7 +331,8 @@ def check_output_unit(c: Campaign, line: int) -> None:
         if not lo <= K <= hi:
             raise BenchCSVError(src, line, None,
                                 f"the readings contradict output_unit = {unit}: median |w| = {med:.6g} {unit} "
-                                f"implies K = {K:.4g} g/{unit}, outside the plausible {lo:g}-{hi:g} g/{unit}")
+                                f"implies K = {K:.6g} g/{unit}, {'below' if K < lo else 'above'} the plausible "
+                                f"{lo:g}-{hi:g} g/{unit}")
 
 
 def to_float(s: str) -> Optional[float]:

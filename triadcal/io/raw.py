@@ -112,6 +112,10 @@ def read_raw_csv(path, rate_hz: float, columns: Optional[Sequence[str]] = None, 
             head = fh.read(1 << 16)                 # the header is within the first 200 lines
     except OSError as exc:
         raise RawRecordingError(path, None, None, f"cannot be read ({exc.strerror or exc})") from None
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff") or (len(head) > 64 and head.count(b"\x00") > len(head) // 4):
+        # a UTF-16 file read as "no header line naming the columns" (an outside fuzz probe)
+        raise RawRecordingError(path, None, None, "not UTF-8 text (UTF-16, or binary): save the recording as "
+                                "UTF-8 (or ASCII) CSV")
     bom = 3 if head.startswith(b"\xef\xbb\xbf") else 0
     lines = head[bom:].decode("utf-8", errors="replace").splitlines()
     if len(head) == 1 << 16:

@@ -308,6 +308,11 @@ def check_posterior_moments(draws: dict, result: CalibrationResult, what: str) -
     """Refuse draws that are not ``result``'s posterior by their moments: a mean further than
     :data:`POSTERIOR_MEAN_TOLERANCE` standard deviations from the value, or an SD above
     :data:`POSTERIOR_SD_RATIO_MAX` times the result's u (compare; the certificate)."""
+    bad = [n for n, (d, _) in draws.items() if not np.all(np.isfinite(np.asarray(d, float)))]
+    if bad:
+        # one NaN draw read as "wider ... (SD nan ... nan times)" (an outside fuzz probe)
+        raise InputError(f"{what}: its draws of {', '.join(bad[:3])}{' ...' if len(bad) > 3 else ''} hold a value "
+                         "that is not a finite number: not a posterior `triadcal sample` wrote")
     wide = []
     for n, (d, _) in draws.items():
         if n not in result.parameters or n in _DERIVED or len(d) < 2:
