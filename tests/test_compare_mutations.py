@@ -324,6 +324,11 @@ def test_a_u_of_zero_is_refused_and_the_reason_names_a_remount(fits, tmp_path, c
     edited.save(tmp_path / "a.json")
     assert _cli(tmp_path / "b.json", tmp_path / "a.json") != 0
     assert "Ca_xy: u = 0" in capsys.readouterr().err
+    # a u below the value's floating-point resolution is no estimate either (an outside probe: 1e-30
+    # arcsec, the hash recomputed, was compared and tabulated as u = 0)
+    edited.parameters["Ca_xy"] = edited.parameters["Ca_xy"].__class__(edited["Ca_xy"].value, 1e-30, "arcsec")
+    with pytest.raises(InputError, match=r"Ca_xy: u = 0 or below the value's floating-point resolution"):
+        compare(fits["before"], edited)
 
 
 def test_two_results_of_one_source_without_hashes_are_noted(fits):
