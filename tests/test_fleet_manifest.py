@@ -43,6 +43,7 @@ def test_a_manifest_is_batched_like_a_campaign_and_resumes(tmp_path):
 @pytest.mark.parametrize("extra, message", [
     ('colour = "red"\n', "unknown key 'colour'"),
     ('columns = ["ax", "ay"]\n', "three column names"),
+    ("local_g_m_s2 = 1.0\n", r"local_g_m_s2 = 1 m/s2 is outside 9.76-9.84 m/s2"),
 ])
 def test_bad_manifests_are_refused_naming_the_entry(tmp_path, extra, message):
     with pytest.raises(InputError, match=f"recording 1: .*{message}"):

@@ -81,6 +81,14 @@ def read_manifest(path) -> list:
                 raise InputError(f"{where}: {k} is empty" + ("; leave it out for 'initial'" if k == "state" else ""))
             if typ is list and not (isinstance(v, list) and len(v) == 3 and all(isinstance(c, str) for c in v)):
                 raise InputError(f"{where}: columns must be a list of three column names, got {v!r}")
+        if "local_g_m_s2" in e:
+            from ..io.bench_csv import LOCAL_G_RANGE_M_S2
+
+            low, high = LOCAL_G_RANGE_M_S2
+            if not low <= e["local_g_m_s2"] <= high:
+                # fit-raw's refusal named its command-line options, which a manifest has none of
+                raise InputError(f"{where}: local_g_m_s2 = {e['local_g_m_s2']:g} m/s2 is outside {low}-{high} m/s2, "
+                                 "the local gravity anywhere on Earth's surface (it is in m/s2, not in g)")
         if e["unit"] not in ("m/s2", "g", "mg", "counts"):
             raise InputError(f"{where}: unit {e['unit']!r}; choose m/s2, g, mg or counts")
         if e["poses"] not in ("known", "unknown"):
