@@ -61,6 +61,7 @@ def test_prediction_equals_the_fits_U_on_the_example_campaign_with_the_example_l
     ("Ca:U<=5ppm", "unit 'ppm' is not one for Ca"),
     ("K:U<=20arcsec", "unit 'arcsec' is not one for K"),
     ("Ca:U<5arcsec", "cannot read"),
+    ("Ca:U<=5arcsec,Ca:U<=3arcsec", "'Ca:U<=3arcsec' and 'Ca:U<=5arcsec' are two targets for Ca: give one"),
 ])
 def test_target_refusals(target, words):
     with pytest.raises(InputError, match=words.replace("(", r"\(")):

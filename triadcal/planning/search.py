@@ -98,6 +98,11 @@ def parse_targets(text: str, names: Sequence[str]) -> list:
                              f"{' or '.join(FAMILIES[fam][1])}")
         if not t.parameters(names):
             raise InputError(f"--target: {name!r} is not a parameter of the planned model (effects decide which are)")
+        twice = next((o for o in out if o.family == t.family), None)
+        if twice is not None:
+            # "Ca:U<=5arcsec,Ca:U<=3arcsec" was taken as two targets, without a word (an outside probe); a
+            # family and a tighter target of one of its members ("Ca:U<=5arcsec,Ca_xy:U<=2arcsec") stay
+            raise InputError(f"--target: {part!r} and {twice.spec!r} are two targets for {name}: give one")
         out.append(t)
     if not out:
         raise InputError("--target: no target given")
