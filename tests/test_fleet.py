@@ -153,15 +153,16 @@ def test_batch_one_json_per_unit_bit_identical_resume_and_summary(fleet_csv, tmp
     assert rep4.n_fitted == 6
 
 
-def test_batch_exit_code_says_a_unit_outside_tolerance(fleet_csv, tmp_path):
+def test_batch_exit_code_says_a_unit_outside_tolerance(tmp_path, client):
     """Exit 4 when every pair is ok but one is outside a tolerance (it was 0: a check on the exit
     code passed the planted unit, Ca_xy = 600 arcsec against a limit of 450; an outside probe); 0
-    without the tolerance; the command's own LocalCluster of one worker."""
+    without the tolerance; on the module's cluster (--scheduler)."""
     from triadcal.cli import main
 
     tol = tmp_path / "tol.toml"
     tol.write_text("[tolerances]\nCa_xy = 450\n", encoding="utf-8")
-    args = ["batch", str(fleet_csv), "--out", str(tmp_path / "out"), "--workers", "1", "--quiet"]
+    two = write_multi(tmp_path / "two.csv", 2, planted="SN-0002")
+    args = ["batch", str(two), "--out", str(tmp_path / "out"), "--scheduler", client.scheduler.address, "--quiet"]
     assert main(args + ["--tolerances", str(tol)]) == 4
     assert main(args) == 0                                  # the same results, skipped: no tolerance, a pass
 

@@ -179,13 +179,21 @@ def _instruments(em, chamber_path: str) -> str:
     return str(out)
 
 
+def _two_positions(tmp_path) -> str:
+    """A plan of two positions: what these tests judge is the chamber, not the unit."""
+    p = tmp_path / "plan.csv"
+    p.write_text("position,axis1_deg,axis2_deg\nP01,0,0\nP02,90,0\n")
+    return str(p)
+
+
 def _dmm_capture(tmp_path, chamber_path, setpoints):
     timing = EmulatorTiming(time_scale=600.0, self_heating_time_constant_s=60.0)
     em = emulate(tmp_path / "emu", effects=["bench_tilt"], timing=timing, seed=5, dmm=True).start()
     out = tmp_path / "campaign"
     try:
         r = subprocess.run(CLI + ["capture", "--instruments", _instruments(em, chamber_path), "--setpoints",
-                                  setpoints, "--tau-s", "30", "--out", str(out), "--unit", em.truth.unit] + FAST,
+                                  setpoints, "--tau-s", "30", "--out", str(out), "--unit", em.truth.unit,
+                                  "--plan", _two_positions(tmp_path)] + FAST,
                            capture_output=True, text=True, timeout=180)
     finally:
         em.stop()
@@ -231,7 +239,8 @@ def test_the_imu_capture_says_when_the_pv_cannot_be_read(tmp_path, chamber_serve
     fast[fast.index("--settle-s") + 1] = "10"
     try:
         r = subprocess.run(CLI + ["capture", "--instruments", _instruments(em, chamber_server.path), "--setpoints",
-                                  "20", "--tau-s", "20", "--out", str(out), "--unit", em.truth.unit] + fast,
+                                  "20", "--tau-s", "20", "--out", str(out), "--unit", em.truth.unit,
+                                  "--plan", _two_positions(tmp_path)] + fast,
                            capture_output=True, text=True, timeout=300)
     finally:
         em.stop()
