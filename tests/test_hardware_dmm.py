@@ -56,13 +56,17 @@ def test_one_34465a_per_axis_exact_commands_and_statistics():
     try:
         assert isinstance(readout, AxisVoltmeters)
         avg = readout.measure(5)
-        avg2 = readout.measure(5)                    # same count: SAMP:COUN is not sent again
+        # same count: SAMP:COUN is not sent again; the sim's dialogue answers READ? with the same five
+        # readings every time: a stale answer, which the driver refuses (an outside probe's meter sent
+        # the previous window again and it was recorded as the next position's)
+        with pytest.raises(DmmError, match="the same 5 readings as the window before"):
+            readout.measure(5)
     finally:
         readout.close()
     expected = [b"*IDN?\n", b"*CLS\n", b"CONF:VOLT:DC 10\n", b"VOLT:DC:NPLC 10\n", b"SYST:ERR?\n",
                 b"SAMP:COUN 5\n", b"READ?\n", b"READ?\n"]
-    for a in "xyz":
-        assert wire.sent(RES[a]) == expected, a
+    for a in "xyz":                   # the stale answer stopped the second window at x's meter
+        assert wire.sent(RES[a]) == (expected if a == "x" else expected[:-1]), a
         assert readout.meters[a].idn.startswith("Keysight Technologies,34465A,")
     x = np.array([10.052, 10.051, 10.053, 10.050, 10.054])
     assert avg.axes["x"].mean == pytest.approx(x.mean(), abs=1e-12)
@@ -72,7 +76,6 @@ def test_one_34465a_per_axis_exact_commands_and_statistics():
     row = avg.row()
     assert set(row) == {"w_x", "w_y", "w_z", "sd_x", "sd_y", "sd_z", "n_samples"} and row["n_samples"] == 5
     np.testing.assert_allclose(avg.w, [x.mean(), -0.25, 5e-3], atol=1e-12)
-    assert avg2.row() == row
 
 
 def test_scanner_channel_list_and_sweep_order():
@@ -141,3 +144,9 @@ def test_wrong_model_and_readings_parsing():
         parse_readings("+1E+00,+1E+00,+1E+00", 2)
     with pytest.raises(DmmError, match="not comma-separated numbers"):
         parse_readings("ERROR", 1)
+    # a reading that is not a number, and one no 10 V range reads (a meter answering in mV: 530 "V")
+    with pytest.raises(DmmError, match="not a finite number"):
+        parse_readings("+1E+00,NAN", 2)
+    with pytest.raises(DmmError, match="a reading of 530 V is beyond the 10 V range"):
+        parse_readings("+5.3E+02,+1E+00", 2, full_scale_V=10.0)
+    assert parse_readings("+1.19E+01,-1.19E+01", 2, full_scale_V=10.0)[0] == 11.9      # overrange: 120 %

@@ -123,8 +123,16 @@ def check_range(range_V) -> str:
                      "or 'AUTO'")
 
 
-def parse_readings(text: str, expected: Optional[int] = None, what: str = "READ?") -> np.ndarray:
-    """``+1.00520000E+01,+1.00510000E+01,...`` as floats; overloads and a wrong count raise."""
+#: a DC volt range reads up to this factor of its full scale (the 34465A's and 34401A's 120 %)
+OVERRANGE = 1.2
+
+
+def parse_readings(text: str, expected: Optional[int] = None, what: str = "READ?",
+                   full_scale_V: Optional[float] = None) -> np.ndarray:
+    """``+1.00520000E+01,+1.00510000E+01,...`` as floats; overloads, a reading that is not a finite
+    number (``NAN``), one beyond :data:`OVERRANGE` times ``full_scale_V`` (a fixed range: no meter
+    reads 530 V on its 10 V range; an outside probe's meter answered in mV and the window was
+    recorded) and a wrong count raise."""
     try:
         values = np.array([float(v) for v in text.strip().split(",") if v.strip()], dtype=float)
     except ValueError:
@@ -133,7 +141,21 @@ def parse_readings(text: str, expected: Optional[int] = None, what: str = "READ?
         raise DmmError(f"{what} answered {values.size} readings, {expected} expected")
     if np.any(np.abs(values) >= OVERLOAD):
         raise DmmError(f"{what}: overload (+9.9E+37) in the readings: the input exceeds the range")
+    if not np.all(np.isfinite(values)):
+        raise DmmError(f"{what}: a reading is not a finite number ({text[:80]!r})")
+    if full_scale_V is not None and np.any(np.abs(values) > OVERRANGE * full_scale_V):
+        worst = float(values[np.argmax(np.abs(values))])
+        raise DmmError(f"{what}: a reading of {worst:g} V is beyond the {full_scale_V:g} V range (it reads up to "
+                       f"{OVERRANGE * full_scale_V:g} V): not a reading of this range")
     return values
+
+
+def _full_scale_V(range_text: str) -> Optional[float]:
+    """The fixed range's full scale in volts, None for AUTO (the meter changes range itself)."""
+    try:
+        return float(range_text)
+    except ValueError:
+        return None
 
 
 def _is_readings(text: str) -> bool:
@@ -310,8 +332,15 @@ class ScpiDmm(_ScpiMeter):
         if n != self._count:
             self.write(f"SAMP:COUN {n}")
             self._count = n
-        return parse_readings(self.query("READ?", timeout_s=self._read_timeout(n)), n,
-                              f"{self.resource_name} READ?")
+        values = parse_readings(self.query("READ?", timeout_s=self._read_timeout(n)), n,
+                                f"{self.resource_name} READ?", _full_scale_V(self.range))
+        last, self._last = getattr(self, "_last", None), values
+        if last is not None and np.ptp(values) > 0 and np.array_equal(values, last):
+            # a meter that sends the previous window's readings again: P02's 150 readings recorded as
+            # P03's, exit 0 (an outside probe); a window of varying readings never repeats to the bit
+            raise DmmError(f"{self.resource_name} READ?: the same {n} readings as the window before (a stale "
+                           "answer): the window is read again")
+        return values
 
 
 def samples_for_tau(tau_s: float, nplc: float, mains_hz: float, readings_per_sample: int = 1) -> int:
@@ -406,7 +435,11 @@ class ScpiScanner(_ScpiMeter, VoltmeterReadout):
             self.write(f"TRIG:COUN {n}")
             self._count = n
         v = parse_readings(self.query("READ?", timeout_s=self._read_timeout(3 * n)), 3 * n,
-                           f"{self.resource_name} READ?").reshape(n, 3)
+                           f"{self.resource_name} READ?", _full_scale_V(self.range)).reshape(n, 3)
+        last, self._last = getattr(self, "_last", None), v
+        if last is not None and np.ptp(v) > 0 and np.array_equal(v, last):
+            raise DmmError(f"{self.resource_name} READ?: the same {n} sweeps as the window before (a stale "
+                           "answer): the window is read again")
         return VoltageAverage({a: stats(v[:, i]) for i, a in enumerate(self.scan_order)})
 
     def samples_for(self, tau_s: float) -> int:
