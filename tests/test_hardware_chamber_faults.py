@@ -247,3 +247,34 @@ def test_the_imu_capture_says_when_the_pv_cannot_be_read(tmp_path, chamber_serve
     assert r.returncode == 0, r.stderr
     report = json.loads((out / REPORT_NAME).read_text())
     assert any("PV could not be read" in w and "unit's own sensors only" in w for w in report["warnings"])
+
+
+@pytest.mark.parametrize("chamber_server", [(24.5, 1)], indirect=True)
+def test_a_ramp_whose_chamber_does_not_follow_the_program_says_so(tmp_path, chamber_server):
+    """An outside probe: the ramp read the chamber's PV at its start soak only; a chamber that
+    refused its set points (it held 24.5 degC while the program went 28 -> 10) left rows labelled by
+    the program and no warning, exit 0. Here the chamber is a pymodbus server whose PV stays at
+    24.5 degC whatever it is told: the ramp says, after its visits, that the PV was off the program."""
+    from triadcal.hardware.capture import CaptureSettings, Stabilisation, load_port_config, open_instruments
+    from triadcal.hardware.ramp_capture import capture_ramp
+    from triadcal.planning.ramp import RampPlan
+
+    plan = RampPlan(program_C=(24.0, 0.0), rate_C_per_min=2.0, tau_s=20.0,
+                    positions={"P01": (0.0, 0.0), "P02": (90.0, 0.0)})
+    timing = EmulatorTiming(time_scale=500.0, rate_hz=2.0, self_heating_time_constant_s=0.0)
+    em = emulate(tmp_path / "emu", effects=["bench_tilt"], timing=timing, seed=3).start()
+    try:
+        imu, bench, _ = open_instruments(load_port_config(em.directory / "ports.toml"))
+        chamber = open_chamber({"driver": "modbus", "port": chamber_server.path, "baudrate": 9600})
+        report = capture_ramp(tmp_path / "out", plan=plan, imu=imu, bench=bench, chamber=chamber, step_s=30.0,
+                              settings=CaptureSettings(tau_s=20.0, settle_s=3.0, unit="SN-EMU-0001",
+                                                       stabilisation=Stabilisation(0.01, 120.0, 60.0, 3000.0)))
+        bench.close()
+        chamber.close()
+    finally:
+        em.stop()
+    assert chamber_server.sp == 0.0                                  # the program was written to the end
+    off = [w for w in report.warnings if "off the program" in w]
+    assert off and "read 24.5 degC" in off[0], report.warnings
+    kinds = [e["kind"] for e in read_events(tmp_path / "out" / "raw" / "events.jsonl")]
+    assert "chamber_off_program" in kinds

@@ -275,6 +275,18 @@ def test_f4t_word_order_high_first_is_configurable():
             assert c.setpoint_C() != pytest.approx(25.0)
         finally:
             c.close()
+    # ... which the set point's read-back cannot see (it decodes its own words the same wrong way);
+    # the PV, a temperature, names the order (an outside probe's ramp ran on garbage). A chamber at
+    # rest at 23.0 degC: its float's low word is 0, so read swapped it is 2.4e-41 (a PV with other
+    # low bits may read swapped as a plausible number: the check sees most, not all, of them)
+    with WatlowEmulator(FirstOrderLag(23.0, tau_s=1.0), model="f4t", word_order="high-first") as em:
+        c = WatlowF4T(em.port, word_order="low-first", retries=1)
+        try:
+            with pytest.raises(ChamberError, match=r"reads .* with word_order = 'low-first' and 23 degC with "
+                                                   r"'high-first': set word_order = 'high-first'"):
+                c.temperature_C()
+        finally:
+            c.close()
 
 
 @pytest.mark.parametrize("model", ["f4", "f4t"])

@@ -97,6 +97,8 @@ def test_ramp_capture_through_the_emulator_fits_and_recovers_the_unit(tmp_path):
     assert np.all(np.diff(c.time_s) > 0)
     assert float(c.metadata["Q_V2s"]) == pytest.approx(3e-9, rel=0.2)
     assert c.metadata["ramp"].startswith("20:-10:50:20 degC at 1.5 degC/min")
+    # a chamber that follows the program (air 5 min behind it) gives no chamber warning
+    assert not [w for w in report.warnings if "chamber" in w], report.warnings
 
     # the program as written: every setpoint the log names reached the chamber, in order, each the
     # program's value at its program time (0.1 degC resolution), 30 s of program apart
@@ -169,10 +171,11 @@ def _capture_and_fit(tmp_path, seed):
     em = emulate(tmp_path / "emu", effects=EFFECTS, timing=timing, seed=seed).start()
     try:
         imu, bench, chamber = open_instruments(load_port_config(em.directory / "ports.toml"))
-        capture_ramp(tmp_path / "out", plan=read_ramp_plan(tmp_path / "ramp.json"), imu=imu, bench=bench,
-                     chamber=chamber, step_s=30.0,
-                     settings=CaptureSettings(tau_s=20.0, settle_s=3.0, unit="SN-EMU-0001",
-                                              stabilisation=Stabilisation(0.01, 120.0, 60.0, 3000.0)))
+        report = capture_ramp(tmp_path / "out", plan=read_ramp_plan(tmp_path / "ramp.json"), imu=imu, bench=bench,
+                              chamber=chamber, step_s=30.0,
+                              settings=CaptureSettings(tau_s=20.0, settle_s=3.0, unit="SN-EMU-0001",
+                                                       stabilisation=Stabilisation(0.01, 120.0, 60.0, 3000.0)))
+        assert not [w for w in report.warnings if "chamber" in w], report.warnings   # it follows the program
         bench.close()
         chamber.close()
     finally:

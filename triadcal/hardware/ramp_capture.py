@@ -96,6 +96,13 @@ class RampProgram:
     def duration_s(self) -> float:
         return float(self.knot_s[-1])
 
+    @property
+    def rate_C_per_min(self) -> float:
+        """The program's fastest rate (degC/min) over its legs."""
+        dt = np.diff(self.knot_s)
+        ok = dt > 0
+        return float(np.max(np.abs(np.diff(self.knot_C)[ok] / dt[ok])) * 60.0) if ok.any() else 0.0
+
     def value(self, p: float) -> float:
         return float(np.interp(p, self.knot_s, self.knot_C))
 
@@ -257,6 +264,14 @@ class _History:
                 self.history.popleft()
 
 
+#: after a visit, the chamber's PV lies within the values of the program lagged by any time constant
+#: up to this (s; twice the emulator's chamber) ...
+PROGRAM_LAG_MAX_S = 1200.0
+PROGRAM_LAGS_S = tuple(float(x) for x in np.geomspace(30.0, PROGRAM_LAG_MAX_S, 12))
+#: ... give or take this (degC)
+PROGRAM_MISS_C = 2.0
+
+
 class _RampRunner(_Runner):
     """The stepped capture's frame pump, which also runs the chamber program: while the program
     runs, each pump writes the program's value as the setpoint once ``step_s`` of program time
@@ -274,6 +289,8 @@ class _RampRunner(_Runner):
         self.last_p: Optional[float] = None      # program time of the last setpoint written
         self.last_sp: Optional[float] = None
         self.chamber_errors = 0
+        self.refused: list = []                  # (program s, setpoint) of every write refused or missed
+        self.off_program: list = []              # (program s, PV, program's value) of visits the PV was off
         self.writes = 0                          # setpoints written since the program (re)started
         self.last_window: Optional[list] = None    # the frames of the last recording window
 
@@ -298,6 +315,7 @@ class _RampRunner(_Runner):
                 self.chamber.set_setpoint_C(sp)
         except OSError as exc:            # ChamberError, minimalmodbus and serial errors: try again next step
             self.chamber_errors += 1
+            self.refused.append((p, sp))
             self.events.write("chamber_error", program_s=p, setpoint_C=sp, error=str(exc))
             if self.chamber_errors >= 20:
                 raise CaptureError(f"the chamber refused or missed 20 setpoints of the ramp program in a row: {exc}; "
@@ -311,6 +329,52 @@ class _RampRunner(_Runner):
     def observe(self, frames: list) -> None:
         if self.history is not None:
             self.history.add(frames)
+
+    def check_chamber(self, index: int) -> None:
+        """After a visit: the chamber's PV within the values an air lagging the program by any time
+        constant up to :data:`PROGRAM_LAG_MAX_S` would have now, give or take :data:`PROGRAM_MISS_C`
+        (a chamber's air follows its set point with a lag of minutes; the emulator's is 10 min). The
+        ramp read the PV at its start soak only: a chamber that refused its set points, could not go
+        below 17 degC or ran on a wrong word order went by with the rows labelled by the program,
+        exit 0 (an outside probe). The visit stays (the fit uses the unit's measured temperatures);
+        the event and the report say it."""
+        from ..models.thermal_history import first_order_lag
+
+        p = min(self.program_s(), self.program.duration_s)
+        want = float(self.program.value(p))
+        grid = np.append(np.arange(0.0, p, 10.0), p) if p > 0 else np.array([0.0, 1e-9])
+        prog = [self.program.value(x) for x in grid]
+        # every lag up to the longest (after a turn a chamber of a middling lag lies outside the program
+        # and the longest lag: the envelope, not the two ends)
+        at = [want] + [float(first_order_lag(grid, prog, tau)[-1]) for tau in PROGRAM_LAGS_S]
+        lo, hi = min(at) - PROGRAM_MISS_C, max(at) + PROGRAM_MISS_C
+        try:
+            pv = float(self.chamber.temperature_C())
+        except OSError as exc:
+            self.events.write("chamber_error", program_s=p, error=f"reading the PV: {exc}")
+            self.off_program.append((p, None, want))
+            return
+        if not (math.isfinite(pv) and lo <= pv <= hi):
+            self.events.write("chamber_off_program", index=index, program_s=p, chamber_C=pv, program_C=want,
+                              band_C=[lo, hi])
+            self.off_program.append((p, pv, want))
+
+    def chamber_warnings(self) -> list:
+        out = []
+        if self.refused:
+            p, sp = self.refused[0]
+            out.append(f"the chamber refused or missed {len(self.refused)} set point writes of the ramp program "
+                       f"(the first at program time {p:.0f} s, {sp:g} degC; events chamber_error): program_C and "
+                       "setpoint_C of the visits after it are the program's, not what the chamber was told")
+        if self.off_program:
+            p, pv, want = self.off_program[0]
+            seen = "could not be read" if pv is None else f"read {pv:.4g} degC"
+            out.append(f"the chamber's PV was off the program after {len(self.off_program)} visit(s) (the first at "
+                       f"program time {p:.0f} s: it {seen} where the program was at {want:.4g} degC, more than "
+                       f"{PROGRAM_MISS_C:g} degC outside the program and its {PROGRAM_LAG_MAX_S / 60:g} min lag; events "
+                       "chamber_off_program): "
+                       "program_C and setpoint_C label the program, the unit's t_* what it measured")
+        return out
 
     def pump(self, timeout: float = 0.02) -> int:
         n = super().pump(timeout)      # on the continuous clock: a restarted instrument does not rewind it
@@ -559,6 +623,7 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
                        program_C=program.value(min(p_mid, program.duration_s)), dTdt_C_per_min=dTdt * 60.0)
             row["time_s"] = mid + offset
             rows.append(row)
+            run.check_chamber(len(rows))
             atomic_write_text(out / CSV_NAME, format_bench_csv(_ramp_campaign(rows, metadata)))
             events.write("visit", index=len(rows), tag=tag, n_samples=row["n_samples"], program_s=p_mid,
                          program_C=row["program_C"], slope_C_per_min=slope * 60.0,
@@ -585,6 +650,7 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
         except (CaptureError, RuntimeError):
             pass
         raw.close()
+        run.warnings.extend(run.chamber_warnings())
         report = finish_session(out, imu, run, events, session, max(total, len(rows)), done_before, len(rows),
                                 redone, noise_est, wall0)
     return report

@@ -22,6 +22,7 @@ minimalmodbus, for checking what goes out (tests) and for the docs.
 
 from __future__ import annotations
 
+import math
 import struct
 
 import minimalmodbus
@@ -89,6 +90,12 @@ def words_to_float(words, word_order: str = "low-first") -> float:
     a, b = words
     hi, lo = (b, a) if word_order == "low-first" else (a, b)
     return struct.unpack(">f", struct.pack(">HH", hi, lo))[0]
+
+
+def plausible_C(value: float) -> bool:
+    """A chamber temperature: finite, within -150..400 degC, and not a subnormal-small number
+    (the swapped words of a round temperature: 23.0 degC reads 2.4e-41)."""
+    return math.isfinite(value) and -150.0 <= value <= 400.0 and (value == 0.0 or abs(value) >= 1e-6)
 
 
 # -- drivers ----------------------------------------------------------------------------
@@ -164,4 +171,20 @@ class WatlowF4T(_WatlowModbus):
         return self._read_float("read set point", self.reg_sp)
 
     def temperature_C(self) -> float:
-        return self._read_float("read process value", self.reg_pv)
+        """The PV, checked to be a temperature in the configured word order. The set point's read-back
+        cannot catch a wrong order (it decodes the words it wrote the same wrong way); the PV can: a
+        temperature's float read with its words swapped is a subnormal, a huge or a NaN number (23.0
+        degC: 2.4e-41), and when the swapped reading is a temperature the order is named (an outside
+        probe's ramp ran on a high-first controller read low-first: set points of -1e8 degC, exit 0)."""
+        words = self._call("read process value", self._inst.read_registers, self.reg_pv, 2, functioncode=3)
+        value = words_to_float(words, self.word_order)
+        if plausible_C(value):
+            return float(value)
+        other = "high-first" if self.word_order == "low-first" else "low-first"
+        swapped = words_to_float(words, other)
+        if plausible_C(swapped):
+            raise ChamberError(f"{self.name} on {self.port}: the process value reads {value!r} degC with word_order "
+                               f"= {self.word_order!r} and {swapped:.4g} degC with {other!r}: set word_order = "
+                               f"{other!r} in [chamber] (the controller's Modbus word order)")
+        raise ChamberError(f"{self.name} on {self.port}: the process value reads {value!r} degC ({swapped!r} with the "
+                           "words swapped): not a temperature (a sensor break, or another register map?)")
