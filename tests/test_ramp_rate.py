@@ -1,6 +1,6 @@
 """The measured rate of a ramp campaign (issue 20, "calibrate on a continuous ramp"): bench CSV's
 optional column ``dTdt_C_per_min`` — written by the simulator's ramp campaigns (exact) and by
-``capture --ramp`` (from the window's raw readings, :func:`triadcal.hardware.ramp_capture.visit_rate`;
+``capture --ramp`` (from the window's raw readings, :func:`triadcal.hardware.ramp_labels.visit_rate`;
 checked against the emulated unit in tests/test_ramp_capture.py), read back, refused naming file, line and
 column when bad, and taken by the fit as the rate of the thermal lag instead of the central
 differences of the visit means (which are one-sided at a block's ends, where the unit turns)."""
