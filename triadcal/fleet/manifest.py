@@ -51,10 +51,7 @@ def read_manifest(path) -> list:
     path = Path(path)
     from ..io.atomic import read_toml
 
-    try:
-        data = read_toml(path, "a manifest")
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such manifest") from None
+    data = read_toml(path, "a manifest")
     unknown = [k for k in data if k != "recording"]
     if unknown or not isinstance(data.get("recording"), list) or not data["recording"]:
         raise InputError(f"{path}: a manifest holds [[recording]] entries only"

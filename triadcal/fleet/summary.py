@@ -46,10 +46,7 @@ def load_tolerances(path) -> list[tuple]:
     path = Path(path)
     from ..io.atomic import read_toml
 
-    try:
-        data = read_toml(path, "a tolerance file")
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such tolerance file") from None
+    data = read_toml(path, "a tolerance file")
     extra = [k for k in data if k != "tolerances"]
     if extra or not isinstance(data.get("tolerances"), dict):
         raise InputError(f"{path}: a tolerance file has one section [tolerances] (NAME = limit or [low, high])"

@@ -18,10 +18,7 @@ def load_port_config(path) -> dict:
 
     from ..io.atomic import read_toml
 
-    try:
-        cfg = read_toml(path, "a capture config file")
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such config file") from None
+    cfg = read_toml(path, "a config file")
     for section in ("imu", "bench", "chamber"):
         if section in cfg and "port" not in cfg[section]:
             raise InputError(f"{path}: [{section}] needs a 'port'")
@@ -110,10 +107,7 @@ def load_instruments(path) -> dict:
 
     from ..io.atomic import read_toml
 
-    try:
-        doc = read_toml(path, "an instruments file")
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such instruments file") from None
+    doc = read_toml(path, "an instruments file")
     out: dict = {}
     for section, table in doc.items():
         if section not in INSTRUMENT_KEYS:

@@ -192,7 +192,7 @@ class _RampRunner(_Runner):
 
         p = min(self.program_s(), self.program.duration_s)
         want = float(self.program.value(p))
-        grid = np.append(np.arange(0.0, p, 10.0), p) if p > 0 else np.array([0.0, 1e-9])
+        grid = np.linspace(0.0, max(p, 1e-9), max(2, int(math.ceil(p / 10.0)) + 1))   # even: first_order_lag's filter
         prog = [self.program.value(x) for x in grid]
         # every lag up to the longest (after a turn a chamber of a middling lag lies outside the program
         # and the longest lag: the envelope, not the two ends)

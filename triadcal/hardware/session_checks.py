@@ -77,6 +77,12 @@ CHAMBER_MISS_C = 2.0
 UNIT_MISS_C = 10.0
 
 
+def is_temperature_C(value: float) -> bool:
+    """A chamber's PV that is a temperature: finite, between absolute zero and 300 degC (a Modbus
+    controller's sensor break reads 0x8000, -3276.8 degC)."""
+    return math.isfinite(value) and -273.15 <= value <= 300.0
+
+
 def setpoint_missed(sp: float, unit_temps, chamber_C) -> Optional[str]:
     """Why a setpoint counts as not reached once the unit is stable, or None: the chamber's PV
     more than :data:`CHAMBER_MISS_C` from it, or not a temperature (a sensor break reads
@@ -87,7 +93,7 @@ def setpoint_missed(sp: float, unit_temps, chamber_C) -> Optional[str]:
     probe)."""
     out = []
     if chamber_C is not None:
-        if not (math.isfinite(chamber_C) and -273.15 <= chamber_C <= 300.0):
+        if not is_temperature_C(chamber_C):
             out.append(f"the chamber's PV reads {chamber_C!r} degC, not a temperature (a sensor break?)")
         elif abs(chamber_C - sp) > CHAMBER_MISS_C:
             out.append(f"the chamber's PV is {chamber_C:.2f} degC, {chamber_C - sp:+.2f} degC from the setpoint "

@@ -37,10 +37,10 @@ def chamber_pv_C(chamber: Chamber, sp: float) -> float:
     that is not a temperature (a Modbus controller's sensor break reads 0x8000, -3276.8 degC) is
     refused before anything is recorded. It was written to every row as t_x = t_y = t_z = -3276.8
     (exit 0), a campaign that neither fit nor the same command could then take (an outside probe)."""
-    import math
+    from .session_checks import is_temperature_C
 
     pv = chamber.temperature_C()
-    if not (math.isfinite(pv) and -273.15 <= pv <= 300.0):
+    if not is_temperature_C(pv):
         raise CaptureError(f"setpoint {sp:g} degC: the chamber's PV reads {pv!r} degC, not a temperature (a sensor "
                            "break?); this capture records the PV as the unit's temperature, so nothing is recorded "
                            "until it reads one (the visits done are kept: fix the sensor, then run the same command "

@@ -230,8 +230,8 @@ def _child_path(stack) -> str:
 
 
 def read_toml(path, what: str = "a TOML file") -> dict:
-    """A TOML document from ``path`` with one-line errors naming the file: not there (FileNotFoundError
-    is re-raised for the callers that say more), not UTF-8 (a lab file saved as UTF-16 ended in
+    """A TOML document from ``path`` with one-line errors naming the file: not there ("no such lab
+    file" for ``what`` = "a lab file"), not UTF-8 (a lab file saved as UTF-16 ended in
     "internal error: UnicodeDecodeError", an outside probe), not valid TOML (line and column). A
     UTF-8 byte-order mark is skipped, as the CSV readers skip it (it was "Invalid statement (line 1,
     column 1)"). ``what`` names the kind of file in the messages."""
@@ -240,7 +240,7 @@ def read_toml(path, what: str = "a TOML file") -> dict:
     try:
         raw = Path(path).read_bytes()
     except FileNotFoundError:
-        raise
+        raise InputError(f"{path}: no such {what.split(' ', 1)[-1]}") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     try:

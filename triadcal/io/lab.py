@@ -189,10 +189,7 @@ def load_lab(path) -> LabConfig:
     path = Path(path)
     from .atomic import read_toml
 
-    try:
-        data = read_toml(path, "a lab file")
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such lab file") from None
+    data = read_toml(path, "a lab file")
     lab = LabConfig(source=str(path))
     given: dict = {}                       # attribute -> "[section] key" that set it (synonyms clash)
     for section, table in data.items():

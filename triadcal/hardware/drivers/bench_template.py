@@ -142,12 +142,10 @@ def load_profile(path_or_name) -> BenchProfile:
     src = str(p)
     from ...io.atomic import read_toml
 
-    try:
-        doc = read_toml(p, "a bench profile")
-    except FileNotFoundError:
+    if not p.is_file():
         shipped = ", ".join(sorted(q.stem for q in PROFILE_DIR.glob("*.toml")))
-        raise InputError(f"bench profile {path_or_name}: no such file (shipped profiles: {shipped})") from None
-    return parse_profile(doc, src)
+        raise InputError(f"bench profile {path_or_name}: no such file (shipped profiles: {shipped})")
+    return parse_profile(read_toml(p, "a bench profile"), src)
 
 
 def parse_profile(doc: dict, src: str = "<profile>") -> BenchProfile:

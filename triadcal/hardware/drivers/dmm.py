@@ -194,6 +194,17 @@ class _ScpiMeter:
         self.stale_answers = 0         # answers of a previous client dropped at open
         self.late_answers = 0          # answers of a timed-out query dropped before the next one
         self._late: Optional[tuple] = None   # (command, timeout_s) of a query that timed out
+        self._last: Optional[np.ndarray] = None   # the last window's readings (:meth:`_fresh`)
+
+    def _fresh(self, values: np.ndarray, what: str) -> np.ndarray:
+        """``values``, unless they equal the window before to the bit while varying (a meter that
+        sends the previous window again: P02's 150 readings recorded as P03's, exit 0, an outside
+        probe; a window of varying readings never repeats to the bit)."""
+        last, self._last = self._last, values
+        if last is not None and np.ptp(values) > 0 and np.array_equal(values, last):
+            raise DmmError(f"{self.resource_name} READ?: the same {what} as the window before (a stale answer): "
+                           "the window is read again")
+        return values
 
     # -- transport ----------------------------------------------------------------------
     def open(self):
@@ -332,15 +343,8 @@ class ScpiDmm(_ScpiMeter):
         if n != self._count:
             self.write(f"SAMP:COUN {n}")
             self._count = n
-        values = parse_readings(self.query("READ?", timeout_s=self._read_timeout(n)), n,
-                                f"{self.resource_name} READ?", _full_scale_V(self.range))
-        last, self._last = getattr(self, "_last", None), values
-        if last is not None and np.ptp(values) > 0 and np.array_equal(values, last):
-            # a meter that sends the previous window's readings again: P02's 150 readings recorded as
-            # P03's, exit 0 (an outside probe); a window of varying readings never repeats to the bit
-            raise DmmError(f"{self.resource_name} READ?: the same {n} readings as the window before (a stale "
-                           "answer): the window is read again")
-        return values
+        return self._fresh(parse_readings(self.query("READ?", timeout_s=self._read_timeout(n)), n,
+                                          f"{self.resource_name} READ?", _full_scale_V(self.range)), f"{n} readings")
 
 
 def samples_for_tau(tau_s: float, nplc: float, mains_hz: float, readings_per_sample: int = 1) -> int:
@@ -434,12 +438,9 @@ class ScpiScanner(_ScpiMeter, VoltmeterReadout):
         if n != self._count:
             self.write(f"TRIG:COUN {n}")
             self._count = n
-        v = parse_readings(self.query("READ?", timeout_s=self._read_timeout(3 * n)), 3 * n,
-                           f"{self.resource_name} READ?", _full_scale_V(self.range)).reshape(n, 3)
-        last, self._last = getattr(self, "_last", None), v
-        if last is not None and np.ptp(v) > 0 and np.array_equal(v, last):
-            raise DmmError(f"{self.resource_name} READ?: the same {n} sweeps as the window before (a stale "
-                           "answer): the window is read again")
+        v = self._fresh(parse_readings(self.query("READ?", timeout_s=self._read_timeout(3 * n)), 3 * n,
+                                       f"{self.resource_name} READ?", _full_scale_V(self.range)).reshape(n, 3),
+                        f"{n} sweeps")
         return VoltageAverage({a: stats(v[:, i]) for i, a in enumerate(self.scan_order)})
 
     def samples_for(self, tau_s: float) -> int:
