@@ -81,13 +81,15 @@ class IntervalData:
     label: list
     gravity_g: float
     temperature_C: Optional[np.ndarray] = None
+    #: what the rounding of readings on a grid added to ``sigma`` ("" when on no grid)
+    rounding: str = ""
 
 
 def interval_data(rawfit, temperature=None, batches: int = 10) -> IntervalData:
     """The static intervals of a :class:`~triadcal.estimation.raw.RawFit` with its calibration applied."""
     from ..estimation.raw.unknown import result_matrices
 
-    rec, det, res = rawfit.recording, rawfit.detection, rawfit.result
+    rec, res = rawfit.recording, rawfit.result
     if temperature is not None:
         temperature = np.asarray(temperature, float).reshape(-1)
         if temperature.shape[0] != len(rec.acc):
@@ -98,36 +100,31 @@ def interval_data(rawfit, temperature=None, batches: int = 10) -> IntervalData:
             raise InputError(f"temperature sample {bad} is not a finite number ({temperature[bad]!r} degC)")
     K, S, Ca = result_matrices(res)
     local = res.fit.get("local_g_m_s2") or res.extra.get("local_g_m_s2") or STANDARD_GRAVITY_M_S2
-    from ..estimation.raw.poses import MIN_OWN_SD_SAMPLES, pooled_sd
+    from ..estimation.raw.unknown import norm_mean_noise
 
-    A, sig, sd, n, s0, e0, t, lab, temp = [], [], [], [], [], [], [], [], []
-    # every interval is used, as the fit uses them (estimation/raw/poses.pose_averages): one of fewer
-    # than MIN_OWN_SD_SAMPLES samples has the larger of its own SD of the norm and the pooled one (a
-    # 1-sample interval the pooled one); before, intervals under 2 samples were skipped unsaid and a
+    # every interval is used, as the fit uses them, with the fit's noise of its mean of |A|
+    # (estimation/raw/unknown.norm_mean_noise: a short interval's SD floored by the pooled one, batch
+    # means, the rounding of the readings); before, intervals under 2 samples were skipped unsaid and a
     # 2-sample interval's own SD, however small, weighted it
-    norms = [np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[iv.start:iv.end]), axis=1)
-             for iv in det.intervals]
-    pooled = float(pooled_sd([x[:, None] for x in norms])[0][0]) if norms else float("nan")
-    for iv, nrm in zip(det.intervals, norms):
-        a = calibrated_acceleration(K, S, Ca, rec.acc[iv.start:iv.end])
-        s = float(nrm.std(ddof=1)) if len(nrm) > 1 else float("nan")
-        if len(nrm) < MIN_OWN_SD_SAMPLES:
-            s = float(np.fmax(s, pooled))
-        if not math.isfinite(s):
-            raise InputError(f"{rec.source or 'the recording'}: the interval {iv.label or iv.start} has "
-                             f"{len(nrm)} sample(s) and no other interval gives the noise its mean needs")
-        se = s / math.sqrt(len(nrm))
-        if len(nrm) >= 5 * batches:
-            bm = np.array([b.mean() for b in np.array_split(nrm, batches)])
-            se = max(se, float(bm.std(ddof=1)) / math.sqrt(batches))
-        A.append(a.mean(axis=0)), sig.append(max(se, 1e-12)), sd.append(s), n.append(len(nrm))
-        s0.append(iv.start), e0.append(iv.end), t.append((iv.start + iv.end - 1) / 2 / rec.rate_hz)
-        lab.append(iv.label or "")
-        if temperature is not None:
-            temp.append(float(np.mean(temperature[iv.start:iv.end])))
+    avg = rawfit.averages
+    sd, var = norm_mean_noise(rec, avg, K, S, Ca, batches=batches)
+    bad = np.flatnonzero(~np.isfinite(sd))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(f"{rec.source or 'the recording'}: the interval {avg.label[k] or avg.start[k]} has "
+                         f"{int(avg.n[k])} sample(s) and no other interval gives the noise its mean needs")
+    A = calibrated_acceleration(K, S, Ca, avg.w)
+    sig = np.maximum(np.sqrt(var), 1e-12)
+    s0, e0, n = np.asarray(avg.start), np.asarray(avg.end), np.asarray(avg.n)
+    t, lab = (s0 + e0 - 1) / 2 / rec.rate_hz, [x or "" for x in avg.label]
+    temp = [float(np.mean(temperature[a:b])) for a, b in zip(s0, e0)] if temperature is not None else None
+    rounding = ""
+    if avg.lsb is not None and np.any(avg.lsb > 0):
+        rounding = (f": LSB {', '.join(f'{q:.4g}' for q in avg.lsb)}, rounding u of a mean "
+                    f"{', '.join(f'{u:.3g}' for u in avg.rounding_u)} {rec.unit} (x, y, z)")
     return IntervalData(np.array(A), np.array(sig), np.array(sd), np.array(n), np.array(s0), np.array(e0),
                         np.array(t), lab, float(local) / STANDARD_GRAVITY_M_S2,
-                        np.array(temp) if temperature is not None else None)
+                        np.array(temp) if temperature is not None else None, rounding)
 
 
 # --------------------------------------------------------------------------------------
@@ -324,7 +321,8 @@ def diagnose_intervals(d: IntervalData, *, source=None, fit_status=None, poses=N
     doc = {
         "format": FORMAT, "version": 1, "model": [], "source": None if source is None else str(source),
         "noise": "the intervals' own scatter: standard error of each interval's mean of |A| (the larger of "
-                 "SD/sqrt(n) and the SD of 10 batch means / sqrt(10))",
+                 "SD/sqrt(n) and the SD of 10 batch means / sqrt(10)), with the rounding of readings on a grid "
+                 "(docs/raw.md, \"Readings on a grid\")" + d.rounding,
         "noise_known": True, "alpha": ALPHA,
         "gap": gap,
         "where": [s for s in slices if s["p_holm"] is not None and s["p_holm"] < ALPHA],

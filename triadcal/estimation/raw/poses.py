@@ -64,6 +64,12 @@ class PoseAverages:
     pooled_floor: list = field(default_factory=list)
     #: what the fit should say about the averages (short intervals, the pool's size)
     notes: list = field(default_factory=list)
+    #: per axis: the readings' resolution (LSB, the recording's unit; 0 when they are on no grid), the
+    #: per-sample noise before rounding, and the RMS rounding error of a mean that ``se`` includes
+    #: (:func:`rounding_floor`)
+    lsb: Optional[np.ndarray] = None
+    sigma_before_rounding: Optional[np.ndarray] = None
+    rounding_u: Optional[np.ndarray] = None
 
 
 #: a static interval with at least this fraction of one channel's samples on the recording's extreme
@@ -147,6 +153,42 @@ def pooled_sd(x_blocks) -> tuple:
     return np.sqrt(ss / dof), dof
 
 
+def rounding_floor(blocks, sd_pooled) -> tuple:
+    """``(lsb, sigma, u)`` per axis: the readings' resolution, the noise before rounding and the
+    standard uncertainty that rounding leaves in each interval's mean (docs/raw.md, "Readings on a grid").
+
+    ``lsb`` is the step every static reading of the axis is a multiple of
+    (:func:`~triadcal.models.effects.quantisation.resolution_lsb` on the distinct readings; 0 when they
+    lie on no grid, as most scaled or filtered outputs). ``sigma`` is the per-sample SD before rounding
+    that the pooled within-interval SD implies, the poses' signals taken as spread uniformly over the LSB
+    (:func:`~triadcal.models.effects.quantisation.sigma_from_phase_averaged_variance`). ``u`` is the RMS
+    over that phase of the error of a long mean (:func:`~triadcal.models.effects.quantisation.phase_rms_error`:
+    ``lsb/sqrt(12)`` when the counts of the intervals never change, JCGM 100:2008 F.2.2.1; below 1e-8 LSB
+    once sigma > 1 LSB): a pose's error is fixed for its signal, random over poses, and no number of
+    samples averages it away. Before, an interval whose counts never change had a sample SD of 0 and its
+    mean was taken as exact (its ``se`` 1e-12 of the reading): 30 poses of a 64 counts/g triad with
+    0.05 LSB of noise failed the goodness of fit (ratio 334) and the raw diagnosis called the rounding
+    "unexplained" (chi2/dof 6.5e17). Each interval's own phase is not used: a constant interval's mean
+    does not say where between two codes its signal lies, and the mean of one that flips between two
+    codes is as far from its signal (up to 0.4 LSB at sigma = 0.05 LSB)."""
+    from ...models.effects.quantisation import (
+        phase_rms_error,
+        resolution_lsb,
+        sigma_from_phase_averaged_variance,
+    )
+
+    n_ax = len(sd_pooled)
+    lsb, sig, u = np.zeros(n_ax), np.full(n_ax, np.nan), np.zeros(n_ax)
+    for a in range(n_ax):
+        q = resolution_lsb(np.unique(np.concatenate([b[:, a] for b in blocks])))
+        if q is None or not math.isfinite(float(sd_pooled[a])):
+            continue
+        lsb[a] = q
+        sig[a] = sigma_from_phase_averaged_variance(float(sd_pooled[a]) ** 2, q)
+        u[a] = float(phase_rms_error(q, sig[a]))
+    return lsb, sig, u
+
+
 def pose_averages(rec: RawRecording, detection: StaticDetection, batches: int = 10) -> PoseAverages:
     """Each static interval's mean, SD and the standard uncertainty of its mean (docs/raw.md, "The
     noise of each interval's mean"). Every interval is used, none dropped: the noise is one
@@ -177,9 +219,20 @@ def pose_averages(rec: RawRecording, detection: StaticDetection, batches: int = 
         w.append(m), sd.append(s), sd_own.append(own), n.append(len(x)), se.append(white)
         t.append((iv.start + iv.end - 1) / 2 / rec.rate_hz), tau.append(len(x) / rec.rate_hz)
         lab.append(iv.label), s0.append(iv.start), e0.append(iv.end)
-    se = np.array(se)
+    lsb, sig_q, u_q = rounding_floor(blocks, sd_pool)
+    white = np.array(se)
+    se = np.sqrt(white ** 2 + u_q[None, :] ** 2)                          # the rounding of each mean
     se = np.maximum(se, 1e-12 * np.maximum(np.abs(np.array(w)), 1.0))   # an exactly constant input
     notes = []
+    frozen = np.array([[float(np.ptp(x[:, a])) == 0.0 for a in range(len(lsb))] for x in blocks]) & (lsb > 0)
+    big = u_q > 0.1 * np.median(white, axis=0)
+    if np.any(big):
+        parts = [f"{AXES[a]}: LSB {lsb[a]:.4g}, {int(np.sum(frozen[:, a]))} of {len(blocks)} intervals without a "
+                 f"change, noise {sig_q[a]:.3g} before rounding, u {u_q[a]:.3g}" for a in range(len(lsb)) if big[a]]
+        notes.append(f"the readings are on a grid ({'; '.join(parts)}; {rec.unit}): a mean of rounded readings "
+                     "keeps a rounding error that no number of samples averages away (LSB/sqrt(12) when the "
+                     "counts never change, JCGM 100 F.2.2.1; less as the noise dithers them), u, added to each "
+                     "interval's standard uncertainty (docs/raw.md, \"Readings on a grid\")")
     if floored:
         names = ", ".join(f"{ivs[k].label or k + 1} (samples {ivs[k].start}..{ivs[k].end - 1}, {ivs[k].n} "
                           f"sample{'s' if ivs[k].n != 1 else ''})" for k in floored)
@@ -192,7 +245,8 @@ def pose_averages(rec: RawRecording, detection: StaticDetection, batches: int = 
                      f"uncertainties are themselves uncertain by about {100 / math.sqrt(2 * dof_pool):.0f} % "
                      "(record longer static intervals)")
     return PoseAverages(lab, np.array(s0), np.array(e0), np.array(w), np.array(sd), np.array(n), se,
-                        np.array(t), np.array(tau), np.array(sd_own), sd_pool, dof_pool, floored, notes)
+                        np.array(t), np.array(tau), np.array(sd_own), sd_pool, dof_pool, floored, notes,
+                        lsb, sig_q, u_q)
 
 
 def wrapped_intervals(rec: RawRecording, detection: StaticDetection) -> list:
@@ -255,6 +309,9 @@ def bench_campaign(avg: PoseAverages, rec: RawRecording, serial: str, local_g_m_
             "input_unit": rec.unit, "local_g_m_s2": repr(float(local_g_m_s2)),
             "bench": "none: hand-placed poses (imucal labels " + ",".join(avg.label) + ")",
             "temperature": f"not measured; t_x t_y t_z hold a constant {temperature_C:g} degC placeholder"}
+    if avg.lsb is not None and np.all(avg.lsb > 0) and np.ptp(avg.lsb) <= 1e-9 * float(np.max(avg.lsb)):
+        # readings on one grid (rounding_floor): the bench path's quantisation term reads it
+        meta["quantisation_lsb"] = repr(float(avg.lsb[0]))
     return Campaign(
         unit=np.full(k, serial), setpoint_C=np.full(k, temperature_C), direction=np.full(k, "none"),
         time_s=avg.time_s.astype(float), position=np.array(pos), axis1_deg=a1, axis2_deg=a2,

@@ -154,6 +154,40 @@ def distinct_orientations(w: np.ndarray, separation_deg: float = ORIENTATION_SEP
     return len(centres)
 
 
+def norm_mean_noise(rec: RawRecording, avg: PoseAverages, K, S, Ca, batches: int = 10) -> tuple:
+    """``(sd, var_mean)`` (g, g^2) per static interval: the SD of the calibrated norm |A| over its samples
+    and the variance of its mean, the noise floor of the gravity-norm fit and of the raw diagnosis.
+
+    From the samples of |A| themselves: the larger of the white-noise ``sd^2/m`` and a batch-means
+    estimate (``batches`` batches, when ``m >= 5 batches``), so slowly correlated noise does not shrink
+    it. |A| does not change when the unit turns, so motion inside an interval does not inflate this
+    floor; it shortens the mean vector instead, which the residual sees (the slow-motion case of
+    issue 14). An interval of fewer than MIN_OWN_SD_SAMPLES samples has the larger of its own and the
+    pooled sample SD of |A| (a 1-sample interval the pooled one; NaN when no interval has two): the
+    averages' rule (:func:`~.poses.pose_averages`). The rounding of the readings
+    (``avg.rounding_u``, :func:`~.poses.rounding_floor`) is added, projected on |A|:
+    ``d|A| = (A/|A|)^T Ca^-1 diag(K) dW``."""
+    norms = [np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[s_:e_]), axis=1)
+             for s_, e_ in zip(avg.start, avg.end)]
+    pooled = float(pooled_sd([a[:, None] for a in norms])[0][0]) if norms else float("nan")
+    M = np.linalg.solve(np.asarray(Ca, float), np.diag(np.asarray(K, float)))
+    u_round = avg.rounding_u
+    sd, var = [], []
+    for k, (a, m) in enumerate(zip(norms, avg.n)):
+        s = float(a.std(ddof=1)) if m > 1 else float("nan")
+        if m < MIN_OWN_SD_SAMPLES:
+            s = float(np.fmax(s, pooled))
+        v = s * s / m
+        if m >= 5 * batches:
+            bm = np.array([b.mean() for b in np.array_split(a, batches)])
+            v = max(v, float(np.var(bm, ddof=1)) / batches)
+        if u_round is not None:
+            am = calibrated_acceleration(K, S, Ca, avg.w[k])
+            v += float(np.sum(((am / np.linalg.norm(am)) @ M * u_round) ** 2))
+        sd.append(s), var.append(v)
+    return np.array(sd), np.array(var)
+
+
 def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float, serial: str,
                       gates: GateConfig = DEFAULT_CONFIG):
     """Gravity-norm fit; returns ``(CalibrationResult, NormProblem, Solution)``."""
@@ -171,27 +205,8 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
     dof = n - len(NORM_NAMES)
     sol.r, sol.J = sol.r * problem.RESIDUAL_UNIT_G, sol.J * problem.RESIDUAL_UNIT_G   # back to g
     rss = float(sol.r @ sol.r)
-    # noise floor: variance of the mean of |A| within each interval, from the samples of |A|
-    # themselves: the larger of the white-noise sd^2/m and a batch-means estimate (10 batches),
-    # so slowly correlated noise does not shrink it. |A| does not change when the unit turns,
-    # so motion inside an interval does not inflate this floor; it shortens the mean vector
-    # instead, which the residual sees (the slow-motion case of issue 14)
-    # An interval of fewer than MIN_OWN_SD_SAMPLES samples has the larger of its own and the pooled
-    # sample variance of |A| (a 1-sample interval the pooled one): the averages' rule (pose_averages)
     K, S, Ca = norm_matrices(sol.x)
-    norms = [np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[s_:e_]), axis=1)
-             for s_, e_ in zip(avg.start, avg.end)]
-    pooled = float(pooled_sd([a[:, None] for a in norms])[0][0]) ** 2
-    var_means = []
-    for a, m in zip(norms, avg.n):
-        v = float(np.var(a, ddof=1)) if m > 1 else float("nan")
-        if m < MIN_OWN_SD_SAMPLES:
-            v = float(np.fmax(v, pooled))
-        v /= m
-        if m >= 50:
-            bm = np.array([b.mean() for b in np.array_split(a, 10)])
-            v = max(v, float(np.var(bm, ddof=1)) / 10)
-        var_means.append(v)
+    var_means = norm_mean_noise(rec, avg, K, S, Ca)[1]
     s2_noise = float(np.mean(var_means))
     s2_resid = rss / dof if dof > 0 else None
     s2 = max(s2_resid if s2_resid is not None else 0.0, s2_noise)

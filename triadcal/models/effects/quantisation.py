@@ -244,6 +244,66 @@ def sigma_from_sample_sd(sd, x, q: float):
     return float(out[0]) if one else out
 
 
+def phase_rms_error(q: float, sigma):
+    """RMS over the signal's phase of the expected error of a mean of rounded samples, :func:`expected_error`
+    averaged (squared) over ``x`` uniform on one LSB: by Parseval on the series of the module docstring,
+
+        u_q = (q / (pi sqrt 2)) sqrt( sum_{k>=1} exp(-4 pi^2 k^2 sigma^2 / q^2) / k^2 )
+
+    ``q / sqrt(12)`` at ``sigma = 0`` (sum 1/k^2 = pi^2/6: the resolution of a digital indication,
+    JCGM 100:2008 F.2.2.1, a rectangular distribution of half-width q/2), damped by the noise: 0.04 q at
+    sigma = 0.3 q, below 1e-8 q once sigma > q. It is the standard uncertainty that rounding leaves
+    in a long mean whose signal sits anywhere between two codes (static poses, many LSB apart): the
+    error is fixed for that signal and averages away only over poses, never over more samples.
+    ``sigma`` (per-sample SD before rounding) may be an array; output unit, 0 for ``q <= 0``. The
+    series is summed to :data:`MAX_TERMS` terms, the rest bounded by ``exp(-a K^2) / (K + 1/2)``."""
+    s = np.asarray(sigma, float)
+    if q <= 0:
+        return np.zeros_like(s) if s.ndim else 0.0
+    a = 4.0 * math.pi ** 2 * (np.clip(s, 0.0, None) / q) ** 2
+    k = np.arange(1, MAX_TERMS + 1, dtype=float)
+    terms = np.exp(-np.multiply.outer(a, k * k)) / (k * k)
+    # the terms beyond MAX_TERMS: at most exp(-a K^2) sum_{k>K} 1/k^2, about exp(-a K^2) / (K + 1/2)
+    tail = np.exp(-a * MAX_TERMS ** 2) / (MAX_TERMS + 0.5)
+    out = q / (math.pi * math.sqrt(2.0)) * np.sqrt(np.sum(terms, axis=-1) + tail)
+    return float(out) if np.ndim(out) == 0 else out
+
+
+def sigma_from_phase_averaged_variance(v, q: float):
+    """The per-sample SD ``sigma`` before rounding from ``v``, the variance of rounded samples about their
+    means pooled over many signals whose phase on the LSB is uniform (static poses many LSB apart): the
+    root of
+
+        v = sigma^2 + q^2/12 - u_q(sigma)^2
+
+    (``E[(Q(x+n) - x)^2] = sigma^2 + q^2/12`` over a uniform phase, the rounding error then uniform and
+    independent of the noise; less the phase-averaged square of the mean's error, :func:`phase_rms_error`).
+    The right side rises from 0 at ``sigma = 0`` (every signal one code) monotonically (its derivative
+    ``2 sigma - 2 u_q u_q'`` with ``u_q' < 0``), so the root is unique: bisection to 1e-10 of ``sqrt(v) + q``.
+    It stays defined where :func:`sigma_from_sample_sd` is not (sigma << q: a constant interval's mean does
+    not say where between two codes its signal lies, so the variance at each visit's own phase says nothing
+    of sigma). 0 for ``v <= 0``; Sheppard's ``sqrt(v - q^2/12)`` for ``q <= 0`` or ``v > 1.5 q^2``."""
+    v = float(v)
+    if not math.isfinite(v):
+        return float("nan")
+    if v <= 0:
+        return 0.0
+    if q <= 0:
+        return math.sqrt(v)
+    if v > 1.5 * q * q:
+        return math.sqrt(v - q * q / 12.0)
+    lo, hi = 0.0, math.sqrt(v) + q
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if mid * mid + q * q / 12.0 - float(phase_rms_error(q, mid)) ** 2 < v:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo < 1e-10 * (math.sqrt(v) + q):
+            break
+    return 0.5 * (lo + hi)
+
+
 def sample_sigma(sd, q: float):
     """Per-sample SD of the noise before rounding from the SD of rounded samples: Sheppard's
     correction ``sigma^2 = sd^2 - q^2/12`` (exact up to terms of the order of the error above),
