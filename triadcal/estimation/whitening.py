@@ -116,14 +116,15 @@ def gls_posterior_target(campaign, effects, least_squares, whitening, priors=Non
     from .joint import parameter_unit, scaled_covariance
     from .posterior.targets import ResidualTarget
     from .gates import config_of
-    from .priors import autoscaled_scale_priors, default_priors
+    from .priors import autoscaled_priors, default_priors
 
     ls, problem, sol = least_squares
     raw = getattr(problem, "raw", problem)
     model = Model(effects, reference_temperature_C)
     bound = config_of(ls).angle_bound_arcsec         # the bound the least-squares result was judged with
-    pri, _ = autoscaled_scale_priors(default_priors(model, overrides=priors, angle_bound_arcsec=bound),  # noted by the caller
-                                     {n: p.value for n, p in ls.parameters.items()}, user=priors or {})
+    pri, _ = autoscaled_priors(default_priors(model, overrides=priors, angle_bound_arcsec=bound),  # noted by the caller
+                               {n: p.value for n, p in ls.parameters.items()}, user=priors or {},
+                               u={n: p.u for n, p in ls.parameters.items()})
     names = tuple(raw.names)
     x = ca.MX.sym("x", len(names))
     w = raw._predict(x, ca.DM(raw.cov_matrix), raw.gravity_g)              # 3 x n

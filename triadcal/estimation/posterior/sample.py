@@ -26,7 +26,7 @@ from ..joint import (
     fit_joint,
     noise_of,
 )
-from ..priors import Prior, autoscaled_scale_priors, default_priors
+from ..priors import Prior, autoscaled_priors, default_priors
 from ..result import Z95, CalibrationResult
 from .export import write_inference_data, write_target_inference_data
 from .laplace import _transformed_laplace, laplace_approximation
@@ -151,8 +151,9 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
     whitening = getattr(ls_problem, "whitening", None)
     model = Model(effects, reference_temperature_C)
     bound = config_of(ls).angle_bound_arcsec         # the bound the least-squares result was judged with
-    pri, scaled = autoscaled_scale_priors(default_priors(model, overrides=priors, angle_bound_arcsec=bound),
-                                          {n: p.value for n, p in ls.parameters.items()}, user=priors or {})
+    pri, scaled = autoscaled_priors(default_priors(model, overrides=priors, angle_bound_arcsec=bound),
+                                     {n: p.value for n, p in ls.parameters.items()}, user=priors or {},
+                                     u={n: p.u for n, p in ls.parameters.items()})
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     sigma = noise.sigma
     notes = ([added] if added else []) + noise_fx["notes"] + scaled
@@ -282,7 +283,7 @@ def _sample_gls(campaign, effects, ls, whitening, noise_fx, added, kw, gls_notes
     target = gls_posterior_target(campaign, effects, ls, whitening, kw["priors"], kw["reference_temperature_C"],
                                   name=name, noise_scale=noise_scale)
     notes = ([added] if added else []) + noise_fx["notes"] + list(gls_notes) + [
-        f"prior of {n}: {p.reason}" for n, p in target.priors.items() if p.reason.startswith("autoscaled")]
+        f"prior of {n}: {p.reason}" for n, p in target.priors.items() if p.reason.startswith(("autoscaled", "widened"))]
     result, run = sample_target(target, ess=kw["ess"], rhat_max=kw["rhat_max"], tau_factor=kw["tau_factor"],
                                 max_steps=kw["max_steps"], n_walkers=kw["n_walkers"], seed=kw["seed"],
                                 moves=kw["moves"], progress=kw["progress"], posterior_path=kw["posterior_path"],

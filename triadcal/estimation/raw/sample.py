@@ -69,6 +69,19 @@ def raw_priors(names: Sequence[str], k0: float, scale_unit: str, placement_sd_ar
     return out
 
 
+def widened_bias_priors(pri: dict, ls: CalibrationResult, user=None) -> tuple:
+    """``(priors, notes)``: the biases' priors widened where the least-squares S contradicts
+    ``N(0, 0.5 g)`` (:func:`~triadcal.estimation.priors.autoscaled_priors`: beyond 3 prior-predictive
+    SDs, the SD set to the distance); a bias of an analog or offset-binary output far beyond a MEMS
+    offset is the unit's, not a value for the prior to pull toward 0. The other raw priors are kept:
+    K's is centred on the recording's own scale already, the angles' and tilts' are the models'."""
+    from ..priors import autoscaled_priors
+
+    s_names = [n for n in pri if n.startswith("S_") and n in ls.parameters]
+    return autoscaled_priors(pri, {n: ls[n].value for n in s_names}, user=user or {},
+                             u={n: ls[n].u for n in s_names})
+
+
 def sample_unknown_poses(ls: CalibrationResult, problem: NormProblem, sol: Solution, *, serial: str,
                          scale_unit: str, priors=None, posterior_path=None, shear: bool = True, **sampler):
     """Posterior of the gravity-norm model (:func:`triadcal.estimation.posterior.sample_target`).
@@ -96,6 +109,7 @@ def sample_unknown_poses(ls: CalibrationResult, problem: NormProblem, sol: Solut
     units = tuple(ls[n].unit for n in names)
     cov = ls.covariance(list(names))
     pri = raw_priors(names, k0, scale_unit, overrides=priors)
+    pri, widened = widened_bias_priors(pri, ls, priors)
     data = (problem.w.T, problem.gravity_g, 1.0 / sigma)
     # parameters the data determine no better than the prior: the walkers move along them and
     # the others follow through the conditional shear (the ridge of a nearly singular design)
@@ -110,7 +124,7 @@ def sample_unknown_poses(ls: CalibrationResult, problem: NormProblem, sol: Solut
         observed={"w": (("interval", "axis"), problem.w, {"units": scale_unit.split("/")[-1]})},
         obs_coords={"axis": ["x", "y", "z"]}, unit_serial=serial)
     notes = [f"noise of |A| - g held at the least-squares value (s = {math.sqrt(s2):.3g} g, "
-             f"{f['variance_used']}); the posterior does not include its uncertainty"]
+             f"{f['variance_used']}); the posterior does not include its uncertainty"] + widened
     prefer = (f"the posterior holds the noise of |A| - g at its least-squares value, which {f['dof']} residual "
               f"degree{'s' if f['dof'] != 1 else ''} of freedom determine poorly; the least-squares intervals (Student's t) include that "
               "uncertainty" if 0 < f["dof"] < 10 else None)
@@ -148,6 +162,7 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
     k0 = float(np.mean(sol.x[:3]))
     pri = raw_priors(names, k0, scale_unit, problem.sigma_h, overrides=priors,
                      misalignment_sd_arcsec=problem.sigma_a)
+    pri, widened = widened_bias_priors(pri, ls, priors)
     cov_ls = scaled_covariance(sol.J)
     z = Z95
     ls_intervals = {n: (ls[n].value - z * ls[n].u, ls[n].value + z * ls[n].u) for n in UNIT_NAMES}
@@ -179,7 +194,7 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
     flags = result.extra["flags"]
     for key in ("non_gaussian", "prior_dominated", "prior_influenced"):
         flags[key] = [n for n in flags[key] if n in UNIT_NAMES]
-    result.notes = [n for n in result.notes if not n.startswith("tilt_")] + list(ls.notes)
+    result.notes = [n for n in result.notes if not n.startswith("tilt_")] + widened + list(ls.notes)
     result.extra["sampler"]["coordinates"] = (
         "sheared: the walkers move along the placement tilts; the unit parameters about their conditional "
         "optimum given the tilts" if transform is not None else "whitened (Laplace approximation)")
