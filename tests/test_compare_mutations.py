@@ -247,8 +247,10 @@ def test_non_finite_or_negative_tolerances_are_refused(fits, tmp_path, capsys):
         compare(fits["before"], fits["moved"], tolerance_arcsec=math.inf)
     fits["before"].save(tmp_path / "b.json")
     fits["moved"].save(tmp_path / "a.json")
+    # K_x=1_0 was read by float() as 10 g/V (every K drift passed); 1e-400 underflowed to a tolerance of 0
     for args in (("--tolerance", "1e400arcsec"), ("--param-tolerance", "K_x=inf"),
-                 ("--param-tolerance", "K_x=nan"), ("--param-tolerance", "K_x=-1")):
+                 ("--param-tolerance", "K_x=nan"), ("--param-tolerance", "K_x=-1"),
+                 ("--param-tolerance", "K_x=1_0"), ("--param-tolerance", "Ca_xy=1e-400")):
         assert _cli(tmp_path / "b.json", tmp_path / "a.json", *args) == 1
         err = capsys.readouterr().err
         assert args[0] in err and args[1] in err
@@ -342,3 +344,33 @@ def test_two_results_of_one_source_without_hashes_are_noted(fits):
     assert any("name the same source (campaign.csv) and do not both carry data_sha256" in n for n in c.notes)
     b.extra["source"] = "other.csv"
     assert not any("name the same source" in n for n in compare(a, b).notes)
+
+
+def test_a_result_without_its_checksum_and_another_local_g_are_said(fits, tmp_path):
+    """An outside probe: with content_sha256 deleted, a Ca_xy edited by +20 arcsec was compared without a
+    word; a unit calibrated at 9.80665 and at 9.78 m/s^2 had a K drift of 0 (z 0.5), yet the note said the
+    K drift "contains" the difference of the local g's (each fit scales K to its own stated g)."""
+    from triadcal.estimation.result import CalibrationResult
+
+    d = fits["moved"].to_dict()
+    d.pop("content_sha256", None)
+    d["parameters"]["Ca_xy"]["value"] += 20.0
+    edited = CalibrationResult.from_dict(d)
+    c = compare(fits["before"], edited, files=("b.json", "a.json"))
+    assert any(n.startswith("a.json holds no content_sha256") for n in c.notes), c.notes
+    other_g = copy.deepcopy(fits["again"])
+    other_g.extra["local_g_m_s2"] = 9.78
+    c = compare(fits["before"], other_g)
+    note = next(n for n in c.notes if n.startswith("local gravity differs"))
+    assert "each fit scaled K to its own stated g" in note and "contains" not in note
+
+
+def test_a_number_that_underflows_is_refused_and_zero_is_not():
+    from triadcal.io.numbers import NumberError, parse_number
+
+    for text in ("1e-400", "-2.5E-330", "0.0001e-320"):
+        with pytest.raises(NumberError, match="underflows to 0"):
+            parse_number(text)
+    for text in ("0", "0.000", "-0e5", "0E-400"):
+        assert parse_number(text) == 0.0
+    assert parse_number("5e-324") == 5e-324          # the smallest subnormal is a number

@@ -233,10 +233,13 @@ def _param_tolerances(items) -> dict:
         k, v = (x.strip() for x in item.split("=", 1))
         if not k:
             raise InputError(f"--param-tolerance {item}: no parameter name")
+        from ..io.numbers import NumberError, parse_number
+
         try:
-            value = float(v)
-        except ValueError:
-            raise InputError(f"--param-tolerance {item}: {v!r} is not a number (in the parameter's own unit; "
+            value = parse_number(v, what=f"the tolerance of {k}")
+        except NumberError as exc:
+            # float() took '1_0' as 10 (an outside probe: every K drift passed a tolerance of 10 g/V)
+            raise InputError(f"--param-tolerance {item}: {exc.problem} (a number in the parameter's own unit; "
                              "leave the parameter out for significance only)") from None
         if k in out:
             raise InputError(f"--param-tolerance {item}: {k} is given twice")

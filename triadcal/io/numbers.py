@@ -2,7 +2,8 @@
 
 Accepted: an optional sign, ASCII digits, a decimal point and an exponent, as C's strtod
 reads them, finite; not accepted: NaN, infinities, digit separators (``1_000``, which
-Python's ``float`` takes), non-ASCII digits, hexadecimal, empty fields.
+Python's ``float`` takes), non-ASCII digits, hexadecimal, empty fields, a non-zero number that
+underflows to 0 (``1e-400``).
 A reader hands each field to :func:`parse_number` with the range its instrument allows
 (docs/bench-csv.md and docs/raw.md list them); a value outside is refused with the file,
 the line and the field, never clipped or dropped. ``1e300`` is not a reading.
@@ -51,6 +52,9 @@ def parse_number(text, *, low: float = -math.inf, high: float = math.inf, what: 
             raise NumberError(f"not a number: {s!r}") from None
     if not math.isfinite(v):
         raise NumberError(f"not a finite number: {s!r}")
+    if v == 0.0 and any(c in "123456789" for c in s.lower().split("e")[0]):
+        # 1e-400 reads as 0: a field written non-zero taken as zero (an outside probe's tolerance)
+        raise NumberError(f"{s!r} underflows to 0 (below the smallest double, 5e-324)")
     if integer:
         if v != math.floor(v):
             raise NumberError(f"not an integer: {s!r}")

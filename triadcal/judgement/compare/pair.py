@@ -232,7 +232,17 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                      "difference between the estimators")
     gb, ga = before.extra.get("local_g_m_s2"), after.extra.get("local_g_m_s2")
     if gb is not None and ga is not None and gb != ga:
-        notes.append(f"local gravity differs ({gb} vs {ga} m/s^2): the K drift contains that difference")
+        # an outside probe: the K drift of a unit calibrated at 9.80665 and at 9.78 m/s^2 was 0 (z 0.5),
+        # each fit having scaled K to its own stated g; the note said the drift "contains" the difference
+        notes.append(f"local gravity differs ({gb} vs {ga} m/s^2): each fit scaled K to its own stated g, so the K "
+                     "drift holds the difference only as far as either stated value is wrong (its u is in a "
+                     "result's budget when the lab file states one)")
+    unhashed = [t for t, r in ((tag_b, before), (tag_a, after)) if getattr(r, "content_unhashed", False)]
+    if unhashed:
+        # an outside probe: content_sha256 deleted and Ca_xy edited by +20 arcsec: compared without a word
+        notes.append(f"{' and '.join(unhashed)} hold{'s' if len(unhashed) == 1 else ''} no content_sha256 (another "
+                     "writer, or triadcal before 2026-11-30): nothing shows that the values compared are the fit's "
+                     "answer and not edited; a certificate is refused for such a file")
 
     if isinstance(shared_equipment, str):
         shared_equipment = (shared_equipment,)
@@ -423,7 +433,15 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
             t for t, r in ((tag_b, before), (tag_a, after)) if n not in r.parameters) for n in missing_angles)
         notes.insert(0, NOT_PASS_NOTE + f"{where}: every calibration of eq. 1 holds the six angles, so the drift "
                      "of the unit's axes is not judged in full")
-    if overall == "pass" and (same_calibration(before, after) or missing_angles):
+    moved = unjudged_moves(params, level)
+    if overall == "pass" and moved:
+        notes.insert(0, NOT_PASS_NOTE + "the angles pass, but " + "; ".join(
+            f"{p.name} moved {p.drift:+.4g} {p.unit} (z {p.z:.3g}, p {p.p_value:.2g})" for p in moved[:4])
+            + (f" and {len(moved) - 4} more" if len(moved) > 4 else "")
+            + f" -- significant after Holm's correction over the {n_unjudged(params)} parameters without a "
+            "tolerance (family-wise false alarms at most " + f"{1 - level:.0%}" + "); they enter the overall verdict "
+            "only with a tolerance: give --param-tolerance NAME=VALUE to judge them")
+    if overall == "pass" and (same_calibration(before, after) or missing_angles or moved):
         overall = "inconclusive"
     if data:  # a "fail" between two fits of one data set would name a drift the unit never had
         overall = "inconclusive"
@@ -460,6 +478,31 @@ def joint_test(drift: np.ndarray, cov: np.ndarray, names: Sequence[str], level: 
 
 def _is_angle(name: str) -> bool:
     return name.rsplit(".", 1)[-1] in ANGLES
+
+
+def _unjudged(params: Mapping[str, ParameterDrift]) -> list:
+    return [p for p in params.values() if not p.judged and not _is_angle(p.name)]
+
+
+def n_unjudged(params: Mapping[str, ParameterDrift]) -> int:
+    """How many of the unit's parameters other than the angles are compared without a tolerance."""
+    return len(_unjudged(params))
+
+
+def unjudged_moves(params: Mapping[str, ParameterDrift], level: float = 0.95) -> list:
+    """The parameters other than the angles compared without a tolerance (K, S, tempcos, ...) whose drift
+    is significant after Holm's step-down correction over all of them at ``1 - level`` (their p-values,
+    two-sided; family-wise false alarms at most ``1 - level`` whatever their correlation; Holm 1979),
+    largest |z| first. They are kept out of the overall verdict (they have no tolerance to fail), but a
+    unit one of them shows moved is not a pass: an outside probe's unit whose S_x moved 1 mg (z 645) and
+    K_y 1130 ppm (z 417) got "overall: pass", exit 0, the (fail) of those rows in parentheses only."""
+    cand = [p for p in _unjudged(params) if math.isfinite(p.p_value)]
+    m, out = len(cand), []
+    for i, p in enumerate(sorted(cand, key=lambda q: q.p_value)):
+        if p.p_value > (1.0 - level) / (m - i):
+            break
+        out.append(p)
+    return sorted(out, key=lambda q: -abs(q.z) if math.isfinite(q.z) else 0.0)
 
 
 def overall_verdict(params: Mapping[str, ParameterDrift], joint: Optional[JointTest],
