@@ -56,7 +56,7 @@ from ..errors import InputError
 from ..estimation.raw import terms as T
 from ..models.sensor import calibrated_acceleration
 from ..models.units import STANDARD_GRAVITY_M_S2
-from .raw_verdict import (ALPHA, RATIO_MAX, SHRINK_SE, UG, _unseen, _verdict,  # noqa: F401 - the constants and
+from .raw_verdict import (ALPHA, MIN_RIVAL_Z2, RATIO_MAX, SHRINK_SE, UG, _unseen, _verdict,  # noqa: F401 - the constants and
                           held_out_floor)                                     # held_out_floor: its API
 
 FORMAT = "triadcal.diagnosis"
@@ -416,7 +416,8 @@ def _score(d: IntervalData, name: str, base: _Model, r0: np.ndarray, gap: dict) 
 def _rivals(d: IntervalData, base, r0, gap, best: dict) -> list:
     """Each rival term (``terms.RIVALS``: shapes outside the candidate list) scored held out like a
     candidate, and compared with ``best`` fold by fold: ``best`` beats a rival when its held-out
-    z^2 is smaller by more than SHRINK_SE paired standard errors (``versus_best``). A rival it does
+    z^2 is smaller by more than SHRINK_SE paired standard errors and by MIN_RIVAL_Z2 per fold
+    (``versus_best``). A rival it does
     not beat explains the held-out intervals as well: the data cannot tell them apart."""
     out = []
     for name in RIVAL_NAMES:
@@ -428,7 +429,7 @@ def _rivals(d: IntervalData, base, r0, gap, best: dict) -> list:
             diff = r["_zc2"] - best["_zc2"]           # > 0 where the rival predicts worse than best
             se = float(diff.std(ddof=1) / math.sqrt(len(diff)))
             r["versus_best"] = {"candidate": best["term"], "mean_diff": float(diff.mean()), "se": se,
-                                "beaten": bool(float(diff.mean()) > SHRINK_SE * se)}
+                                "beaten": bool(float(diff.mean()) > max(SHRINK_SE * se, MIN_RIVAL_Z2))}
         out.append(r)
     return out
 

@@ -13,6 +13,13 @@ from scipy import stats
 ALPHA = 0.01
 RATIO_MAX = 1.2          # chi2/dof above which a significant gap is also material (gates' gof_ratio_max)
 SHRINK_SE = 2.0          # a held-out shrink counts when mean(d) > SHRINK_SE x SE(d)
+#: a candidate beats a rival only when its held-out z^2 is also smaller by this much per fold on average: a
+#: difference of 0.01 is a log-likelihood of 0.005 per interval, no evidence. Two terms that are one
+#: column (a temperature that is a ramp in time: bias_tempco and bias_drift) differ fold by fold only by
+#: the rounding of the file (1e-7 with temperatures written to 1e-4 degC), with an SE smaller still, and
+#: the winner was drawn by that rounding: bias_tempco named over bias_drift in 1 of 30 recordings of a
+#: drift, "2.51 paired SE" (an outside probe)
+MIN_RIVAL_Z2 = 0.01
 UG = 1e6
 UNSEEN_POWER = 0.95      # a named term's caveat: the pattern beyond it that the gap's rule detects with this power
 
@@ -155,7 +162,8 @@ def _verdict(gap, tested, sig, n, dof0, rms_ug, floor_ug, rivals=()) -> dict:
         return {**partial, "ambiguous_with": [r["term"] for r in lost][:4], "gap_closed": True,
                 "reason": (f"significant gap, {what}; {best['term']} closes it, held out too, but does not beat "
                            f"{len(lost)} rival(s) outside the candidates on held-out intervals by "
-                           f"{SHRINK_SE:g} paired standard errors: {txt}; the data cannot tell "
+                           f"{SHRINK_SE:g} paired standard errors (and {MIN_RIVAL_Z2:g} in z^2 per fold): {txt}; "
+                           f"the data cannot tell "
                            f"{best['term']} from them")}
     v = {"effect": best["term"], "term": best["term"], "gap_closed": True, "held_out_at_floor": True, "evidence": ev,
          "reason": (f"{best['term']} closes the significant gap ({what}): its held-out residual is at the floor "
@@ -172,7 +180,7 @@ def _verdict(gap, tested, sig, n, dof0, rms_ug, floor_ug, rivals=()) -> dict:
         vb = close["versus_best"]
         v["evidence"] += (f"; beats its closest rival, {close['term']}, held out: z^2 worse by {vb['mean_diff']:.3g} "
                           f"+- {vb['se']:.3g} there ({vb['mean_diff'] / max(vb['se'], 1e-300):.3g} paired SE, "
-                          f"{SHRINK_SE:g} needed)")
+                          f"{SHRINK_SE:g} and at least {MIN_RIVAL_Z2:g} needed)")
     if best.get("indistinguishable_from"):
         v["evidence"] += ("; held out, not better than " + ", ".join(best["indistinguishable_from"])
                           + " by 2 SE, which has more parameters")
