@@ -29,7 +29,8 @@ from .detection import (
     StaticDetection,
     StaticIntervalError,
 )
-from .poses import MIN_OWN_SD_SAMPLES, NORM_ANGLES, NORM_NAMES, PoseAverages, pooled_sd
+from .poses import (MIN_OWN_SD_SAMPLES, NORM_ANGLES, NORM_NAMES, PoseAverages, correlated_mean_factor,
+                    integrated_autocorrelation, pooled_sd)
 
 
 # --------------------------------------------------------------------------------------
@@ -158,8 +159,9 @@ def norm_mean_noise(rec: RawRecording, avg: PoseAverages, K, S, Ca, batches: int
     """``(sd, var_mean)`` (g, g^2) per static interval: the SD of the calibrated norm |A| over its samples
     and the variance of its mean, the noise floor of the gravity-norm fit and of the raw diagnosis.
 
-    From the samples of |A| themselves: the larger of the white-noise ``sd^2/m`` and a batch-means
-    estimate (``batches`` batches, when ``m >= 5 batches``), so slowly correlated noise does not shrink
+    From the samples of |A| themselves: the larger of ``sd^2/m`` (times the correlated-noise factor of
+    the norms' pooled integrated autocorrelation time, :func:`~.poses.correlated_mean_factor`) and a
+    batch-means estimate (``batches`` batches, when ``m >= 5 batches``), so slowly correlated noise does not shrink
     it. |A| does not change when the unit turns, so motion inside an interval does not inflate this
     floor; it shortens the mean vector instead, which the residual sees (the slow-motion case of
     issue 14). An interval of fewer than MIN_OWN_SD_SAMPLES samples has the larger of its own and the
@@ -170,6 +172,7 @@ def norm_mean_noise(rec: RawRecording, avg: PoseAverages, K, S, Ca, batches: int
     norms = [np.linalg.norm(calibrated_acceleration(K, S, Ca, rec.acc[s_:e_]), axis=1)
              for s_, e_ in zip(avg.start, avg.end)]
     pooled = float(pooled_sd([a[:, None] for a in norms])[0][0]) if norms else float("nan")
+    acf_tau = integrated_autocorrelation([a[:, None] for a in norms])[0] if norms else np.ones(1)
     M = np.linalg.solve(np.asarray(Ca, float), np.diag(np.asarray(K, float)))
     u_round = avg.rounding_u
     sd, var = [], []
@@ -177,7 +180,7 @@ def norm_mean_noise(rec: RawRecording, avg: PoseAverages, K, S, Ca, batches: int
         s = float(a.std(ddof=1)) if m > 1 else float("nan")
         if m < MIN_OWN_SD_SAMPLES:
             s = float(np.fmax(s, pooled))
-        v = s * s / m
+        v = s * s * float(correlated_mean_factor(acf_tau, int(m))[0]) / m
         if m >= 5 * batches:
             bm = np.array([b.mean() for b in np.array_split(a, batches)])
             v = max(v, float(np.var(bm, ddof=1)) / batches)
