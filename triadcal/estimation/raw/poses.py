@@ -157,6 +157,8 @@ def pooled_sd(x_blocks) -> tuple:
 MAX_ACF_LAG = 2000
 #: correction steps for the bias of the subtracted means (:func:`integrated_autocorrelation`)
 STEPS = 2
+#: the samples of an interval the autocorrelation is estimated from (its first)
+ACF_BLOCK = 10 * MAX_ACF_LAG
 
 
 def integrated_autocorrelation(blocks) -> tuple:
@@ -179,7 +181,9 @@ def integrated_autocorrelation(blocks) -> tuple:
     times or named g_dependent_misalignment on a clean recording (an outside probe); ten batch means of
     30-40 samples, about one correlation time, do not see it."""
     cols = blocks[0].shape[1] if blocks and np.ndim(blocks[0]) == 2 else 1
-    usable = [np.asarray(b, float).reshape(len(b), -1) for b in blocks if len(b) >= 8]
+    # at most ACF_BLOCK samples of each interval: ten times the longest lag, the noise's
+    # autocovariance needs no more (10^7 samples in 150 intervals: 0.3 s saved)
+    usable = [np.asarray(b[:ACF_BLOCK], float).reshape(min(len(b), ACF_BLOCK), -1) for b in blocks if len(b) >= 8]
     if not usable:
         return np.ones(cols), np.zeros(cols, int)
     L = int(min(MAX_ACF_LAG, max(len(b) for b in usable) // 2))
@@ -266,7 +270,10 @@ def rounding_floor(blocks, sd_pooled) -> tuple:
     n_ax = len(sd_pooled)
     lsb, sig, u = np.zeros(n_ax), np.full(n_ax, np.nan), np.zeros(n_ax)
     for a in range(n_ax):
-        q = resolution_lsb(np.unique(np.concatenate([b[:, a] for b in blocks])))
+        v = np.concatenate([b[:, a] for b in blocks])
+        # the distinct readings of at most 2e5 samples evenly spread (10^7 samples: a second saved per
+        # axis); a grid broken only in the samples skipped is taken as a grid (it matters only below 1 LSB)
+        q = resolution_lsb(np.unique(v[::max(1, len(v) // 200_000)]))
         if q is None or not math.isfinite(float(sd_pooled[a])):
             continue
         lsb[a] = q
