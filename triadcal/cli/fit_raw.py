@@ -28,9 +28,9 @@ def register(sub) -> None:
     src.add_argument("--labels", metavar="COLUMN", help="label column naming the poses (imucal's 'part')")
     src.add_argument("--intervals", metavar="FILE",
                      help="static intervals: imucal session-list JSON, or start/end sample indices (CSV)")
-    p.add_argument("--local-g", type=float, default=9.81, metavar="M_S2",
-                   help="local gravity, m/s2 (default 9.81); outside 9.76-9.84 (Earth's surface) refused unless "
-                        "--local-g-override")
+    p.add_argument("--local-g", type=float, default=None, metavar="M_S2",
+                   help="local gravity, m/s2 (not given: 9.81 assumed, said in a note, no certificate); outside "
+                        "9.76-9.84 (Earth's surface) refused unless --local-g-override")
     p.add_argument("--local-g-override", action="store_true",
                    help="accept a --local-g outside Earth's surface range (a centrifuge, another planet, a "
                         "deliberate test), as '# local_g_override = true' does in a bench CSV")
@@ -87,11 +87,12 @@ def _number(option: str, value, *, low: float = 0.0, low_open: bool = True, what
 def check_options(args) -> None:
     """Every numeric option of fit-raw, and the combinations that would be refused after a fit,
     before anything is read or written (docs/raw.md, "What is refused, and where")."""
-    from ..estimation.raw.fit import check_raw_options
+    from ..estimation.raw.fit import ASSUMED_LOCAL_G_M_S2, check_raw_options
 
     _number("--rate", args.rate, what="Hz")
-    check_raw_options(args.local_g, args.local_g_override, window_s=args.static_window_s,
-                      threshold=args.static_threshold, min_duration_s=args.min_static_s)
+    check_raw_options(ASSUMED_LOCAL_G_M_S2 if args.local_g is None else args.local_g, args.local_g_override,
+                      window_s=args.static_window_s, threshold=args.static_threshold,
+                      min_duration_s=args.min_static_s)
     placement = str(args.placement_sd_deg).strip()
     if placement.lower() != "auto":
         try:
@@ -171,7 +172,7 @@ def run(args) -> int:
             ui.say(line)
         ui.say(f"diagnosis written to {args.diagnose}")
     low, high = LOCAL_G_RANGE_M_S2
-    if not low <= args.local_g <= high:
+    if args.local_g is not None and not low <= args.local_g <= high:
         print(f"note: --local-g {args.local_g:g} m/s2, outside Earth's {low}-{high} m/s2, accepted with "
               "--local-g-override", file=sys.stderr)
     if not unit_given:
@@ -204,6 +205,6 @@ def _write_bench_csv(campaign, args) -> None:
     if campaign is None:                                  # checked before the fit (check_options)
         raise InputError("--bench-csv needs known poses: free orientations have no bench angles")
     low, high = LOCAL_G_RANGE_M_S2
-    if not low <= args.local_g <= high:
+    if args.local_g is not None and not low <= args.local_g <= high:
         campaign.metadata["local_g_override"] = "true"
     write_bench_csv(campaign, args.bench_csv)

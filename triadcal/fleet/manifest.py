@@ -39,7 +39,7 @@ class RawEntry:
     poses: str
     columns: Optional[tuple] = None
     labels: Optional[str] = None
-    local_g_m_s2: float = 9.81
+    local_g_m_s2: Optional[float] = None     # not stated: fit-raw assumes 9.81 and says so
 
 
 def is_manifest(path) -> bool:
@@ -100,5 +100,5 @@ def read_manifest(path) -> list:
         first[key] = i
         out.append(RawEntry(rec, e["serial"], e.get("state", "initial"), float(e["rate_hz"]), e["unit"], e["poses"],
                             tuple(e["columns"]) if "columns" in e else None, e.get("labels"),
-                            float(e.get("local_g_m_s2", 9.81))))
+                            (float(e["local_g_m_s2"]) if "local_g_m_s2" in e else None)))
     return out

@@ -99,6 +99,26 @@ def samples_sha256(rec: RawRecording) -> str:
     return hashlib.sha256(np.ascontiguousarray(np.asarray(rec.acc, dtype="<f8")).tobytes()).hexdigest()
 
 
+#: the local g (m/s^2) taken when none is stated, and Earth's surface range it may be off by
+ASSUMED_LOCAL_G_M_S2 = 9.81
+EARTH_G_RANGE_M_S2 = (9.780, 9.832)
+
+
+def assumed_g_note(result) -> str:
+    """What an assumed local g can cost: K and S scale with g one to one (A = Ca^-1 (K W - S) is fitted
+    to |A| = g), so a local g anywhere on Earth's surface moves them by up to the range's half-width
+    over g, which their u (the data's) does not hold. An outside probe: a recording made at 9.78 m/s^2,
+    fitted without --local-g, gave K 0.3 % (about 100 u) high with status ok."""
+    lo, hi = EARTH_G_RANGE_M_S2
+    rel = max(ASSUMED_LOCAL_G_M_S2 - lo, hi - ASSUMED_LOCAL_G_M_S2) / ASSUMED_LOCAL_G_M_S2
+    k = result.parameters.get("K_x")
+    times = (f", {rel * abs(k.value) / k.u:.3g} times K_x's u" if k is not None and k.u > 0 else "")
+    return (f"local g not stated: {ASSUMED_LOCAL_G_M_S2:g} m/s2 assumed. K and S scale with it one to one: "
+            f"anywhere on Earth's surface ({lo:g}-{hi:g} m/s2) that is up to {100 * rel:.2g} %{times}, which their "
+            "u does not hold; give --local-g (the site's value) for K and S to be the unit's, and for a "
+            "certificate (refused without it)")
+
+
 def check_raw_options(local_g_m_s2: float, local_g_override: bool = False, *, window_s: float = 1.0,
                       threshold: float = 4.0, min_duration_s: float = 2.0) -> None:
     """The options of :func:`fit_raw` that the data cannot check, before anything is read (the library,
@@ -125,7 +145,7 @@ def check_raw_options(local_g_m_s2: float, local_g_override: bool = False, *, wi
 
 def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence[str]] = None,
             unit: str = "counts", poses: str = "known", labels: Optional[str] = None, intervals=None,
-            local_g_m_s2: float = 9.81, placement_sd_deg: Union[float, str] = "auto", misalignment_sd_deg: float = 1.0,
+            local_g_m_s2: Optional[float] = None, placement_sd_deg: Union[float, str] = "auto", misalignment_sd_deg: float = 1.0,
             counts_per_g: Optional[float] = None,
             serial: Optional[str] = None, window_s: float = 1.0, threshold: float = 4.0,
             min_duration_s: float = 2.0, json_path=None, bench_csv_path=None, sample: bool = False,
@@ -148,11 +168,16 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
     ``temperature_column``: a column of the file with the unit's temperature (degC), kept on the
     recording for the diagnosis (``diagnose_raw``); the calibration does not use it.
     ``local_g_override``: accept a local g outside Earth's surface range (:func:`check_raw_options`).
+    ``local_g_m_s2`` None (not stated): :data:`ASSUMED_LOCAL_G_M_S2` is used, the result says so
+    (``extra.local_g_stated`` false, a note with what it can cost K and S) and no certificate is issued.
     """
     if posterior_path is not None and not sample:
         raise InputError("a posterior file needs sampling (--sample)")
     if poses not in ("known", "unknown"):
         raise InputError(f"poses must be 'known' or 'unknown', got {poses!r}")
+    local_g_stated = local_g_m_s2 is not None
+    if not local_g_stated:
+        local_g_m_s2 = ASSUMED_LOCAL_G_M_S2
     check_raw_options(local_g_m_s2, local_g_override, window_s=window_s, threshold=threshold,
                       min_duration_s=min_duration_s)
     if isinstance(data, RawRecording):
@@ -173,7 +198,8 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
                                  misalignment_sd_deg=misalignment_sd_deg, counts_per_g=counts_per_g,
                                  json_path=json_path, bench_csv_path=bench_csv_path, sample=sample,
                                  posterior_path=posterior_path, priors=priors, ess=ess, seed=seed,
-                                 max_steps=max_steps, progress=progress, n_walkers=n_walkers, gates=gates)
+                                 max_steps=max_steps, progress=progress, n_walkers=n_walkers, gates=gates,
+                                 local_g_stated=local_g_stated)
     except StaticIntervalError as exc:
         if str(rec.source) in str(exc):
             raise
@@ -182,7 +208,7 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
 
 def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, placement_sd_deg,
                       misalignment_sd_deg, counts_per_g, json_path, bench_csv_path, sample, posterior_path, priors,
-                      ess, seed, max_steps, progress, n_walkers, gates) -> RawFit:
+                      ess, seed, max_steps, progress, n_walkers, gates, local_g_stated=True) -> RawFit:
     campaign = None
     if poses == "known":
         result, problem, sol = fit_known_poses(avg, gravity_g=gravity_g, scale_unit=rec.scale_unit,
@@ -219,6 +245,9 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
     for note in avg.notes:
         if note not in result.notes:
             result.notes.append(note)
+    result.extra["local_g_stated"] = bool(local_g_stated)
+    if not local_g_stated:
+        result.notes.append(assumed_g_note(result))
     if json_path is not None:
         result.save(json_path)
     if bench_csv_path is not None:

@@ -101,6 +101,12 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
         reasons.append("the result file holds no content_sha256 (written by another tool, or by triadcal before "
                        "2026-11-30), so nothing shows that its values are the fit's answer: a certificate is issued "
                        "only for a result as triadcal saved it; fit the data again with this version")
+    if result.extra.get("local_g_stated") is False:
+        # fit-raw without --local-g: K and S rest on an assumed 9.81 m/s^2, up to 0.3 % off on Earth's
+        # surface, which their u does not hold (an outside probe: K 100 u high with status ok)
+        reasons.append("the local g was not stated to fit-raw (9.81 m/s2 assumed): K and S scale with it one to one, "
+                       "up to 0.3 % anywhere on Earth's surface, which their uncertainties do not hold; fit again "
+                       "with --local-g (the site's value)")
     unid = unidentified_parameters(result)
     if unid:
         reasons.append("the data could not determine " + "; ".join(f"{k} ({v})" for k, v in unid.items())
