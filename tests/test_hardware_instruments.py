@@ -25,11 +25,15 @@ def start(tmp_path, profile, time_scale=20.0):
     return Emulator(tmp_path / "emu", timing=timing, bench_profile=profile).start()
 
 
-def wait_in_position(bench, timeout_s=10.0):
+def wait_in_position(bench, timeout_s=120.0):
+    """Poll every 20 ms until the bench is in position; the timeout only guards against a hang (the
+    move takes its emulated time, longer on a loaded machine; a busy loop, as before, took a core
+    from the emulator it waited on, and a 10 s deadline made the test depend on the load)."""
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
         if bench.in_position():
             return
+        time.sleep(0.02)
     raise AssertionError("never in position")
 
 

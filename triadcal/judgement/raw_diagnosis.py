@@ -321,7 +321,8 @@ def diagnose_intervals(d: IntervalData, *, source=None, fit_status=None, poses=N
     doc = {
         "format": FORMAT, "version": 1, "model": [], "source": None if source is None else str(source),
         "noise": "the intervals' own scatter: standard error of each interval's mean of |A| (the larger of "
-                 "SD/sqrt(n) and the SD of 10 batch means / sqrt(10)), with the rounding of readings on a grid "
+                 "SD/sqrt(n), times the correlation of its samples, and the SD of 10 batch means / sqrt(10)), with the "
+                 "rounding of readings on a grid "
                  "(docs/raw.md, \"Readings on a grid\")" + d.rounding,
         "noise_known": True, "alpha": ALPHA,
         "gap": gap,

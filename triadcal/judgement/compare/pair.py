@@ -438,7 +438,7 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         notes.insert(0, NOT_PASS_NOTE + "the angles pass, but " + "; ".join(
             f"{p.name} moved {p.drift:+.4g} {p.unit} (z {p.z:.3g}, p {p.p_value:.2g})" for p in moved[:4])
             + (f" and {len(moved) - 4} more" if len(moved) > 4 else "")
-            + f" -- significant after Holm's correction over the {n_unjudged(params)} parameters without a "
+            + f" -- significant after Holm's correction over the {len(_unjudged(params))} parameters without a "
             "tolerance (family-wise false alarms at most " + f"{1 - level:.0%}" + "); they enter the overall verdict "
             "only with a tolerance: give --param-tolerance NAME=VALUE to judge them")
     if overall == "pass" and (same_calibration(before, after) or missing_angles or moved):
@@ -482,11 +482,6 @@ def _is_angle(name: str) -> bool:
 
 def _unjudged(params: Mapping[str, ParameterDrift]) -> list:
     return [p for p in params.values() if not p.judged and not _is_angle(p.name)]
-
-
-def n_unjudged(params: Mapping[str, ParameterDrift]) -> int:
-    """How many of the unit's parameters other than the angles are compared without a tolerance."""
-    return len(_unjudged(params))
 
 
 def unjudged_moves(params: Mapping[str, ParameterDrift], level: float = 0.95) -> list:
