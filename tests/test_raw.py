@@ -214,6 +214,7 @@ def test_known_poses_recover_truth_and_write_bench_csv(tmp_path):
     c = read_bench_csv(tmp_path / "b.csv")
     assert list(c.up_axis()) == ["+X", "-X", "+Y", "-Y", "+Z", "-Z"]
     assert c.metadata["input_unit"] == "counts" and "not measured" in c.metadata["temperature"]
+    assert c.local_g_stated and c.local_g_m_s2 == LOCAL_G      # the g the user stated, carried over
     assert np.allclose(c.w, out.averages.w)
     loaded = CalibrationResult.load(tmp_path / "r.json")
     assert loaded["S_y"].value == pytest.approx(r["S_y"].value)

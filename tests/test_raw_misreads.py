@@ -314,7 +314,10 @@ def test_the_fit_of_the_bench_csv_fit_raw_wrote_is_the_same_data(tmp_path, capsy
     raw = fit_raw(str(p), RATE, labels="part", bench_csv_path=tmp_path / "avg.csv").result
     campaign = read_bench_csv(tmp_path / "avg.csv")
     assert campaign.metadata["raw_samples_sha256"] == want and campaign.derived_from_sha256 == want
+    # no --local-g: the file states none either (it wrote the assumed 9.81 as the site's), and its fit says so
+    assert raw.extra["local_g_stated"] is False and not campaign.local_g_stated
     bench = fit(campaign)
+    assert any(n.startswith("the data state no local gravity") for n in bench.notes)
     assert bench.extra["data_sha256"] != want and bench.extra["derived_from_sha256"] == want
     assert same_data(raw, bench) == want and same_data(bench, raw) == want
     raw.save(tmp_path / "raw.json")

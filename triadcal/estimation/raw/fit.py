@@ -214,7 +214,7 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
         result, problem, sol = fit_known_poses(avg, gravity_g=gravity_g, scale_unit=rec.scale_unit,
                                                serial=serial, placement_sd_deg=placement_sd_deg,
                                                misalignment_sd_deg=misalignment_sd_deg, gates=gates)
-        campaign = bench_campaign(avg, rec, serial, local_g_m_s2)
+        campaign = bench_campaign(avg, rec, serial, local_g_m_s2 if local_g_stated else None)
     else:
         result, problem, sol = fit_unknown_poses(rec, avg, gravity_g=gravity_g, serial=serial, gates=gates)
     run = None

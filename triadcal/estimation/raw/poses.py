@@ -390,20 +390,24 @@ def refuse_wrapped(rec: RawRecording, detection: StaticDetection) -> None:
                      f"{2 ** bits} from every value of {2 ** (bits - 1)} or more) and fit again")
 
 
-def bench_campaign(avg: PoseAverages, rec: RawRecording, serial: str, local_g_m_s2: float,
+def bench_campaign(avg: PoseAverages, rec: RawRecording, serial: str, local_g_m_s2: Optional[float],
                    temperature_C: float = 20.0) -> Campaign:
     """The known-pose averages as bench CSV v1 visits (positions of DEFAULT_PLAN with the same
     axis up). There is no temperature channel: ``t_*`` hold ``temperature_C`` and the
-    metadata says so."""
+    metadata says so. ``local_g_m_s2`` None (the user stated none): the file states none either,
+    so a fit of it says so (``Campaign.local_g_stated``) instead of taking the assumed value for the
+    site's."""
     pos = [POSE_POSITIONS[lab] for lab in avg.label]
     a1 = np.array([DEFAULT_PLAN[p][0] for p in pos])
     a2 = np.array([DEFAULT_PLAN[p][1] for p in pos])
     k = len(pos)
     meta = {"generator": "triadcal fit-raw (position averages of a raw recording)",
             "source": rec.source, "rate_hz": repr(rec.rate_hz), "output_unit": rec.unit,
-            "input_unit": rec.unit, "local_g_m_s2": repr(float(local_g_m_s2)),
+            "input_unit": rec.unit,
             "bench": "none: hand-placed poses (imucal labels " + ",".join(avg.label) + ")",
             "temperature": f"not measured; t_x t_y t_z hold a constant {temperature_C:g} degC placeholder"}
+    if local_g_m_s2 is not None:
+        meta["local_g_m_s2"] = repr(float(local_g_m_s2))
     if avg.lsb is not None and np.all(avg.lsb > 0) and np.ptp(avg.lsb) <= 1e-9 * float(np.max(avg.lsb)):
         # readings on one grid (rounding_floor): the bench path's quantisation term reads it
         meta["quantisation_lsb"] = repr(float(avg.lsb[0]))
