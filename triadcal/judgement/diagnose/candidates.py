@@ -174,6 +174,16 @@ def _fit_position_error(full, campaign, base: FitState, names, sigma, noise_know
         sol = levenberg_marquardt(WhitenedProblem(sub, whitening), x, max_iter=60)
         x = sol.x
     state = whitened_state(names, sub.embed(x), sol, whitening, noise_known)
+    # the replicates' differences against the variance the positioning errors add (relative to s^2)
+    from .generic import replicate_variance_test, repeat_pairs
+
+    r_fin = full.residuals(sub.embed(x)).reshape(-1, 3) / math.exp(0.5 * log_s2)
+    added = (taus[0] * C1 + taus[1] * C2) / math.exp(log_s2)
+    keys = zip(np.round(campaign.axis1_deg, 6), np.round(campaign.axis2_deg, 6),
+               np.round(np.asarray(campaign.setpoint_C, float), 6))
+    rep = replicate_variance_test(r_fin, eye + added, added, *repeat_pairs(keys))
+    if rep is not None:
+        state.extra_tests["replicates"] = rep
     state.extra_params = {"position_error_sigma": {"value": math.sqrt(taus[0]), "unit": "arcsec"},
                           "position_error_wobble_sigma": {"value": math.sqrt(taus[1]), "unit": "arcsec"}}
     return state

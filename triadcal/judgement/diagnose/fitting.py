@@ -65,6 +65,9 @@ class FitState:
     #: the noise model's whitening of columns in normalised units (``flicker_noise``: ``L^-1``);
     #: None: divided by ``sqrt(var_scale)`` when that is set, else as they are
     whiten: Optional[Callable] = None
+    #: tests the refit makes of its own noise model where only it knows the covariance
+    #: (``position_error``: ``replicates``, generic.replicate_variance_test)
+    extra_tests: dict = field(default_factory=dict)
 
     def whitened(self, B: np.ndarray) -> np.ndarray:
         """Columns ``B`` (normalised units, rows as ``r``) on the scale of the standardised residuals

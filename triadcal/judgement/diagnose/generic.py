@@ -212,7 +212,8 @@ def generic_tests(basis: dict, r: np.ndarray, J: np.ndarray, noise_known: bool, 
     ``(r'r - S) / (dof - k)`` as F. ``S``, ``k`` and ``p_full`` are the whole family's test;
     ``p_value`` is Bonferroni's over it and its m sub-blocks (``block_columns``):
     ``min(1, (m + 1) min p)``, a valid level-alpha test of the family that keeps the power of a
-    block's fewer dof."""
+    block's fewer dof. ``scale`` and ``angles_per_soak`` (:func:`soak_basis`) are split by their
+    parameter (each scale factor, each angle, free at each soak)."""
     Q = _hat_q(J) if Q is None else Q
     out = {}
     for fam, B in basis.items():
@@ -222,7 +223,8 @@ def generic_tests(basis: dict, r: np.ndarray, J: np.ndarray, noise_known: bool, 
         S, k, p = full
         ps = [p]
         groups = (block_columns(fam, B.shape[1] // 3) if fam in SUB_BLOCKS else
-                  [list(range(a, B.shape[1], 3)) for a in range(3)] if fam == "scale" else [])
+                  [list(range(a, B.shape[1], 3)) for a in range(3)] if fam == "scale" else
+                  [list(range(j, B.shape[1], 6)) for j in range(6)] if fam == NOISE_SOAK_FAMILY else [])
         if groups:
             for cols in groups:
                 t = _one_test(r, B[:, cols], Q, noise_known, dof)
@@ -325,27 +327,97 @@ def serial_test(z: np.ndarray, Q: np.ndarray, time_s, min_visits: int = SERIAL_M
     z = np.asarray(z, float)
     N = z.size
     n = N // 3
-    nu = N - Q.shape[1]
-    if n < max(min_visits, 3) or nu < 3 or not float(z @ z) > 0:
+    if n < max(min_visits, 3):
         return None
     order = np.argsort(np.asarray(time_s, float), kind="stable")
-    A = np.zeros((N, N))
-    for a in range(3):
-        rows = 3 * order + a
-        A[rows[:-1], rows[1:]] = 0.5
-        A[rows[1:], rows[:-1]] = 0.5
-    AQ = A @ Q
+    return pair_correlation_test(z, Q, order[:-1], order[1:])
+
+
+def pair_correlation_test(z: np.ndarray, Q: np.ndarray, first, second, sided: str = "two") -> Optional[dict]:
+    """The correlation of standardised residuals ``z`` (3n,, visit-major) over pairs of visits, each
+    output with itself: ``rho = z' A z / z' z``, ``A`` symmetric with 1/2 on the two entries of each
+    pair (visits ``first[k]``, ``second[k]``) on each output, so ``z' A z`` is the sum of the pairs'
+    products. Under the noise model ``z = P e`` (``P = I - Q Q'``, ``Q`` the orthonormal basis of the
+    refit's whitened Jacobian, rank ``nu = 3n - cols``), ``rho`` is a ratio of quadratic forms
+    independent of its denominator, with exact moments (Durbin & Watson 1950, 1951): ``M = P A P``,
+    ``E rho = tr M / nu``, ``E rho^2 = ((tr M)^2 + 2 tr M^2) / (nu (nu + 2))``; ``z_rho`` referred to
+    the normal (``sided`` ``"two"``, or ``"greater"``: only a positive correlation is structure). ``A``
+    is sparse: a campaign's pairs are many. ``{"S": z_rho^2, "k": 1, "p_value", "z", "rho",
+    "pairs"}``; None with no pair, fewer than 3 residual dof or residuals all 0."""
+    from scipy import sparse
+
+    z = np.asarray(z, float)
+    N = z.size
+    nu = N - Q.shape[1]
+    first, second = np.asarray(first, int), np.asarray(second, int)
+    if first.size == 0 or nu < 3 or not float(z @ z) > 0:
+        return None
+    rows = np.concatenate([3 * first + a for a in range(3)] + [3 * second + a for a in range(3)])
+    cols = np.concatenate([3 * second + a for a in range(3)] + [3 * first + a for a in range(3)])
+    A = sparse.coo_matrix((np.full(rows.size, 0.5), (rows, cols)), shape=(N, N)).tocsr()
+    AQ = np.asarray(A @ Q)
     QAQ = Q.T @ AQ
-    tr_m = -float(np.trace(QAQ))                               # tr(A P), tr A = 0
+    tr_m = float(A.diagonal().sum()) - float(np.trace(QAQ))                 # tr(A P)
     # tr((A P)^2) = tr(A^2) - 2 tr(Q' A^2 Q) + tr((Q' A Q)^2)
-    tr_m2 = float(np.sum(A * A)) - 2.0 * float(np.sum(AQ * AQ)) + float(np.sum(QAQ * QAQ))
+    tr_m2 = float(A.multiply(A).sum()) - 2.0 * float(np.sum(AQ * AQ)) + float(np.sum(QAQ * QAQ))
     mean = tr_m / nu
     var = (tr_m * tr_m + 2.0 * tr_m2) / (nu * (nu + 2.0)) - mean * mean
     if not var > 0:
         return None
-    rho = float(z @ A @ z) / float(z @ z)
+    rho = float(z @ (A @ z)) / float(z @ z)
     zr = (rho - mean) / math.sqrt(var)
-    return {"S": zr * zr, "k": 1, "p_value": float(2.0 * stats.norm.sf(abs(zr))), "z": zr, "rho": rho}
+    p = float(stats.norm.sf(zr)) if sided == "greater" else float(2.0 * stats.norm.sf(abs(zr)))
+    return {"S": zr * zr, "k": 1, "p_value": p, "z": zr, "rho": rho, "pairs": int(first.size)}
+
+
+def repeat_pairs(pose_keys) -> tuple[np.ndarray, np.ndarray]:
+    """Every pair of visits of one bench pose (``pose_keys``: one hashable key per visit, e.g. the
+    rounded axis angles), whatever their setpoint, branch or time: ``(first, second)`` index arrays."""
+    groups = {}
+    for i, k in enumerate(pose_keys):
+        groups.setdefault(k, []).append(i)
+    first, second = [], []
+    for v in groups.values():
+        for a in range(len(v)):
+            for b in range(a + 1, len(v)):
+                first.append(v[a])
+                second.append(v[b])
+    return np.asarray(first, int), np.asarray(second, int)
+
+
+def replicate_variance_test(r: np.ndarray, V: np.ndarray, E: np.ndarray, first, second) -> Optional[dict]:
+    """Whether two visits of one pose at one setpoint differ as much as a noise model's added
+    variance says (docs/diagnosis.md, "A noise effect must come back random"): ``r`` the refit's
+    residuals (n, 3, normalised units, not whitened), ``V`` each visit's 3 x 3 covariance under the
+    candidate (n, 3, 3), ``E`` the part of it the candidate adds (the positioning errors'), pairs
+    ``first``/``second`` (:func:`repeat_pairs`). The difference ``d`` of a pair has covariance
+    ``D = V_i + V_j`` of which ``E_i + E_j`` is the candidate's; the score of a factor ``lambda`` on that
+    part, at 1 (the candidate's own fit), from the differences alone:
+    ``U = 1/2 sum (d' D^-1 E D^-1 d - tr D^-1 E)``, information ``I = 1/2 sum tr (D^-1 E D^-1 E)``,
+    ``z = U / sqrt(I)``, one-sided below (the replicates agree better than the added variance allows).
+    A random error of each visit makes the pair differ by it; a systematic error absorbed as a variance
+    comes back at the pose and cancels in ``d``: a misalignment that steps below 0 degC, absorbed as a
+    wobble variance on the outputs it moves, was named ``position_error`` with the gap closed 5 times
+    in 5 (an outside probe; the smooth temperature family after the whitening: p_holm 0.054).
+    ``{"S": z^2, "k": 1, "z", "p_value", "pairs"}``; None without a pair or an added variance."""
+    first, second = np.asarray(first, int), np.asarray(second, int)
+    if first.size == 0:
+        return None
+    d = np.asarray(r, float)[first] - np.asarray(r, float)[second]
+    D = V[first] + V[second]
+    Ep = E[first] + E[second]
+    try:
+        Di = np.linalg.inv(D)
+    except np.linalg.LinAlgError:
+        return None
+    DE = Di @ Ep                                            # D^-1 E per pair
+    info = 0.5 * float(np.einsum("kab,kba->", DE, DE))
+    if not info > 1e-12:
+        return None
+    y = np.einsum("kab,kb->ka", Di, d)                      # D^-1 d
+    U = 0.5 * float(np.einsum("ka,kab,kb->", y, Ep, y) - np.einsum("kaa->", DE))
+    z = U / math.sqrt(info)
+    return {"S": z * z, "k": 1, "z": z, "p_value": float(stats.norm.cdf(z)), "pairs": int(first.size)}
 
 
 def soak_basis(campaign: Campaign, J_cols: np.ndarray) -> Optional[np.ndarray]:
@@ -382,6 +454,14 @@ def soak_basis(campaign: Campaign, J_cols: np.ndarray) -> Optional[np.ndarray]:
         on = rows == k
         B[on, c * k:c * k + c] = J_cols[on]
     return B
+
+
+#: the family asked after the noise effects' refits only (run.py): the six misalignment angles free at
+#: each soak (:func:`soak_basis` of the angles' columns). A misalignment that takes a new value at each
+#: soak (SD 15", foreign to every simulator here) moves one output at the poses that load it, which a
+#: positioning error's wobble variance takes in: ``position_error`` was named with the gap closed 4
+#: times in 5 (an outside probe); the angles of one soak share the value, a positioning error does not
+NOISE_SOAK_FAMILY = "angles_per_soak"
 
 
 def position_variance_test(z: np.ndarray, h: np.ndarray, w: np.ndarray) -> Optional[dict]:
@@ -427,7 +507,7 @@ NOISE_RIVAL_TESTS = ("position", "tails")
 
 def families_after(effect: str, gbasis_whitened: dict, r: np.ndarray, J: np.ndarray, Q: np.ndarray,
                    noise_known: bool, dof: int, vbasis: np.ndarray, time_s, sigma: np.ndarray,
-                   corr_kernels=None, pe_w: Optional[np.ndarray] = None) -> dict:
+                   corr_kernels=None, pe_w: Optional[np.ndarray] = None, replicates: Optional[dict] = None) -> dict:
     """The generic families asked after the refit of candidate ``effect`` (``gap_after.generic``), on
     the residuals ``r`` standardised by its noise model, ``J`` and ``Q`` its Jacobian so scaled and
     that Jacobian's orthonormal basis: the five mean families (and ``tilt``, when given), ``variance``,
@@ -438,7 +518,9 @@ def families_after(effect: str, gbasis_whitened: dict, r: np.ndarray, J: np.ndar
     is a pattern shared by neighbouring visits, correlated in time by construction -- the
     estimator's, not the noise's; seed 1000 of the validation's heavy_tails, p 2e-4 after the refit,
     docs/diagnosis.md "Generic structure"). ``corr_kernels``: the campaign's
-    :class:`.correlated.CampaignKernels`, when already built."""
+    :class:`.correlated.CampaignKernels`, when already built. ``replicates``: the refit's
+    :func:`replicate_variance_test` (``position_error``'s, made where its covariance is known), a
+    family of the Holm correction as the others."""
     gen = generic_tests(gbasis_whitened, r, J, noise_known, dof, Q)
     h = np.sum(Q * Q, axis=1)
     var_after = variance_test(r, h, vbasis)
@@ -458,6 +540,8 @@ def families_after(effect: str, gbasis_whitened: dict, r: np.ndarray, J: np.ndar
         res = None
     if res is not None:
         gen[fam] = res
+    if replicates is not None:
+        gen["replicates"] = replicates
     return gen
 
 

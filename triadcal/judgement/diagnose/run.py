@@ -51,7 +51,7 @@ from .candidates import (
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .correlated import (CampaignKernels, correlated_test)
-from .generic import (NOISE_RIVAL_TESTS, families_after, generic_basis, generic_tests, soak_basis, variance_basis, variance_test)
+from .generic import (NOISE_RIVAL_TESTS, NOISE_SOAK_FAMILY, families_after, generic_basis, generic_tests, soak_basis, variance_basis, variance_test)
 from .results import ALPHA, Candidate, Diagnosis, _f
 from .slices import _family_tests, _holm, _slice_tests
 from .time_constant import TIME_CONSTANT_OF, profiled_score, range_refusal
@@ -282,6 +282,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     kbasis = soak_basis(campaign, Jfull[:, [full.index[f"K_{a}"] for a in AXES]] * base.s)
     scale0 = (generic_tests({"scale": base.whitened(kbasis)}, base.r, base.J, noise.known, base.dof, Q)
               if kbasis is not None else {})
+    # and the misalignment free at each soak: asked after the noise effects' refits only (their
+    # variance can take a wandering angle in: generic.NOISE_SOAK_FAMILY)
+    abasis = soak_basis(campaign, Jfull[:, [full.index[n] for n in full.index if n.startswith("Ca_") and n.count("_") == 1]]
+                        * base.s)
     for fam, t in (generic0 | scale0).items():
         gap_tests[f"generic:{fam}"] = t["p_value"]
     # a scatter that depends on the pose (positioning errors): Koenker's test of the variance
@@ -353,7 +357,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         Q_after = _hat_q(st_for_slices.J)
         gen = families_after(c.effect, {f: st.whitened(B) for f, B in gbasis.items()}, r_after,
                              st_for_slices.J, Q_after, noise.known, st.dof, vbasis, campaign.time_s, sigma,
-                             corr_kernels=ckern, pe_w=pe_w)
+                             corr_kernels=ckern, pe_w=pe_w, replicates=st.extra_tests.get("replicates"))
+        if c.effect in NOISE_EFFECTS and abasis is not None:
+            gen.update(generic_tests({NOISE_SOAK_FAMILY: st.whitened(abasis)}, r_after, st_for_slices.J, noise.known,
+                                     st.dof, Q_after))
         # Holm over the families; the two noise effects' tests of each other are rival tests, each at
         # alpha on its own (generic.NOISE_RIVAL_TESTS)
         fams = [f for f in gen if f not in NOISE_RIVAL_TESTS]
