@@ -490,7 +490,10 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         cov = cov * chi2_dof
     u_a = np.sqrt(np.diag(cov))
     units_of = {n: parameter_unit(model, n, campaign.output_unit) for n in problem.names}
-    budgets = {}
+    # the dof the estimated noise level rests on: all the residuals', or an output's when each output
+    # has its own level (noise_model.per_output_scale); the Type A u then has them (Student's t)
+    noise_dof = None if noise.known else (float(dof) if q_per_output is None else float(dof) / 3.0)
+    budgets, tb = {}, None
     t_u = None
     if systematics:
         from ..uncertainty.typeb import propagate, propagated_sources, reference_temperature_u
@@ -503,9 +506,18 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                        sol.J, noise.sigma, problem.names, campaign.output_unit, sol.weights, u_a,
                        whiten=None if whitening is None else whitening.apply)
         type_a = "fit: output noise" + (", bench's random errors per visit" if bench_errors is not None else "")
-        dof_a = None if noise.known else float(dof)
+        dof_a = noise_dof
         budgets = {n: tb.budget(n, units_of[n], float(ua), dof_a, type_a) for n, ua in zip(problem.names, u_a)}
         cov_a, cov = cov, cov + tb.covariance()
+    elif noise_dof is not None and noise_dof > 0 and loss == "l2":
+        # no lab file, the noise estimated: the Type A row alone, so that U = k u with k from Student's t
+        # on the noise's dof (JCGM 100 G.3; an outside probe: 3.3 dof an output, value +- 1.96 u held
+        # 0.83 of the truths) -- the results JSON's U, k, dof_eff
+        from ..uncertainty.typeb import TypeB
+
+        own = TypeB([], tuple(problem.names), np.zeros((0, len(problem.names))))
+        budgets = {n: own.budget(n, units_of[n], float(ua), noise_dof, "fit: output noise (estimated from the "
+                                 "residuals)") for n, ua in zip(problem.names, u_a)}
     u = np.sqrt(np.diag(cov))
     corr = cov / np.outer(u, u)
 
@@ -515,7 +527,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                                 parameter_fields(budgets[n]) if n in budgets else {})
               for n, v, s in zip(problem.names, sol.x, u)}
     if "tilt_x" in problem.index and "tilt_y" in problem.index:
-        params.update(tilt_polar_values(sol.x, cov, problem.index, *((tb, cov_a, dof_a, type_a) if budgets else ())))
+        params.update(tilt_polar_values(sol.x, cov, problem.index, *((tb, cov_a, dof_a, type_a) if tb is not None else ())))
     if not sol.converged:
         notes.append(f"Levenberg-Marquardt stopped after {sol.iterations} iterations without meeting its "
                      "convergence test (cost still falling or a non-vanishing gradient); the values are not an optimum")
@@ -545,6 +557,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         fit["reference_temperature_u_C"] = t_u
         notes.append(reference_temperature_note(t_u))
     if not noise.known:
+        fit["noise_dof"] = noise_dof
         # weights were 1/sqrt(tau): the residual variance estimates the white-noise intensity Q
         fit["Q_estimate"] = chi2_dof if dof > 0 else None
         if q_per_output is not None and dof > 0:

@@ -345,7 +345,7 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
                 out_notes.append(f"{n}: prior-influenced (least-squares SD / prior SD = {ratio:.2f} > "
                                  f"{PRIOR_DOMINATED_RATIO}): the data alone determine it poorly; the prior "
                                  f"narrows its interval (posterior SD / prior SD = {intervals[n]['prior_sd_ratio']:.2f})")
-    rec = intervals_to_use(non_gaussian, target.ls_intervals, prefer_least_squares)
+    rec = intervals_to_use(non_gaussian, target.ls_intervals, prefer_least_squares, intervals=intervals)
     out_notes.append(recommendation_note(rec))
     draws = run.flat()
     x_mean = draws.mean(axis=0)
@@ -359,7 +359,7 @@ def sample_target(target: ResidualTarget, *, ess: float = 2000, rhat_max: float 
         status="ok" if run.converged else "not_converged", intervals=intervals, fit=fit,
         correlation_names=tuple(names), correlation=np.corrcoef(draws, rowvar=False), notes=out_notes,
         extra={"priors": {n: target.priors[n].to_dict() for n in names},
-               "flags": {**_flags_block(non_gaussian, prior_dominated), "prior_influenced": prior_influenced},
+               "flags": {**_flags_block(non_gaussian, prior_dominated, intervals), "prior_influenced": prior_influenced},
                "intervals_to_use": rec,
                "sampler": sampler_info(run, names, total_seconds, ess, rhat_max, tau_factor, max_steps)})
     result.extra["flags"]["criteria"]["prior_influenced"] = (f"least-squares SD / prior SD > {PRIOR_DOMINATED_RATIO} "

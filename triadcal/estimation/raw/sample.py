@@ -192,7 +192,7 @@ def sample_known_poses(ls: CalibrationResult, problem: KnownPoseProblem, sol: So
     result.correlation = result.correlation[np.ix_(keep, keep)]
     result.correlation_names = UNIT_NAMES
     flags = result.extra["flags"]
-    for key in ("non_gaussian", "prior_dominated", "prior_influenced"):
+    for key in ("non_gaussian", "prior_dominated", "prior_influenced", "prior_pulled"):
         flags[key] = [n for n in flags[key] if n in UNIT_NAMES]
     result.notes = [n for n in result.notes if not n.startswith("tilt_")] + widened + list(ls.notes)
     result.extra["sampler"]["coordinates"] = (
