@@ -124,3 +124,18 @@ def test_a_prior_that_pulls_is_said_and_the_least_squares_intervals_recommended(
         assert any(note.startswith(f"{n}: the prior moved or narrowed") for note in post.notes)
     rec = post.extra["intervals_to_use"]
     assert rec["use"] == "least_squares" and "the prior moves or narrows" in rec["why"]
+
+
+def test_a_heating_sweep_after_a_soak_at_ambient_refuses_a_hysteresis_and_says_why():
+    """Setpoints 20 (no branch), 35, 55, 70 (heating) and a unit with a 10" hysteresis: the least squares
+    hold the hysteresis at 0 by design (one branch: it would take in anything localised at the first
+    soak), the unit misfits through the first soak and is refused; the probe's unit was refused 9 times
+    in 10 with only "the model misses something". The hint says which term and what measures it."""
+    rng = np.random.default_rng(3)
+    truth = default_truth(rng)
+    truth.update({f"Ca_{ab}_hysteresis": 10.0 for ab in ("xy", "xz", "yx", "yz", "zx", "zy")})
+    text, _ = simulate_campaign(rng, truth=truth, setpoints_C=(20, 35, 55, 70), hysteresis={"form": "offset"})
+    r = fit_joint(parse_bench_csv(text, "heat-only-3"), ["bench_tilt", "angle_tempco", "hysteresis", "scale_tempco",
+                                                         "bias_tempco"])
+    assert r.status == "model_mismatch"
+    assert any(n.startswith("hint: the hysteresis was held at 0") and "cooling branch" in n for n in r.notes)

@@ -591,6 +591,14 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     if result.status in ("unphysical_scale", "angle_out_of_range", "model_mismatch"):
         G = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg) * campaign.gravity_g
         result.notes.extend(f"hint: {h}" for h in orientation_hints(campaign.w, G))
+    if result.status == "model_mismatch" and any(k.endswith("_hysteresis") for k in problems) and \
+            0.0 in set(np.sign(campaign.branch).tolist()):
+        # an outside probe: 20 degC (no branch) then heating to 70 degC, a unit with a 10" hysteresis and
+        # the model that made it: model_mismatch 9 times in 10, "the model misses something"
+        result.notes.append("hint: the hysteresis was held at 0 (one branch, see above); a unit with a hysteresis "
+                            "then misfits through its visits of no branch, which the model puts on the mid-line "
+                            "between the branches: a cooling branch measures the hysteresis, or fit without the "
+                            "visits of no branch")
     if return_problem:
         return result, problem, sol
     return result
