@@ -490,8 +490,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         cov = cov * chi2_dof
     u_a = np.sqrt(np.diag(cov))
     units_of = {n: parameter_unit(model, n, campaign.output_unit) for n in problem.names}
-    # the dof the estimated noise level rests on: all the residuals', or an output's when each output
-    # has its own level (noise_model.per_output_scale); the Type A u then has them (Student's t)
+    # the dof of an estimated noise level: the residuals', or an output's (per_output_scale)
     noise_dof = None if noise.known else (float(dof) if q_per_output is None else float(dof) / 3.0)
     budgets, tb = {}, None
     t_u = None
@@ -509,15 +508,10 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         dof_a = noise_dof
         budgets = {n: tb.budget(n, units_of[n], float(ua), dof_a, type_a) for n, ua in zip(problem.names, u_a)}
         cov_a, cov = cov, cov + tb.covariance()
-    elif noise_dof is not None and noise_dof > 0 and loss == "l2":
-        # no lab file, the noise estimated: the Type A row alone, so that U = k u with k from Student's t
-        # on the noise's dof (JCGM 100 G.3; an outside probe: 3.3 dof an output, value +- 1.96 u held
-        # 0.83 of the truths) -- the results JSON's U, k, dof_eff
-        from ..uncertainty.typeb import TypeB
+    elif noise_dof is not None and noise_dof > 0 and loss == "l2":      # U = k u on the noise's dof
+        from ..uncertainty.typeb import type_a_budgets
 
-        own = TypeB([], tuple(problem.names), np.zeros((0, len(problem.names))))
-        budgets = {n: own.budget(n, units_of[n], float(ua), noise_dof, "fit: output noise (estimated from the "
-                                 "residuals)") for n, ua in zip(problem.names, u_a)}
+        budgets = type_a_budgets(problem.names, units_of, u_a, noise_dof, "fit: output noise (estimated from the residuals)")
     u = np.sqrt(np.diag(cov))
     corr = cov / np.outer(u, u)
 
@@ -575,7 +569,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                "output_unit": campaign.output_unit, "local_g_m_s2": campaign.local_g_m_s2,
                **campaign.provenance()})
     resid = (sol.r.reshape(-1, 3) * noise.sigma)
-    from .structure import residual_checks
+    from .structure import one_branch_hysteresis_hint, residual_checks
 
     structure, extra_gates = residual_checks(result, campaign, noise, sol, dof, chi2_dof, model.reference_temperature_C,
                                              u, problem.names, plain=loss == "l2" and whitening is None)
@@ -591,14 +585,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     if result.status in ("unphysical_scale", "angle_out_of_range", "model_mismatch"):
         G = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg) * campaign.gravity_g
         result.notes.extend(f"hint: {h}" for h in orientation_hints(campaign.w, G))
-    if result.status == "model_mismatch" and any(k.endswith("_hysteresis") for k in problems) and \
-            0.0 in set(np.sign(campaign.branch).tolist()):
-        # an outside probe: 20 degC (no branch) then heating to 70 degC, a unit with a 10" hysteresis and
-        # the model that made it: model_mismatch 9 times in 10, "the model misses something"
-        result.notes.append("hint: the hysteresis was held at 0 (one branch, see above); a unit with a hysteresis "
-                            "then misfits through its visits of no branch, which the model puts on the mid-line "
-                            "between the branches: a cooling branch measures the hysteresis, or fit without the "
-                            "visits of no branch")
+    result.notes.extend(one_branch_hysteresis_hint(result, problems, campaign))
     if return_problem:
         return result, problem, sol
     return result

@@ -367,3 +367,17 @@ def residual_checks(result, campaign, noise, sol, dof: int, chi2_dof: float, ref
         lag = result.parameters["thermal_lag"]
         gates.append(rate_form_check(campaign, lag.value, lag.u))
     return structure, gates
+
+
+def one_branch_hysteresis_hint(result, problems: dict, campaign) -> list:
+    """The hint of a ``model_mismatch`` fit that held the hysteresis at 0 on one branch with visits of no
+    branch (``joint``'s identifiability: h would take in anything localised at the first soak): a unit
+    with a hysteresis misfits through those visits, which the model puts on the mid-line. An outside
+    probe: 20 degC (no branch) then heating to 70 degC, a 10" hysteresis and the model that made it:
+    refused 9 times in 10 with only "the model misses something". ``[]`` otherwise."""
+    if not (result.status == "model_mismatch" and any(k.endswith("_hysteresis") for k in problems)
+            and 0.0 in set(np.sign(campaign.branch).tolist())):
+        return []
+    return ["hint: the hysteresis was held at 0 (one branch, see above); a unit with a hysteresis then misfits "
+            "through its visits of no branch, which the model puts on the mid-line between the branches: a cooling "
+            "branch measures the hysteresis, or fit without the visits of no branch"]
