@@ -327,52 +327,33 @@ def serial_test(z: np.ndarray, Q: np.ndarray, time_s, min_visits: int = SERIAL_M
     z = np.asarray(z, float)
     N = z.size
     n = N // 3
-    if n < max(min_visits, 3):
+    nu = N - Q.shape[1]
+    if n < max(min_visits, 3) or nu < 3 or not float(z @ z) > 0:
         return None
     order = np.argsort(np.asarray(time_s, float), kind="stable")
-    return pair_correlation_test(z, Q, order[:-1], order[1:])
-
-
-def pair_correlation_test(z: np.ndarray, Q: np.ndarray, first, second, sided: str = "two") -> Optional[dict]:
-    """The correlation of standardised residuals ``z`` (3n,, visit-major) over pairs of visits, each
-    output with itself: ``rho = z' A z / z' z``, ``A`` symmetric with 1/2 on the two entries of each
-    pair (visits ``first[k]``, ``second[k]``) on each output, so ``z' A z`` is the sum of the pairs'
-    products. Under the noise model ``z = P e`` (``P = I - Q Q'``, ``Q`` the orthonormal basis of the
-    refit's whitened Jacobian, rank ``nu = 3n - cols``), ``rho`` is a ratio of quadratic forms
-    independent of its denominator, with exact moments (Durbin & Watson 1950, 1951): ``M = P A P``,
-    ``E rho = tr M / nu``, ``E rho^2 = ((tr M)^2 + 2 tr M^2) / (nu (nu + 2))``; ``z_rho`` referred to
-    the normal (``sided`` ``"two"``, or ``"greater"``: only a positive correlation is structure). ``A``
-    is sparse: a campaign's pairs are many. ``{"S": z_rho^2, "k": 1, "p_value", "z", "rho",
-    "pairs"}``; None with no pair, fewer than 3 residual dof or residuals all 0."""
-    from scipy import sparse
-
-    z = np.asarray(z, float)
-    N = z.size
-    nu = N - Q.shape[1]
-    first, second = np.asarray(first, int), np.asarray(second, int)
-    if first.size == 0 or nu < 3 or not float(z @ z) > 0:
-        return None
-    rows = np.concatenate([3 * first + a for a in range(3)] + [3 * second + a for a in range(3)])
-    cols = np.concatenate([3 * second + a for a in range(3)] + [3 * first + a for a in range(3)])
-    A = sparse.coo_matrix((np.full(rows.size, 0.5), (rows, cols)), shape=(N, N)).tocsr()
-    AQ = np.asarray(A @ Q)
+    A = np.zeros((N, N))
+    for a in range(3):
+        rows = 3 * order + a
+        A[rows[:-1], rows[1:]] = 0.5
+        A[rows[1:], rows[:-1]] = 0.5
+    AQ = A @ Q
     QAQ = Q.T @ AQ
-    tr_m = float(A.diagonal().sum()) - float(np.trace(QAQ))                 # tr(A P)
+    tr_m = -float(np.trace(QAQ))                               # tr(A P), tr A = 0
     # tr((A P)^2) = tr(A^2) - 2 tr(Q' A^2 Q) + tr((Q' A Q)^2)
-    tr_m2 = float(A.multiply(A).sum()) - 2.0 * float(np.sum(AQ * AQ)) + float(np.sum(QAQ * QAQ))
+    tr_m2 = float(np.sum(A * A)) - 2.0 * float(np.sum(AQ * AQ)) + float(np.sum(QAQ * QAQ))
     mean = tr_m / nu
     var = (tr_m * tr_m + 2.0 * tr_m2) / (nu * (nu + 2.0)) - mean * mean
     if not var > 0:
         return None
-    rho = float(z @ (A @ z)) / float(z @ z)
+    rho = float(z @ A @ z) / float(z @ z)
     zr = (rho - mean) / math.sqrt(var)
-    p = float(stats.norm.sf(zr)) if sided == "greater" else float(2.0 * stats.norm.sf(abs(zr)))
-    return {"S": zr * zr, "k": 1, "p_value": p, "z": zr, "rho": rho, "pairs": int(first.size)}
+    return {"S": zr * zr, "k": 1, "p_value": float(2.0 * stats.norm.sf(abs(zr))), "z": zr, "rho": rho}
 
 
 def repeat_pairs(pose_keys) -> tuple[np.ndarray, np.ndarray]:
-    """Every pair of visits of one bench pose (``pose_keys``: one hashable key per visit, e.g. the
-    rounded axis angles), whatever their setpoint, branch or time: ``(first, second)`` index arrays."""
+    """Every pair of visits with one key (``pose_keys``: one hashable key per visit; the caller's are the
+    rounded axis angles and the setpoint, so the pairs are a pose's visits at one setpoint, on either
+    branch or cycle): ``(first, second)`` index arrays."""
     groups = {}
     for i, k in enumerate(pose_keys):
         groups.setdefault(k, []).append(i)
@@ -387,7 +368,7 @@ def repeat_pairs(pose_keys) -> tuple[np.ndarray, np.ndarray]:
 
 def replicate_variance_test(r: np.ndarray, V: np.ndarray, E: np.ndarray, first, second) -> Optional[dict]:
     """Whether two visits of one pose at one setpoint differ as much as a noise model's added
-    variance says (docs/diagnosis.md, "A noise effect must come back random"): ``r`` the refit's
+    variance says (docs/diagnosis.md, "A noise effect must not come back"): ``r`` the refit's
     residuals (n, 3, normalised units, not whitened), ``V`` each visit's 3 x 3 covariance under the
     candidate (n, 3, 3), ``E`` the part of it the candidate adds (the positioning errors'), pairs
     ``first``/``second`` (:func:`repeat_pairs`). The difference ``d`` of a pair has covariance

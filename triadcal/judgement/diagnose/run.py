@@ -22,7 +22,7 @@ from ...models.campaign import Campaign
 from ...models.effects import DEFAULT_EFFECTS, EFFECTS, NOISE_EFFECTS, VOCABULARY
 from ...models.effects import heavy_tails as ht
 from ...models.model import Model
-from ...models.sensor import AXES
+from ...models.sensor import ANGLE_NAMES, AXES
 from ...estimation.joint import (
     JointProblem,
     identifiability_problems,
@@ -284,8 +284,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
               if kbasis is not None else {})
     # and the misalignment free at each soak: asked after the noise effects' refits only (their
     # variance can take a wandering angle in: generic.NOISE_SOAK_FAMILY)
-    abasis = soak_basis(campaign, Jfull[:, [full.index[n] for n in full.index if n.startswith("Ca_") and n.count("_") == 1]]
-                        * base.s)
+    abasis = soak_basis(campaign, Jfull[:, [full.index[f"Ca_{ab}"] for ab in ANGLE_NAMES]] * base.s)
     for fam, t in (generic0 | scale0).items():
         gap_tests[f"generic:{fam}"] = t["p_value"]
     # a scatter that depends on the pose (positioning errors): Koenker's test of the variance
@@ -355,12 +354,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         st_for_slices = FitState(st.names, st.x_full, r_after, st.J / (np.sqrt(var_scale)[:, None]
                                  if var_scale is not None else 1.0), st.cov, st.chi2, st.dof, st.s, st.converged)
         Q_after = _hat_q(st_for_slices.J)
-        gen = families_after(c.effect, {f: st.whitened(B) for f, B in gbasis.items()}, r_after,
+        soak_angles = ({NOISE_SOAK_FAMILY: abasis} if c.effect in NOISE_EFFECTS and abasis is not None else {})
+        gen = families_after(c.effect, {f: st.whitened(B) for f, B in (gbasis | soak_angles).items()}, r_after,
                              st_for_slices.J, Q_after, noise.known, st.dof, vbasis, campaign.time_s, sigma,
                              corr_kernels=ckern, pe_w=pe_w, replicates=st.extra_tests.get("replicates"))
-        if c.effect in NOISE_EFFECTS and abasis is not None:
-            gen.update(generic_tests({NOISE_SOAK_FAMILY: st.whitened(abasis)}, r_after, st_for_slices.J, noise.known,
-                                     st.dof, Q_after))
         # Holm over the families; the two noise effects' tests of each other are rival tests, each at
         # alpha on its own (generic.NOISE_RIVAL_TESTS)
         fams = [f for f in gen if f not in NOISE_RIVAL_TESTS]
