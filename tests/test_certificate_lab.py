@@ -63,3 +63,31 @@ def test_another_local_g_refuses(fitted):
     assert not cert.issued
     assert any("local gravity 9.81000 m/s² differs from the 9.80665 m/s²" in r and "341 ppm" in r
                for r in cert.reasons), cert.reasons
+
+
+def test_a_fit_with_the_noise_estimated_is_type_a_only_with_its_students_t(tmp_path, fitted):
+    """A fit whose noise is estimated from its residuals carries U = k u with k from Student's t on the
+    noise's dof and a Type A row alone (estimation/joint.py ``noise_dof``). That U is no lab file: under a
+    lab file the certificate says the result is Type A only (not "fitted with another lab file"), and
+    without one its method states k from Student's t, not the lab's systematic errors."""
+    lines, keep = [], None
+    for line in (fitted / "campaign.csv").read_text().splitlines():
+        if line.startswith("#"):
+            if not line.startswith("# Q_V2s"):
+                lines.append(line)
+            continue
+        f = line.split(",")
+        if keep is None:
+            keep = [i for i, h in enumerate(f) if not (h.startswith(("sd_", "u_w_")) or h == "n_samples")]
+        lines.append(",".join(f[i] for i in keep))
+    (tmp_path / "nosd.csv").write_text("\n".join(lines) + "\n")
+    result = api.fit(tmp_path / "nosd.csv", effects=DEFAULT_EFFECTS)
+    assert result.fit["noise_dof"] > 0 and all(p.U is not None for n, p in result.parameters.items()
+                                               if n not in ("tilt_delta", "tilt_beta"))   # derived: u only
+    result.save(tmp_path / "r.json")
+    cert = C.certificate(tmp_path / "r.json", lab=fitted / "lab.toml", issue_date="2026-12-01")
+    why = " ".join(cert.reasons)
+    assert not cert.issued and "Type A only (it was fitted without them)" in why and "another lab file" not in why, why
+    cert = C.certificate(tmp_path / "r.json", issue_date="2026-12-01")
+    text = dict(cert.method)["Uncertainty"]
+    assert "Student's t" in text and "Type B" not in text and "Type A only" in text, text

@@ -340,7 +340,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     else:
         ptxt = "none (least squares)" if result.method != "posterior" else "as stated in the result file"
     method.append(("Priors", ptxt))
-    if any(p.U is not None for p in result.parameters.values()):
+    if _with_type_b(result):
         ks = {n: p.uncertainty.get("k") for n, p in result.parameters.items() if p.U is not None}
         odd = [f"{n} (k = {k:.3g})" for n, k in ks.items() if k is not None and abs(k - 2.0) > 0.005]
         method.append(("Uncertainty", (
@@ -350,6 +350,14 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
             "degrees of freedom (Welch–Satterthwaite), or the JCGM 101 Monte Carlo interval where a term is not "
             "normal; k = 2 for every parameter" + (f" except {', '.join(odd)}" if odd else "")
             + "; section 7 gives the budgets; U rounded to two significant digits, the value to match")))
+    elif isinstance(result.fit.get("noise_dof"), (int, float)) and any(p.U is not None for p in result.parameters.values()):
+        # the noise estimated from the residuals, no lab file: U = k u with k from Student's t on its dof
+        ks = sorted({round(float(p.uncertainty["k"]), 3) for p in result.parameters.values()
+                     if p.U is not None and p.uncertainty.get("k") is not None})
+        method.append(("Uncertainty", f"U = k·u, u from the {source_of_u} (Type A only: no lab file with the lab's "
+                       f"own errors), the output noise estimated from the residuals on {result.fit['noise_dof']:.3g} "
+                       "degrees of freedom, so k from Student's t on them at a coverage probability of 95.45 % (k = "
+                       + ", ".join(f"{k:g}" for k in ks) + "); U rounded to two significant digits, the value to match"))
     else:
         method.append(("Uncertainty", f"U = k·u with k = 2 (coverage probability about 95 %), u from the "
                        f"{source_of_u} (Type A only: no lab file with the lab's own errors); U rounded to two "
@@ -450,6 +458,14 @@ def _unstated_gravity(result: CalibrationResult, lab: LabConfig) -> list:
             "(# local_g_m_s2 = ..., capture --local-g) and fit again, or in the lab file ([gravity] local_g_m_s2)"]
 
 
+def _with_type_b(result: CalibrationResult) -> bool:
+    """Whether the result's budgets hold the lab's systematic errors (a Type B row): it was fitted with a
+    lab file. A U alone does not say so: a fit whose noise is estimated from its residuals carries U on
+    Student's t with its Type A row only (estimation/joint.py, ``noise_dof``)."""
+    return any(isinstance(r, dict) and r.get("type") == "B" for p in result.parameters.values()
+               for r in (p.uncertainty.get("budget") or []))
+
+
 def _missing_type_b(result: CalibrationResult, lab: LabConfig) -> list:
     """A result whose u is Type A only while the lab file declares systematic errors: its U would
     leave them out of every parameter (a classical result too: with --lab the classical fit
@@ -462,7 +478,7 @@ def _missing_type_b(result: CalibrationResult, lab: LabConfig) -> list:
         declared = systematic_sources(lab, str(result.extra.get("output_unit") or "V"))
     except InputError as exc:             # a voltmeter on counts: the fit refuses it, so does the certificate
         return [str(exc)]
-    if not declared or any(p.U is not None for p in result.parameters.values()):
+    if not declared or _with_type_b(result):
         return []
     names = sorted({s.key for s in declared})
     if result.method == "classical":
@@ -489,7 +505,7 @@ def _lab_disagrees(result: CalibrationResult, lab: LabConfig) -> list:
         return out
     rows = [row for p in result.parameters.values() for row in (p.uncertainty.get("budget") or [])
             if isinstance(row, dict)]
-    if any(p.U is not None for p in result.parameters.values()):
+    if _with_type_b(result):
         from ...uncertainty.typeb import propagated_sources, systematic_sources
 
         try:
