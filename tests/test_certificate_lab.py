@@ -91,3 +91,7 @@ def test_a_fit_with_the_noise_estimated_is_type_a_only_with_its_students_t(tmp_p
     cert = C.certificate(tmp_path / "r.json", issue_date="2026-12-01")
     text = dict(cert.method)["Uncertainty"]
     assert "Student's t" in text and "Type B" not in text and "Type A only" in text, text
+    from triadcal.reports.summary import summary_text
+
+    said = summary_text(result)
+    assert "Type A only, the noise estimated on" in said and "lab's Type B" not in said, said
