@@ -297,18 +297,80 @@ def drift_confounding(campaign, J: np.ndarray, names, u: np.ndarray, noise_scale
     for a in "xyz":
         if f"S_{a}" not in names:
             continue
-        b = t_h * J[:, names.index(f"S_{a}")] * 1e-6          # S in g: a drift of 1 ug/h
-        nb = float(np.linalg.norm(b))
-        if not nb > 0:
-            continue
-        moves, *_ = np.linalg.lstsq(J, b, rcond=None)
-        left = float(np.linalg.norm(b - J @ moves))
-        moves_u = {n: float(m / s) for n, m, s in zip(names, moves, u) if s > 0 and np.isfinite(s)}
-        top = sorted(moves_u, key=lambda n: -abs(moves_u[n]))[:3]
-        out[a] = {"visible_fraction": left / nb,
-                  "sd_ug_per_h": float(noise_scale / left) if left > 1e-12 * nb else None,
-                  "moves_u_per_ug_h": {n: moves_u[n] for n in top}}
+        c = _confounding(J, names, u, t_h * J[:, names.index(f"S_{a}")] * 1e-6, noise_scale)  # S in g: 1 ug/h
+        if c is not None:
+            out[a] = {"visible_fraction": c["visible_fraction"], "sd_ug_per_h": c["sd"],
+                      "moves_u_per_ug_h": c["moves_u"]}
     return out or None
+
+
+def _confounding(J: np.ndarray, names, u: np.ndarray, b: np.ndarray, noise_scale: float) -> Optional[dict]:
+    """A left-out term's signature ``b`` (per unit of the term) against the model's span ``J``:
+    ``visible_fraction``, the SD of the term the residuals measure (None when invisible) and the three
+    largest moves of the parameters (in their u) per unit of the term."""
+    nb = float(np.linalg.norm(b))
+    if not nb > 0:
+        return None
+    moves, *_ = np.linalg.lstsq(J, b, rcond=None)
+    left = float(np.linalg.norm(b - J @ moves))
+    moves_u = {n: float(m / s) for n, m, s in zip(names, moves, u) if s > 0 and np.isfinite(s)}
+    top = sorted(moves_u, key=lambda n: -abs(moves_u[n]))[:3]
+    return {"visible_fraction": left / nb, "sd": float(noise_scale / left) if left > 1e-12 * nb else None,
+            "moves_u": {n: moves_u[n] for n in top}}
+
+
+def hysteresis_confounding(campaign, J: np.ndarray, names, u: np.ndarray, noise_scale: float = 1.0) -> Optional[dict]:
+    """What a thermal hysteresis of the angles the model leaves out does to the answer, per angle
+    ``ab``: the model's ``hysteresis`` term (``Ca_ab + h b``, ``b`` the visit's branch: +1 cooling, -1
+    heating, 0 none; models/effects/hysteresis.py), whose residual signature per arcsec is
+    ``b dr/dCa_ab``. As :func:`drift_confounding`: ``visible_fraction``, ``sd_arcsec`` (the hysteresis
+    the residuals measure) and ``moves_u_per_arcsec`` (the three largest moves, in each parameter's u).
+
+    A schedule that visits no temperature on both branches -- 20 degC (no branch), -40 (cooling), 85
+    (heating) -- makes ``b`` nearly ``-dT / 62.5 degC``, the angle tempco's own column: an outside
+    probe's unit with hysteresis of 6-15 arcsec was fitted without it with status ok, chi2/dof 0.84,
+    and every angle tempco 14-22 u off (``Ca_yx_tempco`` 0.247 for 0.5 arcsec/degC). None when the
+    model has the hysteresis or no visit has a branch."""
+    from ..models.sensor import ANGLE_NAMES
+
+    names = list(names)
+    if any(n.endswith("_hysteresis") for n in names):
+        return None
+    br = np.asarray(campaign.branch, float)
+    if not np.any(br != 0):
+        return None
+    rows = np.repeat(br, 3)
+    out = {}
+    for ab in ANGLE_NAMES:
+        if f"Ca_{ab}" not in names:
+            continue
+        c = _confounding(J, names, u, rows * J[:, names.index(f"Ca_{ab}")], noise_scale)
+        if c is not None:
+            out[ab] = {"visible_fraction": c["visible_fraction"], "sd_arcsec": c["sd"],
+                       "moves_u_per_arcsec": c["moves_u"]}
+    return out or None
+
+
+#: the hysteresis of the orientation angles of this class of units: the seed paper's Table 1 (arcsec)
+HYSTERESIS_TYPICAL_ARCSEC = (4.0, 60.0)
+
+
+def hysteresis_note(conf: dict) -> Optional[str]:
+    """The result's note when a hysteresis of some angle is invisible (:func:`hysteresis_confounding`)."""
+    blind = {ab: c for ab, c in conf.items() if c["visible_fraction"] < DRIFT_VISIBLE_MIN}
+    if not blind:
+        return None
+    moves = [f"{n} by {abs(m):.2g} u" for c in blind.values()
+             for k, (n, m) in enumerate(c["moves_u_per_arcsec"].items()) if k == 0 or abs(m) >= 0.1]
+    moves = ", ".join(moves[:3]) + (f" (and {len(moves) - 3} more: fit.hysteresis_confounding)" if len(moves) > 3 else "")
+    worst = min(c["visible_fraction"] for c in blind.values())
+    lo, hi = HYSTERESIS_TYPICAL_ARCSEC
+    return (f"the schedule cannot show a thermal hysteresis of the angle(s) {', '.join('Ca_' + ab for ab in blind)}: "
+            f"{100 * worst:.1g} % of a hysteresis's signature is outside the model (no temperature is visited on "
+            "both the heating and the cooling branch), so no test of the residuals sees one, and 1 arcsec of "
+            f"hysteresis would move {moves}; units of this kind have {lo:g}-{hi:g} arcsec (the seed paper's Table 1). "
+            "The values hold for a unit without hysteresis; a schedule that visits a temperature on both branches "
+            "tells the two apart (docs/plan.md), and `--effects ...,hysteresis` fits it")
 
 
 def drift_note(conf: dict, stated_u: Optional[float] = None) -> Optional[str]:
@@ -357,6 +419,13 @@ def residual_checks(result, campaign, noise, sol, dof: int, chi2_dof: float, ref
             stated = next((e["u"] for e in result.fit.get("systematic_errors") or []
                            if e.get("key") == "[item] bias_drift_u_ug_per_h"), None)
             note = drift_note(conf, stated)
+            if note:
+                result.notes.append(note)
+        hyst = hysteresis_confounding(campaign, sol.J, names, u,
+                                      1.0 if noise.known else float(np.sqrt(max(chi2_dof, 0.0))))
+        if hyst is not None:
+            result.fit["hysteresis_confounding"] = hyst
+            note = hysteresis_note(hyst)
             if note:
                 result.notes.append(note)
     else:

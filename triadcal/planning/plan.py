@@ -203,6 +203,9 @@ class Design:
     bench_blocks: Optional[np.ndarray] = None
     #: the largest rate of the unit's temperature over the visits (degC/s, the simulated covariates)
     max_rate_C_per_s: float = float("nan")
+    #: effects the model leaves out that this schedule cannot show: {effect: the smallest fraction of
+    #: its signature outside the model's span} below ``structure.DRIFT_VISIBLE_MIN`` (:func:`blind_to`)
+    blind: dict = field(default_factory=dict)
 
 
 def _model_and_sources(effects, lab, output_unit="V"):
@@ -273,7 +276,28 @@ def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, prese
     F = [data_change(s, model, p_int, cov, campaign.gravity_g, w, "V") for s in sources]
     units = {n: parameter_unit(model, n, "V") for n in prob.names}
     rate = float(np.max(np.abs(campaign.temperature_rate()), initial=0.0))
-    return Design(plan, prob.names, units, J, np.asarray(var_b), F, sources, values, problems, blocks, rate)
+    return Design(plan, prob.names, units, J, np.asarray(var_b), F, sources, values, problems, blocks, rate,
+                  blind_to(campaign, J, prob.names))
+
+
+def blind_to(campaign, J: np.ndarray, names) -> dict:
+    """The effects a model without them cannot see on this schedule: ``{"bias_drift" | "hysteresis":
+    the smallest visible fraction over the outputs or angles}``, for those below
+    ``structure.DRIFT_VISIBLE_MIN`` (estimation/structure.py: ``drift_confounding``,
+    ``hysteresis_confounding``; the fit measures the same on the data and notes it). A schedule that
+    visits no temperature twice puts a bias drift into the biases and their tempcos; one that visits
+    none on both branches puts a hysteresis of the angles into the angle tempcos."""
+    from ..estimation.structure import DRIFT_VISIBLE_MIN, drift_confounding, hysteresis_confounding
+
+    u = np.ones(len(names))
+    out = {}
+    for effect, conf in (("bias_drift", drift_confounding(campaign, J, names, u)),
+                         ("hysteresis", hysteresis_confounding(campaign, J, names, u))):
+        if conf:
+            worst = min(c["visible_fraction"] for c in conf.values())
+            if worst < DRIFT_VISIBLE_MIN:
+                out[effect] = float(worst)
+    return out
 
 
 def predict(d: Design, Q_V2s: float, tau_s: Optional[float] = None, repetitions: Optional[int] = None) -> dict:

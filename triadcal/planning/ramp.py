@@ -225,6 +225,8 @@ def search_ramp(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: floa
             if p.n_visits < 2 * len(p.positions):
                 continue
             d = design(p, effects, lab, preset)
+            if d.blind:                 # blind to an effect the model leaves out (plan.blind_to), as stepped plans
+                continue
             if targets is None:
                 targets = parse_targets(target_text, d.names)
             searched += 1

@@ -137,6 +137,11 @@ def candidate_sequences(lo: float, hi: float, hysteresis: bool = True) -> list:
             out.append((f"down-up-back, {m} levels", tuple([amb] + dn + lo_hi + hi_amb)))
         else:
             out.append((f"sweep, {m} levels", tuple([amb] + dn + lo_hi)))
+            if lo < amb < hi and amb not in lo_hi:
+                # back through ambient on the way up: a temperature on both branches, so a hysteresis the
+                # model leaves out is visible (a sweep that visits none twice is blind to it: blind_to)
+                up_amb = sorted(set(lo_hi) | {amb})
+                out.append((f"sweep through ambient, {m} levels", tuple([amb] + dn + up_amb)))
     seen, uniq = set(), []
     for name, seq in out:
         # a clamped ambient coincides with an end: no setpoint twice in a row (a second soak for nothing)
@@ -248,11 +253,17 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
     best, best_key, searched = None, None, 0
     reach: dict = {}
     held_reason: dict = {}          # target spec -> {parameter: why some plan holds it}
+    blind_skipped: list = []        # (plan name, {effect: visible fraction}) of the schedules left out
     for name, sps in seqs:
         for npos in sets:
             plan = Plan(setpoints_C=sps, positions=dict(POSITION_SETS[npos]),
                         chamber_rate_C_per_min=chamber_rate_C_per_min, name=f"{name}, {npos} positions")
             d = design(plan, effects, lab, preset)
+            if d.blind:
+                # a schedule on which an effect the model leaves out would move the answer unseen is no
+                # candidate: the fit would pass every gate on a unit that has it (plan.blind_to)
+                blind_skipped.append((plan.name, d.blind))
+                continue
             # the fit's gates on time constants: hold those the plan cannot determine (thermal_lag)
             hold = undetermined_time_constants(d, Q_V2s, max(taus), max(repetitions), at_rest=True)
             if hold:
@@ -283,6 +294,11 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
                         if best_key is None or key < best_key:
                             best_key = key
                             best = Choice(p, pred, targets, met, d.values, d.units, 0, d.problems)
+    if best is None and not searched and blind_skipped:
+        name, blind = blind_skipped[0]
+        raise InputError("--range: every schedule searched is blind to an effect the model leaves out ("
+                         + "; ".join(f"{e}: {100 * f:.2g} % of its signature visible" for e, f in blind.items())
+                         + f" on {name!r}): a fit would pass every gate on a unit that has it; add it to --effects")
     if best is None and not searched:
         raise InputError(f"--max-hours: no stepped plan over {lo:g}:{hi:g} degC fits within {hours_cap:g} chamber "
                          "hours (raise --max-hours)")
