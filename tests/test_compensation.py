@@ -138,6 +138,23 @@ def test_refusals_name_the_reason(fitted):
         compensation_table(CalibrationResult.from_dict(d), parse_grid("-30:60:10"))
 
 
+def test_an_unhashed_edited_result_is_exported_with_a_note(fitted, tmp_path):
+    """An outside probe deleted content_sha256 and edited K_x (1.00021 -> 1.0102): exported without a
+    word. A hashed file says nothing; one without the hash carries the note into every format."""
+    r, _, tmp = fitted
+    d = json.loads((tmp / "r.json").read_text())
+    assert "content_sha256" in d
+    t = compensation_table(CalibrationResult.load(tmp / "r.json"), parse_grid("-30:60:10"))
+    assert not any("content_sha256" in n for n in t.notes)
+    d.pop("content_sha256")
+    d["parameters"]["K_x"]["value"] += 0.01
+    path = tmp_path / "edited.json"
+    path.write_text(json.dumps(d))
+    t = compensation_table(CalibrationResult.load(path), parse_grid("-30:60:10"))
+    assert any("no content_sha256" in n for n in t.notes)
+    assert "no content_sha256" in t.to_csv() and "no content_sha256" in t.to_c_header()
+
+
 def test_cli_formats_and_the_header_compiles(fitted, tmp_path):
     from triadcal.cli import main
 

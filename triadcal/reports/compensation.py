@@ -284,6 +284,12 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
     if grid.ndim != 1 or len(grid) < 1 or not np.all(np.isfinite(grid)) or np.any(np.diff(grid) <= 0):
         raise InputError(f"grid {grid.tolist()!r}: need finite temperatures (degC), increasing")
     notes = []
+    if result.content_unhashed:
+        # an outside probe: content_sha256 deleted and K_x edited: exported without a word (compare notes it,
+        # certificate refuses it)
+        notes.append("the result holds no content_sha256 (another writer, or triadcal before 2026-11-30): nothing "
+                     "shows that the tabulated values are the fit's answer and not edited; a certificate is refused "
+                     "for such a file")
     rng = result.temperature_range_C
     if rng is None:
         raise InputError("the result has no temperature range (no thermal data): a table of T needs one")
