@@ -514,7 +514,7 @@ def _lab(tmp_path, text):
 #: the example lab file without its systematic errors (a Type A result under it is not refused for them)
 NO_TYPE_B = "\n".join(line for line in C.EXAMPLE_LAB_TOML.splitlines()
                       if not line.startswith(("axes_nonorthogonality_u_arcsec", "encoder_zero_u_arcsec",
-                                              "mounting_u_arcsec", "u_C")))
+                                              "mounting_u_arcsec", "u_C", "local_g_m_s2", "u_ppm")))
 
 
 def test_expired_equipment_refuses_the_certificate_unless_allowed_and_then_prints_it(tmp_path):

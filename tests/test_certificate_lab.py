@@ -57,8 +57,7 @@ def test_another_u_for_a_source_refuses(fitted):
 
 
 def test_another_local_g_refuses(fitted):
-    text = C.EXAMPLE_LAB_TOML.replace("# local_g_m_s2 = 9.8112", "local_g_m_s2 = 9.81").replace("# u_ppm = 10",
-                                                                                               "u_ppm = 10")
+    text = C.EXAMPLE_LAB_TOML.replace("local_g_m_s2 = 9.80665", "local_g_m_s2 = 9.81")
     cert = C.certificate(fitted / "result.json", lab=_lab(fitted, "g.toml", text), issue_date="2026-11-29")
     assert not cert.issued
     assert any("local gravity 9.81000 m/s² differs from the 9.80665 m/s²" in r and "341 ppm" in r
@@ -95,3 +94,35 @@ def test_a_fit_with_the_noise_estimated_is_type_a_only_with_its_students_t(tmp_p
 
     said = summary_text(result)
     assert "Type A only, the noise estimated on" in said and "lab's Type B" not in said, said
+
+
+def test_a_lab_without_gravity_refuses_the_data_g_taken_as_exact(tmp_path):
+    """An outside probe: data stating # local_g_m_s2 = 9.8112 (a site value uncertain by 20 ppm), a lab
+    file of bench and fixture errors without [gravity]: K held by value +- U in 75 of 150 campaigns, and
+    the certificate was issued. Now the fit says the g was taken as exact, and no certificate; with
+    [gravity] stating the same g and its u, K's budget holds its row and the certificate is issued."""
+    import numpy as np
+
+    from independent_bench import simulate_campaign
+    from triadcal.io.bench_csv import parse_bench_csv
+
+    text, _ = simulate_campaign(np.random.default_rng(3), setpoints_C=(20,), local_g_m_s2=9.8112)
+    (tmp_path / "c.csv").write_text(text)
+    no_g = C.EXAMPLE_LAB_TOML.replace("local_g_m_s2 = 9.80665\n", "").replace("u_ppm = 10\n", "")
+    for name, lab_text in (("no_g", no_g), ("g", no_g.replace("[gravity]", "[gravity]\nlocal_g_m_s2 = 9.8112\nu_ppm = 20"))):
+        lab = _lab(tmp_path, f"{name}.toml", lab_text)
+        r = api.fit(parse_bench_csv(text), effects=("bench_tilt",), lab=lab)
+        r.save(tmp_path / f"{name}.json")
+        cert = C.certificate(tmp_path / f"{name}.json", lab=lab, issue_date="2026-12-01")
+        rows = {b["key"] for b in r["K_x"].uncertainty["budget"]}
+        if name == "no_g":
+            assert any(n.startswith("the lab file declares systematic errors but not the local gravity") for n in r.notes)
+            assert "[gravity] u_ppm" not in rows
+            assert not cert.issued and any("not the local gravity's" in x and "9.8112" in x for x in cert.reasons)
+        else:
+            assert not any("not the local gravity" in n for n in r.notes)
+            assert "[gravity] u_ppm" in rows
+            assert cert.issued, cert.reasons
+            # K's u holds the 20 ppm of g one to one (the other rows: noise, bench, fixture)
+            row = next(b for b in r["K_x"].uncertainty["budget"] if b["key"] == "[gravity] u_ppm")
+            assert row["contribution"] == pytest.approx(20e-6 * r["K_x"].value, rel=0.02)

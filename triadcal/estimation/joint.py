@@ -31,6 +31,7 @@ from ..models.units import ARCSEC, scale_factor_unit
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
 from .hints import orientation_hints
 from .result import CalibrationResult, ParameterValue
+from ..uncertainty.typeb import lab_scope_notes
 from .tilt_polar import tilt_polar_values
 
 #: covariates of one visit, in the order of the mapped function's second input
@@ -415,12 +416,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         notes.append(campaign.gravity_note())
     if bench_errors is not None:
         whitening = _bench_whitening(campaign, model, noise, bench_errors, whitening, notes)
-    if bench_errors is None and not systematics:
-        notes.append("uncertainties are Type A only: the bench's own errors (positioning, wobble) are not in "
-                     "them; give them with --lab LAB.toml ([bench] sigma_position_arcsec, sigma_wobble_arcsec)")
-    elif not systematics:
-        notes.append("no systematic errors of the lab declared (encoder zeros, non-orthogonality, fixture, g): "
-                     "u holds the output noise and the bench's random errors only")
+    notes += lab_scope_notes(campaign, bench_errors, systematics)
     problems = identifiability_problems(campaign, model)
     fixed = dict(fix or {})
     start = start_values(campaign, model)

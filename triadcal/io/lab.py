@@ -158,8 +158,11 @@ name = "cube fixture"
 mounting_u_arcsec = 3.0         # u of the unit's rotation in its fixture (systematic)
 
 [gravity]
-# local_g_m_s2 = 9.8112         # measured local gravity; without it the data's value is standard gravity
-# u_ppm = 10                    # its u (ppm), required with it
+# the site's measured local gravity and its u (ppm), required with it: K takes g one to one, and a
+# certificate needs its row in K's budget. 9.80665 is the example campaign's (simulated at standard
+# gravity): put your site's value (data that state another are refused, naming both)
+local_g_m_s2 = 9.80665
+u_ppm = 10
 
 [chamber]
 name = "thermal chamber -60..+100 °C"

@@ -97,6 +97,29 @@ def systematic_sources(lab, output_unit: str = "V") -> list:
     return out
 
 
+def lab_scope_notes(campaign, bench_errors, systematics) -> list:
+    """What a joint fit's u leaves out of the lab's own errors, in words: no bench errors and no
+    systematic errors (Type A only); no systematic errors; or systematic errors without the local
+    gravity's u. The last: the data's ``# local_g_m_s2`` carries no u (bench CSV v1 has no key for
+    one), so with a lab file that declares no ``[gravity]`` the fit took it as exact -- an outside
+    probe's site value uncertain by 20 ppm, fitted with a lab file of bench and fixture errors: K
+    held in 75 of 150 with U ~ 9 ppm, and the certificate was issued; with ``[gravity] u_ppm = 20``
+    144 of 150."""
+    if bench_errors is None and not systematics:
+        return ["uncertainties are Type A only: the bench's own errors (positioning, wobble) are not in "
+                "them; give them with --lab LAB.toml ([bench] sigma_position_arcsec, sigma_wobble_arcsec)"]
+    if not systematics:
+        return ["no systematic errors of the lab declared (encoder zeros, non-orthogonality, fixture, g): "
+                "u holds the output noise and the bench's random errors only"]
+    if not any(s.kind == "gravity" for s in systematics):
+        return [f"the lab file declares systematic errors but not the local gravity's: the fit took g = "
+                f"{campaign.local_g_m_s2:.7g} m/s^2 ({'stated in the data' if campaign.local_g_stated else 'assumed'}) "
+                "as exact, and K takes it one to one (a site value from a gravity model is uncertain by 10-50 ppm); "
+                "state it in the lab file ([gravity] local_g_m_s2, u_ppm) for its row in the budget -- a "
+                "certificate is refused without it"]
+    return []
+
+
 #: output units a voltmeter can read, and volts per unit
 VOLTS = {"V": 1.0, "mV": 1e-3, "uV": 1e-6}
 

@@ -257,7 +257,8 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     reasons = refusal_reasons(result, posterior_diag=post_diag, diagnosis=diagnosis)
     data_date = campaign.metadata.get("date", "") if campaign is not None else ""
     expired = lab.expired(data_date or lab.calibration_date or issue_date)
-    reasons += _missing_type_b(result, lab) + _lab_disagrees(result, lab) + _unstated_gravity(result, lab)
+    reasons += (_missing_type_b(result, lab) + _lab_disagrees(result, lab) + _unstated_gravity(result, lab)
+                + _gravity_without_u(result))
     sha = result.extra.get("data_sha256")
     if campaign is not None and sha and campaign.data_sha256 != sha:
         # the data the certificate shows (plots, averaging times, date) must be those the result was fitted to
@@ -451,11 +452,31 @@ def _unstated_gravity(result: CalibrationResult, lab: LabConfig) -> list:
     and a site's is 9.78-9.83 m/s^2: 9.81 where 9.80665 was assumed put K 260 u off with status ok
     (an outside probe); the certificate would state that K to 1 ppm."""
     stated = result.extra.get("local_g_stated")
-    if lab.local_g_m_s2 is not None or (stated is not False and result.extra.get("local_g_m_s2") is not None):
+    if (lab.local_g_m_s2 is not None or stated is False            # (refusal.refusal_reasons says it then)
+            or result.extra.get("local_g_m_s2") is not None):
         return []
     return ["the data state no local gravity: the fit took standard gravity (9.80665 m/s^2), and K and S are in g of "
             "it where a site's is 9.78-9.83 m/s^2 (up to 0.3 % in K); state the measured value in the data "
             "(# local_g_m_s2 = ..., capture --local-g) and fit again, or in the lab file ([gravity] local_g_m_s2)"]
+
+
+def _gravity_without_u(result: CalibrationResult) -> list:
+    """A result whose budgets hold the lab's systematic errors but no row of the local gravity: the g of
+    the fit, stated in the data without a u (bench CSV v1 has no key for one), was taken as exact, and
+    K takes it one to one. An outside probe: a site value uncertain by 20 ppm, a lab file of bench and
+    fixture errors without ``[gravity]``: value +- U held K in 75 of 150 and the certificate was issued
+    ("Local gravity 9.81120 m/s2 (local value stated in the data)"). A Type-A-only result says it leaves
+    every systematic error out (section 2), and is not refused here."""
+    if not _with_type_b(result) or result.extra.get("local_g_stated") is False:   # no g at all: _unstated_gravity
+        return []
+    rows = [r for p in result.parameters.values() for r in (p.uncertainty.get("budget") or []) if isinstance(r, dict)]
+    if any(r.get("key") == "[gravity] u_ppm" or r.get("equipment") == "gravity" for r in rows):
+        return []
+    g = result.extra.get("local_g_m_s2")
+    return ["the budgets hold the lab's systematic errors but not the local gravity's: the fit took g"
+            + (f" = {float(g):.7g} m/s^2" if isinstance(g, (int, float)) else "")
+            + " as exact (the data state no u for it), and K takes it one to one; state it in the lab file "
+            "([gravity] local_g_m_s2, u_ppm) and fit again with --lab"]
 
 
 def _with_type_b(result: CalibrationResult) -> bool:

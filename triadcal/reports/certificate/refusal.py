@@ -104,9 +104,13 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
     if result.extra.get("local_g_stated") is False:
         # fit-raw without --local-g: K and S rest on an assumed 9.81 m/s^2, up to 0.3 % off on Earth's
         # surface, which their u does not hold (an outside probe: K 100 u high with status ok)
-        reasons.append("the local g was not stated to fit-raw (9.81 m/s2 assumed): K and S scale with it one to one, "
-                       "up to 0.3 % anywhere on Earth's surface, which their uncertainties do not hold; fit again "
-                       "with --local-g (the site's value)")
+        # (a bench CSV without # local_g_m_s2 too: there standard gravity; the reason named fit-raw's 9.81 for it)
+        g = result.extra.get("local_g_m_s2")
+        g_txt = f"{float(g):.7g} m/s2" if isinstance(g, (int, float)) and math.isfinite(g) else "a standard value"
+        reasons.append(f"the data state no local gravity ({g_txt} assumed): K and S scale with it one to one, "
+                       "up to 0.3 % anywhere on Earth's surface, which their uncertainties do not hold; state the "
+                       "site's value and fit again (fit-raw --local-g; a bench CSV's # local_g_m_s2, or the lab "
+                       "file's [gravity] local_g_m_s2 with u_ppm)")
     unid = unidentified_parameters(result)
     if unid:
         reasons.append("the data could not determine " + "; ".join(f"{k} ({v})" for k, v in unid.items())
