@@ -52,6 +52,10 @@ def run(args) -> int:
                 raise InputError(f"{f}: {r.content_mismatch}")
             added = db.add(d, lab=lab, date=args.date)
             out.say(f"{f}: {'recorded' if added else 'already recorded (no change)'} in {path}")
+            if r.content_unhashed:
+                out.say(f"{f}: note: the result holds no content_sha256 (another writer, or triadcal before "
+                        "2026-11-30): nothing shows that its values are the fit's answer and not edited; the "
+                        "history marks it")
         if not args.serial:
             return 0
         cals = db.calibrations(args.serial)

@@ -120,11 +120,17 @@ def settings_sha256(*settings) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
-def _existing(path: Path, sha: str, settings: str) -> Optional[dict]:
+def _existing(path: Path, sha: str, settings: str, unit: str, state: str) -> Optional[dict]:
     """The result document at ``path`` if it is one of this input file (same SHA-256) made with the
-    same settings (:func:`settings_sha256`); else None, and the input is fitted again."""
+    same settings (:func:`settings_sha256`), of this ``unit`` and ``state``, and as triadcal saved it
+    (its ``content_sha256`` present and matching its content); else None, and the pair is fitted
+    again. An outside probe: a stored result edited by 50 arcsec (its checksum left stale), and one
+    unit's result copied over another's of the same input file, were both skipped as done on the
+    rerun, "7 ok", the edited value and the other unit's values in the fleet summary and the history
+    (which then had no calibration of the overwritten unit)."""
     if not path.exists():
         return None
+    from ..estimation.result import CONTENT_HASH_KEY, content_sha256
     from ..io.atomic import read_json
 
     try:
@@ -132,8 +138,16 @@ def _existing(path: Path, sha: str, settings: str) -> Optional[dict]:
     except InputError:
         return None
     b = d.get("batch") if isinstance(d, dict) else None
-    return d if (isinstance(b, dict) and b.get("input_sha256") == sha
-                 and b.get("settings_sha256") == settings) else None
+    if not (isinstance(b, dict) and b.get("input_sha256") == sha and b.get("settings_sha256") == settings):
+        return None
+    if str(d.get("unit")) != unit or str(b.get("state") or "") != state:
+        return None
+    sha_doc = d.get(CONTENT_HASH_KEY)
+    try:
+        intact = isinstance(sha_doc, str) and content_sha256(d) == sha_doc
+    except (TypeError, ValueError):
+        intact = False
+    return d if intact else None
 
 
 def calibration_date(campaign, lab=None) -> str:
@@ -170,7 +184,7 @@ def fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, o
     for unit, state in todo:
         path = result_path(out_dir, unit, state)
         rec = {"unit": unit, "state": state, "input": str(input_path), "path": str(path)}
-        done = _existing(path, sha, settings)
+        done = _existing(path, sha, settings, unit, state)
         if done is not None:
             records.append({**rec, "action": "skipped", "result": done})
             continue
@@ -214,7 +228,7 @@ def fit_manifest_part(manifest: str, out_dir: str, part: int, n_parts: int) -> l
         settings = settings_sha256(e)
         path = result_path(out_dir, e.serial, e.state)
         rec = {"unit": e.serial, "state": e.state, "input": str(e.path), "path": str(path)}
-        done = _existing(path, sha, settings)
+        done = _existing(path, sha, settings, e.serial, e.state)
         if done is not None:
             records.append({**rec, "action": "skipped", "result": done})
             continue

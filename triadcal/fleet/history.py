@@ -105,8 +105,17 @@ class HistoryDB:
                           allow_nan=False)
         sha = hashlib.sha256(body.encode("utf-8")).hexdigest()
         b = result.get("batch") or {}
-        date = date or b.get("date") or result.get("date") or (lab.calibration_date if lab is not None else "") \
-            or _dt.datetime.now(_dt.timezone.utc).date().isoformat()
+        # the data's own date before the lab's and today's: a fit's result recorded with --add took today's
+        # date where the data stated theirs, and the history put a 2024 calibration after a 2026 one
+        given = (("--date", date), ("the result's batch.date", b.get("date")), ("the result's date", result.get("date")),
+                 ("the result's data_date", result.get("data_date")),
+                 ("the lab file's calibration_date", lab.calibration_date if lab is not None else ""))
+        where, raw = next(((w, v) for w, v in given if v), ("today", _dt.datetime.now(_dt.timezone.utc).date().isoformat()))
+        from ..io.dates import ISO_HINT, iso_date
+
+        date = iso_date(raw)
+        if date is None:
+            raise InputError(f"{self.path}: the calibration of {result.get('unit')!r}: {where} = {raw!r} is not {ISO_HINT}")
         lab_name = (lab.name if lab is not None else "") or b.get("lab", "")
         state = b.get("state") or result.get("state") or ""
         try:
@@ -122,6 +131,19 @@ class HistoryDB:
             "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
             (str(result["unit"]), state, str(date), lab_name, json.dumps(equipment_of(lab), sort_keys=True),
              text, sha, _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")))
+
+    def unhashed_or_edited(self, result: dict) -> Optional[str]:      # (self unused: also called as a function)
+        """Why a result recorded here is not known to be the fit's answer (no ``content_sha256``, or one
+        that does not match), or None."""
+        from ..estimation.result import CONTENT_HASH_KEY, content_sha256
+
+        sha = result.get(CONTENT_HASH_KEY)
+        if sha is None:
+            return "holds no content_sha256 (another writer, or triadcal before 2026-11-30)"
+        try:
+            return None if content_sha256(result) == sha else "its content_sha256 does not match its content"
+        except (TypeError, ValueError):
+            return "its content cannot be hashed"
 
     def calibrations(self, serial: str) -> list[dict]:
         """Every recorded calibration of ``serial``, oldest first (by date, then by when recorded)."""
@@ -170,11 +192,17 @@ def history_text(serial: str, calibrations) -> str:
 
     if not calibrations:
         return f"{serial}: no calibration recorded"
+    from ..io.dates import iso_date
+
     lines = [f"{serial}: {len(calibrations)} calibration(s)"]
+    unsure = []
     for i, c in enumerate(calibrations, 1):
         r = c["result"]
+        why = HistoryDB.unhashed_or_edited(None, r)
+        if why:
+            unsure.append((i, why))
         lines.append(f"  #{i} {c['date']}  state {c['state'] or '-'}  lab {c['lab'] or '-'}  method "
-                     f"{r.get('method')}  status {r.get('status')}")
+                     f"{r.get('method')}  status {r.get('status')}" + ("  [not known to be the fit's answer]" if why else ""))
     names = shown_parameters(calibrations)
     # every cell is "value ± u unit" (a serial's calibrations may be in different units: g/V,
     # g/counts), and the columns are as wide as their widest cell, two spaces apart
@@ -202,6 +230,16 @@ def history_text(serial: str, calibrations) -> str:
             lines.append(f"    #{i} -> #{i + 1}: {v}")
     # an outside probe: five results recorded without --date all got today's date and the history
     # compared them in the order they were added, not the order of the events, with no word
+    # an outside probe: a result whose checksum had been deleted and Ca_xy edited by 30 arcsec was recorded and
+    # compared ("fail") without a word, where compare notes such a file and the certificate refuses it
+    if unsure:
+        lines += ["", "  note: " + "; ".join(f"#{i} {why}" for i, why in unsure) + ": nothing shows that its values "
+                  "are the fit's answer and not edited, and its verdicts rest on them"]
+    odd = [f"#{i} ({c['date']})" for i, c in enumerate(calibrations, 1) if iso_date(c["date"]) != c["date"]]
+    if odd:
+        lines += ["", "  note: the date of " + ", ".join(odd) + " is not an ISO 8601 date (YYYY-MM-DD), so the order "
+                  "above (by the date's text) need not be the order of the events (a database written before "
+                  "2026-12-01, which recorded dates unchecked)"]
     same = [i for i in range(1, len(calibrations)) if calibrations[i]["date"] == calibrations[i - 1]["date"]]
     if same:
         lines += ["", "  note: " + ", ".join(f"#{i} and #{i + 1}" for i in same) + " have the same date, so they are "
@@ -229,7 +267,10 @@ def plot_history(serial: str, calibrations, path) -> None:
                 try:
                     xs.append(_dt.date.fromisoformat(c["date"][:10]))
                 except ValueError:
-                    continue
+                    # skipped without a word, every point of a history with day-first dates was left out and
+                    # an empty figure written (an outside probe)
+                    raise InputError(f"{serial}: calibration #{c['id']} is dated {c['date']!r}, not an ISO 8601 "
+                                     "date (YYYY-MM-DD): it cannot be placed on the time axis") from None
                 ys.append(p["value"])
                 us.append(p["u"])
         ax.errorbar(xs, ys, yerr=us, fmt="o-", capsize=3)

@@ -118,6 +118,11 @@ def _metadata(lines, path):
         if metadata.get(flag, "false").lower() not in ("true", "false"):
             raise BenchCSVError(path, where[flag], None,
                                 f"metadata '{flag}' must be true or false, got {metadata[flag]!r}")
+    if "date" in metadata:
+        from .dates import ISO_HINT, iso_date
+
+        if iso_date(metadata["date"]) is None:
+            raise BenchCSVError(path, where["date"], None, f"metadata 'date' = {metadata['date']!r} is not {ISO_HINT}")
     override = metadata.get("local_g_override", "false").lower()
     for key, low, high, low_open in (("local_g_m_s2", 0.0, LOCAL_G_MAX_M_S2, True), ("Q_V2s", 0.0, MAX_READING, True),
                                      ("power_on_s", -MAX_READING, MAX_READING, False)):

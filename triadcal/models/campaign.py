@@ -249,6 +249,11 @@ class Campaign:
         """What a result says of its data: the source, ``data_sha256`` and, for a file averaged from a
         raw recording, ``derived_from_sha256``; and whether the local g was stated."""
         d = {"source": self.source, "data_sha256": self.data_sha256, "local_g_stated": self.local_g_stated}
+        from ..io.dates import iso_date
+
+        day = iso_date(self.metadata.get("date", "")) if self.metadata.get("date") else None
+        if day:
+            d["data_date"] = day          # the date the data were taken (history --add records it)
         if self.derived_from_sha256:
             d["derived_from_sha256"] = self.derived_from_sha256
         return d
