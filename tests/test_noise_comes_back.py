@@ -60,7 +60,7 @@ def layout(tmp_path_factory):
     return read_bench_csv(path)
 
 
-def campaign(layout, tmp_path, effect, seed):
+def campaign(layout, tmp_path, effect, seed, noise_columns=True, knock_arcsec=8.0):
     c = layout
     rng = np.random.default_rng(seed)
     n = c.n_visits
@@ -75,6 +75,9 @@ def campaign(layout, tmp_path, effect, seed):
     elif effect == "wander":                     # a new Ca_xy at each soak
         blocks = c.setpoint_blocks
         extra[:, 0] = rng.normal(0, 15.0, blocks.max() + 1)[blocks] * AS
+    elif effect == "knock":                      # Ca_xy steps once, at 30-70 % of the campaign
+        t = np.asarray(c.time_s, float)
+        extra[:, 0] = knock_arcsec * AS * (t >= rng.uniform(0.3, 0.7) * t.max())
     elif effect == "positioning":                # random errors of both bench axes per visit, 6"
         e1, e2 = rng.normal(0, 6.0 * AS, n), rng.normal(0, 6.0 * AS, n)
     tx, ty = TILT[0] * AS, TILT[1] * AS
@@ -89,12 +92,12 @@ def campaign(layout, tmp_path, effect, seed):
     W += rng.normal(0, SE, W.shape)
     lines = ["# bench = numpy bench of tests/test_noise_comes_back.py", "# local_g_m_s2 = 9.80665",
              "# output_unit = V", "unit,setpoint_C,direction,time_s,position,axis1_deg,axis2_deg,tau_s,"
-             "w_x,w_y,w_z,t_x,t_y,t_z,cycle,state,u_w_x,u_w_y,u_w_z"]
+             "w_x,w_y,w_z,t_x,t_y,t_z,cycle,state" + (",u_w_x,u_w_y,u_w_z" if noise_columns else "")]
     for i in range(n):
         lines.append(",".join(str(v) for v in (
             "SN-NUMPY", c.setpoint_C[i], c.direction[i], c.time_s[i], c.position[i], c.axis1_deg[i], c.axis2_deg[i],
             c.tau_s[i], *(repr(float(v)) for v in W[i]), *(repr(float(v)) for v in T[i]), c.cycle[i], c.state[i],
-            SE, SE, SE)))
+            *((SE, SE, SE) if noise_columns else ()))))
     path = tmp_path / f"{effect}-{seed}.csv"
     path.write_text("\n".join(lines) + "\n")
     return path

@@ -266,8 +266,9 @@ def design_caveat(campaign: Campaign, effect: str):
 
     A hysteresis (any form) on a path that turns once is also a one-time change of the unit at
     the turn -- a unit that slips in its fixture at the top of the cycle gives the same two
-    branches (tests/test_foreign_effects.py: a 30 arcsec slip at the turn is named
-    ``hysteresis_play`` 5 times in 5), and so does a slow change in time: on one cycle each
+    branches (tests/test_foreign_effects.py: a 30 arcsec slip at the turn was named
+    ``hysteresis_play`` 5 times in 5; since the step rival, verdict.py, ``unexplained``), and so
+    does a slow change in time: on one cycle each
     temperature is visited once a branch, so a drift of an angle or a creep of the unit in its
     fixture (15-20 arcsec over the campaign) is a function of temperature and branch too
     (``hysteresis_play`` 5 times in 5 each). A second turn tells them apart: a hysteresis comes

@@ -168,7 +168,7 @@ def encompassing(r: np.ndarray, Q: np.ndarray, C: np.ndarray, T: np.ndarray, noi
     return float(S), int(k), float(math.exp(logp))
 
 
-def rival_tests(r, Q, C, rivals: dict, noise_known: bool, dof: int, reference=None) -> list:
+def rival_tests(r, Q, C, rivals: dict, noise_known: bool, dof: int, reference=None, never_same=()) -> list:
     """The encompassing test of ``c`` against every rival that is one: ``[(label, S, k, p)]``, the
     least beaten (largest p) first. The first of them that ``c`` beats is its closest rival: the
     verdict's evidence that it beats the runner-up (issue 18, item 1), and on a noise-free campaign
@@ -176,7 +176,10 @@ def rival_tests(r, Q, C, rivals: dict, noise_known: bool, dof: int, reference=No
 
     ``reference``: a callable giving ``(Q_ref, C_ref, rivals_ref)`` -- the base span, ``c``'s and
     the rivals' columns on the reference design (``reference_poses``), called at most once and
-    only when a rival lies within span(base, c); None keeps every such rival skipped."""
+    only when a rival lies within span(base, c); None keeps every such rival skipped. ``never_same``:
+    labels of rivals that are another function whatever the poses (a step of the angles in time is
+    never a term of temperature or orientation written another way): within span(base, c) they are
+    aliases of the design, never skipped."""
     out = []
     cache = {}
 
@@ -191,8 +194,9 @@ def rival_tests(r, Q, C, rivals: dict, noise_known: bool, dof: int, reference=No
         return same
 
     for label, T in rivals.items():
-        res = encompassing(r, Q, C, T, noise_known, dof,
-                           same_elsewhere_of(label) if reference is not None else None)
+        same = ((lambda columns: False) if label in never_same else
+                same_elsewhere_of(label) if reference is not None else None)
+        res = encompassing(r, Q, C, T, noise_known, dof, same)
         if res is None:
             continue
         out.append((label, *res))
@@ -204,3 +208,71 @@ def unbeaten_rivals(r, Q, C, rivals: dict, noise_known: bool, dof: int, alpha: f
                     reference=None) -> list:
     """The rivals ``c`` does not beat (p >= ``alpha``) of :func:`rival_tests`, the least beaten first."""
     return [x for x in rival_tests(r, Q, C, rivals, noise_known, dof, reference) if x[3] >= alpha]
+
+
+# ----------------------------------------------------------------------------------
+# a step of the angles in time: the rival of a term that changes the angles once
+# ----------------------------------------------------------------------------------
+#: visits a step needs on each side (the six angles are estimated on each side of it)
+STEP_MIN_SIDE = 6
+#: eigenvalues of a step's Gram matrix (outside the base span) below this fraction of its largest
+#: are no direction of the step (the base span holds them)
+STEP_RANK_TOL = 1e-9
+
+
+def angle_step_rival(r: np.ndarray, Q: np.ndarray, A: np.ndarray, time_s, min_side: int = STEP_MIN_SIDE):
+    """The best single step in time of the columns ``A`` -- the six angles: a knock of the unit in its
+    fixture, or a slip -- at the base fit: ``(T, t_break_s, S, k, m)`` (``m`` the breaks searched) or
+    None when no break leaves ``min_side`` visits on each side.
+
+    The angles after the break are ``Ca + d`` with ``d`` free: the rival's columns are ``A`` on the
+    visits after the break (``T = A H``, ``H`` the visit's step), zero before. The break is chosen
+    among the gaps between visits in time order as the one whose step explains most of the base
+    residuals, ``S = |P_{T orth Q} r|^2`` -- the profile over the change point (Hinkley 1970,
+    Biometrika 57, 1-17), made in one pass from suffix sums of each visit's ``Q_i^T A_i``,
+    ``A_i^T A_i`` and ``A_i^T r_i`` (``Q`` orthonormal: ``T_orth^T T_orth = T^T T - (Q^T T)^T Q^T T``).
+    The choice is the rival's best case: a term the diagnosis names must beat the step wherever the
+    step falls (a play hysteresis of half-width 30-50 degC switches about once on the standard path
+    and took in a knock of 8 arcsec; docs/diagnosis.md "Rivals")."""
+    t = np.asarray(time_s, float)
+    n = t.size
+    if n < 2 * min_side or A.shape[0] != 3 * n:
+        return None
+    order = np.argsort(t, kind="stable")
+    rows = (3 * order[:, None] + np.arange(3)).reshape(-1)
+    As = A[rows].reshape(n, 3, -1)
+    Qs = Q[rows].reshape(n, 3, -1)
+    rs = r[rows].reshape(n, 3)
+    # suffix sums over the visits in time order: index m holds the visits m..n-1
+    PA = np.cumsum(np.einsum("iap,iaq->ipq", Qs, As)[::-1], axis=0)[::-1]
+    AA = np.cumsum(np.einsum("iap,iaq->ipq", As, As)[::-1], axis=0)[::-1]
+    Ar = np.cumsum(np.einsum("iaq,ia->iq", As, rs)[::-1], axis=0)[::-1]
+    Qr = Q.T @ r
+    ts = t[order]
+    best, searched = None, 0
+    for m in range(min_side, n - min_side + 1):
+        if not ts[m] > ts[m - 1]:
+            continue
+        searched += 1
+        G = AA[m] - PA[m].T @ PA[m]
+        b = Ar[m] - PA[m].T @ Qr
+        w, V = np.linalg.eigh(0.5 * (G + G.T))
+        keep = w > STEP_RANK_TOL * max(float(w.max(initial=0.0)), 1e-300)
+        if not keep.any():
+            continue
+        z = V[:, keep].T @ b
+        S = float(np.sum(z * z / w[keep]))
+        if best is None or S > best[0]:
+            best = (S, m, int(keep.sum()))
+    if best is None:
+        return None
+    S, m, k = best
+    H = np.zeros(n)
+    H[order[m:]] = 1.0
+    T = A * np.repeat(H, 3)[:, None]
+    return T, 0.5 * (float(ts[m - 1]) + float(ts[m])), S, k, searched
+
+
+def step_label(t_break_s: float) -> str:
+    """The name of the angle-step rival in a verdict (``ambiguous_with``, ``closest_rival``)."""
+    return f"a step of the six angles in time (at {t_break_s / 3600.0:.3g} h)"

@@ -51,7 +51,7 @@ from .candidates import (
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .correlated import (CampaignKernels, correlated_test)
-from .generic import (NOISE_RIVAL_TESTS, NOISE_SOAK_FAMILY, families_after, generic_basis, generic_tests, soak_basis, variance_basis, variance_test)
+from .generic import (NOISE_RIVAL_TESTS, NOISE_SOAK_FAMILY, STEP_AFTER, families_after, generic_basis, generic_tests, soak_basis, variance_basis, variance_test)
 from .results import ALPHA, Candidate, Diagnosis, _f
 from .slices import _family_tests, _holm, _slice_tests
 from .time_constant import TIME_CONSTANT_OF, profiled_score, range_refusal
@@ -284,7 +284,8 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
               if kbasis is not None else {})
     # and the misalignment free at each soak: asked after the noise effects' refits only (their
     # variance can take a wandering angle in: generic.NOISE_SOAK_FAMILY)
-    abasis = soak_basis(campaign, Jfull[:, [full.index[f"Ca_{ab}"] for ab in ANGLE_NAMES]] * base.s)
+    angles_norm = Jfull[:, [full.index[f"Ca_{ab}"] for ab in ANGLE_NAMES]] * base.s
+    abasis = soak_basis(campaign, angles_norm)
     for fam, t in (generic0 | scale0).items():
         gap_tests[f"generic:{fam}"] = t["p_value"]
     # a scatter that depends on the pose (positioning errors): Koenker's test of the variance
@@ -357,7 +358,10 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         soak_angles = ({NOISE_SOAK_FAMILY: abasis} if c.effect in NOISE_EFFECTS and abasis is not None else {})
         gen = families_after(c.effect, {f: st.whitened(B) for f, B in (gbasis | soak_angles).items()}, r_after,
                              st_for_slices.J, Q_after, noise.known, st.dof, vbasis, campaign.time_s, sigma,
-                             corr_kernels=ckern, pe_w=pe_w, replicates=st.extra_tests.get("replicates"))
+                             corr_kernels=ckern, pe_w=pe_w, replicates=st.extra_tests.get("replicates"),
+                             # a step's columns are the angles' on the visits after it: with a whitening
+                             # within each visit only (position_error's 3 x 3 blocks; flicker's GLS mixes them)
+                             step_angles=(st.whitened(angles_norm) if c.effect in STEP_AFTER else None))
         # Holm over the families; the two noise effects' tests of each other are rival tests, each at
         # alpha on its own (generic.NOISE_RIVAL_TESTS)
         fams = [f for f in gen if f not in NOISE_RIVAL_TESTS]

@@ -23,6 +23,7 @@ import numpy as np
 from scipy import stats
 
 from ...models.effects import EFFECTS, NOISE_EFFECTS
+from ...models.sensor import ANGLE_NAMES
 from .candidates import NOISE_MODEL_TERMS, _nominal_g, _problem_on, design_caveat
 from .correlated import SCALE_WANDER_MIMICS, WANDER_MIMICS, wander_ambiguity, wander_rival
 from .fitting import _hat_q
@@ -30,7 +31,7 @@ from .generic import gap_shape, level_words, per_output_terms, sign_terms
 from .noise_level import (LEVEL_MIMICS, noise_level_rival, partial_without_level, soak_level_ambiguity,
                           soak_level_rival, uniform_ambiguity)
 from .results import _f, _p_is
-from .rivals import generic_rivals, reference_poses, rival_tests
+from .rivals import angle_step_rival, generic_rivals, reference_poses, rival_tests, step_label
 from .series import series_of, series_txt
 
 
@@ -72,6 +73,11 @@ class VerdictInputs:
     pe_w: Any  # position_error's sensitivity per residual (its level rival's weights), or None
     mean_refit: Any  # ``mean_refit(new_names) -> (state, loglik, LR p)``: the base model with mean terms added
     evidence: Any  # ``evidence(c, st, ...)``: a refit's evidence (run.py)
+
+
+#: form candidates that change the angles with the branch of a play: a wide play switches about once
+#: on a campaign's path, as a knock of the unit does (rivals.angle_step_rival)
+STEP_MIMICS = ("hysteresis_play", "hysteresis_pi")
 
 
 def _rival_json(test) -> dict:
@@ -191,6 +197,15 @@ def decide(v: VerdictInputs) -> dict:
             return [f for f, t in generic0.items()
                     if t["S"] >= rr or -base.r.size * math.log(rr / (rr - t["S"])) + 2.0 * t["k"] < aic_noise]
 
+        step_cache = []
+
+        def angle_step():
+            """The best step of the six angles in time at the base fit (rivals.angle_step_rival), once."""
+            if not step_cache:
+                A = Jfull[:, [full.index[f"Ca_{ab}"] for ab in ANGLE_NAMES]]
+                step_cache.append(angle_step_rival(base.r, Q, A, campaign.time_s))
+            return step_cache[0]
+
         def _ambiguity(best, refitted):
             """``(verdict, closest)``: the verdict ``unexplained`` when ``best`` does not beat a rival by
             the encompassing test (rivals.py) -- the data cannot tell it from another refitted candidate
@@ -205,6 +220,12 @@ def decide(v: VerdictInputs) -> dict:
             rivals.update(generic_rivals(per_output_terms(campaign, T0), sig_rows, base.whitened))
             # g_j sign(g_k): rivals only, not among the gap's tests (generic.sign_terms)
             rivals.update(generic_rivals(sign_terms(campaign), sig_rows, base.whitened))
+            # a term of the angles must beat a one-time change of the angles in time (a knock)
+            step = angle_step() if best.params and all(nm.startswith("Ca_") for nm in best.params) else None
+            never_same = ()
+            if step is not None:
+                rivals[step_label(step[1])] = step[0]
+                never_same = (step_label(step[1]),)
 
             def reference():
                 """The base span, ``best``'s and the rivals' columns on the reference design: the same
@@ -220,7 +241,7 @@ def decide(v: VerdictInputs) -> dict:
                 rr.update(generic_rivals(sign_terms(ref), sig_rows, lambda v: v / base.s))
                 return _hat_q(Jr[:, [full.index[n] for n in base.names]]), colr(best), rr
 
-            tests = rival_tests(base.r, Q, cols(best), rivals, noise.known, base.dof, reference)
+            tests = rival_tests(base.r, Q, cols(best), rivals, noise.known, base.dof, reference, never_same)
             lost = [x for x in tests if x[3] >= alpha]
             if not lost:
                 return None, (tests[0] if tests else None)
@@ -401,6 +422,33 @@ def decide(v: VerdictInputs) -> dict:
                     verdict["closest_rival"] = _rival_json(closest)
                     verdict["evidence"] += (f"; beats its closest rival, {lab}, by the encompassing test "
                                             f"(adding {named.effect} to it: S = {S:.3g} on {k} dof, p {_p_is(p)})")
+            if (not gap_open and named.form is not None and named.effect in STEP_MIMICS
+                    and verdict["effect"] == named.effect):
+                # a form has no columns at the base fit, but at its fitted half-width its hysteresis
+                # is linear: the angles times its branch vector. It must beat a step of the angles in
+                # time (rivals.angle_step_rival): a play wide enough to switch once is one
+                step = angle_step()
+                st = states.get(named.effect)
+                if step is not None and st is not None:
+                    h = [i for i, nm in enumerate(st.names) if nm.endswith("_hysteresis")]
+                    lab = step_label(step[1])
+                    t = rival_tests(base.r, Q, st.J[:, h], {lab: step[0]}, noise.known, base.dof, never_same=(lab,))
+                    if t and t[0][3] >= alpha:
+                        _, S, k, p = t[0]
+                        verdict = {"effect": "unexplained", "best_partial": named.effect,
+                                   "ambiguous_with": [lab],
+                                   "reason": (f"{named.effect} closes the gap but does not beat {lab} (adding "
+                                              f"{named.effect} to it: S = {S:.3g} on {k} dof, p = {p:.3g}): a "
+                                              "one-time change of the unit in time (a knock or a slip in its "
+                                              "fixture) gives the same branches on this campaign (encompassing "
+                                              f"test at alpha = {alpha:g}, docs/diagnosis.md \"Rivals\")"),
+                                   "evidence": verdict["evidence"], "gap_closed": True,
+                                   "closest_rival": _rival_json(t[0]), "where": where_of(slices)}
+                    elif t:
+                        verdict["closest_rival"] = _rival_json(t[0])
+                        verdict["evidence"] += (f"; beats {t[0][0]} by the encompassing test (adding "
+                                                f"{named.effect} to it: S = {t[0][1]:.3g} on {t[0][2]} dof, "
+                                                f"p {_p_is(t[0][3])})")
             if not gap_open and noise.known and named.effect in LEVEL_MIMICS:
                 # a noise effect widens the noise: it must beat a noise level the sd_* understate,
                 # alike everywhere (noise_level.noise_level_rival)
