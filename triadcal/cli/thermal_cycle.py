@@ -40,7 +40,8 @@ def run(args) -> int:
         out.say(f"  {a.column}: held-out RMS per form ({c.unit}; noise floor {a.noise_floor:.2g}):")
         for f in sorted(a.forms, key=lambda f: f.cv_rms):
             par = "" if not f.parameter else " " + ", ".join(
-                f"{k} {v:.3g}" for k, v in f.parameter.items() if k != "at_grid_edge") + (
+                f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in f.parameter.items()
+                if k != "at_grid_edge") + (
                 " (at the edge of the search)" if f.parameter.get("at_grid_edge") else "")
             gap = "" if f.branch_gap is None else f", branch gap after {f.branch_gap:+.3g}"
             out.say(f"    {f.name:<22} {f.cv_rms:.4g}{par}{gap}")

@@ -53,6 +53,11 @@ TAU_GRID_S = tuple(float(x) for x in np.geomspace(5.0, 7200.0, 47))
 #: scaled to +-1: +1 after cooling, -1 after heating, held through a soak
 RELAY_HALF_WIDTH_C = 0.1
 PLAY_GRID_C = tuple(float(x) for x in np.linspace(0.25, 30.0, 120))
+#: the play's state before the record, profiled as ``fit --hysteresis-form play`` does: the middle of
+#: its band (y0 = T0), after heating (y0 = T0 - r) or after cooling (y0 = T0 + r). Started at the
+#: middle only, a play of 5 degC after the chamber had heated was named a lag of 1.7 min, "explained",
+#: 20 times in 20 (an outside probe)
+PLAY_STARTS = ("mid", "heating", "cooling")
 #: a form "explains" an axis when its held-out RMS is within this factor of the white-noise floor
 EXPLAINED_FACTOR = 3.0
 #: |dT/dt| below which the chamber counts as still (no branch), degC/min
@@ -67,6 +72,36 @@ MAX_SWEEP_C_MIN = 60.0
 #: a one-pose chamber cycle lasting longer than this (s; 30 days) has a wrong time axis
 MAX_CYCLE_S = 30 * 86400.0
 # the time units of ``--time-unit`` in seconds: TIME_UNITS_S (io/raw.py, shared with its time-column check)
+
+
+#: ramps whose rates (degC/min, 90th over 10th percentile of |dT/dt| on the branches) differ by less
+#: than this factor run at one rate, as far as a delay is concerned (:func:`rate_caveat`)
+RATE_SPREAD_MIN = 1.5
+
+
+def rate_caveat(t_s, T, branch, best: str) -> Optional[str]:
+    """What a cycle whose ramps all run at about one rate cannot tell, for a named ``best`` form of a
+    delay or a branch offset (``lag*``, ``*play*``, ``*hysteresis``), or None. On a ramp of rate v an
+    element lagging by tau sits tau v behind the thermometer, a play of half-width r sits r behind,
+    a thermometer lagging the element puts the reading tau v behind, and an offset hysteresis is a
+    constant by branch: with one v they are nearly the same branches. An outside probe (its own
+    simulator, the README's cycle at 2.7 and 3.2 degC/min): a lag of 4 min with a play of 3 degC was a
+    lag of 5.1-5.5 min (+28-36 %), "explained", 10 of 10; a thermometer lagging the element by 2 min
+    an offset hysteresis, "explained", 10 of 10. A leg at another rate tells them apart (1 and 4
+    degC/min: the play's start named right)."""
+    if not (best.startswith("lag") or "play" in best or best.endswith("hysteresis")):
+        return None
+    ramp = np.asarray(branch) != 0
+    if ramp.sum() < 10:
+        return None
+    rate = np.abs(rate_of(t_s, T))[ramp]
+    lo, hi = np.percentile(rate, [10, 90])
+    if not lo > 0 or hi / lo >= RATE_SPREAD_MIN:
+        return None
+    return (f"the ramps run at {lo:.2g}-{hi:.2g} degC/min: at one rate an element lagging the thermometer, a play, "
+            "a thermometer lagging the element and an offset hysteresis give nearly the same branches, so the form "
+            f"named ({best}) and its tau or half-width hold only if the others are absent (a lag with a play was "
+            "taken for a longer lag); a leg at another rate (half or twice) tells them apart")
 
 
 @dataclass
@@ -92,6 +127,7 @@ class AxisCycle:
     forms: list
     best: str
     prediction: np.ndarray = field(repr=False, default=None)
+    caveat: Optional[str] = None
 
     def form(self, name: str) -> FormFit:
         return next(f for f in self.forms if f.name == name)
@@ -106,7 +142,7 @@ class AxisCycle:
                 "explained": bool(best.cv_rms <= EXPLAINED_FACTOR * self.noise_floor),
                 "explained_criterion": f"held-out RMS <= {EXPLAINED_FACTOR:g} x the white-noise floor",
                 "cv_improvement_over_linear": 1.0 - best.cv_rms / lin.cv_rms if lin.cv_rms > 0 else None,
-                "forms": [f.to_dict() for f in self.forms]}
+                "forms": [f.to_dict() for f in self.forms], **({"caveat": self.caveat} if self.caveat else {})}
 
 
 @dataclass
@@ -135,14 +171,19 @@ class ThermalCycle:
                 "axes": [a.to_dict() for a in self.axes], "verdict": self.verdict, "notes": list(self.notes)}
 
 
-def branch_of(t_s, T, window_s: float = 120.0) -> np.ndarray:
-    """+1 cooling, -1 heating, 0 still, from the temperature's rate over ``window_s`` (degC/min
-    above :data:`STILL_RATE_C_MIN`): the convention of the joint model's hysteresis."""
+def rate_of(t_s, T, window_s: float = 120.0) -> np.ndarray:
+    """The temperature's rate (degC/min) over ``window_s`` about each sample."""
     t, T = np.asarray(t_s, float), np.asarray(T, float)
     lo = np.searchsorted(t, t - window_s / 2)
     hi = np.minimum(np.searchsorted(t, t + window_s / 2, side="right") - 1, len(t) - 1)
     dt = np.maximum(t[hi] - t[lo], 1e-9)
-    rate = (T[hi] - T[lo]) / dt * 60.0
+    return (T[hi] - T[lo]) / dt * 60.0
+
+
+def branch_of(t_s, T, window_s: float = 120.0) -> np.ndarray:
+    """+1 cooling, -1 heating, 0 still, from the temperature's rate over ``window_s`` (degC/min
+    above :data:`STILL_RATE_C_MIN`): the convention of the joint model's hysteresis."""
+    rate = rate_of(t_s, T, window_s)
     return np.where(rate < -STILL_RATE_C_MIN, 1.0, np.where(rate > STILL_RATE_C_MIN, -1.0, 0.0))
 
 
@@ -151,7 +192,12 @@ def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> 
 
     def op(kind, v):
         if (kind, v) not in cache:
-            cache[(kind, v)] = first_order_lag(t, T, v) if kind == "lag" else play_operator(T, v)
+            if kind == "lag":
+                cache[(kind, v)] = first_order_lag(t, T, v)
+            else:                                   # v = (half-width, start)
+                r, start = v
+                y0 = {"mid": T[0], "heating": T[0] - r, "cooling": T[0] + r}[start]
+                cache[(kind, v)] = play_operator(T, r, start=y0)
         return cache[(kind, v)]
 
     one = np.ones_like(T)
@@ -184,7 +230,7 @@ def _grid(form: str):
     if form.startswith("lag"):
         return TAU_GRID_S
     if "play" in form:
-        return PLAY_GRID_C
+        return tuple((r, start) for start in PLAY_STARTS for r in PLAY_GRID_C)
     return (None,)
 
 
@@ -250,19 +296,25 @@ def _best_parameter(f: str, grid_designs: dict, rows, y, design_of) -> tuple:
         rss, c = _least_squares(X[rows], y[rows])
         if best is None or rss < best[0]:
             best = (rss, p, c)
-    grid = list(grid_designs)
-    if best[1] is None or len(grid) < 3:
+    if best[1] is None or len(grid_designs) < 3:
         return best
-    i = grid.index(best[1])
+    # a play's key is (half-width, start): the half-width refined with the start held
+    start = best[1][1] if isinstance(best[1], tuple) else None
+    grid = [k[0] if start is not None else k for k in grid_designs if start is None or k[1] == start]
+    i = grid.index(best[1][0] if start is not None else best[1])
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
 
+    def key(logp):
+        v = float(np.exp(logp))
+        return v if start is None else (v, start)
+
     def rss_at(logp):
-        return _least_squares(design_of(float(np.exp(logp)))[rows], y[rows])[0]
+        return _least_squares(design_of(key(logp))[rows], y[rows])[0]
 
     m = minimize_scalar(rss_at, bounds=(math.log(lo), math.log(hi)), method="bounded",
                         options={"xatol": 1e-3})
     if m.fun < best[0]:
-        p = float(np.exp(m.x))
+        p = key(m.x)
         rss, c = _least_squares(design_of(p)[rows], y[rows])
         best = (rss, p, c)
     return best
@@ -298,14 +350,16 @@ def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, bran
         par = None
         if f.startswith("lag"):
             par = {"tau_min": p / 60.0}
+            span = (TAU_GRID_S[0], TAU_GRID_S[-1], p)
         elif "play" in f:
-            par = {"half_width_C": p}
-        if p is not None and (p <= _grid(f)[0] * 1.001 or p >= _grid(f)[-1] * 0.999):
+            par = {"half_width_C": p[0], "start": p[1]}
+            span = (PLAY_GRID_C[0], PLAY_GRID_C[-1], p[0])
+        if p is not None and (span[2] <= span[0] * 1.001 or span[2] >= span[1] * 0.999):
             par["at_grid_edge"] = True       # the optimum may lie beyond the searched range
         forms.append(FormFit(f, cv, math.sqrt(rss / n), par, [float(x) for x in c], branch_gap(T, resid, branch, T_ref)))
     best = parsimonious_best(forms, per_fold, size)
     bp = best.parameter
-    p = None if bp is None else (bp.get("tau_min", 0) * 60.0 if "tau_min" in bp else bp.get("half_width_C"))
+    p = None if bp is None else (bp.get("tau_min", 0) * 60.0 if "tau_min" in bp else (bp["half_width_C"], bp["start"]))
     pred = _design(best.name, t, T, T_ref, branch, p) @ np.array(best.coefficients)
     return AxisCycle(column, unit, noise, branch_gap(T, lin_resid + 0.0, branch, T_ref) if lin_resid is not None
                      else None, forms, best.name, pred)
@@ -442,6 +496,8 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
     if len(t) < 20 * folds:
         raise InputError(f"{path}: {len(t)} samples are too few for {folds} folds")
     axes = [analyse_axis(t, T, y[:, i], c, unit, reference_temperature_C, folds, br) for i, c in enumerate(columns)]
+    for a in axes:
+        a.caveat = rate_caveat(t, T, br, a.best)
     notes = ["one static pose: the output along each axis is W = (g_a + S_a(T)) / K_a(T); a thermal change of the "
              "scale factor and of the bias cannot be told apart, so the forms describe that output, not K and S",
              "noise floor: the SD of sample-to-sample differences / sqrt 2 (white part only); held-out RMS near it "
@@ -457,14 +513,16 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
             f"; branch gap at {reference_temperature_C:g} degC {a.branch_gap:+.3g} {unit} after a line, "
             f"{best.branch_gap:+.3g} after {a.best}" if best.branch_gap is not None else "")
         par = "" if not best.parameter else " (" + ", ".join(
-            f"{k} {v:.3g}" for k, v in best.parameter.items() if k != "at_grid_edge") + (
+            f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in best.parameter.items()
+            if k != "at_grid_edge") + (
             ", at the edge of the search" if best.parameter.get("at_grid_edge") else "") + ")"
         left = ("" if best.cv_rms <= EXPLAINED_FACTOR * a.noise_floor else
                 f"; UNEXPLAINED: no form comes within {EXPLAINED_FACTOR:g}x the noise floor (held-out RMS "
                 f"{best.cv_rms / a.noise_floor:.2g}x it): the output has structure none of these forms holds")
         parts.append(f"{a.column}: {a.best}{par}, the simplest form that predicts held-out blocks as well as the "
                      f"best (within one standard error or 1 %), RMS {best.cv_rms:.3g} {unit} against "
-                     f"{lin.cv_rms:.3g} for a line (noise floor {a.noise_floor:.2g}){gap}{left}")
+                     f"{lin.cv_rms:.3g} for a line (noise floor {a.noise_floor:.2g}){gap}{left}"
+                     + (f"; caution: {a.caveat}" if a.caveat else ""))
     return ThermalCycle(source=str(path), unit=unit, n=len(t), duration_s=float(t[-1]),
                         temperature_range_C=(float(T.min()), float(T.max())),
                         reference_temperature_C=reference_temperature_C, folds=folds, axes=axes,
