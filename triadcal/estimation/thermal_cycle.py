@@ -74,8 +74,9 @@ MAX_CYCLE_S = 30 * 86400.0
 # the time units of ``--time-unit`` in seconds: TIME_UNITS_S (io/raw.py, shared with its time-column check)
 
 
-#: ramps whose rates (degC/min, 90th over 10th percentile of |dT/dt| on the branches) differ by less
-#: than this factor run at one rate, as far as a delay is concerned (:func:`rate_caveat`)
+#: ramps whose rates (degC/min: the largest 75th over the smallest 25th percentile of |dT/dt| of a leg,
+#: a run of one branch) differ by less than this factor run at one rate, as far as a delay is
+#: concerned (:func:`rate_caveat`)
 RATE_SPREAD_MIN = 1.5
 
 
@@ -91,11 +92,16 @@ def rate_caveat(t_s, T, branch, best: str) -> Optional[str]:
     degC/min: the play's start named right)."""
     if not (best.startswith("lag") or "play" in best or best.endswith("hysteresis")):
         return None
-    ramp = np.asarray(branch) != 0
-    if ramp.sum() < 10:
+    # each leg (a run of one branch) by its middle half: the turns, rounded by a lag of the reading,
+    # are not a second rate (a thermometer 2 min behind put the 10th percentile near the turns)
+    b = np.asarray(branch)
+    rate = np.abs(rate_of(t_s, T))
+    cut = np.flatnonzero(np.diff(b) != 0) + 1
+    legs = [(s0, s1) for s0, s1 in zip(np.r_[0, cut], np.r_[cut, len(b)]) if b[s0] != 0 and s1 - s0 >= 10]
+    if not legs:
         return None
-    rate = np.abs(rate_of(t_s, T))[ramp]
-    lo, hi = np.percentile(rate, [10, 90])
+    lo = min(float(np.percentile(rate[s0:s1], 25)) for s0, s1 in legs)
+    hi = max(float(np.percentile(rate[s0:s1], 75)) for s0, s1 in legs)
     if not lo > 0 or hi / lo >= RATE_SPREAD_MIN:
         return None
     return (f"the ramps run at {lo:.2g}-{hi:.2g} degC/min: at one rate an element lagging the thermometer, a play, "
