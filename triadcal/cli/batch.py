@@ -63,6 +63,10 @@ def run(args) -> int:
     for kind, label in (("out_of_tolerance", "outside tolerance"), ("outliers", "fleet outlier")):
         for key, names in report.flags.get(kind, {}).items():
             out.say(f"  {label}: {key}: {', '.join(names)}")
+    if report.flags.get("outliers"):
+        from ..fleet.summary import false_alarm_words
+
+        out.say(f"  (fleet outliers: {false_alarm_words(n - len(not_ok))})")
     out.say(f"results in {report.out_dir / 'results'}; summary: " + ", ".join(str(f) for f in report.files.values()))
     if args.history:
         out.say(f"recorded in the history {args.history}")
