@@ -364,3 +364,28 @@ def test_an_event_log_with_a_bad_line_is_refused_when_reopened_not_appended_to(t
     with pytest.raises(InputError, match=r"events.jsonl line 2: not a JSON object"):
         EventLog(path)
     assert path.read_text(encoding="utf-8") == text
+
+
+def test_a_hung_up_emulator_line_leaves_no_link_to_a_freed_pty(tmp_path):
+    """CI, 2026-12-01: during an emulated disconnect the IMU's symlink still named the closed pty;
+    its number was the next pty the other xdist worker opened (a Modbus chamber test), and the
+    VectorNav driver, reconnecting through the link, wrote $VNWRG into that test's line. A hang-up
+    removes the link first; the reopen makes a new pty and a new link."""
+    import os
+
+    from triadcal.hardware.chamber_emulators import WatlowEmulator
+    from triadcal.hardware.emulator import _Pty
+
+    link = tmp_path / "imu"
+    p = _Pty(link)
+    first = os.readlink(link)
+    p.close()
+    assert not link.exists() and not link.is_symlink()
+    p.open()
+    assert os.readlink(link) == p.name and os.path.exists(link)
+    p.close()
+    em = WatlowEmulator(link=str(tmp_path / "chamber")).start()
+    assert os.readlink(tmp_path / "chamber") == em._path
+    em.stop()
+    assert not (tmp_path / "chamber").is_symlink()
+    assert first.startswith("/dev/pts/")

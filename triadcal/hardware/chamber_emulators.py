@@ -110,6 +110,13 @@ class _PtyEmulator:
         self._stop.set()
         if self._thread:
             self._thread.join(2.0)
+        if self.link and self._path:
+            # the link first: the freed pty number is the next pty anyone opens (emulator._Pty.close)
+            try:
+                if os.readlink(self.link) == self._path:
+                    self.link.unlink()
+            except OSError:
+                pass
         for fd in (self._master, self._slave):
             if fd >= 0:
                 try:

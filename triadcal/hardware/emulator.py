@@ -89,11 +89,21 @@ class _Pty:
         os.symlink(name, tmp)
         os.replace(tmp, self.link)
         self.master = m
+        self.name = name
         self._poll = select.poll()
         self._poll.register(m, select.POLLIN | select.POLLHUP)
 
     def close(self) -> None:
+        """Hang up: the symlink first, then the master. A closed pty's number is free for the next
+        pty anyone opens; a driver reconnecting through a link still naming it opened another test's
+        pseudo-terminal (CI, 2026-12-01: a VectorNav driver's $VNWRG in a Modbus chamber test's line on
+        the other xdist worker). Without the link a reconnect fails until :meth:`open` makes a new one."""
         if self.master >= 0:
+            try:
+                if os.readlink(self.link) == self.name:
+                    self.link.unlink()
+            except OSError:
+                pass
             os.close(self.master)
             self.master = -1
 
