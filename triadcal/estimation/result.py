@@ -157,6 +157,17 @@ class CalibrationResult:
                         R[i, j] = 0.0 if not math.isfinite(c) and (u[i] == 0 or u[j] == 0) else c
         return R * np.outer(u, u)
 
+    def budget_rows(self) -> list:
+        """Every row of every parameter's uncertainty budget (dicts, as the results JSON's ``budget``)."""
+        return [r for p in self.parameters.values() for r in (p.uncertainty.get("budget") or [])
+                if isinstance(r, dict)]
+
+    def holds_type_b(self) -> bool:
+        """Whether the budgets hold the lab's systematic errors (a Type B row): it was fitted with a lab
+        file. A U alone does not say so: a fit whose noise is estimated from its residuals carries U on
+        Student's t with its Type A row only (estimation/joint.py, ``noise_dof``)."""
+        return any(r.get("type") == "B" for r in self.budget_rows())
+
     # -- JSON ----------------------------------------------------------------------
     def to_dict(self) -> dict:
         d = {

@@ -355,15 +355,25 @@ def hysteresis_confounding(campaign, J: np.ndarray, names, u: np.ndarray, noise_
 HYSTERESIS_TYPICAL_ARCSEC = (4.0, 60.0)
 
 
+def _blind(conf: dict, moves_key: str, shown: Optional[int] = None, more: str = ""):
+    """``(blind, moves, worst)`` of a confounding dict: the entries below ``DRIFT_VISIBLE_MIN`` visible,
+    their largest moves in words (each entry's first, and the others of 0.1 u or more; the first
+    ``shown`` of them, then how many more and where), the smallest visible fraction."""
+    blind = {k: c for k, c in conf.items() if c["visible_fraction"] < DRIFT_VISIBLE_MIN}
+    if not blind:
+        return blind, "", None
+    moves = [f"{n} by {abs(m):.2g} u" for c in blind.values()
+             for k, (n, m) in enumerate(c[moves_key].items()) if k == 0 or abs(m) >= 0.1]
+    text = ", ".join(moves[:shown]) + (f" (and {len(moves) - shown} more: {more})"
+                                        if shown is not None and len(moves) > shown else "")
+    return blind, text, min(c["visible_fraction"] for c in blind.values())
+
+
 def hysteresis_note(conf: dict) -> Optional[str]:
     """The result's note when a hysteresis of some angle is invisible (:func:`hysteresis_confounding`)."""
-    blind = {ab: c for ab, c in conf.items() if c["visible_fraction"] < DRIFT_VISIBLE_MIN}
+    blind, moves, worst = _blind(conf, "moves_u_per_arcsec", shown=3, more="fit.hysteresis_confounding")
     if not blind:
         return None
-    moves = [f"{n} by {abs(m):.2g} u" for c in blind.values()
-             for k, (n, m) in enumerate(c["moves_u_per_arcsec"].items()) if k == 0 or abs(m) >= 0.1]
-    moves = ", ".join(moves[:3]) + (f" (and {len(moves) - 3} more: fit.hysteresis_confounding)" if len(moves) > 3 else "")
-    worst = min(c["visible_fraction"] for c in blind.values())
     lo, hi = HYSTERESIS_TYPICAL_ARCSEC
     return (f"the schedule cannot show a thermal hysteresis of the angle(s) {', '.join('Ca_' + ab for ab in blind)}: "
             f"{100 * worst:.1g} % of a hysteresis's signature is outside the model (no temperature is visited on "
@@ -377,12 +387,9 @@ def drift_note(conf: dict, stated_u: Optional[float] = None) -> Optional[str]:
     """The result's note when a bias drift is invisible on some output (:func:`drift_confounding`);
     ``stated_u``: the unit's drift u the lab states (``[item] bias_drift_u_ug_per_h``), propagated
     into the budget (uncertainty/typeb.py), which the note then says instead of assuming no drift."""
-    blind = {a: c for a, c in conf.items() if c["visible_fraction"] < DRIFT_VISIBLE_MIN}
+    blind, moves, worst = _blind(conf, "moves_u_per_ug_h")
     if not blind:
         return None
-    moves = ", ".join(f"{n} by {abs(m):.2g} u" for c in blind.values()
-                      for k, (n, m) in enumerate(c["moves_u_per_ug_h"].items()) if k == 0 or abs(m) >= 0.1)
-    worst = min(c["visible_fraction"] for c in blind.values())
     return (f"the schedule cannot show a bias drift in time on output(s) {', '.join(blind)}: "
             f"{100 * worst:.1g} % of a drift's signature is outside the model (the temperatures visited in time "
             f"order), so no test of the residuals sees one, and a drift of 1 ug/h would move {moves}. "

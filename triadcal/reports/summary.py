@@ -82,8 +82,7 @@ def summary_text(result: CalibrationResult) -> str:
             kp = p.uncertainty.get("k", k) if p.U is not None else k
             v, U = round_to_uncertainty(p.value, p.U if p.U is not None else k * p.u)
             lines.append(f"  {name:<20} {v:>16} {U:>12} {kp:>5.3g}  {display_unit(p.unit)}")
-        type_b = any(isinstance(r, dict) and r.get("type") == "B" for p in result.parameters.values()
-                     for r in (p.uncertainty.get("budget") or []))
+        type_b = result.holds_type_b()
         lines.append("  U at 95.45 % coverage from each parameter's budget (" + (
             "Type A and the lab's Type B; k from dof_eff, or a Monte Carlo" if type_b else
             f"Type A only, the noise estimated on {result.fit.get('noise_dof', float('nan')):.3g} dof: k from "

@@ -27,7 +27,7 @@ from ...uncertainty.budget import COVERAGE_FACTOR, Budget
 from ...io.lab import LabConfig
 from ...errors import InputError
 from ..notation import display_text
-from .refusal import GAP_P_THRESHOLD, posterior_diagnostics, refusal_reasons
+from .refusal import GAP_P_THRESHOLD, gravity_reasons, posterior_diagnostics, refusal_reasons
 
 # =========================================================================================
 # the certificate's content
@@ -257,8 +257,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     reasons = refusal_reasons(result, posterior_diag=post_diag, diagnosis=diagnosis)
     data_date = campaign.metadata.get("date", "") if campaign is not None else ""
     expired = lab.expired(data_date or lab.calibration_date or issue_date)
-    reasons += (_missing_type_b(result, lab) + _lab_disagrees(result, lab) + _unstated_gravity(result, lab)
-                + _gravity_without_u(result))
+    reasons += _missing_type_b(result, lab) + _lab_disagrees(result, lab) + gravity_reasons(result, lab)
     sha = result.extra.get("data_sha256")
     if campaign is not None and sha and campaign.data_sha256 != sha:
         # the data the certificate shows (plots, averaging times, date) must be those the result was fitted to
@@ -341,7 +340,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     else:
         ptxt = "none (least squares)" if result.method != "posterior" else "as stated in the result file"
     method.append(("Priors", ptxt))
-    if _with_type_b(result):
+    if result.holds_type_b():
         ks = {n: p.uncertainty.get("k") for n, p in result.parameters.items() if p.U is not None}
         odd = [f"{n} (k = {k:.3g})" for n, k in ks.items() if k is not None and abs(k - 2.0) > 0.005]
         method.append(("Uncertainty", (
@@ -446,47 +445,6 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     return cert
 
 
-def _unstated_gravity(result: CalibrationResult, lab: LabConfig) -> list:
-    """A result whose data stated no local gravity (``local_g_stated`` false: the fit assumed standard
-    gravity), certified without a lab file that states it. K and S are in g of the gravity assumed,
-    and a site's is 9.78-9.83 m/s^2: 9.81 where 9.80665 was assumed put K 260 u off with status ok
-    (an outside probe); the certificate would state that K to 1 ppm."""
-    stated = result.extra.get("local_g_stated")
-    if (lab.local_g_m_s2 is not None or stated is False            # (refusal.refusal_reasons says it then)
-            or result.extra.get("local_g_m_s2") is not None):
-        return []
-    return ["the data state no local gravity: the fit took standard gravity (9.80665 m/s^2), and K and S are in g of "
-            "it where a site's is 9.78-9.83 m/s^2 (up to 0.3 % in K); state the measured value in the data "
-            "(# local_g_m_s2 = ..., capture --local-g) and fit again, or in the lab file ([gravity] local_g_m_s2)"]
-
-
-def _gravity_without_u(result: CalibrationResult) -> list:
-    """A result whose budgets hold the lab's systematic errors but no row of the local gravity: the g of
-    the fit, stated in the data without a u (bench CSV v1 has no key for one), was taken as exact, and
-    K takes it one to one. An outside probe: a site value uncertain by 20 ppm, a lab file of bench and
-    fixture errors without ``[gravity]``: value +- U held K in 75 of 150 and the certificate was issued
-    ("Local gravity 9.81120 m/s2 (local value stated in the data)"). A Type-A-only result says it leaves
-    every systematic error out (section 2), and is not refused here."""
-    if not _with_type_b(result) or result.extra.get("local_g_stated") is False:   # no g at all: _unstated_gravity
-        return []
-    rows = [r for p in result.parameters.values() for r in (p.uncertainty.get("budget") or []) if isinstance(r, dict)]
-    if any(r.get("key") == "[gravity] u_ppm" or r.get("equipment") == "gravity" for r in rows):
-        return []
-    g = result.extra.get("local_g_m_s2")
-    return ["the budgets hold the lab's systematic errors but not the local gravity's: the fit took g"
-            + (f" = {float(g):.7g} m/s^2" if isinstance(g, (int, float)) else "")
-            + " as exact (the data state no u for it), and K takes it one to one; state it in the lab file "
-            "([gravity] local_g_m_s2, u_ppm) and fit again with --lab"]
-
-
-def _with_type_b(result: CalibrationResult) -> bool:
-    """Whether the result's budgets hold the lab's systematic errors (a Type B row): it was fitted with a
-    lab file. A U alone does not say so: a fit whose noise is estimated from its residuals carries U on
-    Student's t with its Type A row only (estimation/joint.py, ``noise_dof``)."""
-    return any(isinstance(r, dict) and r.get("type") == "B" for p in result.parameters.values()
-               for r in (p.uncertainty.get("budget") or []))
-
-
 def _missing_type_b(result: CalibrationResult, lab: LabConfig) -> list:
     """A result whose u is Type A only while the lab file declares systematic errors: its U would
     leave them out of every parameter (a classical result too: with --lab the classical fit
@@ -499,7 +457,7 @@ def _missing_type_b(result: CalibrationResult, lab: LabConfig) -> list:
         declared = systematic_sources(lab, str(result.extra.get("output_unit") or "V"))
     except InputError as exc:             # a voltmeter on counts: the fit refuses it, so does the certificate
         return [str(exc)]
-    if not declared or _with_type_b(result):
+    if not declared or result.holds_type_b():
         return []
     names = sorted({s.key for s in declared})
     if result.method == "classical":
@@ -526,7 +484,7 @@ def _lab_disagrees(result: CalibrationResult, lab: LabConfig) -> list:
         return out
     rows = [row for p in result.parameters.values() for row in (p.uncertainty.get("budget") or [])
             if isinstance(row, dict)]
-    if _with_type_b(result):
+    if result.holds_type_b():
         from ...uncertainty.typeb import propagated_sources, systematic_sources
 
         try:

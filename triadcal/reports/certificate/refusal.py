@@ -145,3 +145,42 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
                            f"{posterior_diag['rhat_max']:.6f}, the result's {mine:.6f}); give the netCDF that "
                            "`triadcal sample` wrote together with this JSON")
     return reasons
+
+
+def gravity_reasons(result: CalibrationResult, lab) -> list:
+    """Why the local gravity under K keeps a certificate back, given the lab file ``lab``: the data state
+    none (:func:`_unstated_gravity`), or the budgets hold the lab's errors but not the g's
+    (:func:`_gravity_without_u`). (Data that state none and a fit-raw that assumed one: refusal_reasons.)"""
+    return _unstated_gravity(result, lab) + _gravity_without_u(result)
+
+
+def _unstated_gravity(result: CalibrationResult, lab) -> list:
+    """A result whose data stated no local gravity (``local_g_stated`` false: the fit assumed standard
+    gravity), certified without a lab file that states it. K and S are in g of the gravity assumed,
+    and a site's is 9.78-9.83 m/s^2: 9.81 where 9.80665 was assumed put K 260 u off with status ok
+    (an outside probe); the certificate would state that K to 1 ppm."""
+    stated = result.extra.get("local_g_stated")
+    if (lab.local_g_m_s2 is not None or stated is False            # (refusal.refusal_reasons says it then)
+            or result.extra.get("local_g_m_s2") is not None):
+        return []
+    return ["the data state no local gravity: the fit took standard gravity (9.80665 m/s^2), and K and S are in g of "
+            "it where a site's is 9.78-9.83 m/s^2 (up to 0.3 % in K); state the measured value in the data "
+            "(# local_g_m_s2 = ..., capture --local-g) and fit again, or in the lab file ([gravity] local_g_m_s2)"]
+
+
+def _gravity_without_u(result: CalibrationResult) -> list:
+    """A result whose budgets hold the lab's systematic errors but no row of the local gravity: the g of
+    the fit, stated in the data without a u (bench CSV v1 has no key for one), was taken as exact, and
+    K takes it one to one. An outside probe: a site value uncertain by 20 ppm, a lab file of bench and
+    fixture errors without ``[gravity]``: value +- U held K in 75 of 150 and the certificate was issued
+    ("Local gravity 9.81120 m/s2 (local value stated in the data)"). A Type-A-only result says it leaves
+    every systematic error out (section 2), and is not refused here."""
+    if not result.holds_type_b() or result.extra.get("local_g_stated") is False:   # no g at all: _unstated_gravity
+        return []
+    if any(r.get("key") == "[gravity] u_ppm" or r.get("equipment") == "gravity" for r in result.budget_rows()):
+        return []
+    g = result.extra.get("local_g_m_s2")
+    return ["the budgets hold the lab's systematic errors but not the local gravity's: the fit took g"
+            + (f" = {float(g):.7g} m/s^2" if isinstance(g, (int, float)) else "")
+            + " as exact (the data state no u for it), and K takes it one to one; state it in the lab file "
+            "([gravity] local_g_m_s2, u_ppm) and fit again with --lab"]
