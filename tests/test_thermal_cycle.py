@@ -14,7 +14,7 @@ from scipy.integrate import solve_ivp
 from triadcal.cli import main
 from triadcal.errors import InputError
 from triadcal.estimation.thermal_cycle import thermal_cycle
-from triadcal.models.thermal_history import first_order_lag, play_operator
+from triadcal.models.thermal_history import first_order_lag, play_operator, thermometer_lead
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT / "examples" / "data" / "tofupilot_imu_raw_data.csv"
@@ -30,6 +30,19 @@ def test_lag_of_a_ramp_by_hand():
     assert first_order_lag(t, T, 0.0) is not T and np.array_equal(first_order_lag(t, T, 0.0), T)
 
 
+def test_a_thermometer_lead_undoes_a_lag_by_hand():
+    """A thermometer lagging by tau on a ramp of slope s reads T_e - s tau; the lead adds s tau back
+    (the rate over 2 min of a straight line is exact), and undoes the lag once its transient is gone."""
+    t = np.arange(0, 3600.0, 0.5)
+    s = 3.0 / 60.0
+    Te = 20.0 + s * t
+    reading = Te - s * 300.0
+    assert np.allclose(thermometer_lead(t, reading, 300.0), Te, atol=1e-9)
+    lagged = first_order_lag(t, Te, 300.0)
+    assert np.allclose(thermometer_lead(t, lagged, 300.0)[-2000:], Te[-2000:], atol=1e-3)
+    assert np.array_equal(thermometer_lead(t, reading, 0.0), reading)
+
+
 def test_play_of_a_triangle_by_hand():
     """Rising after the band is crossed: y = x - r; falling: y = x + r; inside the band y holds."""
     x = np.concatenate([np.linspace(0, 10, 101), np.linspace(10, 0, 101)[1:]])
@@ -39,15 +52,20 @@ def test_play_of_a_triangle_by_hand():
     assert np.allclose(y[145:], x[145:] + 2.0)              # falling: leads by r
 
 
-def _cycle(tmp_path, output, name, noise=0.003, seed=0):
-    """A chamber cycle like the real one: 50 -> -18 (-2.7 degC/min) -> 74 (+3.2) -> 36 degC, 2 Hz;
-    ``output(t, T)`` gives the true output; white noise added; tab-separated, time in us."""
-    t = np.arange(0.0, 4200.0, 0.5)
-    knots_t = [0.0, 1500.0, 3220.0, 4200.0]
-    knots_T = [50.0, -17.5, 74.0, 36.0]
-    T = np.interp(t, knots_t, knots_T)
+def _cycle(tmp_path, output, name, noise=0.003, seed=0, reading=None, two_rates=False):
+    """A chamber cycle like the real one: 50 -> -18 (-2.7 degC/min) -> 74 (+3.2) -> 36 degC, 2 Hz
+    (``two_rates``: 50 -> -10 (-1.2) -> 100 (+2.4) -> 37.5 degC (-1.0), 1 Hz); ``output(t, T)`` gives
+    the true output; white noise added; the thermometer reads ``reading(t, T)`` (default T);
+    tab-separated, time in us."""
+    if two_rates:
+        t = np.arange(0.0, 12000.0, 1.0)
+        T = np.interp(t, [0.0, 3000.0, 5750.0, 12000.0], [50.0, -10.0, 100.0, 37.5])
+    else:
+        t = np.arange(0.0, 4200.0, 0.5)
+        T = np.interp(t, [0.0, 1500.0, 3220.0, 4200.0], [50.0, -17.5, 74.0, 36.0])
     y = output(t, T) + np.random.default_rng(seed).normal(0.0, noise, len(t))
-    lines = ["timestamp\ttemp\tacc"] + [f"{int(1e6 * a) + 123456789}\t{b:.5f}\t{c:.6f}" for a, b, c in zip(t, T, y)]
+    Tr = T if reading is None else reading(t, T)
+    lines = ["timestamp\ttemp\tacc"] + [f"{int(1e6 * a) + 123456789}\t{b:.5f}\t{c:.6f}" for a, b, c in zip(t, Tr, y)]
     p = tmp_path / name
     p.write_text("\n".join(lines) + "\n")
     return p
@@ -183,6 +201,41 @@ def test_a_lag_and_a_relay_hysteresis_at_once_are_named_together(tmp_path):
     assert a.form(a.best).coefficients[2] == pytest.approx(h, rel=0.15)
     assert a.form(a.best).cv_rms < 1.3 * a.noise_floor
     assert abs(a.form(a.best).branch_gap) < 0.1 * abs(a.branch_gap)
+
+
+@pytest.mark.parametrize("two_rates", [False, True])
+def test_a_thermometer_behind_the_element_is_named_so(tmp_path, two_rates):
+    """An outside probe: a thermometer lagging the element by 2 min (the output linear in the element's
+    temperature) was named an offset hysteresis, "explained", 10 of 10 on the README's cycle, and at
+    2.1 times the floor on legs of two rates; the vocabulary had no such form. Here the reading by
+    scipy's ODE solver behind the programme (the element's temperature)."""
+    tau = 120.0
+    a = _run(_cycle(tmp_path, lambda t, T: 0.1 + 0.002 * (T - 20.0), f"thermo{two_rates}.csv",
+                    reading=lambda t, T: _ode_element(t, T, tau), two_rates=two_rates))
+    assert a.best == "thermometer_lag", [(f.name, round(f.cv_rms / a.noise_floor, 2)) for f in a.forms]
+    assert a.form(a.best).parameter["tau_min"] == pytest.approx(tau / 60.0, rel=0.1)
+    assert a.form(a.best).cv_rms < 1.2 * a.noise_floor
+    if two_rates:                                       # legs of 1.2, 2.4 and 1.0 degC/min: nothing to caution
+        assert a.caveat is None, a.caveat
+
+
+@pytest.mark.parametrize("two_rates", [False, True])
+def test_a_lag_with_a_play_is_named_with_both(tmp_path, two_rates):
+    """An outside probe: an element lagging by 4 min whose temperature also has a play of 3 degC was
+    named a lag of 5.1-5.5 min or a lag with an offset hysteresis, "explained" (and on legs of 1.2 and
+    2.4 degC/min a lag with a hysteresis, tau 5.5 min, 1.09 times the floor). Here the element by
+    scipy's ODE solver, its play by the backlash written out above: lag_play, tau and r within 15 %."""
+    tau, r = 240.0, 3.0
+
+    def out(t, T):
+        Te = _ode_element(t, T, tau)
+        return -0.2 + 0.002 * (_backlash(Te, r, Te[0]) - 20.0)
+
+    a = _run(_cycle(tmp_path, out, f"lagplay{two_rates}.csv", two_rates=two_rates))
+    assert a.best == "lag_play", [(f.name, round(f.cv_rms / a.noise_floor, 2)) for f in a.forms]
+    par = a.form(a.best).parameter
+    assert par["tau_min"] == pytest.approx(tau / 60.0, rel=0.15) and par["half_width_C"] == pytest.approx(r, rel=0.15)
+    assert a.form(a.best).cv_rms < 1.2 * a.noise_floor
 
 
 def test_a_lag_shorter_than_half_a_minute_is_a_lag(tmp_path):

@@ -9,7 +9,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "thermal-cycle", help="one static pose through a chamber cycle: which thermal form explains the output",
         description="Fit each thermal form (polynomials, constant-offset hysteresis, lag of the element behind its "
-                    "sensor, alone or with a hysteresis, play hysteresis) to a one-pose recording through a temperature cycle and judge them on "
+                    "sensor, alone, with a hysteresis or with a play, a thermometer behind the element, play hysteresis) to a one-pose recording through a temperature cycle and judge them on "
                     "held-out blocks of the cycle (blocked cross-validation); docs/model.md.")
     p.add_argument("data", help="recording with named columns (comma, tab or semicolon separated)")
     p.add_argument("--columns", required=True, help="output columns, e.g. imu.acc.x,imu.acc.y,imu.acc.z")

@@ -17,6 +17,15 @@ non-linear parameter, :mod:`triadcal.models.thermal_history` for the operators):
   the element's branch held through soaks (``(play(T_e, 0.1) - T_e) / 0.1``): a lag and an offset
   hysteresis at once, which a lag alone took up with a biased tau (+24 % at h = 3 mm/s2, +88 % at
   h = 10), "explained" (an outside probe);
+- ``lag_play``: linear in the play (half-width r) of the lagging element's temperature
+  (``play(lag(T, tau), r)``): a lag and a play at once, which a lag with an offset hysteresis took
+  up with tau 37 % long, "explained" at 1.09 times the floor (a lag of 4 min with a play of 3 degC
+  on legs of 1.2 and 2.4 degC/min); tau, r and the play's start on a coarse grid, then refined by
+  Nelder-Mead in (log tau, log r), on the training blocks as every form's parameter;
+- ``thermometer_lag``: linear in the temperature of an element that the thermometer lags by tau
+  (``T_e = T + tau dT/dt``, the lag's inverse): the reading behind the element, which a cycle at
+  two rates tells from an offset hysteresis (the probe's thermometer 2 min behind was named
+  ``offset_hysteresis``, at 2.1 times the floor on legs of two rates);
 - ``play``, ``play_quadratic``: linear / quadratic in the play operator of the temperature
   (half-width r; the branches join at the turning points);
 - ``quadratic_play``: quadratic in T plus ``h (play(T, r) - T)``: a play hysteresis on top of a
@@ -39,12 +48,12 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.raw import TIME_UNITS_S, RawRecordingError
-from ..models.thermal_history import first_order_lag, play_operator
+from ..models.thermal_history import centred_rate, first_order_lag, play_operator, thermometer_lead
 
 FORMAT = "triadcal.thermal_cycle"
 VERSION = 1
 FORMS = ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hysteresis", "lag", "lag_quadratic",
-         "lag_hysteresis", "play", "play_quadratic", "quadratic_play")
+         "lag_hysteresis", "lag_play", "thermometer_lag", "play", "play_quadratic", "quadratic_play")
 #: time constants tried for the lag (s) and half-widths for the play (degC). The lag's grid starts at
 #: 5 s: from 30 s, an element lagging by 18 s was named a play or an offset hysteresis, "explained",
 #: in 5 runs of 5 (an outside probe)
@@ -58,6 +67,10 @@ PLAY_GRID_C = tuple(float(x) for x in np.linspace(0.25, 30.0, 120))
 #: middle only, a play of 5 degC after the chamber had heated was named a lag of 1.7 min, "explained",
 #: 20 times in 20 (an outside probe)
 PLAY_STARTS = ("mid", "heating", "cooling")
+#: the coarse grid of ``lag_play`` (two non-linear parameters): every third time constant of the lag's
+#: grid (a factor 1.6 apart) and 12 half-widths from 0.25 to 30 degC, a factor 1.5 apart, each start
+LAG_PLAY_TAU_S = TAU_GRID_S[::3]
+LAG_PLAY_R_C = tuple(float(x) for x in np.geomspace(PLAY_GRID_C[0], PLAY_GRID_C[-1], 12))
 #: a form "explains" an axis when its held-out RMS is within this factor of the white-noise floor
 EXPLAINED_FACTOR = 3.0
 #: |dT/dt| below which the chamber counts as still (no branch), degC/min
@@ -90,7 +103,7 @@ def rate_caveat(t_s, T, branch, best: str) -> Optional[str]:
     lag of 5.1-5.5 min (+28-36 %), "explained", 10 of 10; a thermometer lagging the element by 2 min
     an offset hysteresis, "explained", 10 of 10. A leg at another rate tells them apart (1 and 4
     degC/min: the play's start named right)."""
-    if not (best.startswith("lag") or "play" in best or best.endswith("hysteresis")):
+    if not (best.startswith("lag") or best == "thermometer_lag" or "play" in best or best.endswith("hysteresis")):
         return None
     # each leg (a run of one branch) by its middle half: the turns, rounded by a lag of the reading,
     # are not a second rate (a thermometer 2 min behind put the 10th percentile near the turns)
@@ -105,9 +118,10 @@ def rate_caveat(t_s, T, branch, best: str) -> Optional[str]:
     if not lo > 0 or hi / lo >= RATE_SPREAD_MIN:
         return None
     return (f"the ramps run at {lo:.2g}-{hi:.2g} degC/min: at one rate an element lagging the thermometer, a play, "
-            "a thermometer lagging the element and an offset hysteresis give nearly the same branches, so the form "
-            f"named ({best}) and its tau or half-width hold only if the others are absent (a lag with a play was "
-            "taken for a longer lag); a leg at another rate (half or twice) tells them apart")
+            "a thermometer lagging the element and an offset hysteresis give nearly the same branches: only the turns "
+            f"tell them apart, so the form named ({best}) and its tau or half-width rest on the turns (a lag with a play "
+            "was taken for a longer lag before the form of both); a leg at another rate (half or twice) tells them "
+            "apart on the ramps too")
 
 
 @dataclass
@@ -179,11 +193,7 @@ class ThermalCycle:
 
 def rate_of(t_s, T, window_s: float = 120.0) -> np.ndarray:
     """The temperature's rate (degC/min) over ``window_s`` about each sample."""
-    t, T = np.asarray(t_s, float), np.asarray(T, float)
-    lo = np.searchsorted(t, t - window_s / 2)
-    hi = np.minimum(np.searchsorted(t, t + window_s / 2, side="right") - 1, len(t) - 1)
-    dt = np.maximum(t[hi] - t[lo], 1e-9)
-    return (T[hi] - T[lo]) / dt * 60.0
+    return centred_rate(t_s, T, window_s) * 60.0
 
 
 def branch_of(t_s, T, window_s: float = 120.0) -> np.ndarray:
@@ -200,6 +210,8 @@ def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> 
         if (kind, v) not in cache:
             if kind == "lag":
                 cache[(kind, v)] = first_order_lag(t, T, v)
+            elif kind == "lead":
+                cache[(kind, v)] = thermometer_lead(t, T, v)
             else:                                   # v = (half-width, start)
                 r, start = v
                 y0 = {"mid": T[0], "heating": T[0] - r, "cooling": T[0] + r}[start]
@@ -209,6 +221,11 @@ def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> 
     one = np.ones_like(T)
     if form in ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hysteresis", "quadratic_play"):
         d = T - T_ref
+    elif form == "lag_play":                        # p = (tau_s, half-width, start); not cached (refined)
+        tau_s, r, start = p
+        Te = op("lag", tau_s) if (("lag", tau_s) in cache or tau_s in TAU_GRID_S) else first_order_lag(t, T, tau_s)
+        y0 = {"mid": Te[0], "heating": Te[0] - r, "cooling": Te[0] + r}[start]
+        return np.stack([one, play_operator(Te, r, start=y0) - T_ref], axis=1)
     elif form.startswith("lag"):
         d = op("lag", p) - T_ref
         if form == "lag_hysteresis":
@@ -216,6 +233,8 @@ def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> 
                 Te = op("lag", p)
                 cache[("relay", p)] = (play_operator(Te, RELAY_HALF_WIDTH_C) - Te) / RELAY_HALF_WIDTH_C
             return np.stack([one, d, cache[("relay", p)]], axis=1)
+    elif form == "thermometer_lag":
+        d = op("lead", p) - T_ref
     else:
         d = op("play", p) - T_ref
     cols = [one, d]
@@ -233,7 +252,7 @@ def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> 
 
 
 def _grid(form: str):
-    if form.startswith("lag"):
+    if form.startswith("lag") or form == "thermometer_lag":
         return TAU_GRID_S
     if "play" in form:
         return tuple((r, start) for start in PLAY_STARTS for r in PLAY_GRID_C)
@@ -326,46 +345,102 @@ def _best_parameter(f: str, grid_designs: dict, rows, y, design_of) -> tuple:
     return best
 
 
+def _lag_play_best(t, T, y, T_ref, subsets: list, cache: dict) -> list:
+    """``(rss, (tau_s, r, start), c)`` of ``lag_play`` on each row subset (boolean masks): the coarse
+    grid (:data:`LAG_PLAY_TAU_S` x :data:`LAG_PLAY_R_C` x :data:`PLAY_STARTS`) in one pass, each
+    design's two-column least squares on every subset from its sums, then Nelder-Mead in
+    (log tau, log r) from the subset's best grid point, its start held."""
+    from scipy.optimize import minimize
+
+    y = np.asarray(y, float)
+    W = np.array(subsets, float)                     # (k, n)
+    ny, sy, syy = W.sum(1), W @ y, W @ (y * y)
+    best = [None] * len(subsets)
+    for tau in LAG_PLAY_TAU_S:
+        for start in PLAY_STARTS:
+            for r in LAG_PLAY_R_C:
+                d = _design("lag_play", t, T, T_ref, None, (tau, r, start), cache)[:, 1]
+                sd, sdd, sdy = W @ d, W @ (d * d), W @ (d * y)
+                det = ny * sdd - sd * sd
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    b = (ny * sdy - sd * sy) / det
+                    a0 = (sy - b * sd) / ny
+                    rss = syy - a0 * sy - b * sdy
+                for k in range(len(subsets)):
+                    if det[k] > 0 and (best[k] is None or rss[k] < best[k][0]):
+                        best[k] = (float(rss[k]), (float(tau), float(r), start))
+    out = []
+    for k, rows in enumerate(subsets):
+        _, (tau0, r0, start) = best[k]
+
+        def rss_at(x, rows=rows, start=start):
+            X = _design("lag_play", t, T, T_ref, None, (float(np.exp(x[0])), float(np.exp(x[1])), start), cache)
+            return _least_squares(X[rows], y[rows])[0]
+
+        lo = np.log([TAU_GRID_S[0], PLAY_GRID_C[0]])
+        hi = np.log([TAU_GRID_S[-1], PLAY_GRID_C[-1]])
+        m = minimize(lambda x: rss_at(np.clip(x, lo, hi)), np.log([tau0, r0]), method="Nelder-Mead",
+                     options={"xatol": 0.01, "fatol": 0.0, "maxfev": 60, "initial_simplex": np.log(
+                         [[tau0, r0], [tau0 * 1.6, r0], [tau0, r0 * 1.5]])})
+        x = np.clip(m.x, lo, hi)
+        p = (float(np.exp(x[0])), float(np.exp(x[1])), start)
+        rss, c = _least_squares(_design("lag_play", t, T, T_ref, None, p, cache)[rows], y[rows])
+        out.append((rss, p, c))
+    return out
+
+
 def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, branch) -> AxisCycle:
     n = len(y)
     edges = np.linspace(0, n, folds + 1).astype(int)
     noise = float(np.std(np.diff(y)) / math.sqrt(2.0))
     cache = {}
-    designs = {f: {p: _design(f, t, T, T_ref, branch, p, cache) for p in _grid(f)} for f in FORMS}
+    designs = {f: {p: _design(f, t, T, T_ref, branch, p, cache) for p in _grid(f)} for f in FORMS if f != "lag_play"}
+    tests = []
+    for k in range(folds):
+        test = np.zeros(n, bool)
+        test[edges[k]:edges[k + 1]] = True
+        tests.append(test)
+    lag_play = _lag_play_best(t, T, y, T_ref, [~m for m in tests] + [np.ones(n, bool)], cache)
     forms, per_fold, size = [], {}, {}
     lin_resid = None
     for f in FORMS:
         def design_of(p, f=f):
-            return designs[f][p] if p in designs[f] else _design(f, t, T, T_ref, branch, p, cache)
+            return designs[f][p] if f in designs and p in designs[f] else _design(f, t, T, T_ref, branch, p, cache)
 
         # held-out residuals: on each block, the form (and its parameter) fitted to the others
         sq, fold_mse = [], []
-        for k in range(folds):
-            test = np.zeros(n, bool)
-            test[edges[k]:edges[k + 1]] = True
-            _, p, c = _best_parameter(f, designs[f], ~test, y, design_of)
+        for k, test in enumerate(tests):
+            _, p, c = lag_play[k] if f == "lag_play" else _best_parameter(f, designs[f], ~test, y, design_of)
             sq.append((y[test] - design_of(p)[test] @ c) ** 2)
             fold_mse.append(float(np.mean(sq[-1])))
         cv = float(np.sqrt(np.mean(np.concatenate(sq))))
         per_fold[f] = np.array(fold_mse)
-        size[f] = next(iter(designs[f].values())).shape[1] + (0 if _grid(f) == (None,) else 1)
-        rss, p, c = _best_parameter(f, designs[f], np.ones(n, bool), y, design_of)
+        size[f] = 4 if f == "lag_play" else (
+            next(iter(designs[f].values())).shape[1] + (0 if _grid(f) == (None,) else 1))
+        rss, p, c = lag_play[-1] if f == "lag_play" else _best_parameter(f, designs[f], np.ones(n, bool), y, design_of)
         resid = y - design_of(p) @ c
         if f == "linear":
             lin_resid = resid
         par = None
-        if f.startswith("lag"):
+        if f == "lag_play":
+            par = {"tau_min": p[0] / 60.0, "half_width_C": p[1], "start": p[2]}
+            span = None
+            if p[0] <= TAU_GRID_S[0] * 1.001 or p[0] >= TAU_GRID_S[-1] * 0.999 \
+                    or p[1] <= PLAY_GRID_C[0] * 1.001 or p[1] >= PLAY_GRID_C[-1] * 0.999:
+                par["at_grid_edge"] = True
+        elif f.startswith("lag") or f == "thermometer_lag":
             par = {"tau_min": p / 60.0}
             span = (TAU_GRID_S[0], TAU_GRID_S[-1], p)
         elif "play" in f:
             par = {"half_width_C": p[0], "start": p[1]}
             span = (PLAY_GRID_C[0], PLAY_GRID_C[-1], p[0])
-        if p is not None and (span[2] <= span[0] * 1.001 or span[2] >= span[1] * 0.999):
+        if p is not None and span is not None and (span[2] <= span[0] * 1.001 or span[2] >= span[1] * 0.999):
             par["at_grid_edge"] = True       # the optimum may lie beyond the searched range
         forms.append(FormFit(f, cv, math.sqrt(rss / n), par, [float(x) for x in c], branch_gap(T, resid, branch, T_ref)))
     best = parsimonious_best(forms, per_fold, size)
     bp = best.parameter
-    p = None if bp is None else (bp.get("tau_min", 0) * 60.0 if "tau_min" in bp else (bp["half_width_C"], bp["start"]))
+    p = None if bp is None else ((bp["tau_min"] * 60.0, bp["half_width_C"], bp["start"]) if best.name == "lag_play"
+                                 else bp["tau_min"] * 60.0 if "tau_min" in bp else (bp["half_width_C"], bp["start"]))
     pred = _design(best.name, t, T, T_ref, branch, p) @ np.array(best.coefficients)
     return AxisCycle(column, unit, noise, branch_gap(T, lin_resid + 0.0, branch, T_ref) if lin_resid is not None
                      else None, forms, best.name, pred)

@@ -1,5 +1,5 @@
 """Operators on a measured temperature history: the sensing element's first-order lag behind its
-sensor, the play (backlash) operator of a hysteresis and the Prandtl-Ishlinskii sum of plays. Pure numpy functions of the sampled
+sensor, the element ahead of a thermometer that lags it, the play (backlash) operator of a hysteresis and the Prandtl-Ishlinskii sum of plays. Pure numpy functions of the sampled
 history, used by the thermal-cycle analysis of real recordings (``triadcal thermal-cycle``) and
 written once here (docs/model.md, "A real chamber cycle").
 """
@@ -47,6 +47,34 @@ def first_order_lag(t_s, T, tau_s: float, start=None) -> np.ndarray:
         prev = xs[k] - st[k - 1] + (prev - xs[k - 1] + st[k - 1]) * a[k - 1]
         out.append(prev)
     return np.array(out)
+
+
+def centred_rate(t_s, T, window_s: float = 120.0) -> np.ndarray:
+    """The rate of ``T`` (per second) about each sample: the difference of the samples that open and
+    close the window of ``window_s`` centred on it, over their time apart (one-sided at the record's
+    ends). For a sampled record with white noise sigma the rate's SD is about sigma sqrt 2 / window."""
+    t, T = np.asarray(t_s, float), np.asarray(T, float)
+    lo = np.searchsorted(t, t - window_s / 2)
+    hi = np.minimum(np.searchsorted(t, t + window_s / 2, side="right") - 1, len(t) - 1)
+    dt = np.maximum(t[hi] - t[lo], 1e-9)
+    return (T[hi] - T[lo]) / dt
+
+
+def thermometer_lead(t_s, T, tau_s: float, window_s: float = 120.0) -> np.ndarray:
+    """Temperature of an element that its thermometer lags by a first-order time constant ``tau``
+    (the thermometer behind the element: a sensor on the housing's far side, a slow probe)::
+
+        dT/dt = (T_e - T) / tau      =>      T_e = T + tau dT/dt
+
+    the exact inverse of :func:`first_order_lag`, with ``dT/dt`` from :func:`centred_rate` over
+    ``window_s`` (a reading lagging by tau changes on that time scale; the window's noise on
+    ``T_e`` is about ``tau sigma sqrt 2 / window``). On a ramp of rate v the element is ``tau v``
+    ahead of the reading: the mirror of a lagging element, with the other sign. ``tau_s = 0``
+    returns ``T``."""
+    T = np.asarray(T, float)
+    if tau_s <= 0:
+        return T.copy()
+    return T + tau_s * centred_rate(t_s, T, window_s)
 
 
 def play_operator(x, half_width: float, start=None) -> np.ndarray:
