@@ -397,7 +397,8 @@ class StepProgram:
 
 def simulate_lag_campaign(rng, *, program=None, tau_element_min=5.0, location="housing", tau_housing_min=20.0,
                           tau_chamber_min=5.0, warmup=None, truth=None, tau_s=30.0, move_s=20.0, noise_sd=5e-4,
-                          n_samples=3000, temp_noise_C=0.01, dt_s=0.5, unit="SN-IND-LAG") -> tuple[str, dict]:
+                          n_samples=3000, temp_noise_C=0.01, dt_s=0.5, unit="SN-IND-LAG",
+                          element_play_C=0.0) -> tuple[str, dict]:
     """CSV text of a campaign whose thermal terms follow the sensing element, lagging its
     thermometer, and the true parameters (reporting units, plus ``thermal_lag`` and
     ``thermal_lag_housing`` in min).
@@ -407,13 +408,24 @@ def simulate_lag_campaign(rng, *, program=None, tau_element_min=5.0, location="h
     ``"air"`` (it reads A; housing and element lag behind). ``program``: :class:`RampProgram`
     (visits back to back, default) or :class:`StepProgram` (12 visits after each soak).
     ``warmup``: ``(db_ug (3,), tau_w_min)`` adds ``db exp(-t/tau_w)`` to each bias, ``t`` from
-    power-on at ``time_s = 0``. Each visit's outputs and readings are means over its averaging
+    power-on at ``time_s = 0``. ``element_play_C``: the thermal terms follow the element's temperature
+    through a mechanical backlash of that half-width (the state machine below, started mid-band): a
+    hysteresis of every thermal term. Each visit's outputs and readings are means over its averaging
     window of the integrated states."""
     program = program or RampProgram()
     truth = dict(default_truth(rng) if truth is None else truth)
     t, A, H, E = euler_thermal_history(program, tau_chamber_min=tau_chamber_min, tau_housing_min=tau_housing_min,
                                        tau_element_min=tau_element_min, dt_s=dt_s)
     reading = H if location == "housing" else A
+    if element_play_C > 0:
+        held, pushed = float(E[0]), np.empty_like(E)
+        for k, x in enumerate(E):             # the backlash: moves only when pushed at one side of the gap
+            if x > held + element_play_C:
+                held = x - element_play_C
+            elif x < held - element_play_C:
+                held = x + element_play_C
+            pushed[k] = held
+        E = pushed
     labels = list(POSITIONS)
     # window starts
     if program.stepped:

@@ -259,15 +259,55 @@ def test_a_record_with_unlogged_soaks_does_not_give_an_answer(tmp_path):
     assert any(re.search(r"gate history failed .*gap\(s\) of up to 12\d min", n) for n in r.notes), r.notes
 
 
+def test_a_play_of_the_elements_temperature_is_refused(tmp_path):
+    """An outside probe: the element 10 min behind a housing thermometer, its temperature through a
+    play of 1 degC (a hysteresis of every thermal term), ramps at 1 degC/min: tau 11.5-11.75 +- 0.07
+    min (22-25 u) and K_x's tempco 4-6 u off, status ok 9 of 10. Here the play is the independent
+    bench's backlash, sample by sample on the integrated element: the gate thermal_play measures it
+    and refuses the lag; without the play the same campaign passes it."""
+    from triadcal.estimation.thermal_lag_form import PLAY_Z_MAX
+
+    c, _ = campaign(tmp_path, 2001, tau_element_min=10.0, location="housing", tau_housing_min=TAU_HOUSING,
+                    element_play_C=1.0)
+    r = fit_thermal_lag(c, EFFECTS, "housing")
+    play = r.fit["thermal_play"]
+    assert r.status == "model_mismatch", r.notes
+    assert any(n.startswith("gate thermal_play failed") for n in r.notes), r.notes
+    assert play["z"] > PLAY_Z_MAX and play["half_width_C"] == pytest.approx(1.0, abs=3 * play["sd_C"] + 0.1), play
+    assert play["moves_u_per_C"]["thermal_lag"] > 10
+    c0, _ = campaign(tmp_path, 2001, tau_element_min=10.0, location="housing", tau_housing_min=TAU_HOUSING)
+    r0 = fit_thermal_lag(c0, EFFECTS, "housing")
+    assert r0.status == "ok" and abs(r0.fit["thermal_play"]["z"]) <= PLAY_Z_MAX, r0.notes
+
+
+def test_a_lag_on_ramps_of_one_rate_says_what_tau_holds():
+    """By hand: visits on ramps of 1.0 +- 0.05 degC/min make the lag a delay at that rate (a play of r
+    adds r/v, 1 min per degC); ramps of 1 and 2 degC/min, or a stepped campaign, no note."""
+    from types import SimpleNamespace
+
+    from triadcal.estimation.thermal_lag_form import one_rate_note
+
+    rng = np.random.default_rng(0)
+    one = SimpleNamespace(dTdt_C_per_min=np.r_[rng.uniform(0.95, 1.05, 40) * np.sign(rng.normal(size=40)),
+                                               np.zeros(10)])
+    note = one_rate_note(one, 10.0, 0.07, {"half_width_C": 0.05, "sd_C": 0.1})
+    assert "one rate" in note and "1 min per degC" in note and "tau holds to about 0.2 min (2.8 u)" in note, note
+    two = SimpleNamespace(dTdt_C_per_min=np.r_[np.full(20, 1.0), np.full(20, -2.0)])
+    assert one_rate_note(two, 10.0, 0.07, None) is None
+    assert one_rate_note(SimpleNamespace(dTdt_C_per_min=None), 10.0, 0.07, None) is None
+
+
 # -- statistics (slow) ------------------------------------------------------------------------
 @pytest.mark.slow
 def test_coverage_of_the_time_constant(tmp_path):
     """20 campaigns at each of 2, 20 and 90 min (housing thermometer, ramp): the 2u interval holds
     the true tau as often as its 95.4 % says, within the 99.9 % binomial band of 60 draws.
-    Measured 2026-11-25: 19/20, 19/20, 19/20 within 2u, 60/60 within 3u; SD of z 0.96, 0.85, 0.90."""
+    Measured 2026-11-25: 19/20, 19/20, 19/20 within 2u, 60/60 within 3u; SD of z 0.96, 0.85, 0.90.
+    The gate thermal_play's z on these campaigns without a play: its SD within the 99.9 % band of
+    a standard normal's over 60 draws (chi^2 with 60 dof)."""
     from scipy import stats
 
-    zs = []
+    zs, zp = [], []
     for tau in (2.0, 20.0, 90.0):
         for seed in range(20):
             c, _ = campaign(tmp_path, 1000 + seed, tau_element_min=tau, location="housing",
@@ -275,6 +315,9 @@ def test_coverage_of_the_time_constant(tmp_path):
             r = fit_thermal_lag(c, EFFECTS, "housing")
             assert r.status == "ok", (tau, seed, r.notes)
             zs.append(z(r, "thermal_lag", tau))
+            zp.append(r.fit["thermal_play"]["z"])
+    sd_lo, sd_hi = (math.sqrt(stats.chi2.ppf(q, len(zp)) / len(zp)) for q in (0.0005, 0.9995))
+    assert sd_lo <= math.sqrt(np.mean(np.square(zp))) <= sd_hi, (np.round(zp, 2), sd_lo, sd_hi)
     zs = np.abs(np.array(zs))
     n, p = len(zs), stats.norm.cdf(2) - stats.norm.cdf(-2)
     lo, hi = stats.binom.ppf(0.0005, n, p), stats.binom.ppf(0.9995, n, p)

@@ -245,6 +245,12 @@ def fit_thermal_lag(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS
         if not informative:
             names_tau, values_tau, cols = names_tau[:-1], values_tau[:-1], cols[:-1]
     J_full = np.column_stack([J_cond] + cols)
+    # a play of the element's temperature (a hysteresis of every thermal term) against the lag
+    Te_hat = problem.cov_matrix[2:5].copy()
+    problem.cov_matrix[2:5] = play_of_visits(campaign.time_s, Te_hat.T, PLAY_PROBE_C).T
+    r_play = problem.residuals(sol.x)
+    problem.cov_matrix[2:5] = Te_hat
+    play_sig = (r_play - problem.residuals(sol.x)) * sw / PLAY_PROBE_C
     dropped = 1 if bridged and "thermal_lag_bridge" not in names_tau else 0     # profiled all the same
     dof = sol.r.size - J_full.shape[1] - dropped
     chi2_val = float(np.sum(sol.r ** 2))
@@ -286,21 +292,122 @@ def fit_thermal_lag(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS
         "profile": [{"tau_min": a, "tau_housing_min": (b if two else None),
                      **({"bridge_min": tb_} if bridged else {}), "cost": c} for a, b, tb_, c in prof],
         "evaluations": len(profile)}
+    play = thermal_play_test(campaign, play_sig, sol.r * sw, J_full, list(problem.names) + list(names_tau),
+                             np.sqrt(np.clip(np.diag(cov_full), 0.0, None)),
+                             1.0 if noise_known else math.sqrt(chi2_val / max(dof, 1)))
+    if play is not None:
+        result.fit["thermal_play"] = play[0]
     # the gates again, with the time constants among the free parameters
     result.status = "ok"
     result.notes = [n for n in result.notes if not n.startswith("gate ")]
     ev = FitEvidence(converged=sol.converged, cost_start=None, cost_final=sol.cost, jacobian=J_full,
                      free_names=tuple(problem.names) + tuple(names_tau), chi2=chi2_val, dof=dof,
                      noise_known=noise_known,
-                     extra=[_gate_history(campaign, te, tb)]
+                     extra=[_gate_history(campaign, te, tb)] + ([play[1]] if play is not None else [])
                      + ([_gate_location(names_tau, values_tau, cov_full, m)] if location_assumed else []))
     apply_gates(result, ev)
+    note = one_rate_note(campaign, te, result.parameters["thermal_lag"].u, play[0] if play is not None else None)
+    if note:
+        result.notes.append(note)
     if bridged:
         result.notes.append(f"thermal_lag: the record's gaps bridged by a first-order approach of {tb:.3g} min"
                             + (f" +- {bridge_block['u_min']:.2g}" if bridge_block["u_min"] is not None else
                                " (at a limit of its range: a step or a straight line)")
                             + " profiled with the lags (fit.thermal_lag.bridge)")
     return result
+
+
+#: the half-width (degC) of the play of the element's temperature whose signature is computed
+PLAY_PROBE_C = 1.0
+
+
+def play_of_visits(time_s, T, half_width_C: float) -> np.ndarray:
+    """Each column of ``T`` (visits x sensors) through the play operator in the visits' time order
+    (:func:`triadcal.models.thermal_history.play_operator`, started mid-band)."""
+    from ..models.thermal_history import play_operator
+
+    order = np.argsort(np.asarray(time_s, float), kind="stable")
+    T = np.asarray(T, float)
+    out = np.empty_like(T)
+    for j in range(T.shape[1]):
+        out[order, j] = play_operator(T[order, j], half_width_C)
+    return out
+
+
+#: the play's score |z| beyond which the lag's fit misses a hysteresis of its thermal terms (two-sided 0.1 %)
+PLAY_Z_MAX = float(stats.norm.isf(0.0005))
+
+
+def thermal_play_test(campaign, signature, r_w, J, names, u, noise_scale: float):
+    """``(block, gate)``: does the element's temperature run through a play (a hysteresis of every
+    thermal term: the element's temperature stays until the reading has moved a band of 2 r, as
+    ``thermal-cycle``'s play form), which a lag takes up? ``signature``: the weighted residuals' change
+    per degC when the element's temperatures pass through a play of :data:`PLAY_PROBE_C` in time order
+    (:func:`play_of_visits`); projected off the fit's Jacobian ``J`` (the lags' columns in it), its
+    score on the weighted residuals ``r_w`` estimates the play, ``r = -b'r / |b|^2`` degC (linear about
+    the probe's width) with SD ``noise_scale / |b|``, and ``z = r / SD`` (normal under a model without
+    a play). The gate ``thermal_play`` (``model_mismatch``) fails beyond |z| > :data:`PLAY_Z_MAX`.
+
+    An outside probe (its own simulator): ramps 20, -40, 70, 20 degC at 1 degC/min, the element 10
+    min behind a housing thermometer, its temperature through a play of 1 degC: tau 11.5-11.75 +- 0.07
+    min (22-25 u) and K_x's tempco 4-6 u off, status ok 9 of 10. The play's signature moves tau by 24 u
+    per degC; the residuals measure it to 0.1 degC. None when the signature is 0 (no turn)."""
+    from .structure import _confounding
+
+    b = np.asarray(signature, float)
+    conf = _confounding(J, names, u, b, noise_scale)
+    if conf is None or conf["sd"] is None:
+        return None
+    coef, *_ = np.linalg.lstsq(J, b, rcond=None)
+    perp = b - J @ coef
+    nn = float(perp @ perp)
+    r_hat = -float(perp @ np.asarray(r_w, float)) / nn
+    sd = float(conf["sd"])
+    z = r_hat / sd
+    block = {"probe_half_width_C": PLAY_PROBE_C, "half_width_C": r_hat, "sd_C": sd, "z": z,
+             "visible_fraction": conf["visible_fraction"], "moves_u_per_C": conf["moves_u"],
+             "equation": "T_e -> play(T_e, r) in time order; r = -b'r/|b|^2 with b the signature off the model's span"}
+    moves = ", ".join(f"{n} by {abs(m):.2g} u" for n, m in conf["moves_u"].items())
+    ok = abs(z) <= PLAY_Z_MAX
+    txt = (f"a play of the element's temperature (a hysteresis of the thermal terms) measured from the residuals: "
+           f"r = {r_hat:+.3g} +- {sd:.2g} degC (z {z:+.2g}); 1 degC of it, left out, moves {moves}")
+    if not ok:
+        txt += (": the lag takes up a hysteresis of the thermal terms (or another effect of its shape at the turns), "
+                "so tau and the tempcos are biased; `triadcal thermal-cycle` names the form on a one-pose record, "
+                "`triadcal diagnose` on the campaign")
+    return block, GateOutcome("thermal_play", ok, "model_mismatch", txt, abs(z), f"|z| <= {PLAY_Z_MAX:.3g}")
+
+
+#: visits whose |dT/dt| (degC/min) exceeds this are on a ramp; ramps whose rates (75th over 25th
+#: percentile over those visits) differ by less than ONE_RATE_SPREAD run at one rate
+RAMP_RATE_MIN, ONE_RATE_SPREAD = 0.2, 1.5
+
+
+def one_rate_note(campaign, tau_min: float, u_tau_min: float, play: Optional[dict]) -> Optional[str]:
+    """The note of a lag fitted on ramps of one rate v (the campaign's measured rates): there the lag
+    is the element's delay ``tau v`` behind the thermometer, and a play of half-width r of the
+    element's temperature adds ``r / v`` to tau, a thermometer lagging the element takes its own lag
+    off; only the turns tell them apart (``play``: :func:`thermal_play_test`'s block, what the
+    residuals measured of a play). None for a stepped campaign or ramps of several rates."""
+    rate = getattr(campaign, "dTdt_C_per_min", None)
+    if rate is None:
+        return None
+    r = np.abs(np.asarray(rate, float))
+    r = r[r > RAMP_RATE_MIN]
+    if len(r) < 8:
+        return None
+    lo, hi = (float(x) for x in np.percentile(r, [25, 75]))
+    if not lo > 0 or hi / lo >= ONE_RATE_SPREAD:
+        return None
+    v = 0.5 * (lo + hi)
+    seen = ("" if play is None else
+            f"; the residuals measured r = {play['half_width_C']:+.2g} +- {play['sd_C']:.2g} degC (fit.thermal_play), "
+            f"so tau holds to about {2 * play['sd_C'] / v:.2g} min ({2 * play['sd_C'] / v / u_tau_min:.2g} u) "
+            "against a play below that")
+    return (f"thermal_lag: the ramps run at {lo:.2g}-{hi:.2g} degC/min, one rate: tau = {tau_min:.4g} min is the "
+            f"element's delay behind its thermometer there; a play of half-width r of the element's temperature "
+            f"would add r/v ({1.0 / v:.2g} min per degC), a thermometer lagging the element would take its own lag "
+            f"off, and only the turns tell them apart{seen}; a ramp at another rate (half or twice) separates them")
 
 
 def _gate_location(names_tau, values_tau, cov_full, m: int) -> GateOutcome:
