@@ -485,3 +485,61 @@ def test_one_huge_reading_does_not_blind_the_static_detection(tmp_path):
     assert len(b.extra["static_intervals"]) >= len(a.extra["static_intervals"]) - 1
     for name in ("K_x", "K_y", "K_z", "S_x", "S_y", "S_z"):
         assert abs(b.parameters[name].value - a.parameters[name].value) < 0.5 * a.parameters[name].u, name
+
+
+def _free_poses_k2(k2_per_g, *, seed=7, n_poses=30, noise_counts=2.0):
+    """Free poses made here with numpy (directions uniform on the sphere, 4 s each, a move between):
+    the readings ``(g + k2 g^2) gain + bias`` in counts, rounded, with white noise."""
+    rng = np.random.default_rng(seed)
+    gain, bias = 2048.0 * 9.81 / 9.80665, np.array([30.0, -20.0, 40.0])
+    ups = rng.standard_normal((n_poses, 3))
+    ups /= np.linalg.norm(ups, axis=1, keepdims=True)
+    blocks = []
+    for k, g in enumerate(ups):
+        blocks.append(np.tile(g + k2_per_g * g ** 2, (400, 1)))
+        nxt = ups[(k + 1) % n_poses]
+        blocks.append(np.linspace(g, nxt, 100) * 1.3)          # a move: |a| off g, not static
+    w = np.vstack(blocks) * gain + bias
+    return np.round(w + noise_counts * np.random.default_rng(seed + 1).standard_normal(w.shape))
+
+
+def test_free_poses_say_what_a_nonlinearity_below_detection_would_move(tmp_path):
+    """An outside probe: 30-40 free poses of a unit with K2 = 200 ug/g2 on each axis (or a 300 ppm
+    scale asymmetry): status ok with every S 4-9 u off (the norm takes 0.6 K2 into the bias), the
+    diagnosis null in half the runs, nothing said. The fit now states the move of a K2 the residuals
+    cannot show (fit.nonlinearity_sensitivity), and the stated move per ug/g2 predicts the shift
+    that a K2 made here (numpy, same noise) gives, within 15 %."""
+    k2 = 200e-6
+    fits = {}
+    for name, k in (("lin", 0.0), ("k2", k2)):
+        p = write_recording(tmp_path / f"{name}.csv", _free_poses_k2(k))
+        fits[name] = fit_raw(str(p), RATE, poses="unknown", local_g_m_s2=9.81).result
+    lin, bent = fits["lin"], fits["k2"]
+    sens = lin.fit["nonlinearity_sensitivity"]["scale_nonlinearity"]
+    for a in "xyz":
+        moved = (bent[f"S_{a}"].value - lin[f"S_{a}"].value) / lin[f"S_{a}"].u
+        # the three outputs' K2 at once: the sum of each one's stated move
+        predicted = sum(sens["moves_u"][b][f"S_{a}"] for b in "xyz") * k2 * 1e6
+        assert moved == pytest.approx(predicted, rel=0.15), (a, moved, predicted)
+        assert moved > 2                                      # the shift the probe found: several u
+        assert sens["unseen_u"][f"S_{a}"] > 1
+    note = [n for n in lin.notes if n.startswith("the gravity-norm model is linear in the readings")]
+    assert note and "a K2 within 2 SD of 0" in note[0] and "S_x by up to" in note[0], lin.notes
+    assert lin.status == "ok"
+
+
+@pytest.mark.parametrize("name, values, said", [
+    ("temp_F", lambda T: 32 + 1.8 * T, "degF"), ("T_kelvin", lambda T: T + 273.15, "kelvin"),
+    ("temp_dC", lambda T: 10 * T, "tenths of a degC"), ("temp", lambda T: 10 * T, "no IMU runs that hot")])
+def test_a_temperature_column_in_another_unit_is_refused(tmp_path, name, values, said):
+    """An outside probe: a temperature column in tenths of a degC (15.5 +- 3.5 degC written as
+    120-190) and one named temp_F were read as degC, the diagnosed bias tempco 10 times and 1.7
+    times too small. A name that states another unit is refused, and a value no IMU reaches."""
+    w, labels = make_samples(twelve_poses())
+    T = 15.5 + 3.5 * np.sin(np.linspace(0, 6, len(w)))
+    p = write_recording(tmp_path / "t.csv", w, extra={name: np.round(values(T), 2)})
+    with pytest.raises(RawRecordingError) as e:
+        read_raw_csv(str(p), RATE, temperature_column=name)
+    assert said in str(e.value) and name in str(e.value)
+    ok = write_recording(tmp_path / "ok.csv", w, extra={"temp_C": np.round(T, 2)})
+    assert read_raw_csv(str(ok), RATE, temperature_column="temp_C").temperature_C is not None

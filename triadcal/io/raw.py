@@ -225,12 +225,45 @@ def _file_rate(path: str, line_number: int, line: str) -> Optional[float]:
     return rate * (1000.0 if unit and unit.lower() == "khz" else 1.0)
 
 
+#: the hottest an IMU's own temperature gets in a raw recording, degC (commercial parts end at 85-125,
+#: high-temperature ones at 150): a column beyond it is in another unit (tenths of a degC: an outside
+#: probe's 15.5 +- 3.5 degC written as 120-190 was read as degC and its bias tempco came out 10 times
+#: too small)
+RAW_MAX_C = 150.0
+#: a temperature column's name that states another unit than degC (any case): the unit it states
+_NAME_UNITS = (("fahrenheit", "degF"), ("degf", "degF"), ("deg_f", "degF"), ("°f", "degF"), ("kelvin", "kelvin"),
+               ("decic", "tenths of a degC"), ("dec_c", "tenths of a degC"), ("0.1c", "tenths of a degC"),
+               ("0.01c", "hundredths of a degC"), ("centic", "hundredths of a degC"))
+_NAME_SUFFIXES = (("_f", "degF"), ("(f)", "degF"), ("[f]", "degF"), ("_k", "kelvin"), ("(k)", "kelvin"),
+                  ("[k]", "kelvin"), ("_dc", "tenths of a degC"), ("_cc", "hundredths of a degC"))
+
+
+def temperature_unit_in_name(column: str) -> Optional[str]:
+    """The unit other than degC a column's name states (``temp_F``, ``die_temp_degF``, ``T_kelvin``,
+    ``temp_dC``), or None (``temp``, ``temp_C``, ``imu.temperature``)."""
+    name = column.strip().lower().replace(" ", "")
+    for key, unit in _NAME_UNITS:
+        if key in name:
+            return unit
+    for suf, unit in _NAME_SUFFIXES:
+        if name.endswith(suf):
+            return unit
+    return None
+
+
 def _check_temperature(path: str, first_line: int, column: str, temp: np.ndarray) -> None:
-    """The bench reader's rules for a temperature column (degC): a median at or above
+    """The bench reader's rules for a temperature column (degC): a name that states another unit
+    (:func:`temperature_unit_in_name`: an outside probe's ``temp_F`` was read as degC, its bias
+    tempco 7 u off) is refused; a median at or above
     :data:`~triadcal.io.bench_csv.KELVIN_MEDIAN_C` is kelvin and refused as such, then every
-    value must lie in the range of the bench's ``t_*`` columns."""
+    value must lie in the range of the bench's ``t_*`` columns and at most :data:`RAW_MAX_C`."""
     from .bench_csv import KELVIN_MEDIAN_C, column_range
 
+    said = temperature_unit_in_name(column)
+    if said is not None:
+        raise RawRecordingError(path, first_line - 1, column,
+                                f"the column's name says {said}: the temperature column is read in degC; convert it "
+                                "(or name the column so it does not state another unit)")
     if not len(temp):
         return
     med = float(np.median(temp))
@@ -239,11 +272,14 @@ def _check_temperature(path: str, first_line: int, column: str, temp: np.ndarray
                                 f"temperatures look like kelvin (median {med:g}): the temperature column is degC "
                                 f"(subtract 273.15; no IMU calibration runs at a median of {KELVIN_MEDIAN_C:g} degC)")
     low, high, _ = column_range("t_x")
+    high = min(high, RAW_MAX_C)
     bad = np.flatnonzero((temp < low) | (temp > high))
     if len(bad):
         i = int(bad[0])
+        hint = (" (no IMU runs that hot: tenths of a degC, or degF? the column is read in degC)"
+                if temp[i] > RAW_MAX_C else "")
         raise RawRecordingError(path, first_line + i, column,
-                                f"temperature {temp[i]:g} degC is outside {low:g} .. {high:g} degC")
+                                f"temperature {temp[i]:g} degC is outside {low:g} .. {high:g} degC{hint}")
 
 
 #: seconds per unit of a time column (this reader's check; thermal-cycle's --time-unit)

@@ -270,6 +270,12 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
                                                              for ab in ("yx", "zx", "zy")},
                                                    "output_unit": rec.unit,
                                                    "local_g_m_s2": gravity_g * STANDARD_GRAVITY_M_S2})
+    if dof > 0 and s2 > 0 and np.all(np.isfinite(u)):
+        sens = nonlinearity_sensitivity(calibrated_acceleration(K, S, Ca, avg.w), sol.J, NORM_NAMES, u, math.sqrt(s2))
+        fit["nonlinearity_sensitivity"] = sens
+        note = nonlinearity_note(sens)
+        if note:
+            notes.append(note)
     gof_p = float(stats.chi2.sf(rss / s2_noise, dof)) if dof > 0 and s2_noise > 0 else None
     gof_ratio = (s2_resid / s2_noise) if s2_resid is not None and s2_noise > 0 else None
     fit["noise_floor_ratio"] = gof_ratio
@@ -280,6 +286,82 @@ def fit_unknown_poses(rec: RawRecording, avg: PoseAverages, *, gravity_g: float,
         gof_what=f"residual variance of |A| - g over the recording's own noise floor of the interval means "
                  f"({dof} dof)"), config=gates)
     return result, problem, sol
+
+
+#: a term of the output the gravity-norm model leaves out, below what the residuals detect (2 SD), that
+#: moves a parameter by more than this many u is said (:func:`nonlinearity_sensitivity`)
+UNSEEN_MOVE_U = 1.0
+#: the even and odd nonlinearities of IEEE Std 1293 the free-pose fit does not hold: name -> (term of
+#: triadcal.estimation.raw.terms, the unit of 1e-6 of it)
+NONLINEAR_TERMS = {"scale_nonlinearity": ("K2", "ug/g2"), "scale_asymmetry": ("scale asymmetry", "ppm")}
+
+
+def nonlinearity_sensitivity(A: np.ndarray, J: np.ndarray, names, u: np.ndarray, noise_scale: float) -> dict:
+    """What a K2 (``k2_a a_a^2``) or a scale asymmetry (``e_a |a_a|``) of the outputs, left out of the
+    gravity-norm model, does to the answer. Per term, its three coefficients (one per output) have
+    signatures ``B`` on the residuals ``|A_k| - g``: the interval's direction ``n_k = A_k / |A_k|``
+    times the term at its mean ``A_k``, per 1e-6 of it (1 ug/g2, 1 ppm). Left out, the fit moves the
+    parameters by ``M = -(J'J)^-1 J'B`` (``moves_u``: per output's coefficient, every parameter's
+    move in its u, signed, largest first); the rest shows in the residuals, which measure the
+    coefficients with covariance ``s^2 (B_perp' B_perp)^-1`` (``sd`` per output, ``B_perp`` = ``B``
+    off the model's span, ``s`` = ``noise_scale``); ``unseen_u``: the largest move of each parameter
+    over the coefficients within 2 SD of 0 (the ellipsoid ``k' C^-1 k <= 4``: ``2 sqrt(m_i' C m_i) /
+    u_i``), the three largest — what a nonlinearity no test of the residuals sees can do.
+
+    An outside probe (its own simulator, 30-40 free poses, noise 1 mg or 0.3 mg): K2 = 200 ug/g2 on
+    each output moved every S by about 120 ug, 4-5 u, a scale asymmetry of 300 ppm by 8 u, status
+    ok, the diagnosis null in half the runs (its detection limits 530-780 ug/g2)."""
+    from .terms import scale_asymmetry, scale_nonlinearity
+
+    A = np.asarray(A, float)
+    J = np.asarray(J, float)
+    n = A / np.linalg.norm(A, axis=1, keepdims=True)
+    u = np.asarray(u, float)
+    out = {}
+    for term, f in (("scale_nonlinearity", scale_nonlinearity), ("scale_asymmetry", scale_asymmetry)):
+        B = np.stack([np.sum(n * f(A, 1e-6 * np.eye(3)[i]), axis=1) for i in range(3)], axis=1)
+        # the residuals' change when the readings hold the term; the fit moves against it
+        M = -np.linalg.lstsq(J, B, rcond=None)[0]                  # (parameters, 3)
+        perp = B + J @ M
+        G = perp.T @ perp
+        visible = np.sqrt(np.diag(G)) / np.maximum(np.linalg.norm(B, axis=0), 1e-300)
+        mu = M / u[:, None]
+        block = {"unit": NONLINEAR_TERMS[term][1],
+                 "visible_fraction": {a: float(v) for a, v in zip(AXES, visible)},
+                 "moves_u": {a: {names[i]: float(mu[i, j]) for i in np.argsort(-np.abs(mu[:, j]))}
+                             for j, a in enumerate(AXES)}}
+        if np.linalg.cond(G) < 1e12:
+            C = noise_scale ** 2 * np.linalg.inv(G)
+            block["sd"] = {a: float(np.sqrt(C[j, j])) for j, a in enumerate(AXES)}
+            unseen = 2.0 * np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", M, C, M), 0.0)) / u
+            block["unseen_u"] = {names[i]: float(unseen[i]) for i in np.argsort(-unseen)[:3]}
+        else:
+            block["sd"], block["unseen_u"] = None, None
+        out[term] = block
+    return out
+
+
+def nonlinearity_note(sens: dict) -> Optional[str]:
+    """The result's note when a nonlinearity below detection moves a parameter by more than
+    :data:`UNSEEN_MOVE_U` u (:func:`nonlinearity_sensitivity`), or None."""
+    parts = []
+    for term, v in sens.items():
+        label, unit = NONLINEAR_TERMS[term]
+        if v["unseen_u"] is None:
+            parts.append(f"a {label} is not seen at all by these poses")
+            continue
+        big = {k: m for k, m in v["unseen_u"].items() if m > UNSEEN_MOVE_U}
+        if big:
+            sds = ", ".join(f"{a} {2 * v['sd'][a]:.3g}" for a in AXES)
+            parts.append(f"a {label} within 2 SD of 0 on each output ({sds} {unit}) moves "
+                         + ", ".join(f"{k} by up to {m:.2g} u" for k, m in big.items()))
+    if not parts:
+        return None
+    return ("the gravity-norm model is linear in the readings, and a nonlinearity of the outputs too small for the "
+            "residuals to show would move the answer: " + "; ".join(parts)
+            + " (fit.nonlinearity_sensitivity). MEMS accelerometers have a K2 of 100-1000 ug/g2 (the datasheet's "
+            "nonlinearity): the values hold for a linear unit; a bench calibration with the K2 term (`triadcal fit "
+            "--effects ...,scale_nonlinearity`) measures it")
 
 
 def norm_matrices(x: np.ndarray):
