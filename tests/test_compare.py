@@ -185,6 +185,11 @@ def test_compare_constructed_results_and_correlations(tmp_path):
     c5 = compare(before, after, correlation=0.5)
     assert c5["Ca_xy"].u == pytest.approx(2.0)
     assert c5.joint.D2 == pytest.approx(2 * c.joint.D2)
+    # ... which two fitted results without Type B rows cannot share (an outside probe: an unmoved unit
+    # failed under --correlation 0.9 without a word): said, with the u(d) at 0
+    said = [n for n in c5.notes if n.startswith("rho = 0.5 stated: more shared error than the results hold")]
+    assert said and "at most rho = 0" in said[0] and "2 arcsec with the stated rho against 2.83 at 0" in said[0], c5.notes
+    assert not [n for n in c.notes if "stated: more shared error" in n]
     # K given a tolerance enters the overall verdict
     ck = compare(before, after, tolerance_arcsec=30.0, tolerances={"K_x": 1e-4})
     assert ck["K_x"].judged and ck["K_x"].verdict == "pass"
@@ -211,8 +216,9 @@ def test_compare_refuses_what_is_not_a_drift():
     b.reference_temperature_C = 25.0
     with pytest.raises(ValueError, match="reference temperatures"):
         compare(a, b)
-    with pytest.raises(ValueError, match=r"\[-1, 1\]"):
-        compare(a, make_result([0] * 6), correlation=1.5)
+    for rho in (1.5, 1.0, -1.0):
+        with pytest.raises(ValueError, match="strictly between -1 and 1"):
+            compare(a, make_result([0] * 6), correlation=rho)
 
 
 def test_posterior_probability_of_exceeding_the_tolerance(tmp_path):

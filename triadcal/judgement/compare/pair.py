@@ -94,6 +94,37 @@ def tempco_bound(name: str, value: float, row_dT: Mapping[str, float]) -> float:
     return TEMPCO_BOUND[kind] * scale * row_dT[rest[0]]
 
 
+def _type_b_u(p) -> float:
+    """The Type B part of a parameter's u: its budget's Type B rows in quadrature (0 without)."""
+    rows = [r for r in (p.uncertainty.get("budget") or []) if isinstance(r, dict) and r.get("type") == "B"]
+    return math.sqrt(sum(float(r.get("contribution") or 0.0) ** 2 for r in rows))
+
+
+def stated_rho_beyond_budgets(before: CalibrationResult, after: CalibrationResult, names, rho: float):
+    """The note when a stated ``rho > 0`` claims more shared error than the two results can share, or
+    None. Errors two fitted calibrations share are systematic (the lab's, in their Type B rows): a
+    shared source gives the covariance ``c_b c_a u_s^2 <= uB_b uB_a``, so ``rho <= uB_b uB_a / (u_b
+    u_a)``; their Type A parts come from separate campaigns and are independent. An outside probe:
+    an unmoved unit without a lab file, ``--correlation 0.9``: u(d) 7.0 -> 2.2 arcsec, five of six
+    angles "fail", no word."""
+    worst = None
+    for n in names:
+        b, a = before[n], after[n]
+        if not (b.u > 0 and a.u > 0):
+            continue
+        limit = _type_b_u(b) * _type_b_u(a) / (b.u * a.u)
+        if rho > limit + 1e-9 and (worst is None or rho - limit > worst[1]):
+            worst = (n, rho - limit, limit, drift_uncertainty(b.u, a.u, rho), drift_uncertainty(b.u, a.u, 0.0), b.unit)
+    if worst is None:
+        return None
+    n, _, limit, u_rho, u_0, unit = worst
+    return (f"rho = {rho:g} stated: more shared error than the results hold — two fitted calibrations share only "
+            f"systematic errors (their budgets' Type B rows; the Type A parts come from separate campaigns and are "
+            f"independent), which allow at most rho = {limit:.2g} for {n}; its u(d) is {u_rho:.3g} {unit} with the "
+            f"stated rho against {u_0:.3g} at 0, so a drift judged significant here may be noise. Fit both "
+            "calibrations with the lab file and name the shared equipment (--lab with --shared-bench) instead")
+
+
 def _temperature_notes(before: CalibrationResult, after: CalibrationResult,
                        tags: tuple = ("before", "after")) -> tuple:
     """The pair's temperatures, row by row (:func:`.row_temperatures_C`: K_a, S_a and Ca_ab hold at
@@ -263,8 +294,12 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         rho, reason = derive_correlation(before, after, shared_equipment)
     else:
         rho = float(correlation)
-        if not -1.0 <= rho <= 1.0:
-            raise InputError(f"correlation must lie in [-1, 1], got {rho}")
+        if not -1.0 < rho < 1.0:
+            # rho = 1 makes u(d) = |u_b - u_a| (0 for equal u): the two calibrations would share every
+            # error, their noise too, and any drift would be infinitely significant (an outside probe:
+            # an unmoved unit failed with D2 4e10, nothing said)
+            raise InputError(f"correlation must lie strictly between -1 and 1, got {rho:g}: at +-1 the two "
+                             "calibrations would share every error, their noise included, and u(d) vanishes")
         reason = f"rho = {rho:g} stated by the user for every parameter"
         if shared_equipment:
             raise InputError("give either a correlation coefficient or shared equipment, not both: the shared "
@@ -290,6 +325,10 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
 
     shared = shared_errors(before, after, names, shared_equipment)
     notes.extend(shared.notes)
+    if not isinstance(correlation, str) and rho > 0:
+        over = stated_rho_beyond_budgets(before, after, names, rho)
+        if over:
+            notes.append(over)
 
     if (posterior_before is None) != (posterior_after is None):
         raise InputError("give posteriors for both calibrations (before and after), or for neither")
