@@ -63,3 +63,23 @@ def test_a_short_lag_passes():
     r = fit_joint(c, effects=tuple(DEFAULT_EFFECTS) + ("thermal_lag",))
     assert _gate(r)["passed"] is True, _gate(r)
     assert r.status == "ok", [o["reason"] for o in r.extra["gates"]["outcomes"] if o["passed"] is False]
+
+
+def test_the_rate_form_measures_a_play_of_the_elements_temperature():
+    """The rate form takes up a play of the element's temperature as the history forms do (an outside
+    probe's 1 degC play made a 10 min lag 11.6 min with status ok): on the independent bench's ramp
+    (its backlash written sample by sample, the element 1 min behind) the gate thermal_play measures
+    it; without the play the same campaign passes."""
+    from independent_bench import RampProgram
+
+    from triadcal.estimation.thermal_lag_form import PLAY_Z_MAX
+
+    out = {}
+    for play in (0.0, 1.0):
+        text, _ = simulate_lag_campaign(np.random.default_rng(3000), program=RampProgram(), tau_element_min=1.0,
+                                        location="housing", tau_housing_min=20.0, element_play_C=play)
+        out[play] = fit_joint(parse_bench_csv(text), effects=tuple(DEFAULT_EFFECTS) + ("thermal_lag",))
+    gate = next(o for o in out[1.0].extra["gates"]["outcomes"] if o["gate"] == "thermal_play")
+    assert out[1.0].status == "model_mismatch" and gate["passed"] is False, gate
+    assert out[1.0].fit["thermal_play"]["half_width_C"] == pytest.approx(1.0, abs=0.2)
+    assert out[0.0].status == "ok" and abs(out[0.0].fit["thermal_play"]["z"]) < PLAY_Z_MAX

@@ -569,6 +569,11 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
 
     structure, extra_gates = residual_checks(result, campaign, noise, sol, dof, chi2_dof, model.reference_temperature_C,
                                              u, problem.names, plain=loss == "l2" and whitening is None)
+    if "thermal_lag" in result.parameters and loss == "l2" and whitening is None:
+        from .thermal_lag_form import rate_form_play
+
+        extra_gates = extra_gates + rate_form_play(result, campaign, problem, sol, sw, u,
+                                                   1.0 if noise.known else float(np.sqrt(max(chi2_dof, 0.0))))
     evidence = FitEvidence(
         converged=sol.converged, cost_start=cost_start, cost_final=sol.cost, jacobian=sol.J * sw[:, None],
         free_names=problem.names, residual_rms=float(np.sqrt(np.mean(resid ** 2))),

@@ -246,11 +246,7 @@ def fit_thermal_lag(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS
             names_tau, values_tau, cols = names_tau[:-1], values_tau[:-1], cols[:-1]
     J_full = np.column_stack([J_cond] + cols)
     # a play of the element's temperature (a hysteresis of every thermal term) against the lag
-    Te_hat = problem.cov_matrix[2:5].copy()
-    problem.cov_matrix[2:5] = play_of_visits(campaign.time_s, Te_hat.T, PLAY_PROBE_C).T
-    r_play = problem.residuals(sol.x)
-    problem.cov_matrix[2:5] = Te_hat
-    play_sig = (r_play - problem.residuals(sol.x)) * sw / PLAY_PROBE_C
+    play_sig = play_signature(problem, sol.x, campaign.time_s, problem.cov_matrix[2:5].T, sw)
     dropped = 1 if bridged and "thermal_lag_bridge" not in names_tau else 0     # profiled all the same
     dof = sol.r.size - J_full.shape[1] - dropped
     chi2_val = float(np.sum(sol.r ** 2))
@@ -332,6 +328,43 @@ def play_of_visits(time_s, T, half_width_C: float) -> np.ndarray:
     for j in range(T.shape[1]):
         out[order, j] = play_operator(T[order, j], half_width_C)
     return out
+
+
+def play_signature(problem, x, time_s, element_T, sw) -> np.ndarray:
+    """The weighted residuals' change per degC at ``x`` when the element's temperatures
+    ``element_T`` (visits x sensors) pass through a play of :data:`PLAY_PROBE_C` in time order: the
+    problem's temperature rows moved by ``play(T_e) - T_e`` (the rate form's element is the row less
+    tau dT/dt, the history form's the row itself), restored after."""
+    base = problem.cov_matrix[2:5].copy()
+    Te = np.asarray(element_T, float)
+    delta = play_of_visits(time_s, Te, PLAY_PROBE_C) - Te
+    r0 = problem.residuals(x)
+    problem.cov_matrix[2:5] = base + delta.T
+    try:
+        r1 = problem.residuals(x)
+    finally:
+        problem.cov_matrix[2:5] = base
+    return (r1 - r0) * np.asarray(sw, float) / PLAY_PROBE_C
+
+
+def rate_form_play(result, campaign, problem, sol, sw, u, noise_scale: float):
+    """The gate ``thermal_play`` and the one-rate note of a joint fit with the rate-form
+    ``thermal_lag`` (the element at ``T - tau dT/dt``): as :func:`thermal_play_test` for the history
+    forms. ``[]`` without the lag or with a non-finite Jacobian."""
+    lag = result.parameters.get("thermal_lag")
+    J = sol.J * np.asarray(sw, float)[:, None]
+    if lag is None or not np.all(np.isfinite(J)) or not np.all(np.isfinite(u)):
+        return []
+    Te = np.asarray(campaign.t, float) - 60.0 * lag.value * campaign.temperature_rate()
+    play = thermal_play_test(campaign, play_signature(problem, sol.x, campaign.time_s, Te, sw),
+                             sol.r * np.asarray(sw, float), J, list(problem.names), np.asarray(u, float), noise_scale)
+    note = one_rate_note(campaign, lag.value, lag.u, play[0] if play is not None else None)
+    if note:
+        result.notes.append(note)
+    if play is None:
+        return []
+    result.fit["thermal_play"] = play[0]
+    return [play[1]]
 
 
 #: the play's score |z| beyond which the lag's fit misses a hysteresis of its thermal terms (two-sided 0.1 %)
