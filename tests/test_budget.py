@@ -102,6 +102,10 @@ def test_cli_budget_eq4_and_json(tmp_path):
     t = doc["tables"][0]
     assert t["total"] == pytest.approx(11.533, abs=1e-3)
     assert [c["symbol"] for c in t["components"]] == ["sigma_1", "noise", "sigma_2"]
+    # eq. 4 is the paper's 2 sigma_eff, no expanded uncertainty at a coverage (an outside probe: the JSON
+    # said U = 2 x total at 95.45 %, four standard deviations of the classical estimate each)
+    assert t["U"] is None and t["k"] is None and t["coverage_probability"] is None
+    assert t["U_method"].startswith("none: eq. 4 is the paper's own figure")
 
 
 def test_cli_budget_thermal(tmp_path):
@@ -133,6 +137,14 @@ def test_cli_budget_refuses_unknown_unit():
     (("--thermal", "--k-ca", "-1"), "--k-ca (k_ca_arcsec_per_C) = -1: must be >= 0"),
     (("--thermal", "--T-max", "10"), "--T-max (10 degC) is below --T0 (20 degC)"),
     (("--thermal", "--cte-body", "inf"), "--cte-body (cte_body_per_C) = inf: not finite"),
+    # an outside probe: each printed a table, exit 0 (or "internal error", exit 70)
+    (("--dT", "5"), "--dT is eq. 5-7's: add --thermal"),
+    (("--k-ca", "100", "--T-max", "300"), "--k-ca, --T-max are eq. 5-7's: add --thermal"),
+    (("--thermal", "--accelerometer", "AK-15", "--K", "5", "--sigma1", "0"),
+     "--K, --sigma1 are eq. 4's (the bench test): not used by --thermal"),
+    (("--thermal", "--T0", "-300"), "--T0 (T0_C) = -300: must be >= -273.15"),
+    (("--thermal", "--cte-body", "22.9", "--cte-accelerometer", "15"), "beyond any solid's expansion"),
+    (("--K", "1e300", "--Q", "1e300"), "the budget overflows"),
 ])
 def test_cli_budget_refuses_inputs_that_are_no_budget(args, says):
     """A zero averaging time or gravity, a negative noise intensity or standard deviation: each

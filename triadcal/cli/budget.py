@@ -55,9 +55,22 @@ def _table(b) -> str:
     return "\n".join(lines)
 
 
+#: the options of each budget and their defaults: an option of the other budget given is refused
+#: (an outside probe: `budget --dT 5` and `budget --thermal --K 5` printed the unchanged table, exit 0)
+EQ4_OPTIONS = {"K": 1.0, "Q": 3e-9, "tau": 30.0, "sigma1": 5.0, "sigma2": 2.0, "G": 1.0}
+THERMAL_OPTIONS = {"k_ca": None, "dT": 0.2, "cte_body": 22.9e-6, "cte_accelerometer": 15e-6, "T_max": 85.0,
+                   "T0": 20.0}
+
+
 def run(args) -> int:
+    from ..errors import InputError
     from ..uncertainty.paper import budget
 
+    own, other, why = ((THERMAL_OPTIONS, EQ4_OPTIONS, "eq. 4's (the bench test): not used by --thermal")
+                       if args.thermal else (EQ4_OPTIONS, THERMAL_OPTIONS, "eq. 5-7's: add --thermal"))
+    given = ["--" + k.replace("_", "-") for k, v in other.items() if getattr(args, k) != v]
+    if given:
+        raise InputError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} {why}")
     out = output(args)
     tables = budget(thermal=args.thermal, accelerometer_name=args.accelerometer, K_g_per_V=args.K, Q_V2s=args.Q,
                     tau_s=args.tau, sigma1_arcsec=args.sigma1, sigma2_arcsec=args.sigma2, G_g=args.G,

@@ -73,6 +73,9 @@ class Budget:
     coverage_factor: float = COVERAGE_FACTOR
     notes: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)
+    #: why no expanded uncertainty is stated (the paper's eq. 4 and eq. 5-7 combine bounds and a
+    #: factor 2 of their own: no coverage probability holds for them), or None when U is stated
+    no_expanded: Optional[str] = None
 
     def __post_init__(self):
         self.components = sorted(self.components,
@@ -192,8 +195,11 @@ class Budget:
         return None if c.contribution is None or total == 0 else c.contribution ** 2 / total
 
     def to_dict(self) -> dict:
+        stated = self.no_expanded is None
         return {"title": self.quantity, "equation": self.equation, "unit": self.unit,
-                "combination": self.combination, "total": self.total, "U": self.expanded_U,
-                "k": self.effective_k, "coverage_probability": self.coverage_probability,
-                "dof_eff": None if math.isinf(self.dof_eff) else self.dof_eff, "U_method": self.method,
+                "combination": self.combination, "total": self.total, "U": self.expanded_U if stated else None,
+                "k": self.effective_k if stated else None,
+                "coverage_probability": self.coverage_probability if stated else None,
+                "dof_eff": None if math.isinf(self.dof_eff) else self.dof_eff,
+                "U_method": self.method if stated else f"none: {self.no_expanded}",
                 "components": [c.to_dict() for c in self.components], "notes": list(self.notes), **self.extra}

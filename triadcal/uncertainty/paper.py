@@ -114,6 +114,8 @@ def calibration_budget(K_g_per_V: float = 1.0, Q_V2s: float = 3e-9, tau_s: float
                                          sigma_wobble_arcsec=sigma2_arcsec, K_g_per_V=K_g_per_V, gravity_g=G_g)
     return Budget(
         "error of an orientation angle from the bench test", comps, equation="eq. 4",
+        no_expanded="eq. 4 is the paper's own figure, 2 sigma_eff (four times the classical estimate's standard "
+                    "deviation), not a k = 2 expanded uncertainty: no coverage probability holds for it",
         notes=["eq. 4 as printed: 2 sqrt(noise^2 + sigma_1^2 + sigma_2^2); the standard deviation of the "
                "classical estimate (default plan) is sqrt(noise^2 + sigma^2)/2 per angle, with sigma = sigma_2 "
                "for Ca_xy and sigma_1 for the other five (docs/classical.md)"],
@@ -144,6 +146,8 @@ def thermal_budget(accelerometer_name: str = "AK-18", *, k_ca_arcsec_per_C: Opti
     # the root sum of squares of these contributions is eq. 5's dCa_T (thermal_drift_arcsec)
     return Budget(
         f"thermal drift of the axes, {acc.name} ({acc.material})", comps, equation="eq. 5-7",
+        no_expanded="dCa_Ta and dCa_Tn are maximum values, not standard uncertainties: the root sum of squares "
+                    "is the paper's figure, and no coverage probability holds for it",
         notes=["the paper combines the three parts as independent (root sum of squares, eq. 5); dCa_Ta and "
                "dCa_Tn are maximum values, not standard uncertainties"],
         extra={"accelerometer": asdict(acc),
@@ -168,9 +172,12 @@ _INPUT_RULES = {
     "dT_C": ("--dT", 0.0, False, "a temperature error magnitude, degC"),
     "cte_body_per_C": ("--cte-body", None, False, "a thermal expansion coefficient, 1/degC"),
     "cte_accelerometer_per_C": ("--cte-accelerometer", None, False, "a thermal expansion coefficient, 1/degC"),
-    "T_max_C": ("--T-max", None, False, "a temperature, degC"),
-    "T0_C": ("--T0", None, False, "a temperature, degC"),
+    "T_max_C": ("--T-max", -273.15, False, "a temperature, degC"),
+    "T0_C": ("--T0", -273.15, False, "a temperature, degC"),
 }
+#: the largest thermal expansion coefficient of a solid, 1/degC (polymers ~2e-4): beyond it a value
+#: typed in ppm/degC (an outside probe's --cte-body 22.9 gave 10 591 698 arcsec, exit 0)
+MAX_CTE_PER_C = 1e-3
 
 
 def _check_inputs(**values) -> None:
@@ -189,6 +196,12 @@ def _check_inputs(**values) -> None:
         if low is not None and (v <= low if excluded else v < low):
             bound = f"> {low:g}" if excluded else f">= {low:g}"
             raise InputError(f"{option} ({key}) = {v:g}: must be {bound}; it is {what}")
+    for key in ("cte_body_per_C", "cte_accelerometer_per_C"):
+        v = values.get(key)
+        if v is not None and abs(float(v)) > MAX_CTE_PER_C:
+            option = _INPUT_RULES[key][0]
+            raise InputError(f"{option} ({key}) = {float(v):g}: beyond any solid's expansion ({MAX_CTE_PER_C:g} "
+                             f"1/degC); it is in 1/degC (22.9 ppm/degC is {option} 22.9e-6)")
     if values.get("T_max_C") is not None and values.get("T0_C") is not None and values["T_max_C"] < values["T0_C"]:
         raise InputError(f"--T-max ({values['T_max_C']:g} degC) is below --T0 ({values['T0_C']:g} degC): eq. 6 "
                          "takes the maximum temperature above the normal one")
@@ -205,12 +218,21 @@ def budget(*, thermal: bool = False, accelerometer_name: Optional[str] = None, K
                   sigma2_arcsec=sigma2_arcsec, G_g=G_g, k_ca_arcsec_per_C=k_ca_arcsec_per_C, dT_C=dT_C,
                   cte_body_per_C=cte_body_per_C, cte_accelerometer_per_C=cte_accelerometer_per_C,
                   T_max_C=T_max_C, T0_C=T0_C)
-    if not thermal:
-        if accelerometer_name is not None:
-            raise InputError("an accelerometer of Table 1 is for the thermal budget: add --thermal (thermal=True)")
-        return [calibration_budget(K_g_per_V, Q_V2s, tau_s, sigma1_arcsec, sigma2_arcsec, G_g)]
-    kw = dict(k_ca_arcsec_per_C=k_ca_arcsec_per_C, dT_C=dT_C, cte_body_per_C=cte_body_per_C,
-              cte_accelerometer_per_C=cte_accelerometer_per_C, T_max_C=T_max_C, T0_C=T0_C)
-    if accelerometer_name is None:
-        return table1_thermal(**kw)
-    return [thermal_budget(accelerometer_name, **kw)]
+    try:
+        if not thermal:
+            if accelerometer_name is not None:
+                raise InputError("an accelerometer of Table 1 is for the thermal budget: add --thermal (thermal=True)")
+            tables = [calibration_budget(K_g_per_V, Q_V2s, tau_s, sigma1_arcsec, sigma2_arcsec, G_g)]
+        else:
+            kw = dict(k_ca_arcsec_per_C=k_ca_arcsec_per_C, dT_C=dT_C, cte_body_per_C=cte_body_per_C,
+                      cte_accelerometer_per_C=cte_accelerometer_per_C, T_max_C=T_max_C, T0_C=T0_C)
+            tables = table1_thermal(**kw) if accelerometer_name is None else [thermal_budget(accelerometer_name, **kw)]
+    except OverflowError:
+        raise InputError("the budget overflows with these inputs (--K 1e300 --Q 1e300?): check the magnitudes and "
+                         "their units") from None
+    for b in tables:
+        if not math.isfinite(b.total) or any(c.contribution is not None and not math.isfinite(c.contribution)
+                                             for c in b.components):
+            raise InputError(f"{b.equation}: the budget is not a finite number with these inputs (an overflow: "
+                             "check the magnitudes and their units)")
+    return tables
