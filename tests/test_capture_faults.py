@@ -321,3 +321,55 @@ def test_a_stall_keeps_the_time_that_passed(tmp_path, scale):
     run, times, kinds = pump_all(tmp_path / "step", stepped)
     assert kinds == ["clock_step"] and run.clock_faults == 1
     np.testing.assert_allclose(np.diff(times), 0.1, atol=1e-6)
+
+
+def test_a_stale_frame_sent_again_is_no_restart(tmp_path):
+    """An outside probe's IMU re-sent one frame of 150 s before, unchanged: it was taken as an
+    instrument restart, every later time shifted by 150 s, the stale sample stored as new, 1499
+    frames counted missing, exit 0. An exact repeat of an admitted frame is dropped ("stale_frame");
+    a restart's frames are new readings and still restart the clock (the test above)."""
+    frames = [good(k, 0.1 * k, w=(1.0 + k, -2.0, 0.5)) for k in range(30)]
+    frames = frames + [frames[5]] + [good(k, 0.1 * k, w=(1.0 + k, -2.0, 0.5)) for k in range(30, 40)]
+    run, times, kinds = pump_all(tmp_path, frames)
+    assert kinds == ["stale_frame"] and run.clock_faults == 0 and run.missing == 0 and run.accepted == 40
+    np.testing.assert_allclose(np.diff(times), 0.1, atol=1e-9)
+    raw = read_raw(tmp_path / "raw.csv")
+    assert raw["seq"].tolist() == list(range(40))
+
+
+def test_a_spike_in_a_soaked_window_is_named():
+    """An outside probe's IMU sent one frame of w_x = 1000 V (true 1.18) and one of t = 293.15
+    (kelvin) with valid checksums: the visit's w_x came out 6.17 V, its t_x 21.37 degC, exit 0. The
+    window is now redone (visit_outlier) with the reason."""
+    from triadcal.hardware.capture import window_outlier
+
+    rng = np.random.default_rng(0)
+    clean = [good(k, 0.1 * k, w=tuple(1.18 + 1e-4 * rng.standard_normal(3)),
+                  T=tuple(20.0 + 0.01 * rng.standard_normal(3))) for k in range(200)]
+    assert window_outlier(clean) is None
+    spike = list(clean)
+    spike[77] = dataclasses.replace(spike[77], w=(1000.0,) + spike[77].w[1:])
+    assert "w_x strays" in window_outlier(spike)
+    kelvin = list(clean)
+    kelvin[120] = dataclasses.replace(kelvin[120], t=(293.15,) + kelvin[120].t[1:])
+    assert "t_x strays 273 degC" in window_outlier(kelvin)
+    quantised = [dataclasses.replace(f, t=(20.0, 20.0, 20.0)) for f in clean]      # a thermometer of 1 LSB: fine
+    assert window_outlier(quantised) is None
+
+
+def test_link_events_are_written_as_they_happen(tmp_path):
+    """An outside probe killed a capture after a reconnect: the link's events were kept in memory
+    until the session's end and lost. The pump writes them to the event log as they come."""
+    from types import SimpleNamespace
+
+    stream = Frames([[good(k, 0.1 * k)] for k in range(5)])
+    stream.readout = SimpleNamespace(link_stats=SimpleNamespace(events=[]))
+    events = EventLog(tmp_path / "events.jsonl")
+    run = _Runner(stream, RawStore(tmp_path / "raw.csv"), events, 1, CaptureSettings())
+    run.pump(0.0)
+    stream.readout.link_stats.events.append((123.0, "IMU link lost: EIO"))
+    run.pump(0.0)
+    got = [e for e in read_events(tmp_path / "events.jsonl") if e["kind"] == "link"]   # before any close
+    assert [(e["text"], e["at_wall"]) for e in got] == [("IMU link lost: EIO", 123.0)]
+    run.pump(0.0)
+    assert len([e for e in read_events(tmp_path / "events.jsonl") if e["kind"] == "link"]) == 1

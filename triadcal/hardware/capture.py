@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from ..errors import InputError
 
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -332,8 +333,7 @@ def finish_session(out: Path, imu, run: "_Runner", events: EventLog, session: in
             "floor_reached": list(noise_est.floor_reached), "taus_s": noise_est.taus_s.tolist(),
             "adev_V": noise_est.adev.tolist()},
         wall_seconds=time.monotonic() - wall0)
-    for t, text in ls.events:
-        events.write("link", text=text, at_wall=t)
+    run.write_link_events()                  # the rest (most were written as they happened)
     events.write("session_end", **{k: v for k, v in report.to_dict().items() if k != "noise"})
     events.close()
     atomic_write_json(out / REPORT_NAME, report.to_dict())
@@ -393,10 +393,40 @@ def _safe(fn):
 #: what each refusal of a window says (the events of :func:`_visit`)
 VISIT_PROBLEMS = {"visit_incomplete": "had too few samples",
                   "visit_clock_fault": "held a restart or a step of the IMU's clock",
-                  "visit_overfull": "held more samples than its length and the rate allow"}
+                  "visit_overfull": "held more samples than its length and the rate allow",
+                  "visit_outlier": "held a sample far from the window's others (a spike)"}
 #: a window holding more than this times the samples its length and the rate allow is not one
 #: period of one stream (two streams interleaved, a clock running slow): the visit is redone
 OVERFULL = 1.25
+
+
+#: a sample of a soaked window's temperatures this far (degC) from the window's median, and beyond 10
+#: noise SDs, is not the unit's temperature (a unit's thermal mass moves it by far less within a window)
+TEMPERATURE_SPIKE_C = 1.0
+
+
+def window_outlier(frames) -> Optional[str]:
+    """Why a soaked window holds a sample that is not the unit's, or None: an output farther than 10
+    noise SDs from the window's median (:func:`~triadcal.hardware.ramp_labels.not_stationary`'s rule,
+    the noise from successive differences), or a temperature farther than 10 noise SDs and
+    :data:`TEMPERATURE_SPIKE_C` from its median. An outside probe's IMU sent one frame of w_x = 1000 V
+    (true 1.18) and one of t = 293.15 (kelvin, true 20) with valid checksums: the visit's w_x came out
+    6.17 V and its t_x 21.37 degC, exit 0."""
+    from .ramp_labels import not_stationary
+
+    why = not_stationary(frames, [])
+    if why is not None:
+        return why
+    t = np.array([f.t for f in frames], float)
+    if len(t) < 4 or not np.all(np.isfinite(t)):
+        return None
+    d = np.diff(t, axis=0)
+    noise = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2.0)
+    dev = np.max(np.abs(t - np.median(t, axis=0)), axis=0)
+    for i, a in enumerate("xyz"):
+        if dev[i] > max(10.0 * noise[i], TEMPERATURE_SPIKE_C):
+            return f"t_{a} strays {dev[i]:.3g} degC from the window's median"
+    return None
 
 
 def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettings, tag: str,
@@ -451,6 +481,11 @@ def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettin
     if len(got) > OVERFULL * expected + 2:
         events.write("visit_overfull", tag=tag, n_samples=len(got), expected=expected)
         run.visit_problem = "visit_overfull"
+        return None
+    why = window_outlier(got)
+    if why is not None:
+        events.write("visit_outlier", tag=tag, reason=why, n_samples=len(got))
+        run.visit_problem = "visit_outlier"
         return None
     w = np.array([f.w for f in got])
     t = np.array([f.t for f in got])

@@ -58,6 +58,8 @@ CLOCK_STEP_MIN_S = 1.0
 CLOCK_STEP_FRACTION = 0.5
 #: a restart: the clock goes back by more than this (s) while the sequence number does too
 RESTART_BACK_S = 1.0
+#: admitted frames remembered to tell a stale replay from a restart (2^18: 4.4 min at 1 kHz)
+SEEN_FRAMES = 1 << 18
 T_LOW, T_HIGH = RANGES["t_x"][0], RANGES["t_x"][1]
 #: a forward clock jump is a stall when the wall-clock silence before it, in instrument seconds,
 #: covers at least this fraction of it (module docstring)
@@ -110,6 +112,10 @@ class _Runner:
         self.last_wall = math.nan                 # Frame.wall_s of the latest admitted frame
         self._flow: deque = deque(maxlen=512)     # (wall_s, continuous time) of admitted frames
         self.stall_gaps = 0
+        self.link_written = 0                     # the IMU link's events already in the event log
+        self.stale = 0                            # exact replays of admitted frames, dropped
+        self._seen: dict = {}                     # (seq, time_s, w, t) of the latest admitted frames
+        self._seen_order: deque = deque()
 
     def _silence(self) -> str:
         imu = getattr(self.stream, "readout", None)
@@ -186,7 +192,34 @@ class _Runner:
             return None
         return {"silence_wall_s": silence, "instrument_s_per_wall_s": rate}
 
+    def write_link_events(self) -> None:
+        """The IMU link's events (lost, reopened, stalled: the driver's ``link_stats``) into the event log
+        as they happen (each write synced), not at the session's end: an outside probe's capture killed
+        after a reconnect kept no trace of it."""
+        ls = getattr(getattr(self.stream, "readout", None), "link_stats", None)
+        if ls is None:
+            return
+        while self.link_written < len(ls.events):
+            t, text = ls.events[self.link_written]
+            self.events.write("link", text=text, at_wall=t)
+            self.link_written += 1
+
+    def _replayed(self, f: Frame) -> bool:
+        """Whether ``f`` repeats an admitted frame exactly (sequence number, clock and every value): a
+        stale frame sent again, not a new reading. An outside probe's IMU re-sent one frame of 150 s
+        before: it was taken as an instrument restart, every later time shifted by 150 s, the stale
+        sample stored in the visit, 1499 frames counted missing. A restart's frames are new readings."""
+        key = (f.seq, repr(f.time_s), repr(tuple(f.w)), repr(tuple(f.t)))      # repr: a NaN equals itself
+        if key in self._seen:
+            return True
+        self._seen[key] = None
+        self._seen_order.append(key)
+        if len(self._seen_order) > SEEN_FRAMES:
+            self._seen.pop(self._seen_order.popleft(), None)
+        return False
+
     def pump(self, timeout: float = 0.02) -> int:
+        self.write_link_events()
         batch = self.stream.get(timeout)
         if not batch:
             if time.monotonic() - self._last_frame_wall > self.settings.silence_timeout_wall_s:
@@ -200,8 +233,16 @@ class _Runner:
                 self.invalid += 1
                 self.events.write("invalid_frame", seq=f.seq, reason=why, phase=self.phase, visit=self.visit_tag)
                 continue
+            if (self.last_seq is not None and f.seq < self.last_seq and f.time_s < self.last_time - RESTART_BACK_S
+                    and self._replayed(f)):                 # would pass for a restart: a stale frame sent again
+                self.stale += 1
+                self.duplicates += 1
+                self.events.write("stale_frame", seq=f.seq, time_s=f.time_s, last_seq=self.last_seq,
+                                  phase=self.phase, visit=self.visit_tag)
+                continue
             if not self._admit(f):
                 continue
+            self._replayed(f)
             self.last_seq, self.last_time = f.seq, f.time_s
             if math.isfinite(f.wall_s):
                 self.last_wall = f.wall_s
