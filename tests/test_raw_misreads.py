@@ -218,7 +218,7 @@ def _cycle_lines():
 
 
 def _tc(p, unit="us"):
-    from triadcal.estimation.thermal_cycle import read_cycle
+    from triadcal.io.thermal_cycle_csv import read_cycle
 
     return read_cycle(p, ["imu.acc.x", "imu.acc.y", "imu.acc.z"], "timestamp", unit, "imu.temperature")
 

@@ -24,6 +24,7 @@ from ..models.campaign import Campaign, nominal_gravity
 from ..models.kinematics import gravity_in_imu
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, PPM, UG, scale_factor_unit
+from .classical_hysteresis import hysteresis_tempco_move, hysteresis_tempco_note
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
 from .classical_redundancy import leverages, redundancy_gate, worst_studentised, worst_studentised_known
 from .classical_tilt import combined_tilt, tilt_leak_gate, tilt_note
@@ -182,34 +183,6 @@ def thermal_line(T: np.ndarray, y: np.ndarray, var: np.ndarray, T_ref: float, sl
     else:
         birge = 1.0 if known else 0.0   # nothing to scale by: no uncertainty can be given
     return Line(coef, cov * birge, chi2, dof, birge)
-
-
-#: a hysteresis of the angles this large (arcsec, the low end of the seed paper's Table 1: 4-60) that moves
-#: an angle's tempco by more than 1 u is said (:func:`hysteresis_tempco_move`) when the branches lie along
-#: the temperatures: less than HYSTERESIS_VISIBLE_MAX of their weighted norm off the line (every setpoint
-#: on both branches, 20 50 80 50 20 -10 -40 -10 20: 0.91, the scatter shows it and the Birge ratio widens
-#: u, coverage 0.99 in the probe; 20 60 80 20 -20 -40 20: 0.60; 20 80 -40 20: 0.50)
-HYSTERESIS_LOW_ARCSEC = 4.0
-HYSTERESIS_VISIBLE_MAX = 0.8
-
-
-def hysteresis_tempco_move(T: np.ndarray, var: np.ndarray, branch: np.ndarray, T_ref: float, line: Line) -> dict:
-    """What a thermal hysteresis of an angle (``h b``, ``b`` the setpoint block's branch: +1 cooling, -1
-    heating, 0 none) does to its thermal line: the line's slope moves by ``m`` per arcsec of h (weighted
-    least squares of ``b`` on ``[1, T - T_ref]``), ``move_u_per_arcsec`` = m / u(slope), and
-    ``visible_fraction`` the weighted norm of ``b`` off the line over its norm (what the lines' scatter
-    can show). On a round trip whose hot setpoints are reached by heating and cold ones by cooling, b is
-    nearly a line in T: an outside probe's h = 3 arcsec moved the tempcos by -2.9 u on average (coverage
-    0.09), status ok, the one-branch note absent (both branches were visited)."""
-    X = np.column_stack([np.ones_like(T), T - T_ref])
-    w = 1.0 / var if np.all(var > 0) else np.ones_like(T)
-    A = X.T @ (w[:, None] * X)
-    m = np.linalg.solve(A, X.T @ (w * branch)) * ARCSEC         # per arcsec of h (the line in rad)
-    left = branch * ARCSEC - X @ m
-    nb = float(np.sqrt(np.sum(w * branch * branch))) * ARCSEC
-    u_slope = float(np.sqrt(line.cov[1, 1])) if line.cov.shape[0] > 1 else 0.0
-    return {"move_u_per_arcsec": float(m[1]) / u_slope if u_slope > 0 else None,
-            "visible_fraction": float(np.sqrt(np.sum(w * left * left))) / nb if nb > 0 else None}
 
 
 def _line_p(line: Line, var: np.ndarray) -> Optional[float]:
@@ -462,7 +435,8 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         line = thermal_line(T_j, est[:, j], var[:, j], T_ref, slope)
         slopes[j] = float(line.coef[1]) if slope else 0.0
         if slope and n.startswith("Ca_") and {"heating", "cooling"} <= dirs and len(T_j) > 2:
-            hyst_moves[n] = hysteresis_tempco_move(T_j, var[:, j], branch_of_block, T_ref, line)
+            hyst_moves[n] = hysteresis_tempco_move(T_j, var[:, j], branch_of_block, T_ref,
+                                                   float(np.sqrt(line.cov[1, 1])))
         chi2_by[n] = line.chi2_dof
         p_line = _line_p(line, var[:, j])
         if p_line is not None and p_line < gates.gof_p_min and line.chi2_dof > gates.gof_ratio_max:
@@ -486,19 +460,9 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
             "temperature is the line's: a hysteresis, a change of the unit during the campaign or a law of "
             "temperature that is not a line would do this; `triadcal diagnose` says which, and the joint fit "
             "models it")
-    moved = {n: v for n, v in hyst_moves.items()
-             if v["move_u_per_arcsec"] is not None and abs(v["move_u_per_arcsec"]) * HYSTERESIS_LOW_ARCSEC > 1.0
-             and v["visible_fraction"] is not None and v["visible_fraction"] < HYSTERESIS_VISIBLE_MAX}
-    if moved:
-        worst = max(moved, key=lambda n: abs(moved[n]["move_u_per_arcsec"]))
-        notes.append(
-            "the setpoints' branches lie along the temperatures (the hot ones reached by heating, the cold ones by "
-            "cooling, or the like), so a thermal hysteresis of the angles tilts their lines: 1 arcsec of it moves "
-            + ", ".join(f"{n}_tempco by {abs(v['move_u_per_arcsec']):.2g} u" for n, v in moved.items())
-            + f" (the lines' scatter shows {100 * min(v['visible_fraction'] for v in moved.values()):.2g} % of it at "
-            f"most, {worst} worst); units of this kind have 4-60 arcsec (the seed paper's Table 1). The tempcos "
-            "hold for a unit without hysteresis; --method joint estimates h, and a plan that visits each "
-            "temperature on both branches separates the two")
+    note = hysteresis_tempco_note(hyst_moves)
+    if note:
+        notes.append(note)
     order = [f"Ca_{ab}" for ab in ANGLE_NAMES] + [f"K_{a}" for a in AXES] + [f"S_{a}" for a in AXES]
     ordered = {}
     for base in order:
