@@ -255,3 +255,35 @@ def test_branches_along_the_temperatures_say_what_a_hysteresis_moves(tmp_path):
     note = [n for n in trip.notes if "a thermal hysteresis of the angles tilts their lines" in n]
     assert note and "Ca_xy_tempco by" in note[0] and "4-60 arcsec" in note[0], trip.notes
     assert not [n for n in fits["both"].notes if "tilts their lines" in n]
+
+
+def test_a_curvature_the_lines_cannot_show_is_said_with_its_move(tmp_path):
+    """An outside probe: curvatures of 0.0007 arcsec/degC2 (angles), 0.005 ppm/degC2 (K), 0.01
+    ug/degC2 (S) on a round trip 20 60 80 20 -20 -40 20 degC moved the values at 20 degC by about 2.2 u
+    (coverage 0.47-0.63; 26 of 27 values beyond 3 u unnamed), status ok. Made with the independent
+    bench (Horner's polynomial): the stated move per unit of curvature predicts the shift of Ca_xy
+    against the same campaign without it (within 10 %), and the note says how far a curvature the
+    lines cannot show would move the values."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_bench import default_truth, simulate_campaign
+    from triadcal.io.bench_csv import read_bench_csv
+
+    truth = default_truth(np.random.default_rng(5))
+    sp = (20.0, 60.0, 80.0, 20.0, -20.0, -40.0, 20.0)
+    fits = {}
+    for name, c2 in (("bent", 0.0007), ("straight", 0.0)):
+        text, _ = simulate_campaign(np.random.default_rng(2), truth=dict(truth, Ca_xy_tempco2=c2), setpoints_C=sp)
+        path = tmp_path / f"{name}.csv"
+        path.write_text(text, encoding="utf-8")
+        fits[name] = fit_classical(read_bench_csv(path))
+    bent, straight = fits["bent"], fits["straight"]
+    curv = straight.fit["curvature_sensitivity"]["Ca_xy"]
+    moved = bent["Ca_xy"].value - straight["Ca_xy"].value                     # arcsec
+    assert moved == pytest.approx(curv["value_move_per_c2"] * 0.0007, rel=0.1), (moved, curv)
+    assert moved / straight["Ca_xy"].u > 1.5                                  # the probe's few u
+    assert curv["unseen_value_u"] > 1.0
+    note = [n for n in straight.notes if n.startswith("the thermal lines are straight by the method")]
+    assert note and "would move the values at 20 degC by up to" in note[0], straight.notes

@@ -24,6 +24,7 @@ from ..models.campaign import Campaign, nominal_gravity
 from ..models.kinematics import gravity_in_imu
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, PPM, UG, scale_factor_unit
+from .classical_curvature import curvature_move, curvature_note
 from .classical_hysteresis import hysteresis_tempco_move, hysteresis_tempco_note
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
 from .classical_redundancy import leverages, redundancy_gate, worst_studentised, worst_studentised_known
@@ -418,6 +419,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                      "its uncertainty comes from its scatter alone")
     params: dict = {}
     hyst_moves: dict = {}
+    curv_moves: dict = {}
     branch_of_block = np.array([{"cooling": 1.0, "heating": -1.0}.get(str(b["direction"]), 0.0) for b in per_block])
     corr_names: list = []
     blocks_cov: list = []
@@ -437,6 +439,9 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         if slope and n.startswith("Ca_") and {"heating", "cooling"} <= dirs and len(T_j) > 2:
             hyst_moves[n] = hysteresis_tempco_move(T_j, var[:, j], branch_of_block, T_ref,
                                                    float(np.sqrt(line.cov[1, 1])))
+        curv = curvature_move(T_j, var[:, j], T_ref, line.cov, line.birge) if slope else None
+        if curv is not None:
+            curv_moves[n] = curv
         chi2_by[n] = line.chi2_dof
         p_line = _line_p(line, var[:, j])
         if p_line is not None and p_line < gates.gof_p_min and line.chi2_dof > gates.gof_ratio_max:
@@ -460,9 +465,9 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
             "temperature is the line's: a hysteresis, a change of the unit during the campaign or a law of "
             "temperature that is not a line would do this; `triadcal diagnose` says which, and the joint fit "
             "models it")
-    note = hysteresis_tempco_note(hyst_moves)
-    if note:
-        notes.append(note)
+    for note in (hysteresis_tempco_note(hyst_moves), curvature_note(curv_moves, T_ref)):
+        if note:
+            notes.append(note)
     order = [f"Ca_{ab}" for ab in ANGLE_NAMES] + [f"K_{a}" for a in AXES] + [f"S_{a}" for a in AXES]
     ordered = {}
     for base in order:
@@ -495,6 +500,8 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     fit["redundancy"] = redundancy.to_dict()
     if hyst_moves:
         fit["hysteresis_sensitivity"] = hyst_moves
+    if curv_moves:
+        fit["curvature_sensitivity"] = curv_moves
     tilt = tilt_leak_gate(campaign, per_block, sigma, gates, noise_dof=dof_total if use == "residuals" else None)
     if tilt is not None:
         fit["tilt_leak"] = tilt.to_dict()
