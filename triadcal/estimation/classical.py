@@ -24,8 +24,7 @@ from ..models.campaign import Campaign, nominal_gravity
 from ..models.kinematics import gravity_in_imu
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, PPM, UG, scale_factor_unit
-from .classical_curvature import curvature_move, curvature_note
-from .classical_hysteresis import hysteresis_tempco_move, hysteresis_tempco_note
+from .classical_sensitivity import curvature_move, curvature_note, hysteresis_tempco_move, hysteresis_tempco_note
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
 from .classical_redundancy import leverages, redundancy_gate, worst_studentised, worst_studentised_known
 from .classical_tilt import combined_tilt, tilt_leak_gate, tilt_note

@@ -306,17 +306,19 @@ def drift_confounding(campaign, J: np.ndarray, names, u: np.ndarray, noise_scale
 
 def _confounding(J: np.ndarray, names, u: np.ndarray, b: np.ndarray, noise_scale: float) -> Optional[dict]:
     """A left-out term's signature ``b`` (per unit of the term) against the model's span ``J``:
-    ``visible_fraction``, the SD of the term the residuals measure (None when invisible) and the three
-    largest moves of the parameters (in their u) per unit of the term."""
+    ``visible_fraction``, the SD of the term the residuals measure (None when invisible), the three
+    largest moves of the parameters (in their u) per unit of the term, and ``perp``, the signature off
+    the span (what a score test of the term projects the residuals on; not for the JSON)."""
     nb = float(np.linalg.norm(b))
     if not nb > 0:
         return None
     moves, *_ = np.linalg.lstsq(J, b, rcond=None)
-    left = float(np.linalg.norm(b - J @ moves))
+    perp = b - J @ moves
+    left = float(np.linalg.norm(perp))
     moves_u = {n: float(m / s) for n, m, s in zip(names, moves, u) if s > 0 and np.isfinite(s)}
     top = sorted(moves_u, key=lambda n: -abs(moves_u[n]))[:3]
     return {"visible_fraction": left / nb, "sd": float(noise_scale / left) if left > 1e-12 * nb else None,
-            "moves_u": {n: moves_u[n] for n in top}}
+            "moves_u": {n: moves_u[n] for n in top}, "perp": perp}
 
 
 def hysteresis_confounding(campaign, J: np.ndarray, names, u: np.ndarray, noise_scale: float = 1.0) -> Optional[dict]:

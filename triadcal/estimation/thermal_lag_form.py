@@ -391,8 +391,7 @@ def thermal_play_test(campaign, signature, r_w, J, names, u, noise_scale: float)
     conf = _confounding(J, names, u, b, noise_scale)
     if conf is None or conf["sd"] is None:
         return None
-    coef, *_ = np.linalg.lstsq(J, b, rcond=None)
-    perp = b - J @ coef
+    perp = conf["perp"]
     nn = float(perp @ perp)
     r_hat = -float(perp @ np.asarray(r_w, float)) / nn
     sd = float(conf["sd"])

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from ..errors import InputError
 
-import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -412,7 +411,7 @@ def window_outlier(frames) -> Optional[str]:
     :data:`TEMPERATURE_SPIKE_C` from its median. An outside probe's IMU sent one frame of w_x = 1000 V
     (true 1.18) and one of t = 293.15 (kelvin, true 20) with valid checksums: the visit's w_x came out
     6.17 V and its t_x 21.37 degC, exit 0."""
-    from .ramp_labels import not_stationary
+    from .ramp_labels import not_stationary, strays
 
     why = not_stationary(frames, [])
     if why is not None:
@@ -420,9 +419,7 @@ def window_outlier(frames) -> Optional[str]:
     t = np.array([f.t for f in frames], float)
     if len(t) < 4 or not np.all(np.isfinite(t)):
         return None
-    d = np.diff(t, axis=0)
-    noise = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2.0)
-    dev = np.max(np.abs(t - np.median(t, axis=0)), axis=0)
+    dev, noise = strays(t)
     for i, a in enumerate("xyz"):
         if dev[i] > max(10.0 * noise[i], TEMPERATURE_SPIKE_C):
             return f"t_{a} strays {dev[i]:.3g} degC from the window's median"

@@ -122,6 +122,15 @@ def visit_direction(slope: float, se: float, previous: str, at_rest: float = 0.0
     return previous
 
 
+def strays(x: np.ndarray) -> tuple:
+    """``(dev, noise)`` per column of a window's samples ``x`` (n, k): the largest distance from the
+    column's median, and the noise SD from successive differences (1.4826 MAD / sqrt 2, blind to a
+    slow drift)."""
+    d = np.diff(x, axis=0)
+    noise = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2.0)
+    return np.max(np.abs(x - np.median(x, axis=0)), axis=0), noise
+
+
 def not_stationary(frames, previous_sd) -> Optional[str]:
     """Why a recording window's outputs are not those of a unit at rest (the bench still moving
     when the window began, a knock), or None. Per axis: a sample farther than 10 noise SDs from
@@ -132,9 +141,7 @@ def not_stationary(frames, previous_sd) -> Optional[str]:
     if len(frames) < 4:
         return None
     w = np.array([f.w for f in frames], float)
-    d = np.diff(w, axis=0)
-    noise = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2.0)
-    dev = np.max(np.abs(w - np.median(w, axis=0)), axis=0)
+    dev, noise = strays(w)
     for i, a in enumerate("xyz"):
         if noise[i] > 0 and dev[i] > 10.0 * noise[i]:
             return f"w_{a} strays {dev[i] / noise[i]:.0f} noise SDs from the window's median"

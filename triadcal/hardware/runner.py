@@ -114,7 +114,7 @@ class _Runner:
         self.stall_gaps = 0
         self.link_written = 0                     # the IMU link's events already in the event log
         self.stale = 0                            # exact replays of admitted frames, dropped
-        self._seen: dict = {}                     # (seq, time_s, w, t) of the latest admitted frames
+        self._seen: dict = {}                     # hashes of (seq, time_s, w, t) of the latest admitted frames
         self._seen_order: deque = deque()
 
     def _silence(self) -> str:
@@ -209,7 +209,8 @@ class _Runner:
         stale frame sent again, not a new reading. An outside probe's IMU re-sent one frame of 150 s
         before: it was taken as an instrument restart, every later time shifted by 150 s, the stale
         sample stored in the visit, 1499 frames counted missing. A restart's frames are new readings."""
-        key = (f.seq, repr(f.time_s), repr(tuple(f.w)), repr(tuple(f.t)))      # repr: a NaN equals itself
+        # a hash (one int, not four strings, per remembered frame); repr: a NaN equals itself
+        key = hash((f.seq, repr(f.time_s), repr(tuple(f.w)), repr(tuple(f.t))))
         if key in self._seen:
             return True
         self._seen[key] = None
