@@ -355,6 +355,14 @@ def test_a_spike_in_a_soaked_window_is_named():
     assert "t_x strays 273 degC" in window_outlier(kelvin)
     quantised = [dataclasses.replace(f, t=(20.0, 20.0, 20.0)) for f in clean]      # a thermometer of 1 LSB: fine
     assert window_outlier(quantised) is None
+    # the probe's IMU was noiseless: no noise to hold the spike against (it went through, w_x 6.17 V)
+    quiet = [dataclasses.replace(f, w=(1.18, 0.0, 0.0)) for f in quantised]
+    assert window_outlier(quiet) is None
+    flick = list(quiet)
+    flick[50] = dataclasses.replace(flick[50], w=(1.18, 0.0005, 0.0))               # one LSB of a quiet channel
+    assert window_outlier(flick) is None
+    flick[77] = dataclasses.replace(flick[77], w=(1000.0, 0.0, 0.0))
+    assert "w_x strays 999 from the window's median" in window_outlier(flick)
 
 
 def test_link_events_are_written_as_they_happen(tmp_path):

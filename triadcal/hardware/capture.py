@@ -402,6 +402,9 @@ OVERFULL = 1.25
 #: a sample of a soaked window's temperatures this far (degC) from the window's median, and beyond 10
 #: noise SDs, is not the unit's temperature (a unit's thermal mass moves it by far less within a window)
 TEMPERATURE_SPIKE_C = 1.0
+#: ... and an output's sample this fraction of the triad's |w| from its median, when the output is
+#: otherwise constant to the bit
+QUIET_SPIKE_G = 0.01
 
 
 def window_outlier(frames) -> Optional[str]:
@@ -416,6 +419,18 @@ def window_outlier(frames) -> Optional[str]:
     why = not_stationary(frames, [])
     if why is not None:
         return why
+    if len(frames) >= 4:
+        # an output constant to the bit (no noise to measure against: a quiet quantised channel, an
+        # emulated one): a sample off its median by more than QUIET_SPIKE_G of the triad's |w| (about
+        # one g in the output's unit) is not the unit's; a quiet channel's flicker of one LSB is far below
+        # it. The outside probe's noiseless IMU with one frame of w_x = 1000 V went through the noise
+        # rule above, which has nothing to compare with
+        w = np.array([f.w for f in frames], float)
+        dev, noise = strays(w)
+        scale = float(np.linalg.norm(np.median(w, axis=0)))
+        for i, a in enumerate("xyz"):
+            if noise[i] == 0 and dev[i] > QUIET_SPIKE_G * scale:
+                return f"w_{a} strays {dev[i]:.3g} from the window's median, where its other samples do not move"
     t = np.array([f.t for f in frames], float)
     if len(t) < 4 or not np.all(np.isfinite(t)):
         return None
