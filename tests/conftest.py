@@ -30,7 +30,9 @@ def emulated_capture(tmp_path_factory):
 
     work = tmp_path_factory.mktemp("emulated-capture")
     out = work / "campaign"
-    env = dict(os.environ, OMP_NUM_THREADS="1", XDG_CACHE_HOME=str(work / "xdg"), MPLBACKEND="Agg")
+    (work / "tmp").mkdir()
+    env = dict(os.environ, OMP_NUM_THREADS="1", XDG_CACHE_HOME=str(work / "xdg"), MPLBACKEND="Agg",
+               TMPDIR=str(work / "tmp"))
     r = subprocess.run([sys.executable, "-m", "triadcal", "capture", "--emulate", "--out", str(out),
                         "--setpoints", "20", "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2",
                         "--stab-window-s", "30", "--stab-hold-s", "30", "--emulate-effects", "bench_tilt",

@@ -56,6 +56,16 @@ def test_emulator_capture_fit_recovers_truth_within_4u(tmp_path, emulated_captur
     assert max(abs(v) for v in z.values()) < 4, z
 
 
+def test_emulated_capture_leaves_no_emulator_folder_behind(emulated_capture):
+    """`capture --emulate` made a triadcal-emulator-* folder in the temporary directory (pty links,
+    ports.toml, the truth already saved in --out) and left it there: 112 after a day. The fixture runs
+    it with TMPDIR in its own work folder; the truth it keeps is the copy in --out."""
+    tmp = emulated_capture.parent / "tmp"
+    assert tmp.is_dir()
+    assert sorted(p.name for p in tmp.iterdir() if p.name.startswith("triadcal-emulator-")) == []
+    assert (emulated_capture / "emulator_truth.json").is_file()
+
+
 @pytest.mark.parametrize("protocol", [pytest.param("nmea", marks=pytest.mark.slow), "binary"])
 def test_faults_lose_no_accepted_sample_and_are_counted(tmp_path, protocol):
     faults = FaultPlan(garbage_prob=0.02, bitflip_prob=0.02, drop_prob=0.01,
