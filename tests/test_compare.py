@@ -208,6 +208,38 @@ def test_compare_constructed_results_and_correlations(tmp_path):
         ComparisonResult.from_dict(d)
 
 
+def test_verdict_resting_on_a_stated_rho_beyond_the_budgets_is_held_back():
+    """Hand-derived: u = 2 arcsec each side, Ca_xy moved 5 arcsec, no tolerance. At rho = 0.9,
+    u(d) = sqrt(8 - 7.2) = 0.894 (z 5.6: fail; D2 = 25/0.8 = 31 on 6 dof: fail); at rho = 0, the
+    most two results without Type B rows can share, u(d) = 2.83 (z 1.77: pass; D2 = 3.1: pass).
+    The verdict is held back: inconclusive, saying both. With Type B rows of 1.9 arcsec of the 2
+    each side the budgets hold rho up to 0.9025 and the fail stands."""
+    values = [300, -150, 90, -420, 240, 505]
+    before, after = make_result(values), make_result([305] + values[1:])
+    c = compare(before, after, tolerance_arcsec=None, correlation=0.9)
+    assert c["Ca_xy"].u == pytest.approx(math.sqrt(0.8))
+    assert c.joint.D2 == pytest.approx(25 / 0.8) and c.joint.significant
+    assert c["Ca_xy"].verdict == "inconclusive" and c.overall == "inconclusive"
+    said = [n for n in c.notes if "held back: at the stated rho = 0.9 the verdict is fail" in n]
+    assert said and "(at most 0) it is pass" in said[0] and "Ca_xy (fail -> pass)" in said[0], c.notes
+    assert compare(before, after, tolerance_arcsec=None, correlation=0.0).overall == "pass"
+
+    def with_type_b(r):
+        for p in r.parameters.values():
+            p.uncertainty = {"u_type_a": math.sqrt(4 - 1.9 ** 2),
+                             "budget": [{"source": "bench", "type": "B", "contribution": 1.9}]}
+        return r
+
+    cb = compare(with_type_b(make_result(values)), with_type_b(make_result([305] + values[1:])),
+                 tolerance_arcsec=None, correlation=0.9)
+    assert cb["Ca_xy"].verdict == "fail" and cb.overall == "fail"
+    assert not [n for n in cb.notes if "held back" in n or "more shared error" in n], cb.notes
+    # a tolerance: at rho 0.9 Ca_xy passes T = 8 (5 + 1.645 * 0.894 = 6.5 <= 8); at 0 it cannot (9.7 > 8)
+    ct = compare(before, after, tolerance_arcsec=8.0, correlation=0.9)
+    assert ct["Ca_xy"].verdict == "inconclusive" and ct.overall == "inconclusive"
+    assert compare(before, after, tolerance_arcsec=8.0, correlation=0.0)["Ca_xy"].verdict == "inconclusive"
+
+
 def test_compare_refuses_what_is_not_a_drift():
     a = make_result([0] * 6)
     with pytest.raises(ValueError, match="same unit"):

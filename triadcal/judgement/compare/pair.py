@@ -5,6 +5,7 @@ from __future__ import annotations
 from ...errors import InputError
 import math
 import os
+from dataclasses import replace
 from typing import Mapping, Optional, Sequence, Union
 import numpy as np
 from scipy import stats
@@ -100,19 +101,26 @@ def _type_b_u(p) -> float:
     return math.sqrt(sum(float(r.get("contribution") or 0.0) ** 2 for r in rows))
 
 
-def stated_rho_beyond_budgets(before: CalibrationResult, after: CalibrationResult, names, rho: float):
-    """The note when a stated ``rho > 0`` claims more shared error than the two results can share, or
-    None. Errors two fitted calibrations share are systematic (the lab's, in their Type B rows): a
-    shared source gives the covariance ``c_b c_a u_s^2 <= uB_b uB_a``, so ``rho <= uB_b uB_a / (u_b
-    u_a)``; their Type A parts come from separate campaigns and are independent. An outside probe:
-    an unmoved unit without a lab file, ``--correlation 0.9``: u(d) 7.0 -> 2.2 arcsec, five of six
-    angles "fail", no word."""
-    worst = None
+def budget_rho_limits(before: CalibrationResult, after: CalibrationResult, names) -> dict:
+    """The most correlation the two results' budgets can hold, per parameter: errors two fitted
+    calibrations share are systematic (the lab's, in their Type B rows): a shared source gives the
+    covariance ``c_b c_a u_s^2 <= uB_b uB_a``, so ``rho <= uB_b uB_a / (u_b u_a)``; their Type A
+    parts come from separate campaigns and are independent. Parameters with ``u = 0`` are left out."""
+    out = {}
     for n in names:
         b, a = before[n], after[n]
-        if not (b.u > 0 and a.u > 0):
-            continue
-        limit = _type_b_u(b) * _type_b_u(a) / (b.u * a.u)
+        if b.u > 0 and a.u > 0:
+            out[n] = _type_b_u(b) * _type_b_u(a) / (b.u * a.u)
+    return out
+
+
+def stated_rho_beyond_budgets(before: CalibrationResult, after: CalibrationResult, names, rho: float):
+    """The note when a stated ``rho > 0`` claims more shared error than the two results can share
+    (:func:`budget_rho_limits`), or None. An outside probe: an unmoved unit without a lab file,
+    ``--correlation 0.9``: u(d) 7.0 -> 2.2 arcsec, five of six angles "fail", no word."""
+    worst = None
+    for n, limit in budget_rho_limits(before, after, names).items():
+        b, a = before[n], after[n]
         if rho > limit + 1e-9 and (worst is None or rho - limit > worst[1]):
             worst = (n, rho - limit, limit, drift_uncertainty(b.u, a.u, rho), drift_uncertainty(b.u, a.u, 0.0), b.unit)
     if worst is None:
@@ -325,10 +333,15 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
 
     shared = shared_errors(before, after, names, shared_equipment)
     notes.extend(shared.notes)
+    # a stated rho beyond what the budgets hold: every verdict is also made at the supported rho (per
+    # parameter its own limit; the joint test at the least of them) and one that differs is held back
+    supported = {}
     if not isinstance(correlation, str) and rho > 0:
         over = stated_rho_beyond_budgets(before, after, names, rho)
         if over:
             notes.append(over)
+            supported = {n: min(rho, lim) for n, lim in budget_rho_limits(before, after, names).items()}
+    verdicts_supported = {}
 
     if (posterior_before is None) != (posterior_after is None):
         raise InputError("give posteriors for both calibrations (before and after), or for neither")
@@ -366,6 +379,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         near = math.copysign(max(abs(d) - h, 0.0), d)          # the drift less its bound (the rule's worst)
         z = near / u if u > 0 else (math.inf if near else 0.0)
         verdict, significant = decide(d, u, T, level, h)
+        if n in supported:
+            verdicts_supported[n] = decide(d, drift_uncertainty(b.u, a.u, supported[n]), T, level, h)[0]
         pd = ParameterDrift(
             name=n, unit=b.unit, drift=d, u=u, before=b.value, after=a.value, u_before=b.u, u_after=a.u,
             rho=rho_n, tolerance=T, En=normalised_error(near, b.u, a.u, rho_n), z=z,
@@ -385,11 +400,9 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                 # errors (independent, minus what is shared) are added as a normal term (fixed seed)
                 draws = draws + np.random.default_rng(1).normal(0.0, math.sqrt(var_b), len(draws))
                 type_b_added.append(n)
-            if rho != 0.0:
-                # shared error: shrink the spread of the (independent-posterior) drift about its mean
-                s0 = math.sqrt(np.var(db) + np.var(da))
-                s_rho = drift_uncertainty(float(np.std(db)), float(np.std(da)), rho)
-                draws = draws.mean() + (draws - draws.mean()) * (s_rho / s0 if s0 > 0 else 1.0)
+            if n in supported:
+                verdicts_supported[n] = decide_from_draws(_rho_rescaled(draws, db, da, supported[n]), T, level)[0]
+            draws = _rho_rescaled(draws, db, da, rho)
             verdict, significant, p = decide_from_draws(draws, T, level)
             pd.verdict, pd.significant, pd.p_exceeds = verdict, significant, p
             pd.basis, pd.n_draws = "posterior", int(min(len(db), len(da)))
@@ -417,6 +430,12 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         cov = combined_covariance(before.covariance(angles), after.covariance(angles), rho,
                                   cross=shared.cross(angles) if shared.sources else None)
         joint = joint_test(d, cov, angles, level, bounds=[params[n].bound for n in angles])
+        if supported:
+            rho_joint = min(supported[n] for n in angles if n in supported) if any(
+                n in supported for n in angles) else rho
+            joint_supported = joint_test(
+                d, combined_covariance(before.covariance(angles), after.covariance(angles), rho_joint),
+                angles, level, bounds=[params[n].bound for n in angles])
 
     bench = {}
     tilts = [n for n in ("tilt_x", "tilt_y") if n in before.parameters and n in after.parameters]
@@ -448,6 +467,22 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                      "from the joint test's covariance): " + ", ".join(
                          f"{s['source']} ({s['key']}, u = {s['u']:g} {s['unit']})" for s in shared.sources))
     overall = overall_verdict(params, joint, tolerance_arcsec)
+    if supported:
+        params_supported = {n: replace(p, verdict=verdicts_supported.get(n, p.verdict)) for n, p in params.items()}
+        overall_supported = overall_verdict(params_supported, joint_supported if angles else None, tolerance_arcsec)
+        held = [n for n in params if params[n].verdict != params_supported[n].verdict]
+        if held or overall != overall_supported:
+            # an outside probe: an unmoved unit at --correlation 0.9 without a lab file "failed" (a note said why)
+            notes.insert(0, NOT_PASS_NOTE + f"held back: at the stated rho = {rho:g} the verdict is {overall}, at "
+                         f"the rho the budgets support (at most {max(supported.values()):.2g}) it is "
+                         f"{overall_supported}"
+                         + ("; parameters held back as inconclusive: " + ", ".join(
+                             f"{n} ({params[n].verdict} -> {params_supported[n].verdict})" for n in held)
+                            if held else "")
+                         + ": the difference rests on shared error that no result's budget holds")
+            overall = "inconclusive"
+        for n in held:
+            params[n].verdict = "inconclusive"
     if same_calibration(before, after):
         src = before.extra.get("source")
         notes.insert(0, NOT_PASS_NOTE + f"{tag_b} and {tag_a} are the same calibration (unit {before.unit}, method "
@@ -489,6 +524,16 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         rule=rule_text(level, tolerance_arcsec, tolerances, posterior=post_b is not None),
         tolerance_arcsec=tolerance_arcsec, tolerances=tolerances, correlation=corr, joint=joint,
         bench_check=bench, before=_describe(before), after=_describe(after), label=label, notes=notes)
+
+
+def _rho_rescaled(draws: np.ndarray, db: np.ndarray, da: np.ndarray, rho: float) -> np.ndarray:
+    """Drift draws of independent posteriors with their spread about the mean rescaled for a shared
+    error ``rho`` (the spread of ``u(d) = sqrt(u_b^2 + u_a^2 - 2 rho u_b u_a)``)."""
+    if rho == 0.0:
+        return draws
+    s0 = math.sqrt(np.var(db) + np.var(da))
+    s_rho = drift_uncertainty(float(np.std(db)), float(np.std(da)), rho)
+    return draws.mean() + (draws - draws.mean()) * (s_rho / s0 if s0 > 0 else 1.0)
 
 
 def joint_test(drift: np.ndarray, cov: np.ndarray, names: Sequence[str], level: float = 0.95,
