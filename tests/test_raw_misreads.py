@@ -444,7 +444,7 @@ def test_six_faces_say_that_the_bias_holds_k2(tmp_path):
         assert abs(S.value - (bias[i] / gain + k2)) < 3 * S.u, (a, S.value, bias[i] / gain + k2, S.u)
         assert abs(S.value - bias[i] / gain) > 10 * S.u
     assert [n for n in r.notes if n.startswith("six faces:") and "K2_a adds to it in full" in n
-            and "6 intervals leave no redundancy" in n]
+            and "6 intervals leave no redundancy" in n and "a wander slower than an interval (bias instability" in n]
 
 
 def test_samples_written_twice_are_named_in_the_refusal(tmp_path):

@@ -446,7 +446,10 @@ def fit_known_poses(avg: PoseAverages, *, gravity_g: float, scale_unit: str, ser
                  "K_a (W(+1 g) + W(-1 g))/2: an even nonlinearity K2_a adds to it in full (IEEE Std 1293's K0 + K2 g^2), "
                  + (f"and {k} intervals leave no redundancy beyond the placement tilts" if k <= 9 else
                     f"and {k} intervals leave {k - 9} degrees of freedom beyond the placement tilts")
-                 + " to test the model with, so a bias that drifts during the recording moves K and S unseen too; "
+                 + " to test the model with, so a bias that drifts during the recording moves K and S unseen too, "
+                 "as does a wander slower than an interval (bias instability: each pose mean's u is the noise "
+                 "within its interval, which cannot hold it; an outside probe's AR(1) wander of 0.3 mg with a "
+                 "10 s correlation time under 1 mg white noise, 4 s faces: K and S covered 60-90 %, not 95 %); "
                  "free poses (--poses unknown, whose --diagnose names a K2 as scale_nonlinearity) or a bench "
                  "calibration separate them")
     note = sensitivity_note(sensitivity)
