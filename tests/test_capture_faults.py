@@ -240,6 +240,21 @@ def test_invalid_values_are_kept_out_of_the_campaign_which_fits(rig, tmp_path):
     assert kinds.count("invalid_frame") == report.invalid_frames
 
 
+def test_swapped_frames_through_a_pty_keep_the_late_one_in_the_event_log(rig, tmp_path):
+    """Every 50th pair of sentences swapped on the wire: the late one of each pair is counted and
+    logged with its values (late_frame), none is a duplicate, the campaign is complete."""
+    def swap(seq, t, w, T):
+        s = seq % 50
+        return (seq + 1, t + 0.1, w, T) if s == 10 else (seq - 1, t - 0.1, w, T) if s == 11 else (seq, t, w, T)
+
+    report, c = rig(swap)
+    assert c.n_visits == len(PLAN) and report.duplicate_frames == 0 and report.late_frames > 10
+    late = [e for e in read_events(tmp_path / "out" / EVENTS_NAME) if e["kind"] == "late_frame"]
+    assert len(late) == report.late_frames and all(e["seq"] % 50 == 10 and len(e["w"]) == 3 for e in late)
+    raw = read_raw(tmp_path / "out" / RAW_NAME)
+    assert np.all(np.diff(raw["time_s"]) > 0)
+
+
 def test_a_wrapping_counter_does_not_hang_the_capture(rig):
     report, c = rig(lambda seq, t, w, T: ((seq + 2 ** 32 - 500) % 2 ** 32, t, w, T))
     assert c.n_visits == len(PLAN) and report.duplicate_frames == 0 and report.clock_faults == 1
@@ -321,6 +336,36 @@ def test_a_stall_keeps_the_time_that_passed(tmp_path, scale):
     run, times, kinds = pump_all(tmp_path / "step", stepped)
     assert kinds == ["clock_step"] and run.clock_faults == 1
     np.testing.assert_allclose(np.diff(times), 0.1, atol=1e-6)
+
+
+def test_a_late_frame_is_logged_with_its_values_not_counted_as_a_duplicate(tmp_path):
+    """Two frames swapped on the way (11 before 10): the late one was dropped as a "duplicate",
+    its reading gone without a word. A sequence number never admitted, at most 64 behind, whose
+    clock sits where that number belongs, is a late frame: event late_frame with its values, not
+    in the record (append-only, in time order; still counted missing). An exact repeat stays a
+    duplicate, as does an earlier number whose clock is not where it belongs."""
+    from triadcal.hardware.storage import read_events
+
+    frames = [good(k, 0.1 * k) for k in range(30)]
+    frames[10], frames[11] = frames[11], frames[10]
+    late_w = (0.25, -0.5, 0.75)
+    frames[10] = good(11, 1.1)
+    frames[11] = good(10, 1.0, w=late_w)
+    frames.insert(20, good(19, 1.9))                    # 19 again (exact repeat): a duplicate
+    frames.append(good(27, 2.9))                        # 27 with the latest's clock: a duplicate
+    run, times, kinds = pump_all(tmp_path, frames)
+    assert kinds == ["late_frame"] and run.late == 1 and run.duplicates == 2 and run.missing == 1
+    ev = [e for e in read_events(tmp_path / "events.jsonl") if e["kind"] == "late_frame"][0]
+    assert ev["seq"] == 10 and ev["time_s"] == pytest.approx(1.0) and ev["w"] == list(late_w)
+    assert ev["last_seq"] == 11 and ev["t"] == [25.0, 25.0, 25.0]
+    assert len(times) == 29 and np.all(np.diff(times) > 0)      # the record stays in time order
+    # from further back: 5 arriving after 20 at 20 Hz (15 behind, 0.75 s, its own clock; more than
+    # 1 s back the clock and the number going back are an instrument restart, which comes first)
+    (tmp_path / "far").mkdir()
+    far = [good(k, 0.05 * k) for k in range(30) if k != 5]
+    far.insert(20, good(5, 0.25))
+    run, _, kinds = pump_all(tmp_path / "far", far)
+    assert kinds == ["late_frame"] and run.late == 1 and run.duplicates == 0
 
 
 def test_a_stale_frame_sent_again_is_no_restart(tmp_path):

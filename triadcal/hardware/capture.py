@@ -107,6 +107,7 @@ class CaptureReport:
     wall_seconds: float = 0.0
     invalid_frames: int = 0            # refused by runner.frame_problem (event invalid_frame)
     clock_faults: int = 0              # instrument restarts, clock steps, sequence resets (runner.py)
+    late_frames: int = 0               # came after later ones: in the event log (late_frame), not the record
     warnings: list = field(default_factory=list)   # what the operator must know (setpoint not reached)
 
     def to_dict(self) -> dict:
@@ -326,7 +327,8 @@ def finish_session(out: Path, imu, run: "_Runner", events: EventLog, session: in
         duplicate_frames=run.duplicates, missing_frames=run.missing, corrupted_frames=ps.corrupted,
         garbage_bytes=ps.garbage_bytes, reconnects=ls.reconnects, disconnects=ls.disconnects,
         stalls=ls.stalls, redone_visits=redone, invalid_frames=getattr(run, "invalid", 0),
-        clock_faults=getattr(run, "clock_faults", 0), warnings=list(getattr(run, "warnings", [])),
+        clock_faults=getattr(run, "clock_faults", 0), late_frames=getattr(run, "late", 0),
+        warnings=list(getattr(run, "warnings", [])),
         noise=None if noise_est is None else {
             "Q_V2s": list(noise_est.Q_V2s), "bias_instability_V": list(noise_est.bias_instability_V),
             "floor_reached": list(noise_est.floor_reached), "taus_s": noise_est.taus_s.tolist(),

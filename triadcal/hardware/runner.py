@@ -21,7 +21,12 @@ The clock. The raw file's and the campaign's times are the instrument's clock ma
   clock goes on (a counter that wrapped at 2^32 or 2^16, or a firmware that restarted its
   counter): before, every later frame was counted as a duplicate and the capture waited for
   ever. A smaller step back is a duplicate (dropped, counted), as is a frame whose clock does
-  not advance.
+  not advance, except a *late frame*: a sequence number not yet admitted, at most
+  :data:`LATE_WINDOW` behind, whose clock sits where that number belongs (``k x dt`` back within
+  half a dt): two frames swapped on the way. It is not put into the record (the raw file is
+  append-only, in time order; it stays counted in ``missing_frames``) but written with its values
+  to the event log (event ``late_frame``) and counted in ``late_frames``: an outside probe's
+  swapped frames lost the late one as a "duplicate".
 
 Each of them increments ``clock_faults``: a visit whose settling or recording window holds one
 is redone (a window across an IMU restart averaged two periods of the unit into one visit, 399
@@ -60,6 +65,8 @@ CLOCK_STEP_FRACTION = 0.5
 RESTART_BACK_S = 1.0
 #: admitted frames remembered to tell a stale replay from a restart (2^18: 4.4 min at 1 kHz)
 SEEN_FRAMES = 1 << 18
+#: a frame this many sequence numbers behind the latest, never admitted, is a late frame (docstring)
+LATE_WINDOW = 64
 T_LOW, T_HIGH = RANGES["t_x"][0], RANGES["t_x"][1]
 #: a forward clock jump is a stall when the wall-clock silence before it, in instrument seconds,
 #: covers at least this fraction of it (module docstring)
@@ -114,6 +121,8 @@ class _Runner:
         self.stall_gaps = 0
         self.link_written = 0                     # the IMU link's events already in the event log
         self.stale = 0                            # exact replays of admitted frames, dropped
+        self.late = 0                             # frames that came after later ones (event late_frame)
+        self._recent_seqs: deque = deque(maxlen=LATE_WINDOW)   # sequence numbers of the latest admitted
         self._seen: dict = {}                     # hashes of (seq, time_s, w, t) of the latest admitted frames
         self._seen_order: deque = deque()
 
@@ -153,6 +162,13 @@ class _Runner:
                 k = max(1, round(gap / dt)) if dt else 1
                 self.missing += k - 1
                 self._clock_fault("sequence_reset", f, gap)
+            elif self._late(f, dt):
+                self.late += 1
+                self.events.write("late_frame", seq=f.seq, time_s=f.time_s, last_seq=self.last_seq,
+                                  last_time_s=self.last_time, phase=self.phase, visit=self.visit_tag,
+                                  w=[float(v) for v in f.w],
+                                  t=[float(v) if math.isfinite(v) else None for v in f.t])
+                return False
             else:
                 self.duplicates += 1
                 return False
@@ -172,6 +188,14 @@ class _Runner:
         elif k == 1:
             self.dt_estimates.append(gap)
         return True
+
+    def _late(self, f: Frame, dt: Optional[float]) -> bool:
+        """Whether ``f`` (its sequence number not above the latest) is a late frame: never admitted,
+        at most :data:`LATE_WINDOW` behind, its clock ``k x dt`` back within half a dt."""
+        back = self.last_seq - f.seq
+        if not dt or not 0 < back <= LATE_WINDOW or f.seq in self._recent_seqs:
+            return False
+        return abs((self.last_time - f.time_s) - back * dt) <= 0.5 * dt
 
     def _instrument_per_wall(self) -> Optional[float]:
         """Instrument seconds per wall second over the admitted frames of the last
@@ -245,6 +269,7 @@ class _Runner:
                 continue
             self._replayed(f)
             self.last_seq, self.last_time = f.seq, f.time_s
+            self._recent_seqs.append(f.seq)
             if math.isfinite(f.wall_s):
                 self.last_wall = f.wall_s
                 if not self._flow or f.wall_s - self._flow[-1][0] >= 0.05:   # thinned: 512 span >= 25 s
