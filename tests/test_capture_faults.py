@@ -255,6 +255,17 @@ def test_swapped_frames_through_a_pty_keep_the_late_one_in_the_event_log(rig, tm
     assert np.all(np.diff(raw["time_s"]) > 0)
 
 
+def test_a_clock_in_milliseconds_is_named_not_timed_out(rig):
+    """An IMU whose time_s counts milliseconds (a 10 Hz clock read as 0.01 Hz): the capture ran into
+    the soak's timeout, "not stable after 3000 s ... last rate unknown". The clock's step against
+    the windows (tau_s 20 s, stabilisation 20 s: 100 s a frame leaves no reading) is refused at
+    once, saying what it saw and what a millisecond clock would be."""
+    from triadcal.hardware.runner import CaptureError
+
+    with pytest.raises(CaptureError, match=r"advances 100 s per frame.*must be seconds.*0\.1 s per frame, 10 Hz"):
+        rig(lambda seq, t, w, T: (seq, t * 1000.0, w, T))
+
+
 def test_a_wrapping_counter_does_not_hang_the_capture(rig):
     report, c = rig(lambda seq, t, w, T: ((seq + 2 ** 32 - 500) % 2 ** 32, t, w, T))
     assert c.n_visits == len(PLAN) and report.duplicate_frames == 0 and report.clock_faults == 1

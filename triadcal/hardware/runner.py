@@ -65,6 +65,10 @@ CLOCK_STEP_FRACTION = 0.5
 RESTART_BACK_S = 1.0
 #: admitted frames remembered to tell a stale replay from a restart (2^18: 4.4 min at 1 kHz)
 SEEN_FRAMES = 1 << 18
+#: the clock's step is checked against the windows after this many frame intervals (check_clock_step)
+CLOCK_CHECK_FRAMES = 16
+#: ... and must leave the shortest window at least this many readings
+MIN_WINDOW_READINGS = 4
 #: a frame this many sequence numbers behind the latest, never admitted, is a late frame (docstring)
 LATE_WINDOW = 64
 T_LOW, T_HIGH = RANGES["t_x"][0], RANGES["t_x"][1]
@@ -122,6 +126,7 @@ class _Runner:
         self.link_written = 0                     # the IMU link's events already in the event log
         self.stale = 0                            # exact replays of admitted frames, dropped
         self.late = 0                             # frames that came after later ones (event late_frame)
+        self._clock_checked = False               # the clock's step against the windows (check_clock_step)
         self._recent_seqs: deque = deque(maxlen=LATE_WINDOW)   # sequence numbers of the latest admitted
         self._seen: dict = {}                     # hashes of (seq, time_s, w, t) of the latest admitted frames
         self._seen_order: deque = deque()
@@ -188,6 +193,25 @@ class _Runner:
         elif k == 1:
             self.dt_estimates.append(gap)
         return True
+
+    def check_clock_step(self) -> None:
+        """Refuse a clock whose step between frames leaves the shortest window (the recording's
+        ``tau_s``, the stabilisation's ``window_s``) fewer than :data:`MIN_WINDOW_READINGS` readings:
+        no visit could be made and the soak could see no rate. An IMU whose time_s counted
+        milliseconds ran the capture into the soak's timeout, "not stable after 3000 s ... last rate
+        unknown" (a 10 Hz clock read as 0.01 Hz)."""
+        dt = self._dt()
+        stab = getattr(self.settings, "stabilisation", None)
+        windows = [w for w in (getattr(self.settings, "tau_s", None), getattr(stab, "window_s", None)) if w]
+        if not dt or not windows or dt * MIN_WINDOW_READINGS <= min(windows):
+            return
+        raise CaptureError(
+            f"the IMU's clock advances {dt:g} s per frame by its time_s ({1.0 / dt:.3g} Hz): a window of "
+            f"{min(windows):g} s (the recording's tau_s {getattr(self.settings, 'tau_s', 0):g} s, the stabilisation's "
+            f"{getattr(stab, 'window_s', 0):g} s) would hold fewer than {MIN_WINDOW_READINGS} readings. The frames' "
+            f"time_s must be seconds: a clock counting milliseconds runs 1000 times fast (it would be "
+            f"{dt / 1000:g} s per frame, {1000.0 / dt:.3g} Hz); for a truly slow IMU lengthen --tau-s and "
+            "--stab-window-s")
 
     def _late(self, f: Frame, dt: Optional[float]) -> bool:
         """Whether ``f`` (its sequence number not above the latest) is a late frame: never admitted,
@@ -275,6 +299,9 @@ class _Runner:
                 if not self._flow or f.wall_s - self._flow[-1][0] >= 0.05:   # thinned: 512 span >= 25 s
                     self._flow.append((f.wall_s, f.time_s + self.shift))
             accepted.append(dataclasses.replace(f, time_s=f.time_s + self.shift) if self.shift else f)
+        if not self._clock_checked and len(self.dt_estimates) >= CLOCK_CHECK_FRAMES:
+            self._clock_checked = True
+            self.check_clock_step()
         if not accepted:
             return 0
         self.accepted += len(accepted)
