@@ -107,11 +107,11 @@ def test_a_scale_factor_in_another_output_unit_is_not_relabelled(joint, tmp_path
     for a in "xyz":
         bad["parameters"][f"K_{a}"]["unit"] = "g/mV"
     refused(tmp_path, bad, "parameters.K_x.unit", "'g/mV'", "output_unit is 'V'")
-    # one K in another unit than the others, without an output_unit to check against
+    # one K in another unit than the others: against output_unit (a result without one is refused by
+    # itself, test_fields_the_probe_edited_are_refused)
     bad = copy.deepcopy(joint)
-    bad.pop("output_unit")
     bad["parameters"]["K_y"]["unit"] = "g/mV"
-    refused(tmp_path, bad, "K_x, K_y, K_z")
+    refused(tmp_path, bad, "parameters.K_y.unit")
     # an output unit that says counts while K is per volt
     bad = copy.deepcopy(joint)
     bad["output_unit"] = "counts"
@@ -403,3 +403,58 @@ def test_history_refuses_before_recording(joint, tmp_path, capsys, mutation):
     assert main(["history", "--add", str(path), "--db", str(db)]) == 1
     err = capsys.readouterr().err
     assert str(path) in err and "Traceback" not in err and "internal error" not in err, err
+
+
+# -- 6. an outside probe's re-signed results (its own checksum recomputed) -------------------------
+def test_a_budget_that_contradicts_its_u_or_k_is_refused(joint_lab, tmp_path):
+    """k = 0.1 at 95.45 % with U = k u (a certificate said Ca_xy +- 0.30 arcsec for 6.1); K_x's u and U
+    divided by 100 beside its rows; u_type_a above u: each was certified or tabulated."""
+    p = joint_lab["parameters"]["Ca_xy"]
+    assert p["U_method"] == "GUM" and p["k"] == pytest.approx(2.0, rel=1e-3)
+    bad = copy.deepcopy(joint_lab)
+    q = bad["parameters"]["Ca_xy"]
+    q["k"], q["U"] = 0.1, 0.1 * q["u"]
+    refused(tmp_path, bad, "parameters.Ca_xy.k", "GUM coverage factor")
+    bad = copy.deepcopy(joint_lab)
+    q = bad["parameters"]["K_x"]
+    q["u"], q["U"] = q["u"] / 100, q["U"] / 100
+    refused(tmp_path, bad, "parameters.K_x.u", "root sum of squares")
+    bad = copy.deepcopy(joint_lab)
+    q = bad["parameters"]["S_x"]
+    q["u_type_a"] = 2 * q["u"]
+    refused(tmp_path, bad, "parameters.S_x.u_type_a", "exceeds")
+    bad = copy.deepcopy(joint_lab)
+    q = bad["parameters"]["Ca_xy"]
+    q["U_method"], q["k"], q["U"] = "Monte Carlo", 0.5, 0.5 * q["u"]
+    refused(tmp_path, bad, "parameters.Ca_xy.k", "below 1")
+
+
+def test_fields_the_probe_edited_are_refused(joint, tmp_path):
+    """temperature_range_C [null, 70] (printed "nan degC"), fit.chi2_dof -1, a parameter 'foo' (a
+    36th row of a certificate), a correlation name that is no parameter, output_unit missing or
+    empty, local g 98.0665 (m/s^2 and g mixed up) or 1.0: each went into a product."""
+    for mutate, where, what in (
+            (lambda d: d.__setitem__("temperature_range_C", [None, 70.0]), "temperature_range_C[0]", "is null"),
+            (lambda d: d["fit"].__setitem__("chi2_dof", -1.0), "fit.chi2_dof", "negative"),
+            (lambda d: d["parameters"].__setitem__("foo", {"value": 1.0, "u": 0.1, "unit": "arcsec"}),
+             "parameters.foo", "not a parameter of triadcal's model"),
+            (lambda d: d.pop("output_unit"), "output_unit", "missing"),
+            (lambda d: d.__setitem__("output_unit", " "), "output_unit", "empty"),
+            (lambda d: d.__setitem__("local_g_m_s2", 98.0665), "local_g_m_s2", "outside 9.76-9.84"),
+            (lambda d: d.__setitem__("local_g_m_s2", 1.0), "local_g_m_s2", "no override")):
+        bad = copy.deepcopy(joint)
+        mutate(bad)
+        refused(tmp_path, bad, where, what)
+    bad = copy.deepcopy(joint)
+    bad["correlation"]["names"][0] = "foo"
+    refused(tmp_path, bad, "correlation.names[0]", "not a parameter of the result or of triadcal's model")
+
+
+def test_a_fit_with_a_stated_override_of_local_g_writes_it_and_reads(tmp_path):
+    """Data that stated an override (# local_g_override = true, fit-raw --local-g-override) reach a
+    fit with a g outside Earth's range: the result records it and reads back."""
+    r = api.fit(None, method="classical")
+    r.extra["local_g_m_s2"] = 3.72
+    doc = json.loads(json.dumps(r.to_dict()))
+    assert doc["local_g_override"] is True
+    CalibrationResult.load(_write(tmp_path, doc))

@@ -182,6 +182,21 @@ class CalibrationResult:
             d["correlation"] = {"names": list(self.correlation_names),
                                 "matrix": np.round(np.asarray(self.correlation), 6).tolist()}
         d.update({k: v for k, v in self.extra.items() if k != CONTENT_HASH_KEY})   # recomputed by save
+        if "output_unit" not in d:
+            # a result built without it (a test's, a library user's): K's own unit names it
+            held = (d.get("fixed") or {}).get("K_x")
+            k_unit = getattr(self.parameters.get("K_x"), "unit", "") or (
+                held.get("unit", "") if isinstance(held, dict) else "")
+            if isinstance(k_unit, str) and k_unit.startswith("g/") and len(k_unit) > 2:
+                d["output_unit"] = k_unit[2:]
+        g = d.get("local_g_m_s2")
+        if isinstance(g, (int, float)) and math.isfinite(g):
+            from ..io.bench_csv import LOCAL_G_RANGE_M_S2 as G_RANGE
+
+            if not G_RANGE[0] <= g <= G_RANGE[1]:
+                # only data that stated an override reach a fit with such a g (the bench CSV reader,
+                # fit-raw --local-g-override): the reader refuses one without the flag
+                d["local_g_override"] = True
         return d
 
     @classmethod
@@ -221,7 +236,13 @@ class CalibrationResult:
         if unknown:
             raise r.error("effects", f"{', '.join(map(repr, unknown))} is not an effect of the model "
                                      f"({', '.join(EFFECTS)})")
+        if "output_unit" not in d:
+            # every result this package writes names it; K is in g per it, so without it a consumer (a
+            # compensation table, a history) could not say what K multiplies (an outside probe deleted it)
+            raise r.error("output_unit", "is missing: the unit of the outputs K is per (a required key of a result)")
         output_unit = r.optional_string(d, "output_unit")
+        if output_unit is not None and not output_unit.strip():
+            raise r.error("output_unit", "is empty: K would be in 'g/' of nothing")
         r.optional_string(d, "input_unit")
         if d.get("source") is not None and not isinstance(d["source"], str):
             raise r.error("source", f"is a {_kind(d['source'])}, expected a string or null")
@@ -236,6 +257,13 @@ class CalibrationResult:
             g = r.number_value(g, "local_g_m_s2")
             if not (math.isfinite(g) and g > 0):
                 raise r.error("local_g_m_s2", f"= {g!r} is not a positive acceleration in m/s^2")
+            from ..io.bench_csv import LOCAL_G_RANGE_M_S2 as G_RANGE
+
+            if not G_RANGE[0] <= g <= G_RANGE[1] and d.get("local_g_override") is not True:
+                # an outside probe: 98.0665 (m/s^2 and g mixed up) went into a compensation table and a history
+                raise r.error("local_g_m_s2", f"= {g:g} m/s^2 is outside {G_RANGE[0]}-{G_RANGE[1]} (Earth's surface) and "
+                                              "the result records no override (local_g_override, which a fit of "
+                                              "data that stated one writes): K is in g of this value")
         params = {}
         for k, v in r.mapping(d, "parameters", required=True).items():
             where = f"parameters.{k}"
@@ -273,6 +301,11 @@ class CalibrationResult:
             if not (isinstance(trange, list) and len(trange) == 2):
                 raise r.error("temperature_range_C", "is not a list [low, high]")
             trange = tuple(r.number_value(x, f"temperature_range_C[{i}]") for i, x in enumerate(trange))
+            for i, x in enumerate(trange):
+                if not math.isfinite(x):
+                    # an outside probe's [null, 70] printed "Temperature range nan degC to 70.0 degC"
+                    raise r.error(f"temperature_range_C[{i}]", "is null: the range is two temperatures (degC); a "
+                                                                "result without one has temperature_range_C null")
             if trange[0] > trange[1]:
                 raise r.error("temperature_range_C", f"= [{trange[0]:g}, {trange[1]:g}]: low is above high "
                                                      "(the range is [lowest, highest] temperature in the data)")

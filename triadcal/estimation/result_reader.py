@@ -28,6 +28,10 @@ BUDGET_ROW_TYPES = ("A", "B")
 BUDGET_ROW_DISTRIBUTIONS = ("normal", "two-point", "rectangular", "arcsine")
 #: U = k u holds to this relative tolerance (the writer writes full double precision)
 U_REL_TOL = 1e-6
+#: a parameter's u against the root sum of squares of its budget's contributions (relative)
+BUDGET_REL_TOL = 1e-6
+#: a GUM k against Student's t at the stated coverage and dof (relative)
+K_REL_TOL = 1e-3
 #: the correlation matrix is written rounded to 6 decimals: its entries hold to this
 CORRELATION_TOL = 2e-6
 #: parameters a writer derives from the model's (their unit, as written)
@@ -126,7 +130,10 @@ def _check_fit(r: "_Reader", fit: dict) -> None:
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise r.error(f"fit.{key}", f"is {v!r:.40}, expected a count (an integer >= 0)")
     if "chi2_dof" in fit:
-        r.number_value(fit["chi2_dof"], "fit.chi2_dof")
+        x = r.number_value(fit["chi2_dof"], "fit.chi2_dof")
+        if x < 0:
+            # an outside probe's -1 went into a certificate and a compensation table
+            raise r.error("fit.chi2_dof", f"= {x!r} is negative (a chi-square per degree of freedom is >= 0)")
 
 
 def _check_complete(r: "_Reader", method: str, effects: tuple, params: dict, fixed: dict,
@@ -144,6 +151,9 @@ def _check_complete(r: "_Reader", method: str, effects: tuple, params: dict, fix
         if n in known and n not in names and n not in DERIVED_UNITS:
             raise r.error(f"parameters.{n}", f"is a parameter of an effect that is not in effects "
                                              f"[{', '.join(effects)}]: the result's model has no such term")
+        if n not in known and n not in DERIVED_UNITS:
+            # an outside probe's "foo" was printed on a certificate as a 36th parameter
+            raise r.error(f"parameters.{n}", "is not a parameter of triadcal's model (docs/model.md names them)")
     norm = "gravity norm" in str(fit.get("model", ""))
     missing = [n for n in names
                if n not in params and n not in fixed and n not in unidentifiable
@@ -170,6 +180,8 @@ def _read_correlation(r: "_Reader", corr, params: dict):
     for i, n in enumerate(names):
         if n in seen:
             raise r.error(f"correlation.names[{i}]", f"{n!r} is named twice")
+        if n not in params and n not in canonical_units():
+            raise r.error(f"correlation.names[{i}]", f"{n!r} is not a parameter of the result or of triadcal's model")
         seen.add(n)
     rows = corr.get("matrix")
     if not (isinstance(rows, list) and len(rows) == len(names)
@@ -294,7 +306,45 @@ def _read_uncertainty(r: "_Reader", v: dict, where: str, u: float = math.nan) ->
         if abs(U - k * u) > U_REL_TOL * max(abs(U), abs(k * u)):
             raise r.error(f"{where}.U", f"= {U:.6g} is not k u = {k:.6g} x {u:.6g} = {k * u:.6g} (the expanded "
                                         "uncertainty is the coverage factor times the standard uncertainty)")
+    _check_budget_sums(r, out, where, u)
     return out
+
+
+def _check_budget_sums(r: "_Reader", out: dict, where: str, u: float) -> None:
+    """The budget against its own u and k (an outside probe re-signed results whose K_x u and U were
+    divided by 100, whose k was 0.1 at 95.45 %, whose u_type_a exceeded u: a certificate and a
+    compensation table were made from each). ``u`` is the root sum of squares of the rows'
+    contributions (JCGM 100 5.1.2; :class:`~triadcal.uncertainty.budget.Budget`), ``u_type_a`` at
+    most ``u``, and with ``U_method`` GUM ``k = t_p(dof_eff)`` (2 at infinite dof and p = 95.45 %,
+    JCGM 100 G.3); any other method's k is at least 1 (a two-point row alone: exactly 1)."""
+    rows = out.get("budget") or []
+    contributions = [row.get("contribution") for row in rows if row.get("contribution") is not None]
+    if contributions and math.isfinite(u):
+        total = math.sqrt(sum(float(c) ** 2 for c in contributions))
+        if abs(total - u) > BUDGET_REL_TOL * max(total, u):
+            raise r.error(f"{where}.u", f"= {u:.6g} is not the root sum of squares of its budget's contributions "
+                                        f"({total:.6g}): the combined standard uncertainty is that sum")
+    ua = out.get("u_type_a")
+    if ua is not None and math.isfinite(u) and ua > u * (1.0 + BUDGET_REL_TOL):
+        raise r.error(f"{where}.u_type_a", f"= {ua:.6g} exceeds the combined u = {u:.6g}, of which it is a part")
+    k, p, method = out.get("k"), out.get("coverage_probability"), out.get("U_method")
+    if k is None or not math.isfinite(k):
+        return
+    if method == "GUM" and p is not None:
+        from scipy import stats
+
+        nu = out.get("dof_eff")
+        # Budget: k = t_p(nu) for the certificate's k = 2 (p = erf(2/sqrt 2)) at finite nu, else the
+        # stated normal k itself (JCGM 100 G.3)
+        expected = float(stats.t.ppf((1 + p) / 2, nu)) if nu is not None and abs(p - 0.9545) < 5e-4 \
+            else float(stats.norm.ppf((1 + p) / 2))
+        if abs(k - expected) > K_REL_TOL * expected:
+            raise r.error(f"{where}.k", f"= {k:.6g} is not the GUM coverage factor for coverage {p:g} and "
+                                        f"{'infinite' if nu is None else f'{nu:.4g}'} effective degrees of freedom "
+                                        f"({expected:.4g}, Student's t; JCGM 100 G.3)")
+    elif k < 1.0 - K_REL_TOL and (p is None or p >= 0.68):
+        raise r.error(f"{where}.k", f"= {k:.6g}: a coverage factor below 1 cannot give coverage {p} (a two-point "
+                                    "row alone, the narrowest case, needs 1)")
 
 
 def _read_budget_row(r: "_Reader", row, w: str) -> dict:
