@@ -374,3 +374,35 @@ def test_prose_comments_read_and_metadata_meant_as_such_is_refused(tmp_path, lin
             read_bench_csv(tmp_path / "m.csv")
     else:
         read_bench_csv(tmp_path / "m.csv")
+
+
+# -- one visit written twice ----------------------------------------------------------------------
+def test_every_visit_written_twice_is_refused(tmp_path, valid):
+    """An outside probe wrote every visit twice, the copy 1 s later (windows overlapping, readings
+    equal to the last digit): status ok, every u 0.707 of the single file's. Refused at the copy,
+    naming the line it repeats."""
+    rows, t = [], valid.header.index("time_s")
+    for r in valid.rows:
+        copy = list(r)
+        copy[t] = repr(float(r[t]) + 1.0)
+        rows += [r, copy]
+    valid.rows = rows
+    err = refused(valid.write(tmp_path / "twice.csv"))
+    assert err.line == valid.line_of_row(1) and err.column == "w_x"
+    assert f"repeat line {valid.line_of_row(0)}'s to the last digit" in str(err) and "windows overlap" in str(err)
+
+
+def test_equal_readings_far_apart_are_refused_with_noise_and_read_without(tmp_path):
+    """Hand-made: row 40 given row 3's readings, a day later. With sd_* above 0 two averages are never
+    equal: refused; the same file without noise columns (a quantised quiet output visiting one
+    position twice could read equal) is read."""
+    tab = independent_table()
+    cols = [tab.header.index(c) for c in ("w_x", "w_y", "w_z")]
+    for j in cols:
+        tab.rows[40][j] = tab.rows[3][j]
+    err = refused(tab.write(tmp_path / "noisy.csv"))
+    assert err.line == tab.line_of_row(40) and "never equal" in str(err)
+    keep = [i for i, h in enumerate(tab.header) if h not in ("sd_x", "sd_y", "sd_z", "n_samples")]
+    tab.header = [tab.header[i] for i in keep]
+    tab.rows = [[r[i] for i in keep] for r in tab.rows]
+    assert read_bench_csv(tab.write(tmp_path / "quiet.csv")).n_visits == 108

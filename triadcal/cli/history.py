@@ -39,26 +39,49 @@ def run(args) -> int:
             dt.date.fromisoformat(args.date)
         except ValueError:
             raise InputError(f"--date {args.date!r} is not a date (YYYY-MM-DD)") from None
+        from ..io.dates import future_problem
+
+        late = future_problem(args.date, "a calibration")
+        if late:
+            raise InputError(f"--date {late}")
     lab = load_lab(args.lab) if args.lab else None
     path = history_path(args.db, lab)
     out = output(args)
-    with HistoryDB(path) as db:
-        for f in args.add or ():
-            d = read_json(f)
-            from ..estimation.result import CalibrationResult
+    from ..estimation.result import CalibrationResult
+    from ..estimation.result_checks import result_problems
 
-            r = CalibrationResult.from_dict(d, str(f))        # validated before it is recorded
-            if r.content_mismatch:
-                raise InputError(f"{f}: {r.content_mismatch}")
-            added = db.add(d, lab=lab, date=args.date)
-            out.say(f"{f}: {'recorded' if added else 'already recorded (no change)'} in {path}")
-            if r.content_unhashed:
-                out.say(f"{f}: note: the result holds no content_sha256 (another writer, or triadcal before "
-                        "2026-11-30): nothing shows that its values are the fit's answer and not edited; the "
-                        "history marks it")
-        if not args.serial:
-            return 0
-        cals = db.calibrations(args.serial)
+    # every result is read and validated before the database is opened: a refusal left an empty
+    # database behind (an outside probe)
+    docs = []
+    for f in args.add or ():
+        d = read_json(f)
+        r = CalibrationResult.from_dict(d, str(f))        # validated before it is recorded
+        if r.content_mismatch:
+            raise InputError(f"{f}: {r.content_mismatch}")
+        if r.status == "ok":
+            # status ok with a value, u or reference temperature the certificate and the compensation
+            # table refuse (Ca_xy 1e140 arcsec, u = 0, 500 degC) was recorded as an ok calibration
+            why = [w for w in result_problems(r) if w != r.content_mismatch]
+            if why:
+                raise InputError(f"{f}: refused: " + "; ".join(why))
+        docs.append((f, d, r))
+    existed = path.exists()
+    try:
+        with HistoryDB(path) as db:
+            for f, d, r in docs:
+                added = db.add(d, lab=lab, date=args.date, source=str(f))
+                out.say(f"{f}: {'recorded' if added else 'already recorded (no change)'} in {path}")
+                if r.content_unhashed:
+                    out.say(f"{f}: note: the result holds no content_sha256 (another writer, or triadcal before "
+                            "2026-11-30): nothing shows that its values are the fit's answer and not edited; the "
+                            "history marks it")
+            if not args.serial:
+                return 0
+            cals = db.calibrations(args.serial)
+    except InputError:
+        if not existed and path.exists() and path.stat().st_size == 0:
+            path.unlink()
+        raise
     if not cals:
         raise InputError(f"{path}: no calibration of {args.serial!r} recorded")
     out.say(history_text(args.serial, cals))

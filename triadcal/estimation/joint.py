@@ -442,6 +442,13 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
             fixed.setdefault(k, model.spec[k].nominal)
             notes.append(f"{k} not estimated, held at {model.spec[k].nominal:g} {model.spec[k].unit}: {v}")
     n_free = len(model.names) - len(set(fixed) | set(problems))
+    if n_free < 1:
+        # an outside probe's one- and two-row files: every parameter held, then "cannot reshape array"
+        raise IdentifiabilityError(
+            f"{campaign.source or 'campaign'}: {campaign.n_visits} visit(s) determine none of the model's parameters "
+            f"({len(problems)} of {len(model.names)} not identifiable: "
+            f"{', '.join([n for n in model.names if n in problems][:6])}"
+            f"{' ...' if len(problems) > 6 else ''}); a calibration needs every IMU axis up and down at least")
     if 3 * campaign.n_visits <= n_free:
         raise IdentifiabilityError(
             f"{campaign.source or 'campaign'}: {3 * campaign.n_visits} observations ({campaign.n_visits} visits x 3 axes) "

@@ -90,8 +90,9 @@ class HistoryDB:
     def close(self):
         self.con.close()
 
-    def add(self, result: dict, lab=None, date: Optional[str] = None) -> bool:
-        """Record a result (results-json document); False when it was already recorded."""
+    def add(self, result: dict, lab=None, date: Optional[str] = None, source: Optional[str] = None) -> bool:
+        """Record a result (results-json document; ``source``, its file, names it in messages); False
+        when it was already recorded."""
         from ..io.atomic import json_safe
 
         from ..estimation.result import CONTENT_HASH_KEY
@@ -114,8 +115,14 @@ class HistoryDB:
         from ..io.dates import ISO_HINT, iso_date
 
         date = iso_date(raw)
+        what = f"{source}: " if source else f"{self.path}: the calibration of {result.get('unit')!r}: "
         if date is None:
-            raise InputError(f"{self.path}: the calibration of {result.get('unit')!r}: {where} = {raw!r} is not {ISO_HINT}")
+            raise InputError(f"{what}{where} = {raw!r} is not {ISO_HINT}")
+        from ..io.dates import future_problem
+
+        late = future_problem(date, "a calibration")
+        if late:
+            raise InputError(f"{what}{where}: {late}")
         lab_name = (lab.name if lab is not None else "") or b.get("lab", "")
         state = b.get("state") or result.get("state") or ""
         try:

@@ -239,6 +239,78 @@ def check_stuck_thermometer(path, c: Campaign) -> None:
                     "held one temperature, add the line '# t_override = true')")
 
 
+#: the three outputs' spans over a campaign (each axis up and down: 2 g over its K) may differ by at
+#: most this factor: a triad's channels are alike, and mixed-range triads stay within it
+AXIS_SPAN_RATIO_MAX = 100.0
+
+
+def check_axis_spans(path, c: Campaign) -> None:
+    """Refuse a campaign whose outputs' spans (max - min of the visit means, each unit and state)
+    differ by more than :data:`AXIS_SPAN_RATIO_MAX`: one column in another unit than the file states
+    (an outside probe's w_x in mV in a file in V: the classical fit gave K_x = 0.001 g/V with status ok
+    and a certificate). Only when every output spans at least a tenth of the largest's rounding-free
+    range: a dead or stuck output is named by its own check."""
+    units = np.asarray(c.unit).astype(str)
+    w = np.asarray(c.w, float)
+    lines = c.lines if c.lines is not None else np.arange(1, len(w) + 1)
+    for u in dict.fromkeys(units.tolist()):
+        idx = np.flatnonzero(units == u)
+        if len(idx) < 6:
+            continue
+        span = np.nanmax(w[idx], axis=0) - np.nanmin(w[idx], axis=0)
+        if not np.all(np.isfinite(span)) or np.min(span) <= 0:
+            continue
+        ratio = float(span.max() / span.min())
+        if ratio > AXIS_SPAN_RATIO_MAX:
+            odd = int(np.argmax(np.abs(np.log(span / np.median(span)))))     # the one apart from the others
+            names = ("w_x", "w_y", "w_z")
+            others = " and ".join(f"{names[i]} {span[i]:.4g}" for i in range(3) if i != odd)
+            raise BenchCSVError(
+                path, int(lines[idx[0]]), names[odd],
+                f"{names[odd]} spans {span[odd]:.4g} {c.output_unit} over the visits of unit {u!r}, {others} (a "
+                f"factor {ratio:.3g} between the outputs, beyond {AXIS_SPAN_RATIO_MAX:g}): a triad's channels are "
+                f"alike, so one column is in another unit than output_unit = {c.output_unit} (mV in a file of V?); "
+                "convert it")
+
+
+def check_repeated_readings(path, c: Campaign) -> None:
+    """Refuse two visits of a unit (and state) whose three mean outputs are equal to the last digit
+    when their averaging windows overlap (``|dt| < (tau_i + tau_j)/2``) or either has noise
+    (``sd_*`` or ``u_w_*`` above 0): two averages of noisy readings are never equal, so it is one
+    visit written twice, which would be counted as two independent ones (every u 1/sqrt 2 too small).
+    An outside probe wrote every visit twice, the copy 1 s later: status ok, every u 0.707 of the
+    single file's, the note calling them conservative. Equal readings without noise (a quantised,
+    quiet output visiting one position twice) are kept."""
+    units = np.asarray(c.unit).astype(str)
+    states = np.asarray(c.state).astype(str)
+    w = np.asarray(c.w, float)
+    noisy = np.zeros(len(w), bool)
+    for extra in (c.sd, c.u_w):
+        if extra is not None:
+            noisy |= np.any(np.nan_to_num(np.asarray(extra, float)) > 0, axis=1)
+    lines = c.lines if c.lines is not None else np.arange(1, len(w) + 1)
+    # a unit with an output that reads one value throughout is a stuck output, named by its own check
+    stuck = {u for u in set(units.tolist())
+             if any(len(np.unique(w[units == u][:, a])) <= 1 for a in range(3))}
+    first: dict = {}
+    for i in range(len(w)):
+        if not np.all(np.isfinite(w[i])) or units[i] in stuck:
+            continue
+        j = first.setdefault((units[i], states[i], *w[i].tolist()), i)
+        if j == i:
+            continue
+        dt, span = abs(float(c.time_s[i]) - float(c.time_s[j])), 0.5 * (float(c.tau_s[i]) + float(c.tau_s[j]))
+        if dt < span or noisy[i] or noisy[j]:
+            why = (f"their averaging windows overlap (time_s {float(c.time_s[j]):g} and {float(c.time_s[i]):g} s, "
+                   f"tau_s {float(c.tau_s[j]):g} and {float(c.tau_s[i]):g} s)" if dt < span else
+                   "both average noisy readings (sd or u_w above 0), and two such averages are never equal")
+            raise BenchCSVError(
+                path, int(lines[i]), "w_x",
+                f"the same visit twice: w_x, w_y, w_z repeat line {int(lines[j])}'s to the last digit "
+                f"({', '.join(f'{v:.10g}' for v in w[i])}) and {why}; counted as two visits, every "
+                "uncertainty would be 1/sqrt(2) too small. Remove the copy")
+
+
 #: consecutive visits (of one unit, state and cycle, in time order) whose setpoints differ by at most
 #: this (degC) are one block of the direction check
 SETPOINT_SAME_C = 0.01

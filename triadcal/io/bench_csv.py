@@ -123,6 +123,15 @@ def _metadata(lines, path):
 
         if iso_date(metadata["date"]) is None:
             raise BenchCSVError(path, where["date"], None, f"metadata 'date' = {metadata['date']!r} is not {ISO_HINT}")
+        from .dates import future_problem
+
+        late = future_problem(iso_date(metadata["date"]), "the campaign")
+        if late:
+            raise BenchCSVError(path, where["date"], None, f"metadata 'date': {late}")
+    if "output_unit" in metadata and not metadata["output_unit"].strip():
+        # an outside probe's empty '# output_unit =' was fitted, status ok, K in 'g/'
+        raise BenchCSVError(path, where["output_unit"], None, "metadata 'output_unit' is empty: name the unit of "
+                                                              "w_x w_y w_z (V, mV, counts, g, m/s^2, ...)")
     override = metadata.get("local_g_override", "false").lower()
     for key, low, high, low_open in (("local_g_m_s2", 0.0, LOCAL_G_MAX_M_S2, True), ("Q_V2s", 0.0, MAX_READING, True),
                                      ("power_on_s", -MAX_READING, MAX_READING, False)):
@@ -268,14 +277,16 @@ def parse_bench_csv(text: str, path: str = "<string>") -> Campaign:
                                 f"metadata 'power_on_s' = {metadata['power_on_s']} s is after the visit of line "
                                 f"{int(lnum[first])} (time_s {campaign.time_s[first]:g} s): a unit is read after it "
                                 "is switched on; the time-dependent terms (drifts, warm-ups) count from power-on")
-    from .bench_checks import (check_directions, check_fahrenheit_setpoints, check_stuck_thermometer,
-                               check_temperature_unit)
+    from .bench_checks import (check_axis_spans, check_directions, check_fahrenheit_setpoints,
+                               check_repeated_readings, check_stuck_thermometer, check_temperature_unit)
 
     if metadata.get("t_override", "false").lower() != "true":
         check_temperature_unit(path, campaign)
         check_fahrenheit_setpoints(path, campaign)
         check_stuck_thermometer(path, campaign)
     check_directions(path, campaign)
+    check_repeated_readings(path, campaign)
+    check_axis_spans(path, campaign)
     return campaign
 
 

@@ -26,3 +26,20 @@ def iso_date(text) -> Optional[str]:
 
 ISO_HINT = ("an ISO 8601 date (YYYY-MM-DD): day-first and month-first dates read differently in different "
             "countries, and calibrations are ordered by it")
+
+
+#: a date this many days after today (the machine's clock, UTC) is refused: time zones and a clock a
+#: day off are no reason to refuse a calibration of today
+FUTURE_SLACK_DAYS = 1
+
+
+def future_problem(iso: str, what: str) -> Optional[str]:
+    """Why the ISO date ``iso`` cannot be ``what`` (a calibration, a measurement): it lies after today
+    by more than :data:`FUTURE_SLACK_DAYS` (an outside probe's ``# date = 2099-01-01`` was fitted
+    with status ok and certified as "Date of calibration 2099-01-01, date of issue 2026-12-01"),
+    or None."""
+    today = _dt.datetime.now(_dt.timezone.utc).date()
+    day = _dt.date.fromisoformat(iso)
+    if (day - today).days > FUTURE_SLACK_DAYS:
+        return f"{iso} is after today ({today.isoformat()}): {what} cannot have happened yet"
+    return None

@@ -180,6 +180,10 @@ _INPUT_RULES = {
 MAX_CTE_PER_C = 1e-3
 
 
+#: an angle's uncertainty beyond this (arcsec, 360 deg) says nothing about an angle
+FULL_TURN_ARCSEC = 1_296_000.0
+
+
 def _check_inputs(**values) -> None:
     """Refuse an input that is not a finite number of the right sign, naming the option and value
     (eq. 4 divides by tau and G and takes sqrt(Q); a negative standard deviation is no budget)."""
@@ -227,12 +231,19 @@ def budget(*, thermal: bool = False, accelerometer_name: Optional[str] = None, K
             kw = dict(k_ca_arcsec_per_C=k_ca_arcsec_per_C, dT_C=dT_C, cte_body_per_C=cte_body_per_C,
                       cte_accelerometer_per_C=cte_accelerometer_per_C, T_max_C=T_max_C, T0_C=T0_C)
             tables = table1_thermal(**kw) if accelerometer_name is None else [thermal_budget(accelerometer_name, **kw)]
+        for b in tables:
+            if not math.isfinite(b.total) or any(c.contribution is not None and not math.isfinite(c.contribution)
+                                                 for c in b.components):
+                raise OverflowError
     except OverflowError:
+        # also from the root sum of squares itself (an outside probe: --sigma1 1e200, --Q 1e308, --dT 1e300
+        # ended in an internal OverflowError)
         raise InputError("the budget overflows with these inputs (--K 1e300 --Q 1e300?): check the magnitudes and "
                          "their units") from None
     for b in tables:
-        if not math.isfinite(b.total) or any(c.contribution is not None and not math.isfinite(c.contribution)
-                                             for c in b.components):
-            raise InputError(f"{b.equation}: the budget is not a finite number with these inputs (an overflow: "
-                             "check the magnitudes and their units)")
+        if b.unit == "arcsec" and b.total > FULL_TURN_ARCSEC:
+            # --tau 1e-300 gave 2.3e151 arcsec, --thermal --T-max 1e9 1.6e8 arcsec, exit 0
+            raise InputError(f"{b.equation}: the budget's total is {b.total:.3g} arcsec, beyond a full turn "
+                             f"({FULL_TURN_ARCSEC:g} arcsec): no angle is measured so; check the inputs' magnitudes "
+                             "and units (tau in s, Q in V^2 s, temperatures in degC)")
     return tables

@@ -1,0 +1,95 @@
+"""Inputs an outside probe (fresh directory, its own mutations of real files) found accepted or
+crashing, each refused now with a one-line error naming the file and field: a history of results
+the certificate refuses, a date after today, a fit of one or two visits, budget options that
+overflow, an empty output_unit, one output column in another unit (docs/bench-csv.md,
+docs/fleet.md, docs/budget.md)."""
+
+import copy
+import json
+
+import pytest
+
+from test_bench_csv_misreads import example_table, refused
+from triadcal import api
+from triadcal.cli import main
+from triadcal.estimation.result import CalibrationResult
+
+
+@pytest.fixture(scope="module")
+def joint():
+    return json.loads(json.dumps(api.fit(None, method="joint").to_dict()))
+
+
+def _save(tmp_path, doc, name):
+    """Write ``doc`` with its content hash recomputed (as the probe re-signed its edits)."""
+    r = CalibrationResult.from_dict(copy.deepcopy(doc), name)
+    path = tmp_path / name
+    r.save(path)
+    return path
+
+
+@pytest.mark.parametrize("edit, said", [
+    (lambda d: d.__setitem__("reference_temperature_C", 500.0), "reference_temperature_C = 500.0"),
+    (lambda d: d["parameters"]["Ca_xy"].__setitem__("value", 1e140), "gate angles fails")])
+def test_history_refuses_an_ok_result_the_certificate_refuses_and_leaves_no_database(joint, tmp_path, capsys,
+                                                                                      edit, said):
+    bad = copy.deepcopy(joint)
+    edit(bad)
+    path = _save(tmp_path, bad, "bad.json")
+    db = tmp_path / "h.sqlite"
+    assert main(["history", "--add", str(path), "--db", str(db)]) == 1
+    err = capsys.readouterr().err
+    assert f"{path}: refused:" in err and said in err, err
+    assert not db.exists()                               # an empty database was left behind
+
+
+def test_dates_after_today_are_refused(joint, tmp_path, capsys):
+    good = _save(tmp_path, joint, "good.json")
+    db = tmp_path / "h.sqlite"
+    assert main(["history", "--add", str(good), "--db", str(db), "--date", "2099-12-31"]) == 1
+    assert "after today" in capsys.readouterr().err and not db.exists()
+    later = copy.deepcopy(joint)
+    later["data_date"] = "2099-01-01"
+    path = _save(tmp_path, later, "later.json")
+    assert main(["history", "--add", str(path), "--db", str(db)]) == 1
+    err = capsys.readouterr().err
+    assert f"{path}: the result's data_date: 2099-01-01 is after today" in err, err
+    tab = example_table()
+    tab.comments.append("# date = 2099-01-01")
+    err = refused(tab.write(tmp_path / "future.csv"))
+    assert err.line == len(tab.comments) and "after today" in str(err)
+
+
+def test_an_empty_output_unit_is_refused(tmp_path):
+    tab = example_table()
+    i = next(i for i, c in enumerate(tab.comments) if c.startswith("# output_unit"))
+    tab.comments[i] = "# output_unit ="
+    err = refused(tab.write(tmp_path / "empty_unit.csv"))
+    assert err.line == i + 1 and "'output_unit' is empty" in str(err)
+
+
+def test_one_output_column_in_another_unit_is_refused(tmp_path):
+    """w_x in mV in a file of V: the classical fit gave K_x = 0.001 g/V, status ok, a certificate."""
+    tab = example_table()
+    tab.map("w_x", lambda v: repr(float(v) * 1000.0))
+    err = refused(tab.write(tmp_path / "mv.csv"))
+    assert err.column == "w_x" and "a factor 1e+03 between the outputs" in str(err)
+
+
+@pytest.mark.parametrize("rows", [1, 2])
+def test_a_joint_fit_of_one_or_two_visits_says_why(tmp_path, capsys, rows):
+    tab = example_table()
+    tab.rows = tab.rows[:rows]
+    path = tab.write(tmp_path / f"rows{rows}.csv")
+    assert main(["fit", str(path), "--method", "joint"]) == 1
+    err = capsys.readouterr().err
+    assert "determine none of the model's parameters" in err and "internal error" not in err, err
+
+
+@pytest.mark.parametrize("options, said", [
+    (["--sigma1", "1e200"], "overflows"), (["--Q", "1e308"], "overflows"), (["--thermal", "--dT", "1e300"], "overflows"),
+    (["--tau", "1e-300"], "beyond a full turn"), (["--thermal", "--T-max", "1e9"], "beyond a full turn")])
+def test_budget_options_that_overflow_or_leave_the_circle_are_refused(capsys, options, said):
+    assert main(["budget", *options]) == 1
+    err = capsys.readouterr().err
+    assert said in err and "internal error" not in err, err
