@@ -20,6 +20,10 @@ Each effect is physical and outside the vocabulary, so the right answer is ``une
   axis): the vocabulary's K2 is constant, and u g_a^2 is in no generic family;
 * a fixture that rocks on its seat, rotated +-8 arcsec about IMU x by the side that is down (the
   sign of G_z): a misalignment that depends on the pose, neither K2 nor an asymmetry;
+* a bias that is a sine in time: 25 ug on x with an 8 h period (a supply following the lab's day),
+  20 ug on x, y, z (gains 1, 0.6, 0.8) with a 3 h period (a ground loop with the compressor's
+  cycle): a 1/f covariance absorbs any pattern in time, so flicker_noise must beat the best sine in
+  time to be named (an outside probe's: named, gap closed, chi2/dof up to 4.4 before);
 * a thermometer that reads 0.5 degC high when heating and low when cooling (its own hysteresis, or
   a self-heating that follows the airflow): the unit follows its true temperature, the file's
   t_* do not (``test_a_thermometer_with_a_hysteresis_is_unexplained``).
@@ -72,6 +76,12 @@ FOREIGN = {
     "k2_tempco": dict(extra_bias=lambda k, t, T, G, d: 0.5e-6 * (np.mean(T) - 20.0) * np.asarray(G) ** 2),
     "rocking_fixture": dict(extra_bias=lambda k, t, T, G, d: np.cross(
         np.array([np.sign(G[2]) * math.radians(8.0 / 3600.0), 0.0, 0.0]), np.asarray(G))),
+    # periodic biases (a supply following the lab's day, a ground loop with a compressor's cycle):
+    # flicker_noise absorbed them, gap closed, until the sine rival (rivals.periodic_rival)
+    "bias_sine_8h": dict(extra_bias=_bias(lambda k, t, d: (25.0 * math.sin(2 * math.pi * t / (8 * 3600.0) + 0.4),
+                                                          0.0, 0.0))),
+    "ground_loop_3h": dict(extra_bias=_bias(lambda k, t, d: tuple(
+        g * 20.0 * math.sin(2 * math.pi * t / (3 * 3600.0) + 1.1) for g in (1.0, 0.6, 0.8)))),
 }
 #: changes of the scale factors outside the vocabulary (its scale terms follow the temperature and
 #: the specific force, not the time or the branch), near the detection limit: 40 and -30 ppm of x

@@ -40,6 +40,7 @@ Jacobian, ``T`` the rival's columns made orthogonal to it, ``r`` the standardise
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 import numpy as np
 from scipy import stats
@@ -271,6 +272,54 @@ def angle_step_rival(r: np.ndarray, Q: np.ndarray, A: np.ndarray, time_s, min_si
     H[order[m:]] = 1.0
     T = A * np.repeat(H, 3)[:, None]
     return T, 0.5 * (float(ts[m - 1]) + float(ts[m])), S, k, searched
+
+
+#: the periodic rival's periods: from the campaign's span down to this many median visit spacings
+#: (a shorter sine is not resolved by the visits) and at most this many periods (the scan's cost)
+PERIODIC_MIN_SPACINGS = 4.0
+PERIODIC_MAX_PERIODS = 400
+
+
+def periodic_rival(r: np.ndarray, Q: np.ndarray, time_s, sigma_rows: np.ndarray, whiten) -> Optional[dict]:
+    """The best sine in time of the three biases, a mean term no candidate names, as a rival of
+    ``flicker_noise`` (verdict.mean_explains_better). A covariance in time (1/f) absorbs any
+    pattern in time, a periodic bias too: an outside probe's 8 h and 3 h sines of 15-30 ug (a
+    supply or ground loop following the lab's day, a compressor's cycle) were named flicker_noise
+    with the gap closed, chi2/dof up to 4.4 before. For each period ``P`` of a grid (the span ``T``
+    over ``j/2``, j = 2, 3, ...: the periodogram's frequencies oversampled twice, down to
+    :data:`PERIODIC_MIN_SPACINGS` median visit spacings, at most :data:`PERIODIC_MAX_PERIODS`),
+    the columns ``sin, cos(2 pi t / P)`` on each output (six, standardised as the residuals) and
+    their score ``S`` at the base fit (``candidates._score_mean``: off the model's span ``Q``).
+    Returns ``{"S", "k", "period_h", "n_periods"}`` of the largest S (None: too few visits); the
+    caller charges the scan ``2 log(n_periods)`` (Bonferroni over the grid, in AIC's units)."""
+    t = np.asarray(time_s, float)
+    n = t.size
+    if n < 12:
+        return None
+    span = float(t.max() - t.min())
+    steps = np.diff(np.sort(t))
+    steps = steps[steps > 0]
+    if span <= 0 or not steps.size:
+        return None
+    p_min = PERIODIC_MIN_SPACINGS * float(np.median(steps))
+    periods = [span / (j / 2.0) for j in range(2, 2 * PERIODIC_MAX_PERIODS + 2)]
+    periods = [P for P in periods if P >= p_min][:PERIODIC_MAX_PERIODS]
+    if not periods:
+        return None
+    best = None
+    state = _R(r)
+    for P in periods:
+        ph = 2.0 * math.pi * (t - t.min()) / P
+        B = np.zeros((n, 3, 6))
+        for a in range(3):
+            B[:, a, 2 * a] = np.sin(ph) / sigma_rows[:, a]
+            B[:, a, 2 * a + 1] = np.cos(ph) / sigma_rows[:, a]
+        sc = _score_mean(state, whiten(B.reshape(3 * n, 6)), Q)
+        if sc is not None and (best is None or sc[0] > best["S"]):
+            best = {"S": float(sc[0]), "k": int(sc[1]), "period_h": P / 3600.0}
+    if best is not None:
+        best["n_periods"] = len(periods)
+    return best
 
 
 def step_label(t_break_s: float) -> str:

@@ -31,7 +31,7 @@ from .generic import gap_shape, level_words, per_output_terms, sign_terms
 from .noise_level import (LEVEL_MIMICS, noise_level_rival, partial_without_level, soak_level_ambiguity,
                           soak_level_rival, uniform_ambiguity)
 from .results import _f, _p_is
-from .rivals import angle_step_rival, generic_rivals, reference_poses, rival_tests, step_label
+from .rivals import angle_step_rival, generic_rivals, periodic_rival, reference_poses, rival_tests, step_label
 from .series import series_of, series_txt
 
 
@@ -191,10 +191,18 @@ def decide(v: VerdictInputs) -> dict:
                 # saturated -- they fit any per-pose offset, which is what misplaced poses make
                 return []
             aic_noise = -2.0 * c.refit["delta_loglik"] + 2.0
+            # and the best sine in time of the biases (rivals.periodic_rival), its scan over periods
+            # charged 2 log(n_periods): a periodic bias was named flicker_noise (an outside probe)
+            sig_rows = np.broadcast_to(np.asarray(sigma, float), (campaign.n_visits, 3))
+            per = periodic_rival(base.r, Q, campaign.time_s, sig_rows, base.whitened)
+            tests = dict(generic0)
+            if per is not None:
+                tests[f"a sine in time (period {per['period_h']:.3g} h or an alias)"] = {
+                    "S": per["S"], "k": per["k"] + math.log(per["n_periods"])}
             if noise.known:
-                return [f for f, t in generic0.items() if -t["S"] + 2.0 * t["k"] < aic_noise]
+                return [f for f, t in tests.items() if -t["S"] + 2.0 * t["k"] < aic_noise]
             rr = float(base.r @ base.r)
-            return [f for f, t in generic0.items()
+            return [f for f, t in tests.items()
                     if t["S"] >= rr or -base.r.size * math.log(rr / (rr - t["S"])) + 2.0 * t["k"] < aic_noise]
 
         step_cache = []
