@@ -20,7 +20,7 @@ import pytest
 
 from triadcal.hardware.capture import (CSV_NAME, EVENTS_NAME, RAW_NAME, STATE_NAME, CaptureError, CaptureSettings, Stabilisation,
                                        capture, load_port_config, open_instruments, setpoint_missed)
-from triadcal.hardware.emulator import EmulatorTiming, emulate
+from triadcal.hardware.emulator import EmulatorTiming, FaultPlan, emulate
 from triadcal.hardware.protocols import Frame
 from triadcal.hardware.runner import _Runner, frame_problem
 from triadcal.hardware.storage import EventLog, RawStore, read_events, read_raw
@@ -125,6 +125,11 @@ def test_setpoint_missed_says_which_and_by_how_much():
     assert "70.20 degC, +90.20" in setpoint_missed(-20.0, [(70.2, 70.2, 70.2)], None)
     assert "-3276.8" in setpoint_missed(20.0, [], -3276.8)
     assert "PV is 17.00 degC, -3.00" in setpoint_missed(20.0, [(19.0, 19.0, 19.0)], 17.0)
+    # a PV that reads its setpoint while the unit sits 7 degC away (an outside probe's chamber): neither
+    # 2 degC from the setpoint nor the unit 10 away, said by their distance; a unit 3 degC warm is not
+    said = setpoint_missed(30.0, [(23.0, 23.0, 23.0)], 30.0)
+    assert "PV reads 30.00 degC and the unit's sensors 23.00 degC, 7.00 degC apart" in said
+    assert setpoint_missed(30.0, [(33.0, 33.0, 33.0)], 30.0) is None
 
 
 # -- end to end: an IMU of our own on a pty, the emulator's bench and chamber --------------------------
@@ -174,34 +179,60 @@ class FakeNmeaImu(threading.Thread):
         os.close(self.slave)
 
 
-@pytest.fixture
-def rig(tmp_path):
-    """``run(mutate, **settings) -> (report, campaign)`` with a fresh fake IMU each call."""
+def make_rig(tmp_path, faults=None, name="emu"):
+    """``run(mutate, **settings) -> (report, campaign)`` with a fresh fake IMU each call (``own_imu``:
+    the emulator's IMU, whose outputs follow the bench's real angles; ``plan``, ``setpoints``);
+    ``run.em`` the emulator (bench and chamber), with ``faults`` (a FaultPlan)."""
     timing = EmulatorTiming(time_scale=120.0, rate_hz=10.0, self_heating_time_constant_s=0.0)
-    em = emulate(tmp_path / "emu", effects=["bench_tilt"], timing=timing, seed=2).start()
+    em = emulate(tmp_path / name, effects=["bench_tilt"], timing=timing, seed=2, faults=faults).start()
     made = []
 
-    def run(mutate=None, out="out", **kw):
-        link = tmp_path / f"imu{len(made)}"
-        imu_fake = FakeNmeaImu(str(link), mutate=mutate)
-        made.append(imu_fake)
-        imu_fake.start()
+    def run(mutate=None, out="out", plan=PLAN, setpoints=(20.0,), own_imu=False, **kw):
         cfg = load_port_config(em.directory / "ports.toml")
-        cfg["imu"] = {**cfg["imu"], "port": str(link), "protocol": "nmea"}
+        imu_fake = None
+        if not own_imu:
+            link = tmp_path / f"imu{len(made)}"
+            imu_fake = FakeNmeaImu(str(link), mutate=mutate)
+            made.append(imu_fake)
+            imu_fake.start()
+            cfg["imu"] = {**cfg["imu"], "port": str(link), "protocol": "nmea"}
         imu, bench, chamber = open_instruments(cfg)
         settings = CaptureSettings(**{"tau_s": 20.0, "settle_s": 2.0, "stabilisation": FAST_STAB,
                                       "unit": "SN-FAKE-1", **kw})
         try:
-            report = capture(tmp_path / out, plan=PLAN, setpoints_C=[20.0], imu=imu, bench=bench, chamber=chamber,
-                             settings=settings)
+            report = capture(tmp_path / out, plan=plan, setpoints_C=list(setpoints), imu=imu, bench=bench,
+                             chamber=chamber, settings=settings)
         finally:
             bench.close()
             chamber.close()
-            imu_fake.close()
+            if imu_fake is not None:
+                imu_fake.close()
         return report, read_bench_csv(tmp_path / out / CSV_NAME)
 
+    run.em = em
+    return run
+
+
+@pytest.fixture
+def rig(tmp_path):
+    """``run(mutate, **settings) -> (report, campaign)`` with a fresh fake IMU each call."""
+    run = make_rig(tmp_path)
     yield run
-    em.stop()
+    run.em.stop()
+
+
+@pytest.fixture
+def faulty_rig(tmp_path):
+    """``make(FaultPlan) -> run`` as :func:`rig`, with a fault of the emulator's bench or chamber."""
+    made = []
+
+    def make(faults):
+        made.append(make_rig(tmp_path, faults, name=f"emu{len(made)}"))
+        return made[-1]
+
+    yield make
+    for run in made:
+        run.em.stop()
 
 
 def test_a_restart_of_the_imu_never_blends_two_periods_into_a_visit(rig, tmp_path):
@@ -437,3 +468,139 @@ def test_link_events_are_written_as_they_happen(tmp_path):
     assert [(e["text"], e["at_wall"]) for e in got] == [("IMU link lost: EIO", 123.0)]
     run.pump(0.0)
     assert len([e for e in read_events(tmp_path / "events.jsonl") if e["kind"] == "link"]) == 1
+
+
+# -- a visit's window against the soaked state and the bench (an outside probe, /tmp/probeM) -------
+def test_a_unit_leaving_the_stable_state_is_not_written_and_a_dead_chamber_is_said(faulty_rig, tmp_path):
+    """The chamber stops answering Modbus after the first visit and its heater goes off; the unit
+    cools at 6 degC/min. Before: every later row written at the setpoint, t_x 29.49 -> 25.20, exit 0,
+    no word (the chamber and the unit were checked once per setpoint). Now each window is held
+    against the temperature at 'stable': the visit is redone (visit_not_stable, with the rate and
+    the drift), then the capture stops naming the setpoint, the drift and the rate; the chamber's
+    silence is an event."""
+    run = faulty_rig(FaultPlan(chamber_dies_after_moves=1))
+    start = {}
+
+    def cooling(seq, t, w, T):
+        if run.em.bench_moves >= 2:
+            t0 = start.setdefault("t", t)
+            T = tuple(v - 0.1 * (t - t0) for v in T)            # 6 degC/min
+        return seq, t, w, T
+
+    with pytest.raises(CaptureError) as exc:
+        run(cooling, max_attempts=2)
+    msg = str(exc.value)
+    assert "\n" not in msg and msg.startswith("position P2 at setpoint 20 degC: no clean window in 2 attempts")
+    assert "from 25.00 at 'stable'" in msg and "moving -6 degC/min" in msg and "has not answered since" in msg
+    c = read_bench_csv(tmp_path / "out" / CSV_NAME)
+    assert c.n_visits == 1 and c.position.tolist() == ["P1"] and abs(c.t[0, 0] - 25.0) < 1e-9
+    ev = read_events(tmp_path / "out" / EVENTS_NAME)
+    refused = [e for e in ev if e["kind"] == "visit_not_stable"]
+    assert len(refused) == 2
+    for e in refused:
+        assert e["rate_C_per_min"] == pytest.approx(-6.0, abs=0.01) and e["rate_limit_C_per_min"] < 0.5
+        assert e["stable_t_C"] == pytest.approx(25.0) and e["drift_C"] < 0
+    assert refused[1]["drift_C"] < -2.0 and refused[1]["drift_C"] < refused[0]["drift_C"]
+    unread = [e for e in ev if e["kind"] == "chamber_unread"]
+    assert len(unread) == 1 and unread[0]["position"] == "P2" and "failed after" in unread[0]["text"]
+
+
+def test_a_chamber_that_stops_answering_is_reported_not_ignored(faulty_rig, tmp_path):
+    """The same dead chamber with a unit that stays where it was (its thermal mass, a short
+    campaign): every row is right and written, and the silence is a warning and an event (before:
+    no request after 'stable', nothing said)."""
+    run = faulty_rig(FaultPlan(chamber_dies_after_moves=1))
+    report, c = run(None)
+    assert c.n_visits == len(PLAN)
+    said = [w for w in report.warnings if "the chamber stopped answering" in w]
+    assert len(said) == 1 and said[0].startswith("setpoint 20 degC: the chamber stopped answering at position P2")
+    ev = read_events(tmp_path / "out" / EVENTS_NAME)
+    assert [e["position"] for e in ev if e["kind"] == "chamber_unread"] == ["P2"]
+    visits = [e for e in ev if e["kind"] == "visit"]
+    assert visits[0]["chamber_C"] == pytest.approx(20.0, abs=0.1) and visits[1]["chamber_C"] is None
+
+
+def test_a_bench_that_creeps_during_the_window_is_caught_by_its_position_after_it(faulty_rig, tmp_path):
+    """Once it has reported its position in position, axis 1 creeps 1e-3 deg/s and POS? says so.
+    Before: POS? was asked once, before the settle, and every row carried the commanded angle (the
+    probe: 0.055 deg off at the window's end, tolerance 0.01; with a long window it was called "a
+    spike"). Now POS? after the window: 62 s later the axis is ~0.06 deg off, the visit is redone
+    (visit_bench_moved, with the offset), and the capture stops naming it."""
+    run = faulty_rig(FaultPlan(bench_creep_deg_s=1e-3))
+    with pytest.raises(CaptureError) as exc:
+        run(None, tau_s=60.0, max_attempts=2)
+    msg = str(exc.value)
+    assert msg.startswith("position P1 at setpoint 20 degC: no clean window in 2 attempts, the last one ended "
+                          "with the bench off the commanded position: the bench reads (0.0")
+    assert "(in-position tolerance 0.01 deg): it moved during the visit" in msg and "spike" not in msg
+    assert not (tmp_path / "out" / CSV_NAME).exists()
+    moved = [e for e in read_events(tmp_path / "out" / EVENTS_NAME) if e["kind"] == "visit_bench_moved"]
+    assert len(moved) == 2
+    for e in moved:
+        assert e["target_deg"] == [0.0, 0.0] and e["tolerance_deg"] == 0.01
+        # 62 s of window and settle at 1e-3 deg/s: 0.062 deg, less what the stream's latency takes off
+        assert 0.02 <= e["offset_deg"][0] <= 0.1 and e["offset_deg"][1] == 0.0
+
+
+STUCK_PLAN = {"A": (0.0, 0.0), "B": (90.0, 0.0), "C": (90.0, 90.0), "D": (0.0, 90.0)}
+
+
+def test_a_stuck_bench_reporting_each_target_stops_the_capture(faulty_rig, tmp_path):
+    """The bench stops moving after its second move but reports each target, in position. Before:
+    the later rows held the output of the second position within 1e-5 V, exit 0. Gravity turns by
+    90 deg in the IMU frame from B (90, 0) to C (90, 90) (models.campaign.nominal_gravity), so the
+    mean output must change by ~140 % of |w|; it changed by the noise: the capture stops naming
+    both visits and the numbers, C is not written. A to B (same gravity, other axis-1 angle) is no
+    change and is not refused; nor is the same plan on a bench that moves."""
+    good_run = faulty_rig(None)
+    _, c = good_run(None, own_imu=True, plan=STUCK_PLAN, out="good")
+    assert c.n_visits == 4
+    run = faulty_rig(FaultPlan(bench_stuck_after_moves=2))
+    with pytest.raises(CaptureError) as exc:
+        run(None, own_imu=True, plan=STUCK_PLAN)
+    msg = str(exc.value)
+    assert msg.startswith("setpoint 20 degC: position C (90, 90) after position B (90, 0): the bench did not move: "
+                          "the plan turns gravity by 90.0 deg in the IMU frame")
+    dw = float(msg.split("but w changed by ")[1].split(" ")[0])
+    scale = float(msg.split("|w| = ")[1].split(";")[0])
+    assert dw < 1e-4 * scale and 0.5 < scale < 5.0
+    c = read_bench_csv(tmp_path / "out" / CSV_NAME)
+    assert c.position.tolist() == ["A", "B"]
+    stuck = [e for e in read_events(tmp_path / "out" / EVENTS_NAME) if e["kind"] == "bench_stuck"]
+    assert len(stuck) == 1 and stuck[0]["position"] == "C" and stuck[0]["previous"] == "B"
+
+
+def test_bench_did_not_move_compares_gravity_not_angles():
+    """Unit rule: the same gravity with other angles is no move; a 90 deg turn with a large bias
+    (1 % of |w| is not reached) but far beyond the noise is a move; the same turn within the noise
+    is not."""
+    from triadcal.hardware.capture import bench_did_not_move
+
+    prev = {"axis1_deg": 0.0, "axis2_deg": 0.0, "w": np.array([2.5, 3.5, 2.5]), "sd": np.full(3, 1e-4),
+            "n_samples": 200}
+    same = dict(prev)
+    assert bench_did_not_move(prev, same, 180.0, 0.0) is None                # gravity (0, 1, 0) both
+    biased = {**prev, "w": prev["w"] + np.array([0.01, -0.01, 0.0])}          # 0.1 V/g on a 5 V bias
+    assert bench_did_not_move(prev, biased, 90.0, 90.0) is None
+    noise = {**prev, "w": prev["w"] + 1e-5}
+    assert "the bench did not move: the plan turns gravity by 90.0 deg" in bench_did_not_move(prev, noise, 90.0, 90.0)
+
+
+def test_a_bench_answering_an_error_is_named_in_the_timeout_and_logged_once_with_a_count(faulty_rig, tmp_path):
+    """STAT? answers -113,"Undefined header" from the second move on. Before: "bench did not reach
+    (90.0, 90.0) in 600 s" and 5 956 identical bench_error lines in the event log (1.15 MB in 60 s).
+    Now the message has the last error and how many came; the log has the first and one record of
+    the repeats (no data lost: the counts add up to the message's)."""
+    from triadcal.hardware.drivers.bench import BenchError
+
+    run = faulty_rig(FaultPlan(bench_stat_error_after_moves=1))
+    with pytest.raises(BenchError) as exc:
+        run(None, move_timeout_s=240.0)
+    msg = str(exc.value)
+    assert msg.startswith("bench did not reach (90.0, 0.0) in 240 s; it answered an error ")
+    assert msg.endswith("""answer '-113,"Undefined header"' to 'STAT?' is neither 1 (in position) nor 0 (moving)""")
+    n = int(msg.split("answered an error ")[1].split(" times")[0])
+    assert n >= 2
+    errs = [e for e in read_events(tmp_path / "out" / EVENTS_NAME) if e["kind"] == "bench_error"]
+    assert all("-113" in e["text"] for e in errs) and len(errs) <= 2 + n // 100
+    assert "repeats" not in errs[0] and sum(e.get("repeats", 1) for e in errs) == n

@@ -23,7 +23,7 @@ from .. import __version__
 from ..io.bench_csv import BenchCSVError, format_bench_csv, read_bench_csv
 from ..models.campaign import Campaign
 from ..models.simulate import Schedule
-from .drivers.bench import Bench, BenchError
+from .drivers.bench import DEFAULT_TOLERANCE_DEG, Bench, BenchError, within_tolerance
 from .drivers.bench_template import BenchControllerError
 from .drivers.chamber import Chamber
 from .drivers.imu import ImuReadout, StreamThread
@@ -269,8 +269,9 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
             if (k + 1) * len(labels) <= len(rows):
                 continue
             # -- chamber and stabilisation --
-            soak(run, chamber, events, settings, k, sp, f"s{k:03d}", f"setpoint {sp:g} degC", notify,
-                 len(rows), total)
+            stable_t = soak(run, chamber, events, settings, k, sp, f"s{k:03d}", f"setpoint {sp:g} degC", notify,
+                            len(rows), total)
+            chamber_lost = False
 
             for j, label in enumerate(labels):
                 if k * len(labels) + j < len(rows):
@@ -279,21 +280,34 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
                 for attempt in range(1, settings.max_attempts + 1):
                     tag = f"s{k:03d}-{label}-{session}.{attempt}"
                     row = _visit(run, bench, events, settings, tag, a1, a2, notify,
-                                 {"done": len(rows), "total": total, "setpoint_C": sp, "position": label})
+                                 {"done": len(rows), "total": total, "setpoint_C": sp, "position": label},
+                                 stable_t=stable_t)
+                    pv, chamber_lost = _chamber_at_visit(chamber, events, run, sp, label, chamber_lost)
                     if row is not None:
                         break
                     redone += 1
                 else:
-                    raise CaptureError(f"position {label} at {sp:g} degC: no clean window in {settings.max_attempts} "
-                                       f"attempts, the last one {VISIT_PROBLEMS[run.visit_problem]} (events "
-                                       f"{run.visit_problem} in {EVENTS_NAME})")
+                    raise CaptureError(f"position {label} at setpoint {sp:g} degC: no clean window in "
+                                       f"{settings.max_attempts} attempts, the last one "
+                                       f"{VISIT_PROBLEMS[run.visit_problem]}"
+                                       + (f": {run.visit_detail}" if run.visit_detail else "")
+                                       + (f"; the chamber has not answered since position {chamber_lost}"
+                                          if chamber_lost else "")
+                                       + f" (events {run.visit_problem} in {EVENTS_NAME})")
+                # a bench that reports each target but does not move: the output must follow gravity
+                stuck = bench_did_not_move(rows[-1], row, a1, a2) if rows else None
+                if stuck is not None:
+                    prev = rows[-1]
+                    events.write("bench_stuck", tag=tag, position=label, previous=prev["position"], text=stuck)
+                    raise CaptureError(f"setpoint {sp:g} degC: position {label} ({a1:g}, {a2:g}) after position "
+                                       f"{prev['position']} ({prev['axis1_deg']:g}, {prev['axis2_deg']:g}): {stuck}")
                 raw.sync()   # every sample of the visit is on disk before the visit counts
                 row.update(unit=settings.unit, setpoint_C=sp, direction=direction, position=label,
                            axis1_deg=a1, axis2_deg=a2, tau_s=settings.tau_s, raw_visit=tag)
                 row["time_s"] = row.pop("mid_instrument_s") + offset
                 rows.append(row)
                 atomic_write_text(out / CSV_NAME, format_bench_csv(_campaign(rows, metadata)))
-                events.write("visit", index=len(rows), tag=tag, n_samples=row["n_samples"])
+                events.write("visit", index=len(rows), tag=tag, n_samples=row["n_samples"], chamber_C=pv)
                 notify({"event": "visit", "done": len(rows), "total": total, "setpoint_C": sp,
                         "position": label})
         run.phase, run.visit_tag = "idle", ""
@@ -342,10 +356,12 @@ def finish_session(out: Path, imu, run: "_Runner", events: EventLog, session: in
 
 
 def soak(run: "_Runner", chamber, events: EventLog, settings: CaptureSettings, index: int, sp: float, tag: str,
-         what: str, notify, done: int, total: int) -> None:
+         what: str, notify, done: int, total: int) -> np.ndarray:
     """Set the chamber to ``sp`` degC and wait until the unit's temperatures meet the
     stabilisation rule (events ``setpoint`` and ``stable``); ``what`` names the step in the error
-    raised when the rule's timeout passes first."""
+    raised when the rule's timeout passes first. Returns the unit's temperatures (mean of the
+    rule's last window, per sensor) at the moment it was declared stable: each visit's window is
+    held against them (:func:`thermal_departure`)."""
     chamber.set_setpoint_C(sp)
     events.write("setpoint", index=index, setpoint_C=sp)
     run.phase, run.visit_tag = "soak", tag
@@ -369,7 +385,9 @@ def soak(run: "_Runner", chamber, events: EventLog, settings: CaptureSettings, i
             notify({"event": "soak", "done": done, "total": total, "setpoint_C": sp,
                     "rate_C_per_min": None if rate is None else rate * 60.0,
                     "chamber_C": _safe(chamber.temperature_C)})
-    events.write("stable", index=index, setpoint_C=sp, after_s=run.now - t_start)
+    stable_t = np.mean(np.array([T for _, T in run.temps], float), axis=0)
+    events.write("stable", index=index, setpoint_C=sp, after_s=run.now - t_start,
+                 t_C=[float(v) for v in stable_t])
     try:
         pv, unread = chamber.temperature_C(), None
     except OSError as exc:
@@ -382,6 +400,27 @@ def soak(run: "_Runner", chamber, events: EventLog, settings: CaptureSettings, i
     if missed:
         events.write("setpoint_missed", index=index, setpoint_C=sp, text=missed)
         run.warnings.append(f"{what}: {missed}")
+    return stable_t
+
+
+def _chamber_at_visit(chamber, events: EventLog, run: "_Runner", sp: float, label: str, lost):
+    """The chamber's PV after a visit's window (one register read), None when it does not answer:
+    said once a setpoint (event ``chamber_unread``, a warning of the run; ``chamber_answers`` when
+    it comes back). An outside probe's chamber stopped answering after the first visit and its
+    heater went off: no request was made after 'stable', nothing said. Returns ``(pv, lost)``,
+    ``lost`` the position at which it stopped answering (or False)."""
+    try:
+        pv = chamber.temperature_C()
+    except OSError as exc:
+        if not lost:
+            lost = label
+            events.write("chamber_unread", setpoint_C=sp, position=label, text=str(exc))
+            run.warnings.append(f"setpoint {sp:g} degC: the chamber stopped answering at position {label} "
+                                f"({exc}); its visits are checked on the unit's own temperatures only")
+        return None, lost
+    if lost:
+        events.write("chamber_answers", setpoint_C=sp, position=label, chamber_C=pv)
+    return pv, False
 
 
 def _safe(fn):
@@ -395,7 +434,10 @@ def _safe(fn):
 VISIT_PROBLEMS = {"visit_incomplete": "had too few samples",
                   "visit_clock_fault": "held a restart or a step of the IMU's clock",
                   "visit_overfull": "held more samples than its length and the rate allow",
-                  "visit_outlier": "held a sample far from the window's others (a spike)"}
+                  "visit_outlier": "held a sample far from the window's others (a spike)",
+                  "visit_not_stable": "was not at the setpoint's stable temperature",
+                  "visit_bench_moved": "ended with the bench off the commanded position",
+                  "visit_bench_unread": "ended with the bench's position unreadable"}
 #: a window holding more than this times the samples its length and the rate allow is not one
 #: period of one stream (two streams interleaved, a clock running slow): the visit is redone
 OVERFULL = 1.25
@@ -443,27 +485,192 @@ def window_outlier(frames) -> Optional[str]:
     return None
 
 
+#: -- the checks of a visit's window against the state the setpoint's soak declared stable --
+#: (docs/hardware.md, "What a visit must be"). A window whose unit temperatures move faster than
+#: VISIT_RATE_FACTOR times the stabilisation's rate criterion is not the stable state: the soak
+#: ended with the rate below the criterion over ``window_s``, and a settled unit's rate only falls
+#: after that; ten times the criterion (0.1 degC/min by default) is "well beyond" it yet far below
+#: what a chamber that stopped does to a unit (an outside probe: 5 to 9 degC/min) ...
+VISIT_RATE_FACTOR = 10.0
+#: ... but the slope of a short window is noisy: never refused for a slope within VISIT_RATE_SE
+#: standard errors of the window's own least-squares fit (the sensor's noise, measured), nor for one
+#: that moves the temperature by less than VISIT_RATE_MIN_CHANGE_C over the window (a quantised
+#: sensor of 0.0625 degC stepping once)
+VISIT_RATE_SE = 5.0
+VISIT_RATE_MIN_CHANGE_C = 0.1
+#: a window whose mean unit temperature is farther than this (degC, any sensor) from the temperature
+#: at which the soak declared the unit stable is not of that setpoint's state: 50 min of drift at the
+#: default criterion of 0.01 degC/min, longer than a setpoint's visits take
+VISIT_DRIFT_C = 0.5
+
+#: -- a bench that reports each target but did not move: two consecutive visits whose nominal gravity
+#: directions in the IMU frame (models.campaign.nominal_gravity, the bench kinematics) are at least
+#: STUCK_TURN_DEG apart must differ in their mean output: the unit vector of gravity changes by
+#: 2 sin(5 deg) = 17 % or more, so the output by about 17 % of |w| (less by the share of a bias).
+STUCK_TURN_DEG = 10.0
+#: The outputs count as unchanged when |dw| is below STUCK_FRACTION of |w| (17 times below the
+#: least change of a bias-free unit) *and* within the noise: STUCK_NOISE_SE standard errors of the
+#: difference of the two means (at least STUCK_FLOOR of |w|, for a quantised or noiseless output).
+#: A unit with a large bias (a 2.5 V offset, 0.1 V/g) moves less than 1 % of |w| but far more than its
+#: noise, and is not refused.
+STUCK_FRACTION = 0.01
+STUCK_NOISE_SE = 10.0
+STUCK_FLOOR = 1e-4
+#: identical consecutive bench errors while polling a move: written once, then as one record with a
+#: repeat count when they change or stop, and at least this often (wall seconds) while they go on
+REPEAT_RECORD_WALL_S = 10.0
+
+
+def thermal_departure(frames, stable_t, crit: Stabilisation) -> Optional[tuple]:
+    """``(text, fields)`` when a window's unit temperatures are not the state ``stable_t`` the soak
+    declared stable (a rate or a drift beyond the limits above), else None."""
+    if stable_t is None or len(frames) < 4:
+        return None
+    stable_t = np.asarray(stable_t, float)
+    t = np.array([f.time_s for f in frames], float)
+    T = np.array([f.t for f in frames], float)
+    if not (np.all(np.isfinite(T)) and np.all(np.isfinite(stable_t))):
+        return None
+    tc = t - t.mean()
+    sxx = float(tc @ tc)
+    span = float(t[-1] - t[0])
+    if sxx <= 0.0 or span <= 0.0:
+        return None
+    slope = (tc @ (T - T.mean(axis=0))) / sxx                          # degC/s per sensor
+    resid = T - T.mean(axis=0) - np.outer(tc, slope)
+    se = np.sqrt(np.sum(resid ** 2, axis=0) / max(len(t) - 2, 1) / sxx)
+    limit = np.maximum.reduce([np.full(3, VISIT_RATE_FACTOR * crit.rate_C_per_min / 60.0), VISIT_RATE_SE * se,
+                               np.full(3, VISIT_RATE_MIN_CHANGE_C / span)])
+    drift = T.mean(axis=0) - stable_t
+    badness = np.maximum(np.abs(slope) / limit, np.abs(drift) / VISIT_DRIFT_C)
+    i = int(np.argmax(badness))
+    if badness[i] <= 1.0:
+        return None
+    a = "xyz"[i]
+    fields = {"sensor": f"t_{a}", "t_C": float(T[:, i].mean()), "stable_t_C": float(stable_t[i]),
+              "drift_C": float(drift[i]), "drift_limit_C": VISIT_DRIFT_C, "rate_C_per_min": float(slope[i] * 60.0),
+              "rate_limit_C_per_min": float(limit[i] * 60.0)}
+    text = (f"t_{a} {T[:, i].mean():.2f} degC, {drift[i]:+.2f} degC from {stable_t[i]:.2f} at 'stable' "
+            f"(limit {VISIT_DRIFT_C:g}), moving {slope[i] * 60.0:+.3g} degC/min in the window (limit "
+            f"{limit[i] * 60.0:.3g}): the unit left the setpoint's stable state (has the chamber stopped?)")
+    return text, fields
+
+
+def bench_did_not_move(prev: dict, row: dict, a1: float, a2: float) -> Optional[str]:
+    """Why the visit ``row`` at ``(a1, a2)`` cannot have been made where the bench said, after the
+    visit ``prev``: the nominal gravity turned by :data:`STUCK_TURN_DEG` or more in the IMU frame and
+    the mean output did not change (the thresholds above); None when it did, or need not."""
+    from ..models.campaign import nominal_gravity
+
+    g = nominal_gravity([prev["axis1_deg"], a1], [prev["axis2_deg"], a2])
+    turn = float(np.degrees(np.arccos(np.clip(g[0] @ g[1], -1.0, 1.0))))
+    if turn < STUCK_TURN_DEG:
+        return None
+    w0, w1 = np.asarray(prev["w"], float), np.asarray(row["w"], float)
+    dw = float(np.linalg.norm(w1 - w0))
+    scale = max(float(np.linalg.norm(w0)), float(np.linalg.norm(w1)))
+    var = 0.0
+    for r in (prev, row):
+        sd = r.get("sd")
+        if sd is not None and r.get("n_samples"):
+            var += float(np.sum(np.square(np.asarray(sd, float)))) / float(r["n_samples"])
+    se = float(np.sqrt(var)) if np.isfinite(var) else 0.0
+    limit = min(STUCK_FRACTION * scale, max(STUCK_NOISE_SE * se, STUCK_FLOOR * scale))
+    if dw >= limit:
+        return None
+    return (f"the bench did not move: the plan turns gravity by {turn:.1f} deg in the IMU frame, which "
+            f"changes the output by about {200.0 * np.sin(np.radians(turn / 2)):.0f} % of |w|, but w changed by "
+            f"{dw:.3g} ({100.0 * dw / scale:.3g} % of |w| = {scale:.4g}; limit {limit:.3g}: {STUCK_FRACTION:.0%} of "
+            f"|w| and {STUCK_NOISE_SE:g} standard errors of the means). The bench reports a position it "
+            "did not reach (a stuck axis, a slipping coupling); the rows before this one are kept, check the "
+            "last of them")
+
+
+class _RepeatedEvents:
+    """Consecutive identical events of one kind: the first written at once, the repeats as one record
+    ``repeats=n`` (n more since the last record) when the text changes, on :meth:`flush`, and every
+    :data:`REPEAT_RECORD_WALL_S` while they go on; ``count`` and ``last`` for the error message. A
+    bench answering an error to every poll wrote 5 956 identical lines (1.15 MB) in 60 s."""
+
+    def __init__(self, events: EventLog, kind: str):
+        self.events, self.kind = events, kind
+        self.last: Optional[str] = None
+        self.count = 0
+        self.pending = 0
+        self._written = 0.0
+
+    def add(self, text: str) -> None:
+        self.count += 1
+        if text == self.last:
+            self.pending += 1
+            if time.monotonic() - self._written >= REPEAT_RECORD_WALL_S:
+                self.flush()
+            return
+        self.flush()
+        self.last = text
+        self.events.write(self.kind, text=text)
+        self._written = time.monotonic()
+
+    def flush(self) -> None:
+        if self.pending:
+            self.events.write(self.kind, text=self.last, repeats=self.pending)
+            self.pending = 0
+        self._written = time.monotonic()
+
+
+def _bench_position_problem(bench: Bench, a1: float, a2: float) -> Optional[tuple]:
+    """``(kind, text, fields)`` when the bench, asked after the recording window, is not within its
+    in-position tolerance of the commanded position (or cannot say where it is), else None."""
+    try:
+        pos = bench.position()
+    except BenchControllerError:
+        raise
+    except BenchError as exc:
+        return "visit_bench_unread", f"POS? after the window: {exc}", {}
+    profile = getattr(bench, "profile", None)
+    tol = getattr(profile, "tolerance_deg", None) or getattr(bench, "tolerance_deg", None) or DEFAULT_TOLERANCE_DEG
+    wraps = [ax.wrap for ax in profile.axes] if profile is not None else ("360", "360")
+    target = getattr(bench, "target", None) or (a1, a2)
+    if within_tolerance(pos, target, tol, wraps):
+        return None
+    off = [float((p - t + 180.0) % 360.0 - 180.0) if w != "none" else float(p - t) for p, t, w in zip(pos, target, wraps)]
+    text = (f"the bench reads ({pos[0]:.4f}, {pos[1]:.4f}) after the window, {max(map(abs, off)):.3g} deg off the "
+            f"commanded ({target[0]:g}, {target[1]:g}) (in-position tolerance {tol:g} deg): it moved during the visit")
+    return "visit_bench_moved", text, {"position_deg": list(map(float, pos)), "target_deg": list(map(float, target)),
+                                       "offset_deg": off, "tolerance_deg": float(tol)}
+
+
 def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettings, tag: str,
-           a1: float, a2: float, notify, info: dict) -> Optional[dict]:
-    """Move, settle, record one window; the row's values, or None when too few samples came."""
+           a1: float, a2: float, notify, info: dict, stable_t=None) -> Optional[dict]:
+    """Move, settle, record one window; the row's values, or None when the window is refused
+    (``run.visit_problem`` and ``run.visit_detail`` say why): too few samples, a clock fault, a
+    bench off its position after the window, a unit not at ``stable_t`` (the soak's stable
+    temperatures; None: not checked, a ramp), a spike."""
     run.phase, run.visit_tag = "move", tag
+    run.visit_detail = ""
     notify({"event": "move", **info})
     faults = run.clock_faults
     bench.move_to(a1, a2)
     t_move = run.now
-    while True:
-        run.pump()
-        try:
-            ready = bench.in_position()
-        except BenchControllerError:   # the controller's own error: polling again will not help
-            raise
-        except BenchError as exc:      # keep polling until the move timeout
-            events.write("bench_error", text=str(exc))
-            ready = False
-        if ready:
-            break
-        if run.now - t_move > settings.move_timeout_s:
-            raise BenchError(f"bench did not reach ({a1}, {a2}) in {settings.move_timeout_s:g} s")
+    errors = _RepeatedEvents(events, "bench_error")
+    try:
+        while True:
+            run.pump()
+            try:
+                ready = bench.in_position()
+            except BenchControllerError:   # the controller's own error: polling again will not help
+                raise
+            except BenchError as exc:      # keep polling until the move timeout
+                errors.add(str(exc))
+                ready = False
+            if ready:
+                break
+            if run.now - t_move > settings.move_timeout_s:
+                raise BenchError(f"bench did not reach ({a1}, {a2}) in {settings.move_timeout_s:g} s"
+                                 + (f"; it answered an error {errors.count} times while polling, the last: "
+                                    f"{errors.last}" if errors.count else ""))
+    finally:
+        errors.flush()
     # in position: the first frame read after this moment starts the settling time
     run.phase = "settle"
     t_ready = None
@@ -482,6 +689,14 @@ def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettin
     run.phase = "idle"
     rate = run.rate_hz or 1.0
     expected = settings.tau_s * rate
+    # where the bench is after the window (asked once before the settle only, an outside probe's bench
+    # crept 0.055 deg in a window with every row at the commanded angle); first, as it explains the rest
+    moved = _bench_position_problem(bench, a1, a2)
+    if moved is not None:
+        kind, text, fields = moved
+        events.write(kind, tag=tag, text=text, **fields)
+        run.visit_problem, run.visit_detail = kind, text
+        return None
     if run.clock_faults != faults:
         # a restart or clock step during the move, settling or window: the window's frames may
         # come from two periods of the unit (runner.py); redo the visit
@@ -496,10 +711,16 @@ def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettin
         events.write("visit_overfull", tag=tag, n_samples=len(got), expected=expected)
         run.visit_problem = "visit_overfull"
         return None
+    departed = thermal_departure(got, stable_t, settings.stabilisation)
+    if departed is not None:
+        text, fields = departed
+        events.write("visit_not_stable", tag=tag, text=text, **fields)
+        run.visit_problem, run.visit_detail = "visit_not_stable", text
+        return None
     why = window_outlier(got)
     if why is not None:
         events.write("visit_outlier", tag=tag, reason=why, n_samples=len(got))
-        run.visit_problem = "visit_outlier"
+        run.visit_problem, run.visit_detail = "visit_outlier", why
         return None
     w = np.array([f.w for f in got])
     t = np.array([f.t for f in got])

@@ -51,6 +51,16 @@ class FaultPlan:
     bench's own random stream, so the IMU thread's draws do not change which lines);
     ``bench_ignore_lines``: 1-based numbers of the command lines the bench drops, always (a
     deterministic fault for tests).
+
+    Bench and chamber faults a capture must not take for data (docs/hardware.md, "What a visit must
+    be"), each counted in the bench's move commands (``POS``): ``bench_creep_deg_s``: once it has
+    reported its position in position (``POS?``), axis 1 creeps on at this rate (deg/s), and ``POS?``
+    says so; ``bench_stuck_after_moves``:
+    after this many moves the bench does not move any more but reports each commanded target as its
+    position, in position; ``bench_stat_error_after_moves``: after this many moves ``STAT?`` answers
+    ``-113,"Undefined header"``; ``chamber_dies_after_moves``: after this many moves the chamber
+    answers no Modbus request and its heater is off (the air goes back to ``EmulatorTiming.start_C``).
+    0: never.
     """
 
     garbage_prob: float = 0.0
@@ -60,6 +70,10 @@ class FaultPlan:
     stalls: Sequence[tuple] = ()
     bench_ignore_prob: float = 0.0
     bench_ignore_lines: Sequence[int] = ()
+    bench_creep_deg_s: float = 0.0
+    bench_stuck_after_moves: int = 0
+    bench_stat_error_after_moves: int = 0
+    chamber_dies_after_moves: int = 0
 
     @classmethod
     def all_faults(cls, start_s: float = 60.0) -> "FaultPlan":
@@ -147,6 +161,10 @@ class Emulator:
         self.timing = timing or EmulatorTiming()
         self.faults = faults or FaultPlan()
         self.physics = UnitPhysics(self.truth, self.timing, seed)
+        self.physics.creep_deg_s = float(self.faults.bench_creep_deg_s)
+        self.bench_moves = 0                      # POS commands received (the faults count them)
+        self._stuck_target: Optional[tuple] = None
+        self.chamber_dead = False
         self.rng = np.random.default_rng(seed + 1)
         self.bench_seed = seed + 2
         self.keep_log = keep_log
@@ -455,9 +473,24 @@ class Emulator:
             except ValueError:
                 self._bench_error = '-102,"Syntax error"'
                 return None
+            self.bench_moves += 1
+            f = self.faults
+            if f.chamber_dies_after_moves and self.bench_moves > f.chamber_dies_after_moves and not self.chamber_dead:
+                self.chamber_dead = True          # no answer from now on, the heater off
+                self.physics.set_setpoint(t, self.timing.start_C)
+            if f.bench_stuck_after_moves and self.bench_moves > f.bench_stuck_after_moves:
+                self._stuck_target = (a1, a2)     # does not move; reports the target, in position
+                return None
             self.physics.move(t, a1, a2)
             return None
-        pos, target, ready = self.physics.bench_state(t)
+        # a creeping bench reports its target exactly when first asked in position, then creeps
+        pos, target, ready = self.physics.bench_state(t, start_creep=head == "POS?")
+        if self._stuck_target is not None:
+            pos = target = self._stuck_target
+            ready = True
+        if (head == "STAT?" and self.faults.bench_stat_error_after_moves
+                and self.bench_moves > self.faults.bench_stat_error_after_moves):
+            return '-113,"Undefined header"'
         if head == "POS?":
             return f"{pos[0]:.6f},{pos[1]:.6f}"
         if head == "POS:TARG?":
@@ -528,7 +561,7 @@ class Emulator:
         return frame[:-2]
 
     def _modbus_reply(self, req: bytes) -> Optional[bytes]:
-        if not req or req[0] != self.chamber_slave:
+        if not req or req[0] != self.chamber_slave or self.chamber_dead:
             return None                       # damaged, or for another slave: stay silent
         self.modbus_requests += 1
         fc = req[1]

@@ -82,6 +82,10 @@ class UnitPhysics:
         self._branch_follows_unit = False
         # bench: a move from (a0) at t0 to (a1) arriving at t_arrive, in position at t_ready
         self._move = (0.0, (0.0, 0.0), (0.0, 0.0), 0.0, 0.0)
+        #: once in position, axis 1 creeps on at this rate, deg/s (FaultPlan.bench_creep_deg_s), from
+        #: ``creep_from`` (instrument s; set by the bench when it first reports the position in position)
+        self.creep_deg_s = 0.0
+        self.creep_from: Optional[float] = None
         self._errors = self._draw_bench_errors()
 
     # -- thermal ----------------------------------------------------------------------
@@ -138,6 +142,7 @@ class UnitPhysics:
         with self.lock:
             start = self._angles(t)
             start = (float(start[0]), float(start[1]))
+            self.creep_from = None
             dist = max(abs(a1 - start[0]), abs(a2 - start[1]))
             arrive = t + dist / self.timing.bench_rate_deg_s
             self._move = (t, start, (float(a1), float(a2)), arrive, arrive + self.timing.bench_settle_s)
@@ -146,11 +151,16 @@ class UnitPhysics:
     def _angles(self, t):
         t0, a0, a1, arrive, _ = self._move
         frac = np.clip((np.asarray(t, float) - t0) / max(arrive - t0, 1e-12), 0.0, 1.0)
-        return a0[0] + (a1[0] - a0[0]) * frac, a0[1] + (a1[1] - a0[1]) * frac
+        creep = (self.creep_deg_s * np.clip(np.asarray(t, float) - self.creep_from, 0.0, None)
+                 if self.creep_deg_s and self.creep_from is not None else 0.0)
+        return a0[0] + (a1[0] - a0[0]) * frac + creep, a0[1] + (a1[1] - a0[1]) * frac
 
-    def bench_state(self, t: float):
-        """(present angles, target angles, in position) at instrument time ``t``."""
+    def bench_state(self, t: float, start_creep: bool = False):
+        """(present angles, target angles, in position) at instrument time ``t``; ``start_creep``:
+        a creeping bench (``creep_deg_s``) starts to creep now if it is in position."""
         with self.lock:
+            if start_creep and self.creep_deg_s and self.creep_from is None and t >= self._move[4]:
+                self.creep_from = float(t)
             a = self._angles(t)
             return (float(a[0]), float(a[1])), self._move[2], t >= self._move[4]
 

@@ -118,6 +118,7 @@ class _Runner:
         self.temps: deque = deque()
         self.warnings: list = []                 # for the report (capture.setpoint_missed)
         self.visit_problem = "visit_incomplete"   # why the last window was refused (capture._visit)
+        self.visit_detail = ""                    # ... with its numbers, for the error after the last attempt
         self._last_frame_wall = time.monotonic()
         self.dt_estimates: deque = deque(maxlen=256)
         self.last_wall = math.nan                 # Frame.wall_s of the latest admitted frame

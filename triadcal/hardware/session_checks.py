@@ -75,6 +75,11 @@ CHAMBER_MISS_C = 2.0
 #: the unit's temperature sensors this far (degC) from the setpoint: beyond any self-heating or
 #: gradient of a fixture in a working chamber (a few degC)
 UNIT_MISS_C = 10.0
+#: the chamber's PV and the unit's sensors this far apart (degC) once the unit is stable: more than a
+#: unit's self-heating (a few degC); a PV that reads its setpoint while the air and the unit do not
+#: (an outside probe: PV 30.0, unit 23.0, no word: neither was 2 degC from the setpoint's PV check or
+#: 10 from the unit's)
+PV_UNIT_APART_C = 5.0
 
 
 def is_temperature_C(value: float) -> bool:
@@ -104,4 +109,9 @@ def setpoint_missed(sp: float, unit_temps, chamber_C) -> Optional[str]:
         if abs(mean - sp) > UNIT_MISS_C:
             out.append(f"the unit's temperature is {mean:.2f} degC, {mean - sp:+.2f} degC from the setpoint "
                        f"(more than {UNIT_MISS_C:g})")
+        if chamber_C is not None and is_temperature_C(chamber_C) and abs(chamber_C - mean) > PV_UNIT_APART_C:
+            out.append(f"the chamber's PV reads {chamber_C:.2f} degC and the unit's sensors {mean:.2f} degC, "
+                       f"{abs(chamber_C - mean):.2f} degC apart (more than {PV_UNIT_APART_C:g}, beyond a unit's "
+                       "self-heating): a PV that does not measure the air the unit is in (one that reads its "
+                       "setpoint?), or the unit's sensors off")
     return "; ".join(out) or None
