@@ -105,12 +105,18 @@ def _diagnose(tmp_path, name, seed, **kw):
     return diagnose(read_bench_csv(path))
 
 
+#: the periodic biases: a smooth law in time (a warm-up) may close their gap and still be unexplained
+#: because it does not beat a wander of the bias (ambiguous_with; noise estimated, 8 h sine, seed 3)
+PERIODIC = ("bias_sine_8h", "ground_loop_3h")
+
+
 def _check_unexplained(d, name, seed):
     v = d.verdict
     assert d.gap["significant"], (name, seed)
     assert v["effect"] == "unexplained", (name, seed, v)
     # localised: by the slices, or by the shape against temperature, time, orientation, direction
-    assert v.get("gap_closed") is not True and (v["where"] or v["shape"]), (name, seed, v)
+    assert v["where"] or v["shape"], (name, seed, v)
+    assert v.get("gap_closed") is not True or (name in PERIODIC and v.get("ambiguous_with")), (name, seed, v)
     assert v.get("best_partial") not in NOISE, (name, seed, v)
 
 

@@ -22,7 +22,8 @@ from __future__ import annotations
 from ..errors import InputError
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from pathlib import Path
+from typing import Optional, Sequence
 
 import allantools
 import numpy as np
@@ -182,3 +183,51 @@ def allan_noise(windows: Sequence[np.ndarray], rate_hz: float) -> NoiseEstimate:
     return NoiseEstimate(Q, bi, floor, taus, adev, len(windows), int(sum(len(w) for w in windows)),
                          float(rate_hz), power_law=tuple(f[0] for f in fits),
                          power_law_se=tuple(f[1] for f in fits), longest_tau_s=float(taus[-1]))
+
+
+def campaign_noise(raw_path: Path, rows: list, run, metadata: dict) -> Optional[NoiseEstimate]:
+    """The campaign's noise from the recording windows (:func:`_campaign_noise`), its header keys
+    put in ``metadata``; when it cannot be estimated (a stuck output), ``noise_method`` says why
+    and so does a warning of the run: a header without Q_* and u_w_* is never silent."""
+    est = _campaign_noise(raw_path, rows, run.rate_hz)
+    if isinstance(est, str):
+        metadata["noise_method"] = f"not estimated: {est}"
+        run.warnings.append(f"noise not estimated ({est}); campaign.csv has no Q_* nor u_w_* columns, "
+                            "and a fit estimates the noise from its residuals")
+        return None
+    if est is not None:
+        metadata.update(est.metadata())
+    return est
+
+
+def _campaign_noise(raw_path: Path, rows: list, rate_hz: Optional[float]):
+    """The Allan-deviation noise of the recording windows of ``rows`` (a :class:`NoiseEstimate`),
+    None when there is nothing to estimate from, or the reason (str) it cannot be estimated."""
+    from .storage import read_raw
+
+    if not rows:
+        return None
+    raw = read_raw(raw_path)
+    rec = raw["phase"] == "record"
+    wanted = {r["raw_visit"] for r in rows}
+    windows = []
+    for tag in wanted:
+        m = rec & (raw["visit"] == tag)
+        if m.sum() >= 8:
+            windows.append(raw["w"][m])
+    if rate_hz is None:
+        dt = np.diff(raw["time_s"][rec])
+        dt = dt[dt > 0]
+        if not len(dt):
+            return None
+        rate_hz = 1.0 / float(np.median(dt))
+    try:
+        est = allan_noise(windows, rate_hz)
+    except (InputError, ValueError) as exc:
+        # no Q_* / u_w_* in the header: said once, in the report and the CSV (never silently)
+        return str(exc)
+    # per-visit standard uncertainty from the power-law fit and the visit times (u_w_* columns)
+    u = est.visit_uncertainty([r["time_s"] for r in rows], [r["tau_s"] for r in rows])
+    for r, u_i in zip(rows, u):
+        r["u_w"] = u_i
+    return est
