@@ -93,3 +93,30 @@ def test_budget_options_that_overflow_or_leave_the_circle_are_refused(capsys, op
     assert main(["budget", *options]) == 1
     err = capsys.readouterr().err
     assert said in err and "internal error" not in err, err
+
+
+@pytest.mark.parametrize("factor", [1e-6, 1e6])
+def test_two_noise_statements_that_disagree_are_said(tmp_path, factor):
+    """# Q_V2s 10^6 times too small or large beside honest sd_*: fitted without a word (the columns
+    take precedence, docs/bench-csv.md); now a note says by how much (a visit's SD 1e-3 / 1e3 times)."""
+    tab = example_table()
+    i = next(i for i, c in enumerate(tab.comments) if c.startswith("# Q_V2s"))
+    tab.comments[i] = f"# Q_V2s = {3e-9 * factor!r}"
+    path = tab.write(tmp_path / "q.csv")
+    for method in ("joint", "classical"):
+        r = api.fit(path, method=method)
+        said = [n for n in r.notes if n.startswith("the file states its noise twice")]
+        assert said and f"gives a visit's SD {factor ** 0.5:.3g} times" in said[0], (method, r.notes)
+    tab.comments[i] = "# Q_V2s = 3e-09"
+    r = api.fit(tab.write(tmp_path / "same.csv"), method="joint")
+    assert not [n for n in r.notes if "states its noise twice" in n]
+
+
+def test_a_stated_q_weights_the_fit_where_the_sd_columns_cannot(tmp_path):
+    """sd_x = 0 on every row with # Q_V2s stated: the noise was taken as unknown (estimated from the
+    residuals); the file's Q weights the fit, and the noise description says why the columns were not used."""
+    tab = example_table()
+    tab.map("sd_x", lambda v: "0")
+    r = api.fit(tab.write(tmp_path / "sd0.csv"), method="joint")
+    assert r.fit["noise_known"] is True
+    assert r.fit["noise"].startswith("white noise Q = 3e-09") and "sd_* columns not used" in r.fit["noise"]

@@ -409,6 +409,11 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     model = Model(effects, reference_temperature_C)
     noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
     notes = [moved] if moved else []
+    from .noise_model import noise_statements_note
+
+    twice = noise_statements_note(campaign, noise_of(campaign))
+    if twice:
+        notes.append(twice)
     sensor_note, sensor_gate, sensor_temps = sensor_temperatures(campaign)
     if sensor_note:
         notes.append(sensor_note)

@@ -115,13 +115,43 @@ def noise_of(campaign: Campaign) -> NoiseSource:
             return NoiseSource(s, True, campaign.output_sigma_method())
         else:
             why = "; sd_* is zero in some visits, so it cannot weight the fit"
-    elif "Q_V2s" in campaign.metadata and float(campaign.metadata["Q_V2s"]) > 0:
+    if "Q_V2s" in campaign.metadata and float(campaign.metadata["Q_V2s"]) > 0:
+        # also where sd_* are there but cannot weight the fit: the file states its noise (an outside
+        # probe's sd_x = 0 on every row with Q_V2s stated was fitted as if no noise were stated)
         Q = float(campaign.metadata["Q_V2s"])
         return NoiseSource(np.repeat(np.sqrt(Q / campaign.tau_s)[:, None], 3, axis=1), True,
-                           f"white noise Q = {Q:g} (output unit)^2 s from the file's metadata, sqrt(Q/tau_s)")
+                           f"white noise Q = {Q:g} (output unit)^2 s from the file's metadata, sqrt(Q/tau_s)"
+                           + (f" (the sd_* columns not used{why})" if why else ""))
     return NoiseSource(np.repeat((1.0 / np.sqrt(campaign.tau_s))[:, None], 3, axis=1), False,
                        f"estimated from the residuals ({RELATIVE_WEIGHTS})" + why)
 
+
+
+#: the file's Q_V2s and its sd_* columns further apart than this factor (in the visit's SD) are said
+NOISE_STATEMENTS_APART = 3.0
+
+
+def noise_statements_note(campaign: Campaign, noise: NoiseSource) -> Optional[str]:
+    """A note when the file states its noise twice and the two disagree by more than
+    :data:`NOISE_STATEMENTS_APART` in a visit's SD: ``# Q_V2s`` (``sqrt(Q / tau_s)``) against the
+    ``sd_*`` or ``u_w_*`` columns that weight the fit (they take precedence, docs/bench-csv.md). An
+    outside probe's Q_V2s 10^6 times too small or large beside honest sd_* was passed over without a
+    word; one of the two is in another unit or of another unit (serial)."""
+    if "Q_V2s" not in campaign.metadata or not noise.known or noise.description.startswith("white noise Q"):
+        return None
+    try:
+        Q = float(campaign.metadata["Q_V2s"])
+    except ValueError:
+        return None
+    if not Q > 0:
+        return None
+    from_q = np.sqrt(Q / np.asarray(campaign.tau_s, float))[:, None]
+    ratio = float(np.median(from_q / np.asarray(noise.sigma, float)))
+    if 1.0 / NOISE_STATEMENTS_APART <= ratio <= NOISE_STATEMENTS_APART:
+        return None
+    return (f"the file states its noise twice and the two disagree: # Q_V2s = {Q:g} gives a visit's SD "
+            f"{ratio:.3g} times the one the fit is weighted by ({noise.description}); the columns take "
+            "precedence, so check which statement is in the output's unit (or of this unit)")
 
 
 #: a visit's own sd_* with fewer degrees of freedom (n_samples - 1) than this is pooled, per axis,
