@@ -591,6 +591,34 @@ def test_bench_did_not_move_compares_gravity_not_angles():
     assert bench_did_not_move(prev, biased, 90.0, 90.0) is None
     noise = {**prev, "w": prev["w"] + 1e-5}
     assert "the bench did not move: the plan turns gravity by 90.0 deg" in bench_did_not_move(prev, noise, 90.0, 90.0)
+    # a second outside probe's analog unit (2.5 V + 0.1 V/g, 3 mV noise, 4 samples a window) moved
+    # 10 deg: |dw| 0.0192 V, 6 standard errors of the difference, was "stuck" at 10 SE; 4 SE now
+    slow = {"axis1_deg": 0.0, "axis2_deg": 15.0, "w": np.array([2.5, 2.6, 2.5]), "sd": np.full(3, 3e-3),
+            "n_samples": 4}
+    se = np.sqrt(2 * 3 * 3e-3 ** 2 / 4)                                      # 3.7e-3 V
+    moved = {**slow, "w": slow["w"] + 6.0 * se * np.array([0.0, 1.0, 0.0])}
+    assert bench_did_not_move(slow, moved, 0.0, 25.0) is None
+    still = {**slow, "w": slow["w"] + 1.5 * se * np.array([0.0, 1.0, 0.0])}
+    assert "the bench did not move" in bench_did_not_move(slow, still, 0.0, 25.0)
+
+
+def test_a_healthy_window_with_few_samples_or_a_settling_tail_is_kept():
+    """A second outside probe's healthy campaigns: a unit settling with a 3 degC tail of 20 min stood
+    +0.50-0.53 degC from 'stable' at position 19 of 24, moving 0.016-0.020 degC/min (refused at 0.5
+    degC; 2 degC now), and clean 1 Hz windows of 4 samples were "20 noise SDs" and "-4.88 degC/min"
+    off (neither rule applies under 10 samples; the drift rule does)."""
+    from triadcal.hardware.capture import Stabilisation, thermal_departure, window_outlier
+
+    rng = np.random.default_rng(4)
+    crit = Stabilisation(rate_C_per_min=0.05)
+    tail = [good(k, 0.5 * k, T=tuple(30.0 + 0.018 * 0.5 * k / 60.0 + 0.01 * rng.standard_normal(3)))
+            for k in range(90)]
+    assert thermal_departure(tail, np.full(3, 29.48), crit) is None           # +0.52 degC, 0.018 degC/min
+    assert thermal_departure(tail, np.full(3, 27.8), crit) is not None         # 2.2 degC: left the state
+    few = [good(k, 1.0 * k, w=(0.0, 0.98 + 1e-4 * rng.standard_normal(), 0.2),
+                T=tuple(20.0 + np.round(0.1 * rng.standard_normal(3) / 0.0625) * 0.0625)) for k in range(4)]
+    assert window_outlier(few) is None and thermal_departure(few, np.full(3, 20.0), crit) is None
+    assert thermal_departure(few, np.full(3, 23.0), crit) is not None           # the drift rule holds
 
 
 def test_a_bench_answering_an_error_is_named_in_the_timeout_and_logged_once_with_a_count(faulty_rig, tmp_path):

@@ -51,6 +51,8 @@ def window_outlier(frames) -> Optional[str]:
     6.17 V and its t_x 21.37 degC, exit 0."""
     from .ramp_labels import not_stationary, strays
 
+    if len(frames) < MIN_WINDOW_SAMPLES:
+        return None
     why = not_stationary(frames, [])
     if why is not None:
         return why
@@ -97,9 +99,16 @@ VISIT_RATE_FACTOR = 10.0
 VISIT_RATE_SE = 5.0
 VISIT_RATE_MIN_CHANGE_C = 0.1
 #: a window whose mean unit temperature is farther than this (degC, any sensor) from the temperature
-#: at which the soak declared the unit stable is not of that setpoint's state: 50 min of drift at the
-#: default criterion of 0.01 degC/min, longer than a setpoint's visits take
-VISIT_DRIFT_C = 0.5
+#: at which the soak declared the unit stable is not of that setpoint's state. A unit still settling at
+#: the criterion's rate r with a time constant tau has about r tau left to drift: 0.6 degC at 0.01
+#: degC/min and 60 min, 1 degC at 0.05 degC/min and 20 min (an outside probe's healthy campaign of 24
+#: positions stopped at 0.5 degC, moving 0.016-0.020 degC/min); a chamber that stopped moves the
+#: unit by degC per minute, which the rate rule above sees first
+VISIT_DRIFT_C = 2.0
+#: the rate rule and the spike rule need this many samples in the window: with 4 or 5 the slope's and
+#: the successive differences' noise are too uncertain (an outside probe's clean 1 Hz windows of 4
+#: samples were "20 noise SDs" and "-4.88 degC/min" off); the drift rule holds for any window
+MIN_WINDOW_SAMPLES = 10
 
 #: -- a bench that reports each target but did not move: two consecutive visits whose nominal gravity
 #: directions in the IMU frame (models.campaign.nominal_gravity, the bench kinematics) are at least
@@ -112,8 +121,10 @@ STUCK_TURN_DEG = 10.0
 #: A unit with a large bias (a 2.5 V offset, 0.1 V/g) moves less than 1 % of |w| but far more than its
 #: noise, and is not refused.
 STUCK_FRACTION = 0.01
-STUCK_NOISE_SE = 10.0
+STUCK_NOISE_SE = 4.0
 STUCK_FLOOR = 1e-4
+#: a position read after the window off the commanded one is read this many times more (the median decides)
+POSITION_REREADS = 2
 #: identical consecutive bench errors while polling a move: written once, then as one record with a
 #: repeat count when they change or stop, and at least this often (wall seconds) while they go on
 REPEAT_RECORD_WALL_S = 10.0
@@ -122,7 +133,7 @@ REPEAT_RECORD_WALL_S = 10.0
 def thermal_departure(frames, stable_t, crit: Stabilisation) -> Optional[tuple]:
     """``(text, fields)`` when a window's unit temperatures are not the state ``stable_t`` the soak
     declared stable (a rate or a drift beyond the limits above), else None."""
-    if stable_t is None or len(frames) < 4:
+    if stable_t is None or len(frames) < 2:
         return None
     stable_t = np.asarray(stable_t, float)
     t = np.array([f.time_s for f in frames], float)
@@ -139,6 +150,8 @@ def thermal_departure(frames, stable_t, crit: Stabilisation) -> Optional[tuple]:
     se = np.sqrt(np.sum(resid ** 2, axis=0) / max(len(t) - 2, 1) / sxx)
     limit = np.maximum.reduce([np.full(3, VISIT_RATE_FACTOR * crit.rate_C_per_min / 60.0), VISIT_RATE_SE * se,
                                np.full(3, VISIT_RATE_MIN_CHANGE_C / span)])
+    if len(frames) < MIN_WINDOW_SAMPLES:
+        limit = np.full(3, np.inf)                # too few samples for a slope: the drift rule only
     drift = T.mean(axis=0) - stable_t
     badness = np.maximum(np.abs(slope) / limit, np.abs(drift) / VISIT_DRIFT_C)
     i = int(np.argmax(badness))
@@ -229,6 +242,19 @@ def bench_position_problem(bench: Bench, a1: float, a2: float) -> Optional[tuple
     tol = getattr(profile, "tolerance_deg", None) or getattr(bench, "tolerance_deg", None) or DEFAULT_TOLERANCE_DEG
     wraps = [ax.wrap for ax in profile.axes] if profile is not None else ("360", "360")
     target = getattr(bench, "target", None) or (a1, a2)
+    if within_tolerance(pos, target, tol, wraps):
+        return None
+    # a reading that scatters (an outside probe's honest POS? with 0.005 deg of noise against a 0.01 deg
+    # tolerance: "moved" 1 visit in 24): asked twice more, the median of the three decides
+    reads = [pos]
+    for _ in range(POSITION_REREADS):
+        try:
+            reads.append(bench.position())
+        except BenchControllerError:
+            raise
+        except BenchError:
+            break
+    pos = tuple(float(np.median([r[i] for r in reads])) for i in range(2))
     if within_tolerance(pos, target, tol, wraps):
         return None
     off = [float((p - t + 180.0) % 360.0 - 180.0) if w != "none" else float(p - t) for p, t, w in zip(pos, target, wraps)]
