@@ -199,6 +199,10 @@ def decide(v: VerdictInputs) -> dict:
             if per is not None:
                 tests[f"a sine in time (period {per['period_h']:.3g} h or an alias)"] = {
                     "S": per["S"], "k": per["k"] + math.log(per["n_periods"])}
+                two = per.get("pair")
+                if two is not None:
+                    tests["two sines in time (periods " + " and ".join(f"{x:.3g}" for x in two["period_h"])
+                          + " h or aliases)"] = {"S": two["S"], "k": two["k"] + 2.0 * math.log(per["n_periods"])}
             if noise.known:
                 return [f for f, t in tests.items() if -t["S"] + 2.0 * t["k"] < aic_noise]
             rr = float(base.r @ base.r)
