@@ -12,7 +12,6 @@ when the noise is estimated rather than known.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
@@ -46,6 +45,7 @@ class IdentifiabilityError(InputError):
 # the noise of the mean outputs and the bench's random errors: noise_model.py (re-exported here)
 from .one_temperature import (TEMPERATURE_SPAN_MIN_C, sensor_temperatures,  # noqa: E402,F401
                               single_temperature_reference)
+from .noise_model import OVERSTATED_P, overstated_noise_note  # noqa: F401 - importable from here
 from .noise_model import (WOBBLE_TO_POSITION, BenchErrors, NoiseSource, _bench_whitening,  # noqa: E402,F401
                           bench_errors_from_replicates, given_output_scale, noise_of, per_output_scale,
                           replicate_groups, with_bench_errors)
@@ -142,29 +142,6 @@ def start_values(campaign: Campaign, model: Model) -> dict:
             if bb != a:
                 start[f"Ca_{a}{bb}"] = K * b[j] / ARCSEC
     return {n: start.get(n, model.spec[n].nominal) for n in model.names}
-
-
-#: P(chi2 this small) below which the stated noise overstates the data's scatter (the goodness of
-#: fit gate's level, GateConfig.gof_p_min, on the lower tail)
-OVERSTATED_P = 1e-3
-
-
-def overstated_noise_note(chi2: float, dof: int, noise_description: str, bench_errors: bool) -> Optional[str]:
-    """A note when the residuals scatter improbably less than the stated noise predicts
-    (P(chi2 <= observed) < :data:`OVERSTATED_P` with ``dof`` degrees of freedom), or None. The
-    answer is not wrong but every u is conservative by up to ``1/sqrt(chi2/dof)``: an outside
-    probe's campaign with its ``sd_*`` tripled gave chi2/dof 0.116 on 508 dof and intervals three
-    times too wide with no word (the status stays ok: a u too large is no confident wrong answer,
-    but the user must know)."""
-    p_low = float(stats.chi2.cdf(chi2, dof))
-    if p_low >= OVERSTATED_P:
-        return None
-    ratio = chi2 / dof
-    what = "the output noise plus the lab's bench errors" if bench_errors else f"the stated noise ({noise_description})"
-    return (f"the data scatter less than {what} predicts (chi2/dof = {ratio:.3g} on {dof} dof, P(chi2 this small) = "
-            f"{p_low:.2g}): the stated noise is about {1 / math.sqrt(max(ratio, 1e-12)):.2g} times the scatter, so "
-            "every u is conservative by up to that factor; check the sd_*, u_w_* or Q_V2s of the data"
-            + (" and the lab file's bench errors" if bench_errors else ""))
 
 
 def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]:

@@ -376,3 +376,28 @@ def per_output_scale(problem, sol, noise: NoiseSource, max_iter: int):
     how = (noise.description + "; one scale per output (the outputs' variances per unit weight "
            + ", ".join(f"{a} {v:.3g}" for a, v in zip(AXES, s2)) + ", estimated apart)")
     return refit, NoiseSource(problem.sigma, False, how), s2
+
+
+#: P(chi2 this small) below which the stated noise overstates the data's scatter (the goodness of
+#: fit gate's level, GateConfig.gof_p_min, on the lower tail)
+OVERSTATED_P = 1e-3
+
+
+def overstated_noise_note(chi2: float, dof: int, noise_description: str, bench_errors: bool) -> Optional[str]:
+    """A note when the residuals scatter improbably less than the stated noise predicts
+    (P(chi2 <= observed) < :data:`OVERSTATED_P` with ``dof`` degrees of freedom), or None. The
+    answer is not wrong but every u is conservative by up to ``1/sqrt(chi2/dof)``: an outside
+    probe's campaign with its ``sd_*`` tripled gave chi2/dof 0.116 on 508 dof and intervals three
+    times too wide with no word (the status stays ok: a u too large is no confident wrong answer,
+    but the user must know)."""
+    from scipy import stats
+
+    p_low = float(stats.chi2.cdf(chi2, dof))
+    if p_low >= OVERSTATED_P:
+        return None
+    ratio = chi2 / dof
+    what = "the output noise plus the lab's bench errors" if bench_errors else f"the stated noise ({noise_description})"
+    return (f"the data scatter less than {what} predicts (chi2/dof = {ratio:.3g} on {dof} dof, P(chi2 this small) = "
+            f"{p_low:.2g}): the stated noise is about {1 / math.sqrt(max(ratio, 1e-12)):.2g} times the scatter, so "
+            "every u is conservative by up to that factor; check the sd_*, u_w_* or Q_V2s of the data"
+            + (" and the lab file's bench errors" if bench_errors else ""))

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 import numpy as np
 from ...estimation.result import CalibrationResult
+from .rule import drift_uncertainty
 
 
 #: number of random before/after draw pairs used for posterior drifts
@@ -358,3 +359,51 @@ def posterior_drift(draws_before: np.ndarray, draws_after: np.ndarray, seed: int
     i = rng.integers(0, len(draws_before), n_pairs)
     j = rng.integers(0, len(draws_after), n_pairs)
     return draws_after[j] - draws_before[i]
+
+
+def _type_b_u(p) -> float:
+    """The Type B part of a parameter's u: its budget's Type B rows in quadrature (0 without)."""
+    rows = [r for r in (p.uncertainty.get("budget") or []) if isinstance(r, dict) and r.get("type") == "B"]
+    return math.sqrt(sum(float(r.get("contribution") or 0.0) ** 2 for r in rows))
+
+
+def budget_rho_limits(before: CalibrationResult, after: CalibrationResult, names) -> dict:
+    """The most correlation the two results' budgets can hold, per parameter: errors two fitted
+    calibrations share are systematic (the lab's, in their Type B rows): a shared source gives the
+    covariance ``c_b c_a u_s^2 <= uB_b uB_a``, so ``rho <= uB_b uB_a / (u_b u_a)``; their Type A
+    parts come from separate campaigns and are independent. Parameters with ``u = 0`` are left out."""
+    out = {}
+    for n in names:
+        b, a = before[n], after[n]
+        if b.u > 0 and a.u > 0:
+            out[n] = _type_b_u(b) * _type_b_u(a) / (b.u * a.u)
+    return out
+
+
+def stated_rho_beyond_budgets(before: CalibrationResult, after: CalibrationResult, names, rho: float):
+    """The note when a stated ``rho > 0`` claims more shared error than the two results can share
+    (:func:`budget_rho_limits`), or None. An outside probe: an unmoved unit without a lab file,
+    ``--correlation 0.9``: u(d) 7.0 -> 2.2 arcsec, five of six angles "fail", no word."""
+    worst = None
+    for n, limit in budget_rho_limits(before, after, names).items():
+        b, a = before[n], after[n]
+        if rho > limit + 1e-9 and (worst is None or rho - limit > worst[1]):
+            worst = (n, rho - limit, limit, drift_uncertainty(b.u, a.u, rho), drift_uncertainty(b.u, a.u, 0.0), b.unit)
+    if worst is None:
+        return None
+    n, _, limit, u_rho, u_0, unit = worst
+    return (f"rho = {rho:g} stated: more shared error than the results hold — two fitted calibrations share only "
+            f"systematic errors (their budgets' Type B rows; the Type A parts come from separate campaigns and are "
+            f"independent), which allow at most rho = {limit:.2g} for {n}; its u(d) is {u_rho:.3g} {unit} with the "
+            f"stated rho against {u_0:.3g} at 0, so a drift judged significant here may be noise. Fit both "
+            "calibrations with the lab file and name the shared equipment (--lab with --shared-bench) instead")
+
+
+def rho_rescaled(draws: np.ndarray, db: np.ndarray, da: np.ndarray, rho: float) -> np.ndarray:
+    """Drift draws of independent posteriors with their spread about the mean rescaled for a shared
+    error ``rho`` (the spread of ``u(d) = sqrt(u_b^2 + u_a^2 - 2 rho u_b u_a)``)."""
+    if rho == 0.0:
+        return draws
+    s0 = math.sqrt(np.var(db) + np.var(da))
+    s_rho = drift_uncertainty(float(np.std(db)), float(np.std(da)), rho)
+    return draws.mean() + (draws - draws.mean()) * (s_rho / s0 if s0 > 0 else 1.0)

@@ -16,7 +16,8 @@ from ...models.units import canonical_scale_unit
 from ...io.lab import EQUIPMENT_SECTIONS, SHAREABLE_SECTIONS
 from .rule import (check_tolerance, combined_covariance, coverage_factors, decide, decide_from_draws, drift_uncertainty,
                    normalised_error, probability_exceeds, rule_text)
-from .correlation import (CORRELATION_TERMS, check_posterior, derive_correlation, posterior_draws, posterior_drift,
+from .correlation import (budget_rho_limits, rho_rescaled, stated_rho_beyond_budgets,  # noqa: F401
+                          CORRELATION_TERMS, check_posterior, derive_correlation, posterior_draws, posterior_drift,
                           read_posterior, shared_errors)
 from .results import ANGLES, BENCH_PARAMETERS, ComparisonResult, JointTest, ParameterDrift
 from .carry import ROW_QUANTITIES, carry_rows
@@ -93,44 +94,6 @@ def tempco_bound(name: str, value: float, row_dT: Mapping[str, float]) -> float:
         return 0.0
     scale = abs(value) if kind == "K" else 1.0
     return TEMPCO_BOUND[kind] * scale * row_dT[rest[0]]
-
-
-def _type_b_u(p) -> float:
-    """The Type B part of a parameter's u: its budget's Type B rows in quadrature (0 without)."""
-    rows = [r for r in (p.uncertainty.get("budget") or []) if isinstance(r, dict) and r.get("type") == "B"]
-    return math.sqrt(sum(float(r.get("contribution") or 0.0) ** 2 for r in rows))
-
-
-def budget_rho_limits(before: CalibrationResult, after: CalibrationResult, names) -> dict:
-    """The most correlation the two results' budgets can hold, per parameter: errors two fitted
-    calibrations share are systematic (the lab's, in their Type B rows): a shared source gives the
-    covariance ``c_b c_a u_s^2 <= uB_b uB_a``, so ``rho <= uB_b uB_a / (u_b u_a)``; their Type A
-    parts come from separate campaigns and are independent. Parameters with ``u = 0`` are left out."""
-    out = {}
-    for n in names:
-        b, a = before[n], after[n]
-        if b.u > 0 and a.u > 0:
-            out[n] = _type_b_u(b) * _type_b_u(a) / (b.u * a.u)
-    return out
-
-
-def stated_rho_beyond_budgets(before: CalibrationResult, after: CalibrationResult, names, rho: float):
-    """The note when a stated ``rho > 0`` claims more shared error than the two results can share
-    (:func:`budget_rho_limits`), or None. An outside probe: an unmoved unit without a lab file,
-    ``--correlation 0.9``: u(d) 7.0 -> 2.2 arcsec, five of six angles "fail", no word."""
-    worst = None
-    for n, limit in budget_rho_limits(before, after, names).items():
-        b, a = before[n], after[n]
-        if rho > limit + 1e-9 and (worst is None or rho - limit > worst[1]):
-            worst = (n, rho - limit, limit, drift_uncertainty(b.u, a.u, rho), drift_uncertainty(b.u, a.u, 0.0), b.unit)
-    if worst is None:
-        return None
-    n, _, limit, u_rho, u_0, unit = worst
-    return (f"rho = {rho:g} stated: more shared error than the results hold — two fitted calibrations share only "
-            f"systematic errors (their budgets' Type B rows; the Type A parts come from separate campaigns and are "
-            f"independent), which allow at most rho = {limit:.2g} for {n}; its u(d) is {u_rho:.3g} {unit} with the "
-            f"stated rho against {u_0:.3g} at 0, so a drift judged significant here may be noise. Fit both "
-            "calibrations with the lab file and name the shared equipment (--lab with --shared-bench) instead")
 
 
 def _temperature_notes(before: CalibrationResult, after: CalibrationResult,
@@ -401,8 +364,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                 draws = draws + np.random.default_rng(1).normal(0.0, math.sqrt(var_b), len(draws))
                 type_b_added.append(n)
             if n in supported:
-                verdicts_supported[n] = decide_from_draws(_rho_rescaled(draws, db, da, supported[n]), T, level)[0]
-            draws = _rho_rescaled(draws, db, da, rho)
+                verdicts_supported[n] = decide_from_draws(rho_rescaled(draws, db, da, supported[n]), T, level)[0]
+            draws = rho_rescaled(draws, db, da, rho)
             verdict, significant, p = decide_from_draws(draws, T, level)
             pd.verdict, pd.significant, pd.p_exceeds = verdict, significant, p
             pd.basis, pd.n_draws = "posterior", int(min(len(db), len(da)))
@@ -524,16 +487,6 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         rule=rule_text(level, tolerance_arcsec, tolerances, posterior=post_b is not None),
         tolerance_arcsec=tolerance_arcsec, tolerances=tolerances, correlation=corr, joint=joint,
         bench_check=bench, before=_describe(before), after=_describe(after), label=label, notes=notes)
-
-
-def _rho_rescaled(draws: np.ndarray, db: np.ndarray, da: np.ndarray, rho: float) -> np.ndarray:
-    """Drift draws of independent posteriors with their spread about the mean rescaled for a shared
-    error ``rho`` (the spread of ``u(d) = sqrt(u_b^2 + u_a^2 - 2 rho u_b u_a)``)."""
-    if rho == 0.0:
-        return draws
-    s0 = math.sqrt(np.var(db) + np.var(da))
-    s_rho = drift_uncertainty(float(np.std(db)), float(np.std(da)), rho)
-    return draws.mean() + (draws - draws.mean()) * (s_rho / s0 if s0 > 0 else 1.0)
 
 
 def joint_test(drift: np.ndarray, cov: np.ndarray, names: Sequence[str], level: float = 0.95,
