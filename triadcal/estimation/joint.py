@@ -384,11 +384,12 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     stuck_outputs(campaign)
     reference_temperature_C, moved = single_temperature_reference(campaign, reference_temperature_C)
     model = Model(effects, reference_temperature_C)
-    noise = with_bench_errors(campaign, model, noise_of(campaign), bench_errors)
+    own_noise = noise_of(campaign)
+    noise = with_bench_errors(campaign, model, own_noise, bench_errors)
     notes = [moved] if moved else []
     from .noise_model import noise_statements_note
 
-    twice = noise_statements_note(campaign, noise_of(campaign))
+    twice = noise_statements_note(campaign, own_noise)
     if twice:
         notes.append(twice)
     sensor_note, sensor_gate, sensor_temps = sensor_temperatures(campaign)
