@@ -54,6 +54,7 @@ def test_dates_after_today_are_refused(joint, tmp_path, capsys):
     assert main(["history", "--add", str(path), "--db", str(db)]) == 1
     err = capsys.readouterr().err
     assert f"{path}: the result's data_date: 2099-01-01 is after today" in err, err
+    assert not db.exists()                 # refused while recording: the database it created is removed
     tab = example_table()
     tab.comments.append("# date = 2099-01-01")
     err = refused(tab.write(tmp_path / "future.csv"))

@@ -79,8 +79,19 @@ def run(args) -> int:
                 return 0
             cals = db.calibrations(args.serial)
     except InputError:
-        if not existed and path.exists() and path.stat().st_size == 0:
-            path.unlink()
+        # a database this run created and left without a calibration (a refusal found while recording,
+        # such as a data date after today) is not left behind; the file holds its schema, so its size
+        # is no test of that
+        if not existed and path.exists():
+            import sqlite3
+
+            con = sqlite3.connect(path)
+            try:
+                empty = con.execute("SELECT COUNT(*) FROM calibrations").fetchone()[0] == 0
+            finally:
+                con.close()
+            if empty:
+                path.unlink()
         raise
     if not cals:
         raise InputError(f"{path}: no calibration of {args.serial!r} recorded")
