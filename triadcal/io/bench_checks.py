@@ -248,8 +248,8 @@ def check_axis_spans(path, c: Campaign) -> None:
     """Refuse a campaign whose outputs' spans (max - min of the visit means, each unit and state)
     differ by more than :data:`AXIS_SPAN_RATIO_MAX`: one column in another unit than the file states
     (an outside probe's w_x in mV in a file in V: the classical fit gave K_x = 0.001 g/V with status ok
-    and a certificate). Only when every output spans at least a tenth of the largest's rounding-free
-    range: a dead or stuck output is named by its own check."""
+    and a certificate). Units of fewer than 6 visits and outputs that do not move (span 0: a dead or
+    stuck output, named by its own check) are left out."""
     units = np.asarray(c.unit).astype(str)
     w = np.asarray(c.w, float)
     lines = c.lines if c.lines is not None else np.arange(1, len(w) + 1)
