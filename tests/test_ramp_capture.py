@@ -447,3 +447,71 @@ def test_a_turn_after_a_resume_is_labelled_by_the_windows_own_rate():
     assert n == 1840
     assert wrong_old >= 30, wrong_old          # the mechanism is there (60 seen)
     assert wrong == 0, wrong
+
+
+class _LaggedRampChamber:
+    """A chamber's air following the ramp 24 -> 0 degC at 2 degC/min (then held) with a first-order
+    lag of 120 s, in closed form (y = 24 - r (t - tau (1 - exp(-t/tau))) on the ramp, then an
+    exponential to 0): not the capture's own lag filter. Its clock is the wall clock x 500 from a
+    given origin, as the emulator's is."""
+
+    def __init__(self, wall0: float, p0: float, scale: float = 500.0, dead_at=None):
+        self.wall0, self.p0, self.scale, self.dead_at = wall0, p0, scale, dead_at
+
+    def temperature_C(self) -> float:
+        if self.dead_at is not None:
+            return self.dead_at
+        t = self.p0 + (time.monotonic() - self.wall0) * self.scale
+        tau, r, end = 120.0, 24.0 / 720.0, 720.0
+        if t <= end:
+            return 24.0 - r * (t - tau * (1.0 - np.exp(-t / tau)))
+        y_end = 24.0 - r * (end - tau * (1.0 - np.exp(-end / tau)))
+        return float(y_end * np.exp(-(t - end) / tau))
+
+
+class _Events:
+    def __init__(self):
+        self.seen = []
+
+    def write(self, kind, **kw):
+        self.seen.append(kind)
+
+
+def _runner_behind(chamber, wall: float):
+    """A ramp runner whose latest frame (program time 600 s) the reader stamped at ``wall``
+    (monotonic), the frames before it at 500 instrument s per wall s: the host busy since (a visit's
+    fsync on a loaded 2-core machine)."""
+    from collections import deque
+
+    from triadcal.hardware.ramp_capture import _RampRunner
+
+    program = RampProgram(np.array([0.0, 720.0]), np.array([24.0, 0.0]))
+    run = _RampRunner(None, None, _Events(), 1, CaptureSettings(), chamber=chamber, program=program,
+                      step_s=30.0, offset_of=lambda: 0.0)
+    run.running, run.p0, run.t0, run.now, run.last_wall = True, 0.0, 0.0, 600.0, wall
+    run._flow = deque([(wall - 1.0, 100.0), (wall, 600.0)])
+    return run
+
+
+def test_the_chamber_check_takes_the_program_when_the_pv_was_read():
+    """Flaky in a clean-clone CI: "the chamber's PV was off the program" on the emulator's healthy
+    chamber. The PV is read now; the program time was the latest frame's. With the host 0.6 s
+    behind at x500 the chamber is 300 s of program further: here at 0.9 degC (closed form) where the
+    program at the frame's time is 4 degC and the old band's floor 2 degC (checked below). The check
+    takes the program over the frame's time to the read's: no event. A dead chamber still is one."""
+    from triadcal.hardware.ramp_capture import program_band
+
+    program = RampProgram(np.array([0.0, 720.0]), np.array([24.0, 0.0]))
+    lo_frame, _ = program_band(program, 600.0, 600.0)
+    assert lo_frame == pytest.approx(2.0, abs=1e-6)          # the program's 4 degC, less 2 degC
+    wall = time.monotonic() - 0.6
+    healthy = _LaggedRampChamber(wall, 600.0)
+    assert healthy.temperature_C() < lo_frame                 # the old rule would have called it off
+    run = _runner_behind(healthy, wall)
+    run.check_chamber(1)
+    assert run.off_program == [] and run.events.seen == []
+
+    for dead in (24.5, -8.0):      # held at its start, or far below the program's end
+        run = _runner_behind(_LaggedRampChamber(wall, 600.0, dead_at=dead), wall)
+        run.check_chamber(1)
+        assert run.events.seen == ["chamber_off_program"], dead

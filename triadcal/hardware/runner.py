@@ -232,6 +232,16 @@ class _Runner:
             return None
         return (c1 - c0) / (w1 - w0)
 
+    def present_s(self) -> Optional[float]:
+        """The continuous instrument time now, estimated: the latest admitted frame's plus the wall time
+        since the reader stamped it times the instruments' measured rate (:meth:`_instrument_per_wall`;
+        1 for hardware, the time scale for the emulator). The latest frame lags the present by the host's
+        own work since it and the frames still queued. Without a measured rate: the latest frame's."""
+        rate = self._instrument_per_wall()
+        if self.now is None or rate is None or not math.isfinite(self.last_wall):
+            return self.now
+        return self.now + max(0.0, time.monotonic() - self.last_wall) * rate
+
     def _stall(self, f: Frame, jump_s: float) -> Optional[dict]:
         """The evidence that the forward jump ``jump_s`` of ``f``'s clock is a stall (time that passed
         while the host heard nothing), or None (module docstring)."""
