@@ -515,3 +515,34 @@ def test_the_chamber_check_takes_the_program_when_the_pv_was_read():
         run = _runner_behind(_LaggedRampChamber(wall, 600.0, dead_at=dead), wall)
         run.check_chamber(1)
         assert run.events.seen == ["chamber_off_program"], dead
+
+
+def test_a_stuck_bench_stops_a_ramp_capture(tmp_path):
+    """The stepped capture's stuck-bench rule in the ramp too (the helper that wrote it left the ramp
+    out): the emulator's bench stops moving after its second move and reports each target; the ramp
+    stops at the next visit naming both, with the visits before it kept. The two rows kept read back
+    (a first leg's file, setpoint_C -10 while the unit is at 20: its degF check now holds t against the
+    program_C column; against setpoint_C they "looked like degF", so such a ramp could not be resumed)."""
+    from triadcal.hardware.capture import CaptureError
+    from triadcal.hardware.emulator_faults import FaultPlan
+
+    RampPlan(program_C=(20.0, -10.0, 50.0, 20.0), rate_C_per_min=1.5, tau_s=20.0).save(tmp_path / "ramp.json")
+    timing = EmulatorTiming(time_scale=500.0, rate_hz=2.0, chamber_time_constant_s=300.0, unit_time_constant_s=600.0,
+                            self_heating_time_constant_s=60.0)
+    em = emulate(tmp_path / "emu", effects=["bench_tilt"], timing=timing, seed=5,
+                 faults=FaultPlan(bench_stuck_after_moves=2)).start()
+    try:
+        imu, bench, chamber = open_instruments(load_port_config(em.directory / "ports.toml"))
+        with pytest.raises(CaptureError, match=r"of the ramp after P02 .*the bench did not move"):
+            capture_ramp(tmp_path / "out", plan=read_ramp_plan(tmp_path / "ramp.json"), imu=imu, bench=bench,
+                         chamber=chamber, step_s=30.0,
+                         settings=CaptureSettings(tau_s=20.0, settle_s=3.0, unit="SN-EMU-0001",
+                                                  stabilisation=Stabilisation(0.01, 120.0, 60.0, 3000.0)))
+        bench.close()
+        chamber.close()
+    finally:
+        em.stop()
+    c = read_bench_csv(tmp_path / "out" / CSV_NAME)
+    assert list(c.position) == ["P01", "P02"]
+    kinds = [e["kind"] for e in read_events(tmp_path / "out" / "raw" / "events.jsonl")]
+    assert kinds.count("bench_stuck") == 1

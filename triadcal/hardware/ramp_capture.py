@@ -60,6 +60,7 @@ from ..io.atomic import atomic_write_json, atomic_write_text, read_json
 from ..io.bench_csv import BenchCSVError, format_bench_csv, read_bench_csv
 from ..io.formats import require_format
 from ..planning.ramp import RampPlan, read_ramp_plan  # noqa: F401 - read_ramp_plan: the capture's API
+from .visit_checks import bench_did_not_move
 from .capture import (CSV_NAME, EVENTS_NAME, RAW_NAME, STATE_NAME, CaptureError, CaptureReport,
                       CaptureSettings, VISIT_PROBLEMS, _campaign, campaign_noise, _Runner, _visit, check_session_metadata,
                       dated_metadata, finish_session, soak, imu_metadata, storage_error)
@@ -474,6 +475,13 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
             else:
                 raise CaptureError(f"visit {i + 1} ({label}) of the ramp: no clean window in {settings.max_attempts} "
                                    f"attempts, the last one {last_why} (see {EVENTS_NAME})")
+            # a bench that reports each target but does not move (visit_checks.bench_did_not_move, as the
+            # stepped capture): a temperature change between two visits moves w far less than a turn
+            stuck = bench_did_not_move(rows[-1], row, a1, a2) if rows else None
+            if stuck is not None:
+                events.write("bench_stuck", tag=tag, position=label, previous=rows[-1]["position"], text=stuck)
+                raise CaptureError(f"visit {i + 1} ({label}, {a1:g}, {a2:g}) of the ramp after {rows[-1]['position']} "
+                                   f"({rows[-1]['axis1_deg']:g}, {rows[-1]['axis2_deg']:g}): {stuck}")
             raw.sync()       # every sample of the visit is on disk before the visit counts
             mid = row.pop("mid_instrument_s")
             p_mid = run.program_s(mid)

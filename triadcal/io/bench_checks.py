@@ -154,8 +154,19 @@ def _fahrenheit(t, S):
 
 def check_temperature_unit(path, c: Campaign) -> None:
     """Refuse t_* columns that read as degF against the setpoints (:func:`_fahrenheit`,
-    docs/bench-csv.md, "Three misreads refused"); ``# t_override = true`` skips the check."""
+    docs/bench-csv.md, "Three misreads refused"); ``# t_override = true`` skips the check. A ramp's
+    file (``capture --ramp``) is held against its ``program_C`` column, the program's value at each
+    visit: its ``setpoint_C`` is the leg's target, 30 degC from a unit that has just left the other end
+    (a ramp killed in its first leg could not be resumed: "the temperatures look like degF")."""
     S = np.asarray(c.setpoint_C, float)
+    program = (c.extra or {}).get("program_C")
+    if program is not None:
+        try:
+            P = np.asarray([float(x) for x in program], float)
+        except (TypeError, ValueError):
+            P = None
+        if P is not None and P.shape == S.shape and np.all(np.isfinite(P)):
+            S = P
     for j, col in enumerate(("t_x", "t_y", "t_z")):
         t = np.asarray(c.t[:, j], float)
         found = _fahrenheit(t, S)
