@@ -12,7 +12,6 @@ from typing import Optional
 
 import numpy as np
 
-from ..models.effects.hysteresis import BRANCH
 from ..models.model import Covariates
 from ..models.thermal_environment import sensor_temperatures
 
@@ -55,17 +54,16 @@ class Emulated34465A:
         """The unit's noiseless output of this axis (V) at instrument times ``t``."""
         ph = self.physics
         t = np.asarray(t, float)
-        n = len(t)
         with ph.lock:
             _, unit, rate = ph._thermal(t)
             a1, a2 = ph._angles(t)
             e1, e2, wob = ph._errors
-            branch = BRANCH[ph.direction]
+            branch = ph.branches(t, rate)
         tm = ph.timing
         sensor = sensor_temperatures(unit, tm.self_heating_C, t, tm.self_heating_time_constant_s)
         cov = Covariates(axis1=np.radians(a1), axis2=np.radians(a2),
                          temp=tuple(sensor[:, i] for i in range(3)), temp_rate=(rate, rate, rate),
-                         branch=np.full(n, branch), time_s=t, axis1_error=e1, axis2_error=e2, wobble=wob)
+                         branch=branch, time_s=t, axis1_error=e1, axis2_error=e2, wobble=wob)
         w = np.broadcast_arrays(*ph.model.predict(ph.p, cov, ph.gravity_g))[self.index]
         return np.asarray(w, float)
 

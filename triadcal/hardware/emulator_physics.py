@@ -80,6 +80,8 @@ class UnitPhysics:
         # from the first change of setpoint on, the hysteresis branch follows the unit's own
         # temperature (heating while it rises): see set_setpoint
         self._branch_follows_unit = False
+        self._follow_from = math.inf          # instrument time from which it does
+        self._directions: list = [(-math.inf, "none")]   # (from instrument time, direction set by a setpoint)
         # bench: a move from (a0) at t0 to (a1) arriving at t_arrive, in position at t_ready
         self._move = (0.0, (0.0, 0.0), (0.0, 0.0), 0.0, 0.0)
         #: once in position, axis 1 creeps on at this rate, deg/s (FaultPlan.bench_creep_deg_s), from
@@ -109,6 +111,24 @@ class UnitPhysics:
                 self.direction = "heating" if rate[-1] > 0 else "cooling"
         return out
 
+    def branches(self, t, rate) -> np.ndarray:
+        """The hysteresis branch (:data:`BRANCH` values) of each sample at instrument times ``t``
+        with the unit's rates ``rate`` (degC/s), each at its own time: the direction the setpoints
+        set (:meth:`set_setpoint`) before the branch follows the unit, from then on the sign of the
+        unit's rate (the setpoints' direction where it is 0). Call under :attr:`lock`. The frames of
+        a batch took the branch of its latest sample: the IMU thread computes its frames a tick after
+        their times, and a loaded machine made a tick of 0.2 s wall, 100 s of instrument time at x500;
+        a batch spanning the unit's turn labelled the frames before the turn with the branch after it
+        (a fit of the captured ramp then found a negative play of the thermal terms, z -3.4)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        rate = np.broadcast_to(np.asarray(rate, float), t.shape)
+        starts = np.array([d[0] for d in self._directions])
+        k = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(starts) - 1)
+        out = np.array([BRANCH[self._directions[i][1]] for i in k], float)
+        follow = (t >= self._follow_from) & (rate != 0.0)
+        out[follow] = np.where(rate[follow] > 0, BRANCH["heating"], BRANCH["cooling"])
+        return out
+
     def chamber_C(self, t: float) -> float:
         with self.lock:
             return float(self._thermal(t)[0])
@@ -125,9 +145,10 @@ class UnitPhysics:
             c, u, _ = self._thermal(t)
             self._seg = (float(t), float(sp), float(c), float(u))
             self._segs = self._segs[-255:] + [self._seg]
-            self.direction = direction_after(self.direction, self._last_sp, float(sp))
-            if self._last_sp is not None and float(sp) != self._last_sp:
-                self._branch_follows_unit = True
+            self.direction = direction_after(self._directions[-1][1], self._last_sp, float(sp))
+            self._directions = self._directions[-255:] + [(float(t), self.direction)]
+            if self._last_sp is not None and float(sp) != self._last_sp and not self._branch_follows_unit:
+                self._branch_follows_unit, self._follow_from = True, float(t)
             self._last_sp = float(sp)
             self.setpoint_C = float(sp)
 
@@ -175,11 +196,11 @@ class UnitPhysics:
             _, unit, rate = self._thermal(t)
             a1, a2 = self._angles(t)
             e1, e2, wob = self._errors
-            branch = BRANCH[self.direction]
+            branch = self.branches(t, rate)
         sensor = sensor_temperatures(unit, tm.self_heating_C, t, tm.self_heating_time_constant_s)
         cov = Covariates(axis1=np.radians(a1), axis2=np.radians(a2),
                          temp=tuple(sensor[:, i] for i in range(3)), temp_rate=(rate, rate, rate),
-                         branch=np.full(n, branch), time_s=t, axis1_error=e1, axis2_error=e2, wobble=wob)
+                         branch=branch, time_s=t, axis1_error=e1, axis2_error=e2, wobble=wob)
         w = np.stack(np.broadcast_arrays(*self.model.predict(self.p, cov, self.gravity_g)), axis=1)
         noise = self.truth.noise
         w = w + self.rng.normal(0.0, math.sqrt(noise.Q_V2s * (rate_hz or tm.rate_hz)), (n, 3))
