@@ -546,3 +546,39 @@ def test_a_stuck_bench_stops_a_ramp_capture(tmp_path):
     assert list(c.position) == ["P01", "P02"]
     kinds = [e["kind"] for e in read_events(tmp_path / "out" / "raw" / "events.jsonl")]
     assert kinds.count("bench_stuck") == 1
+
+
+def test_the_chamber_check_allows_for_set_points_written_late():
+    """The same CI run under load, after the fix above: the host wrote no set point for 426 s of
+    program (0.9 s of wall at x500) on the last leg of 20 -> -10 -> 50 -> 20 degC at 1.5 degC/min, so
+    the chamber held 34.2 degC while the program went on to 23.6; at the next visit it read 35.2
+    where the program's lag envelope ended at 34.9: "off the program" on a healthy chamber told late.
+    Here the chamber is a lag of 300 s integrated by small exact steps of what it was told (every 30 s
+    to 4100 s, then 4656 s on: 36.5 degC at 4701.5 s), not the capture's filter: within the band once the check allows for
+    the writes' lateness (the old band, no lateness, refuses it); a chamber dead at 0 degC still not."""
+    from triadcal.hardware.ramp_capture import program_band
+
+    program = RampProgram(np.array([0.0, 1200.0, 3600.0, 4800.0]), np.array([20.0, -10.0, 50.0, 20.0]))
+    writes = [float(p) for p in np.arange(0.0, 4101.0, 30.0)] + [4656.0, 4686.0]
+    dt, tau, y = 0.5, 300.0, 20.0
+    for t in np.arange(0.0, 4701.5, dt):
+        told = program.value(writes[int(np.searchsorted(writes, t, side="right")) - 1])
+        y = told + (y - told) * np.exp(-dt / tau)
+    lo, hi = program_band(program, 4701.5, 4701.5)
+    assert not lo <= y <= hi, (y, lo, hi)                        # the old band: off the program
+
+    class Chamber:
+        def __init__(self, pv):
+            self.pv = pv
+
+        def temperature_C(self):
+            return self.pv
+
+    for pv, off in ((y, False), (0.0, True)):
+        wall = time.monotonic()
+        run = _runner_behind(Chamber(pv), wall)
+        run.program = program
+        run.now = 4701.5
+        run.written.extend((w, w) for w in writes)
+        run.check_chamber(1)
+        assert (run.events.seen == ["chamber_off_program"]) is off, (pv, run.events.seen)

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional
@@ -162,6 +163,7 @@ class _RampRunner(_Runner):
         self.off_program: list = []              # (program s, PV, program's value) of visits the PV was off
         self.writes = 0                          # setpoints written since the program (re)started
         self.last_window: Optional[list] = None    # the frames of the last recording window
+        self.written: deque = deque(maxlen=4096)   # (program s when written, program s written) of each write
 
     def program_s(self, now: Optional[float] = None) -> float:
         now = self.now if now is None else now
@@ -193,7 +195,20 @@ class _RampRunner(_Runner):
             return
         self.last_p, self.last_sp, self.chamber_errors = p, sp, 0
         self.writes += 1
+        self.written.append((min(self.program_s(self.present_s()), self.program.duration_s), p))
         self.events.write("ramp_setpoint", program_s=p, setpoint_C=sp, time_s=self.now + self.offset_of())
+
+    def setpoint_lateness_s(self, p_now: float) -> float:
+        """How far (program s) the set point the chamber held may have trailed the program over the
+        last :data:`PROGRAM_LAG_MAX_S` x 3: the largest time from a write's program time to the next
+        write (or to ``p_now``). One step normally; more when the host wrote late (a long visit, a
+        loaded machine: at the emulator's x500, 0.9 s of wall held a set point for 426 s of program,
+        the chamber 13 degC from the program's lagged values with nothing wrong with it)."""
+        recent = [w for w in self.written if w[1] >= p_now - 3 * PROGRAM_LAG_MAX_S]
+        if not recent:
+            return 0.0
+        gaps = [b[0] - a[1] for a, b in zip(recent, recent[1:])] + [p_now - recent[-1][1]]
+        return max(0.0, *gaps)
 
     def observe(self, frames: list) -> None:
         if self.history is not None:
@@ -219,10 +234,12 @@ class _RampRunner(_Runner):
         # it (the visit's fsync on a loaded disk) and frames still queued put it behind; an emulator at x500
         # makes a second of it 500 s of program (a clean-clone CI: "off the program" on a healthy chamber)
         p_read = min(self.program_s(self.present_s()), self.program.duration_s)
-        lo, hi = program_band(self.program, p, max(p, p_read))
+        # and the chamber holds a set point until the next write: written late, it trails the program
+        late = self.setpoint_lateness_s(p_read)
+        lo, hi = program_band(self.program, max(0.0, p - late), max(p, p_read))
         if not (math.isfinite(pv) and lo <= pv <= hi):
             self.events.write("chamber_off_program", index=index, program_s=p, chamber_C=pv, program_C=want,
-                              band_C=[lo, hi])
+                              band_C=[lo, hi], setpoint_late_s=late)
             self.off_program.append((p, pv, want))
 
     def chamber_warnings(self) -> list:
