@@ -24,7 +24,8 @@ from ..models.campaign import Campaign, nominal_gravity
 from ..models.kinematics import gravity_in_imu
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, PPM, UG, scale_factor_unit
-from .classical_sensitivity import curvature_move, curvature_note, hysteresis_tempco_move, hysteresis_tempco_note
+from .classical_sensitivity import (curvature_gate, curvature_move, curvature_note, curvature_test, hysteresis_tempco_move,
+                                    hysteresis_tempco_note)
 from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
 from .classical_redundancy import leverages, redundancy_gate, worst_studentised, worst_studentised_known
 from .classical_tilt import combined_tilt, tilt_leak_gate, tilt_note
@@ -424,6 +425,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     params: dict = {}
     hyst_moves: dict = {}
     curv_moves: dict = {}
+    curv_tests: dict = {}
     branch_of_block = np.array([{"cooling": 1.0, "heating": -1.0}.get(str(b["direction"]), 0.0) for b in per_block])
     corr_names: list = []
     blocks_cov: list = []
@@ -446,6 +448,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         curv = curvature_move(T_j, var[:, j], T_ref, line.cov, line.birge) if slope else None
         if curv is not None:
             curv_moves[n] = curv
+            curv_tests[n] = curvature_test(T_j, est[:, j], var[:, j], T_ref)
         chi2_by[n] = line.chi2_dof
         p_line = _line_p(line, var[:, j])
         if p_line is not None and p_line < gates.gof_p_min and line.chi2_dof > gates.gof_ratio_max:
@@ -509,6 +512,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     tilt = tilt_leak_gate(campaign, per_block, sigma, gates, noise_dof=dof_total if use == "residuals" else None)
     if tilt is not None:
         fit["tilt_leak"] = tilt.to_dict()
+    curvature = curvature_gate(curv_tests, gates.gof_p_min) if slope else None
     drift = None
     if slope:
         from .classical_drift import DRIFT_BIAS_U_NOTE, drift_bias, drift_gate
@@ -537,7 +541,8 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         if sensor_temps is not None:
             result.fit["sensor_temperatures_C"] = sensor_temps
     apply_gates(result, FitEvidence(converged=True, n_obs=3 * campaign.n_visits, n_free=15 * len(per_block),
-                                    extra=[redundancy] + [g for g in (tilt, drift, sensor_gate) if g is not None]),
+                                    extra=[redundancy] + [g for g in (tilt, drift, curvature, sensor_gate)
+                                                                          if g is not None]),
                 config=gates)
     if result.status != "ok":
         g = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3)

@@ -113,3 +113,77 @@ def curvature_note(moves: dict, T_ref: float) -> Optional[str]:
             + " and the tempcos by up to "
             + f"{max(v['unseen_tempco_u'] or 0.0 for v in big.values()):.2g} u; the values hold for linear tempcos. "
             "`triadcal fit --method joint --thermal-order auto` fits and tests the quadratic terms")
+
+
+def curvature_test(T: np.ndarray, y: np.ndarray, var: np.ndarray, T_ref: float) -> Optional[dict]:
+    """Lack-of-fit test of a weighted thermal line against the line plus ``c2 (T - T_ref)^2`` (the
+    nested model's t test, e.g. Draper & Smith, *Applied Regression Analysis*, 3rd ed., sec. 6.1):
+    ``c2 = d'W r / d'W d`` (``r`` the line's residuals, ``d`` the part of ``(T - T_ref)^2`` the line
+    cannot take up, :func:`_take_up`), its variance ``s^2 / d'W d`` with ``s^2`` the scatter about
+    the quadratic, ``(chi2_line - c2^2 d'W d) / (n - 3)``, floored at 1 when the variances are known
+    (the Birge convention of :func:`~triadcal.estimation.classical.thermal_line`); ``t = c2 / sd`` on
+    ``n - 3`` dof. A scatter without shape (a unit that changed, a hysteresis across the branches)
+    widens ``s`` with ``c2``; a law of temperature that is not a line leaves ``s`` small and ``t`` large.
+    Returns ``{"c2", "c2_sd", "t", "dof", "p", "value"}`` (``c2`` in y's unit per degC^2, ``value``
+    the line's at ``T_ref``), or None with fewer
+    than four temperatures."""
+    from scipy import stats
+
+    T, y = np.asarray(T, float), np.asarray(y, float)
+    if len(np.unique(np.round(T, 6))) < 4:
+        return None
+    known = bool(np.all(np.asarray(var) > 0))
+    _, d, w = _take_up(T, var, T_ref, (T - T_ref) ** 2)
+    line, r, _ = _take_up(T, var, T_ref, y)
+    dd = float(np.sum(w * d * d))
+    if not dd > 0:
+        return None
+    c2 = float(np.sum(w * d * r)) / dd
+    value = float(line[0])
+    dof = len(T) - 3
+    s2 = max(0.0, float(np.sum(w * r * r)) - c2 * c2 * dd) / dof
+    if known:
+        s2 = max(1.0, s2)
+    if not s2 > 0:
+        return {"c2": c2, "c2_sd": 0.0, "t": math.inf if c2 else 0.0, "dof": dof, "p": 0.0 if c2 else 1.0,
+                "value": value}
+    sd = math.sqrt(s2 / dd)
+    t = c2 / sd
+    return {"c2": c2, "c2_sd": sd, "t": float(t), "dof": dof, "p": float(2.0 * stats.t.sf(abs(t), dof)),
+            "value": value}
+
+
+def curvature_gate(tests: dict, p_family: float):
+    """The gate ``thermal_curvature`` from :func:`curvature_test` per quantity: fails when the
+    smallest p is below ``p_family`` / (number of quantities tested) (Bonferroni: the family of lines
+    wrongly refused with probability ``p_family`` when every tempco is linear). An outside probe's unit
+    with K2 0.1-0.2 ppm/degC^2 and S2 0.05-0.08 ug/degC^2 over -40..70 degC: the lines' chi2/dof up to
+    3340, widened by the Birge ratio (x58), status ok; the values at 20 degC were 1.2-1.3 U from the
+    truth (a line's value is biased by a curvature, which widening does not correct) and its
+    compensation table 4 u off. None when no quantity could be tested."""
+    from .gates import GateOutcome
+
+    tests = {n: v for n, v in tests.items() if v is not None}
+    if not tests:
+        return None
+    worst = min(tests, key=lambda n: tests[n]["p"])
+    v = tests[worst]
+    limit = p_family / len(tests)
+    fails = v["p"] < limit
+    if worst.startswith("Ca_"):
+        scale, unit = 1.0 / ARCSEC, "arcsec"
+    elif worst.startswith("K_") and v.get("value"):
+        scale, unit = 1e6 / abs(v["value"]), "ppm"          # of K
+    else:
+        scale, unit = 1e6, "ug"
+    reason = (f"the thermal line of {worst} is curved: c2 = {v['c2'] * scale:.3g} +- "
+              f"{v['c2_sd'] * scale:.2g} {unit}/degC^2 (t = {v['t']:.3g} on {v['dof']} dof, p = {v['p']:.2g}"
+              f" < {limit:.2g})"
+              + ("; a straight line's value at the reference temperature and slope are biased by it, which the "
+                 "Birge ratio's widening does not correct: fit with --method joint --thermal-order auto"
+                 if fails else "; no line of the " + str(len(tests)) + " is curved beyond it"))
+    if not fails:
+        reason = (f"no thermal line is curved beyond p {limit:.2g} (the most: {worst}, t = {v['t']:.3g} on "
+                  f"{v['dof']} dof, p = {v['p']:.2g})")
+    return GateOutcome("thermal_curvature", not fails, "model_mismatch", reason, float(abs(v["t"])),
+                       f"p >= {limit:.2g} (0.001 / {len(tests)} lines)")
