@@ -288,6 +288,46 @@ def _gate_determined(params: Mapping, cfg: GateConfig) -> GateOutcome:
                        "turn the axes involved, determine it)", u, f"u <= {cfg.angle_bound_arcsec:g} arcsec")
 
 
+#: the largest bias (zero-g offset, g) an accelerometer's calibration returns: three times the worst
+#: zero-g offset of MEMS datasheets (ADXL345 +-150 mg over temperature; navigation grades are mg). An
+#: output in offset-binary counts read as if zero meant 0 g (``w = 2^(n-1) + a / K``) fits a bias of
+#: half the range: 2 g for a 16-bit +-4 g code (an outside probe: S 1.999 +- 7e-6 g, status ok)
+BIAS_BOUND_G = 0.5
+
+
+def _gate_bias(params: Mapping) -> GateOutcome:
+    """Every bias ``S_a`` (g) within :data:`BIAS_BOUND_G` by more than 2u, on a result with scale
+    tempcos: beyond it the output has an offset no accelerometer has (an offset-binary code, a
+    column with a constant added), and the model's ``K(T)``, which scales the whole output, puts
+    ``K_tempco x S`` into S's tempco (the probe's: 35 +- 0.23 ug/degC for a true -18.5, 231 u). At
+    one temperature (``fit-raw`` of a recording in offset-binary counts, a one-setpoint campaign) the
+    offset is calibrated with the code and compensates exactly: not judged there."""
+    biases = {n: (_value(p), _u(p)) for n, p in params.items() if n in ("S_x", "S_y", "S_z") and _unit(p) == "g"}
+    if not biases:
+        return GateOutcome("bias", None, "unphysical_term", "no bias in g in the result")
+    if not any(n in params for n in ("K_x_tempco", "K_y_tempco", "K_z_tempco")):
+        return GateOutcome("bias", None, "unphysical_term", "no scale tempco: a large offset compensates exactly")
+
+    def excess(n):
+        v, u = biases[n]
+        if v is None or not math.isfinite(v):
+            return math.inf
+        return abs(v) - 2 * (u if u is not None and math.isfinite(u) and u >= 0 else 0.0)
+
+    worst = max(biases, key=excess)
+    v, u = biases[worst]
+    ok = excess(worst) <= BIAS_BOUND_G
+    reason = f"largest bias {worst} = {v:.6g} +- {u:.2g} g"
+    if not ok:
+        reason += (f", beyond {BIAS_BOUND_G:g} g by more than 2u: no accelerometer's zero-g offset is that large (MEMS "
+                   "datasheets: up to 0.15 g), and the scale tempcos, which multiply the whole output, put K_tempco "
+                   "x S into the bias tempcos. An output in offset-binary counts (mid-scale code = 0 g) read as "
+                   "two's complement gives half the range, e.g. 2 g for 16 bits at 16384 counts/g: subtract the "
+                   "mid-scale code (32768 for 16 bits) from w_x w_y w_z, or the constant added to the column")
+    return GateOutcome("bias", ok, "unphysical_term", reason, abs(v) if v is not None else None,
+                       f"|S| - 2u <= {BIAS_BOUND_G:g} g")
+
+
 #: terms whose physics fixes their sign: name -> (what it is, why it cannot be negative)
 NON_NEGATIVE = {"thermal_lag": ("the sensing elements' thermal time constant",
                                 "an element cannot respond before its temperature changes")}
@@ -438,6 +478,7 @@ def result_gates(parameters: Mapping, *, output_unit: Optional[str] = None, loca
     so uncertain that they are not measured, and terms whose physics fixes their sign."""
     return [_gate_finite(parameters), _gate_scale(parameters, output_unit, local_g_m_s2, config),
             _gate_angles(parameters, config), _gate_determined(parameters, config), _gate_signs(parameters),
+            _gate_bias(parameters),
             _gate_time_constants(parameters), _gate_time_constants_determined(parameters),
             _gate_warmup_offsets(parameters), _gate_warmup_seen(parameters)]
 
@@ -566,7 +607,7 @@ def answer_gates(parameters: Mapping, evidence: FitEvidence, *, output_unit: Opt
     out = [_gate_finite(parameters), _gate_converged(evidence), _gate_degenerate(evidence, config),
            _gate_identifiable(evidence, config), _gate_determined(parameters, config), _gate_improved(evidence),
            _gate_scale(parameters, output_unit, local_g_m_s2, config), _gate_angles(parameters, config),
-           *(o for o in (_gate_signs(parameters), _gate_time_constants(parameters),
+           *(o for o in (_gate_signs(parameters), _gate_bias(parameters), _gate_time_constants(parameters),
                          _gate_time_constants_determined(parameters), _gate_warmup_offsets(parameters),
                          _gate_warmup_seen(parameters))
              if o.passed is not None),
