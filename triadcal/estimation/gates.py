@@ -245,6 +245,14 @@ def _gate_scale(params: Mapping, output_unit: Optional[str], local_g: Optional[f
     return GateOutcome("scale", True, "unphysical_scale", f"every K is positive and within the band ({band_why})")
 
 
+def _beyond_2u(v: Optional[float], u: Optional[float]) -> float:
+    """``|v| - 2u`` (u taken as 0 when unknown; infinite for a value that is not finite): how far a
+    value is known to lie from 0 at about 95 %."""
+    if v is None or not math.isfinite(v):
+        return math.inf
+    return abs(v) - 2 * (u if u is not None and math.isfinite(u) and u >= 0 else 0.0)
+
+
 def _gate_angles(params: Mapping, cfg: GateConfig) -> GateOutcome:
     """Every angle within the bound: ``|value| - 2 u <= bound`` (an angle beyond the bound by
     less than its expanded uncertainty is not known to be beyond it; an angle so uncertain that
@@ -254,15 +262,9 @@ def _gate_angles(params: Mapping, cfg: GateConfig) -> GateOutcome:
     if not angles:
         return GateOutcome("angles", None, "angle_out_of_range", "no orientation angle in the result")
 
-    def excess(n):
-        v, u = angles[n]
-        if v is None or not math.isfinite(v):
-            return math.inf
-        return abs(v) - 2 * (u if u is not None and math.isfinite(u) and u >= 0 else 0.0)
-
-    worst = max(angles, key=excess)
+    worst = max(angles, key=lambda n: _beyond_2u(*angles[n]))
     v, u = angles[worst]
-    ok = excess(worst) <= cfg.angle_bound_arcsec
+    ok = _beyond_2u(v, u) <= cfg.angle_bound_arcsec
     u_txt = f" +- {u:.3g}" if u is not None and math.isfinite(u) else ""
     return GateOutcome("angles", ok, "angle_out_of_range",
                        f"largest angle {worst} = {v:.6g}{u_txt} arcsec" + ("" if ok else
@@ -308,15 +310,9 @@ def _gate_bias(params: Mapping) -> GateOutcome:
     if not any(n in params for n in ("K_x_tempco", "K_y_tempco", "K_z_tempco")):
         return GateOutcome("bias", None, "unphysical_term", "no scale tempco: a large offset compensates exactly")
 
-    def excess(n):
-        v, u = biases[n]
-        if v is None or not math.isfinite(v):
-            return math.inf
-        return abs(v) - 2 * (u if u is not None and math.isfinite(u) and u >= 0 else 0.0)
-
-    worst = max(biases, key=excess)
+    worst = max(biases, key=lambda n: _beyond_2u(*biases[n]))
     v, u = biases[worst]
-    ok = excess(worst) <= BIAS_BOUND_G
+    ok = _beyond_2u(v, u) <= BIAS_BOUND_G
     reason = f"largest bias {worst} = {v:.6g} +- {u:.2g} g"
     if not ok:
         reason += (f", beyond {BIAS_BOUND_G:g} g by more than 2u: no accelerometer's zero-g offset is that large (MEMS "
