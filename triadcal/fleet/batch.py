@@ -20,6 +20,7 @@ import math
 import os
 import re
 import time
+import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional, Sequence
@@ -32,29 +33,65 @@ WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THRE
 
 # -- inputs and names ----------------------------------------------------------------------
 
-def expand_inputs(inputs: Sequence) -> list[Path]:
-    """Files named or matched by glob patterns (``*``, ``?``, ``[..]``, ``**``), in the order
-    given, each once. A pattern that matches nothing, or a file that is not there, is refused."""
-    out, seen = [], set()
+def _not_a_file(path) -> Optional[str]:
+    """Why ``path`` cannot be read as an input file, or None when it is a readable regular file."""
+    p = str(path)
+    if os.path.islink(p) and not os.path.exists(p):
+        return f"a dangling symbolic link: its target {os.readlink(p)} is not there"
+    if os.path.isdir(p):
+        return "a directory, not a file"
+    if not os.path.exists(p):
+        return "no such file"
+    if not os.path.isfile(p):
+        return "not a regular file (a FIFO, socket or device)"
+    try:
+        with open(p, "rb"):
+            pass
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    return None
+
+
+def find_inputs(inputs: Sequence) -> tuple[list[Path], list[tuple[str, str]]]:
+    """The files named or matched by glob patterns (``*``, ``?``, ``[..]``, ``**``), in the order
+    given, each once, and ``(path, why)`` of every glob match that is not a readable regular file
+    (a dangling symbolic link, a directory, an unreadable file): batch makes each an error row.
+    Before, a glob dropped such a match without a word ("2 ok", exit 0; an outside probe,
+    2026-12-01). A pattern that matches nothing, or a file named explicitly that cannot be read, is
+    refused."""
+    out, bad, seen = [], [], set()
     for item in inputs:
         item = str(item)
         if glob.has_magic(item):
             matches = sorted(glob.glob(item, recursive=True))
-            matches = [m for m in matches if Path(m).is_file()]
             if not matches:
                 raise InputError(f"{item}: no file matches this pattern")
         else:
-            if not Path(item).is_file():
-                raise InputError(f"{item}: no such file")
+            why = _not_a_file(item)
+            if why is not None:
+                raise InputError(f"{item}: {why}" if why == "no such file" else f"{item}: no such file ({why})")
             matches = [item]
         for m in matches:
             key = os.path.realpath(m)
-            if key not in seen:
-                seen.add(key)
+            if key in seen:
+                continue
+            seen.add(key)
+            why = _not_a_file(m)
+            if why is None:
                 out.append(Path(m))
-    if not out:
+            else:
+                bad.append((m, why))
+    if not out and not bad:
         raise InputError("no input files given")
-    return out
+    return out, bad
+
+
+def expand_inputs(inputs: Sequence) -> list[Path]:
+    """The files of :func:`find_inputs`; a glob match that is not a readable file is refused here."""
+    files, bad = find_inputs(inputs)
+    if bad:
+        raise InputError(f"{bad[0][0]}: {bad[0][1]}" + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""))
+    return files
 
 
 def sha256_of(path) -> str:
@@ -65,17 +102,31 @@ def sha256_of(path) -> str:
     return h.hexdigest()
 
 
+#: the longest serial or state kept as its own file-name part; a longer one is cut and hashed
+MAX_NAME_CHARS = 100
+
+
 def safe_name(text: str) -> str:
     """A file-name-safe form of a serial number or state, one to one: letters, digits, ``.``,
     ``-`` and single ``_`` stay; a text with anything else (or ``__``, the separator of unit and
     state in :func:`result_path`, or a leading ``.``) gets those characters as ``_`` and ``~``
     with the first 10 hex digits of its SHA-256. Before, ``SN/1`` and ``SN_1`` (or unit ``A__B``
     in state ``x`` and unit ``A`` in state ``B__x``) wrote one file, the last fitted winning with
-    a warning only."""
+    a warning only. At most :data:`MAX_NAME_CHARS` characters: a longer text is cut to its first
+    89 (sanitised) and the hash of the whole text added (an outside probe's serial of 253
+    characters raised "File name too long" in a worker and took the whole batch down)."""
     s = re.sub(r"[^A-Za-z0-9._-]", "_", text)
-    if s == text and "__" not in text and not text.startswith(".") and text:
+    if s == text and "__" not in text and not text.startswith(".") and text and len(text) <= MAX_NAME_CHARS:
         return text
-    return f"{s.strip('.') or '_'}~{hashlib.sha256(text.encode('utf-8')).hexdigest()[:10]}"
+    head = (s.strip(".") or "_")[:MAX_NAME_CHARS - 11]
+    return f"{head}~{hashlib.sha256(text.encode('utf-8')).hexdigest()[:10]}"
+
+
+def same_name_key(text: str) -> str:
+    """A serial or state as batch compares them: without surrounding spaces and in Unicode NFC, so
+    that ``SN-\u00c91`` and ``SN-E\u03011`` (NFD, as macOS writes file names) are one serial.
+    Before, the two were fitted as two units whose rows print identically (an outside probe)."""
+    return unicodedata.normalize("NFC", str(text).strip())
 
 
 def result_path(out_dir, unit: str, state: str) -> Path:
@@ -156,95 +207,185 @@ def calibration_date(campaign, lab=None) -> str:
     return str(campaign.metadata.get("date") or (lab.calibration_date if lab is not None else "") or "")
 
 
+def read_input_bytes(path) -> bytes:
+    """The bytes of an input, read once: they are hashed and parsed, so that the SHA-256 a result
+    records is that of the data it was fitted on (a module-level function, so a test can stand
+    between the read and the parse)."""
+    with open(path, "rb") as fh:
+        return fh.read()
+
+
+def _decode_bench_csv(data: bytes, path: str) -> str:
+    """The text of a bench CSV's bytes as :func:`triadcal.io.bench_csv.read_bench_csv` reads it
+    (UTF-8 with an optional BOM, universal newlines)."""
+    import io
+
+    from ..io.bench_csv import BenchCSVError, text_line_of_offset
+
+    try:
+        data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
+        raise BenchCSVError(path, text_line_of_offset(data, exc.start + bom), None, "not UTF-8 text") from None
+    return io.TextIOWrapper(io.BytesIO(data), encoding="utf-8-sig").read()
+
+
+def _file_error(input_path, message: str) -> dict:
+    return {"unit": "", "state": "", "input": str(input_path), "path": "", "action": "error",
+            "status": "refused", "error": message}
+
+
+def _why(exc: BaseException) -> str:
+    """An exception as an error row says it: an input error's own text; anything else with its
+    type (a bug, a full disk: the pair is refused and named, the batch goes on)."""
+    if isinstance(exc, InputError):
+        return str(exc)
+    if isinstance(exc, OSError) and exc.filename:
+        return f"{exc.filename}: {exc.strerror or exc}"
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _spellings(todo: list) -> dict:
+    """(unit, state) pairs of one input that are one serial and state under :func:`same_name_key`
+    but spelled differently (NFC and NFD): pair -> the other spellings."""
+    groups: dict = {}
+    for u, st in todo:
+        groups.setdefault((same_name_key(u), same_name_key(st)), []).append((u, st))
+    return {p: [q for q in g if q != p] for g in groups.values() if len(g) > 1 for p in g}
+
+
 def fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, options: FitOptions) -> list:
     """The task: read one bench CSV, fit its (unit, state) pairs ``part, part + n_parts, ...``
     that have no result yet, write each result as soon as it is fitted; return one record per
-    pair: ``{"unit", "state", "input", "path", "action": "fitted" | "skipped" | "error", ...}``."""
+    pair: ``{"unit", "state", "input", "path", "action": "fitted" | "skipped" | "error", ...}``.
+    Nothing it meets takes the batch down: a pair that fails (its fit, its result file) is that
+    pair's error row, a file that fails is that file's (before, a serial too long for a file name
+    raised in a worker and the batch exited 1 with no summary: an outside probe)."""
+    from .manifest import is_manifest
+
+    try:
+        if is_manifest(input_path):
+            return fit_manifest_part(input_path, out_dir, part, n_parts)
+        return _fit_file_part(input_path, out_dir, part, n_parts, lab, options)
+    except Exception as exc:       # noqa: BLE001 - refused and named, never the batch's end
+        return [_file_error(input_path, f"{input_path}: not fitted: {_why(exc)}")]
+
+
+def _fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, options: FitOptions) -> list:
     try:          # one BLAS thread for the fits, without touching the process's environment
         from threadpoolctl import threadpool_limits
     except ImportError:          # pragma: no cover - threadpoolctl comes with scipy's stack
         threadpool_limits = None
     from ..api import fit
-    from ..io.bench_csv import read_bench_csv
+    from ..io.bench_csv import parse_bench_csv
     from .select import pair_mask, pairs
 
-    from .manifest import is_manifest
-
-    if is_manifest(input_path):
-        return fit_manifest_part(input_path, out_dir, part, n_parts)
-    sha = sha256_of(input_path)
+    try:
+        # read once: the SHA-256 recorded and compared is that of the very bytes parsed and fitted
+        # (a file replaced between a hash and a read gave a result with one version's SHA-256 and
+        # the other's values, reused as done by the rerun: an outside probe)
+        data = read_input_bytes(input_path)
+    except OSError as exc:         # said by every part that meets it: one part may read, another not
+        return [_file_error(input_path, f"{input_path}: cannot be read ({exc.strerror or exc})")]
+    sha = hashlib.sha256(data).hexdigest()
     records = []
     try:
-        campaign = read_bench_csv(input_path)
+        campaign = parse_bench_csv(_decode_bench_csv(data, str(input_path)), str(input_path))
     except InputError as exc:       # said once, by part 0, not by every part of the file
-        return [{"unit": "", "state": "", "input": str(input_path), "path": "", "action": "error",
-                 "status": "refused", "error": str(exc)}] if part == 0 else []
+        return [_file_error(input_path, str(exc))] if part == 0 else []
     todo = pairs(campaign)[part::n_parts]
+    twins = _spellings(pairs(campaign))
     settings = settings_sha256(options.kwargs(), lab)
     for unit, state in todo:
         path = result_path(out_dir, unit, state)
         rec = {"unit": unit, "state": state, "input": str(input_path), "path": str(path)}
-        done = _existing(path, sha, settings, unit, state)
-        if done is not None:
-            records.append({**rec, "action": "skipped", "result": done})
+        if (unit, state) in twins:
+            other = ", ".join(f"{u!a} in state {st!a}" for u, st in twins[(unit, state)])
+            records.append({**rec, "action": "error", "status": "refused",
+                            "error": f"{input_path}: unit {unit!a} in state {state!a} is also in this file as {other}: "
+                                     "one serial in two Unicode forms (NFC and NFD); write it one way"})
             continue
-        sub = campaign.select(pair_mask(campaign, unit, state), own_origin=True)
         t0 = time.perf_counter()
         try:
+            done = _existing(path, sha, settings, unit, state)
+            if done is not None:
+                records.append({**rec, "action": "skipped", "result": done})
+                continue
+            sub = campaign.select(pair_mask(campaign, unit, state), own_origin=True)
             if threadpool_limits is not None:
                 with threadpool_limits(1):
                     result = fit(sub, lab=lab, **options.kwargs())
             else:                # pragma: no cover
                 result = fit(sub, lab=lab, **options.kwargs())
-        except InputError as exc:
-            records.append({**rec, "action": "error", "status": "refused", "error": str(exc)})
+            result.extra["batch"] = {"input": str(input_path), "input_sha256": sha, "settings_sha256": settings,
+                                     "state": state,
+                                     "date": calibration_date(campaign, lab),
+                                     "lab": lab.name if lab is not None else ""}
+            path.parent.mkdir(parents=True, exist_ok=True)
+            result.save(path)
+        except Exception as exc:   # noqa: BLE001 - this pair refused and named, the others go on
+            records.append({**rec, "action": "error", "status": "refused", "error": _why(exc)})
             continue
-        result.extra["batch"] = {"input": str(input_path), "input_sha256": sha, "settings_sha256": settings,
-                                 "state": state,
-                                 "date": calibration_date(campaign, lab),
-                                 "lab": lab.name if lab is not None else ""}
-        path.parent.mkdir(parents=True, exist_ok=True)
-        result.save(path)
         records.append({**rec, "action": "fitted", "seconds": time.perf_counter() - t0,
                         "result": result.to_dict()})
     return records
 
 
+def _read_recording(data: bytes, e):
+    """The raw recording of a manifest entry from its bytes (read once and hashed): parsed from a
+    private copy of those bytes, the copy's name replaced by the recording's in the recording and
+    in any refusal."""
+    import dataclasses
+    import tempfile
+
+    from ..io.raw import read_raw_csv
+
+    with tempfile.TemporaryDirectory(prefix="triadcal-batch-") as tmp:
+        copy = Path(tmp) / (Path(e.path).name[-100:] or "recording.csv")
+        copy.write_bytes(data)
+        try:
+            rec = read_raw_csv(str(copy), e.rate_hz, e.columns, e.unit, e.labels, None)
+        except InputError as exc:
+            raise InputError(str(exc).replace(str(copy), str(e.path))) from None
+    return dataclasses.replace(rec, source=str(e.path))
+
+
 def fit_manifest_part(manifest: str, out_dir: str, part: int, n_parts: int) -> list:
     """The task for a manifest of raw recordings: its entries ``part, part + n_parts, ...`` fitted
     with ``fit-raw`` (:func:`triadcal.estimation.raw.fit_raw`), each result written as soon as it
-    is fitted, skipped when its result records the same recording (SHA-256)."""
+    is fitted, skipped when its result records the same recording (SHA-256 of the bytes read once,
+    hashed and parsed)."""
     from ..estimation.raw import fit_raw
     from .manifest import read_manifest
 
     try:
         entries = read_manifest(manifest)[part::n_parts]
     except InputError as exc:       # said once, by part 0, not by every part of the manifest
-        return [{"unit": "", "state": "", "input": str(manifest), "path": "", "action": "error",
-                 "status": "refused", "error": str(exc)}] if part == 0 else []
+        return [_file_error(manifest, str(exc))] if part == 0 else []
     records = []
     for e in entries:
-        sha = sha256_of(e.path)
-        settings = settings_sha256(e)
         path = result_path(out_dir, e.serial, e.state)
         rec = {"unit": e.serial, "state": e.state, "input": str(e.path), "path": str(path)}
-        done = _existing(path, sha, settings, e.serial, e.state)
-        if done is not None:
-            records.append({**rec, "action": "skipped", "result": done})
-            continue
         t0 = time.perf_counter()
         try:
-            out = fit_raw(str(e.path), e.rate_hz, columns=e.columns, unit=e.unit, poses=e.poses, labels=e.labels,
-                          local_g_m_s2=e.local_g_m_s2, serial=e.serial)
-        except InputError as exc:
-            records.append({**rec, "action": "error", "status": "refused", "error": str(exc)})
+            data = read_input_bytes(e.path)
+            sha = hashlib.sha256(data).hexdigest()
+            settings = settings_sha256(e)
+            done = _existing(path, sha, settings, e.serial, e.state)
+            if done is not None:
+                records.append({**rec, "action": "skipped", "result": done})
+                continue
+            out = fit_raw(_read_recording(data, e), e.rate_hz, columns=e.columns, unit=e.unit, poses=e.poses,
+                          labels=e.labels, local_g_m_s2=e.local_g_m_s2, serial=e.serial)
+            result = out.result
+            result.extra["batch"] = {"input": str(e.path), "input_sha256": sha, "settings_sha256": settings,
+                                     "state": e.state, "date": "",
+                                     "lab": "", "manifest": str(manifest)}
+            path.parent.mkdir(parents=True, exist_ok=True)
+            result.save(path)
+        except Exception as exc:   # noqa: BLE001 - this entry refused and named, the others go on
+            records.append({**rec, "action": "error", "status": "refused", "error": _why(exc)})
             continue
-        result = out.result
-        result.extra["batch"] = {"input": str(e.path), "input_sha256": sha, "settings_sha256": settings,
-                                 "state": e.state, "date": "",
-                                 "lab": "", "manifest": str(manifest)}
-        path.parent.mkdir(parents=True, exist_ok=True)
-        result.save(path)
         records.append({**rec, "action": "fitted", "seconds": time.perf_counter() - t0, "result": result.to_dict()})
     return records
 
@@ -280,18 +421,30 @@ def quick_pairs(path) -> list[tuple[str, str]]:
 def check_unique_pairs(files: Sequence[Path]) -> None:
     """Refuse inputs in which one unit and state (or two whose file names coincide) is in two
     files: one result file would hold one of the two fits, and the summary would count the unit
-    twice (docs/fleet.md)."""
+    twice (docs/fleet.md). Serials and states are compared as :func:`same_name_key` gives them
+    (no surrounding spaces, Unicode NFC): ``SN-\u00c91`` in one file and ``SN-E\u03011`` (NFD) in
+    another were fitted as two units whose rows print identically (an outside probe); one serial
+    in two forms in one file is refused too."""
     where: dict = {}
     clashes = []
     for f in files:
         for unit, state in quick_pairs(f):
-            key = result_path("", unit, state)
-            if key in where and where[key][0] != str(f):
-                clashes.append(f"unit {unit} in state {state} is in {where[key][0]} and in {f}"
-                               + ("" if where[key][1:] == (unit, state) else
-                                  f" (as {where[key][1]}/{where[key][2]}: one result file name)"))
-            else:
-                where.setdefault(key, (str(f), unit, state))
+            for key in ((same_name_key(unit), same_name_key(state)), result_path("", unit, state)):
+                if key not in where:
+                    where[key] = (str(f), unit, state)
+                    continue
+                first = where[key]
+                if first[0] == str(f) and first[1:] == (unit, state):
+                    continue
+                if first[1:] == (unit, state):
+                    how = ""
+                elif isinstance(key, tuple):
+                    how = (f" (as {first[1]!a} in state {first[2]!a} there and {unit!a} in state {state!a} here: one "
+                           "serial and state in two Unicode forms, NFC and NFD)")
+                else:
+                    how = f" (as {first[1]}/{first[2]}: one result file name)"
+                clashes.append(f"unit {unit} in state {state} is in {first[0]} and in {f}{how}")
+                break
     if clashes:
         raise InputError(f"{clashes[0]}" + (f" (and {len(clashes) - 1} more)" if len(clashes) > 1 else "")
                          + ": one result file would hold one of the two fits; give each unit and state in one "
@@ -372,7 +525,7 @@ def batch(inputs: Sequence, out_dir, *, lab=None, scheduler: Optional[str] = Non
     from ..io.lab import LabConfig, load_lab
 
     t0 = time.perf_counter()
-    files = expand_inputs(inputs)
+    files, unreadable = find_inputs(inputs)
     check_unique_pairs(files)                  # one unit and state in two inputs: refused before any fit
     if lab is not None and not isinstance(lab, LabConfig):
         lab = load_lab(lab)
@@ -388,24 +541,38 @@ def batch(inputs: Sequence, out_dir, *, lab=None, scheduler: Optional[str] = Non
     out_dir = Path(out_dir)
     (out_dir / "results").mkdir(parents=True, exist_ok=True)
 
-    own = client is None
+    # a glob match that is not a readable file is one error row (it was dropped without a word)
+    records = [_file_error(m, f"{m}: {why}: not fitted") for m, why in unreadable]
+    if progress is not None:
+        for r in records:
+            progress(r)
+    own = client is None and bool(files)
     cluster = None
     if own:
         client, cluster = start_client(scheduler, workers, processes)
     try:
-        from dask.distributed import as_completed
+        if files:
+            from dask.distributed import as_completed
 
-        n_workers = max(1, len(client.scheduler_info().get("workers", {})) or workers)
-        tasks = plan_tasks(files, n_workers)
-        futures = [client.submit(fit_file_part, f, str(out_dir), i, k, lab, options, pure=False)
-                   for f, i, k in tasks]
-        records = []
-        for fut in as_completed(futures):
-            recs = fut.result()
-            records.extend(recs)
-            if progress is not None:
-                for r in recs:
-                    progress(r)
+            n_workers = max(1, len(client.scheduler_info().get("workers", {})) or workers)
+            tasks = plan_tasks(files, n_workers)
+            futures = {client.submit(fit_file_part, f, str(out_dir), i, k, lab, options, pure=False): (f, i, k)
+                       for f, i, k in tasks}
+            said = set()
+            for fut in as_completed(list(futures)):
+                try:
+                    recs = fut.result()
+                except Exception as exc:     # noqa: BLE001 - a task lost (a worker killed): its file's error row
+                    f, i, k = futures[fut]
+                    recs = [_file_error(f, f"{f}: not fitted" + (f" (part {i + 1} of {k})" if k > 1 else "")
+                                        + f": the task failed: {_why(exc)}")]
+                # a file that cannot be read is said by each part that met it: one row
+                recs = [r for r in recs if r["unit"] or (r["input"], r["error"]) not in said]
+                said.update((r["input"], r["error"]) for r in recs if not r["unit"] and r["action"] == "error")
+                records.extend(recs)
+                if progress is not None:
+                    for r in recs:
+                        progress(r)
     finally:
         if own:
             client.close()

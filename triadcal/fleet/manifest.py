@@ -93,9 +93,12 @@ def read_manifest(path) -> list:
         rec = (path.parent / e["path"]).resolve()
         if not rec.is_file():
             raise InputError(f"{where}: {e['path']}: no such file (paths are relative to the manifest)")
-        key = (e["serial"], e.get("state", "initial"))
+        from .batch import same_name_key
+
+        # compared as batch compares them: no surrounding spaces, Unicode NFC (docs/fleet.md)
+        key = (same_name_key(e["serial"]), same_name_key(e.get("state", "initial")))
         if key in first:
-            raise InputError(f"{where}: serial {key[0]} in state {key[1]} is also recording {first[key]}: one result "
+            raise InputError(f"{where}: serial {e['serial']} in state {e.get('state', 'initial')} is also recording {first[key]}: one result "
                              "file would hold one of them; give each serial and state once")
         first[key] = i
         out.append(RawEntry(rec, e["serial"], e.get("state", "initial"), float(e["rate_hz"]), e["unit"], e["poses"],
