@@ -52,7 +52,8 @@ def test_every_effect_of_the_model_is_recovered():
 
 def test_heating_only_campaign_holds_hysteresis_and_says_why():
     truth = preset_truth()
-    c = simulate_campaign(truth, schedule=Schedule(setpoints_C=(-40.0, -10.0, 20.0, 50.0, 70.0)), seed=2)
+    # the unit soaked at -40 degC (from 20 the first setpoint would be reached by cooling: both branches)
+    c = simulate_campaign(truth, schedule=Schedule(setpoints_C=(-40.0, -10.0, 20.0, 50.0, 70.0), start_C=-40.0), seed=2)
     result = fit_joint(c)
     assert not any(n.endswith("_hysteresis") for n in result.parameters)
     assert sum("hysteresis" in note and "heating" in note for note in result.notes) == 6

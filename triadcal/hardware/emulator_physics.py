@@ -75,7 +75,9 @@ class UnitPhysics:
         # (the IMU thread computes its frames a tick after their times) takes the segment then in force
         self._segs: list = [self._seg]
         self.setpoint_C = T0
-        self._last_sp: Optional[float] = None
+        # the unit soaked at the start temperature: a first setpoint away from it is a move onto a
+        # branch (Schedule.directions), one at it leaves the unit on the mid-line
+        self._last_sp: Optional[float] = float(T0)
         self.direction = "none"
         # from the first change of setpoint on, the hysteresis branch follows the unit's own
         # temperature (heating while it rises): see set_setpoint
@@ -134,9 +136,9 @@ class UnitPhysics:
             return float(self._thermal(t)[0])
 
     def set_setpoint(self, t: float, sp: float) -> None:
-        """Command the chamber at instrument time ``t``. The hysteresis branch: ``none`` at the
-        first setpoint (the unit has soaked at ambient, as :meth:`Schedule.directions`); at the
-        first change, the direction of the change; from then on, the direction in which the unit's
+        """Command the chamber at instrument time ``t``. The hysteresis branch: ``none`` while the
+        setpoint stays at the start temperature (the unit has soaked at ambient, as
+        :meth:`Schedule.directions`); at the first change from it, the direction of the change; from then on, the direction in which the unit's
         own temperature moves (heating while it rises, as :class:`RampSchedule` labels a visit),
         which on a stepped campaign is the direction of the last change once the unit has turned,
         and on a ramp program (a setpoint written every few seconds) trails the program's turns

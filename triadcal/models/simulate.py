@@ -37,9 +37,12 @@ STANDARD_SETPOINTS_C = (20.0, 35.0, 55.0, 70.0, 55.0, 35.0, 20.0, 5.0, -10.0, -2
 class Schedule:
     """Thermal and timing plan of a campaign.
 
-    The first setpoint is reached from ``start_C`` with no known history (direction
-    ``none``: the unit has soaked at ambient); every later one is ``heating`` or
-    ``cooling`` by comparison with the previous setpoint.
+    The unit has soaked at ``start_C`` (ambient) with no known history: a first setpoint at
+    ``start_C`` is ``none`` (the hysteresis mid-line); one away from it is reached by heating or
+    cooling and is on that branch; every later one is ``heating`` or ``cooling`` by comparison
+    with the previous setpoint. (Until 2026-12-01 the first setpoint was ``none`` wherever it
+    lay: a plan over 30..85 degC labelled 30, reached from 20 by heating, the mid-line; an outside
+    probe's unit on the heating branch there fitted with status ok and the angles 5-14 u off.)
     """
 
     setpoints_C: Sequence[float] = STANDARD_SETPOINTS_C
@@ -59,7 +62,7 @@ class Schedule:
         return float(self.soak_s if self.soak_each_s is None else self.soak_each_s[i])
 
     def directions(self) -> list[str]:
-        out, previous = [], None
+        out, previous = [], self.start_C
         for sp in self.setpoints_C:
             out.append(direction_after(out[-1] if out else "none", previous, sp))
             previous = sp
