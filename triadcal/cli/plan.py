@@ -71,6 +71,7 @@ def run(args) -> int:
     from ..io.atomic import atomic_write_json
     from ..io.lab import load_lab
     from ..planning import DEFAULT_Q_V2S, prediction_document, search
+    from ..planning.search import HELD_NEGLIGIBLE
 
     lo, hi = _range(args.range)
     hours_cap = _hours(args.max_hours)
@@ -106,5 +107,12 @@ def run(args) -> int:
     for spec, t in doc["target"].items():
         out.say(f"  {spec}: predicted U {t['U_worst']:.3g} {t['unit']} ({t['worst_parameter']}) "
                 f"{'met' if t['met'] else 'NOT met'}")
+    for h, v in doc["assumptions"].get("held_effects", {}).items():
+        # a requested effect this plan holds (none of the plans that estimate it met the targets), said, not dropped
+        worst = max(v["moves"].items(), key=lambda kv: abs(kv[1]["bias"]), default=None)
+        moved = (f"; at {v['magnitude']:g} {v['unit']} it moves {worst[0]} by {worst[1]['bias']:+.2g} {worst[1]['unit']} at most, "
+                 f"under {100 * HELD_NEGLIGIBLE:g} % of the target" if worst else "")
+        out.say(f"  note: {h} ({v['effect']}) is not estimated by this plan, held at {v['held_at']:g} {v['unit']}: "
+                f"{v['reason']}{moved}")
     out.say(f"wrote {args.output}" + (f" and {args.json}" if args.json else ""))
     return 0

@@ -157,8 +157,11 @@ class Plan:
                              f"axis1_deg, axis2_deg) and tau_s: {exc!r}") from None
         for k, (s, want) in enumerate(zip(d["setpoints"], plan.directions())):
             if "direction" in s and s["direction"] != want:
+                first = (f"; the unit soaked at start_C {plan.start_C:g} degC reaches {float(s['setpoint_C']):g} degC by "
+                         f"{want}, so it is on that branch, not the mid-line (plans written before 2026-12-01 said "
+                         "'none' here: plan again)" if k == 0 and s["direction"] == "none" else "")
                 raise InputError(f"{source}: field setpoints[{k}].direction: {s['direction']!r}, but the sequence of "
-                                 f"setpoints makes it {want!r} (the direction is the sequence's, not a choice)")
+                                 f"setpoints makes it {want!r} (the direction is the sequence's, not a choice){first}")
         if "n_visits" in d and d["n_visits"] != plan.n_visits:
             raise InputError(f"{source}: field n_visits: {d['n_visits']!r}, but the plan's setpoints, positions and "
                              f"repetitions make {plan.n_visits} (an edited plan?)")
@@ -206,6 +209,14 @@ class Design:
     #: effects the model leaves out that this schedule cannot show: {effect: the smallest fraction of
     #: its signature outside the model's span} below ``structure.DRIFT_VISIBLE_MIN`` (:func:`blind_to`)
     blind: dict = field(default_factory=dict)
+    #: the effect of each parameter of the model (name -> effect name) and the value the fit holds a
+    #: parameter it cannot estimate at (its nominal value, ``fit_joint``)
+    effect_of: dict = field(default_factory=dict)
+    nominal: dict = field(default_factory=dict)
+    typical: dict = field(default_factory=dict)
+    #: the columns of the Jacobian (3n,) of the held parameters (``problems``), as ``J``: what a held
+    #: parameter moves (:func:`held_sensitivity`)
+    J_held: dict = field(default_factory=dict)
 
 
 def _model_and_sources(effects, lab, output_unit="V"):
@@ -274,10 +285,18 @@ def design(plan: Plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None, prese
         blocks = C if float(np.max(off)) > NEGLIGIBLE_CORRELATION else None
     w = prob.predict(x)
     F = [data_change(s, model, p_int, cov, campaign.gravity_g, w, "V") for s in sources]
-    units = {n: parameter_unit(model, n, "V") for n in prob.names}
+    units = {n: parameter_unit(model, n, "V") for n in model.names}
     rate = float(np.max(np.abs(campaign.temperature_rate()), initial=0.0))
+    J_held = {}
+    if problems:
+        # every parameter free (the fit holds these, the data do not): their columns, at the values
+        full = JointProblem(campaign, model, np.ones((campaign.n_visits, 3)), {})
+        _, Jf = full.residuals_and_jacobian(np.array([values[n] for n in full.names]))
+        J_held = {n: -Jf[:, full.names.index(n)] for n in problems if n in full.names}
     return Design(plan, prob.names, units, J, np.asarray(var_b), F, sources, values, problems, blocks, rate,
-                  blind_to(campaign, J, prob.names))
+                  blind_to(campaign, J, prob.names), {n: model.spec[n].effect for n in model.names},
+                  {n: float(model.spec[n].nominal) for n in model.names},
+                  {n: float(model.spec[n].typical) for n in model.names}, J_held)
 
 
 def blind_to(campaign, J: np.ndarray, names) -> dict:
@@ -298,6 +317,30 @@ def blind_to(campaign, J: np.ndarray, names) -> dict:
             if worst < DRIFT_VISIBLE_MIN:
                 out[effect] = float(worst)
     return out
+
+
+def held_sensitivity(d: Design, Q_V2s: float, tau_s: Optional[float] = None) -> dict:
+    """What holding a parameter the plan cannot estimate moves: ``{held name: (p,) array}``, the change
+    of each estimated parameter (``d.names``, reporting units) per reporting unit of the held one's
+    departure from the value it is held at. The fit of the plan, weighted as :func:`predict` (dwell
+    ``tau_s``; repetitions do not change it), absorbs the held parameter's signature ``J_h dh`` into
+    the estimated ones: ``dx = (J^T W J)^-1 J^T W J_h dh`` (e.g. K3 held on axis-aligned poses,
+    where ``a^3 = a``: K moves by -1 ppm per ug/g3)."""
+    if not d.J_held:
+        return {}
+    tau = d.plan.tau_s if tau_s is None else tau_s
+    names = list(d.J_held)
+    H = np.stack([d.J_held[n] for n in names], axis=1)
+    if d.bench_blocks is None:
+        sigma = np.sqrt(Q_V2s / tau + d.var_bench).reshape(-1)
+        Jw, Hw = d.J / sigma[:, None], H / sigma[:, None]
+    else:
+        n = d.bench_blocks.shape[0]
+        L = np.linalg.cholesky(d.bench_blocks + (Q_V2s / tau) * np.eye(3)[None])
+        Jw = np.linalg.solve(L, d.J.reshape(n, 3, -1)).reshape(d.J.shape)
+        Hw = np.linalg.solve(L, H.reshape(n, 3, -1)).reshape(H.shape)
+    S = np.linalg.lstsq(Jw, Hw, rcond=None)[0]
+    return {h: S[:, k] for k, h in enumerate(names)}
 
 
 def predict(d: Design, Q_V2s: float, tau_s: Optional[float] = None, repetitions: Optional[int] = None) -> dict:

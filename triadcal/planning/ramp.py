@@ -200,7 +200,7 @@ def search_ramp(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: floa
                 holds: Sequence[float] = HOLDS, taus: Sequence[float] = RAMP_TAUS,
                 programs: Optional[list] = None):
     """The cheapest ramp plan meeting every target (see the module); refuses an unreachable target."""
-    from .search import Choice, checked_inputs, evaluate, parse_targets
+    from .search import Choice, checked_inputs, evaluate, held_moves, parse_targets, refuse_held, requested_but_held
 
     sets = checked_inputs(chamber_rate_C_per_min, Q_V2s, positions, lo=lo, hi=hi, hours_cap=hours_cap)
     effects = ramp_effects(effects)
@@ -219,7 +219,7 @@ def search_ramp(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: floa
                         p = replace(base, positions=dict(POSITION_SETS[npos]), tau_s=float(tau),
                                     name=f"{name}, {rate:g} degC/min, hold {hold:g} s, {npos} positions")
                         groups.setdefault(round(hours * 3600.0), []).append(p)
-    targets, best, best_key, searched, reach = None, None, None, 0, {}
+    targets, best, best_key, searched, reach, blocked = None, None, None, 0, {}, None
     for key in sorted(groups):
         for p in groups[key]:
             if p.n_visits < 2 * len(p.positions):
@@ -234,17 +234,29 @@ def search_ramp(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: floa
             if not np.all(np.isfinite(pred["U"])):
                 continue
             met = evaluate(targets, list(d.names), pred["U"], d.values)
+            # a requested effect the plan cannot estimate (search.held_moves), as stepped plans
+            dropped = requested_but_held(d, effects)
+            moves = held_moves(d, targets, dropped, Q_V2s, p.tau_s)
+            moved = {mv["target"] for mv in moves if mv["significant"]}
             for spec, (ok, worst, n) in met.items():
-                if spec not in reach or worst < reach[spec][0]:
+                if spec not in moved and (spec not in reach or worst < reach[spec][0]):
                     reach[spec] = (worst, n, p.chamber_hours())
+            if moved and all(m[0] for m in met.values()):
+                if blocked is None or (key, p.name) < blocked[0]:
+                    blocked = ((key, p.name), p.name, p.chamber_hours(), [mv for mv in moves if mv["significant"]])
+                continue
             if all(m[0] for m in met.values()):
                 a = sum((t.in_unit(n, float(pred["U"][d.names.index(n)]), d.values) / t.limit) ** 2
                         for t in targets for n in t.parameters(d.names))
-                if best_key is None or (key, a) < best_key:
-                    best_key = (key, a)
-                    best = Choice(p, pred, targets, met, d.values, d.units, 0, d.problems)
-        if best is not None:
+                if best_key is None or (bool(dropped), key, a) < best_key:
+                    best_key = (bool(dropped), key, a)
+                    best = Choice(p, pred, targets, met, d.values, d.units, 0, d.problems,
+                                  {h: {"effect": d.effect_of[h], "reason": r, "held_at": d.nominal[h],
+                                       "moves": [mv for mv in moves if mv["held"] == h]} for h, r in dropped.items()})
+        if best is not None and not best_key[0]:
             break
+    if best is None and blocked is not None:
+        refuse_held(blocked, targets, searched, hours_cap, preset, "ramp plans")
     if best is None:
         if targets is None:
             raise InputError(f"--ramp: no ramp program over {lo:g}:{hi:g} degC fits within {hours_cap:g} chamber hours")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Optional, Sequence
 
 import numpy as np
@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import InputError
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.units import ARCSEC
-from .plan import (AMBIENT_C, DEFAULT_Q_V2S, HOURS_CAP, POSITION_SETS, Plan, design, predict,
+from .plan import (AMBIENT_C, DEFAULT_Q_V2S, HOURS_CAP, POSITION_SETS, Plan, design, held_sensitivity, predict,
                    undetermined_time_constants)
 
 TAUS = (30.0, 60.0, 120.0, 300.0)
@@ -160,6 +160,25 @@ def candidate_sequences(lo: float, hi: float, hysteresis: bool = True) -> list:
     return uniq
 
 
+#: the setpoints' resolution, degC (candidate_sequences rounds the levels to it)
+SETPOINT_RESOLUTION_C = 0.1
+
+
+def narrow_range(lo: float, hi: float, effects: Sequence[str]) -> str:
+    """The refusal of a range on which no candidate sequence survives: every level rounds to one
+    setpoint (a range narrower than :data:`SETPOINT_RESOLUTION_C`), so nothing depending on
+    temperature can be estimated; said as for a 0.5 degC range (a tempco needs more than one
+    temperature), not as a lack of chamber hours."""
+    levels = sorted({round(float(v), 1) for m in LEVELS for v in np.linspace(lo, hi, m)})
+    thermal = [e for e in effects if e.endswith("tempco") or e == "hysteresis"]
+    what = (f"the effects {', '.join(thermal)} are" if thermal else "nothing that depends on temperature is")
+    return (f"--range: {lo:g}:{hi:g} degC spans {hi - lo:.3g} degC: the setpoints (steps of "
+            f"{SETPOINT_RESOLUTION_C:g} degC) are {', '.join(f'{v:g}' for v in levels)} degC, "
+            f"{'one temperature' if len(levels) == 1 else 'too few temperatures'}, on which {what} not estimated "
+            "(a temperature coefficient needs more than one temperature, a hysteresis a heating and a cooling "
+            "visit of one temperature); give a wider --range")
+
+
 @dataclass
 class Choice:
     plan: Plan
@@ -170,11 +189,83 @@ class Choice:
     units: dict
     searched: int
     problems: dict
+    #: parameters of requested effects the plan holds although they are in --effects, each with what it
+    #: moves (all below HELD_NEGLIGIBLE of the targets; :func:`held_moves`)
+    held: dict = field(default_factory=dict)
 
 
 CRITERION = ("the fewest chamber hours whose predicted U (Fisher information, bench errors and the lab's "
              "systematic errors included) meets every target; ties broken A-optimally (smallest sum of "
              "(U/target)^2 over the targeted parameters)")
+
+
+#: a parameter of a requested effect that a plan cannot estimate (the fit holds it at its nominal
+#: value) is let pass only if, at the preset unit's magnitude, it moves no targeted parameter by more
+#: than this fraction of the target (:func:`held_moves`)
+HELD_NEGLIGIBLE = 0.01
+
+
+def requested_but_held(d, effects: Sequence[str], exempt: Mapping = ()) -> dict:
+    """The parameters of the effects asked for (``effects``, i.e. --effects) that the plan of ``d``
+    holds (``d.problems``), name -> reason; ``exempt`` (the time constants a stepped plan holds by
+    rule, :func:`~triadcal.planning.plan.undetermined_time_constants`) left out."""
+    req = set(effects)
+    return {n: r for n, r in d.problems.items() if d.effect_of.get(n) in req and n not in exempt and n in d.J_held}
+
+
+def held_magnitude(d, name: str) -> tuple:
+    """(departure, what it is): the preset unit's value of the held parameter less the value the fit
+    holds it at (its nominal), or the parameter's typical size where the preset has none."""
+    dv = d.values.get(name, d.nominal[name]) - d.nominal[name]
+    return (dv, "the preset's") if dv != 0 else (d.typical[name], "a typical")
+
+
+def held_moves(d, targets, held: Mapping, Q_V2s: float, tau_s: float) -> list:
+    """What each held parameter (``held``) moves among the targeted ones, at the preset's magnitude:
+    a list of dicts (target, parameter, held, effect, held_at, magnitude, per_unit and bias in the
+    target's unit, significant: above :data:`HELD_NEGLIGIBLE` of the target)."""
+    if not held:
+        return []
+    S = held_sensitivity(d, Q_V2s, tau_s)
+    names = list(d.names)
+    out = []
+    for h in held:
+        dv, what = held_magnitude(d, h)
+        for t in targets:
+            for m in t.parameters(names):
+                per = float(S[h][names.index(m)])
+                bias = t.in_unit(m, per * dv, d.values)
+                out.append({"target": t.spec, "parameter": m, "held": h, "effect": d.effect_of[h],
+                            "held_at": d.nominal[h], "magnitude": dv, "magnitude_is": what,
+                            "unit": d.units.get(h, ""), "bias": bias, "target_unit": t.unit,
+                            "per_unit": t.in_unit(m, per, d.values), "reason": d.problems[h],
+                            "significant": abs(bias) > HELD_NEGLIGIBLE * t.limit})
+    return out
+
+
+def describe_move(mv: dict, preset: str = "") -> str:
+    who = f"the {preset} preset's" if mv["magnitude_is"] == "the preset's" and preset else mv["magnitude_is"]
+    return (f"{mv['held']} held at {mv['held_at']:g} {mv['unit']}: {who} {mv['magnitude']:g} {mv['unit']} moves "
+            f"{mv['parameter']} by {mv['bias']:+.3g} {mv['target_unit']} ({mv['per_unit']:+.3g} {mv['target_unit']} "
+            f"per {mv['unit']}), against {mv['target']}")
+
+
+def refuse_held(blocked, targets, searched: int, hours_cap: float, preset: str, what: str = "plans") -> None:
+    """Refuse, naming the effect and what it moves: ``blocked`` = (key, name, hours, significant moves)
+    of the cheapest plan that met every target but for a requested effect it cannot estimate."""
+    _, name, hours, moves = blocked
+    effs = sorted({mv["effect"] for mv in moves})
+    limit = {t.spec: t.limit for t in targets}
+    moves = sorted(moves, key=lambda mv: -abs(mv["bias"]) / limit[mv["target"]])
+    more = f"; and {len(moves) - 3} more such" if len(moves) > 3 else ""
+    moves = moves[:3]
+    raise InputError(
+        f"--effects: {', '.join(effs)} cannot be estimated by any plan within {hours_cap:g} chamber hours that "
+        f"meets --target ({searched} {what} searched): on the cheapest plan that otherwise would ({name!r}, "
+        f"{hours:.1f} h) " + "; ".join(describe_move(mv, preset) for mv in moves) + more
+        + "".join(f" ({e}: {r})" for e, r in {mv["effect"]: mv["reason"] for mv in moves}.items())
+        + "; give the plan room (--positions auto, 18 or 24, a wider --range, a larger --max-hours) or leave "
+        f"{', '.join(effs)} out of --effects if the unit has none")
 
 
 def evaluate(targets, names, U, values, held: Optional[Mapping] = None) -> dict:
@@ -198,13 +289,30 @@ ABSOLUTE_ZERO_C = -273.15
 
 
 def checked_range(lo: float, hi: float) -> None:
-    """Refuse a ``--range`` that is not finite, not increasing or reaches below absolute zero."""
+    """Refuse a ``--range`` that is not finite, not increasing, reaches below absolute zero or leaves
+    the temperatures a plan file may hold (:data:`~triadcal.planning.plan_fields.PLAN_TEMPERATURE_C`,
+    which the plan's reader, ``simulate --plan``, enforces: a plan outside it was written, then refused
+    by its own reader)."""
+    from .plan_fields import PLAN_TEMPERATURE_C
+
     if not (math.isfinite(lo) and math.isfinite(hi)):
         raise InputError(f"--range: {lo:g}:{hi:g} degC; both ends must be finite numbers")
     if lo < ABSOLUTE_ZERO_C:
         raise InputError(f"--range: {lo:g}:{hi:g} degC reaches below absolute zero ({ABSOLUTE_ZERO_C:g} degC)")
     if not hi > lo:
         raise InputError(f"--range: the upper end must exceed the lower ({lo:g}:{hi:g})")
+    t_lo, t_hi = PLAN_TEMPERATURE_C
+    if lo < t_lo or hi > t_hi:
+        raise InputError(f"--range: {lo:g}:{hi:g} degC leaves the temperatures a plan may hold ({t_lo:g} to "
+                         f"{t_hi:g} degC, the range of a setpoint the plan and bench CSV readers accept)")
+
+
+#: the white-noise intensity a plan may assume, V^2 s (docs/plan.md, "--q"): above, sqrt(Q) = 1 V/sqrt(Hz)
+#: is a noise of ~1 g/sqrt(Hz) at K ~ 1 g/V, as large over a 1 s average as gravity, the signal of the
+#: calibration (no instrument; a slip of unit); below, 1e-10 V/sqrt(Hz) (0.1 ng/sqrt(Hz)) is far below any
+#: accelerometer triad (the preset quartz unit: 3e-9 V^2 s, 55 ug/sqrt(Hz)) and the predicted U would be
+#: that of a noiseless unit (1e-300 gave "U 4e-146 arcsec, met")
+Q_RANGE_V2S = (1e-20, 1.0)
 
 
 def checked_hours_cap(hours_cap) -> float:
@@ -229,8 +337,13 @@ def checked_inputs(chamber_rate_C_per_min: float, Q_V2s: float, positions: str, 
         checked_hours_cap(hours_cap)
     if not chamber_rate_C_per_min > 0:
         raise InputError("--chamber-rate must be > 0 degC/min")
-    if not Q_V2s > 0:
-        raise InputError("--q must be > 0 V^2 s")
+    q_lo, q_hi = Q_RANGE_V2S
+    if not (isinstance(Q_V2s, (int, float)) and math.isfinite(Q_V2s) and Q_V2s > 0):
+        raise InputError(f"--q must be > 0 V^2 s (got {Q_V2s!r})")
+    if not q_lo <= Q_V2s <= q_hi:
+        raise InputError(f"--q: {Q_V2s:g} V^2 s is outside the physical range {q_lo:g} to {q_hi:g} V^2 s of an "
+                         "accelerometer's white noise (docs/plan.md: above 1 V^2 s the noise of a 1 s average is as "
+                         "large as gravity; the example unit's is 3e-9 V^2 s)")
     try:
         sets = sorted(POSITION_SETS) if positions == "auto" else [int(positions)]
     except ValueError:
@@ -249,11 +362,14 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
     """The chosen plan (see the module); refuses an unreachable target within ``hours_cap``."""
     sets = checked_inputs(chamber_rate_C_per_min, Q_V2s, positions, lo=lo, hi=hi, hours_cap=hours_cap)
     seqs = sequences or candidate_sequences(lo, hi, "hysteresis" in effects)
+    if not seqs:
+        raise InputError(narrow_range(lo, hi, effects))
     targets = None
     best, best_key, searched = None, None, 0
     reach: dict = {}
     held_reason: dict = {}          # target spec -> {parameter: why some plan holds it}
     blind_skipped: list = []        # (plan name, {effect: visible fraction}) of the schedules left out
+    blocked = None                  # the cheapest plan left out for a requested effect it holds (held_moves)
     for name, sps in seqs:
         for npos in sets:
             plan = Plan(setpoints_C=sps, positions=dict(POSITION_SETS[npos]),
@@ -273,7 +389,10 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
             for t in targets:
                 for n in t.parameters(list(d.problems)):
                     held_reason.setdefault(t.spec, {})[n] = d.problems[n]
+            dropped = requested_but_held(d, effects, hold)
             for tau in taus:
+                moves = held_moves(d, targets, dropped, Q_V2s, tau)
+                moved = {mv["target"] for mv in moves if mv["significant"]}
                 for reps in repetitions:
                     p = Plan(**{**plan.__dict__, "tau_s": float(tau), "repetitions": int(reps)})
                     hours = p.chamber_hours()
@@ -285,15 +404,28 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
                         continue
                     met = evaluate(targets, list(d.names), pred["U"], d.values, d.problems)
                     for spec, (ok, worst, n) in met.items():
+                        if spec in moved:
+                            continue     # its U leaves out what the held parameter moves: no reachable U
                         if spec not in reach or worst < reach[spec][0]:
                             reach[spec] = (worst, n, hours)
+                    if moved and all(m[0] for m in met.values()):
+                        # met but for a requested effect the plan cannot estimate: not met (an outside probe:
+                        # K3 held on 12 axis-aligned poses moved K by -7..-21 ppm against a "met" U of 5.8 ppm)
+                        key = (round(hours * 3600.0), plan.name)
+                        if blocked is None or key < blocked[0]:
+                            blocked = (key, plan.name, hours, [mv for mv in moves if mv["significant"]])
+                        continue
                     if all(m[0] for m in met.values()):
                         a = sum((t.in_unit(n, float(pred["U"][d.names.index(n)]), d.values) / t.limit) ** 2
                                 for t in targets for n in t.parameters(d.names))
-                        key = (round(hours * 3600.0), a)
+                        # a plan that estimates every requested effect before one that holds some
+                        key = (bool(dropped), round(hours * 3600.0), a)
                         if best_key is None or key < best_key:
                             best_key = key
-                            best = Choice(p, pred, targets, met, d.values, d.units, 0, d.problems)
+                            best = Choice(p, pred, targets, met, d.values, d.units, 0, d.problems,
+                                          {h: {"effect": d.effect_of[h], "reason": r, "held_at": d.nominal[h],
+                                               "moves": [mv for mv in moves if mv["held"] == h]}
+                                           for h, r in dropped.items()})
     if best is None and not searched and blind_skipped:
         name, blind = blind_skipped[0]
         raise InputError("--range: every schedule searched is blind to an effect the model leaves out ("
@@ -302,6 +434,8 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
     if best is None and not searched:
         raise InputError(f"--max-hours: no stepped plan over {lo:g}:{hi:g} degC fits within {hours_cap:g} chamber "
                          "hours (raise --max-hours)")
+    if best is None and blocked is not None:
+        refuse_held(blocked, targets, searched, hours_cap, preset)
     if best is None:
         never = [t for t in targets if t.spec in reach and not math.isfinite(reach[t.spec][0])]
         if never:
@@ -346,5 +480,13 @@ def prediction_document(choice: Choice, *, Q_V2s: float, lab_source: Optional[st
             "parameters": params, "target": target, "candidates_searched": choice.searched,
             "assumptions": {"Q_V2s": Q_V2s, "lab": lab_source, "preset": preset, "effects": list(effects),
                             "not_estimated": choice.problems,
+                            # requested effects the plan holds: what each moves among the targeted parameters
+                            # at the preset's magnitude (each below HELD_NEGLIGIBLE of its target)
+                            "held_effects": {h: {"effect": v["effect"], "held_at": v["held_at"], "reason": v["reason"],
+                                                 "magnitude": v["moves"][0]["magnitude"] if v["moves"] else None,
+                                                 "unit": v["moves"][0]["unit"] if v["moves"] else "",
+                                                 "moves": {mv["parameter"]: {"bias": mv["bias"], "unit": mv["target_unit"]}
+                                                           for mv in v["moves"]}}
+                                             for h, v in choice.held.items()},
                             "K_ppm": "K's U in ppm is relative: U(K) / K * 1e6, K the preset unit's value",
                             "hours": hours_rule}}
