@@ -193,9 +193,10 @@ def test_ramp_captures_over_seeds_recover_the_unit(tmp_path):
     for seed in (11, 12, 13, 14, 15, 16):
         (tmp_path / str(seed)).mkdir()
         r, z = _capture_and_fit(tmp_path / str(seed), seed)
-        # CI-11 (2026-11-25): one seed refused by the goodness-of-fit gate (model_mismatch), not seen in
-        # a rerun (6 seeds: chi2/dof 0.91-1.13) nor in the helper's runs; the message now says which seed
-        # and the fit's chi2/dof and visits, to find the capture that does it
+        # CI-11 (2026-11-25) and under load on 2026-12-01: a seed refused now and then (model_mismatch,
+        # a negative play of the thermal terms). The emulator gave a whole batch of frames the hysteresis
+        # branch of its latest frame, so a late batch spanning the unit's turn put frames on the wrong
+        # branch (fixed: tests/test_emulator_physics.py); seed 13 under load 6/6 ok since
         assert r.status == "ok", (seed, r.status, r.fit.get("chi2_dof"), r.fit.get("n_obs"), r.notes[-3:])
         assert all(abs(z[n]) < _bound(6 * 7) for n in (*ANGLES, "thermal_lag")), (
             seed, {n: z[n] for n in (*ANGLES, "thermal_lag")})
