@@ -266,6 +266,19 @@ def _terms(model: Model, p: dict, T: np.ndarray):
 GRID_SHORT_C = 0.05
 
 
+def _outside_text(outside, rng) -> tuple:
+    """Grid points outside the range ``rng`` and the range's ends as text, with the fewest decimals
+    (1 to 9) that show each point on its side of the end it passes: "-39.8 outside -39.8..70.4" was
+    printed for a point 0.04 degC below -39.76 (an outside probe)."""
+    lo, hi = float(rng[0]), float(rng[1])
+    for d in range(1, 10):
+        def f(x):
+            return f"{x:.{d}f}"
+        if all(f(x) != f(lo if x < lo else hi) for x in outside):
+            break
+    return ", ".join(f(x) for x in outside), f(lo), f(hi)
+
+
 def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, source_sha256: str = "",
                        allow_outside: bool = False, source: Optional[str] = None) -> CompensationTable:
     """The table of ``result`` on ``grid_C`` (see the module). Refuses a result that is not ok,
@@ -299,13 +312,14 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
                      f"range {rng[0]:.2f}..{rng[1]:.2f} degC without a row: a reading there is outside this table "
                      "(the default grid ends at the range's ends)")
     outside = grid[(grid < rng[0] - 1e-9) | (grid > rng[1] + 1e-9)]
-    if outside.size and not allow_outside:
-        raise InputError(f"grid points {', '.join(f'{x:g}' for x in outside)} degC lie outside the calibrated range "
-                         f"{rng[0]:.1f}..{rng[1]:.1f} degC, where the thermal model is not valid; choose a grid "
-                         "inside it (or --allow-extrapolation, which says so in the table)")
     if outside.size:
-        notes.append(f"EXTRAPOLATED: grid points {', '.join(f'{x:g}' for x in outside)} degC lie outside the "
-                     f"calibrated range {rng[0]:.1f}..{rng[1]:.1f} degC")
+        pts, lo_txt, hi_txt = _outside_text(outside, rng)
+    if outside.size and not allow_outside:
+        raise InputError(f"grid points {pts} degC lie outside the calibrated range {lo_txt}..{hi_txt} degC, where the "
+                         "thermal model is not valid; choose a grid inside it (or --allow-extrapolation, which says "
+                         "so in the table)")
+    if outside.size:
+        notes.append(f"EXTRAPOLATED: grid points {pts} degC lie outside the calibrated range {lo_txt}..{hi_txt} degC")
     if "thermal_lag" in result.effects:
         notes.append("steady state: the sensing element's lag behind its sensor (thermal_lag) is not in a table "
                      "of T; apply it to the temperature before the lookup")

@@ -1,7 +1,8 @@
 """Calibration certificates (ISO/IEC 17025 §7.8) and drift reports, as HTML and PDF
 (``triadcal certificate``); what each states and when none is issued: docs/certificate.md.
 
-Modules: refusal (the rules that refuse a certificate), content (what a certificate
+Modules: refusal (the rules that refuse a certificate), consistency (a result that contradicts
+itself, its data or its dates, refused before anything is written), content (what a certificate
 states), html and pdf (rendering), drift (drift reports of a comparison) and issue (the
 entry point :func:`certificate`). The lab file is read by :mod:`triadcal.io.lab`, the
 uncertainty budget is :mod:`triadcal.uncertainty`.

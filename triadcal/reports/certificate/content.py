@@ -27,6 +27,7 @@ from ...uncertainty.budget import COVERAGE_FACTOR, Budget
 from ...io.lab import LabConfig
 from ...errors import InputError
 from ..notation import display_text
+from .consistency import calibration_date, check_certifiable, check_issue_date, range_problem
 from .refusal import GAP_P_THRESHOLD, gravity_reasons, posterior_diagnostics, refusal_reasons
 
 # =========================================================================================
@@ -252,14 +253,29 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     Equipment of the lab file whose calibration was due before the calibration date refuses
     the certificate, unless ``allow_expired_equipment``: then the expiry is printed on it."""
     lab = lab or LabConfig()
+    source = str(result_path or f"result of {result.unit}")
+    # what the result states must hold together before anything is printed: one coverage (95.45 %), a
+    # budget with every propagated error's row for each parameter of the budget table, section 7's k and
+    # U those of section 4 (consistency.py; outside probes with re-signed files)
+    check_certifiable(result, source)
+    sha = result.extra.get("data_sha256")
+    same_data = campaign is not None and not (sha and campaign.data_sha256 != sha)
+    if same_data:
+        # the range the certificate states is the fit's: within the data's visit temperatures
+        why = range_problem(result, campaign, source)
+        if why:
+            raise InputError(why)
+    # the date of calibration: the data's (when they are the result's), else the result's data_date, else the
+    # lab file's; the date of issue on or after it and not after today
+    data_date, cal_where = calibration_date(result, campaign if same_data else None, lab, source)
+    given = issue_date is not None
     issue_date = issue_date or _dt.date.today().isoformat()
+    check_issue_date(issue_date, given, data_date, cal_where)
     post_diag = posterior_diagnostics(idata, list(result.parameters), result) if idata is not None else None
     reasons = refusal_reasons(result, posterior_diag=post_diag, diagnosis=diagnosis)
-    data_date = campaign.metadata.get("date", "") if campaign is not None else ""
-    expired = lab.expired(data_date or lab.calibration_date or issue_date)
+    expired = lab.expired(data_date or issue_date)
     reasons += _missing_type_b(result, lab) + _lab_disagrees(result, lab) + gravity_reasons(result, lab)
-    sha = result.extra.get("data_sha256")
-    if campaign is not None and sha and campaign.data_sha256 != sha:
+    if campaign is not None and not same_data:
         # the data the certificate shows (plots, averaging times, date) must be those the result was fitted to
         reasons.append(f"the data given ({campaign.source or 'campaign'}) are not those the result was fitted to: their "
                        f"SHA-256 {campaign.data_sha256[:12]}... differs from the result's data_sha256 {sha[:12]}...")
@@ -280,12 +296,10 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
                        issue_date=issue_date, lab=lab, source_of_u=source_of_u, notes=list(result.notes))
     # identification ---------------------------------------------------------------------
     if data_date:
-        cal_date = f"{data_date} (from the data)"
-    elif lab.calibration_date:
-        cal_date = f"{lab.calibration_date} (lab file)"
+        cal_date = f"{data_date} ({cal_where})"
     else:
-        cal_date = ("not stated: the data carry no date (give --data with a captured campaign, or "
-                    "[item] calibration_date in the lab file)")
+        cal_date = ("not stated: neither the data nor the result carry a date (give --data with a captured "
+                    "campaign, or [item] calibration_date in the lab file)")
     ident = [("Item", f"{lab.item_description}, serial number {result.unit}")]
     if lab.customer_name:
         ident.append(("Customer", lab.customer_name + (f", {lab.customer_address}" if lab.customer_address else "")))
