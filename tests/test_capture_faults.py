@@ -156,17 +156,23 @@ class FakeNmeaImu(threading.Thread):
         return b"$" + body + b"*%02X\r\n" % x
 
     def run(self):
-        t0, seq = time.monotonic(), 0
+        # lossless: what the pty does not take now is written on the next turn (frames late, never
+        # cut). Before, the rest of a partial write was dropped: on a loaded machine a window lost a
+        # quarter of its frames, the visit was redone, and a fault counted on moves or a test that
+        # counted attempts met it at another visit (the chamber 'died' at P1, not P2)
+        t0, seq, pending = time.monotonic(), 0, b""
         while not self.stop_event.is_set():
             target = int((time.monotonic() - t0) * self.scale * self.rate)
-            out = b""
             while seq < target:
                 w = tuple(np.array([1.0, -2.0, 0.5]) + self.rng.normal(0, 1e-4, 3))
-                out += self.sentence(*self.mutate(seq, seq / self.rate, w, (25.0, 25.0, 25.0)))
+                pending += self.sentence(*self.mutate(seq, seq / self.rate, w, (25.0, 25.0, 25.0)))
                 seq += 1
             try:
-                if out:
-                    os.write(self.master, out)
+                if pending:
+                    pending = pending[os.write(self.master, pending):]
+            except (BlockingIOError, OSError):
+                pass
+            try:
                 os.read(self.master, 4096)
             except (BlockingIOError, OSError):
                 pass

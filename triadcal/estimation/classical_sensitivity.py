@@ -180,7 +180,9 @@ def curvature_gate(tests: dict, p_family: float):
               f"{v['c2_sd'] * scale:.2g} {unit}/degC^2 (t = {v['t']:.3g} on {v['dof']} dof, p = {v['p']:.2g}"
               f" < {limit:.2g})"
               + ("; a straight line's value at the reference temperature and slope are biased by it, which the "
-                 "Birge ratio's widening does not correct: fit with --method joint --thermal-order auto"
+                 "Birge ratio's widening does not correct: fit with --method joint --thermal-order auto (on a "
+                 "schedule that visits each temperature once, a unit that changed in steps during the campaign "
+                 "looks the same: `triadcal diagnose` tells the two apart)"
                  if fails else "; no line of the " + str(len(tests)) + " is curved beyond it"))
     if not fails:
         reason = (f"no thermal line is curved beyond p {limit:.2g} (the most: {worst}, t = {v['t']:.3g} on "

@@ -117,7 +117,8 @@ class Emulator:
         self.faults = faults or FaultPlan()
         self.physics = UnitPhysics(self.truth, self.timing, seed)
         self.physics.creep_deg_s = float(self.faults.bench_creep_deg_s)
-        self.bench_moves = 0                      # POS commands received (the faults count them)
+        self.bench_moves = 0                      # POS commands to a new target (the faults count them)
+        self._last_target: Optional[tuple] = None
         self._stuck_target: Optional[tuple] = None
         self.chamber_dead = False
         self.rng = np.random.default_rng(seed + 1)
@@ -428,7 +429,9 @@ class Emulator:
             except ValueError:
                 self._bench_error = '-102,"Syntax error"'
                 return None
-            self.bench_moves += 1
+            if (a1, a2) != self._last_target:     # a visit redone at its position is no new move: the
+                self.bench_moves += 1             # faults counted on moves do not shift with the redos
+                self._last_target = (a1, a2)      # a loaded machine makes (an incomplete window)
             f = self.faults
             if f.chamber_dies_after_moves and self.bench_moves > f.chamber_dies_after_moves and not self.chamber_dead:
                 self.chamber_dead = True          # no answer from now on, the heater off

@@ -22,7 +22,9 @@ class FaultPlan:
     deterministic fault for tests).
 
     Bench and chamber faults a capture must not take for data (docs/hardware.md, "What a visit must
-    be"), each counted in the bench's move commands (``POS``): ``bench_creep_deg_s``: once it has
+    be"), each counted in the bench's move commands (``POS``) to a new target (a visit redone at its
+    position is no move: a loaded machine's incomplete window redid P1, the chamber "died" there and
+    not at P2, and a test that counted on it failed): ``bench_creep_deg_s``: once it has
     reported its position in position (``POS?``), axis 1 creeps on at this rate (deg/s), and ``POS?``
     says so; ``bench_stuck_after_moves``:
     after this many moves the bench does not move any more but reports each commanded target as its
