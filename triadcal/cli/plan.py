@@ -104,9 +104,14 @@ def run(args) -> int:
                 f"({', '.join(f'{s:g}' for s in plan.setpoints_C)} degC), {len(plan.positions)} positions x "
                 f"{plan.repetitions}, tau {plan.tau_s:g} s: {plan.chamber_hours():.1f} chamber hours "
                 f"({doc['candidates_searched']} plans searched)")
+    left = doc["assumptions"].get("left_out_effects", {})
     for spec, t in doc["target"].items():
-        out.say(f"  {spec}: predicted U {t['U_worst']:.3g} {t['unit']} ({t['worst_parameter']}) "
-                f"{'met' if t['met'] else 'NOT met'}")
+        verdict = "met" if t["met"] else "NOT met"
+        if t["met"] and t.get("met_if_unit_has_no"):
+            # met by the planned model's U only: a left-out effect at the preset's magnitude moves this target by more
+            # than HELD_NEGLIGIBLE of it (never a bare "met" then; the moves in the notes below)
+            verdict = f"met if the unit has no {', '.join(t['met_if_unit_has_no'])} (notes below)"
+        out.say(f"  {spec}: predicted U {t['U_worst']:.3g} {t['unit']} ({t['worst_parameter']}) {verdict}")
     for h, v in doc["assumptions"].get("held_effects", {}).items():
         # a requested effect this plan holds (none of the plans that estimate it met the targets), said, not dropped
         worst = max(v["moves"].items(), key=lambda kv: abs(kv[1]["bias"]), default=None)
@@ -114,5 +119,16 @@ def run(args) -> int:
                  f"under {100 * HELD_NEGLIGIBLE:g} % of the target" if worst else "")
         out.say(f"  note: {h} ({v['effect']}) is not estimated by this plan, held at {v['held_at']:g} {v['unit']}: "
                 f"{v['reason']}{moved}")
+    for e, v in left.items():
+        # an effect of the preset unit outside --effects that this plan's fit would absorb into the targets: said,
+        # not refused (the preset is an example unit; the user's may not have it)
+        vals = [p["value"] for p in v["preset_parameters"].values()]
+        unit = next(iter(v["preset_parameters"].values()))["unit"] if vals else ""
+        mags = sorted({abs(x) for x in vals})
+        mag = (f"{mags[0]:g} to {mags[-1]:g} {unit}" if len(mags) > 1 else f"{vals[0]:g} {unit}")
+        p, m = max(v["moves"].items(), key=lambda kv: kv[1]["fraction_of_target"])
+        out.say(f"  note: {e} is not in --effects; at the {args.preset} preset's magnitude ({mag}) it would move {p} "
+                f"by {m['bias']:+.3g} {m['unit']} on this plan ({100 * m['fraction_of_target']:.3g} % of {m['target']}; "
+                f"all moves in the JSON's assumptions.left_out_effects): if your unit may have it, add it to --effects")
     out.say(f"wrote {args.output}" + (f" and {args.json}" if args.json else ""))
     return 0

@@ -328,18 +328,8 @@ def held_sensitivity(d: Design, Q_V2s: float, tau_s: Optional[float] = None) -> 
     where ``a^3 = a``: K moves by -1 ppm per ug/g3)."""
     if not d.J_held:
         return {}
-    tau = d.plan.tau_s if tau_s is None else tau_s
     names = list(d.J_held)
-    H = np.stack([d.J_held[n] for n in names], axis=1)
-    if d.bench_blocks is None:
-        sigma = np.sqrt(Q_V2s / tau + d.var_bench).reshape(-1)
-        Jw, Hw = d.J / sigma[:, None], H / sigma[:, None]
-    else:
-        n = d.bench_blocks.shape[0]
-        L = np.linalg.cholesky(d.bench_blocks + (Q_V2s / tau) * np.eye(3)[None])
-        Jw = np.linalg.solve(L, d.J.reshape(n, 3, -1)).reshape(d.J.shape)
-        Hw = np.linalg.solve(L, H.reshape(n, 3, -1)).reshape(H.shape)
-    S = np.linalg.lstsq(Jw, Hw, rcond=None)[0]
+    S = absorbed(d, np.stack([d.J_held[n] for n in names], axis=1), Q_V2s, tau_s)
     return {h: S[:, k] for k, h in enumerate(names)}
 
 
@@ -422,3 +412,73 @@ def undetermined_time_constants(d: Design, Q_V2s: float, tau_s: float, repetitio
                       "would refuse it); a stepped plan's visits are at rest after each soak (temperature rates ~0), "
                       "so it is held, as the fit would hold it; a ramp plan (triadcal plan --ramp) can determine it")
     return out
+
+
+def left_out_signatures(plan, effects: Sequence[str] = DEFAULT_EFFECTS, lab=None,
+                        preset: str = "ak18-quartz") -> dict:
+    """What the effects of the unit the model leaves out would add to the outputs of ``plan``, at
+    the preset unit's values: ``{effect: {"signature": (3n,) array (output unit, visit-major as
+    :class:`Design` ``J``), "parameters": {name: (preset value, nominal, unit)}}}``, for every
+    effect of the vocabulary that is not of the bench (``Effect.bench``: the lab's, not the unit's),
+    not in the planned model and whose parameters the preset sets away from their nominal values.
+    The signature is the change of the model's outputs on the plan's visits (same simulated
+    covariates as :func:`design`) when the effect's parameters go from nominal to the preset's: for
+    an effect linear in its parameters (the tempcos of any order, K2, K3, ...) the sum over its
+    parameters of the Jacobian's column times the preset's value."""
+    from ..estimation.joint import JointProblem
+    from ..models.effects import EFFECTS
+    from ..models.model import Model
+    from ..models.simulate import PRESETS
+
+    model, effs, _ = _model_and_sources(effects, lab)
+    table = PRESETS.get(preset, {})
+    full_model = Model(tuple(EFFECTS))
+    left = []
+    for e, cls in EFFECTS.items():
+        if e in effs or cls.bench:
+            continue
+        ps = [n for n in full_model.names if full_model.spec[n].effect == e]
+        if any(n in table and float(table[n]) != float(full_model.spec[n].nominal) for n in ps):
+            left.append(e)
+    if not left:
+        return {}
+    truth = preset_truth(preset, [e for e in effs if e != "bench_nonorthogonality"],
+                         noise=NoiseModel(Q_V2s=DEFAULT_Q_V2S, temp_noise_C=0.0))
+    once = plan.once() if hasattr(plan, "once") else replace(plan, repetitions=1)
+    campaign = simulate_campaign(truth, once.visit_positions(), once.schedule(), seed=0)
+    big = Model(tuple(effs) + tuple(left))
+    prob = JointProblem(campaign, big, np.ones((campaign.n_visits, 3)), {})
+    base = {n: float(truth.parameters.get(n, big.spec[n].nominal)) if big.spec[n].effect in effs
+            else float(big.spec[n].nominal) for n in prob.names}
+    x0 = np.array([base[n] for n in prob.names])
+    w0 = prob.predict(x0)
+    out = {}
+    for e in left:
+        ps = [n for n in prob.names if big.spec[n].effect == e]
+        x = x0.copy()
+        for n in ps:
+            if n in table:
+                x[prob.names.index(n)] = float(table[n])
+        sig = (prob.predict(x) - w0).reshape(-1)
+        if np.all(np.isfinite(sig)):
+            out[e] = {"signature": sig,
+                      "parameters": {n: (float(x[prob.names.index(n)]), float(big.spec[n].nominal), big.spec[n].unit)
+                                     for n in ps}}
+    return out
+
+
+def absorbed(d: Design, H: np.ndarray, Q_V2s: float, tau_s: Optional[float] = None) -> np.ndarray:
+    """The change of the estimated parameters (``d.names``, reporting units; (p, k)) when the data of
+    the plan of ``d`` change by the columns of ``H`` (3n, k; output unit) that the model cannot
+    represent: the fit, weighted as :func:`predict` (dwell ``tau_s``), absorbs them,
+    ``dx = (J^T W J)^-1 J^T W H`` (:func:`held_sensitivity`, :func:`left_out` share it)."""
+    tau = d.plan.tau_s if tau_s is None else tau_s
+    if d.bench_blocks is None:
+        sigma = np.sqrt(Q_V2s / tau + d.var_bench).reshape(-1)
+        Jw, Hw = d.J / sigma[:, None], H / sigma[:, None]
+    else:
+        n = d.bench_blocks.shape[0]
+        L = np.linalg.cholesky(d.bench_blocks + (Q_V2s / tau) * np.eye(3)[None])
+        Jw = np.linalg.solve(L, d.J.reshape(n, 3, -1)).reshape(d.J.shape)
+        Hw = np.linalg.solve(L, H.reshape(n, 3, -1)).reshape(H.shape)
+    return np.linalg.lstsq(Jw, Hw, rcond=None)[0]

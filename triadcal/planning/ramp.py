@@ -200,7 +200,8 @@ def search_ramp(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: floa
                 holds: Sequence[float] = HOLDS, taus: Sequence[float] = RAMP_TAUS,
                 programs: Optional[list] = None):
     """The cheapest ramp plan meeting every target (see the module); refuses an unreachable target."""
-    from .search import Choice, checked_inputs, evaluate, held_moves, parse_targets, refuse_held, requested_but_held
+    from .search import (Choice, check_left_out, checked_inputs, evaluate, held_moves, parse_targets, refuse_held,
+                         requested_but_held)
 
     sets = checked_inputs(chamber_rate_C_per_min, Q_V2s, positions, lo=lo, hi=hi, hours_cap=hours_cap)
     effects = ramp_effects(effects)
@@ -252,7 +253,7 @@ def search_ramp(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: floa
                     best_key = (bool(dropped), key, a)
                     best = Choice(p, pred, targets, met, d.values, d.units, 0, d.problems,
                                   {h: {"effect": d.effect_of[h], "reason": r, "held_at": d.nominal[h],
-                                       "moves": [mv for mv in moves if mv["held"] == h]} for h, r in dropped.items()})
+                                       "moves": [mv for mv in moves if mv["held"] == h]} for h, r in dropped.items()}, design=d)
         if best is not None and not best_key[0]:
             break
     if best is None and blocked is not None:
@@ -266,4 +267,4 @@ def search_ramp(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: floa
         raise InputError(f"--target cannot be met within {hours_cap:g} chamber hours by any of the {searched} "
                          f"ramp plans searched: {why}")
     best.searched = searched
-    return best
+    return check_left_out(best, effects, lab, preset, Q_V2s)

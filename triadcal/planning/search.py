@@ -20,8 +20,8 @@ import numpy as np
 from ..errors import InputError
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.units import ARCSEC
-from .plan import (AMBIENT_C, DEFAULT_Q_V2S, HOURS_CAP, POSITION_SETS, Plan, design, held_sensitivity, predict,
-                   undetermined_time_constants)
+from .plan import (AMBIENT_C, DEFAULT_Q_V2S, HOURS_CAP, POSITION_SETS, Plan, absorbed, design, held_sensitivity,
+                   left_out_signatures, predict, undetermined_time_constants)
 
 TAUS = (30.0, 60.0, 120.0, 300.0)
 REPETITIONS = (1, 2, 3)
@@ -192,6 +192,14 @@ class Choice:
     #: parameters of requested effects the plan holds although they are in --effects, each with what it
     #: moves (all below HELD_NEGLIGIBLE of the targets; :func:`held_moves`)
     held: dict = field(default_factory=dict)
+    #: effects of the preset unit the model leaves out (not in --effects) and what each moves among the
+    #: targeted parameters on this plan (:func:`left_out_moves`); only those moving some target by more
+    #: than HELD_NEGLIGIBLE of it
+    left_out: dict = field(default_factory=dict)
+    #: the effects checked and found negligible on this plan (each moves every target by less)
+    left_out_negligible: list = field(default_factory=list)
+    #: the design of the chosen plan (its Jacobian and weights; internal, for :func:`left_out_moves`)
+    design: object = None
 
 
 CRITERION = ("the fewest chamber hours whose predicted U (Fisher information, bench errors and the lab's "
@@ -266,6 +274,57 @@ def refuse_held(blocked, targets, searched: int, hours_cap: float, preset: str, 
         + "".join(f" ({e}: {r})" for e, r in {mv["effect"]: mv["reason"] for mv in moves}.items())
         + "; give the plan room (--positions auto, 18 or 24, a wider --range, a larger --max-hours) or leave "
         f"{', '.join(effs)} out of --effects if the unit has none")
+
+
+def left_out_moves(d, targets, signatures: Mapping, Q_V2s: float, tau_s: float) -> dict:
+    """What each effect the model leaves out (``signatures``: :func:`~.plan.left_out_signatures` of the
+    plan of ``d``, at the preset's values) moves among the targeted parameters when the plan's fit,
+    weighted as :func:`~.plan.predict`, absorbs its signature (:func:`~.plan.absorbed`): ``{effect:
+    {"parameters": {name: {"value", "unit"}}, "moves": [{"target", "parameter", "bias", "unit",
+    "fraction" (of the target's limit)}], "significant": any move above HELD_NEGLIGIBLE of its target}}``."""
+    if not signatures:
+        return {}
+    effs = list(signatures)
+    S = absorbed(d, np.stack([signatures[e]["signature"] for e in effs], axis=1), Q_V2s, tau_s)
+    names = list(d.names)
+    out = {}
+    for k, e in enumerate(effs):
+        moves = []
+        for t in targets:
+            for m in t.parameters(names):
+                bias = t.in_unit(m, float(S[names.index(m), k]), d.values)
+                moves.append({"target": t.spec, "parameter": m, "bias": bias, "unit": t.unit,
+                              "fraction": abs(bias) / t.limit})
+        out[e] = {"parameters": {n: {"value": v, "unit": u} for n, (v, _, u) in signatures[e]["parameters"].items()},
+                  "moves": moves, "significant": any(mv["fraction"] > HELD_NEGLIGIBLE for mv in moves)}
+    return out
+
+
+def check_left_out(choice: "Choice", effects: Sequence[str], lab, preset: str, Q_V2s: float) -> "Choice":
+    """Fill ``choice.left_out`` (the preset's effects outside --effects that move a target by more than
+    HELD_NEGLIGIBLE of it on the chosen plan) and ``choice.left_out_negligible``. A note, not a refusal:
+    the preset is an example unit, the user's may not have the effect."""
+    d = choice.design
+    if d is None:
+        return choice
+    sigs = left_out_signatures(choice.plan, effects, lab, preset)
+    moves = left_out_moves(d, choice.targets, sigs, Q_V2s, choice.plan.tau_s)
+    choice.left_out = {e: v for e, v in moves.items() if v["significant"]}
+    choice.left_out_negligible = [e for e, v in moves.items() if not v["significant"]]
+    return choice
+
+
+def left_out_caveats(choice: "Choice") -> dict:
+    """target spec -> [(effect, the largest move of that target's parameters)] for the left-out effects
+    that move it by more than HELD_NEGLIGIBLE of its limit (the target is met only if the unit has none)."""
+    out: dict = {}
+    for e, v in choice.left_out.items():
+        for t in choice.targets:
+            mvs = [mv for mv in v["moves"] if mv["target"] == t.spec]
+            worst = max(mvs, key=lambda mv: abs(mv["bias"]), default=None)
+            if worst is not None and worst["fraction"] > HELD_NEGLIGIBLE:
+                out.setdefault(t.spec, []).append((e, worst))
+    return out
 
 
 def evaluate(targets, names, U, values, held: Optional[Mapping] = None) -> dict:
@@ -425,7 +484,7 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
                             best = Choice(p, pred, targets, met, d.values, d.units, 0, d.problems,
                                           {h: {"effect": d.effect_of[h], "reason": r, "held_at": d.nominal[h],
                                                "moves": [mv for mv in moves if mv["held"] == h]}
-                                           for h, r in dropped.items()})
+                                           for h, r in dropped.items()}, design=d)
     if best is None and not searched and blind_skipped:
         name, blind = blind_skipped[0]
         raise InputError("--range: every schedule searched is blind to an effect the model leaves out ("
@@ -448,13 +507,14 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
         raise InputError(f"--target cannot be met within {hours_cap:g} chamber hours by any of the {searched} "
                          f"plans searched: {why}")
     best.searched = searched
-    return best
+    return check_left_out(best, effects, lab, preset, Q_V2s)
 
 
 def prediction_document(choice: Choice, *, Q_V2s: float, lab_source: Optional[str], preset: str,
                         effects: Sequence[str]) -> dict:
     """PRED.json (docs/plan.md)."""
     pred, names = choice.prediction, list(choice.prediction["names"])
+    caveats = left_out_caveats(choice)
     params = {n: {"U": float(U), "u": float(u), "u_type_a": float(ua), "k": 2.0, "unit": choice.units[n]}
               for n, U, u, ua in zip(names, pred["U"], pred["u"], pred["u_a"])}
     target = {}
@@ -462,6 +522,10 @@ def prediction_document(choice: Choice, *, Q_V2s: float, lab_source: Optional[st
         ok, worst, n = choice.met[t.spec]
         target[t.spec] = {"parameters": t.parameters(names), "limit": t.limit, "unit": t.unit,
                           "U_worst": worst, "worst_parameter": n, "met": bool(ok)}
+        if t.spec in caveats:
+            # met by the U of the planned model only: a left-out effect of the preset moves it by more than
+            # HELD_NEGLIGIBLE of the target (assumptions.left_out_effects)
+            target[t.spec]["met_if_unit_has_no"] = [e for e, _ in caveats[t.spec]]
     plan = choice.plan
     ramp = hasattr(plan, "program_C")
     if ramp:
@@ -488,5 +552,16 @@ def prediction_document(choice: Choice, *, Q_V2s: float, lab_source: Optional[st
                                                  "moves": {mv["parameter"]: {"bias": mv["bias"], "unit": mv["target_unit"]}
                                                            for mv in v["moves"]}}
                                              for h, v in choice.held.items()},
+                            # effects of the preset unit not in --effects that move a targeted parameter on this
+                            # plan by more than HELD_NEGLIGIBLE of its target (left_out_moves): the fit's model
+                            # cannot represent them; add them to --effects if the unit has them
+                            "left_out_effects": {e: {"preset_parameters": v["parameters"],
+                                                     "moves": {mv["parameter"]: {"bias": mv["bias"], "unit": mv["unit"],
+                                                                                 "target": mv["target"],
+                                                                                 "fraction_of_target": mv["fraction"]}
+                                                               for mv in v["moves"]},
+                                                     "recommendation": f"add {e} to --effects"}
+                                                 for e, v in choice.left_out.items()},
+                            "left_out_negligible": list(choice.left_out_negligible),
                             "K_ppm": "K's U in ppm is relative: U(K) / K * 1e6, K the preset unit's value",
                             "hours": hours_rule}}
