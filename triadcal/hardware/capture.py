@@ -463,7 +463,12 @@ def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettin
                                     f"{errors.last}" if errors.count else ""))
     finally:
         errors.flush()
-    # in position: the first frame read after this moment starts the settling time
+    # in position: the settling time starts now, the instrument's present (runner.present_s), or at the
+    # first frame read after this moment if that is later. The first frame read may be older than the
+    # move's end: frames still queued, a host behind its reader (a loaded machine: at the emulator's x500
+    # 0.2 s of wall is 100 s of instrument time, and a ramp's window began before the bench had moved,
+    # "the bench did not move" on a bench that had)
+    present = run.present_s()
     run.phase = "settle"
     t_ready = None
     while t_ready is None:
@@ -471,7 +476,7 @@ def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettin
         run.pump()
         if run.last_seq != before:
             t_ready = run.now
-    window_start = t_ready + settings.settle_s
+    window_start = max(t_ready, present if present is not None else t_ready) + settings.settle_s
     got: list[Frame] = []
     run.window = (window_start, window_start + settings.tau_s, got)
     notify({"event": "record", **info})
