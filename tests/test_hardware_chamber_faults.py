@@ -255,8 +255,8 @@ def test_a_ramp_whose_chamber_does_not_follow_the_program_says_so(tmp_path, cham
     refused its set points (it held 24.5 degC while the program went 28 -> 10) left rows labelled by
     the program and no warning, exit 0. Here the chamber is a pymodbus server whose PV stays at
     24.5 degC whatever it is told: the ramp says, after its visits, that the PV was off the program."""
-    from triadcal.hardware.capture import CaptureSettings, Stabilisation, load_port_config, open_instruments
-    from triadcal.hardware.ramp_capture import capture_ramp
+    from test_ramp_capture import ramp_on
+    from triadcal.hardware.capture import load_port_config, open_instruments
     from triadcal.planning.ramp import RampPlan
 
     plan = RampPlan(program_C=(24.0, 0.0), rate_C_per_min=2.0, tau_s=20.0,
@@ -266,11 +266,7 @@ def test_a_ramp_whose_chamber_does_not_follow_the_program_says_so(tmp_path, cham
     try:
         imu, bench, _ = open_instruments(load_port_config(em.directory / "ports.toml"))
         chamber = open_chamber({"driver": "modbus", "port": chamber_server.path, "baudrate": 9600})
-        report = capture_ramp(tmp_path / "out", plan=plan, imu=imu, bench=bench, chamber=chamber, step_s=30.0,
-                              settings=CaptureSettings(tau_s=20.0, settle_s=3.0, unit="SN-EMU-0001",
-                                                       stabilisation=Stabilisation(0.01, 120.0, 60.0, 3000.0)))
-        bench.close()
-        chamber.close()
+        report = ramp_on(tmp_path / "out", plan, imu, bench, chamber)
     finally:
         em.stop()
     assert chamber_server.sp == 0.0                                  # the program was written to the end

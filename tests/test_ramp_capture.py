@@ -39,6 +39,19 @@ EFFECTS = ["bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hystere
 ANGLES = ("Ca_xy", "Ca_xz", "Ca_yx", "Ca_yz", "Ca_zx", "Ca_zy")
 
 
+def ramp_on(out, plan, imu, bench, chamber):
+    """``capture_ramp`` of ``plan`` into ``out`` with the tests' settings on the emulator (tau 20 s,
+    settle 3 s, the emulated unit, a 0.01 degC/min stabilisation over 120 s, set points every 30 s);
+    bench and chamber closed after it, whatever it does."""
+    try:
+        return capture_ramp(out, plan=plan, imu=imu, bench=bench, chamber=chamber, step_s=30.0,
+                            settings=CaptureSettings(tau_s=20.0, settle_s=3.0, unit="SN-EMU-0001",
+                                                     stabilisation=Stabilisation(0.01, 120.0, 60.0, 3000.0)))
+    finally:
+        bench.close()
+        chamber.close()
+
+
 def _bound(n_z: int, alpha: float = 1e-3) -> float:
     """|z| that ``n_z`` standard normal z-scores all stay within with probability 1 - alpha
     (Bonferroni): the captures run on the wall clock, so which samples make a visit differs from run
@@ -171,13 +184,8 @@ def _capture_and_fit(tmp_path, seed):
     em = emulate(tmp_path / "emu", effects=EFFECTS, timing=timing, seed=seed).start()
     try:
         imu, bench, chamber = open_instruments(load_port_config(em.directory / "ports.toml"))
-        report = capture_ramp(tmp_path / "out", plan=read_ramp_plan(tmp_path / "ramp.json"), imu=imu, bench=bench,
-                              chamber=chamber, step_s=30.0,
-                              settings=CaptureSettings(tau_s=20.0, settle_s=3.0, unit="SN-EMU-0001",
-                                                       stabilisation=Stabilisation(0.01, 120.0, 60.0, 3000.0)))
+        report = ramp_on(tmp_path / "out", read_ramp_plan(tmp_path / "ramp.json"), imu, bench, chamber)
         assert not [w for w in report.warnings if "chamber" in w], report.warnings   # it follows the program
-        bench.close()
-        chamber.close()
     finally:
         em.stop()
     r = fit(read_bench_csv(tmp_path / "out" / CSV_NAME), effects=EFFECTS)
@@ -535,12 +543,7 @@ def test_a_stuck_bench_stops_a_ramp_capture(tmp_path):
     try:
         imu, bench, chamber = open_instruments(load_port_config(em.directory / "ports.toml"))
         with pytest.raises(CaptureError, match=r"of the ramp after P02 .*the bench did not move"):
-            capture_ramp(tmp_path / "out", plan=read_ramp_plan(tmp_path / "ramp.json"), imu=imu, bench=bench,
-                         chamber=chamber, step_s=30.0,
-                         settings=CaptureSettings(tau_s=20.0, settle_s=3.0, unit="SN-EMU-0001",
-                                                  stabilisation=Stabilisation(0.01, 120.0, 60.0, 3000.0)))
-        bench.close()
-        chamber.close()
+            ramp_on(tmp_path / "out", read_ramp_plan(tmp_path / "ramp.json"), imu, bench, chamber)
     finally:
         em.stop()
     c = read_bench_csv(tmp_path / "out" / CSV_NAME)
