@@ -27,6 +27,8 @@ from ...uncertainty.budget import COVERAGE_FACTOR, Budget
 from ...io.lab import LabConfig
 from ...errors import InputError
 from ..notation import display_text
+from ...estimation.result_checks import RefusedResult
+from .against_data import not_rederivable, values_problem
 from .consistency import calibration_date, check_certifiable, check_issue_date, range_problem
 from .refusal import GAP_P_THRESHOLD, gravity_reasons, posterior_diagnostics, refusal_reasons
 
@@ -265,6 +267,10 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         why = range_problem(result, campaign, source)
         if why:
             raise InputError(why)
+        # the values it states are those its data give (against_data.py: one Gauss-Newton step, in u)
+        why = values_problem(result, campaign, source)
+        if why:
+            raise RefusedResult(why)
     # the date of calibration: the data's (when they are the result's), else the result's data_date, else the
     # lab file's; the date of issue on or after it and not after today
     data_date, cal_where = calibration_date(result, campaign if same_data else None, lab, source)
@@ -294,6 +300,9 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     cert = Certificate(result=result, issued=issued, reasons=reasons,
                        number=(number or certificate_number(result, lab.certificate_prefix, issue_date)) if issued else None,
                        issue_date=issue_date, lab=lab, source_of_u=source_of_u, notes=list(result.notes))
+    if same_data and not_rederivable(result):
+        cert.notes.append(f"The values were not re-derived from the data given: the plain model on the data's "
+                          f"covariates does not reproduce {not_rederivable(result)}.")
     # identification ---------------------------------------------------------------------
     if data_date:
         cal_date = f"{data_date} ({cal_where})"

@@ -1,0 +1,173 @@
+"""A certificate given the data re-derives the values from them (reports/certificate/against_data.py).
+
+A result edited and re-signed (content_sha256 recomputed) with K_x and K_y swapped, or with its reference
+temperature moved and its values kept, is consistent in itself; only its data can say the values are not
+theirs (left open by the session of 2026-12-01). The data here come from the independent simulator
+(tests/independent_bench.py: no triadcal model code), so the values the certificate re-derives are
+checked against a physics written another way. The step's size is derived by hand: at values moved by
+d u from a least-squares optimum, one Gauss-Newton step of a model linear in that parameter returns
+exactly -d u (the model is linear in a bias)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("XDG_CACHE_HOME", "/tmp/xdg")
+
+from triadcal import api  # noqa: E402
+from triadcal.estimation.result import CalibrationResult, content_sha256  # noqa: E402
+from triadcal.estimation.result_checks import RefusedResult  # noqa: E402
+from triadcal.io.bench_csv import read_bench_csv  # noqa: E402
+from triadcal.reports import certificate as C  # noqa: E402
+from triadcal.reports.certificate.against_data import VALUES_Z_MAX, value_steps  # noqa: E402
+
+from independent_bench import simulate_campaign  # noqa: E402
+
+pytest.importorskip("reportlab")
+
+LINEAR = ("bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco")
+ISSUE = "2026-12-01"
+
+
+def _campaign(tmp_path, seed, name="data.csv", **kw):
+    text, truth = simulate_campaign(np.random.default_rng(seed), tilt_arcsec=(40.0, -25.0), **kw)
+    (tmp_path / name).write_text(text)
+    return tmp_path / name, truth
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    d = tmp_path_factory.mktemp("against")
+    data, truth = _campaign(d, 5)
+    res = api.fit(read_bench_csv(data), effects=LINEAR)
+    assert res.status == "ok", res.notes
+    res.save(d / "result.json")
+    return d, data, truth
+
+
+def forge(d, name, edit) -> str:
+    doc = json.loads((d / "result.json").read_text())
+    edit(doc)
+    doc["content_sha256"] = content_sha256(doc)
+    path = d / f"{name}.json"
+    path.write_text(json.dumps(doc, indent=1))
+    CalibrationResult.load(path)                          # the reader accepts it: the hash matches
+    return str(path)
+
+
+def test_the_fits_own_values_are_its_datas(fitted):
+    d, data, _ = fitted
+    z = value_steps(CalibrationResult.load(d / "result.json"), read_bench_csv(data))
+    assert len(z) >= 26 and max(abs(v) for v in z.values()) < 1e-3, z     # the optimum: a zero step
+    cert = C.certificate(d / "result.json", data=data, html=d / "ok.html", issue_date=ISSUE)
+    assert cert.issued, cert.reasons
+
+
+def test_swapped_scale_factors_are_refused(fitted):
+    d, data, truth = fitted
+    u = CalibrationResult.load(d / "result.json").parameters["K_x"].u
+    assert abs(truth["K_x"] - truth["K_y"]) > 20 * u
+
+    def swap(doc):
+        p = doc["parameters"]
+        p["K_x"]["value"], p["K_y"]["value"] = p["K_y"]["value"], p["K_x"]["value"]
+    path = forge(d, "swapped", swap)
+    with pytest.raises(RefusedResult) as e:
+        C.certificate(path, data=data, html=d / "swapped.html", issue_date=ISSUE)
+    msg = str(e.value)
+    assert "swapped.json: refused: parameters.K_" in msg and "data.csv" in msg and "Gauss-Newton" in msg, msg
+    assert not (d / "swapped.html").exists()
+    # without the data the file holds together: the certificate cannot know (docs/certificate.md says so)
+    assert C.certificate(path, html=d / "swapped_nodata.html", issue_date=ISSUE).issued
+
+
+def test_a_moved_reference_temperature_is_refused(fitted):
+    """20 -> 25 degC with the values kept: every bias is then S(20) stated at 25, off by 5 degC times its
+    tempco (the truth's 2-20 ug/degC against u of about 1 ug)."""
+    d, data, _ = fitted
+    path = forge(d, "ref25", lambda doc: doc.__setitem__("reference_temperature_C", 25.0))
+    with pytest.raises(RefusedResult, match=r"reference temperature \(25 degC\)"):
+        C.certificate(path, data=data, html=d / "ref25.html", issue_date=ISSUE)
+
+
+@pytest.mark.parametrize("moved_u", [4.0, 6.0])
+def test_a_bias_moved_by_d_u_comes_back_by_d_u(fitted, moved_u):
+    """The model is linear in S_y: one step returns exactly -d; refused beyond VALUES_Z_MAX = 5 only."""
+    d, data, _ = fitted
+
+    def move(doc):
+        p = doc["parameters"]["S_y"]
+        p["value"] += moved_u * p["u"]
+    path = forge(d, f"moved{moved_u:g}", move)
+    z = value_steps(CalibrationResult.load(path), read_bench_csv(data))
+    assert z["S_y"] == pytest.approx(-moved_u, abs=0.01)
+    others = max(abs(v) for k, v in z.items() if k != "S_y")
+    assert others < 0.05, z
+    if moved_u < VALUES_Z_MAX:
+        assert C.certificate(path, data=data, html=d / "m4.html", issue_date=ISSUE).issued
+    else:
+        with pytest.raises(RefusedResult, match=r"parameters\.S_y\.value .* -6 u"):
+            C.certificate(path, data=data, html=d / "m6.html", issue_date=ISSUE)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_other_weights_and_estimators_are_not_refused(tmp_path, seed):
+    """A lab file's bench errors (variance components the certificate's step does not weight by), a robust
+    loss and the classical method: each moves the optimum by a fraction of u, far inside 5 u. The data have
+    2 arcsec of positioning error per visit (the independent simulator's)."""
+    data, _ = _campaign(tmp_path, 100 + seed, sigma_position_arcsec=2.0, sigma_wobble_arcsec=1.0)
+    (tmp_path / "lab.toml").write_text(C.EXAMPLE_LAB_TOML)
+    camp = read_bench_csv(data)
+    fits = {"lab": api.fit(camp, effects=LINEAR, lab=tmp_path / "lab.toml"),
+            "huber": api.fit(camp, effects=LINEAR, loss="huber"),
+            "classical": api.fit(camp, method="classical")}
+    for name, res in fits.items():
+        z = value_steps(res, camp)
+        assert max(abs(v) for v in z.values()) < 2.0, (name, sorted(z.items(), key=lambda kv: -abs(kv[1]))[:3])
+
+
+def test_the_state_fitted_is_found_in_a_file_of_several(tmp_path):
+    """fit --state B of a file of two states: the data's SHA-256 is that of B's visits; the certificate
+    given the whole file takes B's (it said "not the data the result was fitted to" before)."""
+    a, _ = _campaign(tmp_path, 7, name="a.csv")
+    b, _ = _campaign(tmp_path, 8, name="b.csv")
+
+    def rows(path, state):
+        lines = path.read_text().splitlines()
+        first = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+        col = lines[first].split(",").index("state")
+        body = []
+        for ln in lines[first + 1:]:
+            f = ln.split(",")
+            f[col] = state
+            body.append(",".join(f))
+        return lines[:first + 1], body
+    head, before = rows(a, "before")
+    _, after = rows(b, "after")
+    (tmp_path / "two.csv").write_text("\n".join(head + before + after) + "\n")
+    camp = read_bench_csv(tmp_path / "two.csv")
+    part = camp.select(camp.state == "after", own_origin=True)
+    res = api.fit(part, effects=LINEAR)
+    assert res.status == "ok", res.notes
+    res.save(tmp_path / "after.json")
+    cert = C.certificate(tmp_path / "after.json", data=tmp_path / "two.csv", html=tmp_path / "after.html",
+                         issue_date=ISSUE)
+    assert cert.issued, cert.reasons
+    doc = json.loads((tmp_path / "after.json").read_text())
+    doc["parameters"]["S_x"]["value"] += 50 * doc["parameters"]["S_x"]["u"]
+    doc["content_sha256"] = content_sha256(doc)
+    (tmp_path / "after_moved.json").write_text(json.dumps(doc))
+    with pytest.raises(RefusedResult, match=r"parameters\.S_x"):
+        C.certificate(tmp_path / "after_moved.json", data=tmp_path / "two.csv", html=tmp_path / "x.html",
+                      issue_date=ISSUE)
+
+
+def test_a_form_the_plain_model_cannot_reproduce_is_said(fitted):
+    d, data, _ = fitted
+    path = forge(d, "play", lambda doc: doc["fit"].__setitem__("hysteresis", {"form": "play"}))
+    cert = C.certificate(path, data=data, html=d / "play.html", issue_date=ISSUE)
+    assert any("not re-derived" in n and "play hysteresis" in n for n in cert.notes), cert.notes
