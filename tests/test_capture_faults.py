@@ -185,11 +185,12 @@ class FakeNmeaImu(threading.Thread):
         os.close(self.slave)
 
 
-def make_rig(tmp_path, faults=None, name="emu"):
+def make_rig(tmp_path, faults=None, name="emu", start_C=None):
     """``run(mutate, **settings) -> (report, campaign)`` with a fresh fake IMU each call (``own_imu``:
     the emulator's IMU, whose outputs follow the bench's real angles; ``plan``, ``setpoints``);
     ``run.em`` the emulator (bench and chamber), with ``faults`` (a FaultPlan)."""
-    timing = EmulatorTiming(time_scale=120.0, rate_hz=10.0, self_heating_time_constant_s=0.0)
+    timing = EmulatorTiming(time_scale=120.0, rate_hz=10.0, self_heating_time_constant_s=0.0,
+                            **({} if start_C is None else {"start_C": start_C}))
     em = emulate(tmp_path / name, effects=["bench_tilt"], timing=timing, seed=2, faults=faults).start()
     made = []
 
@@ -650,3 +651,49 @@ def test_a_bench_answering_an_error_is_named_in_the_timeout_and_logged_once_with
     errs = [e for e in read_events(tmp_path / "out" / EVENTS_NAME) if e["kind"] == "bench_error"]
     assert all("-113" in e["text"] for e in errs) and len(errs) <= 2 + n // 100
     assert "repeats" not in errs[0] and sum(e.get("repeats", 1) for e in errs) == n
+
+
+def test_the_first_setpoint_is_on_the_branch_from_the_chambers_start(tmp_path):
+    """A chamber left at 45 degC (the emulator's, started there) and a first setpoint of 30: the unit is
+    taken down to it, the cooling branch. Before, the capture labelled the first setpoint from an
+    assumed 20 degC: heating, the other branch (the session of 2026-12-01 left it open). The label
+    comes from the PV read before the first setpoint is written, kept in the state and the header, and
+    a resume keeps it whatever the chamber reads then."""
+    from triadcal.hardware.session_checks import START_SAME_C, start_temperature
+    from triadcal.models.simulate import Schedule
+
+    run = make_rig(tmp_path, start_C=45.0)
+    try:
+        _, c = run(None, plan={"P01": (0.0, 0.0), "P02": (180.0, 0.0)}, setpoints=(30.0,))
+        assert set(c.direction.tolist()) == {"cooling"}, c.direction
+        assert c.metadata["start_C"].startswith("45.00 (the chamber's PV before the first setpoint, 45.00 degC")
+        state = json.loads((tmp_path / "out" / STATE_NAME).read_text())
+        assert state["start_C"]["value"] == 45.0
+        # resumed when the chamber reads 30: the state's start, the same labels
+        assert start_temperature(tmp_path / "out" / STATE_NAME, None, [30.0])[0] == 45.0
+    finally:
+        run.em.stop()
+
+    class Reads:
+        def __init__(self, value):
+            self.value = value
+
+        def temperature_C(self):
+            if isinstance(self.value, Exception):
+                raise self.value
+            return self.value
+
+    fresh = tmp_path / "none" / STATE_NAME
+    for pv, sp, first, said in [(60.0, 30.0, "cooling", "60.00 degC"), (12.0, 30.0, "heating", "12.00 degC"),
+                                (30.0 + START_SAME_C, 30.0, "none", "the mid-line"),
+                                (20.6, 20.0, "cooling", "20.60 degC"),
+                                (-3276.8, 30.0, "heating", "assumed: the chamber's PV was not a temperature"),
+                                (OSError("no answer"), 30.0, "heating", "OSError: no answer")]:
+        start_C, start = start_temperature(fresh, Reads(pv), [sp, 85.0])
+        assert Schedule(setpoints_C=[sp, 85.0], start_C=start_C).directions()[0] == first, (pv, start)
+        assert said in start["source"], start
+    # a campaign begun before the start was recorded: the old rule (20 degC assumed), nothing in the header
+    old = tmp_path / "old" / STATE_NAME
+    old.parent.mkdir()
+    old.write_text(json.dumps({"format": "triadcal.capture", "version": 1, "sessions": [{"session": 1}]}))
+    assert start_temperature(old, Reads(60.0), [30.0]) == (20.0, None)

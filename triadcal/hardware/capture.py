@@ -36,7 +36,7 @@ from .runner import CaptureError, _max_temperature_rate, _Runner  # noqa: F401 -
 from .visit_checks import (OVERFULL, VISIT_PROBLEMS, RepeatedEvents, bench_did_not_move,  # noqa: F401 - importable
                            bench_position_problem, thermal_departure, window_outlier)
 from .session_checks import (UNIT_MISS_C, check_session_metadata, dated_metadata, setpoint_missed,  # noqa: F401 - importable
-                             storage_error)
+                             start_temperature, start_text, storage_error)
 
 CSV_NAME = "campaign.csv"
 STATE_NAME = "capture.json"
@@ -204,7 +204,9 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
     setpoints_C = [float(s) for s in setpoints_C]
     if not plan or not setpoints_C:
         raise InputError("a campaign needs at least one bench position and one setpoint")
-    directions = Schedule(setpoints_C=setpoints_C).directions()
+    # the first setpoint's branch from the side the unit starts on: the chamber's PV now (a new campaign)
+    start_C, start = start_temperature(out / STATE_NAME, chamber, setpoints_C)
+    directions = Schedule(setpoints_C=setpoints_C, start_C=start_C).directions()
     from .protocols import TEMPERATURE_NONE
 
     if getattr(imu, "temperature", None) == TEMPERATURE_NONE:
@@ -234,6 +236,7 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
         "stabilisation": settings.stabilisation.describe(),
         "settle_s": f"{settings.settle_s:g}",
         **({"operator": settings.operator} if settings.operator else {}),
+        **({} if start is None else {"start_C": start_text(start)}),
         **(extra_metadata or {}),
     }
 
@@ -241,6 +244,9 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
     state_path = out / STATE_NAME
     state, rows, done_before, session = _open_session(out, state_path, plan, setpoints_C, directions, labels,
                                                       settings, metadata)
+    if start is not None and "start_C" not in state:
+        state["start_C"] = start
+        atomic_write_json(state_path, state)
     metadata = dated_metadata(metadata, state)
 
     raw = RawStore(out / RAW_NAME)

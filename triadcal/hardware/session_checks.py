@@ -115,3 +115,59 @@ def setpoint_missed(sp: float, unit_temps, chamber_C) -> Optional[str]:
                        "self-heating): a PV that does not measure the air the unit is in (one that reads its "
                        "setpoint?), or the unit's sensors off")
     return "; ".join(out) or None
+
+
+#: the temperature a unit is assumed to have soaked at when the chamber's PV cannot be read at the start
+#: (the simulator's and the emulator's ambient, ``Schedule.start_C``)
+ASSUMED_START_C = 20.0
+#: a chamber PV within this of the first setpoint at the start: no move to speak of, the unit's history
+#: unknown, so the first setpoint is the hysteresis mid-line (``none``), as at the assumed ambient
+START_SAME_C = 0.5
+
+
+def start_temperature(state_path, chamber, setpoints_C) -> tuple[float, Optional[dict]]:
+    """The temperature the unit starts from, whose side of the first setpoint gives that setpoint's
+    hysteresis branch (:meth:`~triadcal.models.simulate.Schedule.directions`), and the record
+    ``{"value", "source"}`` kept in the state file and the header's ``start_C`` (None for a campaign
+    begun before it was recorded: resumed on the old rule, the assumed 20 degC).
+
+    A new campaign reads the chamber's PV before the first setpoint is written: a chamber left at
+    60 degC with a first setpoint of 30 takes the unit down to it, the cooling branch; the capture
+    labelled it from an assumed 20 degC, heating (the session of 2026-12-01 left this open). Within
+    ``START_SAME_C`` of the first setpoint the start is the setpoint itself (``none``); a PV that is
+    not a temperature leaves ``ASSUMED_START_C``, said in the header. A resumed campaign takes the
+    record of its state file, so its rows keep their labels."""
+    from ..io.atomic import read_json
+
+    try:
+        prior = read_json(state_path) if state_path.exists() else None
+    except ValueError:
+        prior = None                   # the session's own reader says what is wrong with the file
+    if isinstance(prior, dict) and prior.get("sessions"):
+        start = prior.get("start_C")
+        if not (isinstance(start, dict) and _number(start.get("value")) and is_temperature_C(start["value"])):
+            return ASSUMED_START_C, None
+        return float(start["value"]), {"value": float(start["value"]), "source": str(start.get("source", ""))}
+    try:
+        pv = chamber.temperature_C()
+    except Exception as exc:           # noqa: BLE001 - any driver failure: the start is assumed, and said
+        pv, why = None, f"{type(exc).__name__}: {exc}"
+    else:
+        why = f"it read {pv!r}"
+    if not (_number(pv) and is_temperature_C(float(pv))):
+        start = {"value": ASSUMED_START_C, "source": f"assumed: the chamber's PV was not a temperature ({why})"}
+    else:
+        pv = float(pv)
+        value = float(setpoints_C[0]) if abs(pv - float(setpoints_C[0])) <= START_SAME_C else pv
+        start = {"value": value, "source": f"the chamber's PV before the first setpoint, {pv:.2f} degC"
+                 + (f", within {START_SAME_C:g} degC of it: the mid-line" if value != pv else "")}
+    return start["value"], start
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
+
+
+def start_text(start: dict) -> str:
+    """The header's ``start_C``: the value and where it comes from."""
+    return f"{start['value']:.2f} ({start['source']})"

@@ -25,6 +25,7 @@ from ..io.atomic import atomic_write_json, atomic_write_text
 from .storage import EventLog, FolderLocked, folder_lock
 from .capture import (CSV_NAME, EVENTS_NAME, REPORT_NAME, STATE_NAME, CaptureError, CaptureReport, CaptureSettings,
                       _campaign, _max_temperature_rate, _open_session, dated_metadata, setpoint_missed, storage_error)
+from .session_checks import start_temperature, start_text
 
 
 ANALOG_TEMPERATURE = ("chamber: the chamber's process value (air temperature), read before and after each "
@@ -91,7 +92,9 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
         raise InputError("a campaign needs at least one bench position and one setpoint")
     if not time_scale > 0:
         raise InputError(f"time_scale {time_scale!r}: must be positive")
-    directions = Schedule(setpoints_C=setpoints_C).directions()
+    # the first setpoint's branch from the side the unit starts on: the chamber's PV now (a new campaign)
+    start_C, start = start_temperature(out / STATE_NAME, chamber, setpoints_C)
+    directions = Schedule(setpoints_C=setpoints_C, start_C=start_C).directions()
     commanded = getattr(bench, "commanded", None)
     if commanded is not None:
         for label, (a1, a2) in plan.items():
@@ -123,11 +126,15 @@ def _capture_voltmeter(out_dir, *, plan, setpoints_C, voltmeter, bench, chamber,
         "stabilisation": stab_text,
         "settle_s": f"{settings.settle_s:g}",
         **({"operator": settings.operator} if settings.operator else {}),
+        **({} if start is None else {"start_C": start_text(start)}),
         **(extra_metadata or {}),
     }
     state_path = out / STATE_NAME
     state, rows, done_before, session = _open_session(out, state_path, plan, setpoints_C, directions, labels,
                                                       settings, metadata)
+    if start is not None and "start_C" not in state:
+        state["start_C"] = start
+        atomic_write_json(state_path, state)
     metadata = dated_metadata(metadata, state)
     events = EventLog(out / EVENTS_NAME)
     events.write("session_start", session=session, visits_done=done_before, total=total,
