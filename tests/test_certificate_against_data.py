@@ -171,3 +171,34 @@ def test_a_form_the_plain_model_cannot_reproduce_is_said(fitted):
     path = forge(d, "play", lambda doc: doc["fit"].__setitem__("hysteresis", {"form": "play"}))
     cert = C.certificate(path, data=data, html=d / "play.html", issue_date=ISSUE)
     assert any("not re-derived" in n and "play hysteresis" in n for n in cert.notes), cert.notes
+
+
+def test_export_compensation_with_the_data_refuses_an_edited_result(fitted, tmp_path):
+    """export-compensation writes a firmware's tables from what a result states: with --data, the swapped
+    result is refused and nothing is written; the fit's own is written with a note that it was checked;
+    another campaign's data are refused by their SHA-256."""
+    import subprocess
+    import sys
+
+    d, data, _ = fitted
+
+    def swap(doc):
+        p = doc["parameters"]
+        p["K_x"]["value"], p["K_y"]["value"] = p["K_y"]["value"], p["K_x"]["value"]
+    path = forge(d, "swapped_export", swap)
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path / "xdg"), MPLBACKEND="Agg")
+
+    def export(result, data_file, out):
+        return subprocess.run([sys.executable, "-m", "triadcal", "export-compensation", str(result), "--data",
+                               str(data_file), "-o", str(out)], capture_output=True, text=True, env=env)
+    r = export(path, data, tmp_path / "bad.json")
+    assert r.returncode != 0 and "parameters.K_" in r.stderr and "Gauss-Newton" in r.stderr, r.stderr
+    assert not (tmp_path / "bad.json").exists()
+    r = export(d / "result.json", data, tmp_path / "good.json")
+    assert r.returncode == 0, r.stderr
+    notes = json.loads((tmp_path / "good.json").read_text())["notes"]
+    assert any("values are those the data give" in n for n in notes), notes
+    other, _ = _campaign(tmp_path, 99, name="other.csv")
+    r = export(d / "result.json", other, tmp_path / "other.json")
+    assert r.returncode != 0 and "are not those the result was fitted to" in r.stderr, r.stderr
+    assert not (tmp_path / "other.json").exists()

@@ -17,6 +17,10 @@ def register(sub) -> None:
                    help="temperature grid in degC, e.g. -40:85:5 (default: the calibrated range's two ends and the "
                         "multiples of 5 degC between them)")
     p.add_argument("-o", "--out", required=True, metavar="FILE", help="the table file to write")
+    p.add_argument("--data", metavar="DATA.csv",
+                   help="the bench CSV the result was fitted to: refuse the result (nothing written) when they are "
+                        "not its data, its range reaches beyond their visits, or its values are not those they give "
+                        "(one Gauss-Newton step moves one by more than 5 u: an edited result)")
     p.add_argument("--allow-extrapolation", action="store_true",
                    help="accept grid points outside the calibrated range (marked EXTRAPOLATED in the table)")
     add_output_options(p)
@@ -31,7 +35,7 @@ def run(args) -> int:
     if grid is None:
         grid = default_grid(CalibrationResult.load(args.result).temperature_range_C, args.result,
                             args.allow_extrapolation)
-    table = export_compensation(args.result, args.out, args.format, grid, args.allow_extrapolation)
+    table = export_compensation(args.result, args.out, args.format, grid, args.allow_extrapolation, data=args.data)
     out = output(args)
     out.say(f"{table.unit}: {len(table.grid_C)} grid points {table.grid_C[0]:g}..{table.grid_C[-1]:g} degC "
             f"written to {args.out} ({args.format})")

@@ -383,15 +383,26 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
 
 
 def export_compensation(result_path, out_path, fmt: str = "json", grid="-40:85:5",
-                        allow_outside: bool = False, source: Optional[str] = None) -> CompensationTable:
+                        allow_outside: bool = False, source: Optional[str] = None, data=None) -> CompensationTable:
     """Read a result file, build its table (:func:`compensation_table`) and write it; ``grid`` is
-    ``LO:HI:STEP`` (:func:`parse_grid`) or the temperatures themselves (degC, increasing)."""
+    ``LO:HI:STEP`` (:func:`parse_grid`) or the temperatures themselves (degC, increasing). ``data``:
+    the bench CSV the result was fitted to; the result is refused, nothing written, when they are not
+    its data or do not give its values or range (:func:`~triadcal.reports.certificate.against_data.check_against_data`)."""
     if fmt not in FORMATS:
         raise InputError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
     digest = hashlib.sha256(Path(result_path).read_bytes()).hexdigest()
     grid_C = parse_grid(grid) if isinstance(grid, str) else np.asarray(grid, float)
-    table = compensation_table(CalibrationResult.load(result_path), grid_C, source=str(result_path),
+    result = CalibrationResult.load(result_path)
+    table = compensation_table(result, grid_C, source=str(result_path),
                                source_sha256=digest, allow_outside=allow_outside)
+    if data is not None:
+        from .certificate.against_data import check_against_data, not_rederivable
+
+        check_against_data(result, data, str(result_path))
+        why = not_rederivable(result)
+        table.notes.append(f"checked against {data}: its SHA-256 is the result's data_sha256 and its visits span "
+                           "the result's range" + (f"; the values were not re-derived from it ({why})" if why else
+                                                   "; the values are those the data give (within 5 u)"))
     table.write(out_path, fmt)
     return table
 

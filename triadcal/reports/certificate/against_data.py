@@ -109,6 +109,46 @@ def value_steps(result, campaign) -> dict:
     return dict(zip(names, (float(v) for v in z)))
 
 
+def fitted_visits(data, result):
+    """The visits of ``data`` the result was fitted to: the file, or the one unit/state of a file of
+    several (``fit --unit --state``) whose SHA-256 is the result's ``data_sha256``; the file when none is."""
+    sha = result.extra.get("data_sha256")
+    if not sha or data.data_sha256 == sha:
+        return data
+    from ...fleet.select import pair_mask, pairs
+
+    for unit, state in pairs(data):
+        if unit == result.unit:
+            part = data.select(np.flatnonzero(pair_mask(data, unit, state)), own_origin=True)
+            if part.data_sha256 == sha:
+                return part
+    return data
+
+
+def check_against_data(result, data_path, source: str):
+    """Refuse (:class:`RefusedResult`, one line) a result whose data ``data_path`` are not its data (their
+    SHA-256), whose temperature range reaches beyond the data's visits, or whose values the data do not
+    give (:func:`values_problem`); the campaign of the fitted visits otherwise. For the consumers that
+    write what a result states without a certificate (``export-compensation --data``)."""
+    from ...estimation.result_checks import RefusedResult
+    from ...io.bench_csv import read_bench_csv
+    from .consistency import range_problem
+
+    campaign = fitted_visits(read_bench_csv(data_path), result)
+    sha = result.extra.get("data_sha256")
+    if not sha:
+        raise RefusedResult(f"{source}: refused: the result states no data_sha256, so {data_path} cannot be shown to "
+                            "be its data")
+    if campaign.data_sha256 != sha:
+        raise RefusedResult(f"{source}: refused: the data given ({data_path}) are not those the result was fitted "
+                            f"to: their SHA-256 {campaign.data_sha256[:12]}... differs from the result's data_sha256 "
+                            f"{sha[:12]}...")
+    for why in (range_problem(result, campaign, source), values_problem(result, campaign, source)):
+        if why:
+            raise RefusedResult(why)
+    return campaign
+
+
 def values_problem(result, campaign, source: str) -> Optional[str]:
     """Why the values ``result`` states are not those its data give (one line), or None; see the module."""
     if not_rederivable(result) is not None or campaign.n_visits == 0:
@@ -131,4 +171,4 @@ def values_problem(result, campaign, source: str) -> Optional[str]:
             f"({result.reference_temperature_C:g} degC) or effects changed after the fit: fit again")
 
 
-__all__ = ["VALUES_Z_MAX", "not_rederivable", "value_steps", "values_problem"]
+__all__ = ["VALUES_Z_MAX", "check_against_data", "fitted_visits", "not_rederivable", "value_steps", "values_problem"]

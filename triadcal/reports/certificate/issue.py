@@ -23,24 +23,6 @@ from .pdf import render_pdf
 # =========================================================================================
 # the library function behind `triadcal certificate`
 # =========================================================================================
-def _fitted_visits(data, result):
-    """The visits of ``data`` the result was fitted to: the file, or the one unit/state of a file of
-    several (``fit --unit --state``) whose SHA-256 is the result's ``data_sha256``; the file when none is."""
-    sha = result.extra.get("data_sha256")
-    if not sha or data.data_sha256 == sha:
-        return data
-    import numpy as np
-
-    from ...fleet.select import pair_mask, pairs
-
-    for unit, state in pairs(data):
-        if unit == result.unit:
-            part = data.select(np.flatnonzero(pair_mask(data, unit, state)), own_origin=True)
-            if part.data_sha256 == sha:
-                return part
-    return data
-
-
 def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, html=None, pdf=None,
                 plots_dir=None, number: Optional[str] = None, issue_date: Optional[str] = None,
                 allow_expired_equipment: bool = False) -> Certificate:
@@ -83,7 +65,9 @@ def certificate(result, *, posterior=None, lab=None, data=None, diagnosis=None, 
 
         data = read_bench_csv(data)
     if data is not None:
-        data = _fitted_visits(data, result)
+        from .against_data import fitted_visits
+
+        data = fitted_visits(data, result)
     if data is not None and data.units != [result.unit]:
         raise InputError(f"the campaign data is of unit(s) {data.units}, the result of {result.unit!r}")
     if diagnosis is not None and not isinstance(diagnosis, dict):
