@@ -78,10 +78,8 @@ class UnitPhysics:
         # the unit soaked at the start temperature: a first setpoint away from it is a move onto a
         # branch (Schedule.directions), one at it leaves the unit on the mid-line
         self._last_sp: Optional[float] = float(T0)
-        self.direction = "none"
         # from the first change of setpoint on, the hysteresis branch follows the unit's own
-        # temperature (heating while it rises): see set_setpoint
-        self._branch_follows_unit = False
+        # temperature (heating while it rises): see set_setpoint and branches
         self._follow_from = math.inf          # instrument time from which it does
         self._directions: list = [(-math.inf, "none")]   # (from instrument time, direction set by a setpoint)
         # bench: a move from (a0) at t0 to (a1) arriving at t_arrive, in position at t_ready
@@ -97,21 +95,15 @@ class UnitPhysics:
         """Chamber, unit (degC) and the unit's rate (degC/s) at instrument times ``t`` (increasing):
         the two first-order lags of models/thermal_environment, in closed form since the last
         setpoint, so a setpoint written every few seconds (a ramp program) is followed exactly.
-        Once the branch follows the unit (:meth:`set_setpoint`), it is set here from the sign of
-        the unit's rate at the latest of ``t`` (unchanged where the rate is 0)."""
+        The hysteresis branch at each time: :meth:`branches`."""
         t = np.asarray(t, float)
         t0, sp, c0, u0 = self._seg
         if len(self._segs) > 1 and np.min(t, initial=t0) < t0:
             seg = np.array(self._segs)
             k = np.clip(np.searchsorted(seg[:, 0], t, side="right") - 1, 0, len(seg) - 1)
             t0, sp, c0, u0 = seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3]
-        out = two_lag_step(t - t0, sp, c0, u0,
-                           self.timing.chamber_time_constant_s, self.timing.unit_time_constant_s)
-        if self._branch_follows_unit:
-            rate = np.ravel(out[2])
-            if len(rate) and rate[-1] != 0.0:
-                self.direction = "heating" if rate[-1] > 0 else "cooling"
-        return out
+        return two_lag_step(t - t0, sp, c0, u0,
+                            self.timing.chamber_time_constant_s, self.timing.unit_time_constant_s)
 
     def branches(self, t, rate) -> np.ndarray:
         """The hysteresis branch (:data:`BRANCH` values) of each sample at instrument times ``t``
@@ -147,10 +139,10 @@ class UnitPhysics:
             c, u, _ = self._thermal(t)
             self._seg = (float(t), float(sp), float(c), float(u))
             self._segs = self._segs[-255:] + [self._seg]
-            self.direction = direction_after(self._directions[-1][1], self._last_sp, float(sp))
-            self._directions = self._directions[-255:] + [(float(t), self.direction)]
-            if self._last_sp is not None and float(sp) != self._last_sp and not self._branch_follows_unit:
-                self._branch_follows_unit, self._follow_from = True, float(t)
+            direction = direction_after(self._directions[-1][1], self._last_sp, float(sp))
+            self._directions = self._directions[-255:] + [(float(t), direction)]
+            if float(sp) != self._last_sp and math.isinf(self._follow_from):
+                self._follow_from = float(t)       # the first change: from now on the unit's rate
             self._last_sp = float(sp)
             self.setpoint_C = float(sp)
 
