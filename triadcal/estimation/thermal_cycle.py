@@ -9,12 +9,18 @@ that output. Candidate forms (least squares in the coefficients, a grid search i
 non-linear parameter, :mod:`triadcal.models.thermal_history` for the operators):
 
 - ``linear``, ``quadratic``, ``cubic``: a polynomial in ``T - T_ref``;
-- ``offset_hysteresis``, ``quadratic_hysteresis``: linear / quadratic plus ``h b`` with ``b`` =
-  +1 cooling, -1 heating, 0 still (the joint model's hysteresis term);
+- ``offset_hysteresis``, ``quadratic_hysteresis``: linear / quadratic plus ``h b`` with ``b`` the
+  hysteron of the reading (:func:`relay_branch`, r = 0.1 degC): +1 after cooling, -1 after heating, held
+  through a soak, 0 before the first move (the joint model's hysteresis term: a visit's branch is
+  that of the last setpoint change; ``lag_hysteresis`` with tau = 0). Until 2026-12-02 ``b`` was
+  0 while the chamber was still (and switched on a 2 min rate, a minute before a turn): an outside
+  probe's offset hysteresis held through 20 min soaks was never named (0 of 6), ``lag_hysteresis``
+  at its smallest tau instead;
 - ``lag``, ``lag_quadratic``: linear / quadratic in the temperature of an element lagging the
   sensor by a first-order time constant tau;
 - ``lag_hysteresis``: linear in the lagging element's temperature ``T_e`` plus ``h b_e``, ``b_e``
-  the element's branch held through soaks (``(play(T_e, 0.1) - T_e) / 0.1``): a lag and an offset
+  the element's branch held through soaks (the hysteron :func:`relay_branch` of ``T_e``, r = 0.1):
+  a lag and an offset
   hysteresis at once, which a lag alone took up with a biased tau (+24 % at h = 3 mm/s2, +88 % at
   h = 10), "explained" (an outside probe);
 - ``lag_play``: linear in the play (half-width r) of the lagging element's temperature
@@ -48,7 +54,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.thermal_cycle_csv import MAX_TEMPERATURE_C, read_cycle
-from ..models.thermal_history import centred_rate, first_order_lag, play_operator, thermometer_lead
+from ..models.thermal_history import centred_rate, first_order_lag, play_operator, relay_branch, thermometer_lead
 
 FORMAT = "triadcal.thermal_cycle"
 VERSION = 1
@@ -58,8 +64,8 @@ FORMS = ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hystere
 #: 5 s: from 30 s, an element lagging by 18 s was named a play or an offset hysteresis, "explained",
 #: in 5 runs of 5 (an outside probe)
 TAU_GRID_S = tuple(float(x) for x in np.geomspace(5.0, 7200.0, 47))
-#: the relay of ``lag_hysteresis``: a play of this half-width (degC) on the element's temperature,
-#: scaled to +-1: +1 after cooling, -1 after heating, held through a soak
+#: the hysteron of ``lag_hysteresis`` (on the element's temperature) and ``offset_hysteresis`` (on the
+#: reading): half-width (degC) of its play; +1 after cooling, -1 after heating, held through a soak
 RELAY_HALF_WIDTH_C = 0.1
 PLAY_GRID_C = tuple(float(x) for x in np.linspace(0.25, 30.0, 120))
 #: the play's state before the record, profiled as ``fit --hysteresis-form play`` does: the middle of
@@ -140,6 +146,8 @@ class AxisCycle:
     best: str
     prediction: np.ndarray = field(repr=False, default=None)
     caveat: Optional[str] = None
+    #: why a simpler form than the fold rule's was named (:func:`floor_rule`), or None
+    floor_note: Optional[str] = None
 
     def form(self, name: str) -> FormFit:
         return next(f for f in self.forms if f.name == name)
@@ -150,7 +158,9 @@ class AxisCycle:
         return {"column": self.column, "unit": self.unit, "noise_floor": self.noise_floor,
                 "branch_gap_linear": self.branch_gap, "best": self.best,
                 "choice": "the simplest form (fewest parameters) whose held-out mean square is within one standard "
-                          "error (over the folds) or 1 % of the lowest",
+                          "error (over the folds) or 1 % of the lowest; a simpler one at the white-noise floor unless "
+                          f"beaten by {PAIRED_Z:g} standard errors of the paired held-out squared errors",
+                **({"floor_rule": self.floor_note} if self.floor_note else {}),
                 "explained": bool(best.cv_rms <= EXPLAINED_FACTOR * self.noise_floor),
                 "explained_criterion": f"held-out RMS <= {EXPLAINED_FACTOR:g} x the white-noise floor",
                 "cv_improvement_over_linear": 1.0 - best.cv_rms / lin.cv_rms if lin.cv_rms > 0 else None,
@@ -223,7 +233,7 @@ def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> 
         if form == "lag_hysteresis":
             if ("relay", p) not in cache:
                 Te = op("lag", p)
-                cache[("relay", p)] = (play_operator(Te, RELAY_HALF_WIDTH_C) - Te) / RELAY_HALF_WIDTH_C
+                cache[("relay", p)] = relay_branch(Te, RELAY_HALF_WIDTH_C)
             return np.stack([one, d, cache[("relay", p)]], axis=1)
     elif form == "thermometer_lag":
         d = op("lead", p) - T_ref
@@ -239,7 +249,9 @@ def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> 
     if form == "cubic":
         cols.append(d ** 3)
     if form in ("offset_hysteresis", "quadratic_hysteresis"):
-        cols.append(branch)
+        if "relay" not in cache:            # the relay of lag_hysteresis on the thermometer's own reading
+            cache["relay"] = relay_branch(T, RELAY_HALF_WIDTH_C)
+        cols.append(cache["relay"])
     return np.stack(cols, axis=1)
 
 
@@ -294,6 +306,47 @@ def parsimonious_best(forms: list, per_fold: dict, size: dict) -> FormFit:
         if float(np.mean(d)) <= max(SE_MARGIN * se, margin_material):
             within.append(f)
     return min(within, key=lambda f: (size[f.name], f.cv_rms))
+
+
+#: a form is at the white-noise floor when its held-out mean square is within this many standard errors
+#: of the floor's square: the ratio of two variance estimates of n samples, the held-out one (relative SE
+#: sqrt(2/n)) and the floor from first differences (sqrt(3/n): the differences' lag-1 correlation -1/2)
+FLOOR_SE = 3.0
+#: a form more complex than the simplest one at the floor is named only when its held-out squared errors
+#: beat that one's by this many standard errors, sample by sample (paired; the residuals at the floor are
+#: white): one-sided p 0.0013 per rival, about 2 % over the twelve
+PAIRED_Z = 3.0
+
+
+def at_floor(cv_rms: float, floor: float, n: int) -> bool:
+    """Whether a held-out RMS is the white-noise floor's within :data:`FLOOR_SE` standard errors."""
+    return floor > 0 and cv_rms * cv_rms <= floor * floor * (1.0 + FLOOR_SE * math.sqrt(5.0 / n))
+
+
+def floor_rule(chosen: FormFit, forms: list, per_sample: dict, size: dict, floor: float) -> tuple:
+    """``(form, why)``: the simplest form at the white-noise floor (:func:`at_floor`) instead of a more
+    complex ``chosen`` that does not beat it by :data:`PAIRED_Z` standard errors of the paired held-out
+    squared errors; ``chosen`` and None otherwise. The fold rule (:func:`parsimonious_best`) compares
+    six fold means with a one-standard-error margin, which the lowest of thirteen forms, four with a
+    tuned time constant or half-width, clears by chance: an outside probe's axes with no thermal
+    effect at all (a constant or a line and white noise, 286 samples) were named play, lag,
+    lag_quadratic, offset_hysteresis, thermometer_lag or quadratic, "explained", 12 of 39, by 0.7-2 %
+    of the RMS. At the floor there is nothing left for a richer form to explain."""
+    n = len(next(iter(per_sample.values())))
+    adequate = [f for f in forms if at_floor(f.cv_rms, floor, n)]
+    if not adequate:
+        return chosen, None
+    simplest = min(adequate, key=lambda f: (size[f.name], f.cv_rms))
+    if size[chosen.name] <= size[simplest.name]:
+        return chosen, None
+    d = per_sample[simplest.name] - per_sample[chosen.name]
+    se = float(np.std(d, ddof=1) / math.sqrt(len(d))) if len(d) > 1 else 0.0
+    z = float(np.mean(d)) / se if se > 0 else 0.0
+    if z > PAIRED_Z:
+        return chosen, None
+    return simplest, (f"{simplest.name} is at the white-noise floor (held-out RMS {simplest.cv_rms / floor:.3g} x the "
+                      f"floor) and {chosen.name} beats it by {z:.2g} standard errors of the paired held-out squared "
+                      f"errors (< {PAIRED_Z:g}): an effect beyond {simplest.name} is not resolved by this cycle")
 
 
 def _least_squares(X, y):
@@ -393,7 +446,7 @@ def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, bran
         test[edges[k]:edges[k + 1]] = True
         tests.append(test)
     lag_play = _lag_play_best(t, T, y, T_ref, [~m for m in tests] + [np.ones(n, bool)], cache)
-    forms, per_fold, size = [], {}, {}
+    forms, per_fold, per_sample, size = [], {}, {}, {}
     lin_resid = None
     for f in FORMS:
         def design_of(p, f=f):
@@ -405,7 +458,8 @@ def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, bran
             _, p, c = lag_play[k] if f == "lag_play" else _best_parameter(f, designs[f], ~test, y, design_of)
             sq.append((y[test] - design_of(p)[test] @ c) ** 2)
             fold_mse.append(float(np.mean(sq[-1])))
-        cv = float(np.sqrt(np.mean(np.concatenate(sq))))
+        per_sample[f] = np.concatenate(sq)
+        cv = float(np.sqrt(np.mean(per_sample[f])))
         per_fold[f] = np.array(fold_mse)
         size[f] = 4 if f == "lag_play" else (
             next(iter(designs[f].values())).shape[1] + (0 if _grid(f) == (None,) else 1))
@@ -429,13 +483,13 @@ def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, bran
         if p is not None and span is not None and (span[2] <= span[0] * 1.001 or span[2] >= span[1] * 0.999):
             par["at_grid_edge"] = True       # the optimum may lie beyond the searched range
         forms.append(FormFit(f, cv, math.sqrt(rss / n), par, [float(x) for x in c], branch_gap(T, resid, branch, T_ref)))
-    best = parsimonious_best(forms, per_fold, size)
+    best, simpler = floor_rule(parsimonious_best(forms, per_fold, size), forms, per_sample, size, noise)
     bp = best.parameter
     p = None if bp is None else ((bp["tau_min"] * 60.0, bp["half_width_C"], bp["start"]) if best.name == "lag_play"
                                  else bp["tau_min"] * 60.0 if "tau_min" in bp else (bp["half_width_C"], bp["start"]))
     pred = _design(best.name, t, T, T_ref, branch, p) @ np.array(best.coefficients)
     return AxisCycle(column, unit, noise, branch_gap(T, lin_resid + 0.0, branch, T_ref) if lin_resid is not None
-                     else None, forms, best.name, pred)
+                     else None, forms, best.name, pred, floor_note=simpler)
 
 
 def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature_column: str, time_unit: str = "s",
@@ -482,6 +536,7 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
         parts.append(f"{a.column}: {a.best}{par}, the simplest form that predicts held-out blocks as well as the "
                      f"best (within one standard error or 1 %), RMS {best.cv_rms:.3g} {unit} against "
                      f"{lin.cv_rms:.3g} for a line (noise floor {a.noise_floor:.2g}){gap}{left}"
+                     + (f"; {a.floor_note}" if a.floor_note else "")
                      + (f"; caution: {a.caveat}" if a.caveat else ""))
     return ThermalCycle(source=str(path), unit=unit, n=len(t), duration_s=float(t[-1]),
                         temperature_range_C=(float(T.min()), float(T.max())),
