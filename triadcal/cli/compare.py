@@ -76,6 +76,10 @@ def run(args) -> int:
         raise InputError(f"--tolerance {args.tolerance}: {exc}") from None
     tolerances = _param_tolerances(args.param_tolerance)
     correlation = "auto" if args.correlation in (None, "auto") else _float(args.correlation, "--correlation")
+    if correlation != "auto" and correlation < 0:
+        from ..judgement.compare.pair import NEGATIVE_RHO_REASON
+
+        raise InputError(f"--correlation {args.correlation}: {NEGATIVE_RHO_REASON}")
     shared = _shared_equipment(args)
 
     if args.published:
@@ -101,6 +105,9 @@ def run(args) -> int:
         if args.posterior_before or args.posterior_after:
             raise InputError("with --sequence give --posteriors A.nc,B.nc,... (one per result)")
         results = [_load_checked(f) for f in args.results]
+        from ..judgement.compare.pair import check_data_order
+
+        check_data_order(results, args.results)      # refused naming the files, not their labels
         labels = name_list(args.labels) if args.labels else [_stem(f) for f in args.results]
         posteriors = name_list(args.posteriors) if args.posteriors else None
         out = compare_sequence(results, labels, tolerance_arcsec=tolerance, tolerances=tolerances,

@@ -58,10 +58,13 @@ from .results import (  # noqa: F401
     check_verdict,
 )
 from .pair import (  # noqa: F401
+    BENCH_MOUNTED,
+    NEGATIVE_RHO_REASON,
     NOT_PASS_NOTE,
     SHAREABLE_EQUIPMENT,
     _describe,
     _is_angle,
+    check_data_order,
     compare,
     joint_test,
     overall_verdict,

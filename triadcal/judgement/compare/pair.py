@@ -34,6 +34,51 @@ SHAREABLE_EQUIPMENT = SHAREABLE_SECTIONS
 #: a note that starts with this
 NOT_PASS_NOTE = "overall verdict not pass: "
 
+#: why a stated negative correlation is refused (docs/compare.md): two calibrations' errors are either
+#: their own (independent, rho 0) or shared (one bench, one lab: the same error in both, rho > 0). An
+#: outside probe: Ca_xy truly moved 1" (2.25 u(d)); at rho = 0 it failed (z 2.21), at -0.9 u(d) grew
+#: 0.44" -> 0.61" and the comparison said "overall: pass", exit 0, without a word
+NEGATIVE_RHO_REASON = ("a negative rho says the two calibrations' errors tend to opposite signs, and none do: their "
+                       "random errors are independent (rho 0) and an error they share (one bench, one lab) is the "
+                       "same in both (rho > 0); a negative rho only widens u(d), and a real drift passes. Leave it "
+                       "out (derived) or state one in [0, 1); what two budgets share, of either sign per parameter, "
+                       "is derived from their rows with --shared-bench or --lab")
+
+#: equipment the bench check (the change of tilt_x, tilt_y) speaks for: a bench re-levelled or moved
+#: between the campaigns may have been re-zeroed too, and the unit in its fixture on it remounted
+BENCH_MOUNTED = ("bench", "fixture")
+
+
+def check_data_order(results: Sequence[CalibrationResult], names: Sequence[str]) -> None:
+    """Refuse (InputError, one line naming both and their dates) calibrations given out of the order
+    of their data: every pair whose results both state a ``data_date`` (ISO) must be in date order
+    (equal dates allowed). An outside probe: ``compare after.json before.json`` (data 2026-03-01 and
+    2026-01-10) reported every drift with its sign reversed, and ``--sequence`` in reverse order was
+    taken as given."""
+    from ...io.dates import iso_date
+
+    days = [iso_date(r.extra.get("data_date")) if r.extra.get("data_date") else None for r in results]
+    for i in range(len(results)):
+        for j in range(i + 1, len(results)):
+            if days[i] and days[j] and days[i] > days[j]:
+                raise InputError(f"{names[i]} (data_date {days[i]}) is given before {names[j]} (data_date {days[j]}), "
+                                 "whose data are older: calibrations are compared in the order their data were "
+                                 "taken (BEFORE, then AFTER), and out of it every drift has the wrong sign; give "
+                                 "them in date order")
+
+
+def _held_note(why: str, params: dict, other: dict, tail: str) -> str:
+    """The note of verdicts held back as inconclusive: why, each held parameter's verdict and the other
+    one (``other``: name -> verdict), and what to do."""
+    return (NOT_PASS_NOTE + f"held back: {why}"
+            + ("; parameters held back as inconclusive: " + ", ".join(
+                f"{n} ({params[n].verdict} -> {v})" for n, v in other.items()) if other else "") + tail)
+
+
+def _hold(params: dict, names) -> None:
+    for n in names:
+        params[n].verdict, params[n].held_back = "inconclusive", True
+
 
 def same_calibration(before: CalibrationResult, after: CalibrationResult) -> bool:
     """True when ``before`` and ``after`` are one calibration: same unit, method and source, and
@@ -214,6 +259,7 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     if before.unit != after.unit:
         raise InputError(f"before is unit {before.unit!r} and after is unit {after.unit!r}: a drift compares "
                          "two calibrations of the same unit")
+    check_data_order((before, after), (tag_b, tag_a))
     originals = {"before": before, "after": after}        # a posterior is checked against its own result
     t_notes, row_dT, before, after, carried = _temperature_notes(before, after, (tag_b, tag_a))
     notes.extend(t_notes)
@@ -271,6 +317,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
             # an unmoved unit failed with D2 4e10, nothing said)
             raise InputError(f"correlation must lie strictly between -1 and 1, got {rho:g}: at +-1 the two "
                              "calibrations would share every error, their noise included, and u(d) vanishes")
+        if rho < 0.0:
+            raise InputError(f"correlation = {rho:g}: {NEGATIVE_RHO_REASON}")
         reason = f"rho = {rho:g} stated by the user for every parameter"
         if shared_equipment:
             raise InputError("give either a correlation coefficient or shared equipment, not both: the shared "
@@ -297,7 +345,9 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     shared = shared_errors(before, after, names, shared_equipment)
     notes.extend(shared.notes)
     # a stated rho beyond what the budgets hold: every verdict is also made at the supported rho (per
-    # parameter its own limit; the joint test at the least of them) and one that differs is held back
+    # parameter its own limit; the joint test at the least of them) and one that differs is held back.
+    # The budgets support rho in [0, limit]: a negative one was refused above, so every stated rho
+    # outside what they support is either refused or checked here
     supported = {}
     if not isinstance(correlation, str) and rho > 0:
         over = stated_rho_beyond_budgets(before, after, names, rho)
@@ -430,22 +480,49 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                      "from the joint test's covariance): " + ", ".join(
                          f"{s['source']} ({s['key']}, u = {s['u']:g} {s['unit']})" for s in shared.sources))
     overall = overall_verdict(params, joint, tolerance_arcsec)
+    held_back = False
     if supported:
         params_supported = {n: replace(p, verdict=verdicts_supported.get(n, p.verdict)) for n, p in params.items()}
         overall_supported = overall_verdict(params_supported, joint_supported if angles else None, tolerance_arcsec)
         held = [n for n in params if params[n].verdict != params_supported[n].verdict]
         if held or overall != overall_supported:
             # an outside probe: an unmoved unit at --correlation 0.9 without a lab file "failed" (a note said why)
-            notes.insert(0, NOT_PASS_NOTE + f"held back: at the stated rho = {rho:g} the verdict is {overall}, at "
-                         f"the rho the budgets support (at most {max(supported.values()):.2g}) it is "
-                         f"{overall_supported}"
-                         + ("; parameters held back as inconclusive: " + ", ".join(
-                             f"{n} ({params[n].verdict} -> {params_supported[n].verdict})" for n in held)
-                            if held else "")
-                         + ": the difference rests on shared error that no result's budget holds")
-            overall = "inconclusive"
-        for n in held:
-            params[n].verdict = "inconclusive"
+            notes.insert(0, _held_note(f"at the stated rho = {rho:g} the verdict is {overall}, at the rho the budgets "
+                                       f"support (at most {max(supported.values()):.2g}) it is {overall_supported}",
+                                       params, {n: params_supported[n].verdict for n in held},
+                                       ": the difference rests on shared error that no result's budget holds"))
+            overall, held_back = "inconclusive", True
+        _hold(params, held)
+    moved_tilts = [n for n, v in bench.items() if v["significant"]]
+    bench_shared = sorted({s["equipment"] for s in shared.sources if s["equipment"] in BENCH_MOUNTED})
+    if moved_tilts and bench_shared:
+        # an outside probe: the bench's encoder zeros and non-orthogonality re-drawn (5") between the
+        # campaigns, --shared-bench: the tilt_y check said +2.7 +- 0.26" and "may then not cancel", yet the
+        # unmoved unit "failed" 5 of 5 (D2 62-2116; without sharing 3 pass, 2 inconclusive). The check says
+        # the sharing does not hold: every verdict is made again with that equipment's errors independent
+        # (the rest stays shared), and one that differs is held back
+        alone = tuple(e for e in shared_equipment if e not in BENCH_MOUNTED)
+        alt = compare(originals["before"], originals["after"], tolerance_arcsec=tolerance_arcsec,
+                      tolerances=tolerances, posterior_before=posterior_before, posterior_after=posterior_after,
+                      correlation=correlation, level=level, label=label, shared_equipment=alone, files=files)
+        overall_alt = overall_verdict(alt.parameters, alt.joint, tolerance_arcsec)
+        held = [n for n in params if n in alt.parameters and params[n].verdict != alt.parameters[n].verdict]
+        eq = ", ".join(f"[{e}]" for e in bench_shared)
+        check = "; ".join(f"{n} changed {bench[n]['drift']:+.3g} +- {bench[n]['u']:.2g} {bench[n]['unit']} "
+                          f"(z {bench[n]['drift'] / bench[n]['u']:.3g})" if bench[n]["u"] > 0 else
+                          f"{n} changed {bench[n]['drift']:+.3g} {bench[n]['unit']}" for n in moved_tilts)
+        said = (f"the bench check contradicts the shared {eq}: {check}, significant at {level:.0%} (re-levelled or "
+                f"moved between the campaigns, its errors need not be the same in both)")
+        if held or overall != overall_alt:
+            notes.insert(0, _held_note(f"{said}; with {eq} shared the verdict is {overall}, with its errors "
+                                       f"independent it is {overall_alt}", params,
+                                       {n: alt.parameters[n].verdict for n in held},
+                                       "; check the bench, and share it only if it was not adjusted"))
+            overall, held_back = "inconclusive", True
+            _hold(params, held)
+        else:
+            notes.append(f"{said}; the verdicts are the same with {eq} shared and with its errors independent, "
+                         "so they stand")
     if same_calibration(before, after):
         src = before.extra.get("source")
         notes.insert(0, NOT_PASS_NOTE + f"{tag_b} and {tag_a} are the same calibration (unit {before.unit}, method "
@@ -486,7 +563,8 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         parameters=params, overall=overall, level=level,
         rule=rule_text(level, tolerance_arcsec, tolerances, posterior=post_b is not None),
         tolerance_arcsec=tolerance_arcsec, tolerances=tolerances, correlation=corr, joint=joint,
-        bench_check=bench, before=_describe(before), after=_describe(after), label=label, notes=notes)
+        bench_check=bench, before=_describe(before), after=_describe(after), label=label, notes=notes,
+        held_back=held_back and overall == "inconclusive")
 
 
 def joint_test(drift: np.ndarray, cov: np.ndarray, names: Sequence[str], level: float = 0.95,

@@ -15,7 +15,7 @@ from ...io.numbers import parse_number
 from ...io.atomic import read_json
 from .rule import EN_COVERAGE_FACTOR, check_tolerance, decide, drift_uncertainty, probability_exceeds, rule_text
 from .results import ANGLES, ComparisonResult, MAX_ANGLE_ARCSEC, ParameterDrift, _opt_float
-from .pair import joint_test, overall_verdict
+from .pair import NEGATIVE_RHO_REASON, joint_test, overall_verdict
 from .sequence import SequenceComparison
 
 
@@ -108,6 +108,8 @@ def judge_published(rows: Sequence[PublishedDrift], *, u_measurement_arcsec: Opt
     """
     if not -1.0 <= correlation <= 1.0:
         raise InputError(f"correlation must lie in [-1, 1], got {correlation}")
+    if correlation < 0:
+        raise InputError(f"correlation = {correlation:g}: {NEGATIVE_RHO_REASON}")
     if tolerance_arcsec is not None:
         tolerance_arcsec = check_tolerance(tolerance_arcsec, "the angles' tolerance (arcsec)")
     if u_measurement_arcsec is not None and not (isinstance(u_measurement_arcsec, (int, float))

@@ -66,6 +66,10 @@ class ParameterDrift:
     #: a bias of the drift known only to lie within +-bound (the unmeasured tempcos of rows apart,
     #: ``compare.tempco_bound``), taken at its worst by the rule (:func:`.rule.decide`)
     bound: float = 0.0
+    #: the verdict the rule gives from these numbers was held back as inconclusive by compare (it
+    #: differed at the correlation the budgets support, or with the bench's errors not shared; a note says
+    #: which): a reader accepts "inconclusive" for it, nothing else
+    held_back: bool = False
 
     @property
     def U(self) -> float:
@@ -82,6 +86,8 @@ class ParameterDrift:
                 d[k] = getattr(self, k)
         if self.bound > 0:
             d["tempco_bound"] = self.bound
+        if self.held_back:
+            d["held_back"] = True
         return {k: _finite(v) for k, v in d.items()}
 
     @classmethod
@@ -94,7 +100,7 @@ class ParameterDrift:
             raise InputError(f"{where}.verdict {d.get('verdict')!r} is not one of {VERDICTS}")
         if not isinstance(d.get("unit"), str):
             raise InputError(f"{where}.unit is missing or not a string")
-        for key in ("significant", "judged"):
+        for key in ("significant", "judged", "held_back"):
             if d.get(key) is not None and not isinstance(d[key], bool):
                 raise InputError(f"{where}.{key} = {d[key]!r:.40} is not true/false")
         if name.rsplit(".", 1)[-1] in ANGLES:
@@ -115,7 +121,8 @@ class ParameterDrift:
                    p_value=num.nan("p_value"), significant=bool(d.get("significant", False)),
                    p_exceeds=num.opt("p_exceeds", 0.0, 1.0), verdict=d["verdict"], basis=str(d.get("basis", "normal")),
                    n_draws=None if d.get("n_draws") is None else int(num.req("n_draws", low=0.0)),
-                   judged=bool(d.get("judged", True)), bound=num.opt("tempco_bound", low=0.0, default=0.0))
+                   judged=bool(d.get("judged", True)), bound=num.opt("tempco_bound", low=0.0, default=0.0),
+                   held_back=d.get("held_back") is True)
 
 
 class _Fields:
@@ -197,6 +204,8 @@ class ComparisonResult:
     after: dict = field(default_factory=dict)
     label: Optional[str] = None
     notes: list = field(default_factory=list)
+    #: the overall verdict the rule gives was held back as inconclusive (a note says why)
+    held_back: bool = False
 
     def __getitem__(self, name: str) -> ParameterDrift:
         return self.parameters[name]
@@ -218,6 +227,8 @@ class ComparisonResult:
              "before": self.before, "after": self.after, "overall": self.overall, "notes": list(self.notes)}
         if self.label is not None:
             d["label"] = self.label
+        if self.held_back:
+            d["held_back"] = True
         return d
 
     @classmethod
@@ -272,7 +283,11 @@ class ComparisonResult:
         if one_data and stored != "inconclusive":
             raise InputError(f"{source}: overall verdict {stored!r}, but before and after are two fits of the same "
                              f"data (data_sha256 {sha_b}): the verdict of such a pair is 'inconclusive'")
-        if not one_data and ((stored == "pass" and expected != "pass") or (expected == "fail" and stored != "fail")
+        if d.get("held_back") is not None and not isinstance(d["held_back"], bool):
+            raise InputError(f"{source}: held_back = {d['held_back']!r:.40} is not true/false")
+        # compare held the rule's verdict back as inconclusive (its note says why): nothing else is accepted
+        held = d.get("held_back") is True and stored == "inconclusive"
+        if not one_data and not held and ((stored == "pass" and expected != "pass") or (expected == "fail" and stored != "fail")
                              or (stored == "fail" and expected == "pass")):
             raise InputError(f"{source}: overall verdict {d['overall']!r} contradicts the per-parameter verdicts and "
                              f"the joint test, from which the rule gives {expected!r}")
@@ -281,7 +296,8 @@ class ComparisonResult:
                    tolerance_arcsec=angles_tol, tolerances=tol, correlation=d.get("correlation", {}),
                    joint=joint,
                    bench_check=d.get("bench_check", {}), before=d.get("before", {}),
-                   after=d.get("after", {}), label=d.get("label"), notes=list(d.get("notes", [])))
+                   after=d.get("after", {}), label=d.get("label"), notes=list(d.get("notes", [])),
+                   held_back=d.get("held_back") is True)
 
     def save(self, path) -> None:
         _save_json(self.to_dict(), path)
@@ -323,7 +339,7 @@ def check_verdict(p: ParameterDrift, level: float, source: str = "<dict>", signi
             if not math.isclose(p.p_exceeds, pe, rel_tol=1e-6, abs_tol=1e-9):
                 raise InputError(f"{where}.p_exceeds = {p.p_exceeds:.6g} contradicts its numbers ({numbers}): "
                                  f"P(|d| > T) = {pe:.6g}")
-    if expected != p.verdict:
+    if expected != p.verdict and not (p.held_back and p.verdict == "inconclusive"):
         raise InputError(f"{where}.verdict {p.verdict!r} contradicts its numbers ({numbers}, level {level:g}): "
                          f"the decision rule gives {expected!r}")
 

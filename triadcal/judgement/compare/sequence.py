@@ -9,7 +9,7 @@ from typing import Mapping, Optional, Sequence
 from ...io.formats import require_format
 from ...estimation.result import CalibrationResult
 from .results import ComparisonResult, SEQUENCE_FORMAT, VERSION, _load_json, _save_json
-from .pair import compare
+from .pair import check_data_order, compare
 
 
 @dataclass
@@ -100,6 +100,9 @@ def compare_sequence(results: Sequence[CalibrationResult], labels: Optional[Sequ
     labels = list(labels) if labels is not None else [f"state {i}" for i in range(len(results))]
     if len(labels) != len(results):
         raise InputError(f"{len(labels)} labels for {len(results)} calibrations")
+    # the states in the order their data were taken (when the results state it): reversed, every drift
+    # would have the wrong sign
+    check_data_order(results, labels)
     posteriors = kwargs.pop("posteriors", None) or [None] * len(results)
     if len(posteriors) != len(results):
         raise InputError(f"{len(posteriors)} posteriors for {len(results)} calibrations")
