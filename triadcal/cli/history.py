@@ -28,7 +28,8 @@ def register(sub) -> None:
 def run(args) -> int:
     import datetime as dt
 
-    from ..fleet.history import HistoryDB, history_path, history_text, plot_history
+    from ..fleet.history import (HistoryDB, data_hashes, history_path, history_text, identity_sha256,
+                                 plot_history, same_data_note)
     from ..io.atomic import read_json
     from ..io.lab import load_lab
 
@@ -71,6 +72,12 @@ def run(args) -> int:
             for f, d, r in docs:
                 added = db.add(d, lab=lab, date=args.date, source=str(f))
                 out.say(f"{f}: {'recorded' if added else 'already recorded (no change)'} in {path}")
+                if added and data_hashes(d):
+                    # an outside probe: the data of one campaign fitted again from a copy of its CSV were
+                    # recorded as a second calibration, "inconclusive" against the first without a word
+                    note = same_data_note(db.calibrations(str(d["unit"])), identity_sha256(d))
+                    if note:
+                        out.say(f"{f}: note: {note}")
                 if r.content_unhashed:
                     out.say(f"{f}: note: the result holds no content_sha256 (another writer, or triadcal before "
                             "2026-11-30): nothing shows that its values are the fit's answer and not edited; the "

@@ -56,6 +56,21 @@ def equipment_of(lab) -> dict:
     return eq
 
 
+def identity_sha256(result: dict) -> str:
+    """The identity of a recorded calibration (the table's ``sha256``): the SHA-256 of its content
+    without its own checksum."""
+    from ..estimation.result import CONTENT_HASH_KEY
+    from ..io.atomic import json_safe
+
+    # the identity of a calibration is its content without its own checksum: batch recorded a fit
+    # as fitted (no content_sha256) and, on the rerun that skipped it, as read back from its file
+    # (with it): two calibrations of one unchanged result, and an inconclusive compare between them
+    # (an outside probe)
+    body = json.dumps(json_safe({k: v for k, v in result.items() if k != CONTENT_HASH_KEY}), sort_keys=True,
+                      allow_nan=False)
+    return hashlib.sha256(body.encode("utf-8")).hexdigest()
+
+
 class HistoryDB:
     """``with HistoryDB(path) as db: db.add(result_dict, lab=...)``; :meth:`calibrations`."""
 
@@ -95,16 +110,8 @@ class HistoryDB:
         when it was already recorded."""
         from ..io.atomic import json_safe
 
-        from ..estimation.result import CONTENT_HASH_KEY
-
         text = json.dumps(json_safe(result), sort_keys=True, allow_nan=False)
-        # the identity of a calibration is its content without its own checksum: batch recorded a fit
-        # as fitted (no content_sha256) and, on the rerun that skipped it, as read back from its file
-        # (with it): two calibrations of one unchanged result, and an inconclusive compare between them
-        # (an outside probe)
-        body = json.dumps(json_safe({k: v for k, v in result.items() if k != CONTENT_HASH_KEY}), sort_keys=True,
-                          allow_nan=False)
-        sha = hashlib.sha256(body.encode("utf-8")).hexdigest()
+        sha = identity_sha256(result)
         b = result.get("batch") or {}
         # the data's own date before the lab's and today's: a fit's result recorded with --add took today's
         # date where the data stated theirs, and the history put a 2024 calibration after a 2026 one
@@ -177,21 +184,213 @@ def shown_parameters(calibrations) -> list[str]:
     return [n for n in order if any(n in c["result"].get("parameters", {}) for c in calibrations)]
 
 
-def verdicts(calibrations) -> list[str]:
-    """The ``compare`` overall verdict (significance only: tolerance_arcsec=None) of each
-    calibration against the one before it, or why there is none."""
+def data_hashes(result) -> set:
+    """The hashes naming the data a result was fitted to: its ``data_sha256`` and, for a bench CSV
+    averaged from a raw recording, ``derived_from_sha256`` (the rule of compare's ``same_data``)."""
+    if not isinstance(result, dict):
+        return set()
+    return {result.get(k) for k in ("data_sha256", "derived_from_sha256")
+            if isinstance(result.get(k), str) and result.get(k)}
+
+
+def _short(text: str, limit: int = 160) -> str:
+    """The head of a message: up to its first ``: `` or `` -- `` after a dozen characters (the
+    explanation after it is compare's, for a reader of one comparison), at most ``limit`` characters."""
+    import re
+
+    text = re.sub(r"^(before and after|#\d+ and #\d+): ", "", " ".join(str(text).split()))
+    cut = len(text)
+    for sep in (": ", " -- "):
+        k = text.find(sep, 12)
+        if 0 <= k < cut:
+            cut = k
+    text = text[:cut]
+    return text if len(text) <= limit else text[:limit - 3].rstrip() + "..."
+
+
+def inconclusive_reason(comparison) -> str:
+    """Why compare's overall verdict is inconclusive, in a few words: the note of a verdict held back
+    from pass (same data, same calibration, an angle missing, an unjudged parameter that moved, a
+    correlation the budgets do not support), else the judged parameters that are not a pass against the
+    joint test of the angles (significance only: an angle significant alone while the joint test is
+    not)."""
+    import math
+
+    from ..judgement.compare import NOT_PASS_NOTE
+
+    held = [n[len(NOT_PASS_NOTE):] for n in comparison.notes if isinstance(n, str) and n.startswith(NOT_PASS_NOTE)]
+    if held:
+        more = f" (and {len(held) - 1} more: see triadcal compare)" if len(held) > 1 else ""
+        return _short(held[0]) + more
+    open_ = sorted((p for p in comparison.parameters.values() if p.judged and p.verdict != "pass"),
+                   key=lambda p: -abs(p.z) if math.isfinite(p.z) else 0.0)
+    if not open_:
+        return "no reason identified: see triadcal compare on the two results"
+    shown = ", ".join(f"{p.name} {p.drift:+.3g} {p.unit} (z {p.z:.2f}, "
+                      + ("significant alone" if p.verdict == "fail" else p.verdict) + ")" for p in open_[:3])
+    if len(open_) > 3:
+        shown += f" and {len(open_) - 3} more"
+    j = comparison.joint
+    if j is None:
+        return shown + "; no joint test of the angles"
+    if not j.significant:
+        return (shown + f", but the joint test of the {j.dof} angles is not significant "
+                f"(D2 {j.D2:.2f}, p {j.p_value:.2g})")
+    return shown
+
+
+def _own_problems(result: dict, tag: str) -> list:
+    """Why a recorded result cannot be compared with any other (read and checked as compare checks
+    each side: status not ok, a value or u unusable, a failing answer gate), or []."""
+    from ..estimation.result import CalibrationResult
+    from ..estimation.result_checks import result_problems
+
+    try:
+        r = CalibrationResult.from_dict(result, tag)
+    except InputError as exc:
+        return [str(exc)]
+    try:
+        return list(result_problems(r))
+    except InputError as exc:
+        return [str(exc)]
+
+
+def _refits(calibrations, usable) -> list:
+    """For each calibration, the earlier one (0-based) whose data (:func:`data_hashes`) it was also
+    fitted to: the first usable fit of those data (the calibration of those data), else the first fit of
+    them; None for a calibration of data not recorded before it."""
+    out = []
+    for j, c in enumerate(calibrations):
+        hashes = data_hashes(c["result"])
+        same = [k for k in range(j) if hashes & data_hashes(calibrations[k]["result"])]
+        out.append(next((k for k in same if usable[k]), same[0] if same else None))
+    return out
+
+
+def _refit_text(calibrations, j: int, first: int) -> str:
+    sha = sorted(data_hashes(calibrations[j]["result"]) & data_hashes(calibrations[first]["result"]))[0]
+    return (f"a refit of the data of #{first + 1} (data_sha256 {sha[:12]}...): its differences from #{first + 1} "
+            "are the fits', not a drift of the unit, so it is not compared as a new calibration")
+
+
+def same_data_note(calibrations, sha256: str) -> Optional[str]:
+    """What the history makes of the calibration recorded as ``sha256`` (the identity :meth:`HistoryDB.add`
+    gives it) when another calibration of the serial was fitted to the same data (:func:`data_hashes`):
+    a refit of the data of an earlier one (listed, not compared as a new calibration), or the calibration
+    of data that a later-listed result refits; None when no other calibration shares its data."""
+    j = next((i for i, c in enumerate(calibrations) if c.get("sha256") == sha256), None)
+    if j is None:
+        return None
+    hashes = data_hashes(calibrations[j]["result"])
+    others = [k for k, c in enumerate(calibrations) if k != j and hashes & data_hashes(c["result"])]
+    if not others:
+        return None
+    usable = [not _own_problems(c["result"], f"#{i}") for i, c in enumerate(calibrations, 1)]
+    first = _refits(calibrations, usable)[j]
+
+    def name(k):
+        c = calibrations[k]
+        src = c["result"].get("source")
+        return f"#{k + 1} ({c['date']}{', from ' + str(src) if src else ''})"
+
+    if first is not None and usable[first] and usable[j]:
+        return (f"the same data as {name(first)}: recorded as #{j + 1}, " + _refit_text(calibrations, j, first)
+                + "; `triadcal compare` shows the two fits' differences")
+    return ("the same data (data_sha256) as " + ", ".join(name(k) for k in others) + f": recorded as #{j + 1}; the "
+            "history compares one fit of those data as a calibration (the first that can be compared) and lists "
+            "the others as refits")
+
+
+def comparisons(calibrations) -> list[dict]:
+    """How each calibration (in the listed order, oldest first) was compared; one dict per calibration,
+    ``index`` its number (1-based), and either
+
+    * ``before`` (the number of the most recent earlier calibration it can be compared with), ``verdict``
+      (compare's overall, significance only: tolerance_arcsec=None), ``reason`` (why, when inconclusive)
+      and ``skipped`` (``[(number, why)]``, every calibration between the two, each with why it was
+      not the one compared with), or
+    * ``not_compared`` (why: the result itself cannot be compared, it is a refit of the data of an
+      earlier calibration, or no earlier calibration can be compared with it), or neither (the
+      first calibration that can be compared).
+
+    ``refit_of``: the number of the earlier calibration whose data (data_sha256) it was fitted to, or
+    None. A refit is not compared as a new calibration (its differences are the estimators', not a
+    drift of the unit) but may be the earlier calibration of a later one (a refit at another reference
+    temperature, as compare asks for)."""
     from ..estimation.result import CalibrationResult
     from ..judgement.compare import compare
 
+    n = len(calibrations)
+    own = [_own_problems(c["result"], f"#{i}") for i, c in enumerate(calibrations, 1)]
+    usable = [not w for w in own]
+    refit_of = _refits(calibrations, usable)
     out = []
-    for a, b in zip(calibrations, calibrations[1:]):
-        try:
-            before = CalibrationResult.from_dict(a["result"], f"history #{a['id']}")
-            after = CalibrationResult.from_dict(b["result"], f"history #{b['id']}")
-            out.append(compare(before, after, tolerance_arcsec=None).overall)
-        except InputError as exc:
-            out.append(f"not compared: {exc}")
+    parsed: dict = {}
+
+    def result(k):
+        if k not in parsed:
+            parsed[k] = CalibrationResult.from_dict(calibrations[k]["result"], f"#{k + 1}")
+        return parsed[k]
+
+    # root[k]: the first calibration whose data (data_sha256) calibration k was fitted to; firsts[root]:
+    # the first usable fit of those data
+    root = [next((m for m in range(k) if data_hashes(calibrations[k]["result"])
+                  & data_hashes(calibrations[m]["result"])), k) for k in range(n)]
+    firsts: dict = {}
+    for k in range(n):
+        if usable[k]:
+            firsts.setdefault(root[k], k)
+    for j in range(n):
+        entry = {"index": j + 1, "before": None, "verdict": None, "reason": None, "skipped": [],
+                 "not_compared": None, "refit_of": None}
+        out.append(entry)
+        first = refit_of[j]
+        if first is not None:
+            entry["refit_of"] = first + 1
+        if not usable[j]:
+            entry["not_compared"] = "; ".join(own[j])
+            continue
+        if first is not None and usable[first]:
+            entry["not_compared"] = _refit_text(calibrations, j, first)
+            continue
+        # the earlier ones, most recent first; a refit stands where the data it refits stand (its own date
+        # is when it was recorded), after the first usable fit of those data
+        skipped, found = [], None
+        for k in sorted(range(j), key=lambda k: (-root[k], k != firsts.get(root[k]), -k)):
+            if not usable[k]:
+                skipped.append((k + 1, _short(own[k][0])))
+                continue
+            try:
+                cmp = compare(result(k), result(j), tolerance_arcsec=None, files=(f"#{k + 1}", f"#{j + 1}"))
+            except InputError as exc:
+                skipped.append((k + 1, _short(str(exc))))
+                continue
+            found = (k, cmp)
+            break
+        if found is None:
+            if skipped:       # (none for the first calibration: nothing before it)
+                entry["not_compared"] = "no earlier calibration can be compared with it (" + _grouped(skipped) + ")"
+            continue
+        k, cmp = found
+        entry.update(before=k + 1, verdict=cmp.overall, skipped=sorted(skipped),
+                     reason=inconclusive_reason(cmp) if cmp.overall == "inconclusive" else None)
     return out
+
+
+def _grouped(skipped) -> str:
+    """``[(2, why), (1, why)]`` as "#1, #2: why", one group per distinct why, oldest first."""
+    groups: dict = {}
+    for k, why in sorted(skipped):
+        groups.setdefault(why, []).append(k)
+    return "; ".join(", ".join(f"#{k}" for k in ks) + f": {why}" for why, ks in groups.items())
+
+
+def verdicts(calibrations) -> list[str]:
+    """For each calibration after the first, the ``compare`` overall verdict (significance only:
+    tolerance_arcsec=None) against the most recent earlier calibration it can be compared with
+    (:func:`comparisons`), or ``"not compared: why"``."""
+    return [e["verdict"] if e["verdict"] else f"not compared: {e['not_compared'] or 'nothing earlier to compare with'}"
+            for e in comparisons(calibrations)[1:]]
 
 
 def history_text(serial: str, calibrations) -> str:
@@ -203,17 +402,27 @@ def history_text(serial: str, calibrations) -> str:
 
     lines = [f"{serial}: {len(calibrations)} calibration(s)"]
     unsure = []
+    steps = comparisons(calibrations)
     for i, c in enumerate(calibrations, 1):
         r = c["result"]
         why = HistoryDB.unhashed_or_edited(None, r)
         if why:
             unsure.append((i, why))
+        refit = steps[i - 1]["refit_of"]
         lines.append(f"  #{i} {c['date']}  state {c['state'] or '-'}  lab {c['lab'] or '-'}  method "
-                     f"{r.get('method')}  status {r.get('status')}" + ("  [not known to be the fit's answer]" if why else ""))
+                     f"{r.get('method')}  status {r.get('status')}" + ("  [not known to be the fit's answer]" if why else "")
+                     + (f"  [a fit of the data of #{refit}]" if refit else ""))
     names = shown_parameters(calibrations)
     # every cell is "value ± u unit" (a serial's calibrations may be in different units: g/V,
     # g/counts), and the columns are as wide as their widest cell, two spaces apart
     table = []
+    # the reference temperature the values are at: a refit at 25 degC next to calibrations at 20 degC
+    # showed its tempco shift as a drift (an outside probe)
+    cells = []
+    for c in calibrations:
+        t = c["result"].get("reference_temperature_C")
+        cells.append(f"{t:g} °C" if isinstance(t, (int, float)) and not isinstance(t, bool) else "-")
+    table.append(("T_ref", cells))
     for n in names:
         cells = []
         for c in calibrations:
@@ -226,15 +435,29 @@ def history_text(serial: str, calibrations) -> str:
         table.append((n, cells))
     widths = [max([len(f"#{i}")] + [len(cells[i - 1]) for _, cells in table])
               for i in range(1, len(calibrations) + 1)]
-    name_w = max([len("parameter")] + [len(n) for n in names])
+    name_w = max([len("parameter")] + [len(n) for n, _ in table])
     lines += ["", "  " + "parameter".ljust(name_w) + "".join("  " + f"#{i}".rjust(w) for i, w in enumerate(widths, 1))]
     for n, cells in table:
         lines.append("  " + n.ljust(name_w) + "".join("  " + c.rjust(w) for c, w in zip(cells, widths)))
-    vs = verdicts(calibrations)
-    if vs:
-        lines += ["", "  compare (consecutive, significance only):"]
-        for i, v in enumerate(vs, 1):
-            lines.append(f"    #{i} -> #{i + 1}: {v}")
+    if len(calibrations) > 1:
+        # an outside probe: #1 ok, #2 status model_mismatch, #3 ok with Ca_xy moved 40": "#1 -> #2" and
+        # "#2 -> #3" were both "not compared" and no verdict covered the move. Each calibration is now
+        # compared with the most recent earlier one it can be, the ones passed over named with why
+        lines += ["", "  compare (each with the most recent earlier calibration it can be compared with; "
+                      "significance only):"]
+        for e in steps:
+            i = e["index"]
+            if e["verdict"]:
+                line = f"    #{e['before']} -> #{i}: {e['verdict']}" + (f": {e['reason']}" if e["reason"] else "")
+                if e["skipped"]:
+                    line += " (" + "; ".join(f"#{k} skipped: {why}" for k, why in e["skipped"]) + ")"
+            elif e["not_compared"]:
+                line = f"    #{i}: not compared: {e['not_compared']}"
+                if e["refit_of"] and "refit" not in e["not_compared"]:
+                    line += f" (a fit of the data of #{e['refit_of']})"
+            else:
+                continue          # the first calibration that can be compared: nothing before it
+            lines.append(line)
     # an outside probe: five results recorded without --date all got today's date and the history
     # compared them in the order they were added, not the order of the events, with no word
     # an outside probe: a result whose checksum had been deleted and Ca_xy edited by 30 arcsec was recorded and

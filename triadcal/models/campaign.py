@@ -256,6 +256,11 @@ class Campaign:
             d["data_date"] = day          # the date the data were taken (history --add records it)
         if self.derived_from_sha256:
             d["derived_from_sha256"] = self.derived_from_sha256
+        states = sorted(set(np.asarray(self.state).astype(str).tolist())) if self.n_visits else []
+        if len(states) == 1 and states[0] != "initial":
+            # the mechanical state fitted (fit --state after): history listed "state -" for every
+            # calibration of a serial (an outside probe); the state of the default, unnamed, is not said
+            d["state"] = states[0]
         return d
 
     @property
