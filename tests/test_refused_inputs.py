@@ -12,6 +12,7 @@ import pytest
 from test_bench_csv_misreads import example_table, refused
 from triadcal import api
 from triadcal.cli import main
+from triadcal.io.bench_csv import read_bench_csv
 from triadcal.estimation.result import CalibrationResult
 
 
@@ -77,6 +78,40 @@ def test_one_output_column_in_another_unit_is_refused(tmp_path):
     assert err.column == "w_x" and "a factor 1e+03 between the outputs" in str(err)
 
 
+@pytest.mark.parametrize("plan, axes", [(("P01", "P02", "P03", "P04", "P05", "P06", "P07", "P08"), "z"),
+                                        (("P01", "P02", "P03", "P04"), "x, y")])
+def test_a_plan_that_never_turns_an_axis_is_refused_for_that_not_for_its_unit(tmp_path, capsys, plan, axes):
+    """An outside probe (its own simulator): a plan of P01-P08, z never up or down, was refused by the
+    reader as "w_z spans 0.0025 V ... in another unit (mV in a file of V?)"; past it the joint fit stopped
+    after one iteration (chi2/dof 2e5). The span check now leaves out outputs the poses do not turn through
+    gravity, and the fit refuses naming the axis. Made with the independent bench (its own kinematics)."""
+    import numpy as np
+
+    from independent_bench import POSITIONS, simulate_campaign
+
+    text, _ = simulate_campaign(np.random.default_rng(71), positions={k: POSITIONS[k] for k in plan})
+    path = tmp_path / "plan.csv"
+    path.write_text(text)
+    camp = read_bench_csv(path)                        # the reader takes it: the units are right
+    assert camp.n_visits == 5 * len(plan)
+    assert main(["fit", str(path), "--method", "joint"]) == 1
+    err = capsys.readouterr().err
+    assert f"never turn the IMU's {axes.split(',')[0]}" in err and "cannot be told from" in err, err
+    assert "another unit" not in err and "internal error" not in err, err
+    # a column in another unit is still refused when every output is turned
+    text, _ = simulate_campaign(np.random.default_rng(71))
+    lines = text.splitlines()
+    head = next(i for i, ln in enumerate(lines) if ln.startswith("unit,") or ",w_x," in ln)
+    col = lines[head].split(",").index("w_x")
+    for i in range(head + 1, len(lines)):
+        f = lines[i].split(",")
+        f[col] = repr(float(f[col]) * 1000.0)
+        lines[i] = ",".join(f)
+    (tmp_path / "mv.csv").write_text("\n".join(lines) + "\n")
+    err = refused(tmp_path / "mv.csv")
+    assert err.column == "w_x"
+
+
 @pytest.mark.parametrize("rows", [1, 2])
 def test_a_joint_fit_of_one_or_two_visits_says_why(tmp_path, capsys, rows):
     tab = example_table()
@@ -84,7 +119,8 @@ def test_a_joint_fit_of_one_or_two_visits_says_why(tmp_path, capsys, rows):
     path = tab.write(tmp_path / f"rows{rows}.csv")
     assert main(["fit", str(path), "--method", "joint"]) == 1
     err = capsys.readouterr().err
-    assert "determine none of the model's parameters" in err and "internal error" not in err, err
+    # one or two rows never turn the axes through gravity: refused for that, before the count of parameters
+    assert "never turn the IMU's x" in err and "cannot be told from" in err and "internal error" not in err, err
 
 
 @pytest.mark.parametrize("options, said", [

@@ -260,22 +260,30 @@ def check_axis_spans(path, c: Campaign) -> None:
     differ by more than :data:`AXIS_SPAN_RATIO_MAX`: one column in another unit than the file states
     (an outside probe's w_x in mV in a file in V: the classical fit gave K_x = 0.001 g/V with status ok
     and a certificate). Units of fewer than 6 visits and outputs that do not move (span 0: a dead or
-    stuck output, named by its own check) are left out."""
+    stuck output, named by its own check) are left out, and so are outputs the plan does not turn
+    through gravity (their nominal gravity spans less than :data:`AXIS_GRAVITY_SPAN_MIN_G`: a plan of
+    P01-P08, z never up or down, was refused as "w_z in another unit", an outside probe)."""
+    from ..models.campaign import AXIS_GRAVITY_SPAN_MIN_G, nominal_gravity
+
     units = np.asarray(c.unit).astype(str)
     w = np.asarray(c.w, float)
+    g = nominal_gravity(c.axis1_deg, c.axis2_deg).reshape(-1, 3)
     lines = c.lines if c.lines is not None else np.arange(1, len(w) + 1)
     for u in dict.fromkeys(units.tolist()):
         idx = np.flatnonzero(units == u)
         if len(idx) < 6:
             continue
+        turned = (np.max(g[idx], axis=0) - np.min(g[idx], axis=0)) >= AXIS_GRAVITY_SPAN_MIN_G
         span = np.nanmax(w[idx], axis=0) - np.nanmin(w[idx], axis=0)
-        if not np.all(np.isfinite(span)) or np.min(span) <= 0:
+        if turned.sum() < 2 or not np.all(np.isfinite(span[turned])) or np.min(span[turned]) <= 0:
             continue
-        ratio = float(span.max() / span.min())
+        ratio = float(span[turned].max() / span[turned].min())
         if ratio > AXIS_SPAN_RATIO_MAX:
-            odd = int(np.argmax(np.abs(np.log(span / np.median(span)))))     # the one apart from the others
+            keep = np.flatnonzero(turned)
+            med = np.median(span[keep])
+            odd = int(keep[np.argmax(np.abs(np.log(span[keep] / med)))])     # the one apart from the others
             names = ("w_x", "w_y", "w_z")
-            others = " and ".join(f"{names[i]} {span[i]:.4g}" for i in range(3) if i != odd)
+            others = " and ".join(f"{names[i]} {span[i]:.4g}" for i in keep if i != odd)
             raise BenchCSVError(
                 path, int(lines[idx[0]]), names[odd],
                 f"{names[odd]} spans {span[odd]:.4g} {c.output_unit} over the visits of unit {u!r}, {others} (a "

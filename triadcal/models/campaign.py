@@ -36,6 +36,11 @@ def nominal_gravity(axis1_deg, axis2_deg):
     return np.stack(np.broadcast_arrays(*g), axis=-1)
 
 
+#: an IMU axis whose nominal gravity spans less than this (g) over a campaign's poses is not turned through
+#: gravity: its scale factor is not told from its bias (the fit refuses, the reader's span check leaves it out)
+AXIS_GRAVITY_SPAN_MIN_G = 0.5
+
+
 def up_axis_label(axis1_deg, axis2_deg, threshold: float = 0.99):
     """Label of the IMU axis that points up or down ('+X', '-Z', ...; '' when none does)."""
     g = nominal_gravity(axis1_deg, axis2_deg).reshape(-1, 3)
