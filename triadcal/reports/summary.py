@@ -69,7 +69,10 @@ def summary_text(result: CalibrationResult) -> str:
         else:
             bits.append("chi2/dof not computed (no degrees of freedom or no residuals)")
         if "n_obs" in fit:
-            bits.append(f"{fit['n_obs']} observations, {fit.get('n_params', '?')} parameters")
+            det = fit.get("n_params_determined")
+            bits.append(f"{fit['n_obs']} observations, {fit.get('n_params', '?')} parameters"
+                        + (f" ({det} determined by the data, the rest by their priors)"
+                           if det is not None and det != fit.get("n_params") else ""))
         if result.temperature_range_C:
             lo, hi = result.temperature_range_C
             bits.append(f"{lo:.1f} .. {hi:.1f} °C, reference {result.reference_temperature_C:g} °C")
