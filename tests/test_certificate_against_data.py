@@ -25,7 +25,7 @@ from triadcal.io.bench_csv import read_bench_csv  # noqa: E402
 from triadcal.reports import certificate as C  # noqa: E402
 from triadcal.reports.certificate.against_data import VALUES_Z_MAX, value_steps  # noqa: E402
 
-from independent_bench import simulate_campaign  # noqa: E402
+from independent_bench import default_truth, simulate_campaign  # noqa: E402
 
 pytest.importorskip("reportlab")
 
@@ -168,9 +168,72 @@ def test_the_state_fitted_is_found_in_a_file_of_several(tmp_path):
 
 def test_a_form_the_plain_model_cannot_reproduce_is_said(fitted):
     d, data, _ = fitted
-    path = forge(d, "play", lambda doc: doc["fit"].__setitem__("hysteresis", {"form": "play"}))
-    cert = C.certificate(path, data=data, html=d / "play.html", issue_date=ISSUE)
-    assert any("not re-derived" in n and "play hysteresis" in n for n in cert.notes), cert.notes
+    path = forge(d, "quantised", lambda doc: doc["fit"].__setitem__("quantisation", {"lsb": 1e-6}))
+    cert = C.certificate(path, data=data, html=d / "q.html", issue_date=ISSUE)
+    assert any("not re-derived" in n and "quantised output" in n for n in cert.notes), cert.notes
+
+
+def test_the_fits_own_weights_a_quiet_unit_with_the_labs_bench_errors(tmp_path):
+    """An outside probe: a quiet unit (1.8 ug per visit) whose lab file declares 5 arcsec of positioning
+    error (the data have it): the fit weights each visit by the bench's variance too, with the full 3 x 3
+    covariance on oblique poses; the check's step, weighted by the output noise alone, put the honest bias
+    tempcos 10-12 u away and refused 7 of 9 honest results. With the fit's weights the step is zero and the
+    data's u is the stated Type A u."""
+    data, _ = _campaign(tmp_path, 9, noise_sd=1e-4, sigma_position_arcsec=5.0)
+    (tmp_path / "lab.toml").write_text(C.EXAMPLE_LAB_TOML)
+    camp = read_bench_csv(data)
+    res = api.fit(camp, effects=LINEAR, lab=tmp_path / "lab.toml")
+    assert res.fit["bench_errors"]["sigma_position_arcsec"] > 0
+    z, ratio = value_steps(res, camp, with_u=True)
+    assert max(abs(v) for v in z.values()) < 1e-3, z
+    type_a = {n: p.uncertainty.get("u_type_a", p.u) / p.u for n, p in res.parameters.items() if n in ratio}
+    assert all(ratio[n] == pytest.approx(type_a[n], rel=1e-3) for n in ratio), (ratio, type_a)
+
+
+def test_uncertainties_and_gravity_edited_are_refused(fitted):
+    """An outside probe divided every u by 100 (and by 10), and set local_g_m_s2 to 9.81 with K scaled to
+    match, re-signed: both exported with --data. u is now checked against the data's (stated at least half
+    of it) and the local gravity against the data's statement."""
+    d, data, _ = fitted
+
+    def shrink(doc):
+        for p in doc["parameters"].values():
+            p["u"] /= 10.0
+    path = forge(d, "u10", shrink)
+    with pytest.raises(RefusedResult, match=r"parameters\.\w+\.u = .* 10 times smaller than the standard uncertainty"):
+        C.certificate(path, data=data, html=d / "u10.html", issue_date=ISSUE)
+
+    def gravity(doc):
+        doc["local_g_m_s2"] = 9.81
+        for a in "xyz":
+            doc["parameters"][f"K_{a}"]["value"] *= 9.81 / 9.80665
+    path = forge(d, "g981", gravity)
+    with pytest.raises(RefusedResult, match=r"local_g_m_s2 = 9\.81 m/s\^2 is not the local gravity its data"):
+        C.certificate(path, data=data, html=d / "g.html", issue_date=ISSUE)
+
+
+def test_a_play_hysteresis_is_rederived_on_its_own_branches(tmp_path):
+    """fit --hysteresis-form play: the branches of the play (half-width and start from fit.hysteresis) on the
+    visits' temperatures. The honest result's step is zero; Ca_xy +50 arcsec re-signed is refused (an outside
+    probe's was certified: the form was not re-derived). Data: the independent bench's play backlash."""
+    truth = default_truth(np.random.default_rng(40))
+    truth.update({f"Ca_{ab}_hysteresis": 8.0 for ab in ("xy", "xz", "yx", "yz", "zx", "zy")})
+    text, _ = simulate_campaign(np.random.default_rng(4), tilt_arcsec=(40.0, -25.0), truth=truth,
+                                setpoints_C=(20, -40, -10, 20, 50, 80, 50, 20, -10),
+                                hysteresis={"form": "play", "half_widths_C": [10.0], "weights": [1.0], "start": "mid"})
+    (tmp_path / "play.csv").write_text(text)
+    camp = read_bench_csv(tmp_path / "play.csv")
+    res = api.fit(camp, hysteresis_form="play")
+    assert res.fit["hysteresis"]["form"] == "play"
+    res.save(tmp_path / "result.json")
+    assert max(abs(v) for v in value_steps(res, camp).values()) < 1e-3
+    doc = json.loads((tmp_path / "result.json").read_text())
+    doc["parameters"]["Ca_xy"]["value"] += 50.0
+    doc["content_sha256"] = content_sha256(doc)
+    (tmp_path / "forged.json").write_text(json.dumps(doc))
+    with pytest.raises(RefusedResult, match=r"parameters\.Ca_xy\.value"):
+        C.certificate(tmp_path / "forged.json", data=tmp_path / "play.csv", html=tmp_path / "f.html",
+                      issue_date=ISSUE)
 
 
 def test_export_compensation_with_the_data_refuses_an_edited_result(fitted, tmp_path):

@@ -24,8 +24,8 @@ and z.
 
 Not re-derived (the certificate says so in its notes): results whose model the plain eq. 1 on the
 data's covariates does not reproduce: a thermal-lag form estimated from the temperature history
-(``fit.thermal_lag``), a quantised output (``fit.quantisation``), a play or Preisach hysteresis
-(``fit.hysteresis.form``), correlated-noise GLS (``flicker_noise``), results of ``fit-raw``.
+(``fit.thermal_lag``), a quantised output (``fit.quantisation``), correlated-noise GLS (``flicker_noise``), results of ``fit-raw``. A play or
+Prandtl-Ishlinskii hysteresis (``fit.hysteresis``) is re-derived on the branches of its form.
 """
 
 from __future__ import annotations
@@ -40,6 +40,11 @@ from ...models.units import STANDARD_GRAVITY_M_S2
 #: a stated value further than this many of its stated standard uncertainties from the value one
 #: Gauss-Newton step of the data gives is not the data's (see the module)
 VALUES_Z_MAX = 5.0
+#: a stated standard uncertainty smaller than the one the data give (with the fit's weights) by more than
+#: this factor is not the data's: an outside probe divided every u by 100 (and by 10) and re-signed the file,
+#: and export-compensation wrote the firmware table with u_K_x 2.3e-8 for 1.2e-6. A robust fit's sandwich or
+#: a posterior's SD differ from the least-squares u by far less; a Birge-widened or Type B u is larger
+U_RATIO_MAX = 2.0
 #: Huber's constant of the fit's ``huber`` loss (triadcal.estimation.joint: c = 1.345)
 HUBER_C = 1.345
 
@@ -54,7 +59,7 @@ def not_rederivable(result) -> Optional[str]:
     if fit.get("quantisation"):
         return "a quantised output (fit.quantisation)"
     hyst = fit.get("hysteresis")
-    if isinstance(hyst, dict) and hyst.get("form", "offset") != "offset":
+    if isinstance(hyst, dict) and hyst.get("form", "offset") not in ("offset", "play", "pi"):
         return f"the {hyst.get('form')} hysteresis form (fit.hysteresis)"
     if "flicker_noise" in (result.extra.get("noise_effects") or ()) or result.extra.get("flicker_noise"):
         return "correlated noise fitted by generalised least squares (flicker_noise)"
@@ -72,16 +77,44 @@ def _robust_weights(r: np.ndarray, loss: str, nu: float) -> np.ndarray:
     return (nu + 1.0) / (nu + x * x)                 # student_t
 
 
-def value_steps(result, campaign) -> dict:
-    """``{name: z}``: the Gauss-Newton step of the data from each stated value, in stated ``u``."""
-    from ...estimation.noise_model import noise_of
+def _with_form(result, campaign):
+    """The campaign with the branches of the result's hysteresis form (``fit.hysteresis``: a play of
+    half-width r from its start, or a Prandtl-Ishlinskii sum, on the visits' temperature history, as
+    :mod:`triadcal.estimation.hysteresis_form` fitted them); the campaign itself for the offset form. An
+    outside probe's play results with Ca_xy +50 arcsec and K_x +1000 ppm were certified (not re-derived)."""
+    from ...estimation.hysteresis_form import with_pi, with_play
 
+    h = (result.fit or {}).get("hysteresis")
+    if not isinstance(h, dict):
+        return campaign
+    if h.get("form") == "play":
+        return with_play(campaign, float(h["half_width_C"]), str(h["start"]))
+    if h.get("form") == "pi":
+        return with_pi(campaign, [float(x) for x in h["pi_half_widths_C"]], [float(x) for x in h["pi_weights"]],
+                       str(h["pi_start"]))
+    return campaign
+
+
+def value_steps(result, campaign, with_u: bool = False):
+    """``{name: z}``: the Gauss-Newton step of the data from each stated value, in stated ``u``; with
+    ``with_u``, also ``{name: u_data / u}``: the standard uncertainty the data give each parameter (the
+    fit's weights, the covariance of the step), over the stated one.
+
+    The weights are the fit's: the data's noise (:func:`~triadcal.estimation.noise_model.noise_of`) plus
+    the bench's random errors the result was fitted with (``fit.bench_errors``: a lab file's, or
+    ``position_error``'s estimate) as variance components and, on oblique poses, the full covariance of
+    each visit's outputs (generalised least squares), as :func:`~triadcal.estimation.joint.fit_joint`
+    weights them. With the output noise alone, a quiet unit whose lab file declares 5 arcsec of
+    positioning error had its honest bias tempcos 10-12 u from the step (an outside probe: 7 of 9 refused)."""
+    from ...estimation.noise_model import BenchErrors, _bench_whitening, noise_of, with_bench_errors
+
+    campaign = _with_form(result, campaign)
     model, p0 = result.full_model()
     fixed = set(result.extra.get("fixed") or {})
     names = [n for n, q in result.parameters.items()
              if n in model.spec and n not in fixed and q.u is not None and math.isfinite(q.u) and q.u > 0]
     if not names:
-        return {}
+        return ({}, {}) if with_u else {}
     g_m_s2 = result.extra.get("local_g_m_s2")
     gravity = float(g_m_s2) / STANDARD_GRAVITY_M_S2 if g_m_s2 else campaign.gravity_g
     cov = campaign.covariates()
@@ -91,7 +124,15 @@ def value_steps(result, campaign) -> dict:
         w = model.predict(p, cov, gravity)
         return np.stack([np.broadcast_to(np.asarray(c, float), (n,)) for c in w], axis=1)
 
-    sigma = np.asarray(noise_of(campaign).sigma, float)
+    own = noise_of(campaign)
+    noise, white = own, None
+    be = (result.fit or {}).get("bench_errors")
+    if isinstance(be, dict) and own.known:
+        bench = BenchErrors(float(be.get("sigma_position_arcsec") or 0.0), float(be.get("sigma_wobble_arcsec") or 0.0),
+                            str(be.get("source", "the result's fit.bench_errors")))
+        noise = with_bench_errors(campaign, model, own, bench)
+        white = _bench_whitening(campaign, model, noise, bench, None, [])
+    sigma = np.asarray(noise.sigma, float)
     w_obs = np.asarray(campaign.w, float)
     r = ((w_obs - predict(p0)) / sigma).ravel()
     cols = []
@@ -102,11 +143,24 @@ def value_steps(result, campaign) -> dict:
         lo[name] = p0[name] - step
         cols.append(((predict(hi) - predict(lo)) / (2.0 * sigma)).ravel())   # d(w/sigma) per u
     J = np.stack(cols, axis=1)
+    if white is not None and np.all(np.isfinite(r)) and np.all(np.isfinite(J)):
+        r, J = white.apply(r), white.apply(J)
     ok = np.isfinite(r) & np.all(np.isfinite(J), axis=1)
     nu = (result.extra.get("heavy_tails") or {}).get("dof") or 4.0      # fit_joint's default nu
     sw = np.sqrt(_robust_weights(r[ok], str((result.fit or {}).get("loss", "l2")), float(nu)))
-    z, *_ = np.linalg.lstsq(J[ok] * sw[:, None], r[ok] * sw, rcond=1e-10)
-    return dict(zip(names, (float(v) for v in z)))
+    A, b = J[ok] * sw[:, None], r[ok] * sw
+    z, *_ = np.linalg.lstsq(A, b, rcond=1e-10)
+    steps = dict(zip(names, (float(v) for v in z)))
+    if not with_u:
+        return steps
+    # the covariance of the step, in stated u: (A^T A)^-1 (pseudo-inverse: a direction the data do not
+    # determine gets no variance, so it is never called too narrow); scaled by chi2/dof when the data
+    # state no noise level (the fit estimates it)
+    cov_z = np.linalg.pinv(A.T @ A, rcond=1e-12, hermitian=True)
+    if not own.known and len(b) > len(names):
+        cov_z = cov_z * float(np.sum((b - A @ z) ** 2)) / (len(b) - len(names))
+    ratio = dict(zip(names, (float(math.sqrt(max(v, 0.0))) for v in np.diag(cov_z))))
+    return steps, ratio
 
 
 def fitted_visits(data, result):
@@ -150,12 +204,32 @@ def check_against_data(result, data_path, source: str):
 
 
 def values_problem(result, campaign, source: str) -> Optional[str]:
-    """Why the values ``result`` states are not those its data give (one line), or None; see the module."""
+    """Why the values ``result`` states are not those its data give (one line), or None; see the module.
+    Also refused: a local gravity other than the one the data state, and a stated u less than half the
+    standard uncertainty the data give (:data:`U_RATIO_MAX`)."""
+    g_res = result.extra.get("local_g_m_s2")
+    if campaign.local_g_stated and g_res is not None and \
+            abs(float(g_res) - float(campaign.local_g_m_s2)) > 1e-9 * float(campaign.local_g_m_s2):
+        # an outside probe: local_g_m_s2 9.81 and K scaled to match, re-signed: exported
+        return (f"{source}: refused: local_g_m_s2 = {float(g_res):.8g} m/s^2 is not the local gravity its data "
+                f"({campaign.source or 'the campaign'}) state, {float(campaign.local_g_m_s2):.8g} m/s^2: K takes g "
+                "one to one; values edited: fit again")
     if not_rederivable(result) is not None or campaign.n_visits == 0:
         return None
-    z = value_steps(result, campaign)
+    z, ratio = value_steps(result, campaign, with_u=True)
     if not z:
         return None
+    skip = set((result.extra.get("flags") or {}).get("prior_dominated") or ())   # a posterior's prior-only terms
+    narrow = {k: v for k, v in ratio.items() if k not in skip and v > U_RATIO_MAX}
+    if narrow:
+        worst = max(narrow, key=narrow.get)
+        q = result.parameters[worst]
+        unit = f" {q.unit}" if q.unit else ""
+        return (f"{source}: refused: parameters.{worst}.u = {q.u:.4g}{unit} is {narrow[worst]:.3g} times smaller than "
+                f"the standard uncertainty its data ({campaign.source or 'the campaign'}) give, "
+                f"{narrow[worst] * q.u:.4g}{unit} (with the fit's weights; more than {U_RATIO_MAX:g} times)"
+                + (f" (also {', '.join(sorted(narrow, key=lambda k: -narrow[k])[1:4])})" if len(narrow) > 1 else "")
+                + ": uncertainties edited: fit again")
     worst = max(z, key=lambda k: abs(z[k]))
     if abs(z[worst]) <= VALUES_Z_MAX:
         return None
@@ -171,4 +245,4 @@ def values_problem(result, campaign, source: str) -> Optional[str]:
             f"({result.reference_temperature_C:g} degC) or effects changed after the fit: fit again")
 
 
-__all__ = ["VALUES_Z_MAX", "check_against_data", "fitted_visits", "not_rederivable", "value_steps", "values_problem"]
+__all__ = ["U_RATIO_MAX", "VALUES_Z_MAX", "check_against_data", "fitted_visits", "not_rederivable", "value_steps", "values_problem"]
