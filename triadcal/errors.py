@@ -15,6 +15,11 @@ class InputError(TriadcalError, ValueError):
     too, for callers of the library that catch that."""
 
 
+class IdentifiabilityError(InputError):
+    """The plan or the data cannot determine some parameters of the requested model (raised by the
+    joint fit, :mod:`triadcal.estimation.joint`, which re-exports it)."""
+
+
 class UnknownName(InputError, KeyError):
     """A name (parameter, prior, effect) that the model does not have. A ``KeyError`` for
     mapping-style callers; its text is the message, unquoted."""

@@ -20,7 +20,7 @@ import casadi as ca
 import numpy as np
 from scipy import stats
 
-from ..errors import InputError
+from ..errors import IdentifiabilityError, InputError  # noqa: F401 - IdentifiabilityError importable from here
 from ..models.campaign import Campaign, nominal_gravity
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.model import Covariates, Model
@@ -38,9 +38,7 @@ COVARIATES = ("axis1", "axis2", "t_x", "t_y", "t_z", "rate_x", "rate_y", "rate_z
 LOSSES = ("l2", "huber", "student_t")
 
 
-class IdentifiabilityError(InputError):
-    """The plan or the data cannot determine some parameters of the requested model."""
-
+from .design import axes_not_turned  # noqa: E402
 
 # the noise of the mean outputs and the bench's random errors: noise_model.py (re-exported here)
 from .one_temperature import (TEMPERATURE_SPAN_MIN_C, sensor_temperatures,  # noqa: E402,F401
@@ -142,27 +140,6 @@ def start_values(campaign: Campaign, model: Model) -> dict:
             if bb != a:
                 start[f"Ca_{a}{bb}"] = K * b[j] / ARCSEC
     return {n: start.get(n, model.spec[n].nominal) for n in model.names}
-
-
-def axes_not_turned(campaign: Campaign) -> None:
-    """Refuse (:class:`IdentifiabilityError`, one line) a campaign whose poses do not turn an IMU axis
-    through gravity: with g_a nearly constant, ``W_a = (g_a + S_a) / K_a`` cannot tell K_a from S_a. An
-    outside probe's plan P01-P08 (z never up or down) was refused by the reader as "w_z in another unit"
-    and, past it, the fit stopped after one iteration with chi2/dof 2e5, naming Ca_xz and Ca_yz."""
-    from ..models.campaign import AXIS_GRAVITY_SPAN_MIN_G
-
-    g = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3)
-    if len(g) == 0:
-        return
-    span = g.max(axis=0) - g.min(axis=0)
-    bad = [i for i in range(3) if span[i] < AXIS_GRAVITY_SPAN_MIN_G]
-    if bad:
-        which = ", ".join(f"{AXES[i]} (nominal g_{AXES[i]} {g[:, i].min():+.2f} .. {g[:, i].max():+.2f} g)" for i in bad)
-        raise IdentifiabilityError(
-            f"{campaign.source or 'campaign'}: the poses never turn the IMU's {which} through gravity (a span of at "
-            f"least {AXIS_GRAVITY_SPAN_MIN_G:g} g is needed): " + ", ".join(f"K_{AXES[i]}" for i in bad) + " cannot be "
-            "told from " + ", ".join(f"S_{AXES[i]}" for i in bad) + "; add poses with each axis up and down (the "
-            "12-position plan of docs/bench-csv.md)")
 
 
 def identifiability_problems(campaign: Campaign, model: Model) -> dict[str, str]:
@@ -403,7 +380,7 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                          f"found units {units} and states {sorted(set(campaign.state.tolist()))} "
                          "(select one, e.g. with Campaign.select)")
     stuck_outputs(campaign)
-    axes_not_turned(campaign)
+    axes_not_turned(campaign)           # design.py: every axis turned through gravity
     reference_temperature_C, moved = single_temperature_reference(campaign, reference_temperature_C)
     model = Model(effects, reference_temperature_C)
     own_noise = noise_of(campaign)

@@ -263,17 +263,18 @@ def check_axis_spans(path, c: Campaign) -> None:
     stuck output, named by its own check) are left out, and so are outputs the plan does not turn
     through gravity (their nominal gravity spans less than :data:`AXIS_GRAVITY_SPAN_MIN_G`: a plan of
     P01-P08, z never up or down, was refused as "w_z in another unit", an outside probe)."""
-    from ..models.campaign import AXIS_GRAVITY_SPAN_MIN_G, nominal_gravity
+    from ..models.campaign import axes_not_turned
 
     units = np.asarray(c.unit).astype(str)
     w = np.asarray(c.w, float)
-    g = nominal_gravity(c.axis1_deg, c.axis2_deg).reshape(-1, 3)
+    a1, a2 = np.asarray(c.axis1_deg, float), np.asarray(c.axis2_deg, float)
     lines = c.lines if c.lines is not None else np.arange(1, len(w) + 1)
     for u in dict.fromkeys(units.tolist()):
         idx = np.flatnonzero(units == u)
         if len(idx) < 6:
             continue
-        turned = (np.max(g[idx], axis=0) - np.min(g[idx], axis=0)) >= AXIS_GRAVITY_SPAN_MIN_G
+        turned = np.ones(3, bool)
+        turned[[i for i, _, _ in axes_not_turned(a1[idx], a2[idx])]] = False
         span = np.nanmax(w[idx], axis=0) - np.nanmin(w[idx], axis=0)
         if turned.sum() < 2 or not np.all(np.isfinite(span[turned])) or np.min(span[turned]) <= 0:
             continue

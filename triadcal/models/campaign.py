@@ -41,6 +41,16 @@ def nominal_gravity(axis1_deg, axis2_deg):
 AXIS_GRAVITY_SPAN_MIN_G = 0.5
 
 
+def axes_not_turned(axis1_deg, axis2_deg) -> list:
+    """``[(axis index, lowest, highest nominal gravity component (g))]`` of each IMU axis the poses do not
+    turn through gravity: its nominal component spans less than :data:`AXIS_GRAVITY_SPAN_MIN_G`."""
+    g = nominal_gravity(axis1_deg, axis2_deg).reshape(-1, 3)
+    if len(g) == 0:
+        return []
+    lo, hi = g.min(axis=0), g.max(axis=0)
+    return [(i, float(lo[i]), float(hi[i])) for i in range(3) if hi[i] - lo[i] < AXIS_GRAVITY_SPAN_MIN_G]
+
+
 def up_axis_label(axis1_deg, axis2_deg, threshold: float = 0.99):
     """Label of the IMU axis that points up or down ('+X', '-Z', ...; '' when none does)."""
     g = nominal_gravity(axis1_deg, axis2_deg).reshape(-1, 3)
