@@ -30,54 +30,9 @@ from ...models.sensor import AXES
 SHAREABLE_EQUIPMENT = SHAREABLE_SECTIONS
 
 
-#: an overall verdict held back from pass (a same calibration, an angle missing on one side) says so in
-#: a note that starts with this
-NOT_PASS_NOTE = "overall verdict not pass: "
-
-#: why a stated negative correlation is refused (docs/compare.md): two calibrations' errors are either
-#: their own (independent, rho 0) or shared (one bench, one lab: the same error in both, rho > 0). An
-#: outside probe: Ca_xy truly moved 1" (2.25 u(d)); at rho = 0 it failed (z 2.21), at -0.9 u(d) grew
-#: 0.44" -> 0.61" and the comparison said "overall: pass", exit 0, without a word
-NEGATIVE_RHO_REASON = ("a negative rho says the two calibrations' errors tend to opposite signs, and none do: their "
-                       "random errors are independent (rho 0) and an error they share (one bench, one lab) is the "
-                       "same in both (rho > 0); a negative rho only widens u(d), and a real drift passes. Leave it "
-                       "out (derived) or state one in [0, 1); what two budgets share, of either sign per parameter, "
-                       "is derived from their rows with --shared-bench or --lab")
-
-#: equipment the bench check (the change of tilt_x, tilt_y) speaks for: a bench re-levelled or moved
-#: between the campaigns may have been re-zeroed too, and the unit in its fixture on it remounted
-BENCH_MOUNTED = ("bench", "fixture")
-
-
-def check_data_order(results: Sequence[CalibrationResult], names: Sequence[str]) -> None:
-    """Refuse (InputError, one line naming both and their dates) calibrations given out of the order
-    of their data: every pair whose results both state a ``data_date`` (ISO) must be in date order
-    (equal dates allowed). An outside probe: ``compare after.json before.json`` (data 2026-03-01 and
-    2026-01-10) reported every drift with its sign reversed, and ``--sequence`` in reverse order was
-    taken as given."""
-    from ...io.dates import iso_date
-
-    days = [iso_date(r.extra.get("data_date")) if r.extra.get("data_date") else None for r in results]
-    for i in range(len(results)):
-        for j in range(i + 1, len(results)):
-            if days[i] and days[j] and days[i] > days[j]:
-                raise InputError(f"{names[i]} (data_date {days[i]}) is given before {names[j]} (data_date {days[j]}), "
-                                 "whose data are older: calibrations are compared in the order their data were "
-                                 "taken (BEFORE, then AFTER), and out of it every drift has the wrong sign; give "
-                                 "them in date order")
-
-
-def _held_note(why: str, params: dict, other: dict, tail: str) -> str:
-    """The note of verdicts held back as inconclusive: why, each held parameter's verdict and the other
-    one (``other``: name -> verdict), and what to do."""
-    return (NOT_PASS_NOTE + f"held back: {why}"
-            + ("; parameters held back as inconclusive: " + ", ".join(
-                f"{n} ({params[n].verdict} -> {v})" for n, v in other.items()) if other else "") + tail)
-
-
-def _hold(params: dict, names) -> None:
-    for n in names:
-        params[n].verdict, params[n].held_back = "inconclusive", True
+# NOT_PASS_NOTE (a held-back verdict's note starts with it), refusals and hold-backs of a comparison's own (a negative rho, data out of order, a held-back note)
+from .guards import (BENCH_MOUNTED, NEGATIVE_RHO_REASON, NOT_PASS_NOTE, _held_note, _hold,  # noqa: E402,F401
+                     bench_contradicts_sharing, check_data_order)
 
 
 def same_calibration(before: CalibrationResult, after: CalibrationResult) -> bool:
@@ -493,36 +448,17 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                                        ": the difference rests on shared error that no result's budget holds"))
             overall, held_back = "inconclusive", True
         _hold(params, held)
-    moved_tilts = [n for n, v in bench.items() if v["significant"]]
     bench_shared = sorted({s["equipment"] for s in shared.sources if s["equipment"] in BENCH_MOUNTED})
-    if moved_tilts and bench_shared:
-        # an outside probe: the bench's encoder zeros and non-orthogonality re-drawn (5") between the
-        # campaigns, --shared-bench: the tilt_y check said +2.7 +- 0.26" and "may then not cancel", yet the
-        # unmoved unit "failed" 5 of 5 (D2 62-2116; without sharing 3 pass, 2 inconclusive). The check says
-        # the sharing does not hold: every verdict is made again with that equipment's errors independent
-        # (the rest stays shared), and one that differs is held back
+    if bench_shared and any(v["significant"] for v in bench.values()):
+        # the bench check says the sharing does not hold: every verdict made again with the bench's errors
+        # independent (the rest stays shared), one that differs held back (guards.bench_contradicts_sharing)
         alone = tuple(e for e in shared_equipment if e not in BENCH_MOUNTED)
         alt = compare(originals["before"], originals["after"], tolerance_arcsec=tolerance_arcsec,
                       tolerances=tolerances, posterior_before=posterior_before, posterior_after=posterior_after,
                       correlation=correlation, level=level, label=label, shared_equipment=alone, files=files)
-        overall_alt = overall_verdict(alt.parameters, alt.joint, tolerance_arcsec)
-        held = [n for n in params if n in alt.parameters and params[n].verdict != alt.parameters[n].verdict]
-        eq = ", ".join(f"[{e}]" for e in bench_shared)
-        check = "; ".join(f"{n} changed {bench[n]['drift']:+.3g} +- {bench[n]['u']:.2g} {bench[n]['unit']} "
-                          f"(z {bench[n]['drift'] / bench[n]['u']:.3g})" if bench[n]["u"] > 0 else
-                          f"{n} changed {bench[n]['drift']:+.3g} {bench[n]['unit']}" for n in moved_tilts)
-        said = (f"the bench check contradicts the shared {eq}: {check}, significant at {level:.0%} (re-levelled or "
-                f"moved between the campaigns, its errors need not be the same in both)")
-        if held or overall != overall_alt:
-            notes.insert(0, _held_note(f"{said}; with {eq} shared the verdict is {overall}, with its errors "
-                                       f"independent it is {overall_alt}", params,
-                                       {n: alt.parameters[n].verdict for n in held},
-                                       "; check the bench, and share it only if it was not adjusted"))
+        if bench_contradicts_sharing(bench, bench_shared, level, params, overall, alt,
+                                     overall_verdict(alt.parameters, alt.joint, tolerance_arcsec), notes):
             overall, held_back = "inconclusive", True
-            _hold(params, held)
-        else:
-            notes.append(f"{said}; the verdicts are the same with {eq} shared and with its errors independent, "
-                         "so they stand")
     if same_calibration(before, after):
         src = before.extra.get("source")
         notes.insert(0, NOT_PASS_NOTE + f"{tag_b} and {tag_a} are the same calibration (unit {before.unit}, method "
