@@ -35,8 +35,8 @@ from .tilt_polar import tilt_polar_values
 
 #: covariates of one visit, in the order of the mapped function's second input
 COVARIATES = ("axis1", "axis2", "t_x", "t_y", "t_z", "rate_x", "rate_y", "rate_z", "branch", "time_s")
-LOSSES = ("l2", "huber", "student_t")
-
+# the robust losses, their weights and checks: robust_check.py (re-exported here)
+from .robust_check import LOSSES, robust_check, robust_psi_slope, robust_scale, robust_weights  # noqa: E402
 
 from .design import axes_not_turned  # noqa: E402
 
@@ -229,33 +229,6 @@ def null_space_problems(J: np.ndarray, names: Sequence[str], rtol: float = 1e-8)
             out[n] = ("not separable from " + ", ".join(m for m in involved if m != n)
                       + " with this plan (a combination of them has no effect on the outputs)")
     return out
-
-
-def robust_weights(r: np.ndarray, loss: str, nu: float = 4.0, c: float = 1.345) -> np.ndarray:
-    """IRLS weights ``psi(r)/r`` of normalised residuals for a robust loss: Huber with ``c``, or
-    the Student-t of ``nu`` dof scaled to unit variance (the residuals are normalised by the
-    output noise's SD), ``psi(r) = (nu + 1) r / (nu - 2 + r^2)`` (the MLE's score; for
-    ``nu <= 2``, which has no variance, the standard t's ``nu + r^2``)."""
-    if loss == "l2":
-        return np.ones_like(r)
-    if loss == "huber":
-        a = np.abs(r)
-        return np.where(a <= c, 1.0, c / np.maximum(a, 1e-300))
-    if loss == "student_t":
-        return (nu + 1.0) / ((nu - 2.0 if nu > 2.0 else nu) + r * r)
-    raise InputError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
-
-
-def robust_psi_slope(r: np.ndarray, loss: str, nu: float = 4.0, c: float = 1.345) -> np.ndarray:
-    """``psi'(r)`` of :func:`robust_weights`' loss (for the sandwich covariance)."""
-    if loss == "l2":
-        return np.ones_like(r)
-    if loss == "huber":
-        return (np.abs(r) <= c).astype(float)
-    if loss == "student_t":
-        a = nu - 2.0 if nu > 2.0 else nu
-        return (nu + 1.0) * (a - r * r) / (a + r * r) ** 2
-    raise InputError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
 
 
 @dataclass
@@ -456,6 +429,12 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         sol, noise, q_per_output = per_output_scale(problem, sol, noise, max_iter)
         if q_per_output is not None:                 # the start's cost with the weights the answer has
             cost_start = float(np.sum(problem.residuals(x0) ** 2))
+    robust_s2 = None
+    if not noise.known and loss != "l2" and whitening is None:     # a robust loss needs a scale
+        sol, noise, robust_s2 = robust_scale(problem, sol, noise, loss, nu, max_iter)
+        if robust_s2 is not None:
+            r0 = problem.residuals(x0)
+            cost_start = float(np.sum(robust_weights(r0, loss, nu) * r0 * r0))
     solve_seconds = time.perf_counter() - t0
 
     n_obs, n_par = sol.r.size, len(problem.names)
@@ -511,6 +490,11 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         notes.append(f"Levenberg-Marquardt stopped after {sol.iterations} iterations without meeting its "
                      "convergence test (cost still falling or a non-vanishing gradient); the values are not an optimum")
     p_gap = float(stats.chi2.sf(chi2, dof)) if noise.known and dof > 0 else None
+    robust_gof, robust_gates = None, []
+    if loss != "l2":            # the inliers' fit and what the down-weighted outliers still do
+        robust_gof, robust_gates = robust_check(sol, u, problem.names, loss, nu, gates.gof_p_min, noise.known, campaign,
+                                                notes, by_visit=whitening is None)
+        p_gap = p_gap if robust_gof is None else robust_gof["p_value"]
     if noise.known and dof > 0 and loss == "l2":
         note = overstated_noise_note(chi2, dof, noise.description, bench_errors is not None)
         if note:
@@ -526,6 +510,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
            "systematic_errors": ([{"source": t.source, "key": t.key, "u": t.u, "unit": t.unit,
                                    "distribution": t.distribution, "equipment": t.equipment} for t in systematics]
                                  if systematics else None)}
+    if robust_gof is not None:
+        fit["robust_goodness_of_fit"] = {k: v for k, v in robust_gof.items() if k not in ("what", "ratio")}
     if "thermal_lag" in model.effect_names:
         fit["temperature_rate"] = campaign.temperature_rate_method()
     if sensor_temps is not None:                     # one temperature: where each row's values are
@@ -542,6 +528,9 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         if q_per_output is not None and dof > 0:
             fit["Q_estimate_per_output"] = [float(q * chi2_dof) for q in q_per_output]
             fit["Q_estimate"] = float(np.mean(fit["Q_estimate_per_output"]))
+        if robust_s2 is not None:               # the robust scale, not the outliers' chi2
+            fit["Q_estimate_per_output"] = [float(q) for q in robust_s2]
+            fit["Q_estimate"] = float(np.mean(robust_s2))
         fit["Q_unit"] = f"{campaign.output_unit}^2 s"
     T = campaign.t
     result = CalibrationResult(
@@ -563,6 +552,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
 
         extra_gates = extra_gates + rate_form_play(result, campaign, problem, sol, sw, u,
                                                    1.0 if noise.known else float(np.sqrt(max(chi2_dof, 0.0))))
+    structure = structure if robust_gof is None else robust_gof      # a robust loss: the inliers' chi2
+    extra_gates = extra_gates + robust_gates
     evidence = FitEvidence(
         converged=sol.converged, cost_start=cost_start, cost_final=sol.cost, jacobian=sol.J * sw[:, None],
         free_names=problem.names, residual_rms=float(np.sqrt(np.mean(resid ** 2))),
