@@ -229,3 +229,26 @@ def test_the_state_fitted_is_in_the_result_and_the_history(tmp_path):
         assert [c["state"] for c in db.calibrations(res.unit)] == ["after"]
     # the default state is not said
     assert "state" not in fit(parse_bench_csv(text, "initial.csv")).extra
+
+
+def test_an_undated_result_recorded_as_today_says_so(runs, tmp_path, capsys):
+    """A result with no date of its own (batch.date, date, data_date), no --date and no lab file took
+    today's date without a word, and the history orders (and compares) by it."""
+    import datetime as dt
+
+    d = read_json(runs["a20"])
+    for k in ("date", "data_date"):
+        d.pop(k, None)
+    d.pop(CONTENT_HASH_KEY, None)
+    d[CONTENT_HASH_KEY] = content_sha256(d)
+    undated = tmp_path / "undated.json"
+    undated.write_text(json.dumps(d), encoding="utf-8")
+    db = tmp_path / "h.sqlite"
+    assert main(["history", "--add", str(undated), "--db", str(db)]) == 0
+    said = capsys.readouterr().out
+    assert "no calibration date in the result" in said and "recorded as today's" in said
+    with HistoryDB(db) as h:
+        assert h.calibrations(SERIAL)[0]["date"] == dt.datetime.now(dt.timezone.utc).date().isoformat()
+    # a dated one (the data's date) is recorded without the note
+    assert main(["history", "--add", str(runs["b20"]), "--db", str(db)]) == 0
+    assert "no calibration date" not in capsys.readouterr().out

@@ -72,6 +72,12 @@ def run(args) -> int:
             for f, d, r in docs:
                 added = db.add(d, lab=lab, date=args.date, source=str(f))
                 out.say(f"{f}: {'recorded' if added else 'already recorded (no change)'} in {path}")
+                if added and db.date_source == "today":
+                    out.say(f"{f}: note: no calibration date in the result (batch.date, date, data_date), no --date and "
+                            "no lab file's calibration_date: recorded as today's; the history orders calibrations "
+                            "and compares each with the one before it by this date, so an older result recorded now "
+                            "stands after newer ones; give --date when recording an older result (a recorded "
+                            "result keeps its date: adding it again is a no-op)")
                 if added and data_hashes(d):
                     # an outside probe: the data of one campaign fitted again from a copy of its CSV were
                     # recorded as a second calibration, "inconclusive" against the first without a word

@@ -76,6 +76,7 @@ class HistoryDB:
 
     def __init__(self, path):
         self.path = Path(path)
+        self.date_source = ""       # where the last add() took its date from (see add)
         if self.path.parent and not self.path.parent.exists():
             raise InputError(f"{self.path}: folder {self.path.parent} does not exist")
         if self.path.is_dir():
@@ -119,6 +120,7 @@ class HistoryDB:
                  ("the result's data_date", result.get("data_date")),
                  ("the lab file's calibration_date", lab.calibration_date if lab is not None else ""))
         where, raw = next(((w, v) for w, v in given if v), ("today", _dt.datetime.now(_dt.timezone.utc).date().isoformat()))
+        self.date_source = where        # "today": the caller says so (the history orders by this date)
         from ..io.dates import ISO_HINT, iso_date
 
         date = iso_date(raw)
