@@ -346,7 +346,8 @@ def floor_rule(chosen: FormFit, forms: list, per_sample: dict, size: dict, floor
         return chosen, None
     return simplest, (f"{simplest.name} is at the white-noise floor (held-out RMS {simplest.cv_rms / floor:.3g} x the "
                       f"floor) and {chosen.name} beats it by {z:.2g} standard errors of the paired held-out squared "
-                      f"errors (< {PAIRED_Z:g}): an effect beyond {simplest.name} is not resolved by this cycle")
+                      f"errors (< {PAIRED_Z:g}): {chosen.name} is not established over it by this cycle (an effect "
+                      f"that small is not excluded either: a longer cycle, or faster ramps for a short lag, can tell)")
 
 
 def _least_squares(X, y):
