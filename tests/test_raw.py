@@ -177,6 +177,45 @@ def test_detector_finds_every_simulated_pose_and_its_face():
     assert [iv.label for iv in out.detection.intervals] == FACES * 2
 
 
+def test_faces_named_from_the_data_say_that_a_swapped_column_is_not_checked():
+    """An outside probe: acc_y,acc_x,acc_z on faces the detector named gave status ok with K_x the
+    true K_y and no word; the docs promised a refusal (which only labels can give)."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(3)
+    rec, _ = simulate_recording(random_unit(rng), FACES * 2, seed=3)
+    swapped = replace(rec, acc=rec.acc[:, [1, 0, 2]], labels=None)
+    out = fit_raw(swapped, poses="known", local_g_m_s2=LOCAL_G).result
+    assert any("known poses named from the data" in n and "not detected" in n for n in out.notes), out.notes
+    labelled = fit_raw(rec, poses="known", local_g_m_s2=LOCAL_G, labels="part").result
+    assert not any("known poses named from the data" in n for n in labelled.notes)
+
+
+@pytest.mark.parametrize("reach_s", [0.0, 0.5, 1.0])
+def test_labels_reaching_into_the_moves_are_refused_naming_them(reach_s):
+    """An outside probe: face labels 1.5 s into the next move ended in NaN everywhere (status non_finite,
+    a note blaming swapped columns). A labelled interval whose SD is beyond the detector's threshold x the
+    noise holds motion: refused with its name, samples and ratio; the labels as recorded pass."""
+    from dataclasses import replace
+
+    from triadcal.estimation.raw.detection import StaticIntervalError
+
+    rng = np.random.default_rng(5)
+    rec, _ = simulate_recording(random_unit(rng), FACES, seed=5)
+    labels = np.array(rec.labels, dtype=object)
+    reach = int(reach_s * rec.rate_hz)
+    if reach:
+        ends = [i for i in range(1, len(labels)) if labels[i] == "move" and labels[i - 1] != "move"]
+        for e in ends:
+            labels[e:e + reach] = labels[e - 1]
+    moved = replace(rec, labels=list(labels))
+    if reach_s == 0.0:
+        assert fit_raw(moved, poses="known", local_g_m_s2=LOCAL_G, labels="part").result.status == "ok"
+        return
+    with pytest.raises(StaticIntervalError, match=r"of the labels' intervals move .*x_p \(samples 0\.\.\d+"):
+        fit_raw(moved, poses="known", local_g_m_s2=LOCAL_G, labels="part")
+
+
 def test_detector_never_nan_and_says_why_it_found_too_few():
     still = np.round(np.tile([0.0, 0.0, 2048.0], (3000, 1)))          # a perfectly quantised still unit
     det = detect_static_intervals(still, 100.0)

@@ -132,6 +132,53 @@ def test_slow_motion_taken_for_rest_is_a_model_mismatch():
     assert gate["value"] > 100 and "noise floor" in gate["reason"]
 
 
+def _turning_recording(rate_deg_s, seed=2, n_poses=30, rate=100.0, hold_s=20.0):
+    """Counts of a unit that turns steadily at ``rate_deg_s`` about a random horizontal axis through each
+    ``hold_s`` hold, then moves 2 rad in 1 s to the next pose: a turn too slow for the detector's
+    1 s windows (an outside probe's case: every hold taken as static)."""
+    rng = np.random.default_rng(seed)
+    K = np.array([1 / 2000.0, 1 / 2050.0, 1 / 1990.0])
+    S = np.array([0.02, -0.015, 0.03])
+    Ca = np.array([[1.0, 2e-3, -2e-3], [0.0, 1.0, 1e-3], [0.0, 0.0, 1.0]])
+    g = np.array([0.0, 0.0, 1.0])
+    R = np.eye(3)
+    chunks = []
+    for _ in range(n_poses):
+        R = _rot(rng.normal(size=3), rng.uniform(0.8, 2.5)) @ R
+        phi = rng.uniform(0.0, 2.0 * np.pi)
+        axis = np.array([np.cos(phi), np.sin(phi), 0.0])          # horizontal: gravity turns by the whole angle
+        n_h = int(hold_s * rate)
+        ang = np.radians(rate_deg_s) * np.arange(n_h) / rate
+        hold = np.array([(_rot(axis, t) @ R).T @ g for t in ang])
+        R = _rot(axis, ang[-1]) @ R
+        move = np.array([(_rot(np.array([1.0, 1.0, 0.0]), t) @ R).T @ g for t in np.linspace(0, 2.0, int(rate))])
+        R = _rot(np.array([1.0, 1.0, 0.0]), 2.0) @ R
+        chunks.append(((np.concatenate([hold, move]) @ Ca.T) + S) / K)
+    w = np.concatenate(chunks) + rng.normal(0, 1.0, size=(sum(len(c) for c in chunks), 3))
+    return RawRecording(acc=w, rate_hz=rate, unit="counts", columns=("x", "y", "z")), K
+
+
+@pytest.mark.parametrize("rate_deg_s", [0.0, 0.3])
+def test_a_unit_turning_through_its_holds_is_refused_with_the_bias_it_leaves(rate_deg_s):
+    """A steady turn theta through every hold shortens every mean by theta^2/24 (6 deg: 460 ppm),
+    which the norm fit takes into K without a residual: before, status ok with K tens of u high.
+    The gate's predicted shift of K (in u) must match the error the fit made."""
+    rec, K = _turning_recording(rate_deg_s)
+    r = fit_raw(rec, poses="unknown", local_g_m_s2=9.80665).result
+    gate = {o["gate"]: o for o in r.extra["gates"]["outcomes"]}["static_intervals_still"]
+    err_u = max(abs(r[f"K_{a}"].value - K[i]) / r[f"K_{a}"].u for i, a in enumerate("xyz"))
+    if rate_deg_s == 0.0:
+        assert r.status == "ok" and gate["passed"] and gate["value"] < 0.05, r.notes
+        return
+    # the turn over each interval the detector kept (19.5 of the 20 s hold)
+    theta = np.radians(rate_deg_s) * np.array([iv["duration_s"] for iv in r.extra["static_intervals"]["intervals"]])
+    assert r.status == "model_mismatch" and gate["passed"] is False
+    assert err_u > 5.0                                         # what the gate prevents
+    rel = min(r[f"K_{a}"].u / r[f"K_{a}"].value for a in "xyz")
+    assert gate["value"] == pytest.approx(np.mean(theta ** 2) / 24 / rel, rel=0.1)      # theta^2/24 by hand
+    assert 0.5 * err_u < gate["value"] < 2.0 * err_u
+
+
 def test_cli_angle_bound_and_refusal(tmp_path, capsys):
     rec = np.loadtxt(DATA / "mikoff_imu0.log")[:, :3]
     path = tmp_path / "r.csv"

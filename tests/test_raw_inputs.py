@@ -342,3 +342,18 @@ def test_a_recording_in_mg_is_read_with_unit_mg(tmp_path, capsys):
         assert b[n]["value"] == pytest.approx(a[n]["value"], abs=1e-3 + 1e-6 * abs(a[n]["value"]))
     assert main(["fit-raw", str(mg), "--unit", "g", "--json", str(tmp_path / "c.json"), *base]) == 1
     assert "the readings contradict --unit g" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text, match", [
+    ("start,end\n0.50,7.50\n11.50,18.50\n", r"column 'interval 1 start': 0\.5 is not a whole sample index \(4 limit"),
+    ("start_s,end_s\n1,7\n12,18\n", r":1: column 'start_s': the header 'start_s,end_s' names a time"),
+])
+def test_interval_files_in_seconds_are_refused_naming_the_entry(tmp_path, text, match):
+    """An outside probe: limits in seconds were refused without a line or value ("interval limits must be
+    whole sample indices"), and columns named start_s,end_s were read as sample indices without a word."""
+    from triadcal.io.raw import RawRecordingError, read_intervals
+
+    p = tmp_path / "iv.csv"
+    p.write_text(text, encoding="utf-8")
+    with pytest.raises(RawRecordingError, match=match):
+        read_intervals(p)

@@ -644,6 +644,21 @@ def apply_gates(result, evidence: FitEvidence, *, config: GateConfig = DEFAULT_C
     return result
 
 
+def add_outcome(result, outcome: GateOutcome):
+    """One more gate's ``outcome`` on a result the gates have judged (its evidence found after the fit):
+    recorded with the others, its note when it fails, and the status by precedence."""
+    gates = result.extra.setdefault("gates", {"config": DEFAULT_CONFIG.to_dict(), "outcomes": []})
+    gates["outcomes"].append(outcome.to_dict())
+    if outcome.passed is False:
+        note = f"gate {outcome.gate} failed ({outcome.status}): {outcome.reason}"
+        if note not in result.notes:
+            result.notes.append(note)
+        if result.status == "ok" or (result.status in PRECEDENCE and
+                                     PRECEDENCE.index(outcome.status) < PRECEDENCE.index(result.status)):
+            result.status = outcome.status
+    return result
+
+
 # the consumers' checks (certificate, compare, compensation) live in result_checks.py; imported here
 # too, where they were first written
 from .result_checks import RefusedResult, check_result_for_use, result_problems  # noqa: E402,F401

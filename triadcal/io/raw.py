@@ -496,6 +496,11 @@ def read_intervals(path) -> IntervalSpec:
             rows.append([parse_number(f, low=0, high=MAX_READING, what="sample index") for f in fields])
         except NumberError as exc:
             if not rows and k == 0 and not any(c.isdigit() for c in line):
+                timed = [f for f in fields if _names_time(f)]
+                if timed:        # an outside probe's start_s,end_s were read as sample indices without a word
+                    raise RawRecordingError(path, 1, timed[0], f"the header {line.strip()!r} names a time; the "
+                                            "limits are sample indices (0-based, end exclusive): multiply "
+                                            "seconds by the rate") from None
                 continue  # a header row such as "start,end"
             raise RawRecordingError(path, k + 1, None, f"{exc.problem} in {line!r}") from None
     if len(rows) == 2 and len(rows[0]) == len(rows[1]) and len(rows[0]) != 2:
@@ -510,9 +515,20 @@ def read_intervals(path) -> IntervalSpec:
     else:
         raise RawRecordingError(path, None, None,
                                 "expected two rows (starts; ends) or two columns (start,end) of sample indices")
-    if np.any(s != np.round(s)) or np.any(e != np.round(e)):
-        raise RawRecordingError(path, None, None, "interval limits must be whole sample indices")
+    frac = [(i, key, v) for key, arr in (("start", s), ("end", e)) for i, v in enumerate(arr) if v != round(v)]
+    if frac:
+        i, key, v = min(frac, key=lambda t: (t[0], t[1] != "start"))
+        raise RawRecordingError(path, None, f"interval {i + 1} {key}",
+                                f"{v:g} is not a whole sample index ({len(frac)} limit(s) are not): the limits are "
+                                "sample indices (0-based, end exclusive), not seconds; multiply seconds by the rate")
     return _checked(IntervalSpec(s.astype(int), e.astype(int), None, path))
+
+
+def _names_time(field: str) -> bool:
+    """Whether a column name of an interval file says a time (start_s, t_end, end_ms, seconds, time)."""
+    f = field.strip().lower()
+    return (f.endswith(("_s", "_sec", "_ms", "_us", "[s]", "(s)")) or f.startswith(("t_", "time"))
+            or any(w in f for w in ("second", "time", "sec")))
 
 
 def _checked(spec: IntervalSpec) -> IntervalSpec:

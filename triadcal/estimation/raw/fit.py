@@ -15,7 +15,9 @@ import numpy as np
 from ...io.raw import RawRecording, check_declared_unit, read_intervals, read_raw_csv
 from ...models.campaign import Campaign
 from ...models.units import STANDARD_GRAVITY_M_S2
+from .motion import interval_turns, turning_gate
 from ..gates import (
+    add_outcome,
     DEFAULT_CONFIG,
     FitEvidence,
     GateConfig,
@@ -32,6 +34,7 @@ from .detection import (
     intervals_from_labels,
     intervals_from_spec,
     pose_label_of,
+    robust_noise_sd,
 )
 from .known import fit_known_poses
 from .poses import PoseAverages, bench_campaign, pose_averages
@@ -79,13 +82,44 @@ def static_intervals_of(rec: RawRecording, *, labels: Optional[str] = None, inte
     else:
         det = detect_static_intervals(rec.acc, rec.rate_hz, window_s=window_s, threshold=threshold,
                                       min_duration_s=min_duration_s)
+    if labels is not None or intervals is not None:
+        refuse_moving_intervals(rec, det, window_s, threshold)
     if poses == "known":
         for iv in det.intervals:
             if not iv.label:
                 iv.label = pose_label_of(rec.acc[iv.start:iv.end].mean(axis=0))
     if not det.intervals:
-        raise StaticIntervalError(f"{rec.source}: no static intervals ({det.summary(rec.rate_hz)})")
+        known = (f"; a face is named {', '.join(POSE_LABELS)} (imucal's: x_p = +X up, x_a = X down)"
+                 if poses == "known" and det.ignored else "")
+        raise StaticIntervalError(f"{rec.source}: no static intervals ({det.summary(rec.rate_hz)}){known}")
     return det
+
+
+def refuse_moving_intervals(rec: RawRecording, det: StaticDetection, window_s: float, threshold: float) -> None:
+    """Refuse a labelled or given interval whose samples' SD on an axis exceeds ``threshold`` times the
+    recording's noise SD (the detector's own rule for rest, detection.robust_noise_sd): it holds motion.
+    An outside probe's face labels reaching 1.5 s into the next move ended in NaN everywhere with status
+    non_finite and a note blaming swapped columns (the placement evidence at its grid's edge); shorter
+    reaches (0.4 s) were ok with each mean's u widened by the motion. The SD ratio of clean labels:
+    1.0-1.2 (imucal's annotated session, simulated faces); labels 0.4-2 s into the moves: 4-220."""
+    window = max(3, int(round(window_s * rec.rate_hz)))
+    sigma = robust_noise_sd(rec.acc, window)
+    bad = []
+    for k, iv in enumerate(det.intervals):
+        if iv.n < 3:
+            continue
+        ratio = rec.acc[iv.start:iv.end].std(axis=0, ddof=1) / sigma
+        a = int(np.argmax(ratio))
+        if ratio[a] > threshold:
+            bad.append(f"{iv.label or k + 1} (samples {iv.start}..{iv.end - 1}, {iv.start / rec.rate_hz:.2f}-"
+                       f"{(iv.end - 1) / rec.rate_hz:.2f} s): SD of {rec.columns[a] if rec.columns else 'xyz'[a]} "
+                       f"{ratio[a]:.3g} x the noise")
+    if bad:
+        raise StaticIntervalError(
+            f"{rec.source}: {len(bad)} of the {det.method.split()[0]}' intervals move (an interval's SD beyond "
+            f"{threshold:g} x the recording's noise SD, {', '.join(f'{s:.3g}' for s in sigma)} {rec.unit}, the "
+            f"detector's rule for rest): {'; '.join(bad)}. Trim them to the still part, or leave the intervals to "
+            "the detector (no --labels/--intervals); --static-threshold sets the ratio")
 
 
 def samples_sha256(rec: RawRecording) -> str:
@@ -217,6 +251,20 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
         campaign = bench_campaign(avg, rec, serial, local_g_m_s2 if local_g_stated else None)
     else:
         result, problem, sol = fit_unknown_poses(rec, avg, gravity_g=gravity_g, serial=serial, gates=gates)
+    if poses == "known" and det.method == "detector":
+        # an outside probe: acc_y,acc_x,acc_z or an inverted Y column on faces the detector named: status ok,
+        # K_x the true K_y (52 u), S_y sign-flipped (317 u), nothing said (with --labels both are refused)
+        result.notes.append("known poses named from the data (the detector: each face by the axis that reads "
+                            "+-1 g): a swapped or inverted column names its faces accordingly and fits as well, so "
+                            "it is not detected; the columns are taken as labelled (--labels, a face column "
+                            "written while recording, checks them)")
+    # a unit turning slowly through its holds: the detector's windows miss it, K takes it (motion.py)
+    gate, note = turning_gate(result, interval_turns(rec.acc, avg.start, avg.end, rec.rate_hz), avg.label,
+                              gates.gof_p_min)
+    if gate is not None:
+        add_outcome(result, gate)
+    if note:
+        result.notes.append(note)
     run = None
     if sample:
         opts = dict(serial=serial, scale_unit=rec.scale_unit, priors=priors, posterior_path=posterior_path,
