@@ -191,6 +191,34 @@ def test_batch_states_and_history(tmp_path, client):
     assert a.exists() and b.exists()
 
 
+def test_batch_history_records_the_states_in_measured_order_with_their_checksums(tmp_path, client):
+    """An outside probe: batch --history stored each result without its content_sha256 (every calibration
+    then read 'not known to be the fit's answer'), and a unit's initial and after-shock states in
+    alphabetical order, so that the history showed the shock's +60 arcsec backwards."""
+    first = tmp_path / ".first.csv"
+    second = tmp_path / ".second.csv"
+    simulate(first, unit="SN-0001", seed=1)
+    simulate(second, unit="SN-0001", seed=2, parameters={"Ca_xy": 600.0})
+    a = first.read_text(encoding="utf-8").splitlines()
+    b = [ln for ln in second.read_text(encoding="utf-8").splitlines() if not ln.startswith("#")]
+    cols = b[0].split(",")
+    it = cols.index("time_s")
+    shifted = []
+    for ln in b[1:]:
+        f = ln.replace(",initial,", ",after-shock,").split(",")
+        f[it] = repr(float(f[it]) + 1.0e6)             # measured after the first state
+        shifted.append(",".join(f))
+    (tmp_path / "unit.csv").write_text("\n".join(a + shifted) + "\n", encoding="utf-8")
+    first.unlink()
+    second.unlink()
+    db = tmp_path / "h.sqlite"
+    batch([str(tmp_path / "unit.csv")], tmp_path / "out", client=client, history=db, html=False)
+    with HistoryDB(db) as h:
+        cals = h.calibrations("SN-0001")
+    assert [c["state"] for c in cals] == ["initial", "after-shock"]
+    assert all("content_sha256" in c["result"] for c in cals)
+
+
 @pytest.mark.slow     # two command runs, each starting its own LocalCluster of processes: ~25 s
 def test_killed_batch_loses_nothing_and_rerun_completes(tmp_path):
     data = write_multi(tmp_path / "many.csv", 30, seed0=100)
@@ -311,3 +339,19 @@ def test_a_rerun_with_other_settings_fits_again_instead_of_reusing(tmp_path):
     with_lab = fit_file_part(str(src), str(out), 0, 1, lab, FitOptions(angle_bound_arcsec=20.0))
     assert [r["action"] for r in with_lab] == ["fitted", "fitted"]
     assert all("budget" in r["result"]["parameters"]["Ca_xy"] for r in with_lab)
+
+
+def test_an_input_refused_whole_is_counted_and_named_as_an_input(tmp_path, client, capsys):
+    """An outside probe: a refused file was counted among the 'unit/state pairs', and the HTML's flagged
+    table showed it as an empty unit and state with the word 'refused', no file, no reason."""
+    simulate(tmp_path / "good.csv", unit="SN-0001", seed=1)
+    simulate(tmp_path / "other.csv", unit="SN-0002", seed=2)
+    text = (tmp_path / "other.csv").read_text(encoding="utf-8").splitlines()
+    (tmp_path / "other.csv").unlink()
+    (tmp_path / "cut.csv").write_text("\n".join(text[:40] + [text[40][:30]]) + "\n", encoding="utf-8")
+    assert main(["batch", str(tmp_path / "good.csv"), str(tmp_path / "cut.csv"), "--out", str(tmp_path / "out"),
+                 "--scheduler", client.scheduler.address, "--no-progress"]) != 0
+    said = capsys.readouterr().out
+    assert "1 unit/state pairs" in said and "1 input(s) refused whole" in said
+    page = (tmp_path / "out" / "fleet.html").read_text(encoding="utf-8")
+    assert "cut.csv" in page and "input(s) refused whole" in page

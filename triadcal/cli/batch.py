@@ -55,8 +55,12 @@ def run(args) -> int:
             bar.close()
     n = len(report.records)
     not_ok = [r for r in report.records if r["action"] == "error" or r["result"]["status"] != "ok"]
-    out.say(f"{n} unit/state pairs: {report.n_fitted} fitted, {report.n_skipped} skipped (done before), "
-            f"{report.n_errors} refused; {n - len(not_ok)} ok; {report.seconds:.1f} s")
+    # an input refused whole is one row with no unit: counted as an input, not as a pair (its units are unknown)
+    whole = sum(1 for r in report.records if r["action"] == "error" and not r["unit"])
+    out.say(f"{n - whole} unit/state pairs: {report.n_fitted} fitted, {report.n_skipped} skipped (done before), "
+            f"{report.n_errors - whole} refused; {n - len(not_ok)} ok"
+            + (f"; {whole} input(s) refused whole (their units not read)" if whole else "")
+            + f"; {report.seconds:.1f} s")
     for r in not_ok:
         why = r.get("error") or r["result"]["status"]
         out.say(f"  not ok: {r['unit'] or r['input']} {r['state']}: {why}")

@@ -195,7 +195,11 @@ def _fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, 
     settings = settings_sha256(options.kwargs(), lab)
     for unit, state in todo:
         path = result_path(out_dir, unit, state)
-        rec = {"unit": unit, "state": state, "input": str(input_path), "path": str(path)}
+        # the pair's first visit on the file's clock: a history records the states of a unit in the order
+        # they were measured (an outside probe's initial/after-shock went in alphabetically, the shock backwards)
+        first = campaign.time_s[pair_mask(campaign, unit, state)]
+        rec = {"unit": unit, "state": state, "input": str(input_path), "path": str(path),
+               "first_time_s": float(first.min()) if first.size else 0.0}
         if (unit, state) in twins:
             other = ", ".join(f"{u!a} in state {st!a}" for u, st in twins[(unit, state)])
             records.append({**rec, "action": "error", "status": "refused",
@@ -224,8 +228,16 @@ def _fit_file_part(input_path: str, out_dir: str, part: int, n_parts: int, lab, 
             records.append({**rec, "action": "error", "status": "refused", "error": _why(exc)})
             continue
         records.append({**rec, "action": "fitted", "seconds": time.perf_counter() - t0,
-                        "result": result.to_dict()})
+                        "result": _saved(path)})
     return records
+
+
+def _saved(path) -> dict:
+    """The result document as written (with its content_sha256): ``to_dict()`` has no checksum, and a
+    history filled by ``batch --history`` marked every calibration 'not known to be the fit's answer'."""
+    from ..io.atomic import read_json
+
+    return read_json(path)
 
 
 def _read_recording(data: bytes, e):
@@ -283,7 +295,7 @@ def fit_manifest_part(manifest: str, out_dir: str, part: int, n_parts: int) -> l
         except Exception as exc:   # noqa: BLE001 - this entry refused and named, the others go on
             records.append({**rec, "action": "error", "status": "refused", "error": _why(exc)})
             continue
-        records.append({**rec, "action": "fitted", "seconds": time.perf_counter() - t0, "result": result.to_dict()})
+        records.append({**rec, "action": "fitted", "seconds": time.perf_counter() - t0, "result": _saved(path)})
     return records
 
 
@@ -493,7 +505,9 @@ def batch(inputs: Sequence, out_dir, *, lab=None, scheduler: Optional[str] = Non
         from .history import HistoryDB
 
         with HistoryDB(history) as db:
-            for r in records:
+            # one unit's states in the order they were measured (same date: the history keeps record order)
+            for r in sorted(records, key=lambda r: (r["unit"], str((r.get("result") or {}).get("batch", {}).get("date")
+                                                                   or ""), r["input"], r.get("first_time_s", 0.0))):
                 if r["action"] != "error":
                     db.add(r["result"], lab=lab)
     report.seconds = time.perf_counter() - t0

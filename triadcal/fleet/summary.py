@@ -309,7 +309,10 @@ def render_html(rows, names, tolerances=None) -> str:
              "<style>body{font-family:sans-serif;margin:1.5em}table{border-collapse:collapse;font-size:12px}"
              "td,th{border:1px solid #ccc;padding:2px 6px}.bad{background:#fdd}.fig{display:inline-block;margin:4px}"
              "</style></head><body><h1>Fleet summary</h1>",
-             f"<p>{len(rows)} unit/state pairs, {len(ok)} with status ok. Outliers: |x &minus; median| &gt; "
+             f"<p>{sum(1 for r in rows if r['unit'])} unit/state pairs, {len(ok)} with status ok"
+             + (f", {sum(1 for r in rows if not r['unit'])} input(s) refused whole (their units not read)"
+                if any(not r["unit"] for r in rows) else "")
+             + ". Outliers: |x &minus; median| &gt; "
              f"{OUTLIER_K:g} &times; max({MAD_TO_SD} &times; MAD, u) over the units whose status is ok (at least "
              f"{OUTLIER_MIN_UNITS}; u: the unit's own standard uncertainty), per parameter; "
              + esc(false_alarm_words(len(ok))) + "."
@@ -319,11 +322,12 @@ def render_html(rows, names, tolerances=None) -> str:
     flagged = [r for r in rows if r["status"] != "ok" or r["out_of_tolerance"] or r["outliers"]]
     parts.append("<h2>Flagged units</h2>")
     if flagged:
-        parts.append("<table><tr><th>unit</th><th>state</th><th>status</th><th>outside tolerance</th>"
-                     "<th>fleet outlier in</th></tr>")
-        for r in flagged:
-            parts.append(f"<tr class='bad'><td>{esc(r['unit'])}</td><td>{esc(r['state'])}</td><td>{esc(r['status'])}"
-                         f"</td><td>{esc(r['out_of_tolerance'])}</td><td>{esc(r['outliers'])}</td></tr>")
+        parts.append("<table><tr><th>unit</th><th>state</th><th>input</th><th>status</th><th>outside tolerance</th>"
+                     "<th>fleet outlier in</th><th>why refused</th></tr>")
+        for r in flagged:      # a refused input has no unit: its file and reason say what it was
+            parts.append(f"<tr class='bad'><td>{esc(r['unit'])}</td><td>{esc(r['state'])}</td><td>{esc(str(r['input']))}"
+                         f"</td><td>{esc(r['status'])}</td><td>{esc(r['out_of_tolerance'])}</td><td>{esc(r['outliers'])}"
+                         f"</td><td>{esc(str(r.get('error') or ''))}</td></tr>")
         parts.append("</table>")
     else:
         parts.append("<p>none</p>")
