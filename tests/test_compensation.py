@@ -186,3 +186,12 @@ def test_cli_formats_and_the_header_compiles(fitted, tmp_path):
                        capture_output=True, text=True, cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     assert subprocess.run([str(tmp_path / "t")]).returncode == 0
+
+
+@pytest.mark.parametrize("text, match", [("0:inf:5", r"HI = 'inf' is not a finite number"),
+                                         ("nan:50:5", r"LO = 'nan' is not a finite number"),
+                                         ("50:0:5", r"need LO < HI")])
+def test_a_grid_that_is_not_finite_says_which_value(text, match):
+    """An outside probe: --grid 0:inf:5 and nan:50:5 were told 'need LO < HI and STEP > 0'."""
+    with pytest.raises(InputError, match=match):
+        parse_grid(text)

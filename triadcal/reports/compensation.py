@@ -243,7 +243,10 @@ def parse_grid(text: str) -> np.ndarray:
         lo, hi, step = (float(x) for x in parts)
     except ValueError:
         raise InputError(f"--grid {text!r}: write LO:HI:STEP in degC, e.g. -40:85:5") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and math.isfinite(step)) or step <= 0 or hi <= lo:
+    bad = [f"{n} = {x!r}" for n, x in zip(("LO", "HI", "STEP"), parts) if not math.isfinite(float(x))]
+    if bad:
+        raise InputError(f"--grid {text!r}: {', '.join(bad)} is not a finite number (degC)")
+    if step <= 0 or hi <= lo:
         raise InputError(f"--grid {text!r}: need LO < HI and STEP > 0 (degC)")
     n = int(math.floor((hi - lo) / step + 1e-9)) + 1
     if n > 10_000:
