@@ -129,6 +129,8 @@ def test_cli_budget_refuses_unknown_unit():
 @pytest.mark.parametrize("args, says", [
     (("--tau", "0"), "--tau (tau_s) = 0: must be > 0"),
     (("--G", "0"), "--G (G_g) = 0: must be > 0"),
+    (("--G", "9.80665"), "local gravity is in g, 0.9-1.1 g on a bench (9.80665 m/s2 is 1 g)"),
+    (("--sigma1", "1e200"), "overflows with these inputs (--sigma1 1e+200)"),
     (("--Q", "-1"), "--Q (Q_V2s) = -1: must be >= 0"),
     (("--K", "-1"), "--K (K_g_per_V) = -1: must be > 0"),
     (("--sigma1", "-5"), "--sigma1 (sigma1_arcsec) = -5: must be >= 0"),

@@ -147,3 +147,14 @@ def test_q_bounds():
     assert lo < 3e-9 < hi                               # the example unit's noise lies inside
     for q in (lo, 3e-9, hi):
         checked_inputs(1.0, q, "auto")
+
+
+@pytest.mark.parametrize("ramp", [[], ["--ramp"]])
+def test_a_chamber_faster_than_the_plan_files_limit_is_refused(tmp_path, capsys, ramp):
+    """An outside probe: --chamber-rate 1000degC/min planned 'met' in 5.8 h (1.0 h with --ramp), exit 0,
+    and simulate --plan then refused the file (rate out of range, <= 100 degC/min)."""
+    code = main(["plan", "--no-progress", "--target", "K:U<=20ppm", "--range", "-40:85", "--chamber-rate",
+                 "1000degC/min", *ramp, "-o", str(tmp_path / "p.json")])
+    err = capsys.readouterr().err
+    assert code == 1 and "--chamber-rate 1000 degC/min" in err and "100 degC/min" in err
+    assert not (tmp_path / "p.json").exists()

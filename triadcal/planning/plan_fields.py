@@ -14,6 +14,9 @@ from typing import Mapping
 
 from ..errors import InputError
 
+#: the fastest chamber a plan may assume, degC/min (plan and ramp files; `plan --chamber-rate`)
+MAX_CHAMBER_RATE_C_PER_MIN = 100.0
+
 #: the temperatures a plan may hold, degC (the bench CSV reader's accepted range of a setpoint)
 PLAN_TEMPERATURE_C = (-100.0, 200.0)
 #: the keys of a stepped plan document (``Plan.to_dict``)
@@ -93,7 +96,8 @@ def check_plan_fields(d: Mapping, path) -> None:
     if "start_C" in d:
         number(path, "start_C", d["start_C"], low=lo, high=hi)
     if "chamber_rate_C_per_min" in d:
-        number(path, "chamber_rate_C_per_min", d["chamber_rate_C_per_min"], low=0.0, strict_low=True, high=100.0)
+        number(path, "chamber_rate_C_per_min", d["chamber_rate_C_per_min"], low=0.0, strict_low=True,
+               high=MAX_CHAMBER_RATE_C_PER_MIN)
     for key in ("settle_s", "move_s"):
         if key in d:
             number(path, key, d[key], low=0.0)

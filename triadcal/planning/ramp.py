@@ -32,6 +32,7 @@ from ..io.formats import require_format
 from ..models.campaign import DEFAULT_PLAN
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.simulate import RampSchedule
+from .plan_fields import MAX_CHAMBER_RATE_C_PER_MIN
 from .plan import AMBIENT_C, CHAMBER_RATE_C_PER_MIN, DEFAULT_Q_V2S, HOURS_CAP, MOVE_S, POSITION_SETS, design, predict
 
 RAMP_FORMAT = "triadcal.ramp_plan"
@@ -148,7 +149,7 @@ def check_ramp_fields(d: Mapping, path) -> None:
         if values[k] == values[k - 1]:
             raise InputError(f"{path}: field program_C[{k}]: {values[k]:g} degC repeats program_C[{k - 1}] "
                              "(a leg must change the temperature; use hold_s for a pause)")
-    number(path, "rate_C_per_min", d["rate_C_per_min"], low=0.0, strict_low=True, high=100.0)
+    number(path, "rate_C_per_min", d["rate_C_per_min"], low=0.0, strict_low=True, high=MAX_CHAMBER_RATE_C_PER_MIN)
     number(path, "tau_s", d["tau_s"], low=0.0, strict_low=True)
     for key in ("hold_s", "move_s"):
         if key in d:

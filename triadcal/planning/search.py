@@ -20,6 +20,7 @@ import numpy as np
 from ..errors import InputError
 from ..models.effects import DEFAULT_EFFECTS
 from ..models.units import ARCSEC
+from .plan_fields import MAX_CHAMBER_RATE_C_PER_MIN
 from .plan import (AMBIENT_C, DEFAULT_Q_V2S, HOURS_CAP, POSITION_SETS, Plan, absorbed, design, held_sensitivity,
                    left_out_signatures, predict, undetermined_time_constants)
 
@@ -396,6 +397,10 @@ def checked_inputs(chamber_rate_C_per_min: float, Q_V2s: float, positions: str, 
         checked_hours_cap(hours_cap)
     if not chamber_rate_C_per_min > 0:
         raise InputError("--chamber-rate must be > 0 degC/min")
+    if not chamber_rate_C_per_min <= MAX_CHAMBER_RATE_C_PER_MIN:
+        # an outside probe: 1000 degC/min planned "met" in 5.8 h (exit 0), a plan file its readers refuse
+        raise InputError(f"--chamber-rate {chamber_rate_C_per_min:g} degC/min: no chamber moves a unit faster than "
+                         f"{MAX_CHAMBER_RATE_C_PER_MIN:g} degC/min (the plan file's limit; docs/plan.md)")
     q_lo, q_hi = Q_RANGE_V2S
     if not (isinstance(Q_V2s, (int, float)) and math.isfinite(Q_V2s) and Q_V2s > 0):
         raise InputError(f"--q must be > 0 V^2 s (got {Q_V2s!r})")

@@ -180,6 +180,10 @@ _INPUT_RULES = {
 MAX_CTE_PER_C = 1e-3
 
 
+#: eq. 4's G: the gravity a static bench turns, g (Earth's surface 0.9952-1.0034 g, with a margin for a
+#: lab that states it in another way); beyond it a value typed in m/s2
+G_RANGE_G = (0.9, 1.1)
+
 #: an angle's uncertainty beyond this (arcsec, 360 deg) says nothing about an angle
 FULL_TURN_ARCSEC = 1_296_000.0
 
@@ -206,6 +210,12 @@ def _check_inputs(**values) -> None:
             option = _INPUT_RULES[key][0]
             raise InputError(f"{option} ({key}) = {float(v):g}: beyond any solid's expansion ({MAX_CTE_PER_C:g} "
                              f"1/degC); it is in 1/degC (22.9 ppm/degC is {option} 22.9e-6)")
+    g = values.get("G_g")
+    if g is not None and not G_RANGE_G[0] <= float(g) <= G_RANGE_G[1]:
+        # an outside probe's --G 9.80665 (m/s2 typed) divided the noise term by 9.8, exit 0
+        raise InputError(f"--G (G_g) = {float(g):g}: local gravity is in g, {G_RANGE_G[0]:g}-{G_RANGE_G[1]:g} g on "
+                         "a bench" + (f" ({float(g):g} m/s2 is {float(g) / 9.80665:.5g} g)" if 9.0 < float(g) < 10.5
+                                      else ""))
     if values.get("T_max_C") is not None and values.get("T0_C") is not None and values["T_max_C"] < values["T0_C"]:
         raise InputError(f"--T-max ({values['T_max_C']:g} degC) is below --T0 ({values['T0_C']:g} degC): eq. 6 "
                          "takes the maximum temperature above the normal one")
@@ -238,8 +248,11 @@ def budget(*, thermal: bool = False, accelerometer_name: Optional[str] = None, K
     except OverflowError:
         # also from the root sum of squares itself (an outside probe: --sigma1 1e200, --Q 1e308, --dT 1e300
         # ended in an internal OverflowError)
-        raise InputError("the budget overflows with these inputs (--K 1e300 --Q 1e300?): check the magnitudes and "
-                         "their units") from None
+        given = {"--K": K_g_per_V, "--Q": Q_V2s, "--tau": tau_s, "--sigma1": sigma1_arcsec, "--sigma2": sigma2_arcsec,
+                 "--G": G_g, "--k-ca": k_ca_arcsec_per_C, "--dT": dT_C, "--T-max": T_max_C}
+        big = [f"{k} {v:g}" for k, v in given.items() if v is not None and (abs(v) > 1e100 or 0 < abs(v) < 1e-100)]
+        raise InputError(f"the budget overflows with these inputs ({', '.join(big) or 'their magnitudes'}): check "
+                         "the magnitudes and their units") from None
     for b in tables:
         if b.unit == "arcsec" and b.total > FULL_TURN_ARCSEC:
             # --tau 1e-300 gave 2.3e151 arcsec, --thermal --T-max 1e9 1.6e8 arcsec, exit 0
