@@ -102,6 +102,10 @@ def refuse_moving_intervals(rec: RawRecording, det: StaticDetection, window_s: f
     non_finite and a note blaming swapped columns (the placement evidence at its grid's edge); shorter
     reaches (0.4 s) were ok with each mean's u widened by the motion. The SD ratio of clean labels:
     1.0-1.2 (imucal's annotated session, simulated faces); labels 0.4-2 s into the moves: 4-220."""
+    from .poses import refuse_clipped, refuse_wrapped
+
+    refuse_wrapped(rec, det)        # the more specific reasons first: a wrapped or clipped channel moves too
+    refuse_clipped(rec, det)
     window = max(3, int(round(window_s * rec.rate_hz)))
     sigma = robust_noise_sd(rec.acc, window)
     bad = []
