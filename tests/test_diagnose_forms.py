@@ -269,3 +269,57 @@ def test_confusion_of_the_form_candidates():
         assert right >= 0.95 * n, (case, counts[case])
     for case in ("play_10C", "play_30C"):
         assert not {"position_error", "heavy_tails"} & set(counts[case]), counts[case]
+
+
+def test_a_runner_up_ahead_in_elpd_is_said_why_it_was_not_named():
+    """An outside probe: a thermal_lag_history runner-up (no structure left, not beating the rate form by
+    its nested test) was said to be "a noise effect" that "keeps structure after its refit"."""
+    from types import SimpleNamespace
+
+    from triadcal.reports.diagnosis import _why_not_named
+
+    form = SimpleNamespace(effect="thermal_lag_history", refit={
+        "lr_p_value": 1e-30, "form": {"beats_simpler": False, "simpler_form": "thermal_lag (rate form)",
+                                      "criterion": "chi2_rate_form - chi2_history = 4.6 against 9.21"}})
+    noise = SimpleNamespace(effect="heavy_tails", refit={"lr_p_value": 1e-30})
+    weak = SimpleNamespace(effect="bias_drift", refit={"lr_p_value": 0.2})
+    d = SimpleNamespace(candidates=[form, noise, weak], alpha=0.01)
+    assert "beats its simpler form" in _why_not_named(d, "thermal_lag_history")
+    assert "noise effect" not in _why_not_named(d, "thermal_lag_history")
+    assert "noise effect" in _why_not_named(d, "heavy_tails")
+    assert "not significant" in _why_not_named(d, "bias_drift")
+
+
+def test_isolated_slices_after_a_noise_refit_do_not_point_outside_the_vocabulary():
+    """Probe Z: Student-t noise with the sd_* columns right kept 2-3 single cells after the heavy_tails
+    refit and was told a term outside the vocabulary was "the likelier cause"."""
+    from types import SimpleNamespace
+
+    from triadcal.judgement.diagnose.verdict import _absorbed_conclusion
+
+    def cand(slices, generic=()):
+        return SimpleNamespace(refit={"gap_after": {"significant_slices": slices, "generic_structure": list(generic)}})
+
+    assert "not told apart" in _absorbed_conclusion([cand(2)])
+    assert "likelier cause" in _absorbed_conclusion([cand(2, ["temperature"])])
+    assert "likelier cause" in _absorbed_conclusion([cand(7)])
+
+
+def test_a_noise_candidate_far_ahead_of_the_best_partial_is_the_lead():
+    """Probe Z: three 15-sigma visits on random axes; heavy_tails 259 elpd ahead of angle_tempco3 with one
+    slice left, and the reason said only "refit with angle_tempco3 and diagnose again"."""
+    from types import SimpleNamespace
+
+    from triadcal.judgement.diagnose.verdict import _far_ahead_txt
+
+    best = SimpleNamespace(effect="angle_tempco3", refit={"delta_elpd": 1.3, "delta_elpd_se": 20.4})
+    ht = SimpleNamespace(effect="heavy_tails", refit={"delta_elpd": 260.7, "delta_elpd_se": 50.0,
+                                                      "gap_after": {"significant_slices": 1, "generic_structure": []}})
+    assert "heavy_tails is 259 elpd ahead of angle_tempco3" in _far_ahead_txt([ht], best)
+    close = SimpleNamespace(effect="heavy_tails", refit={"delta_elpd": 40.0, "delta_elpd_se": 30.0,
+                                                         "gap_after": {"significant_slices": 1, "generic_structure": []}})
+    assert _far_ahead_txt([close], best) == ""
+    smooth = SimpleNamespace(effect="flicker_noise", refit={"delta_elpd": 300.0, "delta_elpd_se": 10.0,
+                                                            "gap_after": {"significant_slices": 1,
+                                                                          "generic_structure": ["temperature"]}})
+    assert _far_ahead_txt([smooth], best) == ""

@@ -257,13 +257,34 @@ def _verdict_words(d) -> tuple[str, str]:
         if isinstance(dd, (int, float)) and dd >= 0:
             evidence += f" ({_num(dd, '{:.1f}')} elpd behind)"
         elif isinstance(dd, (int, float)):
-            evidence += (f" ({_num(-dd, '{:.1f}')} elpd ahead, but a noise effect cannot be named while slices or generic "
-                         "families keep structure after its refit)")
+            evidence += f" ({_num(-dd, '{:.1f}')} elpd ahead, but {_why_not_named(d, v['runner_up'])})"
     cr = v.get("closest_rival")
     if cr:
         evidence += (f"; beats its closest rival, {cr['rival']}, by the encompassing test (S = "
                      f"{_num(cr.get('S'), '{:.3g}')} on {cr.get('k')} dof, p {_p_is(cr.get('p_value'))})")
     return str(effect), evidence
+
+
+def _why_not_named(d, effect) -> str:
+    """Why a runner-up ahead in elpd was not named, from its refit: an outside probe's
+    thermal_lag_history (no structure left, but not beating the rate form by its nested test) was
+    said to be "a noise effect" that "keeps structure"."""
+    from ..models.effects import NOISE_EFFECTS
+
+    c = next((c for c in d.candidates if c.effect == effect), None)
+    r = (c.refit or {}) if c is not None else {}
+    form = r.get("form") or {}
+    if form and not form.get("beats_simpler", True):
+        return (f"a form is named only when it beats its simpler form ({form.get('simpler_form')}) by the nested "
+                f"likelihood-ratio test ({form.get('criterion')}), and it does not")
+    if r.get("time_constant_refused"):
+        return "its time constant is one the fit's answer gate refuses"
+    lr = r.get("lr_p_value")
+    if isinstance(lr, (int, float)) and lr >= d.alpha:
+        return f"its likelihood ratio is not significant (p {_p_is(lr)})"
+    if effect in NOISE_EFFECTS:
+        return "a noise effect cannot be named while slices or generic families keep structure after its refit"
+    return "the verdict's rules (its reason) put the named effect first"
 
 
 def html_report(diagnosis, campaign=None) -> str:

@@ -98,6 +98,37 @@ def _kept_rival(verdict: dict, key: str, test: dict, amb: Optional[dict], where)
     return amb or None
 
 
+def _absorbed_conclusion(absorbed) -> str:
+    """What the structure left after a noise effect's refit suggests. Only a few isolated slices and no
+    smooth family: a probe's Student-t noise (nu = 3, the sd_* columns right) kept 2-3 single pose x
+    setpoint cells after the heavy_tails refit, 0 of 19 named, and was told that a term outside the
+    vocabulary is "the likelier cause"; a single extreme draw does that as well."""
+    isolated = all(not c.refit["gap_after"].get("generic_structure") and not c.refit["gap_after"].get("mean_explains_better")
+                   and not c.refit["gap_after"].get("correlation_absent")
+                   and (c.refit["gap_after"].get("significant_slices") or 0) <= 3 for c in absorbed)
+    if isolated:
+        return (": only isolated slices are left, no smooth family, so the cause is not told apart: outliers beyond "
+                "the noise model's tails, or a term outside the vocabulary (or a model without the needed terms) "
+                "confined to them (see where)")
+    return (", so a term outside the vocabulary (or a model without the needed terms) is the likelier cause")
+
+
+def _far_ahead_txt(absorbed, best) -> str:
+    """A noise candidate far ahead of the best partial mean term in elpd that leaves only isolated slices:
+    the lead is then a few bad visits more than the mean term (probe Z: three 15-sigma visits on random
+    axes, heavy_tails 259 elpd ahead of angle_tempco3 with one slice left, and the reason said only
+    "refit with angle_tempco3 and diagnose again")."""
+    for c in absorbed:
+        after = c.refit["gap_after"]
+        lead = c.refit["delta_elpd"] - best.refit["delta_elpd"]
+        se = max(float(c.refit.get("delta_elpd_se") or 0.0), float(best.refit.get("delta_elpd_se") or 0.0))
+        if (lead > 2.0 * se and not after.get("generic_structure") and not after.get("mean_explains_better")
+                and (after.get("significant_slices") or 0) <= 3):
+            return (f"; but {c.effect} is {lead:.0f} elpd ahead of {best.effect} (SE {se:.0f}) and leaves only "
+                    f"isolated slices: a few bad visits (see where) are a likelier lead than {best.effect}")
+    return ""
+
+
 def _structure_left_txt(c) -> str:
     """What keeps structure after a candidate's refit: slices and generic families."""
     after = c.refit["gap_after"]
@@ -405,6 +436,7 @@ def decide(v: VerdictInputs) -> dict:
                     verdict["reason"] += (f"; {', '.join(c.effect for c in absorbed)} would absorb it as noise, "
                                           "but structure is left after that refit ("
                                           + "; ".join(_structure_left_txt(c) for c in absorbed) + ")")
+                    verdict["reason"] += _far_ahead_txt(absorbed, best)
                 if "fit_options" in partial:
                     verdict["fit_options"] = partial["fit_options"]
             if not gap_open and named.form is None and named.params and named.effect not in NOISE_EFFECTS:
@@ -489,8 +521,7 @@ def decide(v: VerdictInputs) -> dict:
                                   + (f": {', '.join(c.effect for c in absorbed)} would absorb it as noise, but "
                                      "structure is left after that refit ("
                                      + "; ".join(_structure_left_txt(c) for c in absorbed)
-                                     + "), so a term outside the vocabulary "
-                                     "(or a model without the needed terms) is the likelier cause" if absorbed else
+                                     + ")" + _absorbed_conclusion(absorbed) if absorbed else
                                      ": no candidate of the vocabulary improves the fit significantly")),
                        "where": where_of(slices)}
     if verdict.get("effect") == "unexplained":
