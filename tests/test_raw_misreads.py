@@ -381,7 +381,10 @@ def test_lines_that_only_look_like_a_rate_are_metadata(tmp_path):
     ("time_s", 1.0, 1.0, True), ("time_s", 1.0, 2.0, False),            # the probe's: 50 Hz read at 100
     ("timestamp", 1e6, 1.0, True),                                       # us, as tofupilot's timestamp
     ("time", 1e3, 1.0, True), ("Time_MS", 1e3, 1.0, True), ("time_ms", 1.0, 1.0, False),
-    ("time_s", 1.0, 1.03, True), ("time_s", 1.0, 1.07, False)])          # 5 %: dropped samples or a rate
+    ("time_s", 1.0, 1.03, True), ("time_s", 1.0, 1.07, False),           # 5 %: dropped samples or a rate
+    # an outside probe's elapsed_ms and Arduino's millis()/micros() were not checked
+    ("millis", 1e3, 1.0, True), ("millis", 1e3, 2.0, False), ("elapsed_ms", 1e3, 2.0, False),
+    ("micros", 1e6, 1.0, True), ("micros", 1e6, 2.0, False)])
 def test_a_time_column_is_checked_against_the_rate(tmp_path, name, scale, step, ok):
     w, labels = make_samples(twelve_poses())
     t = 1000.0 + np.arange(len(w)) * step * scale / RATE

@@ -288,7 +288,10 @@ TIME_UNITS_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: their values (:data:`TIME_UNITS_S`); None: the unit is not in the name (every unit is tried)
 TIME_COLUMNS = {"time_s": "s", "t_s": "s", "time_ms": "ms", "timestamp_ms": "ms", "t_ms": "ms", "time_us": "us",
                 "timestamp_us": "us", "t_us": "us", "time_ns": "ns", "timestamp_ns": "ns", "time": None,
-                "timestamp": None}
+                "timestamp": None,
+                # an outside probe's elapsed_ms and Arduino's millis()/micros() columns were not checked
+                "timestamp_s": "s", "elapsed_s": "s", "elapsed_ms": "ms", "elapsed_us": "us", "millis": "ms",
+                "micros": "us", "elapsed": None}
 #: a time column whose mean step differs from 1/--rate (in the unit its name says, or in the closest of
 #: s, ms, us, ns) by more than this fraction is refused
 TIME_RATE_TOLERANCE = 0.05
