@@ -343,6 +343,30 @@ def given_output_scale(noise: NoiseSource, output_variances) -> tuple[NoiseSourc
     return NoiseSource(noise.sigma * np.sqrt(q)[None, :], False, how), q
 
 
+def rescaled_outputs(problem, sol, noise: NoiseSource, max_iter: int, step_of, settled, *, loss: str = "l2",
+                     nu: float = 4.0):
+    """``(refit, s2)``: the fit repeated from its answer, each output's weights ``1/sigma`` rescaled by
+    ``sqrt(s2)``, where every pass multiplies ``s2`` by ``step_of(r)`` (three variances per unit weight of
+    the last fit's normalised residuals, None to stop) until ``settled(step)``, at most
+    :data:`PER_OUTPUT_PASSES` passes; ``refit`` is ``sol`` when no pass ran. Shared by the per-output
+    scale of least squares (:func:`per_output_scale`) and a robust loss's scale
+    (:func:`triadcal.estimation.robust_check.robust_scale`)."""
+    from .joint import levenberg_marquardt
+
+    s2 = np.ones(3)
+    refit = sol
+    for _ in range(PER_OUTPUT_PASSES):
+        step = step_of(refit.r)
+        if step is None:
+            break
+        s2 = s2 * step
+        problem.sigma = noise.sigma * np.sqrt(s2)[None, :]
+        refit = levenberg_marquardt(problem, refit.x, loss=loss, nu=nu, max_iter=max_iter)
+        if settled(step):
+            break
+    return refit, s2
+
+
 def per_output_scale(problem, sol, noise: NoiseSource, max_iter: int):
     """With the noise estimated from the residuals, one noise level per output, not one for all
     three: the outputs of a triad need not share a noise level (another accelerometer, another
@@ -355,22 +379,12 @@ def per_output_scale(problem, sol, noise: NoiseSource, max_iter: int):
     the X row's parameters z-scores with SD 1.7 (u understated), Y and Z 0.33, and 2 of 10 ok
     campaigns with a parameter over 4 u off."""
     from ..models.sensor import AXES
-    from .joint import levenberg_marquardt
 
     # iterated: a shared parameter (the tilt) fitted with the first weights carries the noisiest
     # output's scatter into the others' residuals (an outside probe: outputs 80x apart gave Q_z 8x
     # its truth after one pass); each pass rescales by the refit's variances until they agree
-    s2 = np.ones(3)
-    refit = sol
-    for _ in range(PER_OUTPUT_PASSES):
-        step = output_variances(refit.r, len(problem.names))
-        if step is None:
-            break
-        s2 = s2 * step
-        problem.sigma = noise.sigma * np.sqrt(s2)[None, :]
-        refit = levenberg_marquardt(problem, refit.x, loss="l2", max_iter=max_iter)
-        if np.max(np.abs(step / np.mean(step) - 1.0)) < 0.01:
-            break
+    refit, s2 = rescaled_outputs(problem, sol, noise, max_iter, lambda r: output_variances(r, len(problem.names)),
+                                 lambda step: np.max(np.abs(step / np.mean(step) - 1.0)) < 0.01)
     if refit is sol:
         return sol, noise, None
     how = (noise.description + "; one scale per output (the outputs' variances per unit weight "

@@ -158,18 +158,15 @@ def _named(z, out, campaign, by_visit) -> str:
     return "; ".join(parts) + (f"; and {more} more" if more > 0 else "")
 
 
-#: passes of the robust rescaling at most (they stop when the scales agree to 1 %)
-SCALE_PASSES = 8
-
-
 def robust_scale(problem, sol, noise: NoiseSource, loss: str, nu: float, max_iter: int):
     """A robust fit's noise scale when the noise is not known: per output ``1.4826 MAD`` of the
     normalised residuals times ``sqrt(n / (n - p/3))``, the weights rescaled and the fit repeated
-    (from its answer) until the scales agree to 1 %. Returns ``(sol, noise, s2)`` with ``s2``
-    the outputs' variances per unit weight (the white-noise intensity Q of each output when the
-    weights were ``1/sqrt(tau)``), or the inputs and None when the residuals are not per visit."""
+    (from its answer) until the scales agree to 1 % (:func:`~triadcal.estimation.noise_model.rescaled_outputs`).
+    Returns ``(sol, noise, s2)`` with ``s2`` the outputs' variances per unit weight (the white-noise
+    intensity Q of each output when the weights were ``1/sqrt(tau)``), or the inputs and None when the
+    residuals are not per visit."""
     from ..models.sensor import AXES
-    from .joint import levenberg_marquardt
+    from .noise_model import rescaled_outputs
 
     r = np.asarray(sol.r, float)
     if r.size % 3:
@@ -178,18 +175,14 @@ def robust_scale(problem, sol, noise: NoiseSource, loss: str, nu: float, max_ite
     dof_a = n - len(problem.names) / 3.0
     if dof_a < 3:
         return sol, noise, None
-    s2 = np.ones(3)
-    refit = sol
-    for _ in range(SCALE_PASSES):
-        ra = refit.r.reshape(-1, 3)
+
+    def mad_squared(res):
+        ra = res.reshape(-1, 3)
         mad = 1.4826 * np.median(np.abs(ra - np.median(ra, axis=0)), axis=0) * np.sqrt(n / dof_a)
-        if not (np.all(np.isfinite(mad)) and np.all(mad > 0)):
-            break
-        s2 = s2 * mad ** 2
-        problem.sigma = noise.sigma * np.sqrt(s2)[None, :]
-        refit = levenberg_marquardt(problem, refit.x, loss=loss, nu=nu, max_iter=max_iter)
-        if np.max(np.abs(mad - 1.0)) < 0.01:
-            break
+        return mad ** 2 if np.all(np.isfinite(mad)) and np.all(mad > 0) else None
+
+    refit, s2 = rescaled_outputs(problem, sol, noise, max_iter, mad_squared,
+                                 lambda step: np.max(np.abs(np.sqrt(step) - 1.0)) < 0.01, loss=loss, nu=nu)
     if refit is sol:
         return sol, noise, None
     how = (noise.description + f"; the {loss} loss's scale per output, 1.4826 MAD of the residuals (variances per "

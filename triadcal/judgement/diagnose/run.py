@@ -352,7 +352,6 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         r_after = st.r / (np.sqrt(var_scale) if var_scale is not None else 1.0)
         J_after = st.J / (np.sqrt(var_scale)[:, None] if var_scale is not None else 1.0)
         Q_after = _hat_q(J_after)
-        r_projected = None
         if math.isfinite(nu):
             r_after = ht.normal_scores(r_after, nu)
             # the slice tests are built for least-squares residuals, orthogonal to the fit's columns; the
@@ -361,8 +360,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
             # not quite constant) a probe's Student-t noise read as a whole-axis offset of z = -63 after the
             # heavy_tails refit, named 0 of 19 times. Projected orthogonal, three contaminated visits of the
             # independent bench read as significant cells instead (tests/test_foreign_effects.py). Both are
-            # approximations of the t fit's residuals: a slice is left significant only by both
-            r_projected = r_after - Q_after @ (Q_after.T @ r_after)
+            # approximations of the t fit's residuals: a slice is left significant only by both (below)
         st_for_slices = FitState(st.names, st.x_full, r_after, J_after, st.cov, st.chi2, st.dof, st.s, st.converged)
         soak_angles = ({NOISE_SOAK_FAMILY: abasis} if c.effect in NOISE_EFFECTS and abasis is not None else {})
         gen = families_after(c.effect, {f: st.whitened(B) for f, B in (gbasis | soak_angles).items()}, r_after,
@@ -380,9 +378,9 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         if slices_after:
             sl_after = _slice_tests(campaign, st_for_slices, to_ug, sigma, 0, rng)
             sig = {(t.slice, t.family, t.axis, t.test) for t in sl_after if t.p_adjusted < alpha}
-            if r_projected is not None and sig:
-                st_proj = FitState(st.names, st.x_full, r_projected, J_after, st.cov, st.chi2, st.dof, st.s,
-                                   st.converged)
+            if math.isfinite(nu) and sig:
+                st_proj = FitState(st.names, st.x_full, r_after - Q_after @ (Q_after.T @ r_after), J_after, st.cov,
+                                   st.chi2, st.dof, st.s, st.converged)
                 sig &= {(t.slice, t.family, t.axis, t.test)
                         for t in _slice_tests(campaign, st_proj, to_ug, sigma, 0, rng) if t.p_adjusted < alpha}
             n_sig_after = len(sig)

@@ -45,8 +45,6 @@ VALUES_Z_MAX = 5.0
 #: and export-compensation wrote the firmware table with u_K_x 2.3e-8 for 1.2e-6. A robust fit's sandwich or
 #: a posterior's SD differ from the least-squares u by far less; a Birge-widened or Type B u is larger
 U_RATIO_MAX = 2.0
-#: Huber's constant of the fit's ``huber`` loss (triadcal.estimation.joint: c = 1.345)
-HUBER_C = 1.345
 
 
 def not_rederivable(result) -> Optional[str]:
@@ -67,14 +65,16 @@ def not_rederivable(result) -> Optional[str]:
 
 
 def _robust_weights(r: np.ndarray, loss: str, nu: float) -> np.ndarray:
-    """IRLS weights psi(r)/r of the fit's loss at normalised residuals ``r`` (scale: 1.4826 MAD)."""
-    if loss == "l2":
+    """IRLS weights psi(r)/r of the fit's loss (``fit.loss``: ``l2``, ``huber``, ``student_t(nu=...)``) at
+    normalised residuals ``r`` scaled by their 1.4826 MAD: the fit's own weight function
+    (:func:`triadcal.estimation.robust_check.robust_weights`)."""
+    from ...estimation.robust_check import robust_weights
+
+    name = loss.split("(", 1)[0]
+    if name == "l2":
         return np.ones_like(r)
     s = 1.4826 * float(np.median(np.abs(r - np.median(r))))
-    x = r / s if s > 0 else r
-    if loss == "huber":
-        return np.minimum(1.0, HUBER_C / np.maximum(np.abs(x), 1e-300))
-    return (nu + 1.0) / (nu + x * x)                 # student_t
+    return robust_weights(r / s if s > 0 else r, name, nu)
 
 
 def _with_form(result, campaign):
