@@ -562,31 +562,5 @@ def step_test(r: np.ndarray, Q: np.ndarray, A: np.ndarray, time_s, noise_known: 
     return {"S": S, "k": k, "p_value": min(1.0, m * p), "p_full": p, "breaks": int(m), "time_s": float(t_break)}
 
 
-#: the gap's own tests of the noise that give the shape when no generic family finds a pattern:
-#: the chi2 against the declared noise (the level of the scatter) and the kurtosis (its tails)
-LEVEL_TESTS = {"chi2": "level", "kurtosis": "tails"}
-
-
-def gap_shape(gap_adj: dict, alpha: float) -> list:
-    """An unexplained gap's shape (``verdict.shape``): the generic families among the gap's tests
-    (``generic:<family>`` in ``gap_adj``, Holm-adjusted p) that reject at ``alpha``, most significant
-    first -- where the misfit lies against temperature, time, orientation, direction or in the
-    scatter when no single slice does. When none rejects, the gap's tests of the noise that do
-    (:data:`LEVEL_TESTS`: ``level``, the chi2 against the declared noise; ``tails``, the kurtosis):
-    a misfit with no pattern, e.g. a noise the sd_* columns understate."""
-    def entry(k, fam):
-        return {"family": fam, "p_holm": float(gap_adj[k]) if math.isfinite(gap_adj[k]) else None}
-
-    sig = sorted((k for k, p in gap_adj.items() if k.startswith("generic:") and p < alpha), key=gap_adj.get)
-    if sig:
-        return [entry(k, k.split(":", 1)[1]) for k in sig]
-    return [entry(k, LEVEL_TESTS[k]) for k in sorted((k for k in LEVEL_TESTS if gap_adj.get(k, 1.0) < alpha),
-                                                     key=gap_adj.get)]
-
-
-def level_words(chi2_dof: float) -> str:
-    """What an unexplained verdict whose shape is ``level`` alone adds to its reason."""
-    return (f"; no generic family finds a pattern (against temperature, time, orientation, direction, in time "
-            f"or in the variance) and the tails are normal: the gap may be the level of the scatter alone, "
-            f"chi2/dof {chi2_dof:.3g} against the declared noise, as a noise the sd_* columns understate makes "
-            "it (the slices and the candidates' scores are judged against the declared noise too)")
+# the shape of an unexplained gap and its words: noise_level.py (where the level is judged), re-exported
+from .noise_level import LEVEL_TESTS, gap_shape, level_words  # noqa: E402,F401

@@ -14,7 +14,11 @@ score by one factor, and a noise effect that widens the noise (``position_error`
 * :func:`soak_level_rival`, :func:`soak_level_ambiguity` -- ``heavy_tails`` against a normal noise
   whose level changes soak by soak (a scale mixture: heavy-tailed only together), with either noise;
 * :func:`score_with_level`, :func:`partial_without_level` -- a gap with no pattern (shape: the level
-  alone): its best partial answer asked again with the level estimated.
+  alone): its best partial answer asked again with the level estimated;
+* :func:`families_with_level` -- the generic families asked again with the level estimated (their F
+  form), so that a level alone is not read as a pattern of the mean;
+* :func:`gap_shape`, :func:`level_words` -- an unexplained gap's shape (moved here from generic.py,
+  which re-exports them) and what a shape of the level alone adds to the reason.
 
 docs/diagnosis.md, "Rivals" ("A positioning error against a noise level") and "Effects outside
 every simulator" ("A noise level the sd_* columns understate").
@@ -139,6 +143,32 @@ def partial_without_level(verdict: dict, cand_objs: list, base, h: np.ndarray, p
             "where": verdict["where"], "shape": verdict["shape"]}
 
 
+def families_with_level(bases: dict, r: np.ndarray, J: np.ndarray, dof: int, Q: np.ndarray,
+                        gap_tests: dict) -> dict:
+    """The gap's generic families asked again with the noise level estimated from the residuals, when
+    the declared one is rejected: each family's score in its F form, ``(S / k) / ((r'r - S) / (dof -
+    k))`` (:func:`.generic.generic_tests` with the noise estimated), with the families already
+    scale-free (``variance``: Koenker's studentised test; ``correlated``: a ratio of quadratic forms;
+    the ``kurtosis``) as they were, Holm-adjusted together: ``{key: p_holm}`` with the gap's keys.
+
+    A white noise the sd_* columns understate by a factor f inflates every known-noise statistic by
+    f^2: at chi2/dof 2.3 a family of k = 8 columns has S ~ 18 under no pattern at all, p ~ 0.02, and
+    among nine families one or more rejects after Holm (the independent bench, noise x 1.5: 4 of 4
+    gaps were given a shape of orientation, scale or direction, and a best partial answer of a tempco
+    or drift). The F form divides by the level the residuals show; a pattern of the mean keeps it
+    (its columns take more than their share of the residual's sum of squares). ``bases`` holds the
+    whitened family bases, ``gap_tests`` the gap's unadjusted p-values."""
+    from .generic import generic_tests
+    from .slices import _holm
+
+    tests = {f"generic:{fam}": t["p_value"] for fam, t in generic_tests(bases, r, J, False, dof, Q).items()}
+    for k in ("generic:variance", "generic:correlated", "kurtosis"):
+        if k in gap_tests:
+            tests[k] = gap_tests[k]
+    keys = list(tests)
+    return dict(zip(keys, (float(a) for a in _holm([tests[k] for k in keys])))) if keys else {}
+
+
 #: draws of the Monte Carlo null of :func:`soak_level_rival` (fixed seed: p to 1 / (draws + 1))
 SOAK_LEVEL_DRAWS = 4000
 
@@ -218,3 +248,53 @@ def uniform_ambiguity(effect: str, u: dict, alpha: float) -> Optional[dict]:
             "reason": (f"{effect} closes the gap but does not beat {lab}: with that level free, {what}, p = "
                        f"{u['p_value']:.3g} >= {alpha:g}; the data cannot tell {cause} from a noise the sd_* "
                        "columns understate (docs/diagnosis.md \"Rivals\")")}
+
+
+#: the gap's own tests of the noise that give the shape when no generic family finds a pattern:
+#: the chi2 against the declared noise (the level of the scatter) and the kurtosis (its tails)
+LEVEL_TESTS = {"chi2": "level", "kurtosis": "tails"}
+
+
+def gap_shape(gap_adj: dict, alpha: float, level_free: Optional[dict] = None) -> list:
+    """An unexplained gap's shape (``verdict.shape``): the generic families among the gap's tests
+    (``generic:<family>`` in ``gap_adj``, Holm-adjusted p) that reject at ``alpha``, most significant
+    first -- where the misfit lies against temperature, time, orientation, direction or in the
+    scatter when no single slice does. When none rejects, the gap's tests of the noise that do
+    (:data:`LEVEL_TESTS`: ``level``, the chi2 against the declared noise; ``tails``, the kurtosis):
+    a misfit with no pattern, e.g. a noise the sd_* columns understate.
+
+    ``level_free`` (when the declared level was rejected: the families asked again with the level
+    estimated, :func:`.noise_level.families_with_level`): a family that rejects only against the
+    declared level is no pattern -- the level inflates every known-noise statistic alike -- so when
+    none rejects there, the shape is the level (its entry has ``families_with_level_estimated``, the
+    smallest such p_holm)."""
+    def entry(k, fam):
+        return {"family": fam, "p_holm": float(gap_adj[k]) if math.isfinite(gap_adj[k]) else None}
+
+    sig = sorted((k for k, p in gap_adj.items() if k.startswith("generic:") and p < alpha), key=gap_adj.get)
+    if sig and level_free is not None:
+        fam_p = [p for k, p in level_free.items() if k.startswith("generic:")]
+        if fam_p and min(fam_p) >= alpha:
+            lev = [entry(k, LEVEL_TESTS[k]) for k in sorted((k for k in LEVEL_TESTS if gap_adj.get(k, 1.0) < alpha),
+                                                            key=gap_adj.get)]
+            for x in lev:
+                if x["family"] == "level":
+                    x["families_with_level_estimated"] = float(min(fam_p))
+            return lev
+    if sig:
+        return [entry(k, k.split(":", 1)[1]) for k in sig]
+    return [entry(k, LEVEL_TESTS[k]) for k in sorted((k for k in LEVEL_TESTS if gap_adj.get(k, 1.0) < alpha),
+                                                     key=gap_adj.get)]
+
+
+def level_words(chi2_dof: float, level_entry: Optional[dict] = None) -> str:
+    """What an unexplained verdict whose shape is ``level`` alone (``level_entry``, its shape's entry)
+    adds to its reason."""
+    fl = (level_entry or {}).get("families_with_level_estimated")
+    where = ("no generic family finds a pattern (against temperature, time, orientation, direction, in time "
+             "or in the variance)" if fl is None else
+             "no generic family finds a pattern with the noise level estimated from the residuals (their F form: "
+             f"smallest p_holm {fl:.3g}; against the declared level some reject, as a level inflates them all)")
+    return (f"; {where} and the tails are normal: the gap may be the level of the scatter alone, "
+            f"chi2/dof {chi2_dof:.3g} against the declared noise, as a noise the sd_* columns understate makes "
+            "it (the slices and the candidates' scores are judged against the declared noise too)")

@@ -53,6 +53,7 @@ from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .correlated import (CampaignKernels, correlated_test)
 from .generic import (NOISE_RIVAL_TESTS, NOISE_SOAK_FAMILY, STEP_AFTER, families_after, generic_basis, generic_tests, soak_basis, variance_basis, variance_test)
 from .results import ALPHA, Candidate, Diagnosis, _f
+from .noise_level import families_with_level
 from .slices import _family_tests, _holm, _slice_tests
 from .time_constant import TIME_CONSTANT_OF, profiled_score, range_refusal
 from .verdict import VerdictInputs, decide
@@ -302,6 +303,14 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     adj = _holm([gap_tests[k] for k in keys]) if keys else []
     gap_adj = dict(zip(keys, (float(a) for a in adj)))
     significant = bool(keys) and min(gap_adj.values()) < alpha
+    # the declared level rejected: the families again with the level estimated (noise_level.py), so that
+    # an unexplained gap's shape is not a pattern the level alone made
+    level_free = None
+    if noise.known and gap_adj.get("chi2", 1.0) < alpha:
+        wb = {f: base.whitened(B) for f, B in gbasis.items()}
+        if kbasis is not None:
+            wb["scale"] = base.whitened(kbasis)
+        level_free = families_with_level(wb, base.r, base.J, base.dof, Q, gap_tests)
     gap = {"chi2_dof": _f(base.chi2_dof) if noise.known else None, "chi2": base.chi2, "dof": base.dof,
            "p_value": _f(gap_tests.get("chi2")), "significant": significant,
            "tests": {k: {"p_value": _f(gap_tests[k]), "p_holm": _f(gap_adj[k])} for k in keys},
@@ -516,7 +525,7 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     # -- verdict (verdict.py) ----------------------------------------------------------
     verdict = decide(VerdictInputs(campaign=campaign, model=model, noise=noise, alpha=alpha, seed=seed,
         base=base, full=full, Jfull=Jfull, Q=Q, T0=T0, sigma=sigma, significant=significant, gap_adj=gap_adj,
-        refitted=refitted, cand_objs=cand_objs, states=states, generic0=generic0, corr0=corr0, slices=slices,
+        level_free=level_free, refitted=refitted, cand_objs=cand_objs, states=states, generic0=generic0, corr0=corr0, slices=slices,
         n_sig_before=n_sig_before, ckern=ckern, h=h, pe_w=pe_w, mean_refit=mean_refit, evidence=evidence))
     if verdict.get("effect") == "unexplained" and not verdict.get("gap_closed"):
         # an outside probe: an element lagging its sensor by 30 min (chi2/dof 26) was 'unexplained' in 3 of 5

@@ -61,6 +61,7 @@ class VerdictInputs:
     sigma: Any  # the noise per visit and output (relative weights when estimated)
     significant: Any  # whether the gap is significant
     gap_adj: Any  # the gap's tests, Holm-adjusted
+    level_free: Any  # the generic families with the noise level estimated, Holm-adjusted (or None)
     refitted: Any  # the refitted candidates, best delta elpd first
     cand_objs: Any  # every candidate
     states: Any  # each refitted candidate's fit state, by effect
@@ -433,10 +434,11 @@ def decide(v: VerdictInputs) -> dict:
                     # a noise model that nearly closes it is said too: the partial answer is the best
                     # mean term, not the only lead (three one-signed contaminated visits: heavy_tails
                     # absorbs all but one slice, far ahead of the best mean term in elpd)
-                    verdict["reason"] += (f"; {', '.join(c.effect for c in absorbed)} would absorb it as noise, "
-                                          "but structure is left after that refit ("
-                                          + "; ".join(_structure_left_txt(c) for c in absorbed) + ")")
-                    verdict["reason"] += _far_ahead_txt(absorbed, best)
+                    absorbed_txt = (f"; {', '.join(c.effect for c in absorbed)} would absorb it as noise, "
+                                    "but structure is left after that refit ("
+                                    + "; ".join(_structure_left_txt(c) for c in absorbed) + ")")
+                    verdict["reason"] += absorbed_txt + _far_ahead_txt(absorbed, best)
+                    verdict["_absorbed"] = absorbed_txt
                 if "fit_options" in partial:
                     verdict["fit_options"] = partial["fit_options"]
             if not gap_open and named.form is None and named.params and named.effect not in NOISE_EFFECTS:
@@ -516,18 +518,29 @@ def decide(v: VerdictInputs) -> dict:
             if caveat:
                 verdict["caveat"] = caveat
         else:
+            # a shape of the level alone (the families reject only against the declared level): what is left
+            # after a noise effect's refit is judged against that level too, and says nothing of a term
+            level_only = [x["family"] for x in gap_shape(gap_adj, alpha, v.level_free)] == ["level"]
+            concl = (", judged against the declared noise level, which the gap says is too small" if level_only
+                     else _absorbed_conclusion(absorbed) if absorbed else "")
             verdict = {"effect": "unexplained",
-                       "reason": ("significant, structured gap that no candidate closes"
+                       "reason": (("significant gap" if level_only else "significant, structured gap")
+                                  + " that no candidate closes"
                                   + (f": {', '.join(c.effect for c in absorbed)} would absorb it as noise, but "
                                      "structure is left after that refit ("
                                      + "; ".join(_structure_left_txt(c) for c in absorbed)
-                                     + ")" + _absorbed_conclusion(absorbed) if absorbed else
+                                     + ")" + concl if absorbed else
                                      ": no candidate of the vocabulary improves the fit significantly")),
                        "where": where_of(slices)}
     if verdict.get("effect") == "unexplained":
-        verdict["shape"] = gap_shape(gap_adj, alpha)
+        verdict["shape"] = gap_shape(gap_adj, alpha, v.level_free)
         if [x["family"] for x in verdict["shape"]] == ["level"]:
             # a gap with no pattern: is the best partial answer one without the declared level?
+            absorbed_txt = verdict.get("_absorbed")
             verdict = partial_without_level(verdict, cand_objs, base, h, pe_w, alpha, noise.known)
-            verdict["reason"] += level_words(base.chi2_dof)
+            if absorbed_txt and absorbed_txt not in verdict["reason"]:
+                # the partial answer dropped: the noise effects that would absorb the gap are still said
+                verdict["reason"] += absorbed_txt + ", judged against the declared noise level"
+            verdict["reason"] += level_words(base.chi2_dof, verdict["shape"][0])
+    verdict.pop("_absorbed", None)
     return verdict
