@@ -554,6 +554,12 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
                                                    1.0 if noise.known else float(np.sqrt(max(chi2_dof, 0.0))))
     structure = structure if robust_gof is None else robust_gof      # a robust loss: the inliers' chi2
     extra_gates = extra_gates + robust_gates
+    if noise.known and loss == "l2" and whitening is None:
+        # the pooled chi2 lets declared noise levels wrong in opposite directions cancel (output_levels.py)
+        from .output_levels import output_levels, per_output_gate
+
+        extra_gates = extra_gates + [per_output_gate(output_levels(sol.r, sol.J * sw[:, None]), gates.gof_p_min,
+                                                     gates.gof_ratio_max)]
     evidence = FitEvidence(
         converged=sol.converged, cost_start=cost_start, cost_final=sol.cost, jacobian=sol.J * sw[:, None],
         free_names=problem.names, residual_rms=float(np.sqrt(np.mean(resid ** 2))),
