@@ -399,3 +399,44 @@ def test_no_thermal_effect_is_rarely_given_a_form():
                 if a.best != "linear":
                     wrong.append((seed, name, a.best))
     assert len(wrong) <= 4, wrong
+
+
+def _one_way(tmp_path, output, name, falling=False, seed=0):
+    """A soak at 20 degC (10 min), a ramp to 80 degC at 2 degC/min and a soak (10 min), 1 Hz, or the
+    same ramp falling from 80 to 20; ``output(t, T)`` the true output, white noise 0.003."""
+    t = np.arange(0.0, 3000.0, 1.0)
+    T = np.interp(t, [0.0, 600.0, 2400.0, 3000.0], [20.0, 20.0, 80.0, 80.0])
+    if falling:
+        T = 100.0 - T
+    y = output(t, T) + np.random.default_rng(seed).normal(0.0, 0.003, len(t))
+    lines = ["timestamp\ttemp\tacc"] + [f"{int(1e6 * a) + 123456789}\t{b:.5f}\t{c:.6f}" for a, b, c in zip(t, T, y)]
+    p = tmp_path / name
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+@pytest.mark.parametrize("falling", [False, True])
+def test_a_record_that_only_heats_or_only_cools_is_judged_on_the_forms_of_one_branch(tmp_path, falling):
+    """An outside probe: a heating-only (or cooling-only) record was refused ("no heating and cooling
+    branches"), though a tempco is measured on one ramp. Now the forms without a branch term are
+    judged, and the notes say what a one-way record cannot tell: a line is a line, a quadratic a
+    quadratic (its coefficient within 5 %), and an element lagging by 3 min (scipy's ODE solver)
+    shows at the ramp's start and end and is named a lag."""
+    line = _one_way(tmp_path, lambda t, T: -9.6 + 0.0196 * (T - 20.0), "line.csv", falling)
+    c = thermal_cycle(line, ["acc"], time_column="timestamp", temperature_column="temp", time_unit="us")
+    a = c.axes[0]
+    assert a.best == "linear" and [f.name for f in a.forms] == ["linear", "quadratic", "cubic", "lag", "lag_quadratic",
+                                                                  "thermometer_lag", "play", "play_quadratic"]
+    assert any("no heating and cooling branches, so no hysteresis is judged" in n for n in c.notes), c.notes
+    assert ("only falls" if falling else "only rises") in c.notes[-1]
+    quad = _one_way(tmp_path, lambda t, T: -9.6 + 0.01 * (T - 20.0) + 2e-4 * (T - 20.0) ** 2, "quad.csv", falling)
+    a = _run_one(quad)
+    assert a.best == "quadratic" and a.form("quadratic").coefficients[2] == pytest.approx(2e-4, rel=0.05)
+    lag = _one_way(tmp_path, _ode_lag(180.0), "lag.csv", falling)
+    a = _run_one(lag)
+    assert a.best in ("lag", "lag_quadratic"), [(f.name, f.cv_rms) for f in a.forms]
+    assert a.form(a.best).parameter["tau_min"] == pytest.approx(3.0, rel=0.15)
+
+
+def _run_one(p):
+    return thermal_cycle(p, ["acc"], time_column="timestamp", temperature_column="temp", time_unit="us").axes[0]

@@ -55,6 +55,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.thermal_cycle_csv import MAX_TEMPERATURE_C, read_cycle
 from ..models.thermal_history import centred_rate, first_order_lag, play_operator, relay_branch, thermometer_lead
+from .thermal_reading import POLYNOMIALS, reading_errors, reading_rival, reading_words
 
 FORMAT = "triadcal.thermal_cycle"
 VERSION = 1
@@ -77,6 +78,13 @@ PLAY_STARTS = ("mid", "heating", "cooling")
 #: grid (a factor 1.6 apart) and 12 half-widths from 0.25 to 30 degC, a factor 1.5 apart, each start
 LAG_PLAY_TAU_S = TAU_GRID_S[::3]
 LAG_PLAY_R_C = tuple(float(x) for x in np.geomspace(PLAY_GRID_C[0], PLAY_GRID_C[-1], 12))
+#: the forms judged on a record whose temperature only rises or only falls: those without a branch term (a
+#: hysteresis's branch is one constant there, the intercept's twin; a play a shift of the reading after its start)
+ONE_WAY_FORMS = ("linear", "quadratic", "cubic", "lag", "lag_quadratic", "thermometer_lag", "play", "play_quadratic")
+ONE_WAY_NOTE = ("the temperature only {way}: no heating and cooling branches, so no hysteresis is judged (its branch "
+                "is one constant here, the bias's twin) and no branch gap is measured; a lag or a play shows only "
+                "where the rate changes (the ramp's start and end), and on a ramp of one rate it is an offset of the "
+                "temperature, which the bias takes: a cycle that heats and cools tells them")
 #: a form "explains" an axis when its held-out RMS is within this factor of the white-noise floor
 EXPLAINED_FACTOR = 3.0
 #: |dT/dt| below which the chamber counts as still (no branch), degC/min
@@ -146,8 +154,10 @@ class AxisCycle:
     best: str
     prediction: np.ndarray = field(repr=False, default=None)
     caveat: Optional[str] = None
-    #: why a simpler form than the fold rule's was named (:func:`floor_rule`), or None
+    #: why a simpler form than the fold rule's was named (:func:`floor_rule`, the reading's rival), or None
     floor_note: Optional[str] = None
+    #: the reading-noise rival of a delay or hysteresis form (thermal_reading.reading_rival), or None
+    reading_rival: Optional[dict] = None
 
     def form(self, name: str) -> FormFit:
         return next(f for f in self.forms if f.name == name)
@@ -164,7 +174,8 @@ class AxisCycle:
                 "explained": bool(best.cv_rms <= EXPLAINED_FACTOR * self.noise_floor),
                 "explained_criterion": f"held-out RMS <= {EXPLAINED_FACTOR:g} x the white-noise floor",
                 "cv_improvement_over_linear": 1.0 - best.cv_rms / lin.cv_rms if lin.cv_rms > 0 else None,
-                "forms": [f.to_dict() for f in self.forms], **({"caveat": self.caveat} if self.caveat else {})}
+                "forms": [f.to_dict() for f in self.forms], **({"caveat": self.caveat} if self.caveat else {}),
+                **({"reading_rival": self.reading_rival} if self.reading_rival else {})}
 
 
 @dataclass
@@ -435,21 +446,23 @@ def _lag_play_best(t, T, y, T_ref, subsets: list, cache: dict) -> list:
     return out
 
 
-def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, branch) -> AxisCycle:
+def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, branch,
+                 judged: Sequence[str] = FORMS) -> AxisCycle:
     n = len(y)
     edges = np.linspace(0, n, folds + 1).astype(int)
     noise = float(np.std(np.diff(y)) / math.sqrt(2.0))
     cache = {}
-    designs = {f: {p: _design(f, t, T, T_ref, branch, p, cache) for p in _grid(f)} for f in FORMS if f != "lag_play"}
+    designs = {f: {p: _design(f, t, T, T_ref, branch, p, cache) for p in _grid(f)} for f in judged if f != "lag_play"}
     tests = []
     for k in range(folds):
         test = np.zeros(n, bool)
         test[edges[k]:edges[k + 1]] = True
         tests.append(test)
-    lag_play = _lag_play_best(t, T, y, T_ref, [~m for m in tests] + [np.ones(n, bool)], cache)
+    lag_play = (_lag_play_best(t, T, y, T_ref, [~m for m in tests] + [np.ones(n, bool)], cache)
+                if "lag_play" in judged else None)
     forms, per_fold, per_sample, size = [], {}, {}, {}
     lin_resid = None
-    for f in FORMS:
+    for f in judged:
         def design_of(p, f=f):
             return designs[f][p] if f in designs and p in designs[f] else _design(f, t, T, T_ref, branch, p, cache)
 
@@ -485,12 +498,19 @@ def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, bran
             par["at_grid_edge"] = True       # the optimum may lie beyond the searched range
         forms.append(FormFit(f, cv, math.sqrt(rss / n), par, [float(x) for x in c], branch_gap(T, resid, branch, T_ref)))
     best, simpler = floor_rule(parsimonious_best(forms, per_fold, size), forms, per_sample, size, noise)
+    # a delay or a hysteresis must beat the reading's own noise averaged away without one (thermal_reading.py)
+    rival = reading_rival(t, T, y, T_ref, tests, best.name, per_sample[best.name], PAIRED_Z)
+    if rival is not None and not rival["beaten"]:
+        poly = next(f for f in forms if f.name == POLYNOMIALS[rival["degree"] - 1])
+        simpler = ((simpler + "; ") if simpler else "") + reading_words(best.name, poly.name, rival, reading_errors(T),
+                                                                      noise)
+        best = poly
     bp = best.parameter
     p = None if bp is None else ((bp["tau_min"] * 60.0, bp["half_width_C"], bp["start"]) if best.name == "lag_play"
                                  else bp["tau_min"] * 60.0 if "tau_min" in bp else (bp["half_width_C"], bp["start"]))
     pred = _design(best.name, t, T, T_ref, branch, p) @ np.array(best.coefficients)
     return AxisCycle(column, unit, noise, branch_gap(T, lin_resid + 0.0, branch, T_ref) if lin_resid is not None
-                     else None, forms, best.name, pred, floor_note=simpler)
+                     else None, forms, best.name, pred, floor_note=simpler, reading_rival=rival)
 
 
 def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature_column: str, time_unit: str = "s",
@@ -506,18 +526,23 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
         raise InputError(f"{path}: the temperature spans {np.ptp(T):.1f} degC; a thermal form needs a cycle of at "
                          "least 10 degC")
     br = branch_of(t, T)
-    if not (np.any(br == 1) and np.any(br == -1)):
-        raise InputError(f"{path}: the temperature only rises or only falls: no heating and cooling branches")
     if len(t) < 20 * folds:
         raise InputError(f"{path}: {len(t)} samples are too few for {folds} folds")
-    axes = [analyse_axis(t, T, y[:, i], c, unit, reference_temperature_C, folds, br) for i, c in enumerate(columns)]
+    one_way = not (np.any(br == 1) and np.any(br == -1))
+    judged = ONE_WAY_FORMS if one_way else FORMS
+    axes = [analyse_axis(t, T, y[:, i], c, unit, reference_temperature_C, folds, br, judged)
+            for i, c in enumerate(columns)]
     for a in axes:
         a.caveat = rate_caveat(t, T, br, a.best)
     notes = ["one static pose: the output along each axis is W = (g_a + S_a(T)) / K_a(T); a thermal change of the "
              "scale factor and of the bias cannot be told apart, so the forms describe that output, not K and S",
              "noise floor: the SD of sample-to-sample differences / sqrt 2 (white part only); held-out RMS near it "
              "means the form leaves nothing but noise"]
-    if any(a.branch_gap is None for a in axes):
+    if one_way:
+        # until 2026-12-02 refused ("no heating and cooling branches"); the forms of one branch are judged
+        notes.append(ONE_WAY_NOTE.format(way="rises" if np.any(br == -1) else "falls" if np.any(br == 1)
+                                         else "hardly moves"))
+    if any(a.branch_gap is None for a in axes) and not one_way:
         notes.append(f"no branch gap at {reference_temperature_C:g} degC: a branch has fewer than 10 samples within "
                      "+-5 degC of it (the reference temperature outside the cycle's ramps, or a gap in the record); "
                      "the hysteresis is judged by the forms' held-out errors alone")

@@ -60,6 +60,20 @@ def centred_rate(t_s, T, window_s: float = 120.0) -> np.ndarray:
     return (T[hi] - T[lo]) / dt
 
 
+def centred_mean(t_s, T, window_s: float) -> np.ndarray:
+    """The reading averaged over the window of ``window_s`` centred on each sample (a moving average
+    in time, zero phase: no delay; shortened at the record's ends). Of a staircase reading (a
+    thermometer of resolution q on a ramp of rate v) the mean over one step's duration q / v is the
+    ramp itself; of a white reading noise sigma over m samples, sigma / sqrt m. Not a model of the
+    unit: the reading's own noise taken out, against which a delay or a hysteresis must show
+    (estimation/thermal_reading.py)."""
+    t, T = np.asarray(t_s, float), np.asarray(T, float)
+    c = np.concatenate([[0.0], np.cumsum(T)])
+    lo = np.searchsorted(t, t - window_s / 2)
+    hi = np.searchsorted(t, t + window_s / 2, side="right")
+    return (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
+
+
 def thermometer_lead(t_s, T, tau_s: float, window_s: float = 120.0) -> np.ndarray:
     """Temperature of an element that its thermometer lags by a first-order time constant ``tau``
     (the thermometer behind the element: a sensor on the housing's far side, a slow probe)::

@@ -1,0 +1,68 @@
+"""thermal-cycle against the thermometer's own reading error (estimation/thermal_reading.py).
+
+An outside probe (its own simulator: a linear bias tempco of 2 mg/degC, no lag, no hysteresis) saw
+a thermometer reading in 1 degC steps named ``lag_hysteresis``, "explained", on 14 of 15 axes, and
+0.2 degC of white reading noise on 9 of 9: a lag is a low-pass filter of the reading and averages its
+error away. Made another way here: the cycle of tests/test_thermal_cycle.py, the reading rounded or
+noised with numpy, the lag by scipy's ODE solver."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from test_thermal_cycle import _cycle, _ode_lag, _run
+from triadcal.estimation.thermal_reading import reading_errors
+from triadcal.models.thermal_history import centred_mean
+
+LINE = lambda t, T: -9.6 + 0.0196 * (T - 20.0)   # noqa: E731  2 mg/degC on the vertical axis, m/s2
+
+
+def test_a_centred_mean_of_a_staircase_over_one_step_is_the_ramp_by_hand():
+    """A ramp of 1 degC/min sampled at 1 s, read in 1 degC steps (floor): averaged over the 60 s of
+    one step the staircase is the ramp less half a step, exactly, away from the ends; a white noise of
+    0.2 degC over 61 samples has SD 0.2 / sqrt 61."""
+    t = np.arange(0.0, 3600.0, 1.0)
+    T = t / 60.0
+    m = centred_mean(t, np.floor(T), 60.0)
+    inner = slice(60, -60)
+    assert np.max(np.abs(m[inner] - (T[inner] - 0.5))) < 1.0 / 60.0 + 1e-12
+    e = np.random.default_rng(1).normal(0.0, 0.2, t.size)
+    assert np.std(centred_mean(t, e, 60.0)[inner]) == pytest.approx(0.2 / np.sqrt(61), rel=0.1)
+
+
+def test_the_readings_errors_by_hand():
+    """reading_errors: a staircase of 0.5 degC has that resolution and a white part near 0 (its second
+    differences are 0 but at the steps); a white noise of 0.2 degC on a ramp reads 0.2 within 10 %."""
+    t = np.arange(0.0, 6000.0, 1.0)
+    T = 20.0 + t / 60.0
+    e = reading_errors(np.round(T * 2.0) / 2.0)
+    assert e["resolution_C"] == pytest.approx(0.5) and e["sigma_C"] < 0.01
+    e = reading_errors(T + np.random.default_rng(2).normal(0.0, 0.2, t.size))
+    assert e["resolution_C"] is None and e["sigma_C"] == pytest.approx(0.2, rel=0.1)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("reading", ["steps_1C", "white_0.2C"])
+def test_a_coarse_or_noisy_thermometer_is_no_lag_or_hysteresis(tmp_path, reading, seed):
+    """A line in the true temperature; the reading rounded to 1 degC, or with 0.2 degC of white
+    noise: the lag forms averaged the reading's error away and won (before: a delay or a hysteresis
+    form named). Now the line is named, its reason naming the reading's error; the rival's window and
+    the reading's measured resolution or noise in the result."""
+    rd = ((lambda t, T: np.round(T)) if reading == "steps_1C" else
+          (lambda t, T: T + np.random.default_rng(100 + seed).normal(0.0, 0.2, T.size)))
+    a = _run(_cycle(tmp_path, LINE, f"{reading}_{seed}.csv", seed=seed, reading=rd))
+    assert a.best == "linear", ([(f.name, f.cv_rms) for f in a.forms], a.floor_note)
+    d = a.to_dict()
+    if d.get("reading_rival"):
+        assert d["reading_rival"]["beaten"] is False and "the thermometer's own reading error" in d["floor_rule"]
+        assert ("resolution 1 degC" in d["floor_rule"]) == (reading == "steps_1C"), d["floor_rule"]
+
+
+def test_a_true_lag_read_by_a_coarse_thermometer_is_still_a_lag(tmp_path):
+    """An element lagging by 4 min (scipy's ODE solver), the reading in 0.5 degC steps: the lag beats
+    the reading averaged without delay by far (a delay is a difference between the branches that no
+    centred average makes), and is named at its time constant."""
+    a = _run(_cycle(tmp_path, _ode_lag(240.0), "lag_steps.csv", reading=lambda t, T: np.round(2.0 * T) / 2.0))
+    assert a.best in ("lag", "lag_quadratic"), ([(f.name, f.cv_rms) for f in a.forms], a.floor_note)
+    assert a.form(a.best).parameter["tau_min"] == pytest.approx(4.0, rel=0.15)
+    assert a.reading_rival["beaten"] is True and a.reading_rival["z"] > 10, a.reading_rival
