@@ -137,6 +137,9 @@ def test_cli_budget_refuses_unknown_unit():
     (("--sigma2", "nan"), "--sigma2 (sigma2_arcsec) = nan: not finite"),
     (("--thermal", "--dT", "-0.2"), "--dT (dT_C) = -0.2: must be >= 0"),
     (("--thermal", "--k-ca", "-1"), "--k-ca (k_ca_arcsec_per_C) = -1: must be >= 0"),
+    # a negative number in e-notation reaches the check (argparse took -1.5e0 for an option: "expected one argument")
+    (("--thermal", "--k-ca", "-1.5e0"), "--k-ca (k_ca_arcsec_per_C) = -1.5: must be >= 0"),
+    (("--thermal", "--T0", "-3E+2"), "--T0 (T0_C) = -300: must be >= -273.15"),
     (("--thermal", "--T-max", "10"), "--T-max (10 degC) is below --T0 (20 degC)"),
     (("--thermal", "--cte-body", "inf"), "--cte-body (cte_body_per_C) = inf: not finite"),
     # an outside probe: each printed a table, exit 0 (or "internal error", exit 70)

@@ -17,6 +17,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse
 import importlib
 import pkgutil
+import re
 import sys
 
 from .. import __version__
@@ -43,14 +44,20 @@ def _warning_line(message, category, filename, lineno, file=None, line=None):
 NEGATIVE_VALUE_OPTIONS = ("--grid", "--range")
 
 
+#: a negative number in e-notation (-1e-3, -2.5E+1): argparse counts only -12 and -1.5 as numbers
+_NEGATIVE_E = re.compile(r"^-(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
+
+
 def _negative_values(argv: list) -> list:
-    """``--grid -40:85:5`` as ``--grid=-40:85:5``: argparse takes a value that starts with '-' and
-    is not a plain number for an option, and the documented form would fail."""
+    """``--grid -40:85:5`` as ``--grid=-40:85:5``, and ``--k-ca -1.5e-3`` as ``--k-ca=-1.5e-3``:
+    argparse takes a value that starts with '-' and is not a plain number for an option, and the
+    documented form would fail ("expected one argument"; an outside probe of ``budget``)."""
     out, i = [], 0
     while i < len(argv):
         a = str(argv[i])
-        if a in NEGATIVE_VALUE_OPTIONS and i + 1 < len(argv) and str(argv[i + 1]).startswith("-") \
-                and ":" in str(argv[i + 1]):
+        nxt = str(argv[i + 1]) if i + 1 < len(argv) else ""
+        if a.startswith("--") and "=" not in a and _NEGATIVE_E.match(nxt) or \
+                a in NEGATIVE_VALUE_OPTIONS and nxt.startswith("-") and ":" in nxt:
             out.append(f"{a}={argv[i + 1]}")
             i += 2
             continue
