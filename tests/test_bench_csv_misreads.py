@@ -406,3 +406,31 @@ def test_equal_readings_far_apart_are_refused_with_noise_and_read_without(tmp_pa
     tab.header = [tab.header[i] for i in keep]
     tab.rows = [[r[i] for i in keep] for r in tab.rows]
     assert read_bench_csv(tab.write(tmp_path / "quiet.csv")).n_visits == 108
+
+
+@pytest.mark.parametrize("k_true", [1.0007, 2.0])
+def test_millivolts_declared_as_volts_are_refused_by_their_magnitude(tmp_path, k_true):
+    """An outside probe: a unit of about 1 V/g recorded in mV and declared V was certified with K
+    1000 times too small in 5 of 10 seeds (the plausible band of a V output reached 1000 V/g, and
+    K = 0.0010007 g/V lay inside it). The band now ends at 100 V/g (no voltage input reads beyond
+    +-100 V on a +-1 g tumble): refused naming the implied K; the same file in V is read."""
+    from triadcal.estimation.gates import SCALE_BAND_G_PER_UNIT
+
+    assert SCALE_BAND_G_PER_UNIT["V"][0] == 1e-2
+    text, _ = simulate_campaign(np.random.default_rng(4), setpoints_C=(20,))
+    (tmp_path / "V.csv").write_text(text, encoding="utf-8")
+    assert read_bench_csv(tmp_path / "V.csv").output_unit == "V"
+    lines = text.splitlines()
+    i = next(k for k, ln in enumerate(lines) if ln.startswith("unit,"))
+    cols = lines[i].split(",")
+    idx = [cols.index(c) for c in ("w_x", "w_y", "w_z", "sd_x", "sd_y", "sd_z")]
+    out = lines[: i + 1]
+    for ln in lines[i + 1:]:
+        f = ln.split(",")
+        for j in idx:
+            f[j] = repr(float(f[j]) * 1000.0 / k_true)       # about 1000/k_true "V" per g
+        out.append(",".join(f))
+    p = tmp_path / "mV_as_V.csv"
+    p.write_text("\n".join(out) + "\n", encoding="utf-8")
+    with pytest.raises(BenchCSVError, match=r"implies K = 0\.00\d+ g/V, below the plausible 0\.01-20000 g/V"):
+        read_bench_csv(p)

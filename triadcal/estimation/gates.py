@@ -52,10 +52,13 @@ NOMINAL_SCALE_G_PER_UNIT = {
     "ft/s2": 0.3048 / STANDARD_GRAVITY_M_S2, "ft/s^2": 0.3048 / STANDARD_GRAVITY_M_S2,
 }
 #: plausible band of K (g per output unit) for units whose scale depends on the instrument:
-#: voltage outputs 0.05 mV/g (shock sensors) ... 1000 V/g; currents (quartz pendulous, ~1.3
-#: mA/g) 1 uA/g ... 1 A/g; digital counts from 1 count/g to 2^31 counts/g
+#: voltage outputs 0.05 mV/g (shock sensors) ... 100 V/g (a tumble reads +-1 g, and no voltage
+#: input reads beyond +-100 V: until 2026-12-02 the band reached 1000 V/g, and an outside probe's
+#: 1 V/g unit recorded in mV and declared V was certified with K 1000 times too small in 5 of 10
+#: seeds, those whose K exceeded 1 g/V); currents (quartz pendulous, ~1.3 mA/g) 1 uA/g ... 1 A/g;
+#: digital counts from 1 count/g to 2^31 counts/g
 SCALE_BAND_G_PER_UNIT = {
-    "V": (1e-3, 2e4), "mV": (1e-6, 2e1), "uV": (1e-9, 2e-2),
+    "V": (1e-2, 2e4), "mV": (1e-5, 2e1), "uV": (1e-8, 2e-2),
     "A": (1.0, 1e6), "mA": (1e-3, 1e3), "uA": (1e-6, 1.0),
     "count": (4e-10, 1.0), "counts": (4e-10, 1.0), "LSB": (4e-10, 1.0), "lsb": (4e-10, 1.0),
     "digit": (4e-10, 1.0), "digits": (4e-10, 1.0),
