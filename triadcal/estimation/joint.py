@@ -27,7 +27,7 @@ from ..models.model import Covariates, Model
 from .dense_call import DenseCall
 from ..models.sensor import ANGLE_NAMES, AXES
 from ..models.units import ARCSEC, scale_factor_unit
-from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, apply_gates
+from .gates import DEFAULT_CONFIG, FitEvidence, GateConfig, GateOutcome, apply_gates
 from .hints import orientation_hints
 from .result import CalibrationResult, ParameterValue
 from ..uncertainty.typeb import lab_scope_notes
@@ -463,11 +463,24 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
 
         t_u = reference_temperature_u(systematics, problem.index)      # one temperature: stated with T0
         systematics = propagated_sources(systematics, problem.index)   # bench_nonorth measured: its own u
+    lab_gate = None
     if systematics:
+        from ..uncertainty.typeb import NonFiniteSensitivities
+
         p_hat = model.to_internal({**{n: float(v) for n, v in zip(problem.names, sol.x)}, **fixed})
-        tb = propagate(systematics, model, p_hat, campaign.covariates(), campaign.gravity_g, campaign.w,
-                       sol.J, noise.sigma, problem.names, campaign.output_unit, sol.weights, u_a,
-                       whiten=None if whitening is None else whitening.apply)
+        try:
+            tb = propagate(systematics, model, p_hat, campaign.covariates(), campaign.gravity_g, campaign.w,
+                           sol.J, noise.sigma, problem.names, campaign.output_unit, sol.weights, u_a,
+                           whiten=None if whitening is None else whitening.apply)
+        except NonFiniteSensitivities as e:
+            # an answer where the model is degenerate (swapped or inverted columns: an outside probe got this
+            # error alone, exit 1, where the fit without --lab names the wiring): the gates judge the answer,
+            # and this one refuses it whatever they say
+            lab_gate = GateOutcome("lab_sensitivities", False, "model_mismatch",
+                                   f"{e}: the lab's systematic errors cannot be propagated at this answer, so its "
+                                   "uncertainty budget is incomplete")
+            systematics = None
+    if systematics:
         type_a = "fit: output noise" + (", bench's random errors per visit" if bench_errors is not None else "")
         dof_a = noise_dof
         budgets = {n: tb.budget(n, units_of[n], float(ua), dof_a, type_a) for n, ua in zip(problem.names, u_a)}
@@ -567,9 +580,9 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         gof_p_value=None if structure is None else structure["p_value"],
         gof_ratio=None if structure is None else structure["ratio"],
         gof_what="" if structure is None else structure["what"],
-        extra=extra_gates + ([sensor_gate] if sensor_gate is not None else []))
+        extra=extra_gates + ([sensor_gate] if sensor_gate is not None else []) + ([lab_gate] if lab_gate else []))
     apply_gates(result, evidence, config=gates)
-    if result.status in ("unphysical_scale", "angle_out_of_range", "model_mismatch"):
+    if result.status in ("unphysical_scale", "angle_out_of_range", "model_mismatch", "not_converged"):
         G = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg) * campaign.gravity_g
         result.notes.extend(f"hint: {h}" for h in orientation_hints(campaign.w, G))
     result.notes.extend(one_branch_hysteresis_hint(result, problems, campaign))

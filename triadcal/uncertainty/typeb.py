@@ -239,15 +239,22 @@ class TypeB:
         return Budget(name, rows, unit)
 
 
+class NonFiniteSensitivities(InputError):
+    """The lab's systematic errors cannot be propagated at this answer: a sensitivity is not finite."""
+
+
 def propagate(sources: Sequence[SystematicSource], model, p: dict, cov, gravity_g: float, w: np.ndarray,
               jacobian: np.ndarray, sigma: np.ndarray, names: Sequence[str], output_unit: str = "V",
               weights: Optional[np.ndarray] = None, type_a_u: Optional[np.ndarray] = None, whiten=None) -> TypeB:
     """Sensitivities of the free parameters ``names`` to every source (see the module); ``whiten``
     as :func:`sensitivities`."""
-    c = np.array([sensitivities(jacobian, sigma, data_change(s, model, p, cov, gravity_g, w, output_unit), weights,
-                                whiten) for s in sources]).reshape(len(sources), len(names))
+    with np.errstate(invalid="ignore", over="ignore"):      # a degenerate answer: said below, not warned
+        c = np.array([sensitivities(jacobian, sigma, data_change(s, model, p, cov, gravity_g, w, output_unit), weights,
+                                    whiten) for s in sources]).reshape(len(sources), len(names))
     if not np.all(np.isfinite(c)):
-        raise InputError("the sensitivities of the parameters to the lab's systematic errors are not finite")
+        bad = sorted({names[j] for j in np.flatnonzero(~np.all(np.isfinite(c), axis=0))})
+        raise NonFiniteSensitivities("the sensitivities of the parameters to the lab's systematic errors are not "
+                                     "finite (" + ", ".join(bad[:6]) + (", ..." if len(bad) > 6 else "") + ")")
     # a source that does not reach a parameter gives c at the rounding level of the difference
     # quotient (1e-18 g/V per arcsec for K and a fixture rotation): such c are exactly 0 in the
     # algebra of eq. 1; below 1e-9 of the parameter's Type A u per unit of the source, set 0
