@@ -21,8 +21,8 @@ ANGLES = tuple(f"Ca_{ab}" for ab in ANGLE_NAMES)
 
 
 BUDGET_SOURCES = ("output noise", "bench positioning", "wobble", "tilt", "bench axes non-orthogonality",
-                  "encoder zeros", "fixture mounting", "temperature measurement", "thermal-model residual",
-                  "hysteresis")
+                  "encoder zeros", "fixture mounting", "temperature measurement", "thermal coefficients",
+                  "thermal-model residual", "hysteresis")
 
 #: the lab's systematic angle errors: (budget row, LabConfig field, lab-file key)
 SYSTEMATIC = (("bench axes non-orthogonality", "axes_nonorthogonality_u_arcsec",
@@ -183,6 +183,9 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
         comps.append(BudgetComponent("temperature measurement", correction_error_arcsec(dT, k), dT, "°C",
                                      sensitivity=k, sensitivity_unit="arcsec/°C", basis=(
                                          "ΔT (lab file) times k_ca, the largest fitted tempco"), equation="eq. 7"))
+    coeff = _thermal_coefficients_component(result)
+    if coeff is not None:
+        comps.append(coeff)
     comps.append(_thermal_residual_component(result, per_setpoint))
     hyst = [abs(P[f"{n}_hysteresis"].value) for n in angles if f"{n}_hysteresis" in P]
     if hyst:
@@ -194,6 +197,44 @@ def uncertainty_budget(result: CalibrationResult, lab: Optional[LabConfig] = Non
         comps.append(BudgetComponent("hysteresis", None, basis="not modelled (in the thermal-model residual)",
                                      equation="eq. 5, ΔCa_Ta"))
     return Budget(quantity, comps)
+
+
+#: the angles' thermal terms and their power of (T - T0) (models/effects/thermal*.py)
+ANGLE_TEMPCO_ORDERS = (("tempco", 1), ("tempco2", 2), ("tempco3", 3))
+
+
+def _thermal_coefficients_component(result) -> Optional[BudgetComponent]:
+    """The fitted tempcos' own uncertainty where the matrix is applied away from T0: an angle applied at
+    T is ``Ca(T) = Ca + sum_k c_k dT^k`` (dT = T - T0), so ``u(T)^2 = u(T0)^2 + 2 sum_k dT^k cov(Ca, c_k)
+    + sum_jk dT^(j+k) cov(c_j, c_k)`` (GUM 5.2, the result's covariance). The component is the square
+    root of that increment, the largest over the angles and the two ends of the calibrated range. An
+    outside probe: "U = 7.5 arcsec (u_c 3.77) within the calibrated range" where u(Ca_xz_tempco) =
+    0.033 arcsec/degC at 40 degC from T0 made u 4.00. None without angle tempcos or a range."""
+    P, rng = result.parameters, result.temperature_range_C
+    if not rng:
+        return None
+    T0 = float(result.reference_temperature_C)
+    best = None
+    for ab in ANGLE_NAMES:
+        n = f"Ca_{ab}"
+        terms = [(f"{n}_{suf}", k) for suf, k in ANGLE_TEMPCO_ORDERS if f"{n}_{suf}" in P and n in P]
+        if not terms or any(P[t].u is None or not math.isfinite(P[t].u) for t, _ in terms):
+            continue
+        C = result.covariance([n] + [t for t, _ in terms])
+        for T in rng:
+            dT = float(T) - T0
+            a = np.array([dT ** k for _, k in terms])
+            inc = float(2.0 * a @ C[0, 1:] + a @ C[1:, 1:] @ a)
+            if best is None or inc > best[0]:
+                best = (inc, n, dT)
+    if best is None:
+        return None
+    inc, n, dT = best
+    u = math.sqrt(max(inc, 0.0))
+    return BudgetComponent("thermal coefficients", u, u, basis=(
+        f"the fitted tempcos' own uncertainty at the end of the range farthest in effect from T0 ({n}, T − T0 = "
+        f"{dT:+.1f} °C; with their correlation with the angle, from the result's covariance)"),
+        equation="GUM 5.2: u(T)² = u(T0)² + this²")
 
 
 def _thermal_residual_component(result, per_setpoint) -> BudgetComponent:

@@ -74,7 +74,7 @@ class Certificate:
 
 
 #: budget components that are errors of the thermal model (the matrix used away from T0)
-THERMAL_MODEL_SOURCES = ("hysteresis", "thermal-model residual", "temperature measurement")
+THERMAL_MODEL_SOURCES = ("hysteresis", "thermal coefficients", "thermal-model residual", "temperature measurement")
 
 
 def values_temperature(result: CalibrationResult) -> str:
