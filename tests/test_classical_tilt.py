@@ -93,3 +93,33 @@ def test_a_level_bench_changes_nothing():
     assert r.status == "ok"
     assert all(b["tilt_arcsec"] < 5.0 for b in r.extra["per_setpoint"])
     assert not any("cos(tilt)" in n for n in r.notes)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_six_faces_at_one_setpoint_take_the_noise_from_the_sd_columns(seed):
+    """Six faces at one setpoint leave 1 residual dof per accelerometer. An outside probe: the residual
+    estimate was 0.016 of the declared noise on x, the angles' u 100 times too small, |z| up to 80 on a
+    level bench and 448 with a 9 arcsec tilt that the tilt test, F(2, 1), could not see: status ok 10 of
+    10. Now the noise is the sd columns' (classical.MIN_RESIDUAL_DOF), said in a note: level, every
+    parameter within 4 u and ok; tilted by (8, -5) arcsec, refused by the tilt test (chi2)."""
+    text, truth = simulate_campaign(np.random.default_rng(seed), positions=SIX, setpoints_C=(20,))
+    r = fit_classical(parse_bench_csv(text))
+    assert r.fit["noise_source"] == "sd" and any("fewer than 3" in n for n in r.notes), r.notes
+    assert r.status == "ok", r.notes
+    z = [abs(r.parameters[n].value - truth[n]) / r.parameters[n].u for n in r.parameters if n in truth]
+    assert len(z) == 12 and max(z) < 4.0, z
+    text, _ = simulate_campaign(np.random.default_rng(seed), positions=SIX, setpoints_C=(20,), tilt_arcsec=(8.0, -5.0))
+    r = fit_classical(parse_bench_csv(text))
+    assert r.status == "model_mismatch" and r.fit["tilt_leak"]["passed"] is False, r.fit["tilt_leak"]
+
+
+def test_the_summary_states_u_from_residuals_on_their_dof():
+    """The 12 positions at one setpoint: 6 residual dof per accelerometer, so the summary's U is
+    t(6) u = 2.52 u (95.45 %), not 2 u (an outside probe: 87 % of 480 parameters within 2 u)."""
+    from triadcal.reports.summary import summary_text
+
+    text, _ = simulate_campaign(np.random.default_rng(4), setpoints_C=(20,))
+    r = fit_classical(parse_bench_csv(text))
+    assert r.fit["noise_source"] == "residuals" and r.fit["residual_dof"] == [6, 6, 6]
+    s = summary_text(r)
+    assert "U (k=2.52)" in s and "Student's t with 6 residual degrees of freedom" in s, s

@@ -206,6 +206,11 @@ def _quantity_names():
     return names + [f"K_{a}" for a in AXES] + [f"S_{a}" for a in AXES]
 
 
+#: below this many residual degrees of freedom per accelerometer the noise is taken from the file's
+#: sd_* columns when it has them (the residual estimate is then a draw of chi2 on 1 or 2 dof)
+MIN_RESIDUAL_DOF = 3
+
+
 def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                   noise: str = "residuals", temperature: str = "own",
                   gates: GateConfig = DEFAULT_CONFIG, values_only: bool = False):
@@ -334,6 +339,14 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
                              "columns; add positions or those columns")
         use = "sd"
         notes.append("no residual degrees of freedom: output noise from sd_*/sqrt(n_samples) instead")
+    elif use == "residuals" and dof_total < MIN_RESIDUAL_DOF and sd_sigma is not None:
+        # an outside probe: six faces at one setpoint leave 1 dof per accelerometer; its residual estimate was
+        # 0.016 of the declared noise on x, the angles' u 100 times too small (z 80 with a tilt-free bench,
+        # up to 448 with a 9" tilt that the tilt test, F(2, 1), could not see), status ok, 10 of 10
+        use = "sd"
+        notes.append(f"{dof_total} residual degree(s) of freedom per accelerometer (fewer than {MIN_RESIDUAL_DOF}): "
+                     "output noise from sd_*/sqrt(n_samples) instead (a residual estimate on so few is anywhere "
+                     "from a hundredth to several times the noise); bench positioning errors are then not in the u")
     if use == "sd" and sd_sigma is None:
         raise InputError(f"{src}: noise='sd' needs the sd_x, sd_y, sd_z and n_samples columns, which the file lacks")
     fit_noise: dict = {}
