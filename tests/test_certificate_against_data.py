@@ -265,3 +265,43 @@ def test_export_compensation_with_the_data_refuses_an_edited_result(fitted, tmp_
     r = export(d / "result.json", other, tmp_path / "other.json")
     assert r.returncode != 0 and "are not those the result was fitted to" in r.stderr, r.stderr
     assert not (tmp_path / "other.json").exists()
+
+
+def test_an_edited_goodness_of_fit_or_output_unit_is_refused(fitted):
+    """Probe AF re-signed results with (a) the chi2/dof edited, (b) output_unit and the K units relabelled
+    V -> mV: both were certified with --data. Now the data's own chi2/dof at the result's values (the
+    Gauss-Newton step's residual) must be the stated one within 5 %, and the unit the data's."""
+    d, data, _ = fitted
+    path = forge(d, "chi2", lambda doc: doc["fit"].__setitem__("chi2_dof", 0.5 * doc["fit"]["chi2_dof"]))
+    with pytest.raises(RefusedResult, match=r"fit\.chi2_dof = .* is not its data's: they give"):
+        C.certificate(path, data=data, html=d / "chi2.html", issue_date=ISSUE)
+
+    def relabel(doc):
+        doc["output_unit"] = "mV"
+        for n in ("K_x", "K_y", "K_z"):
+            doc["parameters"][n]["unit"] = "g/mV"
+    path = forge(d, "mV", relabel)
+    with pytest.raises(RefusedResult, match=r"output_unit = 'mV' is not the unit its data .* state, 'V'"):
+        C.certificate(path, data=data, html=d / "mV.html", issue_date=ISSUE)
+
+
+def test_a_misfit_forged_to_status_ok_is_refused_by_its_data(tmp_path):
+    """A bias quadratic in temperature (0.1 ug/degC^2 on x, numpy) fitted with linear tempcos only:
+    model_mismatch. Re-signed as ok with every gate passed and chi2/dof 1.0 (probe AF certified such a
+    file, "chi2/dof 1.000, p = 0.5", its data giving 1.58): refused, the data's chi2/dof named."""
+    data, _ = _campaign(tmp_path, 6, extra_bias=lambda k, t, T, G, dr: np.array([1e-7 * (np.mean(T) - 20.0) ** 2, 0.0, 0.0]))
+    res = api.fit(read_bench_csv(data), effects=LINEAR)
+    assert res.status == "model_mismatch", res.status
+    res.save(tmp_path / "result.json")
+
+    def ok(doc):
+        doc["status"] = "ok"
+        for o in doc["gates"]["outcomes"]:
+            if o["passed"] is False:
+                o["passed"] = True
+        doc["fit"]["chi2_dof"] = 1.0
+        doc["notes"] = [n for n in doc["notes"] if "gate" not in n]
+    path = forge(tmp_path, "forged_ok", ok)
+    with pytest.raises(RefusedResult, match=r"status ok, but its data \(.*data\.csv\) misfit the result's model: "
+                                            r"chi2/dof \d"):
+        C.certificate(path, data=data, html=tmp_path / "forged.html", issue_date=ISSUE)

@@ -95,7 +95,7 @@ def _with_form(result, campaign):
     return campaign
 
 
-def value_steps(result, campaign, with_u: bool = False):
+def value_steps(result, campaign, with_u: bool = False, gof: Optional[dict] = None):
     """``{name: z}``: the Gauss-Newton step of the data from each stated value, in stated ``u``; with
     ``with_u``, also ``{name: u_data / u}``: the standard uncertainty the data give each parameter (the
     fit's weights, the covariance of the step), over the stated one.
@@ -151,6 +151,12 @@ def value_steps(result, campaign, with_u: bool = False):
     A, b = J[ok] * sw[:, None], r[ok] * sw
     z, *_ = np.linalg.lstsq(A, b, rcond=1e-10)
     steps = dict(zip(names, (float(v) for v in z)))
+    if gof is not None and own.known:
+        # the data's own goodness of fit at the step's values (the linearised optimum): for a least-squares
+        # fit with a known noise, what the result's goodness-of-fit gates judged (goodness_of_fit_problem)
+        e = b - A @ z
+        gof.update(chi2=float(e @ e), dof=int(len(b) - np.linalg.matrix_rank(A)),
+                   per_output=[float(np.sum(e[a::3] ** 2)) for a in range(3)] if len(e) == 3 * n else None)
     if not with_u:
         return steps
     # the covariance of the step, in stated u: (A^T A)^-1 (pseudo-inverse: a direction the data do not
@@ -203,6 +209,38 @@ def check_against_data(result, data_path, source: str):
     return campaign
 
 
+def goodness_of_fit_problem(result, gof: dict, source: str, data_name: str = "the campaign") -> Optional[str]:
+    """Why the goodness of fit a result states (its status ok, ``fit.chi2_dof``) is not its data's
+    (``gof``: :func:`value_steps`' chi2 and dof at the data's values), or None. An outside probe edited a
+    model_mismatch result to status ok, its gates to passed and chi2_dof to 1.0, re-signed it, and a
+    certificate was issued with --data saying "chi2/dof 1.000" where the data give 1.577. Refused when the
+    data fail the pooled goodness-of-fit gate (p below its gof_p_min and chi2/dof above its gof_ratio_max,
+    the result's own gate configuration) while the result is ok, or when the stated chi2/dof differs
+    from the data's by more than 5 % (a refit's weights move it far less). The joint least-squares fit
+    only (the classical u's noise holds the bench's errors, which the data's sd_* do not; a posterior
+    states means, not the optimum)."""
+    from scipy import stats
+
+    from ...estimation.gates import config_of
+
+    if not gof or gof.get("dof", 0) <= 0 or str((result.fit or {}).get("loss", "l2")) != "l2" or \
+            result.method != "joint":
+        return None               # the classical noise holds the bench's errors, a posterior's values are means
+    ratio = gof["chi2"] / gof["dof"]
+    p = float(stats.chi2.sf(gof["chi2"], gof["dof"]))
+    cfg = config_of(result)
+    if result.status == "ok" and p < cfg.gof_p_min and ratio > cfg.gof_ratio_max:
+        return (f"{source}: refused: status ok, but its data ({data_name}) misfit the result's model: chi2/dof "
+                f"{ratio:.4g} on {gof['dof']} dof, p = {p:.2g} (the goodness-of-fit gate needs p >= {cfg.gof_p_min:g} "
+                f"or chi2/dof <= {cfg.gof_ratio_max:g}): status or gates edited: fit again")
+    stated = (result.fit or {}).get("chi2_dof")
+    if isinstance(stated, (int, float)) and math.isfinite(stated) and stated > 0 and \
+            abs(stated - ratio) > 0.05 * ratio:
+        return (f"{source}: refused: fit.chi2_dof = {stated:.4g} is not its data's: they give {ratio:.4g} on "
+                f"{gof['dof']} dof at the result's values: goodness of fit edited: fit again")
+    return None
+
+
 def values_problem(result, campaign, source: str) -> Optional[str]:
     """Why the values ``result`` states are not those its data give (one line), or None; see the module.
     Also refused: a local gravity other than the one the data state, and a stated u less than half the
@@ -214,11 +252,21 @@ def values_problem(result, campaign, source: str) -> Optional[str]:
         return (f"{source}: refused: local_g_m_s2 = {float(g_res):.8g} m/s^2 is not the local gravity its data "
                 f"({campaign.source or 'the campaign'}) state, {float(campaign.local_g_m_s2):.8g} m/s^2: K takes g "
                 "one to one; values edited: fit again")
+    unit_res = result.extra.get("output_unit")
+    if unit_res is not None and campaign.output_unit and str(unit_res) != str(campaign.output_unit):
+        # an outside probe relabelled output_unit and the K units V -> mV, re-signed: certified "K_x 0.998975 g/mV"
+        return (f"{source}: refused: output_unit = {unit_res!r} is not the unit its data "
+                f"({campaign.source or 'the campaign'}) state, {campaign.output_unit!r}: K is per output unit; "
+                "edited: fit again")
     if not_rederivable(result) is not None or campaign.n_visits == 0:
         return None
-    z, ratio = value_steps(result, campaign, with_u=True)
+    gof = {}
+    z, ratio = value_steps(result, campaign, with_u=True, gof=gof)
     if not z:
         return None
+    why = goodness_of_fit_problem(result, gof, source, campaign.source or "the campaign")
+    if why:
+        return why
     skip = set((result.extra.get("flags") or {}).get("prior_dominated") or ())   # a posterior's prior-only terms
     narrow = {k: v for k, v in ratio.items() if k not in skip and v > U_RATIO_MAX}
     if narrow:
@@ -245,4 +293,5 @@ def values_problem(result, campaign, source: str) -> Optional[str]:
             f"({result.reference_temperature_C:g} degC) or effects changed after the fit: fit again")
 
 
-__all__ = ["U_RATIO_MAX", "VALUES_Z_MAX", "check_against_data", "fitted_visits", "not_rederivable", "value_steps", "values_problem"]
+__all__ = ["U_RATIO_MAX", "VALUES_Z_MAX", "check_against_data", "fitted_visits", "goodness_of_fit_problem",
+           "not_rederivable", "value_steps", "values_problem"]
