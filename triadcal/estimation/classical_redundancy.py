@@ -232,7 +232,9 @@ def redundancy_gate(chi2: np.ndarray, dof: np.ndarray, noise_known: bool, noise_
     reason = "; ".join(parts)
     if out_fails:
         reason += (f"; p < {config.gof_p_min:g}: one position disagrees with the others (a mislabelled position, "
-                   "a mis-read visit, or a swapped or inverted column)")
+                   "a mis-read visit, or a swapped or inverted column; or a noise with heavier tails than the "
+                   "normal, whose outliers a test of normal residuals flags: `triadcal diagnose` tells them apart, "
+                   "and `fit --method joint --loss student_t` is made for them)")
     if scatter_fails:
         reason += (f"; p < {config.gof_p_min:g} and ratio > {config.gof_ratio_max:g}: the positions scatter beyond "
                    "the noise the uncertainties assume")
