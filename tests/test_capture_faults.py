@@ -94,13 +94,15 @@ def test_a_wrapped_sequence_counter_goes_on_instead_of_waiting_for_ever(tmp_path
 
 
 def test_a_restart_keeps_the_clock_continuous(tmp_path):
+    """The first frame back in sequence and clock is held until the next says which it is (a restart:
+    the next goes on from it), so the pump hands both over at once."""
     frames = [good(1000 + k, 500.0 + 0.1 * k) for k in range(10)] + [good(k, 0.1 * k) for k in range(10)]
     run, times, kinds = pump_all(tmp_path, frames)
     assert kinds == ["instrument_restart"] and run.clock_faults == 1 and run.accepted == 20
-    assert np.all(np.diff(times) > 0)
-    np.testing.assert_allclose(np.diff(times), 0.1, atol=1e-9)     # one sample interval across it
     raw = read_raw(tmp_path / "raw.csv")
-    np.testing.assert_allclose(raw["time_s"], times)               # the raw file has the same clock
+    assert np.all(np.diff(raw["time_s"]) > 0)
+    np.testing.assert_allclose(np.diff(raw["time_s"]), 0.1, atol=1e-9)     # one sample interval across it
+    assert raw["time_s"][-1] == pytest.approx(times[-1])
 
 
 @pytest.mark.parametrize("jump", [1e5, -300.0, -0.5])
@@ -697,3 +699,38 @@ def test_the_first_setpoint_is_on_the_branch_from_the_chambers_start(tmp_path):
     old.parent.mkdir()
     old.write_text(json.dumps({"format": "triadcal.capture", "version": 1, "sessions": [{"session": 1}]}))
     assert start_temperature(old, Reads(60.0), [30.0]) == (20.0, None)
+
+
+def test_a_frame_sent_again_after_its_first_copy_was_refused_is_no_restart(tmp_path):
+    """An outside probe: frame 10 refused by its checksum, sent again intact 3 s (30 frames) later: not
+    an exact repeat of an admitted frame, so it passed for an instrument restart: the clock shifted by
+    3.1 s each time, 30 frames counted missing for 1, the stale sample stored as new. The stream goes
+    on at last_seq + 1 after it, as no restart would: event stale_frame with its values, no clock fault,
+    one frame missing, the record's clock unbroken."""
+    from triadcal.hardware.storage import read_events
+
+    frames = [good(k, 0.1 * k, w=(1.0 + k, -2.0, 0.5)) for k in range(60) if k != 10]
+    frames.insert(39, good(10, 1.0, w=(11.0, -2.0, 0.5)))
+    run, times, kinds = pump_all(tmp_path, frames)
+    assert kinds == ["stale_frame"] and run.clock_faults == 0 and run.missing == 1 and run.accepted == 59
+    ev = [e for e in read_events(tmp_path / "events.jsonl") if e["kind"] == "stale_frame"][0]
+    assert ev["seq"] == 10 and ev["w"] == [11.0, -2.0, 0.5] and "not a restart" in ev["reason"]
+    raw = read_raw(tmp_path / "raw.csv")
+    assert 10 not in raw["seq"].tolist() and np.all(np.diff(raw["time_s"]) > 0)
+    np.testing.assert_allclose(raw["time_s"], raw["seq"] * 0.1, atol=1e-9)
+
+
+def test_a_copy_of_a_frame_with_other_values_is_a_conflict_not_a_duplicate(tmp_path):
+    """An outside probe sent every 50th frame twice with its sequence number and clock, the first copy
+    altered (w_x + 0.8 mV): the first was kept and the genuine one dropped as a duplicate, no event,
+    every visit biased by 1 u, exit 0. Now the second copy is an event conflicting_frame with both
+    values, counted (the visit holding it is redone: capture._visit); an exact copy stays a duplicate."""
+    from triadcal.hardware.storage import read_events
+
+    frames = [good(k, 0.1 * k, w=(1.0 + k, -2.0, 0.5)) for k in range(30)]
+    frames.insert(11, good(10, 1.0, w=(11.0008, -2.0, 0.5)))       # after 10: the same number and clock
+    frames.insert(21, good(19, 1.9, w=(20.0, -2.0, 0.5)))          # an exact copy of 19
+    run, _, kinds = pump_all(tmp_path, frames)
+    assert kinds == ["conflicting_frame"] and run.conflicts == 1 and run.duplicates == 2
+    ev = [e for e in read_events(tmp_path / "events.jsonl") if e["kind"] == "conflicting_frame"][0]
+    assert ev["seq"] == 10 and ev["kept_w"] == [11.0, -2.0, 0.5] and ev["other_w"] == [11.0008, -2.0, 0.5]

@@ -172,6 +172,9 @@ def run(args) -> int:
                                  chamber=chamber, settings=settings, progress=_progress_bar(out),
                                  extra_metadata=extra)
         except (CaptureError, BenchError) as exc:
+            # the session's warnings first (a setpoint missed): they are in the report the session wrote,
+            # but an outside probe's failed session showed only the error, 9 rows of a missed setpoint kept
+            _print_report_warnings(args.out)
             raise InputError(str(exc)) from None      # one line, exit 1: the campaign cannot go on
         finally:
             bench.close()
@@ -263,3 +266,19 @@ def _run_voltmeter(args, out, plan, cfg, dmm_cfg, settings) -> int:
     out.say(f"the voltmeter: {r.accepted_samples} readings in this session, {r.redone_visits} visits redone; "
             "temperatures are the chamber's PV")
     return 0
+
+
+def _print_report_warnings(out_dir) -> None:
+    """The warnings of the session's report (``capture_report.json``, written when the session ended,
+    failed or not) on stderr."""
+    import json
+    from pathlib import Path
+
+    from ..hardware.capture import REPORT_NAME
+
+    try:
+        warnings = json.loads((Path(out_dir) / REPORT_NAME).read_text(encoding="utf-8")).get("warnings") or []
+    except (OSError, ValueError, AttributeError):
+        return
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)

@@ -110,6 +110,7 @@ class CaptureReport:
     invalid_frames: int = 0            # refused by runner.frame_problem (event invalid_frame)
     clock_faults: int = 0              # instrument restarts, clock steps, sequence resets (runner.py)
     late_frames: int = 0               # came after later ones: in the event log (late_frame), not the record
+    conflicting_frames: int = 0        # a copy of an admitted frame with other values (conflicting_frame)
     warnings: list = field(default_factory=list)   # what the operator must know (setpoint not reached)
 
     def to_dict(self) -> dict:
@@ -350,6 +351,7 @@ def finish_session(out: Path, imu, run: "_Runner", events: EventLog, session: in
         garbage_bytes=ps.garbage_bytes, reconnects=ls.reconnects, disconnects=ls.disconnects,
         stalls=ls.stalls, redone_visits=redone, invalid_frames=getattr(run, "invalid", 0),
         clock_faults=getattr(run, "clock_faults", 0), late_frames=getattr(run, "late", 0),
+        conflicting_frames=getattr(run, "conflicts", 0),
         warnings=list(getattr(run, "warnings", [])),
         noise=None if noise_est is None else {
             "Q_V2s": list(noise_est.Q_V2s), "bias_instability_V": list(noise_est.bias_instability_V),
@@ -447,7 +449,7 @@ def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettin
     run.phase, run.visit_tag = "move", tag
     run.visit_detail = ""
     notify({"event": "move", **info})
-    faults = run.clock_faults
+    faults, conflicts = run.clock_faults, getattr(run, "conflicts", 0)
     bench.move_to(a1, a2)
     t_move = run.now
     errors = RepeatedEvents(events, "bench_error")
@@ -505,6 +507,11 @@ def _visit(run: _Runner, bench: Bench, events: EventLog, settings: CaptureSettin
         # come from two periods of the unit (runner.py); redo the visit
         events.write("visit_clock_fault", tag=tag, n_samples=len(got), expected=expected)
         run.visit_problem = "visit_clock_fault"
+        return None
+    if getattr(run, "conflicts", 0) != conflicts:
+        # two copies of a frame with other values (runner.py): which the window holds is not known; redo it
+        events.write("visit_conflicting_frames", tag=tag, n_conflicts=run.conflicts - conflicts)
+        run.visit_problem = "visit_conflicting_frames"
         return None
     if len(got) < max(2, settings.min_coverage * expected):
         events.write("visit_incomplete", tag=tag, n_samples=len(got), expected=expected)

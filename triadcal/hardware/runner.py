@@ -57,6 +57,11 @@ from ..errors import TriadcalError
 from ..io.bench_csv import MAX_READING, RANGES
 from .protocols import Frame
 
+def _values(f: Frame) -> tuple:
+    """A frame's readings, comparable (repr: a NaN equals itself)."""
+    return (repr(tuple(f.w)), repr(tuple(f.t)))
+
+
 #: a clock step is a jump this many seconds (at least) away from the expected k x dt
 CLOCK_STEP_MIN_S = 1.0
 #: ... and this fraction of the expected gap (a gap of missing frames grows with k)
@@ -131,6 +136,9 @@ class _Runner:
         self._recent_seqs: deque = deque(maxlen=LATE_WINDOW)   # sequence numbers of the latest admitted
         self._seen: dict = {}                     # hashes of (seq, time_s, w, t) of the latest admitted frames
         self._seen_order: deque = deque()
+        self.conflicts = 0                        # a second copy of an admitted frame with other values
+        self._recent_vals: dict = {}              # seq -> (time_s, w, t) of the latest admitted (conflicts)
+        self._pending: Optional[Frame] = None     # a frame back in sequence and clock: a restart or a re-send
 
     def _silence(self) -> str:
         imu = getattr(self.stream, "readout", None)
@@ -176,6 +184,15 @@ class _Runner:
                                   t=[float(v) if math.isfinite(v) else None for v in f.t])
                 return False
             else:
+                prev = self._recent_vals.get(f.seq)
+                if prev is not None and prev[0] == repr(f.time_s) and prev[1:3] != _values(f):
+                    # the same sequence number and clock with other values: no copy can be trusted over the
+                    # other (an outside probe's altered first copy was kept, the genuine one dropped as a
+                    # duplicate, every 50th sample biased by 50 u with exit 0); the visit holding it is redone
+                    self.conflicts += 1
+                    self.events.write("conflicting_frame", seq=f.seq, time_s=f.time_s, phase=self.phase,
+                                      visit=self.visit_tag, kept_w=list(prev[3]), other_w=[float(v) for v in f.w],
+                                      other_t=[float(v) if math.isfinite(v) else None for v in f.t])
                 self.duplicates += 1
                 return False
             return True
@@ -278,6 +295,30 @@ class _Runner:
             self._seen.pop(self._seen_order.popleft(), None)
         return False
 
+    def _stale(self, f: Frame, why: str) -> None:
+        """A frame from before that is not a new reading: counted, its values in the event log."""
+        self.stale += 1
+        self.duplicates += 1
+        self.events.write("stale_frame", seq=f.seq, time_s=f.time_s, last_seq=self.last_seq, phase=self.phase,
+                          visit=self.visit_tag, reason=why, w=[float(v) for v in f.w],
+                          t=[float(v) if math.isfinite(v) else None for v in f.t])
+
+    def _take(self, f: Frame, accepted: list) -> None:
+        """Admit ``f`` by the sequence and clock rules (:meth:`_admit`) and append it to ``accepted``."""
+        if not self._admit(f):
+            return
+        self._replayed(f)
+        self.last_seq, self.last_time = f.seq, f.time_s
+        if len(self._recent_seqs) == self._recent_seqs.maxlen:
+            self._recent_vals.pop(self._recent_seqs[0], None)
+        self._recent_seqs.append(f.seq)
+        self._recent_vals[f.seq] = (repr(f.time_s),) + _values(f) + (tuple(float(v) for v in f.w),)
+        if math.isfinite(f.wall_s):
+            self.last_wall = f.wall_s
+            if not self._flow or f.wall_s - self._flow[-1][0] >= 0.05:   # thinned: 512 span >= 25 s
+                self._flow.append((f.wall_s, f.time_s + self.shift))
+        accepted.append(dataclasses.replace(f, time_s=f.time_s + self.shift) if self.shift else f)
+
     def pump(self, timeout: float = 0.02) -> int:
         self.write_link_events()
         batch = self.stream.get(timeout)
@@ -293,23 +334,22 @@ class _Runner:
                 self.invalid += 1
                 self.events.write("invalid_frame", seq=f.seq, reason=why, phase=self.phase, visit=self.visit_tag)
                 continue
-            if (self.last_seq is not None and f.seq < self.last_seq and f.time_s < self.last_time - RESTART_BACK_S
-                    and self._replayed(f)):                 # would pass for a restart: a stale frame sent again
-                self.stale += 1
-                self.duplicates += 1
-                self.events.write("stale_frame", seq=f.seq, time_s=f.time_s, last_seq=self.last_seq,
-                                  phase=self.phase, visit=self.visit_tag)
+            if self._pending is not None:
+                cand, self._pending = self._pending, None
+                if f.seq > self.last_seq and f.time_s > self.last_time - RESTART_BACK_S:
+                    # the stream went on where it was: the frame back was sent again, not a restart (an
+                    # outside probe's frame re-sent 3 s late, its first copy refused by its checksum: nine
+                    # "restarts", the clock 28 s off by the end, 279 frames counted missing for 9)
+                    self._stale(cand, "the next frame continues the stream: a frame sent again, not a restart")
+                else:
+                    self._take(cand, accepted)
+            if self.last_seq is not None and f.seq < self.last_seq and f.time_s < self.last_time - RESTART_BACK_S:
+                if self._replayed(f):                       # would pass for a restart: a stale frame sent again
+                    self._stale(f, "an admitted frame sent again")
+                else:                                       # a restart, or a frame sent again: the next tells
+                    self._pending = f
                 continue
-            if not self._admit(f):
-                continue
-            self._replayed(f)
-            self.last_seq, self.last_time = f.seq, f.time_s
-            self._recent_seqs.append(f.seq)
-            if math.isfinite(f.wall_s):
-                self.last_wall = f.wall_s
-                if not self._flow or f.wall_s - self._flow[-1][0] >= 0.05:   # thinned: 512 span >= 25 s
-                    self._flow.append((f.wall_s, f.time_s + self.shift))
-            accepted.append(dataclasses.replace(f, time_s=f.time_s + self.shift) if self.shift else f)
+            self._take(f, accepted)
         if not self._clock_checked and len(self.dt_estimates) >= CLOCK_CHECK_FRAMES:
             self._clock_checked = True
             self.check_clock_step()

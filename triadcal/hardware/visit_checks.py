@@ -24,6 +24,7 @@ if TYPE_CHECKING:
 #: what each refusal of a window says (the events of :func:`_visit`)
 VISIT_PROBLEMS = {"visit_incomplete": "had too few samples",
                   "visit_clock_fault": "held a restart or a step of the IMU's clock",
+                  "visit_conflicting_frames": "held a frame the IMU sent twice with different values",
                   "visit_overfull": "held more samples than its length and the rate allow",
                   "visit_outlier": "held a sample far from the window's others (a spike)",
                   "visit_not_stable": "was not at the setpoint's stable temperature",
