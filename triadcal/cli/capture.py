@@ -200,11 +200,12 @@ def run(args) -> int:
     out.say(f"the readout: {r.accepted_samples} samples accepted; {r.corrupted_frames} corrupted, "
             f"{r.missing_frames} missing and {r.duplicate_frames} duplicated frames; {r.garbage_bytes} garbage "
             f"bytes; {r.reconnects} reconnections, {r.stalls} stalls and {r.redone_visits} visits redone")
-    if r.invalid_frames or r.clock_faults or r.late_frames:
+    if r.invalid_frames or r.clock_faults or r.late_frames or r.conflicting_frames:
         out.say(f"the readout also had {r.invalid_frames} frames refused (values not finite or out of range), "
-                f"{r.clock_faults} clock faults (restarts, clock steps, sequence resets) and {r.late_frames} late "
-                "frames (after later ones: their values are in the event log, not in the record); see "
-                "raw/events.jsonl")
+                f"{r.clock_faults} clock faults (restarts, clock steps, sequence resets), {r.late_frames} late "
+                "frames (after later ones: their values are in the event log, not in the record) and "
+                f"{r.conflicting_frames} conflicting frames (a copy with other values: the visits holding them "
+                "redone); see raw/events.jsonl")
     for w in r.warnings:
         print(f"warning: {w}", file=sys.stderr)
     if r.noise:
