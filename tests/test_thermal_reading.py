@@ -66,3 +66,38 @@ def test_a_true_lag_read_by_a_coarse_thermometer_is_still_a_lag(tmp_path):
     assert a.best in ("lag", "lag_quadratic"), ([(f.name, f.cv_rms) for f in a.forms], a.floor_note)
     assert a.form(a.best).parameter["tau_min"] == pytest.approx(4.0, rel=0.15)
     assert a.reading_rival["beaten"] is True and a.reading_rival["z"] > 10, a.reading_rival
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_an_offset_hysteresis_read_in_one_degree_steps_is_no_lag(tmp_path, seed):
+    """A line plus an offset hysteresis of 0.01 m/s2 (a relay written out here: the sign of the last
+    move, held), the reading in 1 degC steps: an outside probe saw lag_play or lag_hysteresis (tau 0.15
+    min) named, "explained", 12 of 12 axes, the rival without a branch beaten by 26-37 SE. A form with a
+    delay and a branch now meets the same branch without delay in the averaged reading: the offset
+    hysteresis is named, its h within 10 %."""
+    def out(t, T):
+        rate = np.gradient(T, t)
+        b = np.zeros_like(T)
+        cur = 0.0
+        for k, v in enumerate(rate):
+            cur = 1.0 if v < -1e-6 else -1.0 if v > 1e-6 else cur
+            b[k] = cur
+        return LINE(t, T) + 0.01 * b
+
+    a = _run(_cycle(tmp_path, out, f"hyst_steps_{seed}.csv", seed=seed, reading=lambda t, T: np.round(T)))
+    assert a.best == "offset_hysteresis", ([(f.name, f.cv_rms) for f in a.forms], a.floor_note)
+    assert a.form("offset_hysteresis").coefficients[2] == pytest.approx(0.01, rel=0.1)
+
+
+def test_the_noise_floor_leaves_out_the_steps_across_a_gap(tmp_path):
+    """thermal_cycle.white_floor: a ramp's output with white noise 0.003 and two gaps in the record (the
+    output moved 0.5 across each): the SD of the differences over sqrt 2 is 0.003 within 10 % (an outside
+    probe's floor was doubled by them, and a held-out RMS of 3.5 floors passed as explained)."""
+    from triadcal.estimation.thermal_cycle import white_floor
+
+    t = np.arange(0.0, 3000.0, 5.0)
+    keep = (t < 1000) | ((t > 1600) & (t < 2000)) | (t > 2300)
+    t = t[keep]
+    y = 0.0005 * t + np.random.default_rng(3).normal(0.0, 0.003, t.size)
+    assert np.std(np.diff(y)) / np.sqrt(2) > 0.004
+    assert white_floor(t, y) == pytest.approx(0.003, rel=0.1)

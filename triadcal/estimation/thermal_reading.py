@@ -60,48 +60,88 @@ def _poly(Ts, T_ref, degree):
     return np.stack([np.ones_like(d)] + [d ** k for k in range(1, degree + 1)], axis=1)
 
 
+#: named forms that claim a delay and a branch at once: their rival may hold a branch without delay too
+#: (the hysteron of the averaged reading), which a coarse thermometer's staircase otherwise passed for a
+#: small lag with a hysteresis or a play (an outside probe: a true offset hysteresis of 0.01 m/s2 read in
+#: 1 degC steps was lag_play or lag_hysteresis with tau 0.15 min, "explained", 12 of 12 axes)
+BRANCH_AND_DELAY = ("lag_hysteresis", "lag_play", "quadratic_play")
+
+
 def reading_rival(t, T, y, T_ref: float, tests: list, named: str, named_sq: np.ndarray,
                   paired_z: float) -> Optional[dict]:
     """The rival of a delay or hysteresis form ``named`` (module docstring): the polynomial in the
-    centred average of the reading, its window chosen on each fold's training blocks (``tests``: the
-    held-out masks, in order), held-out squared errors in the order of ``named_sq`` (the named form's,
-    concatenated over the folds). ``{"degree", "window_s" (on all samples), "cv_rms", "z" (how many
-    standard errors of the paired held-out squared errors the named form beats it by), "needed"
-    (``paired_z``), "beaten"}``;
-    None for a polynomial ``named``."""
+    centred average of the reading and, for a form of :data:`BRANCH_AND_DELAY`, also that polynomial
+    with the hysteron of the averaged reading (the offset hysteresis without delay,
+    ``relay_branch(centred_mean(T), RELAY_HALF_WIDTH_C)``), taken only when its held-out squared errors
+    beat the plain polynomial's by ``paired_z`` standard errors; the window chosen on each fold's
+    training blocks (``tests``: the held-out masks, in order), held-out squared errors in the order of
+    ``named_sq`` (the named form's, concatenated over the folds). ``{"degree", "branch" (whether the
+    rival has the hysteron), "form" (its name among the thermal-cycle forms),
+    "window_s" (on all samples), "cv_rms", "z" (how many standard errors of the paired held-out squared
+    errors the named form beats it by), "needed" (``paired_z``), "beaten"}``; None for a polynomial
+    ``named``."""
+    from ..models.thermal_history import relay_branch
+    from .thermal_cycle import RELAY_HALF_WIDTH_C
+
     if named in POLYNOMIALS:
         return None
     degree = 2 if "quadratic" in named else 1
     t, T, y = np.asarray(t, float), np.asarray(T, float), np.asarray(y, float)
-    designs = {w: _poly(centred_mean(t, T, w), T_ref, degree) for w in WINDOWS_S}
+    designs = {}
+    for w in WINDOWS_S:
+        Ts = centred_mean(t, T, w)
+        designs[(w, False)] = _poly(Ts, T_ref, degree)
+        if named in BRANCH_AND_DELAY:
+            designs[(w, True)] = np.column_stack([designs[(w, False)], relay_branch(Ts, RELAY_HALF_WIDTH_C)])
 
-    def best_window(rows):
-        best = None
-        for w, X in designs.items():
-            c, *_ = np.linalg.lstsq(X[rows], y[rows], rcond=None)
-            rss = float(np.sum((y[rows] - X[rows] @ c) ** 2))
-            if best is None or rss < best[0]:
-                best = (rss, w, c)
-        return best
+    def held_out(branch):
+        """The variant's held-out squared errors (its window chosen on each fold's training blocks) and
+        its window on all samples."""
+        keys = [k for k in designs if k[1] == branch]
 
-    sq = []
-    for test in tests:
-        _, w, c = best_window(~test)
-        sq.append((y[test] - designs[w][test] @ c) ** 2)
-    sq = np.concatenate(sq)
-    d = sq - np.asarray(named_sq, float)
-    se = float(np.std(d, ddof=1) / math.sqrt(d.size)) if d.size > 1 else 0.0
-    z = float(np.mean(d)) / se if se > 0 else 0.0
-    return {"degree": degree, "window_s": best_window(np.ones(y.size, bool))[1], "cv_rms": float(np.sqrt(np.mean(sq))),
-            "z": z, "needed": paired_z, "beaten": bool(z > paired_z)}
+        def best(rows):
+            out = None
+            for key in keys:
+                X = designs[key]
+                c, *_ = np.linalg.lstsq(X[rows], y[rows], rcond=None)
+                rss = float(np.sum((y[rows] - X[rows] @ c) ** 2))
+                if out is None or rss < out[0]:
+                    out = (rss, key, c)
+            return out
+
+        sq = []
+        for test in tests:
+            _, key, c = best(~test)
+            sq.append((y[test] - designs[key][test] @ c) ** 2)
+        return np.concatenate(sq), best(np.ones(y.size, bool))[1][0]
+
+    def paired(a, b):
+        """How many standard errors of the paired squared errors b beats a by."""
+        d = a - b
+        se = float(np.std(d, ddof=1) / math.sqrt(d.size)) if d.size > 1 else 0.0
+        return float(np.mean(d)) / se if se > 0 else 0.0
+
+    sq, w = held_out(False)
+    branch = False
+    if named in BRANCH_AND_DELAY:
+        # the hysteron only where it beats the plain polynomial as the named form must beat the rival
+        sq_b, w_b = held_out(True)
+        if paired(sq, sq_b) > paired_z:
+            sq, w, branch = sq_b, w_b, True
+    z = paired(sq, np.asarray(named_sq, float))
+    form = (("offset_hysteresis", "quadratic_hysteresis") if branch else POLYNOMIALS)[degree - 1]
+    return {"degree": degree, "branch": branch, "form": form, "window_s": w,
+            "cv_rms": float(np.sqrt(np.mean(sq))), "z": z, "needed": paired_z, "beaten": bool(z > paired_z)}
 
 
 def reading_words(named: str, poly: str, rival: dict, errors: dict, floor: float) -> str:
-    """Why ``poly`` is named instead of ``named``: the rival (:func:`reading_rival`) not beaten."""
+    """Why ``poly`` (the rival's form) is named instead of ``named``: the rival (:func:`reading_rival`)
+    not beaten."""
     q = errors.get("resolution_C")
     shows = f"white noise {errors['sigma_C']:.2g} degC" + (f", resolution {q:.3g} degC" if q else "")
+    how = "no delay, its branch held" if rival.get("branch") else "no delay, no branch"
     return (f"{named} does not beat {poly} in the reading averaged over a centred window of {rival['window_s']:.3g} s "
-            f"(no delay, no branch; held-out RMS {rival['cv_rms'] / floor:.3g} x the floor) by more than "
+            f"({how}; held-out RMS {rival['cv_rms'] / floor:.3g} x the floor) by more than "
             f"{rival['z']:.2g} standard errors of the paired held-out squared errors (< the {rival['needed']:g} needed): "
             f"what it gains may be the thermometer's own reading error averaged away (the reading shows "
             f"{shows}), not a delay or a hysteresis of the unit, so {poly} is named (a delay or hysteresis that "
