@@ -248,3 +248,30 @@ def test_families_that_reject_only_against_the_declared_level_are_no_pattern(tmp
         assert [x["family"] for x in v["shape"]] == ["level"], (seed, v["shape"])
         assert v["shape"][0]["families_with_level_estimated"] >= 0.01, (seed, v["shape"])
         assert "with the noise level estimated from the residuals" in v["reason"], v["reason"]
+
+
+@pytest.mark.slow          # one diagnosis, ~10 s
+def test_a_mean_term_under_a_white_excess_is_not_a_flicker_floor(tmp_path):
+    """A bias quadratic in temperature (3e-9 V/degC^2 on x, -0.7 and 0.4 of it on y, z) under a white
+    excess of 1 SE (seed 4; seeds 1-8 otherwise unchanged): flicker_noise was named with the gap closed
+    -- a noise effect on a structured gap. Its 1/f covariance has a white part that takes up the level
+    the sd_* understate, which the mean families' AIC, under the declared level, could not: now a mean
+    family with a free white level is its rival too, and the verdict is unexplained with bias_tempco2
+    the partial answer."""
+    from independent_bench import simulate_campaign
+    from triadcal.io.bench_csv import read_bench_csv
+    from triadcal.judgement.diagnose import diagnose
+
+    se = 5e-4 / math.sqrt(3000)
+    extra = np.random.default_rng(777 + 4)
+    text, _ = simulate_campaign(np.random.default_rng(4), setpoints_C=(-40, -10, 20, 50, 80, 50, 20, -10, -40),
+                                tilt_arcsec=(40.0, -25.0),
+                                extra_bias=lambda k_, t, T, G, d: se * extra.standard_normal(3)
+                                + 3e-9 * (T - 20.0) ** 2 * np.array([1.0, -0.7, 0.4]))
+    path = tmp_path / "quad_excess.csv"
+    path.write_text(text, encoding="utf-8")
+    d = diagnose(read_bench_csv(path))
+    v = d.verdict
+    assert v["effect"] == "unexplained" and v.get("best_partial") == "bias_tempco2", v
+    fl = next(c for c in d.candidates if c.effect == "flicker_noise")
+    assert "temperature" in fl.refit["gap_after"]["mean_explains_better"], fl.refit["gap_after"]

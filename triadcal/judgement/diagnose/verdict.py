@@ -235,9 +235,20 @@ def decide(v: VerdictInputs) -> dict:
                 if two is not None:
                     tests["two sines in time (periods " + " and ".join(f"{x:.3g}" for x in two["period_h"])
                           + " h or aliases)"] = {"S": two["S"], "k": two["k"] + 2.0 * math.log(per["n_periods"])}
-            if noise.known:
-                return [f for f, t in tests.items() if -t["S"] + 2.0 * t["k"] < aic_noise]
             rr = float(base.r @ base.r)
+            N = base.r.size
+            if noise.known:
+                # the mean term alone, or with a free white level: flicker's white part takes up a level the
+                # sd_* understate, which a mean term under the declared level cannot (a bias quadratic in
+                # temperature under a white excess of 1 SE was named flicker_noise, gap closed: the mean
+                # family's AIC counted the level against it); 2 delta loglik with the level profiled is
+                # rr - N - N log((rr - S) / N)
+                def aic_mean(t):
+                    a = -t["S"] + 2.0 * t["k"]
+                    if rr - t["S"] > 0 and rr > N:
+                        a = min(a, -(rr - N - N * math.log((rr - t["S"]) / N)) + 2.0 * (t["k"] + 1))
+                    return a
+                return [f for f, t in tests.items() if aic_mean(t) < aic_noise]
             return [f for f, t in tests.items()
                     if t["S"] >= rr or -base.r.size * math.log(rr / (rr - t["S"])) + 2.0 * t["k"] < aic_noise]
 
