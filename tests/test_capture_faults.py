@@ -734,3 +734,21 @@ def test_a_copy_of_a_frame_with_other_values_is_a_conflict_not_a_duplicate(tmp_p
     assert kinds == ["conflicting_frame"] and run.conflicts == 1 and run.duplicates == 2
     ev = [e for e in read_events(tmp_path / "events.jsonl") if e["kind"] == "conflicting_frame"][0]
     assert ev["seq"] == 10 and ev["kept_w"] == [11.0, -2.0, 0.5] and ev["other_w"] == [11.0008, -2.0, 0.5]
+
+
+def test_a_frame_held_at_the_session_end_is_written_to_the_event_log(tmp_path):
+    """The first frame back in number and clock waits for the next to say restart or re-send; at a
+    session's end no next comes: event held_frame with its values (nothing read is lost)."""
+    from triadcal.hardware.storage import read_events
+
+    events = EventLog(tmp_path / "events.jsonl")
+    raw = RawStore(tmp_path / "raw.csv")
+    frames = [good(k, 0.1 * k) for k in range(20)] + [good(3, 0.3, w=(9.0, 9.0, 9.0))]
+    run = _Runner(Frames([[f] for f in frames]), raw, events, 1, CaptureSettings())
+    for _ in frames:
+        run.pump(0.0)
+    run.flush_held()
+    raw.close()
+    events.close()
+    ev = [e for e in read_events(tmp_path / "events.jsonl") if e["kind"] == "held_frame"]
+    assert len(ev) == 1 and ev[0]["seq"] == 3 and ev[0]["w"] == [9.0, 9.0, 9.0] and run.accepted == 20

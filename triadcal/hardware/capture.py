@@ -332,6 +332,7 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
                 pass
         except (CaptureError, RuntimeError):
             pass
+        run.flush_held()          # a frame held as a possible restart: its values into the event log
         raw.close()
         report = finish_session(out, imu, run, events, session, total, done_before, len(rows), redone, noise_est,
                                 wall0)

@@ -539,6 +539,7 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
                 pass
         except (CaptureError, RuntimeError):
             pass
+        run.flush_held()          # a frame held as a possible restart: its values into the event log
         raw.close()
         run.warnings.extend(run.chamber_warnings())
         report = finish_session(out, imu, run, events, session, max(total, len(rows)), done_before, len(rows),

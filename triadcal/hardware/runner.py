@@ -303,6 +303,18 @@ class _Runner:
                           visit=self.visit_tag, reason=why, w=[float(v) for v in f.w],
                           t=[float(v) if math.isfinite(v) else None for v in f.t])
 
+    def flush_held(self) -> None:
+        """At a session's end: a frame still held as a possible restart (:meth:`pump`) is told by no next
+        frame; it is not put into the record, but written with its values to the event log
+        (``held_frame``), so nothing read is lost."""
+        f, self._pending = self._pending, None
+        if f is not None:
+            self.events.write("held_frame", seq=f.seq, time_s=f.time_s, last_seq=self.last_seq, phase=self.phase,
+                              visit=self.visit_tag, w=[float(v) for v in f.w],
+                              t=[float(v) if math.isfinite(v) else None for v in f.t],
+                              reason="back in number and clock at the session's end: a restart or a frame sent "
+                                     "again, no next frame to tell")
+
     def _take(self, f: Frame, accepted: list) -> None:
         """Admit ``f`` by the sequence and clock rules (:meth:`_admit`) and append it to ``accepted``."""
         if not self._admit(f):
