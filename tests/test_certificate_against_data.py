@@ -305,3 +305,45 @@ def test_a_misfit_forged_to_status_ok_is_refused_by_its_data(tmp_path):
     with pytest.raises(RefusedResult, match=r"status ok, but its data \(.*data\.csv\) misfit the result's model: "
                                             r"chi2/dof \d"):
         C.certificate(path, data=data, html=tmp_path / "forged.html", issue_date=ISSUE)
+
+
+def test_type_b_rows_edited_to_match_a_smaller_u_are_refused(tmp_path):
+    """Probe AF re-signed a result fitted with the lab file with (a) a row's sensitivity set to 0 and u
+    recomputed, (b) u halved with its Type A row and every Type B sensitivity scaled to match: both were
+    certified with --data (u within 2 times the data's Type A u). Each source is now propagated again
+    from the data and the lab file at the result's values, as the fit does: the honest result's rows are
+    reproduced (issued), the edited ones refused naming the row. The independent bench, the example lab."""
+    from triadcal.reports.certificate import EXAMPLE_LAB_TOML
+
+    lab = tmp_path / "lab.toml"
+    lab.write_text(EXAMPLE_LAB_TOML, encoding="utf-8")
+    data, _ = _campaign(tmp_path, 7, sigma_position_arcsec=2.0)
+    res = api.fit(read_bench_csv(data), effects=LINEAR, lab=lab)
+    assert res.status == "ok", res.notes
+    res.save(tmp_path / "result.json")
+    assert C.certificate(tmp_path / "result.json", lab=lab, data=data, html=tmp_path / "ok.html",
+                         issue_date=ISSUE).issued
+
+    def zero_thermometers(doc):
+        p = doc["parameters"]["K_z"]
+        for r in p["budget"]:
+            if r["source"] == "thermometers":
+                r["sensitivity"], r["contribution"] = 0.0, 0.0
+        p["u"] = float(np.sqrt(sum(r["contribution"] ** 2 for r in p["budget"])))
+        p["U"] = 2.0 * p["u"]
+    path = forge(tmp_path, "no_thermo", zero_thermometers)
+    with pytest.raises(RefusedResult, match=r"parameters\.K_z's Type B row 'thermometers' states a sensitivity 0"):
+        C.certificate(path, lab=lab, data=data, html=tmp_path / "t.html", issue_date=ISSUE)
+
+    def halve(doc):
+        p = doc["parameters"]["Ca_xy"]
+        for r in p["budget"]:
+            r["sensitivity"] *= 0.5
+            r["contribution"] *= 0.5
+        for k in ("u", "U", "u_type_a"):
+            if isinstance(p.get(k), (int, float)):
+                p[k] *= 0.5
+    path = forge(tmp_path, "halved", halve)
+    with pytest.raises(RefusedResult, match=r"parameters\.Ca_xy's Type B row '.*' states a sensitivity .*, 2 times "
+                                            r"smaller than its data"):
+        C.certificate(path, lab=lab, data=data, html=tmp_path / "h.html", issue_date=ISSUE)

@@ -151,6 +151,15 @@ def value_steps(result, campaign, with_u: bool = False, gof: Optional[dict] = No
     A, b = J[ok] * sw[:, None], r[ok] * sw
     z, *_ = np.linalg.lstsq(A, b, rcond=1e-10)
     steps = dict(zip(names, (float(v) for v in z)))
+    if gof is not None:
+        # what typeb_problem needs to propagate a source as the fit did: the weighted design (per stated u)
+        # and the map of a data change onto its rows
+        def rows_of(F):
+            x = (np.asarray(F, float) / sigma).ravel()
+            if white is not None:
+                x = white.apply(x)
+            return x[ok] * sw
+        gof.update(design=A, rows_of=rows_of, names=names, model=model, p0=p0, cov=cov, gravity=gravity)
     if gof is not None and own.known:
         # the data's own goodness of fit at the step's values (the linearised optimum): for a least-squares
         # fit with a known noise, what the result's goodness-of-fit gates judged (goodness_of_fit_problem)
@@ -241,6 +250,68 @@ def goodness_of_fit_problem(result, gof: dict, source: str, data_name: str = "th
     return None
 
 
+#: a stated Type B sensitivity smaller than the one the data and the lab file give by more than this
+#: factor, on a row that matters (its recomputed contribution at least TYPEB_MATERIAL of the parameter's u),
+#: is not the fit's (typeb_problem)
+TYPEB_RATIO_MAX = 1.5
+TYPEB_MATERIAL = 0.2
+
+
+def typeb_problem(result, campaign, lab, source: str, gof: Optional[dict] = None) -> Optional[str]:
+    """Why the Type B rows a joint result states are not those its data and lab file give, or None. Each
+    source of the lab file the fit propagated (:func:`~triadcal.uncertainty.typeb.propagated_sources`) is
+    propagated again as the fit does: its sensitivity ``c = -(J'J)^-1 J' F/sigma`` (``F`` the change of the
+    data per unit of the source, :func:`~triadcal.uncertainty.typeb.data_change`), with the fit's weights,
+    at the result's values (:func:`value_steps`' design). A row whose stated |c| is smaller than that by more
+    than :data:`TYPEB_RATIO_MAX`, where the recomputed contribution is at least :data:`TYPEB_MATERIAL` of the
+    parameter's u, refuses. An outside probe halved u(K_x) with its Type A row and every Type B sensitivity
+    scaled to match, and set the thermometers' sensitivity of K_z to 0, re-signed: certified with U(K_z)
+    0.000020 for 0.000045. Rows of sources the fit did not propagate are not asked (the lab file's check,
+    ``_lab_disagrees``, says whether the result was fitted with this lab file)."""
+    from ...uncertainty.typeb import data_change, propagated_sources, systematic_sources
+
+    if lab is None or result.method != "joint" or not result.holds_type_b() or not_rederivable(result) is not None:
+        return None
+    if gof is None:
+        gof = {}
+        value_steps(result, campaign, gof=gof)
+    if "design" not in gof:
+        return None
+    try:
+        sources = propagated_sources(systematic_sources(lab, campaign.output_unit), result.parameters)
+    except Exception:                        # the lab file's own refusals are said by its checks
+        return None
+    A, names = gof["design"], gof["names"]
+    worst = None
+    for s in sources:
+        F = data_change(s, gof["model"], gof["p0"], gof["cov"], gof["gravity"], np.asarray(campaign.w, float),
+                        campaign.output_unit)
+        rhs = gof["rows_of"](F)
+        if not np.all(np.isfinite(rhs)):
+            continue
+        zc, *_ = np.linalg.lstsq(A, rhs, rcond=1e-10)
+        for name, zj in zip(names, zc):
+            q = result.parameters[name]
+            c_data = abs(float(zj)) * q.u
+            row = next((r for r in (q.uncertainty.get("budget") or []) if isinstance(r, dict)
+                        and r.get("type") == "B" and r.get("source") == s.source), None)
+            if row is None or not isinstance(row.get("sensitivity"), (int, float)):
+                continue
+            if c_data * s.u < TYPEB_MATERIAL * q.u:
+                continue
+            ratio = c_data / max(abs(float(row["sensitivity"])), 1e-300)
+            if ratio > TYPEB_RATIO_MAX and (worst is None or ratio > worst[0]):
+                worst = (ratio, name, s, row, c_data)
+    if worst is None:
+        return None
+    ratio, name, s, row, c_data = worst
+    stated = float(row["sensitivity"])
+    how = f"{ratio:.3g} times smaller than" if stated != 0 else "where"
+    return (f"{source}: refused: parameters.{name}'s Type B row '{s.source}' states a sensitivity "
+            f"{stated:.4g} {row.get('sensitivity_unit', '')}, {how} its data ({campaign.source or 'the campaign'}) and "
+            f"the lab file give {c_data:.4g} (the fit's propagation at the result's values): budget edited: fit again")
+
+
 def values_problem(result, campaign, source: str) -> Optional[str]:
     """Why the values ``result`` states are not those its data give (one line), or None; see the module.
     Also refused: a local gravity other than the one the data state, and a stated u less than half the
@@ -293,5 +364,5 @@ def values_problem(result, campaign, source: str) -> Optional[str]:
             f"({result.reference_temperature_C:g} degC) or effects changed after the fit: fit again")
 
 
-__all__ = ["U_RATIO_MAX", "VALUES_Z_MAX", "check_against_data", "fitted_visits", "goodness_of_fit_problem",
-           "not_rederivable", "value_steps", "values_problem"]
+__all__ = ["TYPEB_RATIO_MAX", "U_RATIO_MAX", "VALUES_Z_MAX", "check_against_data", "fitted_visits",
+           "goodness_of_fit_problem", "not_rederivable", "typeb_problem", "value_steps", "values_problem"]

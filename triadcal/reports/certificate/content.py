@@ -28,7 +28,7 @@ from ...io.lab import LabConfig
 from ...errors import InputError
 from ..notation import display_text
 from ...estimation.result_checks import RefusedResult
-from .against_data import not_rederivable, values_problem
+from .against_data import not_rederivable, typeb_problem, values_problem
 from .consistency import calibration_date, check_certifiable, check_issue_date, range_problem
 from .refusal import GAP_P_THRESHOLD, gravity_reasons, posterior_diagnostics, refusal_reasons
 
@@ -268,7 +268,7 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         if why:
             raise InputError(why)
         # the values it states are those its data give (against_data.py: one Gauss-Newton step, in u)
-        why = values_problem(result, campaign, source)
+        why = values_problem(result, campaign, source) or typeb_problem(result, campaign, lab, source)
         if why:
             raise RefusedResult(why)
     # the date of calibration: the data's (when they are the result's), else the result's data_date, else the
