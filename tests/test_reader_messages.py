@@ -33,8 +33,8 @@ def test_a_bench_csv_in_tabs_or_semicolons_is_said_to_be(tmp_path, sep, name):
 
 
 def test_the_scale_band_message_does_not_round_the_value_into_the_band(tmp_path):
-    """Readings in mV declared V: K just below the band's 0.001 g/V was printed "K = 0.001 g/V,
-    outside the plausible 0.001-20000"."""
+    """Readings just below the band of a V output (0.01 g/V since 2026-12-02, 0.001 before): K just
+    below it was printed "K = 0.001 g/V, outside the plausible 0.001-20000"."""
     from triadcal.estimation.gates import SCALE_BAND_G_PER_UNIT
 
     lo, _ = SCALE_BAND_G_PER_UNIT["V"]
@@ -50,7 +50,8 @@ def test_the_scale_band_message_does_not_round_the_value_into_the_band(tmp_path)
         out.append(",".join(f))
     p = tmp_path / "mv.csv"
     p.write_text("\n".join(out) + "\n")
-    with pytest.raises(InputError, match=r"implies K = 0\.000999\d* g/V, below the plausible 0\.001-"):
+    assert lo == 0.01
+    with pytest.raises(InputError, match=r"implies K = 0\.00999\d* g/V, below the plausible 0\.01-"):
         read_bench_csv(p)
 
 
