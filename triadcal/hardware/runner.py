@@ -187,8 +187,8 @@ class _Runner:
                 prev = self._recent_vals.get(f.seq)
                 if prev is not None and prev[0] == repr(f.time_s) and prev[1:3] != _values(f):
                     # the same sequence number and clock with other values: no copy can be trusted over the
-                    # other (an outside probe's altered first copy was kept, the genuine one dropped as a
-                    # duplicate, every 50th sample biased by 50 u with exit 0); the visit holding it is redone
+                    # other (an outside probe's altered first copy of every 50th frame was kept, the genuine one
+                    # dropped as a duplicate, each visit's mean biased by about 1 u, exit 0); the visit is redone
                     self.conflicts += 1
                     self.events.write("conflicting_frame", seq=f.seq, time_s=f.time_s, phase=self.phase,
                                       visit=self.visit_tag, kept_w=list(prev[3]), other_w=[float(v) for v in f.w],
