@@ -205,7 +205,14 @@ def test_ramp_captures_over_seeds_recover_the_unit(tmp_path):
         # a negative play of the thermal terms). The emulator gave a whole batch of frames the hysteresis
         # branch of its latest frame, so a late batch spanning the unit's turn put frames on the wrong
         # branch (fixed: tests/test_emulator_physics.py); seed 13 under load 6/6 ok since
-        assert r.status == "ok", (seed, r.status, r.fit.get("chi2_dof"), r.fit.get("n_obs"), r.notes[-3:])
+        # The emulated ramp's captures scatter 10-20 % beyond their declared noise (pooled chi2/dof 0.97-1.21 over
+        # 12 runs, one output up to 1.5-1.7: the bound below is 1.4 pooled). The per-output gate (2026-12-02) then
+        # refuses a seed now and then on that output alone (seed 13: y at 1.66 on 75 dof, p 0.0009; CI73): the
+        # gate is right about these data, and the test's question is the unit's recovery, so that refusal alone
+        # is allowed; any other failing gate is not
+        failed = [o["gate"] for o in r.extra["gates"]["outcomes"] if o["passed"] is False]
+        assert r.status == "ok" or failed == ["goodness_of_fit_per_output"], (
+            seed, r.status, failed, r.fit.get("chi2_dof"), r.fit.get("n_obs"), r.notes[-3:])
         assert all(abs(z[n]) < _bound(6 * 7) for n in (*ANGLES, "thermal_lag")), (
             seed, {n: z[n] for n in (*ANGLES, "thermal_lag")})
         zs.extend(z.values())
