@@ -752,3 +752,20 @@ def test_a_frame_held_at_the_session_end_is_written_to_the_event_log(tmp_path):
     events.close()
     ev = [e for e in read_events(tmp_path / "events.jsonl") if e["kind"] == "held_frame"]
     assert len(ev) == 1 and ev[0]["seq"] == 3 and ev[0]["w"] == [9.0, 9.0, 9.0] and run.accepted == 20
+
+
+def test_a_failed_session_still_says_its_missed_setpoint(tmp_path, capsys):
+    """An outside probe: a session whose 35 degC setpoint was missed (PV 22.6 degC) then failed; the
+    setpoint_missed warning was in the report, but stderr showed only the error. The CLI prints the
+    report's warnings before the error (cli/capture._print_report_warnings), from the file the session
+    wrote, whatever the clock did."""
+    import json
+
+    from triadcal.cli.capture import _print_report_warnings
+    from triadcal.hardware.capture import REPORT_NAME
+
+    (tmp_path / REPORT_NAME).write_text(json.dumps({"warnings": ["setpoint 35 degC: the chamber's PV is 22.60 degC"]}))
+    _print_report_warnings(tmp_path)
+    assert "warning: setpoint 35 degC: the chamber's PV is 22.60 degC" in capsys.readouterr().err
+    _print_report_warnings(tmp_path / "absent")                       # no report: nothing, no error
+    assert capsys.readouterr().err == ""

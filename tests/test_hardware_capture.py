@@ -202,21 +202,3 @@ def test_resume_refuses_a_state_file_that_is_not_ours(tmp_path, text, message):
     with pytest.raises(CaptureError, match=message):
         capture(tmp_path, plan={"P02": (180.0, 0.0)}, setpoints_C=[20.0], imu=None, bench=None, chamber=None,
                 settings=CaptureSettings(unit="X"))
-
-
-def test_a_failed_session_still_says_its_missed_setpoint(tmp_path):
-    """An outside probe: a 35 degC setpoint the loose stabilisation (0.5 degC/min) passed at a PV of
-    22.6 degC, the session then failing: the setpoint_missed warning was in the report and the event
-    log, but stderr showed only the error (a successful session prints it). Now it is printed first."""
-    import subprocess
-    import sys
-
-    env = dict(os.environ, OMP_NUM_THREADS="1", XDG_CACHE_HOME=str(tmp_path / "xdg"), MPLBACKEND="Agg")
-    r = subprocess.run([sys.executable, "-m", "triadcal", "capture", "--emulate", "--setpoints", "20,35", "--tau-s", "20",
-                        "--settle-s", "2", "--stab-hold-s", "60", "--stab-window-s", "60", "--stab-rate", "0.5",
-                        "--stab-timeout-s", "200", "--time-scale", "240", "--emulate-seed", "3", "--no-progress",
-                        "--out", str(tmp_path / "out")], cwd=tmp_path, env=env, capture_output=True, text=True)
-    assert r.returncode in (0, 1), r.stderr        # 1 here (the unit leaves the stable state); either way:
-    assert "warning: setpoint 35 degC: the chamber's PV is" in r.stderr, r.stderr
-    if r.returncode == 1:
-        assert r.stderr.index("warning: setpoint 35") < r.stderr.index("error:")
