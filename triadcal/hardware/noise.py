@@ -10,7 +10,8 @@ white noise dominates; the bias instability is the floor of the deviation divide
 0.664 (IEEE Std 952), an upper bound when the curve is still falling at the longest tau.
 
 Per-visit uncertainty (docs/hardware.md, "Per-visit uncertainty from the noise"): the pooled
-curve is fitted with the IEEE Std 952 power-law model ``sigma^2(tau) = Q/tau + B_f^2 + R tau/3``
+overlapping Hadamard variance (a linear drift within a window does not enter it) is fitted with
+the IEEE Std 952 power-law model ``sigma^2(tau) = Q/tau + B_f^2 + R tau/3`` in its Hadamard form
 (:func:`fit_power_law`, non-negative least squares weighted by each point's confidence), and
 :meth:`NoiseEstimate.visit_uncertainty` evaluates the variance of each visit's mean about the
 campaign's mean from that model and the visits' times
@@ -27,6 +28,8 @@ from typing import Optional, Sequence
 
 import allantools
 import numpy as np
+
+from ..models.noise_processes import allan_variance_power_law, hadamard_variance_power_law
 
 
 @dataclass
@@ -72,7 +75,7 @@ class NoiseEstimate:
         terms = "; ".join(f"{a}: Q {q:.4g}, B_f {np.sqrt(bf2):.4g}, R {r:.4g}"
                           for a, (q, bf2, r) in zip("xyz", self.power_law))
         return ("variance of each visit mean about the campaign mean from the IEEE 952 power-law fit "
-                "sigma^2(tau) = Q/tau + B_f^2 + R tau/3 of the pooled Allan variance (tau "
+                "sigma^2(tau) = Q/tau + B_f^2 + R tau/3 of the pooled Hadamard variance (tau "
                 f"{self.taus_s[0]:.3g}-{self.longest_tau_s:.3g} s, extrapolated beyond) and the visit times "
                 f"(Barnes B2); {terms}")
 
@@ -92,9 +95,12 @@ class NoiseEstimate:
 TERM_SIGNIFICANCE = 3.0
 
 
-def fit_power_law(taus_s, avar, edf) -> tuple:
+def fit_power_law(taus_s, avar, edf, variance: str = "allan") -> tuple:
     """``(Q, B_f^2, R), (se_Q, se_Bf2, se_R)`` of the IEEE Std 952-1997 (Annex C) model
-    ``sigma^2(tau) = Q/tau + B_f^2 + R tau/3`` fitted to an Allan-variance curve.
+    ``sigma^2(tau) = Q/tau + B_f^2 + R tau/3`` fitted to an Allan-variance curve, or with
+    ``variance="hadamard"`` to a Hadamard-variance curve
+    (:func:`~triadcal.models.noise_processes.hadamard_variance_power_law`: the same terms, the
+    flicker's and the random walk's with their Hadamard factors).
 
     Non-negative least squares (scipy ``nnls``), each point weighted by its confidence: an
     Allan variance estimated with ``edf`` equivalent degrees of freedom has the relative
@@ -116,7 +122,15 @@ def fit_power_law(taus_s, avar, edf) -> tuple:
     if not pos.any():
         raise InputError("the Allan variance is 0 at every tau: no noise to fit")
     taus, y, rel = taus[pos], y[pos], rel[pos]
-    A_full = np.stack([1.0 / taus, np.ones_like(taus), taus / 3.0], axis=1)
+    if variance == "allan":
+        unit = (allan_variance_power_law(taus, 1.0), allan_variance_power_law(taus, 0.0, 1.0),
+                allan_variance_power_law(taus, 0.0, 0.0, 1.0))
+    elif variance == "hadamard":
+        unit = (hadamard_variance_power_law(taus, 1.0), hadamard_variance_power_law(taus, 0.0, 1.0),
+                hadamard_variance_power_law(taus, 0.0, 0.0, 1.0))
+    else:
+        raise ValueError(f"variance {variance!r}: 'allan' or 'hadamard'")
+    A_full = np.stack([np.broadcast_to(u, taus.shape) for u in unit], axis=1)
     keep = [0, 1, 2]
     while True:
         sig = y * rel
@@ -144,29 +158,65 @@ def fit_power_law(taus_s, avar, edf) -> tuple:
     return tuple(terms), tuple(errs)
 
 
+def _pooled(windows, taus, rate_hz, deviation) -> tuple:
+    """The variance ``deviation`` (allantools ``oadev`` or ``ohdev``) of each output at ``taus``,
+    pooled over the windows weighted by each window's number of terms: ((3, k) variance, weights)."""
+    var = np.zeros((3, len(taus)))
+    weight = np.zeros((3, len(taus)))
+    for w in windows:
+        for i in range(3):
+            t_used, dev, _, ns = deviation(w[:, i], rate=rate_hz, data_type="freq", taus=taus)
+            idx = np.searchsorted(taus, t_used)
+            ok = (idx < len(taus))
+            idx = idx[ok]
+            var[i, idx] += np.asarray(ns)[ok] * np.asarray(dev)[ok] ** 2
+            weight[i, idx] += np.asarray(ns)[ok]
+    return var, weight
+
+
+def _white_edf(windows, ms, d: int) -> np.ndarray:
+    """Equivalent degrees of freedom of the pooled overlapping Allan (``d = 2``) or Hadamard
+    (``d = 3``) variance at each averaging factor ``m`` for white noise: Greenhall's (allantools
+    ``edf_greenhall``; Greenhall and Riley, PTTI 2003) of each window, summed over the windows.
+    The count of (m-mean) differences counted before overstated it 1.3-1.7x at m = 1, 2 (38 for
+    22.8 at m = 1 in a 40-sample window): the white level's standard error came out too small, and a
+    curve's chance rise at the longest tau passed as a flicker floor 3 standard errors above it
+    (2 outputs of 102 in emulated ramp captures of white noise, their u_w 1.6x too large)."""
+    cache: dict = {}
+
+    def one(n: int, m: int) -> float:
+        if (n, m) not in cache:
+            cache[n, m] = (float(allantools.edf_greenhall(alpha=0, d=d, m=int(m), N=int(n), overlapping=True,
+                                                          modified=False)) if n >= d * m + 1 else 0.0)
+        return cache[n, m]
+
+    return np.array([sum(one(len(w), m) for w in windows) for m in ms], float)
+
+
 def allan_noise(windows: Sequence[np.ndarray], rate_hz: float) -> NoiseEstimate:
-    """Pool the overlapping Allan deviation of stationary windows (each (n_i, 3), output unit)."""
+    """Pool the overlapping Allan deviation of stationary windows (each (n_i, 3), output unit).
+
+    The power-law terms (the ``u_w_*`` columns) are fitted to the pooled overlapping Hadamard
+    variance (:func:`fit_power_law` with ``variance="hadamard"``), which a linear drift within a
+    window does not enter: on a temperature ramp each window's outputs drift with the unit's
+    temperature (held by the fit's model), and the Allan curve, raised by ``D^2 tau^2 / 2``, was
+    fitted with a flicker floor white noise did not have (the emulated ramp: B_f 1.6e-5 V on an
+    output of white noise in 2 of 18 captures, its u_w 1.6x too large, chi^2/dof 0.14 on it)."""
     windows = [np.asarray(w, float) for w in windows if len(w) >= 8]
     if not windows:
         raise InputError("no recording window with at least 8 samples: cannot estimate the noise")
     shortest = min(len(w) for w in windows)
     ms = 2 ** np.arange(0, int(np.log2(max(shortest // 4, 1))) + 1)
     taus = ms / rate_hz
-    avar = np.zeros((3, len(ms)))
-    weight = np.zeros((3, len(ms)))
-    # equivalent dof of the pooled points: the count of non-overlapping pairs of m-sample
-    # means in each window (a lower bound for the overlapping estimator; IEEE 1139)
-    edf = np.array([sum(max(len(w) // m - 1, 0) for w in windows) for m in ms], float)
-    for w in windows:
-        for i in range(3):
-            t_used, dev, _, ns = allantools.oadev(w[:, i], rate=rate_hz, data_type="freq", taus=taus)
-            idx = np.searchsorted(taus, t_used)
-            ok = (idx < len(taus))
-            idx = idx[ok]
-            avar[i, idx] += np.asarray(ns)[ok] * np.asarray(dev)[ok] ** 2
-            weight[i, idx] += np.asarray(ns)[ok]
-    good = weight.min(axis=0) > 0
+    # equivalent dof of the pooled points: each window's for white noise (the hypothesis the fit's
+    # non-white terms are tested against), summed over the windows
+    edf = _white_edf(windows, ms, 2)
+    edf_h = _white_edf(windows, ms, 3)
+    avar, weight = _pooled(windows, taus, rate_hz, allantools.oadev)
+    hvar, weight_h = _pooled(windows, taus, rate_hz, allantools.ohdev)
+    good = (weight.min(axis=0) > 0) & (weight_h.min(axis=0) > 0)
     avar, weight, taus, edf = avar[:, good] / weight[:, good], weight[:, good], taus[good], edf[good]
+    hvar, edf_h = hvar[:, good] / weight_h[:, good], edf_h[good]
     flat = [a for i, a in enumerate("xyz") if not np.any(avar[i] > 0)]
     if flat:
         raise InputError(f"output {', '.join(flat)} is constant within every recording window "
@@ -179,7 +229,7 @@ def allan_noise(windows: Sequence[np.ndarray], rate_hz: float) -> NoiseEstimate:
     k_min = np.argmin(adev, axis=1)
     bi = tuple(float(adev[i, k_min[i]] / 0.664) for i in range(3))
     floor = tuple(bool(k_min[i] < len(taus) - 1) for i in range(3))
-    fits = [fit_power_law(taus, avar[i], edf) for i in range(3)]
+    fits = [fit_power_law(taus, hvar[i], edf_h, variance="hadamard") for i in range(3)]
     return NoiseEstimate(Q, bi, floor, taus, adev, len(windows), int(sum(len(w) for w in windows)),
                          float(rate_hz), power_law=tuple(f[0] for f in fits),
                          power_law_se=tuple(f[1] for f in fits), longest_tau_s=float(taus[-1]))

@@ -1,4 +1,4 @@
-"""Power-law output noise: Allan variance, scatter of visit means, a flicker (1/f) generator.
+"""Power-law output noise: Allan and Hadamard variances, scatter of visit means, a flicker (1/f) generator.
 
 Pure functions (no I/O) shared by the capture's noise estimate (:mod:`triadcal.hardware.noise`),
 the emulator (:class:`triadcal.hardware.emulator_physics.UnitPhysics`) and the tests. The noise of a
@@ -38,6 +38,32 @@ def allan_variance_power_law(tau_s, Q, Bf2=0.0, R=0.0):
     ``R`` the rate-random-walk intensity (unit^2 / s); ``tau_s`` in seconds (array or scalar)."""
     tau = np.asarray(tau_s, float)
     return Q / tau + Bf2 + R * tau / 3.0
+
+
+#: the Hadamard variance of flicker noise against its Allan variance: ``2 - (3/4) log2 3``
+#: (:func:`hadamard_variance_power_law`)
+HADAMARD_FLICKER = 2.0 - 0.75 * math.log2(3.0)
+#: the Hadamard variance of a random walk of the bias against its Allan variance
+HADAMARD_RANDOM_WALK = 0.5
+
+
+def hadamard_variance_power_law(tau_s, Q, Bf2=0.0, R=0.0):
+    """The overlapping Hadamard variance ``(1/6) E[(ybar_3 - 2 ybar_2 + ybar_1)^2]`` (three adjacent
+    tau-means) of the power-law terms of :func:`allan_variance_power_law`, in their parameters:
+    ``Q/tau + k_f B_f^2 + k_R R tau/3``.
+
+    From the spectral forms (Riley, NIST SP 1065, 2008, sec. 5.2.8): Allan
+    ``2 int S(f) sin^4(pi f tau) / (pi f tau)^2 df``, Hadamard ``(8/3) int S(f) sin^6(pi f tau) /
+    (pi f tau)^2 df``. White (``S = 2Q``): both ``Q/tau``. Flicker (``S = h/f``): Allan ``2 ln 2 h``,
+    Hadamard ``(4 ln 2 - (3/2) ln 3) h`` (``int sin^6 x / x^3 dx = (3/2) ln 2 - (9/16) ln 3`` by
+    ``sin^6 = (10 - 15 cos 2x + 6 cos 4x - cos 6x)/32``), so ``k_f = 2 - (3/4) log2 3 = 0.811``.
+    Random walk (``S = h/f^2``): Allan ``(2 pi^2/3) h tau``, Hadamard ``(pi^2/3) h tau``, ``k_R = 1/2``.
+
+    A linear drift of ``y`` does not enter it (the second difference of equal-length means of a
+    line is zero), where the Allan variance grows by ``D^2 tau^2 / 2``: the outputs of a window on a
+    temperature ramp drift with the unit's temperature, deterministically (the fit's model holds it)."""
+    tau = np.asarray(tau_s, float)
+    return Q / tau + HADAMARD_FLICKER * Bf2 + HADAMARD_RANDOM_WALK * R * tau / 3.0
 
 
 def _generalized_covariance(s, Q, Bf2, R):
