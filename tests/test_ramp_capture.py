@@ -37,6 +37,8 @@ from triadcal.planning.ramp import RampPlan
 CLI = [sys.executable, "-m", "triadcal.cli"]
 EFFECTS = ["bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis", "thermal_lag"]
 ANGLES = ("Ca_xy", "Ca_xz", "Ca_yx", "Ca_yz", "Ca_zx", "Ca_zy")
+#: the fit's gates that test its goodness of fit (a chi^2 against the data's noise)
+GOODNESS_GATES = {"goodness_of_fit", "goodness_of_fit_per_output"}
 
 
 def ramp_on(out, plan, imu, bench, chamber):
@@ -162,14 +164,19 @@ def test_ramp_capture_through_the_emulator_fits_and_recovers_the_unit(tmp_path):
     # the fit with thermal_lag recovers the emulated unit
     truth = em.truth
     r = fit(c, effects=EFFECTS)
-    assert r.status == "ok", (r.status, r.fit.get("chi2_dof"), r.notes)
+    # every gate passes but perhaps the goodness of fit's, a test of the data's scatter that refuses about
+    # 0.001 of captures of a right model (test_ramp_captures_over_seeds_recover_the_unit); its chi^2 must
+    # then be in the outer 1e-4 at most (two-sided: a fit that reads white noise as flicker is low)
+    failed = {o["gate"] for o in r.extra["gates"]["outcomes"] if o["passed"] is False}
+    assert r.status == "ok" or failed <= GOODNESS_GATES, (r.status, failed, r.fit.get("chi2_dof"), r.notes)
+    dof = r.fit["n_obs"] - r.fit["n_params"]
+    lo, hi = stats.chi2.ppf(5e-5, dof) / dof, stats.chi2.isf(5e-5, dof) / dof     # 0.65-1.44 on 195 dof
+    assert lo < r.fit["chi2_dof"] < hi, (r.fit["chi2_dof"], dof, lo, hi)
     z = {n: (r.parameters[n].value - v) / r.parameters[n].u for n, v in truth.parameters.items()}
     assert set(z) == set(truth.parameters)
     for n in (*ANGLES, "thermal_lag"):
         assert abs(z[n]) < _bound(7), (n, z[n])                     # 3.80
     assert max(abs(v) for v in z.values()) < _bound(len(z)), z      # 4.17 for the 33 parameters
-    # chi2/dof: see docs/hardware.md (the measured rate; 0.7-1.4 asserted as before)
-    assert 0.7 < r.fit["chi2_dof"] < 1.4, r.fit["chi2_dof"]
     print(f"\nramp capture: {c.n_visits} visits in {wall:.1f} s wall, chi2/dof {r.fit['chi2_dof']:.3f}, "
           f"thermal_lag {r.parameters['thermal_lag'].value:.3f} +- {r.parameters['thermal_lag'].u:.3f} min, "
           f"largest |z| {max(abs(v) for v in z.values()):.2f}, angles {max(abs(z[n]) for n in ANGLES):.2f}; "
@@ -196,31 +203,40 @@ def _capture_and_fit(tmp_path, seed):
 def test_ramp_captures_over_seeds_recover_the_unit(tmp_path):
     """Six seeds (~80 s): every angle and thermal_lag within the Bonferroni bound of the 42 (4.22 u,
     _bound), the z-scores of all parameters pooled with SD in 0.6-1.5 (their u describes their
-    scatter) and chi2/dof below 1.4 each."""
-    zs, chi2 = [], []
+    scatter); every gate but the goodness of fit passes on each seed, and the goodness of fit is
+    tested once on the six seeds together: sum chi^2 against chi^2 of the summed dof, two-sided at
+    alpha = 0.001.
+
+    Why not each seed's status: the goodness-of-fit gates are tests of the data's scatter, each with a
+    false refusal rate of about 0.001 (the pooled and the per-output one), and asking twelve of them
+    to accept random captures failed a CI now and then (CI73: seed 13's y at 1.66 on 75 dof, p 0.0003;
+    2026-12-02: seed 15's pooled 1.35 on 207 dof, p 0.0006). The captures' scatter is the emulator's
+    white noise: over 34 captures (30 on a machine loaded with 8 busy processes) the noise drawn in
+    the recording windows, read back from the emulator, had z^2 1.004 +- 0.016 per visit mean against
+    1.013 and 0.994 in the windows of as many frames just before and after (no selection of windows
+    by their values), the data against the truth's model scattered as that noise alone (seed 21's z:
+    1.64 from the noise, 1.71 with the model's), and the fits' chi^2/dof had SD 0.105 against 0.104
+    expected, without the one capture whose white noise the power-law fit read as a flicker floor
+    at 3 SE (its x at chi^2/dof 0.14; tests/test_hadamard_noise.py)."""
+    zs, chi2, dof = [], [], []
     for seed in (11, 12, 13, 14, 15, 16):
         (tmp_path / str(seed)).mkdir()
         r, z = _capture_and_fit(tmp_path / str(seed), seed)
-        # CI-11 (2026-11-25) and under load on 2026-12-01: a seed refused now and then (model_mismatch,
-        # a negative play of the thermal terms). The emulator gave a whole batch of frames the hysteresis
-        # branch of its latest frame, so a late batch spanning the unit's turn put frames on the wrong
-        # branch (fixed: tests/test_emulator_physics.py); seed 13 under load 6/6 ok since
-        # The emulated ramp's captures scatter 10-20 % beyond their declared noise (pooled chi2/dof 0.97-1.21 over
-        # 12 runs, one output up to 1.5-1.7: the bound below is 1.4 pooled). The per-output gate (2026-12-02) then
-        # refuses a seed now and then on that output alone (seed 13: y at 1.66 on 75 dof, p 0.0009; CI73): the
-        # gate is right about these data, and the test's question is the unit's recovery, so that refusal alone
-        # is allowed; any other failing gate is not
-        failed = [o["gate"] for o in r.extra["gates"]["outcomes"] if o["passed"] is False]
-        assert r.status == "ok" or failed == ["goodness_of_fit_per_output"], (
+        failed = {o["gate"] for o in r.extra["gates"]["outcomes"] if o["passed"] is False}
+        assert r.status == "ok" or failed <= GOODNESS_GATES, (
             seed, r.status, failed, r.fit.get("chi2_dof"), r.fit.get("n_obs"), r.notes[-3:])
         assert all(abs(z[n]) < _bound(6 * 7) for n in (*ANGLES, "thermal_lag")), (
             seed, {n: z[n] for n in (*ANGLES, "thermal_lag")})
         zs.extend(z.values())
-        chi2.append(r.fit["chi2_dof"])
+        dof.append(r.fit["n_obs"] - r.fit["n_params"])
+        chi2.append(r.fit["chi2_dof"] * dof[-1])
     assert 0.6 < np.std(zs) < 1.5, np.std(zs)
     assert abs(np.mean(zs)) < 0.5
-    assert max(chi2) < 1.4, chi2
-    print(f"\n6 seeds: z SD {np.std(zs):.2f}, mean {np.mean(zs):+.2f}, chi2/dof {min(chi2):.2f}-{max(chi2):.2f}")
+    total, n = float(np.sum(chi2)), float(np.sum(dof))
+    p = float(stats.chi2.sf(total, n))
+    assert 0.0005 < p < 0.9995, (total / n, n, p, [c / d for c, d in zip(chi2, dof)])
+    print(f"\n6 seeds: z SD {np.std(zs):.2f}, mean {np.mean(zs):+.2f}, chi2/dof {total / n:.3f} on {n:.0f} dof "
+          f"(p {p:.3f}), each {min(c / d for c, d in zip(chi2, dof)):.2f}-{max(c / d for c, d in zip(chi2, dof)):.2f}")
 
 
 def test_sigkill_mid_ramp_then_resume_loses_no_sample(tmp_path):
