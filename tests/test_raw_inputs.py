@@ -257,6 +257,42 @@ def test_a_temperature_column_in_kelvin_is_refused(tmp_path, capsys):
     assert e.value.line == 12
 
 
+def test_the_temperature_column_sets_the_reference_temperature_and_range(tmp_path, capsys):
+    """A recording at 25-38 degC with a temperature column: the values refer to the mean temperature of
+    the static samples and the range is theirs, with a note of the span (an outside probe: reported and
+    certified "at the reference temperature 20 degC", S 6-10 u from the truth there). Each hold is at
+    one temperature here (the moves between them ramp), so the static mean is the holds' mean, by hand.
+    Without the column the 20 degC is nominal and the certificate says the recording's temperature."""
+    from triadcal.cli import main as cli
+
+    ups = twelve_poses()
+    w, labels = make_samples(ups, seed=3)
+    hold_T = np.linspace(25.0, 38.0, len(ups))
+    T = np.interp(np.arange(len(w)), [k * (STATIC + MOVE) + j for k in range(len(ups)) for j in (0, STATIC - 1)],
+                  np.repeat(hold_T, 2))
+    p = write_recording(tmp_path / "t.csv", w, extra={"temp_C": T})
+    rc, err = run_cli(capsys, p, "--rate", RATE, "--poses", "unknown", "--local-g", "9.81", "--temperature-column",
+                      "temp_C", "--json", tmp_path / "r.json")
+    assert rc == 0, err
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert r["status"] == "ok"
+    assert r["reference_temperature_C"] == pytest.approx(hold_T.mean(), abs=0.05)        # 31.5
+    assert r["temperature_range_C"] == pytest.approx([25.0, 38.0], abs=0.05)
+    assert any("spans 25.0 .. 38.0 degC" in n and "fits no thermal terms" in n for n in r["notes"]), r["notes"]
+    assert r["reference_temperature_stated"] is True
+    assert cli(["certificate", str(tmp_path / "r.json"), "--html", str(tmp_path / "c.html")]) == 0
+    assert "reference temperature 31.5 °C" in capsys.readouterr().out
+    # without the column: nominal 20 degC, and the certificate does not claim it
+    rc, err = run_cli(capsys, p, "--rate", RATE, "--poses", "unknown", "--local-g", "9.81", "--json", tmp_path / "n.json")
+    assert rc == 0, err
+    r = json.loads((tmp_path / "n.json").read_text())
+    assert r["reference_temperature_C"] == 20.0 and r["temperature_range_C"] is None
+    assert r["reference_temperature_stated"] is False
+    assert cli(["certificate", str(tmp_path / "n.json"), "--html", str(tmp_path / "n.html")]) == 0
+    out = capsys.readouterr().out
+    assert "recording's temperature (not stated in the data)" in out and "20 °C" not in out
+
+
 # -- 7. nothing written on a refusal --------------------------------------------------------------
 def test_bench_csv_with_unknown_poses_writes_nothing(tmp_path, capsys):
     w, labels = make_samples(twelve_poses(), seed=2)

@@ -246,8 +246,9 @@ class CalibrationResult:
         r.optional_string(d, "input_unit")
         if d.get("source") is not None and not isinstance(d["source"], str):
             raise r.error("source", f"is a {_kind(d['source'])}, expected a string or null")
-        if "local_g_stated" in d and not isinstance(d["local_g_stated"], bool):
-            raise r.error("local_g_stated", f"is a {_kind(d['local_g_stated'])}, expected true or false")
+        for key in ("local_g_stated", "reference_temperature_stated"):
+            if key in d and not isinstance(d[key], bool):
+                raise r.error(key, f"is a {_kind(d[key])}, expected true or false")
         for key in ("data_sha256", "derived_from_sha256"):
             sha = d.get(key)
             if sha is not None and not (isinstance(sha, str) and re.fullmatch(r"[0-9a-f]{64}", sha)):

@@ -300,6 +300,7 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
     result.extra["local_g_stated"] = bool(local_g_stated)
     if not local_g_stated:
         result.notes.append(assumed_g_note(result))
+    recording_temperature(result, rec, avg)
     if json_path is not None:
         result.save(json_path)
     if bench_csv_path is not None:
@@ -311,3 +312,32 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
         write_bench_csv(replace(campaign, metadata={**campaign.metadata,
                                                     "raw_samples_sha256": samples_sha256(rec)}), bench_csv_path)
     return RawFit(result, det, avg, rec, campaign, sol, run)
+
+
+#: a recording whose static intervals span more than this (degC) gets a note of what the span can cost
+TEMPERATURE_SPAN_NOTE_C = 1.0
+
+
+def recording_temperature(result: CalibrationResult, rec: RawRecording, avg: PoseAverages) -> None:
+    """The temperature the raw fit's values refer to. With a temperature column: the mean over the
+    static intervals' samples is the reference temperature, their lowest and highest the range (an
+    outside probe: a recording at 25-45 degC was reported, and certified, "at the reference temperature
+    20 degC", S 6-10 u from the truth there); fit-raw fits no thermal terms, so a span of more than
+    :data:`TEMPERATURE_SPAN_NOTE_C` gets a note. Without one the temperature is not known: the result
+    keeps the nominal 20 degC that results must state, ``extra.reference_temperature_stated`` false,
+    and the certificate says the values hold at the recording's temperature."""
+    if rec.temperature_C is None:
+        result.extra["reference_temperature_stated"] = False
+        return
+    T = np.concatenate([rec.temperature_C[a:b] for a, b in zip(avg.start, avg.end)])
+    lo, hi, mean = float(np.min(T)), float(np.max(T)), float(np.mean(T))
+    result.reference_temperature_C = round(mean, 2)
+    result.temperature_range_C = (round(lo, 2), round(hi, 2))
+    result.extra["reference_temperature_stated"] = True
+    if hi - lo > TEMPERATURE_SPAN_NOTE_C:
+        result.notes.append(
+            f"the unit's temperature ({rec.temperature_column}) spans {lo:.1f} .. {hi:.1f} degC over the static "
+            f"intervals: fit-raw fits no thermal terms, so K, S and the angles are those at about their mean "
+            f"{mean:.1f} degC (the reference temperature); a bias tempco c moves S by c x {(hi - lo) / 2:.1f} degC "
+            "at the ends, which the fit does not see (a bench campaign over setpoints with the thermal effects "
+            "measures it)")

@@ -82,6 +82,9 @@ def values_temperature(result: CalibrationResult) -> str:
     T0 °C", or, at one temperature with sensors apart (:func:`row_temperatures_C`), each accelerometer's
     own temperature (an outside probe: section 3 listed them while sections 4 and 6 and the console
     said "at the reference temperature 20.02 °C", X's row being 0.43 °C from it)."""
+    if result.extra.get("reference_temperature_stated") is False:
+        # a raw recording without a temperature column (fit-raw): its 20 degC is nominal, not measured
+        return "the recording's temperature (not stated in the data)"
     rows_T = row_temperatures_C(result)
     if rows_apart(rows_T):
         return ("each accelerometer's own temperature (" + ", ".join(f"{a.upper()} {v:.2f}" for a, v in rows_T.items())
