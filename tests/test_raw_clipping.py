@@ -98,3 +98,27 @@ def test_a_face_clipped_one_sd_above_its_mean_is_refused(tmp_path, sds_above):
     mild = counts.copy()
     mild[:, 0] = np.minimum(mild[:, 0], np.round(top + 2.5 * 8.0))
     assert fit_raw(_write(tmp_path / "mild.csv", mild), RATE, unit="counts").result.status == "ok"
+
+
+@pytest.mark.parametrize("as_floats", [False, True])
+def test_a_face_flat_at_full_scale_for_most_of_a_tenth_is_refused_as_clipping(tmp_path, as_floats):
+    """The whole x_p face on the rail (4 sigma below its mean: every sample the same), 13 % of the
+    recording: the noise estimate took the 10th percentile of the windows' SDs, 0 there, so only the
+    clipped face looked static and the refusal named missing faces (or no static interval for floats
+    in g), not the clipping (an outside probe; 13.5 % and 16.7 % of its recordings). A flat window is
+    not the channel's noise when the readings move elsewhere."""
+    counts = _recording(2, 8.0)
+    top = (1 + S[0]) / K[0]
+    counts[:, 0] = np.minimum(counts[:, 0], np.floor(top) - 32)
+    assert np.mean(counts[:, 0] == counts[:, 0].max()) > 0.12
+    if as_floats:                                           # in g, written with 6 decimals
+        g = np.round((counts - 0.0) * K, 6)
+        path = tmp_path / "clip_g.csv"
+        np.savetxt(path, g, fmt="%.6f", delimiter=",", header="acc_x,acc_y,acc_z", comments="")
+        unit = "g"
+    else:
+        path, unit = _write(tmp_path / "clip.csv", counts), "counts"
+    for poses in ("known", "unknown"):
+        with pytest.raises(InputError, match=r"clipped at full scale: x in the interval") as e:
+            fit_raw(path, RATE, unit=unit, poses=poses)
+        assert path.name in str(e.value) and "faces" not in str(e.value).split("clipped")[0]
