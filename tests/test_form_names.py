@@ -350,3 +350,21 @@ def test_the_diagnose_again_loop_through_the_hysteresis_forms(tmp_path):
     verdicts = [diagnose(c, model=THERMAL + (h,), n_draws=100).verdict_effect
                 for h in ("hysteresis", "hysteresis_play", "hysteresis_pi")]
     assert verdicts == ["hysteresis_pi", "hysteresis_pi", None], verdicts
+
+
+def test_diagnose_with_the_rate_form_lag_in_the_model_on_a_measured_ramp(tmp_path):
+    """The rate-form ``thermal_lag`` in the model, the history form among the candidates, on a ramp with
+    the rate measured per visit (2 min behind a housing 20 min behind the air, Euler heat equations):
+    the diagnosis crashed (KeyError 'thermal_lag': the history form's refit holds the lag as a profiled
+    time constant, not as the model's parameter; an outside probe, on its files and on `simulate --ramp`).
+    Now the history candidate's shift of thermal_lag is its profiled tau against the rate form's."""
+    from triadcal.io.bench_csv import read_bench_csv
+    from triadcal.judgement.diagnose import diagnose
+
+    text, truth = simulate_lag_campaign(np.random.default_rng(3), tau_element_min=2.0, location="housing",
+                                        tau_housing_min=20.0, measured_rate=True)
+    c = read_bench_csv(_write(tmp_path, "ramp.csv", text))
+    d = diagnose(c, model=LAG_MODEL + ("thermal_lag",), n_draws=100)
+    hist = next(k for k in d.candidates if k.effect == "thermal_lag_history")
+    shift = hist.refit["parameter_shifts"]["thermal_lag"]
+    assert math.isfinite(shift["shift"]) and abs(shift["shift"]) < 0.5, shift        # 2 min against 2 min

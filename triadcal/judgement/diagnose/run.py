@@ -401,10 +401,15 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
         rms_after = float(np.sqrt(np.mean((st.r * st.s) ** 2 * sig_ug.reshape(-1) ** 2)))
         # parameter shifts in units of their uncertainty
         after_val = st.value(full)
+        lag_after = ((form or {}).get("details") or {}).get("tau_min")
+        if "thermal_lag" in names and "thermal_lag" not in after_val and lag_after is not None:
+            # the history form (thermal_lag_history) replaces the rate form's parameter by its profiled time
+            # constant (min, the same unit): a ramp fitted with thermal_lag crashed here (KeyError, an outside probe)
+            after_val = {**after_val, "thermal_lag": float(lag_after)}
         shifts = {n: {"shift": after_val[n] - base_val[n], "u_before": base_u[n],
                       "in_u": (after_val[n] - base_val[n]) / base_u[n] if base_u[n] > 0 else None,
                       "unit": unit_of(n)}
-                  for n in names}
+                  for n in names if n in after_val}
         worst = max(shifts, key=lambda n: abs(shifts[n]["in_u"] or 0.0)) if shifts else None
         cross = None
         if cross_group and c.effect not in NOISE_EFFECTS and form is None:
