@@ -398,7 +398,8 @@ class StepProgram:
 def simulate_lag_campaign(rng, *, program=None, tau_element_min=5.0, location="housing", tau_housing_min=20.0,
                           tau_chamber_min=5.0, warmup=None, truth=None, tau_s=30.0, move_s=20.0, noise_sd=5e-4,
                           n_samples=3000, temp_noise_C=0.01, dt_s=0.5, unit="SN-IND-LAG",
-                          element_play_C=0.0) -> tuple[str, dict]:
+                          element_play_C=0.0, measured_rate: bool = False,
+                          element_rate_form: bool = False) -> tuple[str, dict]:
     """CSV text of a campaign whose thermal terms follow the sensing element, lagging its
     thermometer, and the true parameters (reporting units, plus ``thermal_lag`` and
     ``thermal_lag_housing`` in min).
@@ -411,12 +412,19 @@ def simulate_lag_campaign(rng, *, program=None, tau_element_min=5.0, location="h
     power-on at ``time_s = 0``. ``element_play_C``: the thermal terms follow the element's temperature
     through a mechanical backlash of that half-width (the state machine below, started mid-band): a
     hysteresis of every thermal term. Each visit's outputs and readings are means over its averaging
-    window of the integrated states."""
+    window of the integrated states. ``measured_rate``: a ``dTdt_C_per_min`` column, the least-squares
+    slope of the thermometer's integrated reading over each window (as ``capture --ramp`` measures it).
+    ``element_rate_form``: the element at ``H - tau_e dH/dt`` (the rate form as the physics, with the
+    housing's integrated rate) instead of the first-order stage (housing thermometer only)."""
     program = program or RampProgram()
     truth = dict(default_truth(rng) if truth is None else truth)
     t, A, H, E = euler_thermal_history(program, tau_chamber_min=tau_chamber_min, tau_housing_min=tau_housing_min,
                                        tau_element_min=tau_element_min, dt_s=dt_s)
     reading = H if location == "housing" else A
+    if element_rate_form:
+        if location != "housing":
+            raise ValueError("element_rate_form: the rate form behind a housing thermometer only")
+        E = H - 60.0 * tau_element_min * np.gradient(H, t)
     if element_play_C > 0:
         held, pushed = float(E[0]), np.empty_like(E)
         for k, x in enumerate(E):             # the backlash: moves only when pushed at one side of the gap
@@ -457,6 +465,10 @@ def simulate_lag_campaign(rng, *, program=None, tau_element_min=5.0, location="h
 
     Ew = window_mean(E)
     Rw = window_mean(reading)
+    rate_w = np.empty(n)
+    for k, s0 in enumerate(starts):
+        m = (t >= s0) & (t <= s0 + tau_s)
+        rate_w[k] = float(np.polyfit(t[m] - t[m].mean(), reading[m], 1)[0]) * 60.0
     time_s = starts + tau_s / 2
     a1 = np.array([POSITIONS[p][0] for p in pos])
     a2 = np.array([POSITIONS[p][1] for p in pos])
@@ -485,12 +497,14 @@ def simulate_lag_campaign(rng, *, program=None, tau_element_min=5.0, location="h
              "# power_on_s = 0",
              "# local_g_m_s2 = 9.80665",
              "# output_unit = V",
-             ",".join(COLUMNS)]
+             ",".join(COLUMNS + (("dTdt_C_per_min",) if measured_rate else ()))]
     for k in range(n):
         row = [unit, repr(float(sp[k])), str(dirs[k]), repr(float(time_s[k])), str(pos[k]),
                repr(float(a1[k])), repr(float(a2[k])), repr(float(tau_s)),
                *(repr(float(v)) for v in W[k]), *(repr(float(v)) for v in temps[k]),
                "0", "initial", *([repr(float(noise_sd))] * 3), str(int(n_samples))]
+        if measured_rate:
+            row.append(repr(float(rate_w[k])))
         lines.append(",".join(row))
     truth["thermal_lag"] = float(tau_element_min)
     truth["thermal_lag_housing"] = float(tau_housing_min)

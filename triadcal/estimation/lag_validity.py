@@ -9,6 +9,7 @@ biased by ``tau_r^2 / (tau_a + tau_r)``. :func:`rate_form_check` estimates ``tau
 visits' temperature readings (one exponential approach per setpoint block with a common time
 constant, profiled on a log grid; its 95 % profile interval) and refuses the fit's ``tau`` when
 even the longest ``tau_a`` of that interval leaves a bias larger than three times the stated ``u(tau)`` (:data:`BIAS_U_MAX`).
+On a ramp (rates measured per visit) :func:`ramp_form_check` fits the housing form beside it instead.
 """
 
 from __future__ import annotations
@@ -98,3 +99,72 @@ def rate_form_check(campaign, tau_min: float, u_tau_min: float):
                 "fit the lag over the temperature history, --thermal-lag-form housing, air or history")
     return GateOutcome("lag_form", ok, "model_mismatch", txt, bias / u_tau_min if u_tau_min > 0 else None,
                        threshold)
+
+
+#: the rate form's and the housing form's answers may differ by this many u(rate form) before the
+#: data must choose between them
+RAMP_FORMS_APART_U = 2.0
+#: chi^2 (in units of the noise scale) by which the rate form must beat the housing form to stand when
+#: their answers differ (a likelihood ratio of 9: three standard deviations)
+RAMP_FORM_PREFERENCE = 9.0
+
+
+def ramp_form_check(campaign, result, effects, fit_kwargs):
+    """The ``lag_form`` gate of a rate-form ``thermal_lag`` fitted to a ramp (measured rates per visit),
+    or None when it does not apply. The rate form ``T - tau dT/dt`` is the first order of a lag behind
+    the thermometer; it is exact on straight legs, but a thermometer on a housing that lags the air
+    curves for tens of minutes after each turn of the program. An outside probe: an element 2 min behind
+    a housing 15 min behind the air, 2 degC/min, thermal terms fitted in the rate form: status ok in 9 of
+    10, S_z_tempco 8-12 u low, every tempco 3-5 % small (coverage 0.66); the housing form came out right.
+    The same joint model is fitted with one first-order stage behind the thermometer
+    (:func:`~triadcal.estimation.thermal_lag_form.fit_thermal_lag`, ``housing``); the gate fails when
+    some parameter differs by more than :data:`RAMP_FORMS_APART_U` u and the rate form's chi^2 does not
+    beat the housing form's by :data:`RAMP_FORM_PREFERENCE` (times the noise scale). ``fit_kwargs``:
+    the rate fit's keyword arguments (the housing fit must share its weights: the noise must be in the
+    data, else not tested)."""
+    from .gates import GateOutcome
+
+    if "thermal_lag" not in result.parameters or campaign.dTdt_C_per_min is None:
+        return None
+    threshold = (f"answers within {RAMP_FORMS_APART_U:g} u of the housing form's, or its chi^2 beaten by "
+                 f"{RAMP_FORM_PREFERENCE:g}")
+    if not result.fit.get("noise_known"):
+        return GateOutcome("lag_form", None, "model_mismatch",
+                           "not tested: the noise is not in the data, so the rate and housing forms' chi^2 cannot be "
+                           "compared", None, threshold)
+    from .thermal_lag_form import fit_thermal_lag
+
+    kw = {k: v for k, v in fit_kwargs.items() if k not in ("return_problem", "noise_per_output")}
+    other = fit_thermal_lag(campaign, effects, "housing", **kw)
+    dof = result.fit["n_obs"] - result.fit["n_params"]
+    chi2_rate = result.fit["chi2_dof"] * dof
+    chi2_housing = other.fit["chi2_dof"] * (other.fit["n_obs"] - other.fit["n_params"])
+    scale = max(1.0, result.fit["chi2_dof"])
+    apart = {n: (other.parameters[n].value - p.value) / p.u for n, p in result.parameters.items()
+             if n in other.parameters and p.u > 0 and math.isfinite(p.u)}
+    if not apart:
+        return GateOutcome("lag_form", None, "model_mismatch", "not testable: no parameter in common", None, threshold)
+    worst = max(apart, key=lambda n: abs(apart[n]))
+    gain = chi2_housing - chi2_rate                  # > 0: the rate form fits better
+    txt = (f"a ramp: the rate form T - tau dT/dt (tau {result.parameters['thermal_lag'].value:.3g} min) and one "
+           f"first-order stage behind the thermometer (housing form, tau {other.parameters['thermal_lag'].value:.3g} "
+           f"min) differ by {apart[worst]:+.2f} u on {worst}; chi2 {chi2_rate:.1f} (rate) against {chi2_housing:.1f} "
+           "(housing)")
+    ok = abs(apart[worst]) <= RAMP_FORMS_APART_U or gain > RAMP_FORM_PREFERENCE * scale
+    if not ok:
+        txt += (": the data " + ("prefer the housing form" if gain < -RAMP_FORM_PREFERENCE * scale else
+                                 "do not tell the two apart")
+                + ", so the rate form's first order does not hold (the thermometer's reading curves after the "
+                  "program's turns: a housing behind the air); fit with --thermal-lag-form housing, or history")
+    return GateOutcome("lag_form", ok, "model_mismatch", txt, abs(apart[worst]), threshold)
+
+
+def replace_outcome(result, outcome) -> None:
+    """Put ``outcome`` in place of the result's outcome of the same gate that was not tested (or add
+    it), and judge the status again by precedence (:func:`~triadcal.estimation.gates.add_outcome`)."""
+    from .gates import add_outcome
+
+    gates = result.extra.get("gates")
+    if gates is not None:
+        gates["outcomes"] = [o for o in gates["outcomes"] if not (o["gate"] == outcome.gate and o["passed"] is None)]
+    add_outcome(result, outcome)

@@ -419,7 +419,9 @@ def one_rate_note(campaign, tau_min: float, u_tau_min: float, play: Optional[dic
     """The note of a lag fitted on ramps of one rate v (the campaign's measured rates): there the lag
     is the element's delay ``tau v`` behind the thermometer, and a play of half-width r of the
     element's temperature adds ``r / v`` to tau, a thermometer lagging the element takes its own lag
-    off; only the turns tell them apart (``play``: :func:`thermal_play_test`'s block, what the
+    off, and an offset of the biases between heating and cooling reads as a lag (an outside probe: +-2 ug
+    at 0.5 degC/min read a 4 min lag as 4.24 +- 0.03, status ok); only the turns tell them apart
+    (``play``: :func:`thermal_play_test`'s block, what the
     residuals measured of a play). None for a stepped campaign or ramps of several rates."""
     rate = getattr(campaign, "dTdt_C_per_min", None)
     if rate is None:
@@ -439,7 +441,9 @@ def one_rate_note(campaign, tau_min: float, u_tau_min: float, play: Optional[dic
     return (f"thermal_lag: the ramps run at {lo:.2g}-{hi:.2g} degC/min, one rate: tau = {tau_min:.4g} min is the "
             f"element's delay behind its thermometer there; a play of half-width r of the element's temperature "
             f"would add r/v ({1.0 / v:.2g} min per degC), a thermometer lagging the element would take its own lag "
-            f"off, and only the turns tell them apart{seen}; a ramp at another rate (half or twice) separates them")
+            f"off, an offset of the biases between heating and cooling (a bias hysteresis, which the model does not "
+            f"hold: its hysteresis is the angles') reads as a lag of that offset over v times the bias tempco, and "
+            f"only the turns tell them apart{seen}; a ramp at another rate (half or twice) separates them")
 
 
 def _gate_location(names_tau, values_tau, cov_full, m: int) -> GateOutcome:

@@ -412,9 +412,12 @@ def _result(campaign, model, problem, pri, ls, run: PosteriorRun, notes, total_s
                "local_g_m_s2": campaign.local_g_m_s2, **campaign.provenance()})
     # the least-squares answer's own gates (fit, rank, physics) carry over: a posterior of a
     # model that does not fit the data is no better an answer than its least-squares fit
+    ls_failed = [f"{o['gate']}: {o['reason']}" for o in (ls.extra.get("gates") or {}).get("outcomes", [])
+                 if o.get("passed") is False]
     ls_gate = GateOutcome("least_squares", ls.status in ("ok", "not_converged"),
                           ls.status if ls.status != "ok" else "model_mismatch",
-                          f"the least-squares fit under the same model has status {ls.status!r}")
+                          f"the least-squares fit under the same model has status {ls.status!r}"
+                          + (f" (its failed gates: {'; '.join(ls_failed)})" if ls_failed and ls.status != "ok" else ""))
     noise_known = noise_of(campaign).known
     apply_gates(result, FitEvidence(converged=run.converged, n_obs=n_obs, n_free=n_det, chi2=chi2,
                                     dof=n_obs - n_det, noise_known=noise_known, extra=[ls_gate]),
