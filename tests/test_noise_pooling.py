@@ -157,3 +157,20 @@ def test_sd_that_pool_nowhere_are_not_a_noise_level():
     noisy = _replace(campaign, sd=campaign.sd * factors[:, None])
     noise = noise_of(noisy)
     assert not noise.known and "rest on their own n_samples - 1 < 100 samples" in noise.description
+
+
+def test_an_sd_of_round_off_is_no_noise_level():
+    """A visit whose readings were all one code: numpy's float SD of identical values is ~1e-18, not 0
+    (an outside probe's file: the fit weighted by it had chi2/dof 8e31 and blamed the model, and `sample`
+    ended in an internal error, a Cholesky of a matrix not positive definite). Such an SD, below 1e-6 of
+    its output's median, is taken as zero: the weights come from the residuals, as for an sd_* of 0."""
+    campaign, truth = _file(4, n=3000, setpoints=(-40, 20, 80))
+    sd = campaign.sd.copy()
+    sd[7, 0] = 1.3e-18
+    tiny = replace(campaign, sd=sd)
+    noise = noise_of(tiny)
+    assert not noise.known and "below 1e-6 of its output's median" in noise.description, noise.description
+    r = fit_joint(tiny)
+    assert r.status == "ok", (r.status, r.notes)
+    z = {n: (p.value - truth[n]) / p.u for n, p in r.parameters.items() if n in truth}
+    assert max(abs(v) for v in z.values()) < 4.5, z

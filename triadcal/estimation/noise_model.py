@@ -99,22 +99,31 @@ def _bench_whitening(campaign: Campaign, model: Model, noise: "NoiseSource", ben
 RELATIVE_WEIGHTS = "weights 1/sqrt(tau_s)"
 
 
+#: a visit's stated SD below this fraction of its output's median is taken as zero: numpy's SD of a
+#: window whose readings are all one code is ~1e-18, not 0 (an outside probe: a fit weighted by it had
+#: chi2/dof 8e31, "the model misses something", and `sample` ended in an internal error)
+NEGLIGIBLE_SD_RATIO = 1e-6
+
+
 def noise_of(campaign: Campaign) -> NoiseSource:
     """Weights of the fit: ``u_w_*`` (the data's own noise) or ``sd_*/sqrt(n_samples)`` where
     present (:meth:`Campaign.output_sigma`), else ``sqrt(Q/tau)`` from a
-    ``Q_V2s`` metadata line, else ``1/sqrt(tau)`` relative weights with the scale estimated."""
+    ``Q_V2s`` metadata line, else ``1/sqrt(tau)`` relative weights with the scale estimated. A stated
+    SD of zero, or below :data:`NEGLIGIBLE_SD_RATIO` of its output's median, cannot weight the fit."""
     s = campaign.output_sigma()
     why = ""
     if s is not None:
-        if np.all(s > 0) and campaign.u_w is None:
+        usable = bool(np.all(s > NEGLIGIBLE_SD_RATIO * np.median(s, axis=0)[None, :])) and bool(np.all(s > 0))
+        if usable and campaign.u_w is None:
             s, how = sd_weights(campaign)
             if s is not None:
                 return NoiseSource(s, True, how)
             why = "; " + how
-        elif np.all(s > 0):
+        elif usable:
             return NoiseSource(s, True, campaign.output_sigma_method())
         else:
-            why = "; sd_* is zero in some visits, so it cannot weight the fit"
+            why = ("; sd_* is zero (or below 1e-6 of its output's median: readings all on one code) in some visits, "
+                   "so it cannot weight the fit")
     if "Q_V2s" in campaign.metadata and float(campaign.metadata["Q_V2s"]) > 0:
         # also where sd_* are there but cannot weight the fit: the file states its noise (an outside
         # probe's sd_x = 0 on every row with Q_V2s stated was fitted as if no noise were stated)
