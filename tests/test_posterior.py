@@ -243,3 +243,27 @@ def test_cli_sample_not_converged_exit_code(tmp_path):
 
 def test_flag_thresholds_are_stated():
     assert PRIOR_DOMINATED_RATIO == 0.5 and NON_GAUSSIAN_TOLERANCE == 0.15
+
+
+def test_the_verdicts_screen_is_stated_and_thinned_tau_is_in_saved_draws():
+    """The last look's classic split R-hat is part of the verdict (docs/posterior.md, Stop rule): a run
+    refused on it alone says so with its number, and the result stores it (an outside probe: not
+    converged with every stored number passing, the screen's 1.0107 stored nowhere). A thinned run's
+    chain and tau are both in saved draws, and the note says so."""
+    from types import SimpleNamespace
+
+    from triadcal.estimation.posterior.summary import stop_rule_failures
+
+    diag = {"rhat": np.array([1.004, 1.006]), "ess_bulk": np.array([3e4, 2.8e4]), "ess_tail": np.array([9e3, 8e3]),
+            "tau": np.array([5.0, 6.8])}
+    run = SimpleNamespace(diagnostics=diag, names=("a", "b"), kept_z=np.zeros((7900, 200, 2)), thin=1,
+                          checks=[{"ess_estimate": 2e5, "rhat_classic_max": 1.0107}])
+    assert stop_rule_failures(run, 200, 1.01, 50) == ["the last look's classic split R-hat 1.0107 >= 1.01"]
+    run = SimpleNamespace(diagnostics=dict(diag, tau=np.array([5.0, 248.0])), names=("a", "b"),
+                          kept_z=np.zeros((4616, 200, 2)), thin=4, checks=[{"ess_estimate": 2e5, "rhat_classic_max": 1.0}])
+    why = stop_rule_failures(run, 200, 1.01, 50)
+    assert why == ["chain of 4616 saved draws per walker < 50 tau = 12400 (tau 248.0 saved draws (every 4th step), of b)"], why
+    campaign = simulate_campaign(preset_truth("ak18-quartz"), seed=3)
+    result = sample(campaign, max_steps=20, seed=0)
+    assert result.status == "not_converged"
+    assert result.extra["sampler"]["rhat_classic_max"] > 1.0

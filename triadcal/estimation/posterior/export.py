@@ -42,7 +42,9 @@ def verdict_attrs(run: PosteriorRun) -> dict:
             "ess_tail_min": float(diag["ess_tail"][it]), "ess_tail_worst": names[it],
             "stop_rule_ess": float(run.stop_rule.get("ess", math.nan)),
             "stop_rule_rhat_max": float(run.stop_rule.get("rhat_max", math.nan)),
-            "verdict": "computed once by the sampler on exactly these draws (walkers as chains)"}
+            "rhat_classic_max": float(run.checks[-1]["rhat_classic_max"]) if run.checks else math.nan,
+            "verdict": "computed once by the sampler on exactly these draws (walkers as chains), with the last "
+                       "look's classic split R-hat (rhat_classic_max) part of it"}
 
 
 def _posterior_variables(run: PosteriorRun, x: np.ndarray) -> dict:

@@ -160,11 +160,12 @@ def stop_rule_failures(run: PosteriorRun, ess, rhat_max, tau_factor) -> list:
             v, n, k = _worst(e, names, bad, np.nanargmin)
             out.append(f"smallest {kind} ESS {v:.0f} ({n}{_more(k)}) < {ess:g}")
     tau = np.asarray(diag["tau"], float)
-    kept = int(run.kept_z.shape[0])           # saved draws per walker (tau is in the same steps)
+    kept = int(run.kept_z.shape[0])           # saved draws per walker (tau is in the same draws)
     if not np.all(np.isfinite(tau)) or kept < tau_factor * np.nanmax(tau):
         v, n, _ = _worst(tau, names, ~np.isfinite(tau), np.nanargmax)
+        unit = f"saved draws (every {run.thin}th step)" if run.thin > 1 else "steps"
         out.append(f"chain of {kept} {'saved draws' if run.thin > 1 else 'steps after the burn-in'} per walker "
-                   f"< {tau_factor:g} tau = {tau_factor * v:.0f} (tau {v:.1f} of {n})")
+                   f"< {tau_factor:g} tau = {tau_factor * v:.0f} (tau {v:.1f} {unit}, of {n})")
     if not out and run.checks:
         last = run.checks[-1]
         if not last["ess_estimate"] >= ess:
@@ -255,6 +256,9 @@ def sampler_info(run: PosteriorRun, names: Sequence[str], total_seconds, ess, rh
         "steps": int(run.chain_z.shape[0]), "burn": int(run.burn), "acceptance": run.acceptance,
         "tau_max": float(diag["tau"].max()), "ess_bulk_min": float(diag["ess_bulk"].min()),
         "ess_tail_min": float(diag["ess_tail"].min()), "rhat_max": float(diag["rhat"].max()),
+        # the last look's screen, part of the verdict: walkers as chains, not rank-normalised (an outside
+        # probe: not_converged with every stored number passing, R-hat 1.006, the screen's 1.0107 unstored)
+        "rhat_classic_max": float(run.checks[-1]["rhat_classic_max"]) if run.checks else None,
         "converged": bool(run.converged), "saved_draws": int(run.kept_z.shape[0] * run.kept_z.shape[1]),
         "thin": int(run.thin),
         "verdict": "computed once on the saved draws (the posterior file holds exactly these); consumers read it",
