@@ -82,8 +82,9 @@ def rate_form_check(campaign, tau_min: float, u_tau_min: float):
         return GateOutcome("lag_form", None, "model_mismatch", "not testable: the lag is not a positive number")
     if campaign.dTdt_C_per_min is not None:
         return GateOutcome("lag_form", None, "model_mismatch",
-                           "not tested: the rates are measured per visit (a ramp, whose straight legs make the rate "
-                           "form exact once the lag's own transient is over)")
+                           "not tested here: the rates are measured per visit (a ramp); `fit` and `sample` compare the "
+                           "rate form with the housing form there (ramp_form_check), a fit with a hysteresis form or "
+                           "a quantisation does not, and its rate form stands unchecked")
     a = approach_time_constant(campaign)
     if a is None:
         return GateOutcome("lag_form", None, "model_mismatch",
