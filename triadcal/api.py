@@ -249,11 +249,9 @@ def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS
         elif hysteresis_form == "offset" and hysteresis_half_width_C is None:
             # one noise level per output when the data hold none (joint.per_output_scale)
             result, problem, solution = fit_joint(campaign, effects, noise_per_output=True, **kwargs)
-            from .estimation.lag_validity import ramp_form_check, replace_outcome
+            from .estimation.lag_validity import judge_ramp_form
 
-            ramp = ramp_form_check(campaign, result, effects, kwargs)     # a rate-form lag on a ramp
-            if ramp is not None:
-                replace_outcome(result, ramp)
+            judge_ramp_form(campaign, result, effects, kwargs)     # a rate-form lag on a ramp
         else:
             from .estimation.hysteresis_form import fit_hysteresis_form
 

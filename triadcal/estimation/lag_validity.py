@@ -160,6 +160,14 @@ def ramp_form_check(campaign, result, effects, fit_kwargs):
     return GateOutcome("lag_form", ok, "model_mismatch", txt, abs(apart[worst]), threshold)
 
 
+def judge_ramp_form(campaign, result, effects, fit_kwargs) -> None:
+    """:func:`ramp_form_check` put on ``result`` in place of the rate-form gate's "not tested"
+    (:func:`replace_outcome`), when it applies: `fit` and `sample` call it on their least squares."""
+    outcome = ramp_form_check(campaign, result, effects, fit_kwargs)
+    if outcome is not None:
+        replace_outcome(result, outcome)
+
+
 def replace_outcome(result, outcome) -> None:
     """Put ``outcome`` in place of the result's outcome of the same gate that was not tested (or add
     it), and judge the status again by precedence (:func:`~triadcal.estimation.gates.add_outcome`)."""

@@ -113,7 +113,7 @@ def noise_of(campaign: Campaign) -> NoiseSource:
     s = campaign.output_sigma()
     why = ""
     if s is not None:
-        usable = bool(np.all(s > NEGLIGIBLE_SD_RATIO * np.median(s, axis=0)[None, :])) and bool(np.all(s > 0))
+        usable = bool(np.all(s > NEGLIGIBLE_SD_RATIO * np.median(s, axis=0)[None, :]))   # and so every s > 0
         if usable and campaign.u_w is None:
             s, how = sd_weights(campaign)
             if s is not None:

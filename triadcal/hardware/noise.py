@@ -122,15 +122,12 @@ def fit_power_law(taus_s, avar, edf, variance: str = "allan") -> tuple:
     if not pos.any():
         raise InputError("the Allan variance is 0 at every tau: no noise to fit")
     taus, y, rel = taus[pos], y[pos], rel[pos]
-    if variance == "allan":
-        unit = (allan_variance_power_law(taus, 1.0), allan_variance_power_law(taus, 0.0, 1.0),
-                allan_variance_power_law(taus, 0.0, 0.0, 1.0))
-    elif variance == "hadamard":
-        unit = (hadamard_variance_power_law(taus, 1.0), hadamard_variance_power_law(taus, 0.0, 1.0),
-                hadamard_variance_power_law(taus, 0.0, 0.0, 1.0))
-    else:
+    law = {"allan": allan_variance_power_law, "hadamard": hadamard_variance_power_law}.get(variance)
+    if law is None:
         raise ValueError(f"variance {variance!r}: 'allan' or 'hadamard'")
-    A_full = np.stack([np.broadcast_to(u, taus.shape) for u in unit], axis=1)
+    # one column per term: the curve of that term alone at unit size
+    A_full = np.stack([np.broadcast_to(law(taus, *unit), taus.shape) for unit in ((1, 0, 0), (0, 1, 0), (0, 0, 1))],
+                      axis=1)
     keep = [0, 1, 2]
     while True:
         sig = y * rel
@@ -179,9 +176,9 @@ def _white_edf(windows, ms, d: int) -> np.ndarray:
     (``d = 3``) variance at each averaging factor ``m`` for white noise: Greenhall's (allantools
     ``edf_greenhall``; Greenhall and Riley, PTTI 2003) of each window, summed over the windows.
     The count of (m-mean) differences counted before overstated it 1.3-1.7x at m = 1, 2 (38 for
-    22.8 at m = 1 in a 40-sample window): the white level's standard error came out too small, and a
-    curve's chance rise at the longest tau passed as a flicker floor 3 standard errors above it
-    (2 outputs of 102 in emulated ramp captures of white noise, their u_w 1.6x too large)."""
+    22.8 at m = 1 in a 40-sample window): the white level's standard error came out too small (of two
+    outputs of white noise read as a 3-SE flicker floor in 102 of emulated ramp captures, one is not
+    with this edf)."""
     cache: dict = {}
 
     def one(n: int, m: int) -> float:
@@ -200,22 +197,21 @@ def allan_noise(windows: Sequence[np.ndarray], rate_hz: float) -> NoiseEstimate:
     variance (:func:`fit_power_law` with ``variance="hadamard"``), which a linear drift within a
     window does not enter: on a temperature ramp each window's outputs drift with the unit's
     temperature (held by the fit's model), and the Allan curve, raised by ``D^2 tau^2 / 2``, was
-    fitted with a flicker floor white noise did not have (the emulated ramp: B_f 1.6e-5 V on an
-    output of white noise in 2 of 18 captures, its u_w 1.6x too large, chi^2/dof 0.14 on it)."""
+    fitted with a bias random walk white noise did not have (numpy windows whose drift raised the
+    Allan curve 58 % at 8 s: u_w 32-59x sqrt(Q/tau); tests/test_hadamard_noise.py)."""
     windows = [np.asarray(w, float) for w in windows if len(w) >= 8]
     if not windows:
         raise InputError("no recording window with at least 8 samples: cannot estimate the noise")
     shortest = min(len(w) for w in windows)
     ms = 2 ** np.arange(0, int(np.log2(max(shortest // 4, 1))) + 1)
     taus = ms / rate_hz
-    # equivalent dof of the pooled points: each window's for white noise (the hypothesis the fit's
-    # non-white terms are tested against), summed over the windows
-    edf = _white_edf(windows, ms, 2)
+    # equivalent dof of the pooled Hadamard points: each window's for white noise (the hypothesis the
+    # fit's non-white terms are tested against), summed over the windows
     edf_h = _white_edf(windows, ms, 3)
     avar, weight = _pooled(windows, taus, rate_hz, allantools.oadev)
     hvar, weight_h = _pooled(windows, taus, rate_hz, allantools.ohdev)
     good = (weight.min(axis=0) > 0) & (weight_h.min(axis=0) > 0)
-    avar, weight, taus, edf = avar[:, good] / weight[:, good], weight[:, good], taus[good], edf[good]
+    avar, weight, taus = avar[:, good] / weight[:, good], weight[:, good], taus[good]
     hvar, edf_h = hvar[:, good] / weight_h[:, good], edf_h[good]
     flat = [a for i, a in enumerate("xyz") if not np.any(avar[i] > 0)]
     if flat:

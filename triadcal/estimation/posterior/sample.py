@@ -147,16 +147,13 @@ def sample(data, effects: Sequence[str] = DEFAULT_EFFECTS, *, reference_temperat
                                   systematics=systematics, loss=noise_fx["loss"], nu=noise_fx["nu"],
                                   noise_per_output=True)
     ls, ls_problem, ls_sol = least_squares
-    if campaign.dTdt_C_per_min is not None and "thermal_lag" in ls.parameters:
-        # a rate-form lag on a ramp: the housing form's answer and chi^2 (lag_validity.ramp_form_check),
-        # as `fit` judges it; the least-squares gates carry over to the posterior
-        from ..lag_validity import ramp_form_check, replace_outcome
+    # a rate-form lag on a ramp: against the housing form, as `fit` judges it (lag_validity.ramp_form_check);
+    # the least-squares gates carry over to the posterior
+    from ..lag_validity import judge_ramp_form
 
-        ramp = ramp_form_check(campaign, ls, effects, dict(
-            reference_temperature_C=reference_temperature_C, gates=gates, bench_errors=bench_errors,
-            systematics=systematics, loss=noise_fx["loss"], nu=noise_fx["nu"]))
-        if ramp is not None:
-            replace_outcome(ls, ramp)
+    judge_ramp_form(campaign, ls, effects, dict(
+        reference_temperature_C=reference_temperature_C, gates=gates, bench_errors=bench_errors,
+        systematics=systematics, loss=noise_fx["loss"], nu=noise_fx["nu"]))
     # the bench's errors correlate the outputs of oblique poses: the fit was GLS (joint._bench_whitening)
     whitening = getattr(ls_problem, "whitening", None)
     model = Model(effects, reference_temperature_C)
