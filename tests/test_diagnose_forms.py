@@ -223,6 +223,32 @@ def test_a_short_lag_the_rate_form_explains_is_named_thermal_lag():
     assert not _cand(d, "thermal_lag_history").refit["form"]["beats_simpler"]
 
 
+def test_the_models_rate_form_lag_against_the_history_enters_the_gap():
+    """The rate-form ``thermal_lag`` in the model, a ramp with the rates measured per visit: the
+    history form has no score test, so its likelihood ratio over the model's rate form did not enter
+    the gap's family. An outside probe (element 2 min behind a housing 15 min behind the air, 2
+    degC/min): the history form beat the rate form by chi^2 31 (LR p 2e-8), and the verdict was "no
+    significant gap" (chi2/dof 1.15 on 180 dof) while ``fit`` refused the same model by its gate
+    ``lag_form``. Now the drop is one test of the gap (``gap.tests["form:thermal_lag_history"]``,
+    chi^2(1), one-sided). Independent bench (Euler), housing 20 min, 1 degC/min: the element 4 min
+    behind the housing is named (Holm p 2e-12 .. 2e-27, seeds 1-4); the element at the rate form
+    itself (H - tau dH/dt, 2 and 4 min) stays none, the history form no better (p = 1, seeds 1-4).
+    At 2 min behind the housing the drop is p 0.001-1 (seeds 1-4): below the family's level, none
+    (the fit's gate, which asks whether the two forms' answers differ, refuses those)."""
+    model = LAG_MODEL + ("thermal_lag",)
+    for rate_form, seed in ((False, 1), (False, 2), (True, 1), (True, 2)):
+        txt, _ = simulate_lag_campaign(np.random.default_rng(seed), tau_element_min=4.0, location="housing",
+                                       tau_housing_min=20.0, measured_rate=True, element_rate_form=rate_form)
+        d = diagnose(parse_bench_csv(txt, f"ramp_{seed}.csv"), model, **OPTS)
+        test = d.gap["tests"]["form:thermal_lag_history"]
+        if rate_form:
+            assert d.verdict_effect is None and test["p_value"] > 0.5, (seed, d.verdict, test)
+        else:
+            assert d.gap["significant"] and test["p_holm"] < 1e-6, (seed, test)
+            assert d.verdict_effect == "thermal_lag_history", (seed, d.verdict)
+            assert d.verdict["fit_options"].endswith("--thermal-lag-form housing")
+
+
 def test_form_candidates_can_be_chosen_and_unknown_ones_are_refused():
     c, model = hysteresis_campaign(0, "play", 10.0)
     d = diagnose(c, model, candidates=("hysteresis_play", "position_error"), **OPTS)

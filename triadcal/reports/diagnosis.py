@@ -454,7 +454,9 @@ def summary_text(diagnosis) -> str:
         if not c.testable:
             continue
         r = c.refit or {}
-        lines.append(f"  {c.rank}. {c.effect}: score log10 p = {c.score_logp / math.log(10):.1f}"
+        head = ("refit-only form (no score test)" if c.refit_only else
+                f"score log10 p = {c.score_logp / math.log(10):.1f}")
+        lines.append(f"  {c.rank}. {c.effect}: {head}"
                      + (f", delta elpd = {r['delta_elpd']:.1f} +- {r['delta_elpd_se']:.1f}, "
                         + _chi2_after(r.get("gap_after"), d.noise_known) if r else ""))
     return "\n".join(lines)

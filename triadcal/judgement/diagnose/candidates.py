@@ -315,6 +315,19 @@ def _nested(chi2_small: float, chi2_big: float, k: int, n_obs: int, noise_known:
     return nested_criterion(chi2_small, chi2_big, k, n_obs, noise_known, what, level=FORM_LEVEL)
 
 
+def form_gap_p(c, n_obs: int, noise_known: bool) -> float:
+    """p-value of a refit-only form over the model's simpler form (``c.form``: ``chi2_simpler``, the
+    form's state) for the gap's family: with known noise ``chi2_simpler - chi2`` against chi^2 with
+    ``c.k`` dof (the equal-size rate and history forms of a lag are not nested: one-sided, the
+    simpler form favoured), with the noise estimated the F form of the same drop."""
+    drop = max(float(c.form["chi2_simpler"]) - float(c.form["state"].chi2), 0.0)
+    k = max(int(c.k), 1)
+    if noise_known:
+        return float(stats.chi2.sf(drop, k))
+    dof = max(n_obs - len(c.form["state"].names) - len(c.form["profiled"]), 1)
+    return float(stats.f.sf(drop / k / max(float(c.form["state"].chi2) / dof, 1e-300), k, dof))
+
+
 def _untestable(names, reason):
     from .results import Candidate
     return [Candidate(n, False, reason, refit_only=True) for n in names]

@@ -48,6 +48,7 @@ from .candidates import (
     _score_mean,
     _thermal_lag_history,
     _tilt_settling,
+    form_gap_p,
 )
 from .fitting import FitState, _chi2_logsf, _fit, _hat_q
 from .correlated import (CampaignKernels, correlated_test)
@@ -267,6 +268,12 @@ def diagnose(campaign: Campaign, model: Sequence[str] = DEFAULT_EFFECTS, *,
     for c in cand_objs:
         if c.testable and c.effect != "heavy_tails" and not c.refit_only:
             gap_tests[f"score:{c.effect}"] = c.score_p
+        elif c.testable and c.effect == "thermal_lag_history" and "thermal_lag" in model:
+            # the model's own rate-form lag against the history form (the rule of fit's gate lag_form): no
+            # score test stands for it, so without this a rate form the history form beat by LR 31 (an
+            # element 2 min behind a housing 15 min behind the air, 2 degC/min, chi2/dof 1.15 on 180 dof)
+            # was "no significant gap" while fit refused the same model (an outside probe)
+            gap_tests["form:thermal_lag_history"] = form_gap_p(c, base.r.size, noise.known)
     # smooth mean terms that no candidate names (generic.py): a missing term outside the list
     gbasis = generic_basis(campaign, sigma, T0)
     # and a bench tilt free at each soak (generic.soak_basis): a base that moves between soaks
