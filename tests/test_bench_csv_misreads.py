@@ -408,6 +408,33 @@ def test_equal_readings_far_apart_are_refused_with_noise_and_read_without(tmp_pa
     assert read_bench_csv(tab.write(tmp_path / "quiet.csv")).n_visits == 108
 
 
+def test_means_rounded_coarser_than_their_noise_may_repeat_and_weigh_their_rounding(tmp_path):
+    """An outside probe's visit means written to 4 decimals of V (a spreadsheet export) with a
+    standard error of 1e-5 V: two visits of one pose at setpoints 30 degC apart read equal, and the
+    reader refused them as "the same visit twice ... two such averages are never equal" (the advice,
+    remove the copy, would delete a real visit). Rounded to 1e-4 V (11 standard errors) equal means
+    are no evidence of a copy: read. The rounding is noise of the means the sd_* do not hold: q^2/12
+    is added to each visit's variance (GUM F.2.2.1), and the noise's description says so; the file
+    printed in full is refused as before (test above)."""
+    from triadcal.estimation.noise_model import noise_of
+    from triadcal.io.bench_checks import written_resolution
+
+    assert written_resolution([0.1235, -0.7062, 1.0]) == pytest.approx(1e-4)
+    assert written_resolution([0.123456789012345, 1.0]) == 0.0
+    tab = independent_table()
+    for name in ("w_x", "w_y", "w_z"):
+        tab.map(name, lambda v: f"{float(v):.4f}")
+    full = read_bench_csv(tab.write(tmp_path / "rounded.csv"))
+    cols = [tab.header.index(c) for c in ("w_x", "w_y", "w_z")]
+    for j in cols:
+        tab.rows[40][j] = tab.rows[3][j]
+    assert read_bench_csv(tab.write(tmp_path / "equal.csv")).n_visits == 108
+    noise = noise_of(full)
+    assert "rounding of the means as written" in noise.description and "x 0.0001" in noise.description
+    se = 0.0005 / np.sqrt(3000) * np.sqrt(2999 / 2997)
+    assert np.allclose(noise.sigma, np.sqrt(se ** 2 + 1e-8 / 12), rtol=1e-6)
+
+
 @pytest.mark.parametrize("k_true", [1.0007, 2.0])
 def test_millivolts_declared_as_volts_are_refused_by_their_magnitude(tmp_path, k_true):
     """An outside probe: a unit of about 1 V/g recorded in mV and declared V was certified with K

@@ -65,6 +65,16 @@ def test_param_tolerance_of_an_angle_is_applied_and_said(fits, tmp_path, capsys)
     assert d["parameters"]["Ca_xy"]["tolerance"] == 1.0 and d["overall"] == "fail"
 
 
+def test_a_tolerance_on_a_bench_parameter_says_it_is_the_benchs(fits):
+    """An outside probe's ``--param-tolerance tilt_x=5`` was refused as "not in both results", though
+    both results hold tilt_x: it is the bench's, reported in bench_check without a verdict."""
+    from triadcal.errors import InputError
+
+    assert "tilt_x" in fits["before"].parameters and "tilt_x" in fits["moved"].parameters
+    with pytest.raises(InputError, match=r"tolerances given for \['tilt_x'\]: parameters of the bench"):
+        compare(fits["before"], fits["moved"], tolerance_arcsec=30.0, tolerances={"tilt_x": 5.0})
+
+
 # -- 2. a posterior is checked against its result ---------------------------------------------------
 def _posterior(result, path, *, serial=None, created_by="triadcal sample", drop=(), add=(), shift=None, attrs=None):
     """A netCDF posterior of ``result``: N(value, u) draws of every parameter (4 x 500)."""

@@ -293,6 +293,30 @@ def check_axis_spans(path, c: Campaign) -> None:
                 "convert it")
 
 
+#: two noisy means equal to the last written digit are a copy only when that digit is finer than this
+#: fraction of their standard error on every output (the chance of equal independent means is then
+#: below (0.1 / 2 sqrt(pi))^3 = 2e-5 per pair of one pose at one truth)
+REPEAT_RESOLUTION_FRACTION = 0.1
+
+
+def written_resolution(x) -> float:
+    """The step to which the values ``x`` were written: the largest ``10^-d`` (d from -3) of which
+    every finite value is an integer multiple, or 0 when they hold more than 9 significant digits
+    (finer than any noise tells). 0.1235, -0.7062 give 1e-4; a value printed in full gives 0."""
+    v = np.asarray(x, float)
+    v = v[np.isfinite(v)]
+    top = float(np.max(np.abs(v))) if v.size else 0.0
+    if top == 0.0:
+        return 0.0
+    for d in range(-3, 16):
+        if 10.0 ** d * top > 1e9:
+            break
+        s = v * 10.0 ** d
+        if np.all(np.abs(s - np.round(s)) < 1e-6):
+            return 10.0 ** -d
+    return 0.0
+
+
 def check_repeated_readings(path, c: Campaign) -> None:
     """Refuse two visits of a unit (and state) whose three mean outputs are equal to the last digit
     when their averaging windows overlap (``|dt| < (tau_i + tau_j)/2``) or either has noise
@@ -300,7 +324,11 @@ def check_repeated_readings(path, c: Campaign) -> None:
     visit written twice, which would be counted as two independent ones (every u 1/sqrt 2 too small).
     An outside probe wrote every visit twice, the copy 1 s later: status ok, every u 0.707 of the
     single file's, the note calling them conservative. Equal readings without noise (a quantised,
-    quiet output visiting one position twice) are kept."""
+    quiet output visiting one position twice) are kept, and so are noisy averages written to a
+    resolution (:func:`written_resolution`) not finer than a tenth of their standard error on every
+    output: rounded, two visits of one pose may read equal (another probe's means rounded to 1e-4 V
+    with a standard error of 1e-5 V were refused as copies, lines of one pose at setpoints 30 degC
+    apart)."""
     units = np.asarray(c.unit).astype(str)
     states = np.asarray(c.state).astype(str)
     w = np.asarray(c.w, float)
@@ -312,6 +340,18 @@ def check_repeated_readings(path, c: Campaign) -> None:
     # a unit with an output that reads one value throughout is a stuck output, named by its own check
     stuck = {u for u in set(units.tolist())
              if any(len(np.unique(w[units == u][:, a])) <= 1 for a in range(3))}
+    # the standard error of each visit's mean, where the file states one (sd / sqrt(n), or u_w)
+    se = np.full(w.shape, np.nan)
+    if c.sd is not None and c.n_samples is not None:
+        se = np.asarray(c.sd, float) / np.sqrt(np.maximum(np.asarray(c.n_samples, float), 1.0))[:, None]
+    if c.u_w is not None:
+        se = np.where(np.isfinite(se), se, np.asarray(c.u_w, float))
+    q = np.array([written_resolution(w[:, a]) for a in range(3)])
+
+    def equal_unlikely(k: int) -> bool:
+        """Visit k's three means were written finer than a tenth of their standard error (or it is unknown)."""
+        return bool(np.all(~(se[k] > 0) | (q < REPEAT_RESOLUTION_FRACTION * se[k])))
+
     first: dict = {}
     for i in range(len(w)):
         if not np.all(np.isfinite(w[i])) or units[i] in stuck:
@@ -320,6 +360,8 @@ def check_repeated_readings(path, c: Campaign) -> None:
         if j == i:
             continue
         dt, span = abs(float(c.time_s[i]) - float(c.time_s[j])), 0.5 * (float(c.tau_s[i]) + float(c.tau_s[j]))
+        if dt >= span and not (equal_unlikely(i) and equal_unlikely(j)):
+            continue                     # rounded to their noise: equal by chance, two visits
         if dt < span or noisy[i] or noisy[j]:
             why = (f"their averaging windows overlap (time_s {float(c.time_s[j]):g} and {float(c.time_s[i]):g} s, "
                    f"tau_s {float(c.tau_s[j]):g} and {float(c.tau_s[i]):g} s)" if dt < span else

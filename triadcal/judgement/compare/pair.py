@@ -286,6 +286,11 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     only = sorted(set(before.parameters) ^ set(after.parameters))
     if only:
         notes.append("not compared (present in one result only): " + ", ".join(only))
+    bench = [n for n in tolerances if n in BENCH_PARAMETERS]
+    if bench:
+        # an outside probe's --param-tolerance tilt_x=5 was told tilt_x is "not in both results"
+        raise InputError(f"tolerances given for {bench}: parameters of the bench, not of the unit; compare "
+                         "judges the unit and reports the bench's change in bench_check, without a verdict")
     unknown = [n for n in tolerances if n not in names]
     if unknown:
         raise InputError(f"tolerances given for {unknown}, which are not in both results")
