@@ -35,7 +35,9 @@ non-linear parameter, :mod:`triadcal.models.thermal_history` for the operators):
 - ``play``, ``play_quadratic``: linear / quadratic in the play operator of the temperature
   (half-width r; the branches join at the turning points);
 - ``quadratic_play``: quadratic in T plus ``h (play(T, r) - T)``: a play hysteresis on top of a
-  nonlinear tempco (the branch offset is +-r on a ramp and turns over at the turning points).
+  nonlinear tempco (the branch offset is +-r on a ramp and turns over at the turning points);
+- ``linear_drift``: a line in T plus a drift linear in time (not thermal: its rival, so that an
+  output that drifts is not named a hysteresis; :data:`DRIFT_FORMS`).
 
 Each form is judged on data it was not fitted to: blocked cross-validation over the cycle
 (``folds`` contiguous blocks in time; the non-linear parameter chosen on the training blocks
@@ -53,14 +55,20 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..io.thermal_cycle_csv import MAX_TEMPERATURE_C, read_cycle
+from ..io.thermal_cycle_csv import (G_IN_UNIT, GLITCH_FRACTION_MAX, GLITCH_SD, MAX_TEMPERATURE_C, glitches,
+                                    read_cycle)
 from ..models.thermal_history import centred_rate, first_order_lag, play_operator, relay_branch, thermometer_lead
 from .thermal_reading import reading_errors, reading_rival, reading_words
 
 FORMAT = "triadcal.thermal_cycle"
 VERSION = 1
 FORMS = ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hysteresis", "lag", "lag_quadratic",
-         "lag_hysteresis", "lag_play", "thermometer_lag", "play", "play_quadratic", "quadratic_play")
+         "lag_hysteresis", "lag_play", "thermometer_lag", "play", "play_quadratic", "quadratic_play", "linear_drift")
+#: the form that is not thermal: a line in T plus a drift linear in time (per hour from the record's
+#: middle; models/effects/bias_drift's term on one pose). Without it an outside probe's output drifting
+#: 20 ug/h with no tempco was a play of 30 degC (at the edge of the search), "explained" at 1.2 floors,
+#: 9 of 9 axes, with a branch gap of +17..+32 ug where there is none
+DRIFT_FORMS = ("linear_drift",)
 #: time constants tried for the lag (s) and half-widths for the play (degC). The lag's grid starts at
 #: 5 s: from 30 s, an element lagging by 18 s was named a play or an offset hysteresis, "explained",
 #: in 5 runs of 5 (an outside probe)
@@ -234,6 +242,8 @@ def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> 
         return cache[(kind, v)]
 
     one = np.ones_like(T)
+    if form == "linear_drift":
+        return np.stack([one, T - T_ref, (t - 0.5 * (t[0] + t[-1])) / 3600.0], axis=1)
     if form in ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hysteresis", "quadratic_play"):
         d = T - T_ref
     elif form == "lag_play":                        # p = (tau_s, half-width, start); not cached (refined)
@@ -481,7 +491,20 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
     if not (math.isfinite(reference_temperature_C) and -273.15 <= reference_temperature_C <= MAX_TEMPERATURE_C):
         # nan ended in "internal error: SVD did not converge" (an outside probe)
         raise InputError(f"--reference-temperature {reference_temperature_C!r}: give a temperature in degC")
-    t, T, y = read_cycle(path, columns, time_column, time_unit, temperature_column)
+    t, T, y, lines = read_cycle(path, columns, time_column, time_unit, temperature_column, unit)
+    bad = glitches(y)
+    if bad.size > GLITCH_FRACTION_MAX * len(y):
+        raise InputError(f"{path}: {bad.size} of {len(y)} samples lie beyond {GLITCH_SD:g} robust SDs of their "
+                         f"neighbours' running median (lines {', '.join(str(int(lines[k])) for k in bad[:5])}, ...): "
+                         "not isolated glitches; the output jumps or bursts, which no thermal form describes")
+    glitch_note = None
+    if bad.size:
+        glitch_note = (f"{bad.size} isolated glitch(es) left out, every column of their row (a sample beyond "
+                       f"{GLITCH_SD:g} robust SDs of the running median of 9): line(s) "
+                       + ", ".join(f"{int(lines[k])} ({'; '.join(f'{c} {y[k, i]:.6g}' for i, c in enumerate(columns))})"
+                                   for k in bad[:10]) + (" ..." if bad.size > 10 else ""))
+        keep = np.setdiff1d(np.arange(len(y)), bad)
+        t, T, y = t[keep], T[keep], y[keep]
     if np.ptp(T) < 10.0:
         raise InputError(f"{path}: the temperature spans {np.ptp(T):.1f} degC; a thermal form needs a cycle of at "
                          "least 10 degC")
@@ -498,6 +521,11 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
              "scale factor and of the bias cannot be told apart, so the forms describe that output, not K and S",
              "noise floor: the SD of sample-to-sample differences / sqrt 2 (white part only); held-out RMS near it "
              "means the form leaves nothing but noise"]
+    if glitch_note:
+        notes.append(glitch_note)
+    if unit not in G_IN_UNIT:
+        notes.append(f"the outputs' unit {unit!r} is not one whose g is known ({', '.join(G_IN_UNIT)}): their "
+                     "magnitudes are not checked against a unit at rest")
     dt = np.diff(t)
     gaps = dt[dt > GAP_STEPS * float(np.median(dt))] if dt.size else dt
     if gaps.size:
@@ -526,6 +554,10 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
         left = ("" if best.cv_rms <= EXPLAINED_FACTOR * a.noise_floor else
                 f"; UNEXPLAINED: no form comes within {EXPLAINED_FACTOR:g}x the noise floor (held-out RMS "
                 f"{best.cv_rms / a.noise_floor:.2g}x it): the output has structure none of these forms holds")
+        if a.best in DRIFT_FORMS:
+            par = (f" (the output drifts in time by {best.coefficients[2]:+.3g} {unit}/h beside a tempco of "
+                   f"{best.coefficients[1]:+.3g} {unit}/degC: not a thermal form; an aging, a warm-up or a creeping "
+                   "mount)")
         parts.append(f"{a.column}: {a.best}{par}, the simplest form that predicts held-out blocks as well as the "
                      f"best (within one standard error or 1 %), RMS {best.cv_rms:.3g} {unit} against "
                      f"{lin.cv_rms:.3g} for a line (noise floor {a.noise_floor:.2g}){gap}{left}"

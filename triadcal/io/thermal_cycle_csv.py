@@ -22,13 +22,15 @@ MAX_CYCLE_S = 30 * 86400.0
 # the time units of ``--time-unit`` in seconds: TIME_UNITS_S (io/raw.py, shared with its time-column check)
 
 
-def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, temperature_column: str):
-    """``(t_s, T, y)`` of a recording with named columns (comma, tab or semicolon separated: the
+def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, temperature_column: str,
+               unit: str = "m/s2"):
+    """``(t_s, T, y, lines)`` of a recording with named columns (comma, tab or semicolon separated: the
     header line that names every column decides). Every row must have the header's number of
     fields (a field added or lost shifts the columns after it: refused with the file, line and
     field count, as :func:`triadcal.io.raw.read_raw_csv` does); every field read must be a finite
     number, a bad one refused with the file, line and column; nothing is dropped. A time axis no
-    chamber cycle has (:func:`check_time_axis`) is refused."""
+    chamber cycle has (:func:`check_time_axis`) and outputs no static pose gives
+    (:func:`check_outputs`) are refused. ``lines``: each sample's line in the file."""
     import csv
 
     scale = TIME_UNITS_S
@@ -59,10 +61,11 @@ def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, t
             break
     if header_at is None:
         raise InputError(f"{path}: no header line names all of {', '.join(want)} in its first 200 lines")
-    rows = []
+    rows, row_lines = [], []
     for k, line in enumerate(lines[header_at + 1:], start=header_at + 2):
         if not line.strip():
             continue
+        row_lines.append(k)
         fields = next(csv.reader([line], delimiter=sep))
         if len(fields) != len(header):
             # a field too many or too few shifts every column after it: the raw reader's rule
@@ -96,7 +99,68 @@ def read_cycle(path, columns: Sequence[str], time_column: str, time_unit: str, t
         raise InputError(f"{path}:{header_at + k + 2}: column '{temperature_column}': {T[k]:g} is not a chamber "
                          f"temperature in degC (-273.15 to {MAX_TEMPERATURE_C:g}){hint}")
     check_time_axis(path, a[:, 0], T, time_column, time_unit)
-    return t, T, a[:, 2:]
+    check_outputs(path, cols, a[:, 2:], np.array(row_lines), unit)
+    return t, T, a[:, 2:], np.array(row_lines)
+
+
+#: the outputs' units whose size of g is known (per g); other units (V, counts) are read unchecked
+G_IN_UNIT = {"m/s2": 9.80665, "m/s^2": 9.80665, "m/s²": 9.80665, "g": 1.0, "mg": 1e3, "ug": 1e6, "µg": 1e6}
+#: a static pose's output along one axis is at most 1 g plus the bias; beyond this many g (its median)
+#: the unit is not the one stated
+MAX_STATIC_G = 1.5
+#: a sample this far from its output's range (in g) is not an acceleration of a unit at rest (an
+#: outside probe's 1e30 read and named "linear", noise floor 1.7e28)
+MAX_READING_G = 1000.0
+
+
+def check_outputs(path, columns, y, row_lines, unit: str) -> None:
+    """Refuse outputs no static pose gives: a column that reads one value on every row (a stuck or
+    unconnected channel: an outside probe's was named ``linear``, "explained", noise floor 0); and,
+    in a unit whose g is known (:data:`G_IN_UNIT`), a sample beyond :data:`MAX_READING_G` or a column
+    whose median is beyond :data:`MAX_STATIC_G` (an output in m/s^2 read as g: |z| 9.8 "g", exit 0)."""
+    for i, c in enumerate(columns):
+        v = y[:, i]
+        if np.ptp(v) == 0:
+            raise InputError(f"{path}: column '{c}' reads {v[0]:g} on every row: a stuck or unconnected channel "
+                             "has no thermal form")
+    g = G_IN_UNIT.get(unit)
+    if g is None:
+        return
+    for i, c in enumerate(columns):
+        v = y[:, i]
+        far = np.flatnonzero(np.abs(v) > MAX_READING_G * g)
+        if far.size:
+            k = int(far[0])
+            raise InputError(f"{path}:{int(row_lines[k])}: column '{c}': {v[k]:g} {unit} is {abs(v[k]) / g:.3g} g, not "
+                             f"the reading of a unit at rest (beyond {MAX_READING_G:g} g)")
+        med = float(np.median(np.abs(v)))
+        if med > MAX_STATIC_G * g:
+            others = [u for u in ("m/s2", "g", "mg") if 0.5 <= med / G_IN_UNIT[u] <= MAX_STATIC_G]
+            raise InputError(f"{path}: column '{c}': its median |{med:.4g}| {unit} is {med / g:.3g} g, beyond the "
+                             f"{MAX_STATIC_G:g} g an axis at rest reads: the output is not in {unit}"
+                             + (f" (in {' or '.join(others)}? give --unit)" if others else " (give --unit)"))
+
+
+#: a sample further than this many robust SDs from the running median of its 9 neighbours is a glitch
+GLITCH_SD = 20.0
+#: more glitches than this fraction of the samples are not isolated: the recording is refused
+GLITCH_FRACTION_MAX = 0.01
+
+
+def glitches(y) -> np.ndarray:
+    """Rows holding an isolated glitch: a sample of some column further than :data:`GLITCH_SD` robust
+    SDs (1.4826 MAD) from the running median over 9 samples. A real chamber cycle's largest is 9
+    (examples/data/tofupilot_imu_raw_data.csv); an outside probe's single sample raised by 0.5 m/s^2
+    (1700 SDs) made a 4 min lag 3.77, one of 5 m/s^2 a line, "explained" with a branch gap of +540 ug."""
+    from scipy.ndimage import median_filter
+
+    bad = np.zeros(len(y), bool)
+    for i in range(y.shape[1]):
+        r = y[:, i] - median_filter(y[:, i], size=9, mode="nearest")
+        sd = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+        if sd > 0:
+            bad |= np.abs(r) > GLITCH_SD * sd
+    return np.flatnonzero(bad)
 
 
 def _span(seconds: float) -> str:
