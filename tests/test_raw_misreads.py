@@ -260,7 +260,7 @@ def test_thermal_cycle_says_the_time_axis_is_implausible(tmp_path, capsys):
         _tc(p, "us")
     msg = str(e.value)
     assert "only rises" not in msg and "degC/min" in msg and "with --time-unit ms it would last 70.7 min" in msg
-    t, T, y = _tc(p, "ms")                                       # the right unit: read
+    t, T, y, _ = _tc(p, "ms")                                       # the right unit: read
     assert t[-1] == pytest.approx(4241, abs=5)
     # seconds given for microseconds: 134 years
     with pytest.raises(InputError, match=r"longer than any chamber cycle .*with --time-unit us it would last 70.7 min"):

@@ -49,7 +49,6 @@ after each form.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
 import numpy as np
@@ -59,9 +58,9 @@ from ..io.thermal_cycle_csv import (G_IN_UNIT, GLITCH_FRACTION_MAX, GLITCH_SD, M
                                     read_cycle)
 from ..models.thermal_history import centred_rate, first_order_lag, play_operator, relay_branch, thermometer_lead
 from .thermal_reading import reading_errors, reading_rival, reading_words
+from .thermal_cycle_results import (EXPLAINED_FACTOR, FORMAT, VERSION, AxisCycle, FormFit,  # noqa: F401
+                                     ThermalCycle, jackknife)
 
-FORMAT = "triadcal.thermal_cycle"
-VERSION = 1
 FORMS = ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hysteresis", "lag", "lag_quadratic",
          "lag_hysteresis", "lag_play", "thermometer_lag", "play", "play_quadratic", "quadratic_play", "linear_drift")
 #: the form that is not thermal: a line in T plus a drift linear in time (per hour from the record's
@@ -95,8 +94,6 @@ ONE_WAY_NOTE = ("the temperature only {way}: no heating and cooling branches, so
                 "is one constant here, the bias's twin) and no branch gap is measured; a lag or a play shows only "
                 "where the rate changes (the ramp's start and end), and on a ramp of one rate it is an offset of the "
                 "temperature, which the bias takes: a cycle that heats and cools tells them")
-#: a form "explains" an axis when its held-out RMS is within this factor of the white-noise floor
-EXPLAINED_FACTOR = 3.0
 #: |dT/dt| below which the chamber counts as still (no branch), degC/min
 STILL_RATE_C_MIN = 0.2
 #: m/s^2 per g (the conversion constant only: the recording's own g is not known)
@@ -138,80 +135,6 @@ def rate_caveat(t_s, T, branch, best: str) -> Optional[str]:
             f"tell them apart, so the form named ({best}) and its tau or half-width rest on the turns (a lag with a play "
             "was taken for a longer lag before the form of both); a leg at another rate (half or twice) tells them "
             "apart on the ramps too")
-
-
-@dataclass
-class FormFit:
-    name: str
-    cv_rms: float
-    fit_rms: float
-    parameter: Optional[dict]
-    coefficients: list
-    branch_gap: Optional[float]
-
-    def to_dict(self) -> dict:
-        return {"form": self.name, "cv_rms": self.cv_rms, "fit_rms": self.fit_rms, "parameter": self.parameter,
-                "coefficients": self.coefficients, "branch_gap_after": self.branch_gap}
-
-
-@dataclass
-class AxisCycle:
-    column: str
-    unit: str
-    noise_floor: float
-    branch_gap: Optional[float]
-    forms: list
-    best: str
-    prediction: np.ndarray = field(repr=False, default=None)
-    caveat: Optional[str] = None
-    #: why a simpler form than the fold rule's was named (:func:`floor_rule`, the reading's rival), or None
-    floor_note: Optional[str] = None
-    #: the reading-noise rival of a delay or hysteresis form (thermal_reading.reading_rival), or None
-    reading_rival: Optional[dict] = None
-
-    def form(self, name: str) -> FormFit:
-        return next(f for f in self.forms if f.name == name)
-
-    def to_dict(self) -> dict:
-        lin = self.form("linear")
-        best = self.form(self.best)
-        return {"column": self.column, "unit": self.unit, "noise_floor": self.noise_floor,
-                "branch_gap_linear": self.branch_gap, "best": self.best,
-                "choice": "the simplest form (fewest parameters) whose held-out mean square is within one standard "
-                          "error (over the folds) or 1 % of the lowest; a simpler one at the white-noise floor unless "
-                          f"beaten by {PAIRED_Z:g} standard errors of the paired held-out squared errors",
-                **({"floor_rule": self.floor_note} if self.floor_note else {}),
-                "explained": bool(best.cv_rms <= EXPLAINED_FACTOR * self.noise_floor),
-                "explained_criterion": f"held-out RMS <= {EXPLAINED_FACTOR:g} x the white-noise floor",
-                "cv_improvement_over_linear": 1.0 - best.cv_rms / lin.cv_rms if lin.cv_rms > 0 else None,
-                "forms": [f.to_dict() for f in self.forms], **({"caveat": self.caveat} if self.caveat else {}),
-                **({"reading_rival": self.reading_rival} if self.reading_rival else {})}
-
-
-@dataclass
-class ThermalCycle:
-    source: str
-    unit: str
-    n: int
-    duration_s: float
-    temperature_range_C: tuple
-    reference_temperature_C: float
-    folds: int
-    axes: list
-    verdict: str
-    notes: list
-    t_s: np.ndarray = field(repr=False, default=None)
-    T: np.ndarray = field(repr=False, default=None)
-    y: np.ndarray = field(repr=False, default=None)
-    branch: np.ndarray = field(repr=False, default=None)
-
-    def to_dict(self) -> dict:
-        return {"format": FORMAT, "version": VERSION, "source": self.source, "unit": self.unit, "n_samples": self.n,
-                "duration_s": self.duration_s, "temperature_range_C": list(self.temperature_range_C),
-                "reference_temperature_C": self.reference_temperature_C, "folds": self.folds,
-                "validation": "blocked cross-validation over time (contiguous folds; the form's non-linear "
-                              "parameter chosen on the training folds)",
-                "axes": [a.to_dict() for a in self.axes], "verdict": self.verdict, "notes": list(self.notes)}
 
 
 def rate_of(t_s, T, window_s: float = 120.0) -> np.ndarray:
@@ -408,6 +331,28 @@ def white_floor(t, y) -> float:
     return float(np.std(d) / math.sqrt(2.0))
 
 
+def _uncertainty(form: str, fold_p: list, fold_c: list) -> Optional[dict]:
+    """The form's standard uncertainties by the block jackknife over its folds' training estimates:
+    the time constant (min), the half-width (degC) and every coefficient."""
+    out = {}
+    uc = jackknife(np.array(fold_c, float))
+    if uc is not None:
+        out["coefficients"] = [float(x) for x in uc]
+    if form == "lag_play":
+        pairs = {"tau_min": [p[0] / 60.0 for p in fold_p], "half_width_C": [p[1] for p in fold_p]}
+    elif form.startswith("lag") or form == "thermometer_lag":
+        pairs = {"tau_min": [p / 60.0 for p in fold_p]}
+    elif "play" in form:
+        pairs = {"half_width_C": [p[0] for p in fold_p]}
+    else:
+        pairs = {}
+    for k, v in pairs.items():
+        u = jackknife(v)
+        if u is not None:
+            out[k] = float(u[0])
+    return out or None
+
+
 def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, branch,
                  judged: Sequence[str] = FORMS) -> AxisCycle:
     n = len(y)
@@ -437,11 +382,13 @@ def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, bran
         if f in PLAY_FORMS:
             start = _best_parameter(f, designs[f], np.ones(n, bool), y, design_of)[1][1]
             grid_f = {k: X for k, X in designs[f].items() if k[1] == start}
-        sq, fold_mse = [], []
+        sq, fold_mse, fold_p, fold_c = [], [], [], []
         for k, test in enumerate(tests):
             _, p, c = lag_play[k] if f == "lag_play" else _best_parameter(f, grid_f, ~test, y, design_of)
             sq.append((y[test] - design_of(p)[test] @ c) ** 2)
             fold_mse.append(float(np.mean(sq[-1])))
+            fold_p.append(p)
+            fold_c.append(c)
         per_sample[f] = np.concatenate(sq)
         cv = float(np.sqrt(np.mean(per_sample[f])))
         per_fold[f] = np.array(fold_mse)
@@ -466,7 +413,8 @@ def analyse_axis(t, T, y, column: str, unit: str, T_ref: float, folds: int, bran
             span = (PLAY_GRID_C[0], PLAY_GRID_C[-1], p[0])
         if p is not None and span is not None and (span[2] <= span[0] * 1.001 or span[2] >= span[1] * 0.999):
             par["at_grid_edge"] = True       # the optimum may lie beyond the searched range
-        forms.append(FormFit(f, cv, math.sqrt(rss / n), par, [float(x) for x in c], branch_gap(T, resid, branch, T_ref)))
+        forms.append(FormFit(f, cv, math.sqrt(rss / n), par, [float(x) for x in c], branch_gap(T, resid, branch, T_ref),
+                             _uncertainty(f, fold_p, fold_c)))
     best, simpler = floor_rule(parsimonious_best(forms, per_fold, size), forms, per_sample, size, noise)
     # a delay or a hysteresis must beat the reading's own noise averaged away without one (thermal_reading.py)
     rival = reading_rival(t, T, y, T_ref, tests, best.name, per_sample[best.name], PAIRED_Z)
@@ -547,9 +495,10 @@ def thermal_cycle(path, columns: Sequence[str], *, time_column: str, temperature
         gap = "" if a.branch_gap is None else (
             f"; branch gap at {reference_temperature_C:g} degC {a.branch_gap:+.3g} {unit} after a line, "
             f"{best.branch_gap:+.3g} after {a.best}" if best.branch_gap is not None else "")
+        uu = best.u or {}
         par = "" if not best.parameter else " (" + ", ".join(
-            f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in best.parameter.items()
-            if k != "at_grid_edge") + (
+            (f"{k} {v:.3g}" + (f" +- {uu[k]:.2g}" if k in uu else "")) if isinstance(v, float) else f"{k} {v}"
+            for k, v in best.parameter.items() if k != "at_grid_edge") + (
             ", at the edge of the search" if best.parameter.get("at_grid_edge") else "") + ")"
         left = ("" if best.cv_rms <= EXPLAINED_FACTOR * a.noise_floor else
                 f"; UNEXPLAINED: no form comes within {EXPLAINED_FACTOR:g}x the noise floor (held-out RMS "
