@@ -31,8 +31,16 @@ DIRECTIONS = tuple(BRANCH)
 
 def nominal_gravity(axis1_deg, axis2_deg):
     """Unit gravity vector in the IMU frame of a level, perfect bench: shape (n, 3)."""
+    return base_direction_in_imu(axis1_deg, axis2_deg, (0.0, 0.0, 1.0))
+
+
+def base_direction_in_imu(axis1_deg, axis2_deg, v_base):
+    """A fixed direction ``v_base`` of the bench's base frame (z up) in the IMU frame of a level,
+    perfect bench, ``R_base_from_imu^T v`` (kinematics.gravity_in_imu): shape (n, 3). Gravity is
+    ``(0, 0, 1)``; the horizontal ``(1, 0, 0)`` and ``(0, 1, 0)`` carry what gravity does not, the
+    rotation about the vertical (a field fixed in the room, a bearing's run-out)."""
     g = gravity_in_imu(np.radians(np.asarray(axis1_deg, float)), np.radians(np.asarray(axis2_deg, float)),
-                       (0.0, 0.0, 1.0))
+                       tuple(float(x) for x in v_base))
     return np.stack(np.broadcast_arrays(*g), axis=-1)
 
 

@@ -208,6 +208,8 @@ def _verdict_text(d) -> tuple[str, str]:
 #: the generic families of an unexplained gap's shape (verdict.shape), in words
 SHAPE_WORDS = {"temperature": "temperature", "time": "time", "orientation_even": "orientation (even in g)",
                "orientation_odd": "orientation (odd in g)", "direction": "the direction of the temperature change",
+               "heading": "the pose's rotation about the vertical (no function of gravity: a field fixed in the "
+                          "room, a bearing's run-out)",
                "variance": "the scatter (variance)",
                "tilt": "the bench's tilt, soak by soak (a base that moves between soaks)",
                "scale": "the scale factors, soak by soak (a scale that wanders in time)",

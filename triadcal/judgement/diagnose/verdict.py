@@ -27,7 +27,7 @@ from ...models.sensor import ANGLE_NAMES
 from .candidates import NOISE_MODEL_TERMS, _nominal_g, _problem_on, design_caveat
 from .correlated import SCALE_WANDER_MIMICS, WANDER_MIMICS, wander_ambiguity, wander_rival
 from .fitting import _hat_q
-from .generic import gap_shape, level_words, per_output_terms, sign_terms
+from .generic import gap_shape, level_words, rival_terms, sign_terms
 from .noise_level import (LEVEL_MIMICS, noise_level_rival, partial_without_level, soak_level_ambiguity,
                           soak_level_rival, uniform_ambiguity)
 from .results import _f, _p_is
@@ -272,7 +272,7 @@ def decide(v: VerdictInputs) -> dict:
                             and NESTED_LIMIT.get(c.effect) != best.effect]
             rivals = {c.effect: cols(c) for c in named_rivals}
             sig_rows = np.broadcast_to(np.asarray(sigma, float), (campaign.n_visits, 3))
-            rivals.update(generic_rivals(per_output_terms(campaign, T0), sig_rows, base.whitened))
+            rivals.update(generic_rivals(rival_terms(campaign, T0), sig_rows, base.whitened))
             # g_j sign(g_k): rivals only, not among the gap's tests (generic.sign_terms)
             rivals.update(generic_rivals(sign_terms(campaign), sig_rows, base.whitened))
             # a term of the angles must beat a one-time change of the angles in time (a knock)
@@ -292,7 +292,7 @@ def decide(v: VerdictInputs) -> dict:
                 Jr = Jr / base.s
                 colr = lambda c: Jr[:, [full.index[n] for n in c.params]]  # noqa: E731
                 rr = {c.effect: colr(c) for c in named_rivals}
-                rr.update(generic_rivals(per_output_terms(ref, T0), sig_rows, lambda v: v / base.s))
+                rr.update(generic_rivals(rival_terms(ref, T0), sig_rows, lambda v: v / base.s))
                 rr.update(generic_rivals(sign_terms(ref), sig_rows, lambda v: v / base.s))
                 return _hat_q(Jr[:, [full.index[n] for n in base.names]]), colr(best), rr
 
