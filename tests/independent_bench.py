@@ -204,7 +204,7 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
                       fixture_arcsec=(0.0, 0.0, 0.0), tilt_arcsec=(0.0, 0.0),
                       local_g_m_s2=9.80665, true_g_m_s2=None, unit="SN-IND-0001", hysteresis=None,
                       positions=None, tilt_change=None, encoder_error=None, fixture_change=None,
-                      extra_scale=None, extra_bias=None) -> tuple[str, dict]:
+                      extra_scale=None, extra_bias=None, room_field=None) -> tuple[str, dict]:
     """CSV text of a bench campaign (12 positions at every setpoint, or ``positions``) and the true parameters.
 
     ``rng``: a ``numpy.random.Generator`` (used for the default truth, the temperature
@@ -227,7 +227,10 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
     vectors (arcsec, about IMU x, y, z) applied after the fixture (a unit that slips in its fixture);
     ``extra_scale(k, time_s, temps) -> (3,)`` relative change of K of visit ``k``;
     ``extra_bias(k, time_s, temps, G, direction) -> (3,)`` g added to the biases of visit ``k``
-    (``G`` the gravity on the IMU axes, g).
+    (``G`` the gravity on the IMU axes, g); ``room_field``: ``(C, b)``, a field ``b`` fixed in the
+    base frame (3,) acting on the sensor through the matrix ``C`` (3, 3; g per unit of field): the
+    bias ``C R_base_from_imu^T b`` (a magnet in the room; with ``C`` a multiple of the identity and
+    ``b`` horizontal it would be a tilt).
 
     ``hysteresis``: None, or ``{"form": "offset"|"play"|"pi", "half_widths_C": [...], "weights":
     [...], "start": "mid"|"heating"|"cooling"}`` with ``Ca_ab_hysteresis`` in the truth; the
@@ -306,6 +309,9 @@ def simulate_campaign(rng, *, truth=None, setpoints_C=(-40, -10, 20, 50, 80), ta
             K = K * (1.0 + np.asarray(extra_scale(k, time_s[k], temps[k]), float))
         if extra_bias is not None:
             S = S + np.asarray(extra_bias(k, time_s[k], temps[k], G[k], direction[k]), float)
+        if room_field is not None:
+            C, b = (np.asarray(x, float) for x in room_field)
+            S = S + C @ (R_base_from_imu[k].T @ b)
         W[k] = (_nonlinear_response(Ca, ang, G[k], truth) + S) / K
     if callable(noise_sd):                  # an SD per setpoint (honest sd_* columns say it)
         sd_k = np.array([float(noise_sd(x)) for x in sp])
