@@ -140,3 +140,31 @@ def test_the_outlier_rules_false_alarm_rate_is_measured_and_said():
         assert abs(direct - rate) < 4 * se + 1e-3, (n, direct, rate)
         assert abs(rate - probe) < 0.01, (n, rate, probe)
     assert "7.5 % of parameters" in false_alarm_words(7) or "7.4 % of parameters" in false_alarm_words(7)
+
+
+def test_a_fleet_is_the_units_of_one_state():
+    """An outside probe's batch: one unit calibrated in three states (initial, after_shock,
+    after_vibration) with one truth, and two other units: the rule pooled the five unit/state pairs
+    as five units, the three near-equal values set the median with a MAD of about 0, and the two
+    other units were flagged on 24 and 23 of 24 parameters, "with 5 units". Hand-made records: the
+    fleet is per state, the three-state unit is one unit of each state's fleet, and a state with
+    fewer than 5 units flags nobody; six units of one state still flag the one 40 u off."""
+    from triadcal.fleet.summary import fleet_words, table
+
+    def rec(unit, state, value):
+        return {"unit": unit, "state": state, "input": f"{unit}.csv", "action": "fitted",
+                "result": {"status": "ok", "fit": {"chi2_dof": 1.0, "n_obs": 100},
+                           "parameters": {"Ca_xy": {"value": value, "u": 1.0, "unit": "arcsec"}}}}
+
+    records = [rec("SN-30", s, 10.0 + 0.01 * k) for k, s in enumerate(("initial", "after_shock", "after_vibration"))]
+    records += [rec("SN-31", "initial", 30.0), rec("SN-32", "initial", -15.0)]
+    _, rows, _ = table(records)
+    assert all(r["outliers"] == "" for r in rows), [(r["unit"], r["state"], r["outliers"]) for r in rows]
+    words = fleet_words(rows)
+    assert "'initial': 3 unit(s) with status ok, too few for the rule" in words
+    assert "'after_shock': 1 unit(s)" in words
+    six = [rec(f"SN-{k}", "initial", v) for k, v in enumerate((0.3, -0.5, 0.1, 0.8, -0.2, 40.0))]
+    _, rows, _ = table(six + records[1:3])
+    flagged = {(r["unit"], r["state"]) for r in rows if r["outliers"]}
+    assert flagged == {("SN-5", "initial")}, flagged
+    assert "'initial': with 6 units a normal fleet" in fleet_words(rows)

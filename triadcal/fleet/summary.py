@@ -190,6 +190,32 @@ def false_alarm_words(n_units: int) -> str:
             "to check, not a finding")
 
 
+def fleets_by_state(rows) -> dict:
+    """``{state: [row indices whose status is ok]}``, states in the order first met. A fleet is the
+    units of one state: one unit's initial, after-shock and after-vibration calibrations are one
+    unit three times, not three units (an outside probe: a unit in three states of one truth set the
+    median, the MAD came out about 0, and the two other units were flagged on 24 and 23 of 24
+    parameters, "with 5 units", exit 0)."""
+    out: dict = {}
+    for i, row in enumerate(rows):
+        if row["unit"]:
+            out.setdefault(row["state"], [])
+            if row["status"] == "ok":
+                out[row["state"]].append(i)
+    return out
+
+
+def fleet_words(rows) -> str:
+    """What the fleet-outlier flags of these rows are worth, per state's fleet, in words."""
+    parts = []
+    for state, idx in fleets_by_state(rows).items():
+        n = len(idx)
+        parts.append(f"{state!r}: " + (false_alarm_words(n) if n >= OUTLIER_MIN_UNITS else
+                                       f"{n} unit(s) with status ok, too few for the rule (at least "
+                                       f"{OUTLIER_MIN_UNITS}): none flagged"))
+    return "a fleet per state; " + "; ".join(parts)
+
+
 # -- the table -----------------------------------------------------------------------------------
 
 def parameter_names(records) -> list[str]:
@@ -221,16 +247,19 @@ def table(records, tolerances=None):
             # one spelling of a unit (g/counts and g/count, written before and after 2026-11-30, are one)
             row[n + "_unit"] = canonical_scale_unit(p.get("unit", "")) if n in params else ""
         rows.append(row)
-    ok = np.array([row["status"] == "ok" for row in rows], bool)
     flagged = {i: [] for i in range(len(rows))}
+    fleets = fleets_by_state(rows)
     for n in names:
-        # values of different units (g/V and g/counts) are never pooled: the rule runs per unit
+        # values of different units (g/V and g/counts) are never pooled: the rule runs per unit, and per
+        # state (fleets_by_state: a unit in three states is one unit of each state's fleet)
         for unit in units_of(rows, n):
-            x = np.array([row[n] if (row[n] is not None and ok[i] and row[n + "_unit"] == unit) else np.nan
-                          for i, row in enumerate(rows)], float)
-            u = np.array([row[n + "_u"] if row[n + "_u"] is not None else np.nan for row in rows], float)
-            for i in np.flatnonzero(robust_outliers(x, u)):
-                flagged[int(i)].append(n)
+            for idx in fleets.values():
+                mine = set(idx)
+                x = np.array([row[n] if (i in mine and row[n] is not None and row[n + "_unit"] == unit) else np.nan
+                              for i, row in enumerate(rows)], float)
+                u = np.array([row[n + "_u"] if row[n + "_u"] is not None else np.nan for row in rows], float)
+                for i in np.flatnonzero(robust_outliers(x, u)):
+                    flagged[int(i)].append(n)
     for i, row in enumerate(rows):
         row["outliers"] = ";".join(flagged[i])
     columns = list(BASE_COLUMNS) + [c for n in names for c in (n, n + "_u", n + "_unit")]
@@ -314,8 +343,8 @@ def render_html(rows, names, tolerances=None) -> str:
                 if any(not r["unit"] for r in rows) else "")
              + ". Outliers: |x &minus; median| &gt; "
              f"{OUTLIER_K:g} &times; max({MAD_TO_SD} &times; MAD, u) over the units whose status is ok (at least "
-             f"{OUTLIER_MIN_UNITS}; u: the unit's own standard uncertainty), per parameter; "
-             + esc(false_alarm_words(len(ok))) + "."
+             f"{OUTLIER_MIN_UNITS}; u: the unit's own standard uncertainty), per parameter and state; "
+             + esc(fleet_words(rows)) + "."
              + (" Tolerances: " + esc(", ".join(f"{t[0]} in [{t[1]:g}, {t[2]:g}]" + (f" {t[3]}" if len(t) > 3 and t[3] else "")
                                           for t in tolerances))
                 if tolerances else " No tolerance file.") + "</p>"]
@@ -354,7 +383,9 @@ def render_html(rows, names, tolerances=None) -> str:
             for v in tol[1:3]:
                 ax.axvline(v, color="k", ls="--", lw=0.8)
         title = f"{n} ({unit})" if unit else n
-        ax.set_title(f"{title}, {len(x)} units", fontsize=9)
+        n_units, n_states = len({r["unit"] for r in sel}), len({r["state"] for r in sel})
+        ax.set_title(f"{title}, {n_units} units" + (f" in {n_states} states ({len(x)} calibrations)"
+                                                     if n_states > 1 else ""), fontsize=9)
         ax.tick_params(labelsize=7)
         parts.append(f"<div class='fig'><img alt='{esc(title)}' title='{esc(title)}' "
                      f"src='data:image/png;base64,{_png(fig)}'></div>")
