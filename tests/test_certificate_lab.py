@@ -126,3 +126,36 @@ def test_a_lab_without_gravity_refuses_the_data_g_taken_as_exact(tmp_path):
             # K's u holds the 20 ppm of g one to one (the other rows: noise, bench, fixture)
             row = next(b for b in r["K_x"].uncertainty["budget"] if b["key"] == "[gravity] u_ppm")
             assert row["contribution"] == pytest.approx(20e-6 * r["K_x"].value, rel=0.02)
+
+
+def test_values_at_a_reference_temperature_outside_the_range_are_refused(tmp_path, fitted):
+    """An outside probe fitted --reference-temperature 100 on data of -20..60 degC: the certificate
+    stated every value "at the reference temperature 100 degC" and, in its section 5, that the model is
+    not valid outside the range. Refused now, naming the range; at 20 degC (inside) the same fit is
+    not refused for it."""
+    from triadcal.reports.certificate.refusal import reference_outside_range
+
+    result = api.fit(fitted / "campaign.csv", effects=DEFAULT_EFFECTS, reference_temperature_C=100.0)
+    lo, hi = result.temperature_range_C
+    assert hi < 99.0
+    result.save(tmp_path / "r100.json")
+    cert = C.certificate(tmp_path / "r100.json", issue_date="2026-12-01")
+    why = " ".join(cert.reasons)
+    assert not cert.issued and "reference temperature 100 degC, outside the calibrated range" in why, why
+    assert reference_outside_range(api.fit(fitted / "campaign.csv", effects=DEFAULT_EFFECTS)) is None
+
+
+def test_a_lab_file_of_random_errors_only_is_not_called_no_lab_file(tmp_path, fitted):
+    """A lab file stating only the bench's random errors (sigma_1, sigma_2: in the fit's weights) and no
+    systematic one: the certificate's method said "Type A only: no lab file with the lab's own errors"
+    (an outside probe). It says the random errors are in and no systematic one is stated."""
+    lab = _lab(tmp_path, "random.toml", C.EXAMPLE_LAB_TOML.split("[bench]")[0]
+               + '[bench]\nname = "table"\nsigma_position_arcsec = 5.0\nsigma_wobble_arcsec = 2.0\n')
+    result = api.fit(fitted / "campaign.csv", effects=DEFAULT_EFFECTS, lab=lab)
+    assert isinstance(result.fit.get("bench_errors"), dict)
+    result.save(tmp_path / "r.json")
+    cert = C.certificate(tmp_path / "r.json", lab=lab, issue_date="2026-12-01")
+    assert cert.issued, cert.reasons
+    text = dict(cert.method)["Uncertainty"]
+    assert "with the bench's random errors (positioning, wobble)" in text and "no lab file" not in text, text
+    assert "it states none of the lab's systematic errors" in text and "Type B" not in text, text

@@ -195,3 +195,51 @@ def test_a_grid_that_is_not_finite_says_which_value(text, match):
     """An outside probe: --grid 0:inf:5 and nan:50:5 were told 'need LO < HI and STEP > 0'."""
     with pytest.raises(InputError, match=match):
         parse_grid(text)
+
+
+# -- an outside probe's tables (2026-12-02) ----------------------------------------------------------
+def test_a_table_is_refused_for_what_a_certificate_is_refused_for(fitted):
+    """A result whose fit left a significant model-data gap (chi2/dof 1.18 with known noise, p 4e-4:
+    status ok by the fit's gate, which also asks chi2/dof > 1.2) was refused a certificate and
+    exported, exit 0. The same reasons refuse the table (a result without content_sha256 is still
+    exported with a note, test above)."""
+    from triadcal.estimation.result_checks import RefusedResult
+
+    import copy
+
+    r, _, _ = fitted
+    d = copy.deepcopy(r.to_dict())           # (to_dict shares the result's fit block)
+    d.pop("content_sha256", None)
+    d["fit"]["gap_p_value"] = 4e-4
+    with pytest.raises(RefusedResult, match=r"significant gap between the model and the data.*a certificate is "
+                                            r"refused for"):
+        compensation_table(CalibrationResult.from_dict(d), parse_grid("-30:60:10"))
+
+
+def test_extrapolation_needs_temperature_terms_and_temperatures(fitted, tmp_path):
+    """A one-temperature result (no tempco) exported over -40..85 degC with --allow-extrapolation
+    repeated its 20 degC values with their u (K_x 4.6 ppm) where the truth was 1632 ppm off at 85 degC:
+    refused. A grid below absolute zero or beyond 300 degC, or a row where the model's K is not above
+    0 (an extrapolated scale tempco), is refused too: the probe's -1e300..1e300 grid wrote nan, inf
+    and a C header that did not compile, exit 0."""
+    text, _ = simulate_campaign(np.random.default_rng(5), setpoints_C=(20.0,))
+    (tmp_path / "one.csv").write_text(text)
+    one = api.fit(tmp_path / "one.csv", effects=("bench_tilt",))
+    assert one.status == "ok"
+    with pytest.raises(InputError, match="holds no temperature term"):
+        compensation_table(one, parse_grid("-40:85:25"), allow_outside=True)
+    r, _, _ = fitted
+    for grid in ("-300:-280:5", "-1e6:1e6:1e5", "250:310:10"):
+        with pytest.raises(InputError, match="no temperature a unit is used at"):
+            compensation_table(r, parse_grid(grid), allow_outside=True)
+    model = Model(("scale_tempco",))
+    params = {n: ParameterValue(model.spec[n].nominal, 0.1, model.spec[n].unit) for n in model.names}
+    for a in "xyz":
+        params[f"K_{a}"] = ParameterValue(1.0, 1e-6, "g/V")
+    params["K_x_tempco"] = ParameterValue(-5000.0, 1.0, model.spec["K_x_tempco"].unit)    # ppm/degC
+    steep = CalibrationResult(unit="SN-T", method="joint", parameters=params, effects=model.effect_names,
+                              temperature_range_C=(-40.0, 85.0), fit={"chi2_dof": 1.0, "n_obs": 540, "n_params": 30},
+                              extra={"output_unit": "V"})
+    assert compensation_table(steep, parse_grid("-40:85:5")).K[:, 0].min() > 0
+    with pytest.raises(InputError, match=r"at 220 degC the model gives K = 0, 1, 1"):
+        compensation_table(steep, parse_grid("200:290:10"), allow_outside=True)

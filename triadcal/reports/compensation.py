@@ -51,6 +51,12 @@ from ..models.units import ARCSEC, scale_factor_unit
 FORMAT = "triadcal.compensation"
 VERSION = 1
 FORMATS = ("json", "csv", "c-header")
+#: a table's temperatures: above absolute zero, and no hotter than any bench CSV holds (degC)
+ABSOLUTE_ZERO_C = -273.15
+TABLE_MAX_C = 300.0
+#: the effects that carry a value away from the calibration's temperature
+THERMAL_EFFECTS = ("angle_tempco", "angle_tempco2", "angle_tempco3", "scale_tempco", "scale_tempco2", "scale_tempco3",
+                   "bias_tempco", "bias_tempco2", "bias_tempco3")
 #: effects a table of temperature can represent (bench terms are not properties of the unit)
 TABLE_EFFECTS = BENCH_EFFECTS + ("angle_tempco", "angle_tempco2", "scale_tempco", "scale_tempco2", "bias_tempco",
                                  "bias_tempco2", "hysteresis", "thermal_lag", "angle_tempco3", "scale_tempco3",
@@ -287,9 +293,18 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
     """The table of ``result`` on ``grid_C`` (see the module). Refuses a result that is not ok,
     effects a table of T cannot hold, and grid points outside the calibrated range (the thermal
     model is not valid there) unless ``allow_outside`` (then said in the notes)."""
-    from ..estimation.result_checks import check_result_for_use
+    from ..estimation.result_checks import RefusedResult, check_result_for_use
+    from .certificate.refusal import refusal_reasons
 
-    check_result_for_use(result, source or f"result of {result.unit}")
+    src = source or f"result of {result.unit}"
+    check_result_for_use(result, src)
+    # what a certificate is refused for, a table that states the same values is refused for (an outside
+    # probe: a result with a significant model-data gap, p 4e-4, was refused a certificate and exported, exit 0);
+    # a result without content_sha256 is exported with a note (below), as before
+    why = [r for r in refusal_reasons(result) if "content_sha256" not in r]
+    if why:
+        raise RefusedResult(f"{src}: refused: " + "; ".join(why) + " (the reasons a certificate is refused for: a "
+                            "table states the same values)")
     other = [e for e in result.effects if e not in TABLE_EFFECTS]
     # (every effect of TABLE_EFFECTS is a polynomial of order <= 3 in T: the interpolation bound's premise)
     if other:
@@ -299,6 +314,10 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
     grid = np.asarray(grid_C, float)
     if grid.ndim != 1 or len(grid) < 1 or not np.all(np.isfinite(grid)) or np.any(np.diff(grid) <= 0):
         raise InputError(f"grid {grid.tolist()!r}: need finite temperatures (degC), increasing")
+    unphysical = grid[(grid <= ABSOLUTE_ZERO_C) | (grid > TABLE_MAX_C)]
+    if unphysical.size:
+        raise InputError(f"grid point {unphysical[0]:g} degC is no temperature a unit is used at (a table runs "
+                         f"above {ABSOLUTE_ZERO_C:g} and up to {TABLE_MAX_C:g} degC)")
     notes = []
     if result.content_unhashed:
         # an outside probe: content_sha256 deleted and K_x edited: exported without a word (compare notes it,
@@ -321,6 +340,13 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
         raise InputError(f"grid points {pts} degC lie outside the calibrated range {lo_txt}..{hi_txt} degC, where the "
                          "thermal model is not valid; choose a grid inside it (or --allow-extrapolation, which says "
                          "so in the table)")
+    if outside.size and not any(e in result.effects for e in THERMAL_EFFECTS):
+        # an outside probe: a one-temperature result exported over -40..85 degC repeated its 20 degC values with
+        # their 20 degC u (K_x 4.6 ppm) where the truth was 1632 ppm off at 85 degC
+        raise InputError(f"grid points {pts} degC lie outside the calibrated range {lo_txt}..{hi_txt} degC and the "
+                         "result holds no temperature term: its values hold at the calibration's temperature only, "
+                         "and a row elsewhere would repeat them with an uncertainty no data support; calibrate over "
+                         "the range the table must cover")
     if outside.size:
         notes.append(f"EXTRAPOLATED: grid points {pts} degC lie outside the calibrated range {lo_txt}..{hi_txt} degC")
     if "thermal_lag" in result.effects:
@@ -370,6 +396,15 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
     # quantity's scale it is 0 (a linear thermal model interpolates exactly)
     scale = np.maximum(1.0, np.abs(np.concatenate([K, S, A], axis=1)).max(axis=0))
     interp[interp < 1e-12 * scale] = 0.0
+    # an extrapolated row must still be a sensor: finite in a 32-bit float (the C header's type) with K > 0
+    # (an outside probe's --grid -1e6:1e6:1e5 wrote negative K and nan in Ca^-1, exit 0)
+    q = np.concatenate([K, S, A, u, interp], axis=1)
+    bad = np.flatnonzero(~np.all(np.isfinite(q.astype(np.float32)), axis=1) | np.any(K <= 0, axis=1))
+    if bad.size:
+        i = int(bad[0])
+        raise InputError(f"at {grid[i]:g} degC the model gives K = {', '.join(f'{k:.4g}' for k in K[i])} (S, angles "
+                         "and their u finite in a 32-bit float, K above 0, are needed for a row): that temperature is "
+                         "too far from the calibrated range for its thermal terms")
     Ca_inv = np.stack([np.linalg.inv(np.array(dcm({ab: A[i, j] * ARCSEC for j, ab in enumerate(ANGLE_NAMES)}), float))
                        for i in range(len(grid))])
     hyst = {f"Ca_{ab}": result.parameters[f"Ca_{ab}_hysteresis"].value for ab in ANGLE_NAMES

@@ -366,6 +366,12 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
     else:
         ptxt = "none (least squares)" if result.method != "posterior" else "as stated in the result file"
     method.append(("Priors", ptxt))
+    # a lab file with the bench's random errors only (sigma_1, sigma_2 in the weights) is not "no lab file"
+    # (an outside probe's certificate said so of a fit whose u held them)
+    type_a = ("Type A, with the bench's random errors (positioning, wobble) the lab file states in the fit's "
+              "weights; it states none of the lab's systematic errors"
+              if isinstance(result.fit.get("bench_errors"), dict) else
+              "Type A only: no lab file with the lab's own errors")
     if result.holds_type_b():
         ks = {n: p.uncertainty.get("k") for n, p in result.parameters.items() if p.U is not None}
         odd = [f"{n} (k = {k:.3g})" for n, k in ks.items() if k is not None and abs(k - 2.0) > 0.005]
@@ -380,13 +386,12 @@ def build_certificate(result: CalibrationResult, *, lab: Optional[LabConfig] = N
         # the noise estimated from the residuals, no lab file: U = k u with k from Student's t on its dof
         ks = sorted({round(float(p.uncertainty["k"]), 3) for p in result.parameters.values()
                      if p.U is not None and p.uncertainty.get("k") is not None})
-        method.append(("Uncertainty", f"U = k·u, u from the {source_of_u} (Type A only: no lab file with the lab's "
-                       f"own errors), the output noise estimated from the residuals on {result.fit['noise_dof']:.3g} "
+        method.append(("Uncertainty", f"U = k·u, u from the {source_of_u} ({type_a}), the output noise estimated from the residuals on {result.fit['noise_dof']:.3g} "
                        "degrees of freedom, so k from Student's t on them at a coverage probability of 95.45 % (k = "
                        + ", ".join(f"{k:g}" for k in ks) + "); U rounded to two significant digits, the value to match"))
     else:
         method.append(("Uncertainty", f"U = k·u with k = 2 (coverage probability about 95 %), u from the "
-                       f"{source_of_u} (Type A only: no lab file with the lab's own errors); U rounded to two "
+                       f"{source_of_u} ({type_a}); U rounded to two "
                        "significant digits, the value to match"))
     cert.method = method
     # conditions ------------------------------------------------------------------------

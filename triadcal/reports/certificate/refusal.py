@@ -76,6 +76,30 @@ def posterior_diagnostics(idata, names, result: Optional[CalibrationResult] = No
             "ess_worst": names[ib], "ess_tail_min": float(diag["ess_tail"][it]), "stop_rule": rule}
 
 
+#: a reference temperature this far (degC) outside the calibrated range is an extrapolation, not a calibration
+REFERENCE_OUTSIDE_C = 1.0
+#: the effects whose parameters carry the values from the data's temperatures to the reference one
+_THERMAL = ("angle_tempco", "angle_tempco2", "angle_tempco3", "scale_tempco", "scale_tempco2", "scale_tempco3",
+            "bias_tempco", "bias_tempco2", "bias_tempco3")
+
+
+def reference_outside_range(result: CalibrationResult) -> Optional[str]:
+    """Why the values, stated at the model's reference temperature, are no calibration: that temperature
+    lies more than :data:`REFERENCE_OUTSIDE_C` outside the calibrated range, where the thermal terms
+    extrapolate (or None). An outside probe fitted --reference-temperature 100 on data of -20..60 degC:
+    the certificate stated every value "at the reference temperature 100 degC" and, in section 5, that
+    the model is not valid outside -19.8..60.3 degC."""
+    rng, tref = result.temperature_range_C, result.reference_temperature_C
+    if not rng or tref is None or not any(e in result.effects for e in _THERMAL):
+        return None
+    lo, hi = float(rng[0]), float(rng[1])
+    if lo - REFERENCE_OUTSIDE_C <= float(tref) <= hi + REFERENCE_OUTSIDE_C:
+        return None
+    return (f"the values are stated at the reference temperature {float(tref):g} degC, outside the calibrated range "
+            f"{lo:.2f}..{hi:.2f} degC: there the thermal terms extrapolate, which is no calibration; fit again with "
+            "--reference-temperature inside the range")
+
+
 def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict] = None,
                     diagnosis: Optional[dict] = None) -> list[str]:
     """Why no certificate can be issued for ``result`` (empty: it can be issued).
@@ -115,6 +139,9 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
     if unid:
         reasons.append("the data could not determine " + "; ".join(f"{k} ({v})" for k, v in unid.items())
                        + " - refit without those terms (--effects) or with a campaign that determines them")
+    outside = reference_outside_range(result)
+    if outside:
+        reasons.append(outside)
     p_gap = result.fit.get("gap_p_value")
     if isinstance(p_gap, (int, float)) and p_gap < GAP_P_THRESHOLD:
         reasons.append(f"significant gap between the model and the data: chi2/dof = "
