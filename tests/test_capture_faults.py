@@ -394,6 +394,23 @@ def test_a_stall_keeps_the_time_that_passed(tmp_path, scale):
     np.testing.assert_allclose(np.diff(times), 0.1, atol=1e-6)
 
 
+def test_a_stall_in_the_captures_first_wall_second_keeps_the_time_that_passed(tmp_path):
+    """An outside probe: --emulate-stall 300:120 at x300 silenced the IMU 1 wall second into the capture,
+    before the rate of instrument seconds per wall second had a full second of frames: the 120 s were
+    shifted away as a clock step, every later time_s 120 s early, "0 stalls, 1 clock faults", exit 0
+    (the same stall later in the run was a stall_gap). The rate for telling them apart needs 0.2 wall s
+    of frames (a factor 2 suffices there): 0.4 wall s of frames at x300, then 0.4 s of silence."""
+    scale = 300.0
+    dt_wall = 0.1 / scale
+    n = 1200                                             # 0.4 wall s, 120 instrument s
+    frames = [dataclasses.replace(good(k, 0.1 * k), wall_s=1000.0 + k * dt_wall) for k in range(n)]
+    stalled = frames + [dataclasses.replace(good(n + j, 0.1 * (n + j) + 120.0), wall_s=1000.0 + (n + j) * dt_wall
+                                            + 120.0 / scale) for j in range(10)]
+    run, times, kinds = pump_all(tmp_path, stalled)
+    assert kinds == ["stall_gap"] and run.clock_faults == 0 and run.stall_gaps == 1
+    assert times[n] - times[n - 1] == pytest.approx(120.1, abs=1e-6)
+
+
 def test_a_late_frame_is_logged_with_its_values_not_counted_as_a_duplicate(tmp_path):
     """Two frames swapped on the way (11 before 10): the late one was dropped as a "duplicate",
     its reading gone without a word. A sequence number never admitted, at most 64 behind, whose

@@ -202,3 +202,26 @@ def test_resume_refuses_a_state_file_that_is_not_ours(tmp_path, text, message):
     with pytest.raises(CaptureError, match=message):
         capture(tmp_path, plan={"P02": (180.0, 0.0)}, setpoints_C=[20.0], imu=None, bench=None, chamber=None,
                 settings=CaptureSettings(unit="X"))
+
+
+def test_a_resume_with_another_emulated_unit_is_refused(tmp_path, emulated_capture):
+    """An outside probe killed a capture after its 20 degC block and resumed it with
+    --emulate-preset a18-silicon: accepted, emulator_truth.json written over with the second unit's,
+    and a fit of the two units' rows said ok with tempcos of neither (K_x 83 ppm/degC where the truth
+    was 15). The emulated unit is the captured rows' unit: a resume that emulates another is refused
+    before anything is written, and the truth file is kept."""
+    import shutil
+    import subprocess
+    import sys
+
+    out = tmp_path / "campaign"
+    shutil.copytree(emulated_capture, out)
+    before = (out / "emulator_truth.json").read_bytes()
+    env = dict(os.environ, OMP_NUM_THREADS="1", XDG_CACHE_HOME=str(tmp_path / "xdg"), MPLBACKEND="Agg")
+    r = subprocess.run([sys.executable, "-m", "triadcal", "capture", "--emulate", "--out", str(out),
+                        "--setpoints", "20", "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2",
+                        "--stab-window-s", "30", "--stab-hold-s", "30", "--emulate-effects", "bench_tilt",
+                        "--emulate-self-heating-tau-s", "60", "--emulate-seed", "3", "--emulate-preset", "a18-silicon",
+                        "--no-progress"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and "holds visits of another emulated unit" in r.stderr, (r.returncode, r.stderr)
+    assert "--emulate-preset" in r.stderr and (out / "emulator_truth.json").read_bytes() == before

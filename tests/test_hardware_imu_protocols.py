@@ -449,3 +449,18 @@ def test_configuration_finds_its_replies_inside_a_running_stream(name):
     assert p.stats.corrupted == 0 and p.stats.garbage_bytes == 0 and len(got) > 3
     first = round(got[0].w[0], 2)
     np.testing.assert_allclose([f.w[0] for f in got], first + 0.01 * np.arange(len(got)), rtol=0, atol=1e-4)
+
+
+def test_an_imu_port_that_cannot_be_opened_is_named_not_an_internal_error():
+    """An outside probe's capture with --imu-port /dev/ttyNOPE ended in "internal error: SerialException
+    ... (a bug: please report it)", exit 70, where a missing bench or chamber port is named. The IMU's
+    is named too (a TriadcalError: exit 1), and a reopen during a run still keeps trying (an OSError)."""
+    from triadcal.errors import TriadcalError
+    from triadcal.hardware.drivers.imu import ImuPortError, SerialImu
+
+    imu = SerialImu("/dev/ttyUSB-triadcal-none", protocol="nmea")
+    with pytest.raises(ImuPortError, match="cannot open the IMU's port /dev/ttyUSB-triadcal-none") as info:
+        imu.open()
+    assert isinstance(info.value, TriadcalError) and isinstance(info.value, OSError)
+    imu._reopen()                                  # the run's reconnect loop: no exception, no port
+    assert imu._ser is None

@@ -141,7 +141,29 @@ def run(args) -> int:
         from pathlib import Path
 
         Path(args.out).mkdir(parents=True, exist_ok=True)
-        emulator.truth.save(Path(args.out) / "emulator_truth.json")
+        truth_path = Path(args.out) / "emulator_truth.json"
+        if truth_path.exists():
+            # a resume with another emulated unit (--emulate-preset, --emulate-effects, --emulate-Q, ...) was
+            # accepted, its truth written over the first's, and a fit of the two units' rows said ok with
+            # tempcos of neither (an outside probe)
+            from ..models.simulate import Truth
+
+            try:
+                before = Truth.load(truth_path).to_dict()
+            except (OSError, ValueError, KeyError, TypeError, InputError) as exc:
+                emulator.stop()
+                raise InputError(f"{truth_path}: cannot be read ({exc}): the emulated unit of the rows already "
+                                 "captured is not known; choose another --out") from None
+            if before != emulator.truth.to_dict():
+                emulator.stop()
+                differs = sorted(k for k in set(before) | set(emulator.truth.to_dict())
+                                 if before.get(k) != emulator.truth.to_dict().get(k))
+                raise InputError(f"{args.out} holds visits of another emulated unit ({truth_path}: its "
+                                 f"{', '.join(differs)} differ from this emulator's): a resume must emulate the same "
+                                 "unit (the same --emulate-preset, --emulate-effects, noise and seed), or choose "
+                                 "another --out")
+        else:
+            emulator.truth.save(truth_path)
         extra["emulator"] = f"triadcal emulate (clock x{args.time_scale:g}, {emulator.protocol}" + (
             f", bench profile {emulator.bench_profile_ref})" if emulator.bench_server is not None else ")")
     settings = CaptureSettings(

@@ -82,6 +82,10 @@ T_LOW, T_HIGH = RANGES["t_x"][0], RANGES["t_x"][1]
 STALL_COVER = 0.5
 #: the instrument seconds per wall second are measured over frames spanning at least this (wall s)
 RATE_SPAN_WALL_S = 1.0
+#: ... and, to tell a stall from a clock step, over at least this: a factor 2 suffices there
+#: (STALL_COVER), and an outside probe's stall 0.4 wall s into a capture at x300 fell before the
+#: first full second: shifted away as a clock step, every later time 120 s early, exit 0
+STALL_RATE_SPAN_WALL_S = 0.2
 
 
 class CaptureError(TriadcalError, RuntimeError):
@@ -239,13 +243,13 @@ class _Runner:
             return False
         return abs((self.last_time - f.time_s) - back * dt) <= 0.5 * dt
 
-    def _instrument_per_wall(self) -> Optional[float]:
-        """Instrument seconds per wall second over the admitted frames of the last
-        :data:`RATE_SPAN_WALL_S` or more (None: too short a span, or no wall stamps)."""
+    def _instrument_per_wall(self, min_span_s: float = RATE_SPAN_WALL_S) -> Optional[float]:
+        """Instrument seconds per wall second over the admitted frames of the last ``min_span_s``
+        (:data:`RATE_SPAN_WALL_S`) or more (None: too short a span, or no wall stamps)."""
         if len(self._flow) < 2:
             return None
         (w0, c0), (w1, c1) = self._flow[0], self._flow[-1]
-        if not (w1 - w0 >= RATE_SPAN_WALL_S) or c1 <= c0:
+        if not (w1 - w0 >= min_span_s) or c1 <= c0:
             return None
         return (c1 - c0) / (w1 - w0)
 
@@ -262,7 +266,7 @@ class _Runner:
     def _stall(self, f: Frame, jump_s: float) -> Optional[dict]:
         """The evidence that the forward jump ``jump_s`` of ``f``'s clock is a stall (time that passed
         while the host heard nothing), or None (module docstring)."""
-        rate = self._instrument_per_wall()
+        rate = self._instrument_per_wall(STALL_RATE_SPAN_WALL_S)
         silence = f.wall_s - self.last_wall
         if jump_s <= 0 or rate is None or not math.isfinite(silence) or silence * rate < STALL_COVER * jump_s:
             return None

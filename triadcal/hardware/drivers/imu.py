@@ -20,8 +20,14 @@ from typing import Optional
 
 import serial
 
+from ...errors import TriadcalError
+
 from ..protocols import (VENDOR_PROTOCOLS, DeviceError, Frame, Link, ParserStats, get_protocol,
                          protocol_info)
+
+
+class ImuPortError(TriadcalError, OSError):
+    """The IMU's serial port cannot be opened."""
 
 
 @dataclass
@@ -116,7 +122,12 @@ class SerialImu(ImuReadout):
         return self._link
 
     def open(self) -> None:
-        self._ser = serial.Serial(self.port, self.baudrate, timeout=self.poll_s)
+        try:
+            self._ser = serial.Serial(self.port, self.baudrate, timeout=self.poll_s)
+        except (OSError, serial.SerialException, ValueError) as exc:
+            # a missing IMU port was an internal error, exit 70 (an outside probe); the bench's and the
+            # chamber's said "cannot open the ... port" (an OSError: a reopen during the run keeps trying)
+            raise ImuPortError(f"cannot open the IMU's port {self.port}: {exc}") from None
         self._last_data = time.monotonic()
         if self.configure:
             try:
