@@ -464,3 +464,16 @@ def test_an_imu_port_that_cannot_be_opened_is_named_not_an_internal_error():
     assert isinstance(info.value, TriadcalError) and isinstance(info.value, OSError)
     imu._reopen()                                  # the run's reconnect loop: no exception, no port
     assert imu._ser is None
+
+
+def test_the_emulators_ports_file_names_absolute_ports(tmp_path, monkeypatch):
+    """An outside probe ran `triadcal emulate EMU` and then `capture --config /abs/EMU/ports.toml` from
+    another directory: "cannot open the bench's port EMU/bench" (the ports were written relative to the
+    emulator's working directory). They are absolute now, and TOML strings whatever the path holds."""
+    import tomllib
+
+    monkeypatch.chdir(tmp_path)
+    e = Emulator("EMU dir \"quoted\"")
+    cfg = tomllib.loads(e.write_config().read_text())
+    for k in ("imu", "bench", "chamber"):
+        assert cfg[k]["port"] == str(tmp_path / "EMU dir \"quoted\"" / k), cfg

@@ -104,7 +104,9 @@ class Emulator:
                  timing: Optional[EmulatorTiming] = None, faults: Optional[FaultPlan] = None,
                  seed: int = 0, keep_log: bool = False, chamber_slave: int = 1, bench_profile=None,
                  dmm: bool = False, dmm_mains_hz: float = 50.0):
-        self.directory = Path(directory)
+        # absolute: the ports.toml it writes is read from anywhere (an outside probe's `emulate EMU` wrote
+        # port = "EMU/imu", and `capture --config /abs/EMU/ports.toml` run elsewhere could not open it)
+        self.directory = Path(os.path.abspath(directory))
         self.directory.mkdir(parents=True, exist_ok=True)
         self.truth = truth or preset_truth()
         self.protocol = protocol
@@ -201,10 +203,10 @@ class Emulator:
         self.write_instruments()          # first: a reader waits for ports.toml, then may read both
         atomic_write_text(
             path,
-            f'# written by triadcal emulate\n[imu]\nport = "{self.ports["imu"]}"\nprotocol = "{self.protocol}"\n'
+            f'# written by triadcal emulate\n[imu]\nport = {_toml_str(self.ports["imu"])}\nprotocol = "{self.protocol}"\n'
             + (f'rate_hz = {self.timing.rate_hz:g}\n' if self.imu_device is not None else '') + '\n'
-            f'[bench]\nport = "{self.ports["bench"]}"\n' + self._bench_driver_lines() + '\n'
-            f'[chamber]\nport = "{self.ports["chamber"]}"\nslave = {self.chamber_slave}\n')
+            f'[bench]\nport = {_toml_str(self.ports["bench"])}\n' + self._bench_driver_lines() + '\n'
+            f'[chamber]\nport = {_toml_str(self.ports["chamber"])}\nslave = {self.chamber_slave}\n')
         return path
 
     def _bench_driver_lines(self) -> str:
