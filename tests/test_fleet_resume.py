@@ -168,3 +168,24 @@ def test_a_fleet_is_the_units_of_one_state():
     flagged = {(r["unit"], r["state"]) for r in rows if r["outliers"]}
     assert flagged == {("SN-5", "initial")}, flagged
     assert "'initial': with 6 units a normal fleet" in fleet_words(rows)
+
+
+def test_the_history_plot_sets_the_states_of_one_date_apart_and_names_them(tmp_path):
+    """An outside probe's unit calibrated before and after a shock on one date: both points at one x,
+    joined by a vertical line, no label: Ca_xy -39 and +20 arcsec read as one point with a long error
+    bar. Calibrations of one date stand 8 h apart in their recorded order, each labelled #id state;
+    a history of one calibration a date has no labels."""
+    from triadcal.fleet.history import history_points
+
+    def cal(i, date, state, v):
+        return {"id": i, "date": date, "state": state,
+                "result": {"parameters": {"Ca_xy": {"value": v, "u": 1.0, "unit": "arcsec"}}}}
+
+    cals = [cal(1, "2025-02-10", "initial", -39.0), cal(2, "2025-02-10", "after_shock", 20.0),
+            cal(3, "2025-06-01", "after_vibration", 21.0)]
+    xs, ys, us, labels, shared = history_points("SN-002", cals, "Ca_xy")
+    assert shared and labels == ["#1 initial", "#2 after_shock", "#3 after_vibration"] and ys == [-39.0, 20.0, 21.0]
+    assert (xs[1] - xs[0]).total_seconds() == 8 * 3600 and xs[2] > xs[1]
+    plot_history("SN-002", cals, tmp_path / "h.png")
+    assert (tmp_path / "h.png").read_bytes()[:4] == b"\x89PNG"
+    assert not history_points("SN-002", [cals[0], cals[2]], "Ca_xy")[4]

@@ -480,6 +480,33 @@ def history_text(serial: str, calibrations) -> str:
     return "\n".join(lines)
 
 
+def history_points(serial: str, calibrations, name: str) -> tuple:
+    """The points of parameter ``name`` in the history plot: ``(x, value, u, label, shared)`` lists and
+    whether some date holds several calibrations (then each is labelled ``#id state`` and they stand
+    8 h apart in their recorded order: at one x a unit's states before and after a shock read as one
+    point with a long error bar, an outside probe)."""
+    xs, ys, us, labels = [], [], [], []
+    on_day: dict = {}
+    for c in calibrations:
+        p = c["result"].get("parameters", {}).get(name)
+        if p and p.get("value") is not None and p.get("u") is not None:
+            try:
+                day = _dt.date.fromisoformat(c["date"][:10])
+            except ValueError:
+                # skipped without a word, every point of a history with day-first dates was left out and
+                # an empty figure written (an outside probe)
+                raise InputError(f"{serial}: calibration #{c['id']} is dated {c['date']!r}, not an ISO 8601 "
+                                 "date (YYYY-MM-DD): it cannot be placed on the time axis") from None
+            # calibrations of one date (a unit's states before and after a shock) side by side, in their
+            # recorded order, each labelled: at one x they read as one point with a long error bar
+            j = on_day[day] = on_day.get(day, -1) + 1
+            xs.append(_dt.datetime.combine(day, _dt.time()) + _dt.timedelta(hours=8 * j))
+            ys.append(p["value"])
+            us.append(p["u"])
+            labels.append(f"#{c['id']}" + (f" {c['state']}" if c.get("state") else ""))
+    return xs, ys, us, labels, any(v > 0 for v in on_day.values())
+
+
 def plot_history(serial: str, calibrations, path) -> None:
     """Each angle against the calibration date with its error bar (k = 1), one panel per angle."""
     from matplotlib.figure import Figure      # no pyplot: no backend, no global state
@@ -492,20 +519,11 @@ def plot_history(serial: str, calibrations, path) -> None:
     fig = Figure(figsize=(9, 5.5))
     for k, n in enumerate(angles):
         ax = fig.add_subplot(2, 3, k + 1)
-        xs, ys, us = [], [], []
-        for c in calibrations:
-            p = c["result"].get("parameters", {}).get(n)
-            if p and p.get("value") is not None and p.get("u") is not None:
-                try:
-                    xs.append(_dt.date.fromisoformat(c["date"][:10]))
-                except ValueError:
-                    # skipped without a word, every point of a history with day-first dates was left out and
-                    # an empty figure written (an outside probe)
-                    raise InputError(f"{serial}: calibration #{c['id']} is dated {c['date']!r}, not an ISO 8601 "
-                                     "date (YYYY-MM-DD): it cannot be placed on the time axis") from None
-                ys.append(p["value"])
-                us.append(p["u"])
+        xs, ys, us, labels, shared = history_points(serial, calibrations, n)
         ax.errorbar(xs, ys, yerr=us, fmt="o-", capsize=3)
+        if shared:
+            for x, y, lab in zip(xs, ys, labels):
+                ax.annotate(lab, (x, y), fontsize=6, xytext=(3, 3), textcoords="offset points")
         ax.set_title(f"{n} (arcsec)", fontsize=9)
         ax.tick_params(labelsize=7)
         for lab in ax.get_xticklabels():
