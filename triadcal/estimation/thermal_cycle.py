@@ -23,6 +23,9 @@ non-linear parameter, :mod:`triadcal.models.thermal_history` for the operators):
   a lag and an offset
   hysteresis at once, which a lag alone took up with a biased tau (+24 % at h = 3 mm/s2, +88 % at
   h = 10), "explained" (an outside probe);
+- ``lag_quadratic_hysteresis``: the same on a quadratic tempco (an outside probe's lag of 4 min with
+  an offset hysteresis on a quadratic tempco was ``lag_quadratic`` with tau 19 % long, the
+  hysteresis lost, "explained" at 1.7 floors);
 - ``lag_play``: linear in the play (half-width r) of the lagging element's temperature
   (``play(lag(T, tau), r)``): a lag and a play at once, which a lag with an offset hysteresis took
   up with tau 37 % long, "explained" at 1.09 times the floor (a lag of 4 min with a play of 3 degC
@@ -62,7 +65,8 @@ from .thermal_cycle_results import (EXPLAINED_FACTOR, FORMAT, VERSION, AxisCycle
                                      ThermalCycle, jackknife)
 
 FORMS = ("linear", "quadratic", "cubic", "offset_hysteresis", "quadratic_hysteresis", "lag", "lag_quadratic",
-         "lag_hysteresis", "lag_play", "thermometer_lag", "play", "play_quadratic", "quadratic_play", "linear_drift")
+         "lag_hysteresis", "lag_quadratic_hysteresis", "lag_play", "thermometer_lag", "play", "play_quadratic",
+         "quadratic_play", "linear_drift")
 #: the form that is not thermal: a line in T plus a drift linear in time (per hour from the record's
 #: middle; models/effects/bias_drift's term on one pose). Without it an outside probe's output drifting
 #: 20 ug/h with no tempco was a play of 30 degC (at the edge of the search), "explained" at 1.2 floors,
@@ -176,11 +180,11 @@ def _design(form: str, t, T, T_ref, branch, p, cache: Optional[dict] = None) -> 
         return np.stack([one, play_operator(Te, r, start=y0) - T_ref], axis=1)
     elif form.startswith("lag"):
         d = op("lag", p) - T_ref
-        if form == "lag_hysteresis":
+        if form in ("lag_hysteresis", "lag_quadratic_hysteresis"):
             if ("relay", p) not in cache:
                 Te = op("lag", p)
                 cache[("relay", p)] = relay_branch(Te, RELAY_HALF_WIDTH_C)
-            return np.stack([one, d, cache[("relay", p)]], axis=1)
+            return np.stack([one, d] + ([d * d] if "quadratic" in form else []) + [cache[("relay", p)]], axis=1)
     elif form == "thermometer_lag":
         d = op("lead", p) - T_ref
     else:

@@ -64,7 +64,7 @@ def _poly(Ts, T_ref, degree):
 #: (the hysteron of the averaged reading), which a coarse thermometer's staircase otherwise passed for a
 #: small lag with a hysteresis or a play (an outside probe: a true offset hysteresis of 0.01 m/s2 read in
 #: 1 degC steps was lag_play or lag_hysteresis with tau 0.15 min, "explained", 12 of 12 axes)
-BRANCH_AND_DELAY = ("lag_hysteresis", "lag_play", "quadratic_play")
+BRANCH_AND_DELAY = ("lag_hysteresis", "lag_quadratic_hysteresis", "lag_play", "quadratic_play")
 
 
 def reading_rival(t, T, y, T_ref: float, tests: list, named: str, named_sq: np.ndarray,
