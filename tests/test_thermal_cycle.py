@@ -75,6 +75,20 @@ def _run(p):
     return thermal_cycle(p, ["acc"], time_column="timestamp", temperature_column="temp", time_unit="us").axes[0]
 
 
+def _relay(Te):
+    """A relay written out here: +1 after a move of the element of 0.05 degC down, -1 after one up,
+    held in between (the sign of its last move beyond 0.05 degC)."""
+    b, ref, state = np.empty_like(Te), Te[0], 1.0
+    for k, x in enumerate(Te):
+        if x < ref - 0.05:
+            state, ref = 1.0, x
+        elif x > ref + 0.05:
+            state, ref = -1.0, x
+        ref = min(ref, x) if state == 1.0 else max(ref, x)
+        b[k] = state
+    return b
+
+
 def _ode_lag(tau):
     """The output of an element lagging the sensor by ``tau`` (s), solved by scipy's ODE solver."""
     def out(t, T):
@@ -104,15 +118,7 @@ def test_a_lag_and_a_relay_hysteresis_on_a_quadratic_tempco_are_named_together(t
 
     def out(t, T):
         Te = _ode_element(t, T, tau)
-        b, ref, state = np.empty_like(Te), Te[0], 1.0
-        for k, x in enumerate(Te):
-            if x < ref - 0.05:
-                state, ref = 1.0, x
-            elif x > ref + 0.05:
-                state, ref = -1.0, x
-            ref = min(ref, x) if state == 1.0 else max(ref, x)
-            b[k] = state
-        return 0.1 + 0.002 * (Te - 20.0) + 3e-5 * (Te - 20.0) ** 2 + h * b
+        return 0.1 + 0.002 * (Te - 20.0) + 3e-5 * (Te - 20.0) ** 2 + h * _relay(Te)
 
     a = _run(_cycle(tmp_path, out, "lagquadhyst.csv", noise=0.001))
     assert a.best == "lag_quadratic_hysteresis", [(f.name, f.cv_rms / a.noise_floor) for f in a.forms]
@@ -211,16 +217,7 @@ def test_a_lag_and_a_relay_hysteresis_at_once_are_named_together(tmp_path):
 
     def out(t, T):
         Te = _ode_element(t, T, tau)
-        b, ref = np.empty_like(Te), Te[0]
-        state = 1.0
-        for k, x in enumerate(Te):            # a relay: switches after a 0.05 degC move the other way
-            if x < ref - 0.05:
-                state, ref = 1.0, x
-            elif x > ref + 0.05:
-                state, ref = -1.0, x
-            ref = min(ref, x) if state == 1.0 else max(ref, x)
-            b[k] = state
-        return 0.1 + 0.002 * (Te - 20.0) + h * b
+        return 0.1 + 0.002 * (Te - 20.0) + h * _relay(Te)
 
     a = _run(_cycle(tmp_path, out, "laghyst.csv"))
     assert a.best == "lag_hysteresis", [(f.name, f.cv_rms / a.noise_floor) for f in a.forms]
