@@ -68,9 +68,7 @@ def run(args) -> int:
         for key, names in report.flags.get(kind, {}).items():
             out.say(f"  {label}: {key}: {', '.join(names)}")
     if report.flags.get("outliers"):
-        from ..fleet.summary import fleet_words, table
-
-        out.say(f"  (fleet outliers: {fleet_words(table(report.records)[1])})")
+        out.say(f"  (fleet outliers: {report.flags['outlier_worth']})")
     out.say(f"results in {report.out_dir / 'results'}; summary: " + ", ".join(str(f) for f in report.files.values()))
     if args.history:
         out.say(f"recorded in the history {args.history}")

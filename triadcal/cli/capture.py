@@ -154,10 +154,10 @@ def run(args) -> int:
                 emulator.stop()
                 raise InputError(f"{truth_path}: cannot be read ({exc}): the emulated unit of the rows already "
                                  "captured is not known; choose another --out") from None
-            if before != emulator.truth.to_dict():
+            now = emulator.truth.to_dict()
+            if before != now:
                 emulator.stop()
-                differs = sorted(k for k in set(before) | set(emulator.truth.to_dict())
-                                 if before.get(k) != emulator.truth.to_dict().get(k))
+                differs = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
                 raise InputError(f"{args.out} holds visits of another emulated unit ({truth_path}: its "
                                  f"{', '.join(differs)} differ from this emulator's): a resume must emulate the same "
                                  "unit (the same --emulate-preset, --emulate-effects, noise and seed), or choose "

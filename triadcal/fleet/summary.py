@@ -11,6 +11,7 @@ import html
 import io
 import math
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -279,7 +280,8 @@ def units_of(rows, name: str) -> list[str]:
 
 def write_summary(records, out_dir, tolerances=None, html_page: bool = True) -> tuple[dict, dict]:
     """Write fleet.csv, fleet.parquet and fleet.html into ``out_dir``; return (files, flags)
-    with flags = {"out_of_tolerance": {unit/state: [names]}, "outliers": {unit/state: [names]},
+    with flags = {"out_of_tolerance": {unit/state: [names]}, "outliers": {unit/state: [names]}, "outlier_worth":
+    what the outlier flags are worth per state (:func:`fleet_words`),
     "tolerances_unmatched": [warnings of patterns that matched nothing]}."""
     from ..io.atomic import atomic_path, atomic_write, atomic_write_text
 
@@ -310,12 +312,13 @@ def write_summary(records, out_dir, tolerances=None, html_page: bool = True) -> 
             arrays[c] = pa.array([None if v is None else float(v) for v in vals], pa.float64())
     with atomic_path(files["parquet"], suffix=".parquet") as tmp:
         pq.write_table(pa.table(arrays), tmp)
+    worth = fleet_words(rows)
     if html_page:
-        atomic_write_text(files["html"], render_html(rows, names, tolerances))
+        atomic_write_text(files["html"], render_html(rows, names, tolerances, worth))
     flags = {"out_of_tolerance": {f"{r['unit']}/{r['state']}": r["out_of_tolerance"].split(";")
                                   for r in rows if r["out_of_tolerance"]},
              "outliers": {f"{r['unit']}/{r['state']}": r["outliers"].split(";") for r in rows if r["outliers"]},
-             "tolerances_unmatched": unmatched}
+             "tolerances_unmatched": unmatched, "outlier_worth": worth}
     return files, flags
 
 
@@ -327,7 +330,7 @@ def _png(fig) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def render_html(rows, names, tolerances=None) -> str:
+def render_html(rows, names, tolerances=None, worth: Optional[str] = None) -> str:
     """A self-contained page: counts, flagged units, one histogram per parameter (units whose
     status is ok; outliers in red, tolerance limits dashed) as inline PNG, and the table."""
     from matplotlib.figure import Figure     # a Figure renders without choosing a backend
@@ -344,7 +347,7 @@ def render_html(rows, names, tolerances=None) -> str:
              + ". Outliers: |x &minus; median| &gt; "
              f"{OUTLIER_K:g} &times; max({MAD_TO_SD} &times; MAD, u) over the units whose status is ok (at least "
              f"{OUTLIER_MIN_UNITS}; u: the unit's own standard uncertainty), per parameter and state; "
-             + esc(fleet_words(rows)) + "."
+             + esc(worth if worth is not None else fleet_words(rows)) + "."
              + (" Tolerances: " + esc(", ".join(f"{t[0]} in [{t[1]:g}, {t[2]:g}]" + (f" {t[3]}" if len(t) > 3 and t[3] else "")
                                           for t in tolerances))
                 if tolerances else " No tolerance file.") + "</p>"]

@@ -43,7 +43,7 @@ import numpy as np
 from ..errors import InputError
 from ..estimation.one_temperature import row_temperatures_C, rows_apart
 from ..estimation.result import CalibrationResult
-from ..models.effects import BENCH_EFFECTS
+from ..models.effects import BENCH_EFFECTS, TEMPCO_EFFECTS
 from ..models.model import Covariates, Model
 from ..models.sensor import ANGLE_NAMES, AXES, dcm
 from ..models.units import ARCSEC, scale_factor_unit
@@ -54,9 +54,6 @@ FORMATS = ("json", "csv", "c-header")
 #: a table's temperatures: above absolute zero, and no hotter than any bench CSV holds (degC)
 ABSOLUTE_ZERO_C = -273.15
 TABLE_MAX_C = 300.0
-#: the effects that carry a value away from the calibration's temperature
-THERMAL_EFFECTS = ("angle_tempco", "angle_tempco2", "angle_tempco3", "scale_tempco", "scale_tempco2", "scale_tempco3",
-                   "bias_tempco", "bias_tempco2", "bias_tempco3")
 #: effects a table of temperature can represent (bench terms are not properties of the unit)
 TABLE_EFFECTS = BENCH_EFFECTS + ("angle_tempco", "angle_tempco2", "scale_tempco", "scale_tempco2", "bias_tempco",
                                  "bias_tempco2", "hysteresis", "thermal_lag", "angle_tempco3", "scale_tempco3",
@@ -301,7 +298,7 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
     # what a certificate is refused for, a table that states the same values is refused for (an outside
     # probe: a result with a significant model-data gap, p 4e-4, was refused a certificate and exported, exit 0);
     # a result without content_sha256 is exported with a note (below), as before
-    why = [r for r in refusal_reasons(result) if "content_sha256" not in r]
+    why = refusal_reasons(result, unhashed=False)
     if why:
         raise RefusedResult(f"{src}: refused: " + "; ".join(why) + " (the reasons a certificate is refused for: a "
                             "table states the same values)")
@@ -340,7 +337,7 @@ def compensation_table(result: CalibrationResult, grid_C: Sequence[float], *, so
         raise InputError(f"grid points {pts} degC lie outside the calibrated range {lo_txt}..{hi_txt} degC, where the "
                          "thermal model is not valid; choose a grid inside it (or --allow-extrapolation, which says "
                          "so in the table)")
-    if outside.size and not any(e in result.effects for e in THERMAL_EFFECTS):
+    if outside.size and not any(e in result.effects for e in TEMPCO_EFFECTS):
         # an outside probe: a one-temperature result exported over -40..85 degC repeated its 20 degC values with
         # their 20 degC u (K_x 4.6 ppm) where the truth was 1632 ppm off at 85 degC
         raise InputError(f"grid points {pts} degC lie outside the calibrated range {lo_txt}..{hi_txt} degC and the "

@@ -12,7 +12,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from ...models.campaign import Campaign
-from ...models.effects import EFFECTS
+from ...models.effects import EFFECTS, TEMPCO_EFFECTS
 from ...models.effects import heavy_tails as ht
 from ...models.effects import position_error as pe
 from ...models.model import Model
@@ -236,9 +236,6 @@ FORM_CANDIDATES = ("hysteresis_play", "hysteresis_pi", "thermal_lag_history", "q
                    "tilt_settling")
 #: level of the nested likelihood ratio a form must pass over its simpler form to be named
 FORM_LEVEL = 0.99
-#: temperature coefficients through which a lag of the element acts
-_TEMPCO_EFFECTS = ("angle_tempco", "scale_tempco", "bias_tempco", "angle_tempco2", "scale_tempco2",
-                   "bias_tempco2", "angle_tempco3", "scale_tempco3", "bias_tempco3")
 
 #: names a verdict can give that are not terms of the mean but of the noise model: what each is
 NOISE_MODEL_TERMS = {
@@ -434,7 +431,7 @@ def _thermal_lag_history(campaign, full, model, names, base: FitState, noise_kno
     design = identifiability_problems(campaign, Model(model + ("thermal_lag",), T0))
     if "thermal_lag" in design:
         return _untestable([name], "invisible on this design: " + design["thermal_lag"])
-    if not any(e in model for e in _TEMPCO_EFFECTS):
+    if not any(e in model for e in TEMPCO_EFFECTS):       # a lag of the element acts through them
         return _untestable([name], "the lag acts only through temperature coefficients: add a tempco to the "
                                    "model to test it")
     gaps = record_gaps(campaign)

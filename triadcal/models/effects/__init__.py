@@ -36,6 +36,11 @@ BENCH_EFFECTS = tuple(name for name, cls in EFFECTS.items() if cls.bench)
 BENCH_PARAMETERS = tuple(spec.name for name in BENCH_EFFECTS for spec in EFFECTS[name]().parameters())
 VOCABULARY = tuple(EFFECTS) + NOISE_EFFECTS
 
+#: the temperature coefficients of every order: the effects that carry a value away from the data's
+#: temperatures to another (the reference temperature, a table's rows)
+TEMPCO_EFFECTS = ("angle_tempco", "scale_tempco", "bias_tempco", "angle_tempco2", "scale_tempco2", "bias_tempco2",
+                  "angle_tempco3", "scale_tempco3", "bias_tempco3")
+
 #: the model a metrologist uses for a thermal campaign on a tilted bench
 DEFAULT_EFFECTS = ("bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco", "hysteresis")
 

@@ -7,6 +7,8 @@ from __future__ import annotations
 import math
 from typing import Optional
 
+from ...models.effects import TEMPCO_EFFECTS
+
 from ...estimation.result_checks import result_problems
 from ...estimation.result import CalibrationResult
 
@@ -78,9 +80,6 @@ def posterior_diagnostics(idata, names, result: Optional[CalibrationResult] = No
 
 #: a reference temperature this far (degC) outside the calibrated range is an extrapolation, not a calibration
 REFERENCE_OUTSIDE_C = 1.0
-#: the effects whose parameters carry the values from the data's temperatures to the reference one
-_THERMAL = ("angle_tempco", "angle_tempco2", "angle_tempco3", "scale_tempco", "scale_tempco2", "scale_tempco3",
-            "bias_tempco", "bias_tempco2", "bias_tempco3")
 
 
 def reference_outside_range(result: CalibrationResult) -> Optional[str]:
@@ -90,7 +89,7 @@ def reference_outside_range(result: CalibrationResult) -> Optional[str]:
     the certificate stated every value "at the reference temperature 100 degC" and, in section 5, that
     the model is not valid outside -19.8..60.3 degC."""
     rng, tref = result.temperature_range_C, result.reference_temperature_C
-    if not rng or tref is None or not any(e in result.effects for e in _THERMAL):
+    if not rng or tref is None or not any(e in result.effects for e in TEMPCO_EFFECTS):
         return None
     lo, hi = float(rng[0]), float(rng[1])
     if lo - REFERENCE_OUTSIDE_C <= float(tref) <= hi + REFERENCE_OUTSIDE_C:
@@ -101,13 +100,15 @@ def reference_outside_range(result: CalibrationResult) -> Optional[str]:
 
 
 def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict] = None,
-                    diagnosis: Optional[dict] = None) -> list[str]:
+                    diagnosis: Optional[dict] = None, unhashed: bool = True) -> list[str]:
     """Why no certificate can be issued for ``result`` (empty: it can be issued).
 
     Checked: the estimator's status, parameters it could not determine, a significant
     model-data gap (chi^2 with known noise, p < ``GAP_P_THRESHOLD``; or a diagnosis file
     whose ``gap.significant`` is true), missing or non-finite uncertainties, and the
     posterior's convergence verdict (:func:`posterior_diagnostics`) when a posterior is given.
+    ``unhashed=False``: a result without ``content_sha256`` is not a reason (export-compensation
+    writes such a result's table with a note).
     """
     reasons = []
     if result.status != "ok":
@@ -119,7 +120,7 @@ def refusal_reasons(result: CalibrationResult, *, posterior_diag: Optional[dict]
                           (": " + "; ".join(result.notes) if result.notes else "")))
     reasons += [why if why == result.content_mismatch else f"the result fails an answer gate: {why}"
                 for why in result_problems(result, need_ok=False)]
-    if result.content_unhashed:
+    if result.content_unhashed and unhashed:
         # an outside probe: with its content_sha256 deleted, a result whose Ca_xy was edited by +50 arcsec
         # was certified (compare and history still read such files, as the contract says)
         reasons.append("the result file holds no content_sha256 (written by another tool, or by triadcal before "
