@@ -567,7 +567,6 @@ def test_a_bench_that_creeps_during_the_window_is_caught_by_its_position_after_i
     run = faulty_rig(FaultPlan(bench_creep_deg_s=1e-3))
     with pytest.raises(CaptureError) as exc:
         run(None, tau_s=60.0, max_attempts=2)
-    elapsed_s = run.em.now_s()            # the emulator's instrument time at the end: no creep lasted longer
     msg = str(exc.value)
     assert msg.startswith("position P1 at setpoint 20 degC: no clean window in 2 attempts, the last one ended "
                           "with the bench off the commanded position: the bench reads (0.0")
@@ -577,10 +576,11 @@ def test_a_bench_that_creeps_during_the_window_is_caught_by_its_position_after_i
     assert len(moved) == 2
     for e in moved:
         assert e["target_deg"] == [0.0, 0.0] and e["tolerance_deg"] == 0.01
-        # 62 s of window and settle at 1e-3 deg/s: about 0.062 deg, more when the host is behind (the
-        # position is asked later); beyond the tolerance (the refusal) and within the creep over the whole
-        # run's instrument time, not a fixed 0.1 deg that a loaded host's late POS? could pass
-        assert 0.01 < e["offset_deg"][0] <= 1e-3 * elapsed_s and e["offset_deg"][1] == 0.0
+        # the creep starts when the bench reports in position and POS? is asked after the 60 s window (in
+        # instrument time, which no host's speed changes): at least 0.06 deg at 1e-3 deg/s, beyond the
+        # tolerance (the refusal); how much more depends on when the host asks, so no upper bound is
+        # asserted (one from the run's elapsed time tied the test to the machine's load)
+        assert e["offset_deg"][0] >= 1e-3 * 60.0 > e["tolerance_deg"] and e["offset_deg"][1] == 0.0
 
 
 STUCK_PLAN = {"A": (0.0, 0.0), "B": (90.0, 0.0), "C": (90.0, 90.0), "D": (0.0, 90.0)}

@@ -222,6 +222,6 @@ def test_a_resume_with_another_emulated_unit_is_refused(tmp_path, emulated_captu
                         "--setpoints", "20", "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2",
                         "--stab-window-s", "30", "--stab-hold-s", "30", "--emulate-effects", "bench_tilt",
                         "--emulate-self-heating-tau-s", "60", "--emulate-seed", "3", "--emulate-preset", "a18-silicon",
-                        "--no-progress"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+                        "--no-progress"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 1 and "holds visits of another emulated unit" in r.stderr, (r.returncode, r.stderr)
     assert "--emulate-preset" in r.stderr and (out / "emulator_truth.json").read_bytes() == before
