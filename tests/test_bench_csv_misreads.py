@@ -414,25 +414,40 @@ def test_means_rounded_coarser_than_their_noise_may_repeat_and_weigh_their_round
     reader refused them as "the same visit twice ... two such averages are never equal" (the advice,
     remove the copy, would delete a real visit). Rounded to 1e-4 V (11 standard errors) equal means
     are no evidence of a copy: read. The rounding is noise of the means the sd_* do not hold: q^2/12
-    is added to each visit's variance (GUM F.2.2.1), and the noise's description says so; the file
-    printed in full is refused as before (test above)."""
+    joins each visit's variance (GUM F.2.2.1) where it does not exceed the stated noise (1e-5 V: the
+    fit ok, every |z| < 4). Where it dominates it is said, not added: one pose's means round alike,
+    and weights calling that independent gave status ok with a parameter 5.6 u off; the stated noise
+    alone leaves the goodness-of-fit gate to refuse (1e-4 V: model_mismatch). The file printed in
+    full is refused as before (test above)."""
+    from triadcal import api
     from triadcal.estimation.noise_model import noise_of
     from triadcal.io.bench_checks import written_resolution
 
     assert written_resolution([0.1235, -0.7062, 1.0]) == pytest.approx(1e-4)
     assert written_resolution([0.123456789012345, 1.0]) == 0.0
-    tab = independent_table()
-    for name in ("w_x", "w_y", "w_z"):
-        tab.map(name, lambda v: f"{float(v):.4f}")
-    full = read_bench_csv(tab.write(tmp_path / "rounded.csv"))
-    cols = [tab.header.index(c) for c in ("w_x", "w_y", "w_z")]
-    for j in cols:
-        tab.rows[40][j] = tab.rows[3][j]
-    assert read_bench_csv(tab.write(tmp_path / "equal.csv")).n_visits == 108
-    noise = noise_of(full)
-    assert "rounding of the means as written" in noise.description and "x 0.0001" in noise.description
     se = 0.0005 / np.sqrt(3000) * np.sqrt(2999 / 2997)
-    assert np.allclose(noise.sigma, np.sqrt(se ** 2 + 1e-8 / 12), rtol=1e-6)
+    effects = ("bench_tilt", "angle_tempco", "scale_tempco", "bias_tempco")
+    for decimals, q in ((4, 1e-4), (5, 1e-5)):
+        tab = independent_table()
+        truth = simulate_campaign(np.random.default_rng(7), setpoints_C=(20.0, 50.0, 80.0, 50.0, 20.0, -10.0, -40.0,
+                                                                          -10.0, 20.0))[1]
+        for name in ("w_x", "w_y", "w_z"):
+            tab.map(name, lambda v, d=decimals: f"{float(v):.{d}f}")
+        path = tab.write(tmp_path / f"rounded{decimals}.csv")
+        noise = noise_of(read_bench_csv(path))
+        fit = api.fit(path, effects=effects)
+        if decimals == 4:
+            assert "exceeds their stated noise (x q 0.0001" in noise.description and np.allclose(noise.sigma, se)
+            assert fit.status == "model_mismatch"
+            cols = [tab.header.index(c) for c in ("w_x", "w_y", "w_z")]
+            for j in cols:
+                tab.rows[40][j] = tab.rows[3][j]
+            assert read_bench_csv(tab.write(tmp_path / "equal.csv")).n_visits == 108
+        else:
+            assert "rounding of the means as written" in noise.description and "x 1e-05" in noise.description
+            assert np.allclose(noise.sigma, np.sqrt(se ** 2 + q ** 2 / 12), rtol=1e-6)
+            z = [abs(fit.parameters[n].value - v) / fit.parameters[n].u for n, v in truth.items() if n in fit.parameters]
+            assert fit.status == "ok" and max(z) < 4.0, (fit.status, max(z))
 
 
 @pytest.mark.parametrize("k_true", [1.0007, 2.0])
