@@ -789,3 +789,43 @@ def test_a_failed_session_still_says_its_missed_setpoint(tmp_path, capsys):
     assert "warning: setpoint 35 degC: the chamber's PV is 22.60 degC" in capsys.readouterr().err
     _print_report_warnings(tmp_path / "absent")                       # no report: nothing, no error
     assert capsys.readouterr().err == ""
+
+
+class _Killed(BaseException):
+    """A process stopped between two writes (not an Exception: nothing catches it on the way out)."""
+
+
+def test_a_kill_between_a_visits_event_and_its_row_leaves_no_row_without_its_event(rig, tmp_path, monkeypatch):
+    """The process stopped right after the first of the two writes that make visit 2 count (its
+    `visit` event, its row in campaign.csv), then resumed. Before (the row first): the resumed
+    campaign held a row that no `visit` event named (an outside probe, SIGKILL between the two).
+    Now the event comes first: the killed visit's event names no row, the visit is made again
+    under a new tag, and every row has its event."""
+    import triadcal.hardware.capture as capture_module
+
+    state = {"armed": True}
+    real_write, real_atomic = EventLog.write, capture_module.atomic_write_text
+
+    def event_write(self, kind, **fields):
+        real_write(self, kind, **fields)
+        if state["armed"] and kind == "visit" and fields.get("index") == 2:
+            raise _Killed()
+
+    def atomic(path, text):
+        real_atomic(path, text)
+        if state["armed"] and path.name == CSV_NAME and read_bench_csv(path).n_visits == 2:
+            raise _Killed()
+
+    monkeypatch.setattr(EventLog, "write", event_write)
+    monkeypatch.setattr(capture_module, "atomic_write_text", atomic)
+    with pytest.raises(_Killed):
+        rig(None)
+    state["armed"] = False
+    report, c = rig(None)
+    assert c.n_visits == len(PLAN) and list(c.position) == list(PLAN)
+    visits = [e for e in read_events(tmp_path / "out" / EVENTS_NAME) if e["kind"] == "visit"]
+    tags = [e["tag"] for e in visits]
+    assert set(c.extra["raw_visit"]) <= set(tags)                    # every row has its event
+    assert len(tags) == len(PLAN) + 1 and len(set(tags)) == len(tags)  # the killed visit's event names no row
+    orphan = set(tags) - set(c.extra["raw_visit"])
+    assert len(orphan) == 1 and "-P2-1." in orphan.pop()

@@ -315,8 +315,11 @@ def _capture(out_dir, *, plan, setpoints_C, imu, bench, chamber, settings, progr
                            axis1_deg=a1, axis2_deg=a2, tau_s=settings.tau_s, raw_visit=tag)
                 row["time_s"] = row.pop("mid_instrument_s") + offset
                 rows.append(row)
-                atomic_write_text(out / CSV_NAME, format_bench_csv(_campaign(rows, metadata)))
+                # the visit's event before its row (as the voltmeter path): a process killed between
+                # the two leaves an event no row names and the visit is made again, never a row
+                # without its event (the row first left one after a kill there, an outside probe)
                 events.write("visit", index=len(rows), tag=tag, n_samples=row["n_samples"], chamber_C=pv)
+                atomic_write_text(out / CSV_NAME, format_bench_csv(_campaign(rows, metadata)))
                 notify({"event": "visit", "done": len(rows), "total": total, "setpoint_C": sp,
                         "position": label})
         run.phase, run.visit_tag = "idle", ""

@@ -514,11 +514,12 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
             row["time_s"] = mid + offset
             rows.append(row)
             run.check_chamber(len(rows))
-            atomic_write_text(out / CSV_NAME, format_bench_csv(_ramp_campaign(rows, metadata)))
+            # the event before the row, as capture.py (a kill between leaves an event no row names)
             events.write("visit", index=len(rows), tag=tag, n_samples=row["n_samples"], program_s=p_mid,
                          program_C=row["program_C"], slope_C_per_min=slope * 60.0,
                          slope_se_C_per_min=se * 60.0 if math.isfinite(se) else None, direction=direction,
                          dTdt_C_per_min=dTdt * 60.0)
+            atomic_write_text(out / CSV_NAME, format_bench_csv(_ramp_campaign(rows, metadata)))
             notify({"event": "visit", "done": len(rows), "total": max(total, len(rows)),
                     "setpoint_C": row["program_C"], "position": label})
         if run.last_p is None or run.last_p < program.duration_s:
