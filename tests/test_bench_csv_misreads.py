@@ -439,6 +439,11 @@ def test_means_rounded_coarser_than_their_noise_may_repeat_and_weigh_their_round
         if decimals == 4:
             assert "exceeds their stated noise (x q 0.0001" in noise.description and np.allclose(noise.sigma, se)
             assert fit.status == "model_mismatch"
+            # and the fit says the rounding may be what fails it (before: only "the model misses something")
+            said = [n for n in fit.notes if n.startswith("the means are written to a step whose rounding exceeds")]
+            assert len(said) == 1 and "x q 0.0001 V (q/sqrt(12) 3.16 times the median stated SD)" in said[0], fit.notes  # 1e-4/sqrt(12)/se
+            classical = api.fit(path, method="classical")
+            assert any(n.startswith("the means are written to a step whose rounding") for n in classical.notes)
             cols = [tab.header.index(c) for c in ("w_x", "w_y", "w_z")]
             for j in cols:
                 tab.rows[40][j] = tab.rows[3][j]
@@ -446,6 +451,7 @@ def test_means_rounded_coarser_than_their_noise_may_repeat_and_weigh_their_round
         else:
             assert "rounding of the means as written" in noise.description and "x 1e-05" in noise.description
             assert np.allclose(noise.sigma, np.sqrt(se ** 2 + q ** 2 / 12), rtol=1e-6)
+            assert not any("rounding exceeds" in n for n in fit.notes)
             z = [abs(fit.parameters[n].value - v) / fit.parameters[n].u for n, v in truth.items() if n in fit.parameters]
             assert fit.status == "ok" and max(z) < 4.0, (fit.status, max(z))
 

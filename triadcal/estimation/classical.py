@@ -225,11 +225,9 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     from .joint import noise_of
 
     known = noise_of(campaign)
-    from .noise_model import noise_statements_note
+    from .noise_model import noise_notes
 
-    twice = noise_statements_note(campaign, known)
-    if twice:
-        notes.append(twice)
+    notes.extend(noise_notes(campaign, known))
     if campaign.n_visits < 6 or not np.all(np.isfinite(campaign.w)):
         raise ClassicalPlanError(f"{src}: {campaign.n_visits} visits; the classical method needs every IMU axis up "
                                  "and down (at least 6 visits) with finite readings")

@@ -359,11 +359,9 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     own_noise = noise_of(campaign)
     noise = with_bench_errors(campaign, model, own_noise, bench_errors)
     notes = [moved] if moved else []
-    from .noise_model import noise_statements_note
+    from .noise_model import noise_notes
 
-    twice = noise_statements_note(campaign, own_noise)
-    if twice:
-        notes.append(twice)
+    notes.extend(noise_notes(campaign, own_noise))
     sensor_note, sensor_gate, sensor_temps = sensor_temperatures(campaign)
     if sensor_note:
         notes.append(sensor_note)

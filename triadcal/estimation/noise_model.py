@@ -132,17 +132,10 @@ def with_resolution(campaign: Campaign, noise: NoiseSource) -> NoiseSource:
     it dominates, weights that call it independent gave status ok with a parameter 5.6 u off (the
     independent bench's means written to 1e-4 V, 11 standard errors, 3 seeds; 1e-5 V: every |z| < 3.3),
     while the stated noise alone leaves the goodness-of-fit gate to refuse such a file."""
-    from ..io.bench_checks import written_resolution
-
-    w = np.asarray(campaign.w, float)
-    var = np.asarray(noise.sigma, float) ** 2
-    q = np.array([written_resolution(w[:, a]) for a in range(3)])
-    add = q ** 2 / 12.0
-    med = np.median(var, axis=0)
-    matters = add > RESOLUTION_VARIANCE_FRACTION * med
+    q, add, med, matters, dominates = _resolution(campaign, noise)
     if not np.any(matters):
         return noise
-    dominates = matters & (add > med)
+    var = np.asarray(noise.sigma, float) ** 2
     added = matters & ~dominates
     text = noise.description
     if np.any(added):
@@ -155,6 +148,41 @@ def with_resolution(campaign: Campaign, noise: NoiseSource) -> NoiseSource:
                  "): not in the weights, since one pose's means round alike and not independently; write them with "
                  "more digits")
     return NoiseSource(np.sqrt(var + np.where(added, add, 0.0)[None, :]), True, text)
+
+
+def _resolution(campaign: Campaign, noise: NoiseSource):
+    """``(q, q^2/12, median stated variance, matters, dominates)`` per output (arrays of 3)."""
+    from ..io.bench_checks import written_resolution
+
+    w = np.asarray(campaign.w, float)
+    q = np.array([written_resolution(w[:, a]) for a in range(3)])
+    add = q ** 2 / 12.0
+    med = np.median(np.asarray(noise.sigma, float) ** 2, axis=0)
+    matters = add > RESOLUTION_VARIANCE_FRACTION * med
+    return q, add, med, matters, matters & (add > med)
+
+
+def rounding_note(campaign: Campaign, noise: NoiseSource) -> Optional[str]:
+    """The note of a fit whose means are written to a step whose rounding exceeds their stated noise
+    (:func:`with_resolution` leaves it out of the weights): a goodness-of-fit gate that fails may fail
+    for the rounding, not for a missing effect (an outside probe's means at 1e-4 V, SE 1e-5 V: the
+    gates said only "the model misses something"). None otherwise, or with no stated noise."""
+    if not noise.known:
+        return None
+    q, add, med, _, dominates = _resolution(campaign, noise)
+    if not np.any(dominates):
+        return None
+    each = ", ".join(f"{'xyz'[a]} q {q[a]:g} {campaign.output_unit} (q/sqrt(12) {np.sqrt(add[a] / med[a]):.3g} times "
+                     "the median stated SD)" for a in range(3) if dominates[a])
+    return ("the means are written to a step whose rounding exceeds their stated noise: " + each + "; it is not in "
+            "the weights (one pose's means round alike, not independently), so a goodness-of-fit or structure gate "
+            "that fails may fail for the rounding, not for a missing effect: write the means with more digits")
+
+
+def noise_notes(campaign: Campaign, noise: NoiseSource) -> list:
+    """The notes a fit gives about its stated noise: two statements apart
+    (:func:`noise_statements_note`), a rounding coarser than it (:func:`rounding_note`)."""
+    return [n for n in (noise_statements_note(campaign, noise), rounding_note(campaign, noise)) if n]
 
 
 def _stated_noise(campaign: Campaign) -> NoiseSource:

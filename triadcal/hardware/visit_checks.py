@@ -194,8 +194,9 @@ def bench_did_not_move(prev: dict, row: dict, a1: float, a2: float) -> Optional[
             f"changes the output by about {200.0 * np.sin(np.radians(turn / 2)):.0f} % of |w|, but w changed by "
             f"{dw:.3g} ({100.0 * dw / scale:.3g} % of |w| = {scale:.4g}; limit {limit:.3g}: {STUCK_FRACTION:.0%} of "
             f"|w| and {STUCK_NOISE_SE:g} standard errors of the means). The bench reports a position it "
-            "did not reach (a stuck axis, a slipping coupling); the rows before this one are kept, check the "
-            "last of them")
+            "did not reach (a stuck axis, a slipping coupling), or the IMU's samples reach the host late (a "
+            "stream that lags the bench by more than --settle-s shows the pose before the move: an outside "
+            "probe's link delayed by 80 instrument s); the rows before this one are kept, check the last of them")
 
 
 class RepeatedEvents:
