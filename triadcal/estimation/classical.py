@@ -220,6 +220,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     rss = np.zeros(3)
     dof = np.zeros(3, int)
     red_chi2 = np.zeros(3)
+    even_blocks: list = [[], [], []]       # per output: (design, outputs, known variances or None, visits, tau_s)
     resid: list = [[], [], []]
     design_w: list = [[], [], []]           # per block: design, outputs, known variances, visits (when known)
     from .joint import noise_of
@@ -270,6 +271,8 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
             dof[ai] += len(idx) - rank
             # residuals and leverages of the per-setpoint model, for the studentised residuals
             resid[ai].append((e, leverages(X), idx))
+            even_blocks[ai].append((X / sqrt_tau[:, None], campaign.w[idx, ai],
+                                    known.sigma[idx, ai] ** 2 if known.known else None, idx, campaign.tau_s[idx]))
             if known.known:
                 # the same model weighted by the known noise of each mean output: its chi^2
                 # is the disagreement of the redundant positions against that noise, and its
@@ -485,6 +488,15 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     if use == "residuals" and sd_sigma is not None and Q_res is not None and \
             all(d > 0 and r <= s * _chi2_ppf(0.99, d) / d for r, s, d in zip(Q_res, Q_sd, dof)):
         t_sigma, t_dof = sd_sigma, None
+    from .classical_structure import bench_shape, even_term, even_term_gate
+
+    g_nom = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3)
+    shape = bench_shape(campaign.axis1_deg, campaign.axis2_deg)
+    even = even_term_gate([even_term(even_blocks[ai], g_nom, ai, known.known, shape) for ai in range(3)],
+                          {a: ordered[f"S_{a}"].u for a in AXES}, {a: ordered[f"K_{a}"].value for a in AXES},
+                          campaign.output_unit, gates)
+    if even is not None:
+        fit["orientation_even_term"] = even.to_dict()
     tilt = tilt_leak_gate(campaign, per_block, t_sigma, gates, noise_dof=t_dof)
     if tilt is not None:
         fit["tilt_leak"] = tilt.to_dict()
@@ -517,11 +529,10 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         if sensor_temps is not None:
             result.fit["sensor_temperatures_C"] = sensor_temps
     apply_gates(result, FitEvidence(converged=True, n_obs=3 * campaign.n_visits, n_free=15 * len(per_block),
-                                    extra=[redundancy] + [g for g in (tilt, drift, curvature, sensor_gate)
+                                    extra=[redundancy] + [g for g in (tilt, drift, curvature, sensor_gate, even)
                                                                           if g is not None]),
                 config=gates)
     if result.status != "ok":
-        g = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3)
-        for hint in orientation_hints(campaign.w, g):
+        for hint in orientation_hints(campaign.w, g_nom):
             result.notes.append(f"hint: {hint}")
     return result
