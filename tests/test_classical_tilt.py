@@ -115,14 +115,16 @@ def test_six_faces_at_one_setpoint_take_the_noise_from_the_sd_columns(seed):
 
 def test_the_summary_states_u_from_residuals_on_their_dof():
     """The 12 positions at one setpoint: 6 residual dof per accelerometer, so the summary's U is
-    t(6) u = 2.52 u (95.45 %), not 2 u (an outside probe: 87 % of 480 parameters within 2 u)."""
+    t(6) u = 2.52 u (95.45 %), not 2 u (an outside probe: 87 % of 480 parameters within 2 u). Since
+    2026-12-02 each parameter's budget holds its dof (its line's where the Birge ratio widened it)."""
     from triadcal.reports.summary import summary_text
 
     text, _ = simulate_campaign(np.random.default_rng(4), setpoints_C=(20,))
     r = fit_classical(parse_bench_csv(text))
     assert r.fit["noise_source"] == "residuals" and r.fit["residual_dof"] == [6, 6, 6]
     s = summary_text(r)
-    assert "U (k=2.52)" in s and "Student's t with 6 residual degrees of freedom" in s, s
+    assert all(p.uncertainty["k"] == pytest.approx(2.5174, abs=1e-3) for p in r.parameters.values())
+    assert "  K_x " in s and " 2.52  g/V" in s and "k from Student's t on each parameter's dof" in s, s
 
 
 def test_six_faces_at_five_setpoints_test_the_tilt_against_the_sd_columns_when_the_residuals_agree():

@@ -535,4 +535,6 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     if result.status != "ok":
         for hint in orientation_hints(campaign.w, g_nom):
             result.notes.append(f"hint: {hint}")
-    return result
+    from .classical_typeb import with_type_a_budgets
+
+    return with_type_a_budgets(result)

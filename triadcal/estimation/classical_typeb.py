@@ -53,6 +53,23 @@ def _type_a_dof(result: CalibrationResult, name: str) -> float | None:
     return None
 
 
+def with_type_a_budgets(result: CalibrationResult) -> CalibrationResult:
+    """``result`` with every parameter's Type A budget (``U``, ``k``, ``dof_eff``): k from Student's t on
+    the dof of :func:`_type_a_dof`. A line whose scatter the Birge ratio took into u holds that scatter
+    on n_setpoints - 2 dof, not on the residuals' many (an outside probe: one setpoint block relabelled
+    by 40 degC, every line widened up to x159 on 3 dof, "U (k=2.09)" for all, Ca_yx 3.8 u off with
+    status ok); where the lab's systematic errors are propagated (:func:`propagate_classical`) the same
+    rows are the budgets' Type A."""
+    from ..uncertainty.typeb import TypeB, parameter_fields
+
+    names = tuple(result.parameters)
+    tb = TypeB([], names, np.zeros((0, len(names))))
+    params = {n: ParameterValue(pv.value, pv.u, pv.unit,
+                                parameter_fields(tb.budget(n, pv.unit, float(pv.u), _type_a_dof(result, n), TYPE_A_SOURCE)))
+              for n, pv in result.parameters.items()}
+    return replace(result, parameters=params)
+
+
 def bench_at_one_setpoint(result: CalibrationResult, campaign: Campaign, sigma_position_arcsec,
                           sigma_wobble_arcsec) -> CalibrationResult:
     """At one setpoint (no line over temperature, ``result.effects`` empty) the angles' u from the

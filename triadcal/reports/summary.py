@@ -99,6 +99,8 @@ def summary_text(result: CalibrationResult) -> str:
         type_b = result.holds_type_b()
         lines.append("  U at 95.45 % coverage from each parameter's budget (" + (
             "Type A and the lab's Type B; k from dof_eff, or a Monte Carlo" if type_b else
+            "Type A only: k from Student's t on each parameter's dof, its line's over the setpoints where the "
+            "Birge ratio widened it, else its accelerometer's residual dof" if result.method == "classical" else
             f"Type A only, the noise estimated on {result.fit.get('noise_dof', float('nan')):.3g} dof: k from "
             "Student's t") + "); the budgets are in the JSON")
     else:
