@@ -19,8 +19,10 @@ def simulate(output=None, *, truth_path=None, preset: str = "ak18-quartz",
              schedule: Optional[Schedule] = None, Q_V2s: float = 3e-9,
              sigma_position_arcsec: Optional[float] = None, sigma_wobble_arcsec: Optional[float] = None,
              heavy_tails_dof: Optional[float] = None, unit: str = "SN-SIM-0001", seed: int = 0,
-             plan=None, flicker_Bf: Optional[float] = None, quantisation_lsb: Optional[float] = None):
-    """Simulate a campaign (``triadcal simulate``); returns ``(truth, campaign)``.
+             plan=None, flicker_Bf: Optional[float] = None, quantisation_lsb: Optional[float] = None,
+             metadata: Optional[dict] = None):
+    """Simulate a campaign (``triadcal simulate``); returns ``(truth, campaign)``. ``metadata``: header
+    lines added to the campaign (``planned_effects`` of ``simulate --plan``).
 
     ``effects`` may include the noise effects ``position_error`` (defaults sigma_1 = 5",
     sigma_2 = 2" as in the paper's eq. 4 example), ``heavy_tails`` (Student-t, 3 dof) and
@@ -45,6 +47,8 @@ def simulate(output=None, *, truth_path=None, preset: str = "ak18-quartz",
     truth = preset_truth(preset, [e for e in effects if e not in NOISE_EFFECTS], noise=noise, unit=unit,
                          **(parameters or {}))
     campaign = simulate_campaign(truth, plan=plan, schedule=schedule, seed=seed)
+    if metadata:
+        campaign.metadata.update(metadata)
     if output is not None:
         write_bench_csv(campaign, output)
     if truth_path is not None:
@@ -76,7 +80,26 @@ def _output_variances(campaign, effects, kwargs) -> Optional[list]:
     return [3.0 * float(v) / float(sum(q)) for v in q] if q else None
 
 
-def fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS,
+def fit(data, *, method: str = "joint", effects: Optional[Sequence[str]] = None, json_path=None, **kwargs):
+    """Calibrate from a campaign (``triadcal fit``): :func:`_fit` (which documents every argument) with
+    ``effects`` None taken from the data's ``# planned_effects`` (the plan the campaign follows),
+    else :data:`~triadcal.models.effects.DEFAULT_EFFECTS`; a note says where they came from, or how
+    given effects differ from the plan's (:mod:`triadcal.estimation.planned_effects`)."""
+    from .estimation.planned_effects import resolve
+    from .io.bench_csv import read_bench_csv
+    from .models.campaign import Campaign
+
+    campaign = data if isinstance(data, Campaign) else read_bench_csv(example_path() if data is None else data)
+    effects, note = resolve(effects, campaign, method)
+    result = _fit(campaign, method=method, effects=effects, json_path=None, **kwargs)
+    if note:
+        result.notes.append(note)
+    if json_path is not None:
+        result.save(json_path)
+    return result
+
+
+def _fit(data, *, method: str = "joint", effects: Sequence[str] = DEFAULT_EFFECTS,
         reference_temperature_C: float = 20.0, loss: str = "l2", strict: bool = False,
         json_path=None, netcdf_path=None, angle_bound_arcsec: float = 3600.0, lab=None,
         hysteresis_form: str = "offset", hysteresis_half_width_C: Optional[float] = None,

@@ -22,14 +22,15 @@ def register(sub) -> None:
     p.add_argument("--state", default=None, metavar="NAME",
                    help="mechanical state to fit when the file holds several")
     p.add_argument("--method", choices=("classical", "joint"), default="joint")
-    p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS),
+    p.add_argument("--effects", default=None,
                    help=f"effects of the joint model, from: {', '.join(EFFECTS)}, and the noise effects "
                         f"{', '.join(NOISE_EFFECTS)} (a variance component / the Student-t likelihood / 1/f noise: B_f by REML, the "
                         "mean by GLS), and quantisation "
                         "(a digital output rounded to an LSB q: the expected visit-mean error, q profiled or "
                         "--quantisation-lsb), and the diagnosis's forms hysteresis_play, hysteresis_pi (= "
                         "hysteresis with --hysteresis-form play / pi) and thermal_lag_history (= thermal_lag with "
-                        "--thermal-lag-form history); default: "
+                        "--thermal-lag-form history); default: the effects the data's plan was made for "
+                        "(# planned_effects, written by simulate --plan and capture --ramp), else "
                         f"{','.join(DEFAULT_EFFECTS)} (the thermal-campaign model: bench tilt, linear "
                         "tempcos of angles, scale factors and biases, hysteresis of the angles)")
     p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
@@ -100,7 +101,7 @@ def run(args) -> int:
         raise InputError("--json-dir goes with --joint-units (one result per unit); for one unit use --json")
     campaign = select_unit_state(read_bench_csv(args.data or example_path()), args.unit, args.state,
                                  source=args.data)
-    result = fit(campaign, method=args.method, effects=name_list(args.effects),
+    result = fit(campaign, method=args.method, effects=None if args.effects is None else name_list(args.effects),
                  reference_temperature_C=args.reference_temperature, loss=args.loss,
                  strict=args.strict, json_path=args.json, netcdf_path=args.netcdf,
                  angle_bound_arcsec=args.angle_bound_arcsec, lab=args.lab,
@@ -141,7 +142,8 @@ def _joint_units(args, out) -> int:
         ("--bench-errors-from-replicates", args.bench_errors_from_replicates)) if given]
     from ..estimation.form_names import FORM_NAMES
 
-    ignored += [e for e in name_list(args.effects) if e in FORM_NAMES or e in NOISE_EFFECTS or e == "quantisation"]
+    unit_effects = name_list(args.effects) if args.effects is not None else list(DEFAULT_EFFECTS)
+    ignored += [e for e in unit_effects if e in FORM_NAMES or e in NOISE_EFFECTS or e == "quantisation"]
     if ignored:
         raise InputError(f"--joint-units fits the effects of the joint model with least squares, not {', '.join(ignored)} "
                          "(they would be ignored); fit each unit with --unit for those")
@@ -152,7 +154,7 @@ def _joint_units(args, out) -> int:
             raise InputError(f"{args.data}: no state {args.state!r}; its states are {', '.join(states)}")
         campaign = campaign.select(campaign.state == args.state, own_origin=True)
     lab = load_lab(args.lab) if args.lab else None
-    results = fit_joint_units(campaign, name_list(args.effects), reference_temperature_C=args.reference_temperature,
+    results = fit_joint_units(campaign, unit_effects, reference_temperature_C=args.reference_temperature,
                               bench_errors=bench_errors_of(lab) if lab else None,
                               systematics=systematic_sources(lab, campaign.output_unit) if lab else (),
                               gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec))

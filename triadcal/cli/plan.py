@@ -91,7 +91,7 @@ def run(args) -> int:
     doc = prediction_document(choice, Q_V2s=Q, lab_source=args.lab, preset=args.preset, effects=effects)
     choice.plan.save(args.output, predicted={"chamber_hours": doc["chamber_hours"],
                                              "U": {n: v["U"] for n, v in doc["parameters"].items()},
-                                             "criterion": doc["criterion"]})
+                                             "criterion": doc["criterion"], "effects": list(effects)})
     if args.json:
         atomic_write_json(args.json, doc)
     plan = choice.plan
@@ -112,6 +112,20 @@ def run(args) -> int:
             # than HELD_NEGLIGIBLE of it (never a bare "met" then; the moves in the notes below)
             verdict = f"met if the unit has no {', '.join(t['met_if_unit_has_no'])} (notes below)"
         out.say(f"  {spec}: predicted U {t['U_worst']:.3g} {t['unit']} ({t['worst_parameter']}) {verdict}")
+    lag_targets = [spec for spec, t in doc["target"].items() if any(str(n).startswith("thermal_lag")
+                                                                    for n in t.get("parameters", []))]
+    if lag_targets:
+        # the lag is seen only through the thermal terms it delays: its U depends on the unit's tempcos (an outside
+        # probe's unit with K tempcos of 3-5 ppm/degC fitted U 0.070 min where 0.043 was predicted "met")
+        from ..models.simulate import PRESETS
+
+        pre = PRESETS.get(args.preset, {})
+        k_tc = sorted(abs(float(pre.get(f"K_{a}_tempco", 0.0))) for a in "xyz")
+        s_tc = sorted(abs(float(pre.get(f"S_{a}_tempco", 0.0))) for a in "xyz")
+        out.say(f"  note: {', '.join(lag_targets)}: the lag is measured through the thermal terms it delays, so its U "
+                f"was predicted at the {args.preset} preset's tempcos (K {k_tc[0]:g}-{k_tc[-1]:g} ppm/degC, S "
+                f"{s_tc[0]:g}-{s_tc[-1]:g} ug/degC) and grows as they shrink: tempcos all n times smaller give about n "
+                "times the U (plan with --preset of a unit like yours)")
     for h, v in doc["assumptions"].get("held_effects", {}).items():
         # a requested effect this plan holds (none of the plans that estimate it met the targets), said, not dropped
         worst = max(v["moves"].items(), key=lambda kv: abs(kv[1]["bias"]), default=None)

@@ -22,13 +22,14 @@ def register(sub) -> None:
     p.add_argument("--unit", default=None, metavar="SN", help="serial number to sample when the file holds several")
     p.add_argument("--state", default=None, metavar="NAME",
                    help="mechanical state to sample when the file holds several")
-    p.add_argument("--effects", default=",".join(DEFAULT_EFFECTS),
+    p.add_argument("--effects", default=None,
                    help=f"effects of the joint model, from: {', '.join(EFFECTS)}, the noise effects "
                         f"{', '.join(NOISE_EFFECTS)}, and quantisation (a digital output rounded to an LSB q: the "
                         "least-squares fit with the term first, q given or profiled, then the posterior with q and "
                         "the per-sample sigma held at the fit's values), and the diagnosis's forms hysteresis_play, "
                         "hysteresis_pi and thermal_lag_history (the form's nonlinear parameters profiled by the least "
-                        "squares and held, as fit --effects with the same names); default: "
+                        "squares and held, as fit --effects with the same names); default: the effects the "
+                        "data's plan was made for (# planned_effects), else "
                         f"{','.join(DEFAULT_EFFECTS)}")
     p.add_argument("--reference-temperature", type=float, default=20.0, metavar="DEGC",
                    help="reference temperature of the thermal model, degC (default 20)")
@@ -89,9 +90,13 @@ def run(args) -> int:
                 bar.set_postfix(tau=f"{check['tau_max']:.1f}", ess=f"{check['ess_estimate']:.0f}",
                                 rhat=f"{check.get('rhat_max', check['rhat_classic_max']):.3f}")
     try:
-        result = sample(campaign, name_list(args.effects), reference_temperature_C=args.reference_temperature,
+        from ..estimation.planned_effects import resolve
+
+        effects, planned_note = resolve(None if args.effects is None else name_list(args.effects), campaign)
+        result = sample(campaign, effects, reference_temperature_C=args.reference_temperature,
                         ess=args.ess, max_steps=args.max_steps, n_walkers=args.walkers, seed=args.seed,
-                        progress=progress, json_path=args.json, posterior_path=args.posterior,
+                        progress=progress, json_path=None if planned_note else args.json,
+                        posterior_path=args.posterior,
                         gates=GateConfig(angle_bound_arcsec=args.angle_bound_arcsec),
                         bench_errors=bench_errors_of(lab) if lab else None,
                         systematics=systematic_sources(lab, campaign.output_unit) if lab else (),
@@ -99,6 +104,10 @@ def run(args) -> int:
     finally:
         if bar is not None:
             bar.close()
+    if planned_note:
+        result.notes.append(planned_note)
+        if args.json:
+            result.save(args.json)
     out.say(summary_text(result))
     s = result.extra["sampler"]
     out.say(f"  sampler: {s['walkers']} walkers x {s['steps']} steps ({s['moves']}), tau_max = {s['tau_max']:.1f}, "

@@ -52,12 +52,14 @@ def run(args) -> int:
     from ..api import simulate
 
     effects = name_list(args.effects)
-    positions = None
+    positions, metadata = None, None
     if getattr(args, "plan", None):
         from ..planning.ramp import load_plan
 
         plan = load_plan(args.plan)
         schedule, positions = plan.schedule(), plan.visit_positions()
+        if plan.effects is not None:      # the model the plan predicted U for: the fit's default effects
+            metadata = {"planned_effects": ",".join(plan.effects) or "none"}
     elif getattr(args, "ramp", None):
         from ..errors import InputError
         from .plan import _rate
@@ -75,7 +77,7 @@ def run(args) -> int:
         args.output, truth_path=args.truth, preset=args.preset, effects=effects,
         parameters=assignments(args.set), schedule=schedule, Q_V2s=args.Q,
         sigma_position_arcsec=args.sigma_position_arcsec, sigma_wobble_arcsec=args.sigma_wobble_arcsec,
-        heavy_tails_dof=args.heavy_tails_dof, unit=args.unit, seed=args.seed, plan=positions)
+        heavy_tails_dof=args.heavy_tails_dof, unit=args.unit, seed=args.seed, plan=positions, metadata=metadata)
     where = (f"on the ramp {':'.join(f'{v:g}' for v in schedule.program_C)} degC at {schedule.rate_C_per_min:g} "
              f"degC/min ({schedule.duration_s / 3600.0:.2f} chamber hours)" if isinstance(schedule, RampSchedule)
              else f"at {len(schedule.setpoints_C)} setpoints")

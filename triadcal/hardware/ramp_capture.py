@@ -416,6 +416,7 @@ def _capture_ramp(out, plan, imu, bench, chamber, settings, step_s, progress, ex
                         "of the unit's rate over the window (a least-squares quadratic through the mean "
                         f"temperature reading over the window and the {DIRECTION_SPAN_S:g} s before), when 3 "
                         "standard errors from 0 and faster than the settled rate, else the previous visit's"),
+        **({} if plan.effects is None else {"planned_effects": ",".join(plan.effects) or "none"}),
         "stabilisation": "at the program's first temperature only: " + settings.stabilisation.describe(),
         "settle_s": f"{settings.settle_s:g}",
         **({"plan": plan.name} if plan.name else {}),

@@ -78,6 +78,7 @@ class Plan:
     move_s: float = MOVE_S
     soak_s: Optional[tuple] = None       # per setpoint; None: the hours rule (ramp + settle)
     name: str = ""
+    effects: Optional[tuple] = None      # the model the plan was made for (its document's predicted.effects)
 
     def soaks(self) -> list:
         if self.soak_s is not None:
@@ -136,12 +137,13 @@ class Plan:
     def from_dict(cls, d: Mapping, source: str = "plan") -> "Plan":
         """A plan from its document, every field checked (:func:`.plan_fields.check_plan_fields`),
         the directions and the visit count against the plan built."""
-        from .plan_fields import check_plan_fields
+        from .plan_fields import check_plan_fields, check_totals, plan_effects
 
         if not isinstance(d, Mapping) or d.get("format") != FORMAT or d.get("version") != 1:
             got = (d.get("format"), d.get("version")) if isinstance(d, Mapping) else (type(d).__name__, None)
             raise InputError(f"{source}: not a {FORMAT} version 1 document (format={got[0]!r}, version={got[1]!r})")
         check_plan_fields(d, source)
+        effects = plan_effects(d, source)
         try:
             sps = d["setpoints"]
             plan = cls(setpoints_C=tuple(float(s["setpoint_C"]) for s in sps),
@@ -151,7 +153,8 @@ class Plan:
                        start_C=float(d.get("start_C", AMBIENT_C)),
                        chamber_rate_C_per_min=float(d.get("chamber_rate_C_per_min", CHAMBER_RATE_C_PER_MIN)),
                        settle_s=float(d.get("settle_s", SETTLE_S)), move_s=float(d.get("move_s", MOVE_S)),
-                       soak_s=tuple(float(s["soak_s"]) for s in sps), name=str(d.get("name", "")))
+                       soak_s=tuple(float(s["soak_s"]) for s in sps), name=str(d.get("name", "")),
+                       effects=effects)
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{source}: a plan needs setpoints (setpoint_C, soak_s), positions (label, "
                              f"axis1_deg, axis2_deg) and tau_s: {exc!r}") from None
@@ -165,6 +168,7 @@ class Plan:
         if "n_visits" in d and d["n_visits"] != plan.n_visits:
             raise InputError(f"{source}: field n_visits: {d['n_visits']!r}, but the plan's setpoints, positions and "
                              f"repetitions make {plan.n_visits} (an edited plan?)")
+        check_totals(d, plan, source)
         return plan
 
     @classmethod

@@ -37,6 +37,37 @@ def number(path, name: str, value, *, low=-math.inf, high=math.inf, strict_low=F
     return float(value)
 
 
+#: the longest averaging window a plan may hold, s (the bench CSV's ``tau_s`` range: a plan whose
+#: window the reader refuses made ``simulate --plan`` write a file it then could not read)
+MAX_TAU_S = 86400.0
+
+
+def plan_effects(d: Mapping, path):
+    """The effects the plan was made for (``predicted.effects``, written by ``triadcal plan``), checked:
+    a tuple of names ``fit --effects`` takes, or None (a plan written before 2026-12-02, or by hand)."""
+    from ..estimation.planned_effects import check_effect_names
+
+    pred = d.get("predicted")
+    if pred is None:
+        return None
+    if not isinstance(pred, Mapping):
+        raise InputError(f"{path}: field predicted: expected an object, got {pred!r}")
+    if "effects" not in pred:
+        return None
+    return check_effect_names(pred["effects"], f"{path}: field predicted.effects")
+
+
+def check_totals(d: Mapping, plan, path) -> None:
+    """``chamber_hours`` as the plan's setpoints, soaks, positions and dwell make it (as ``n_visits``):
+    an edited plan that states 1.0 h for 10.75 was read."""
+    if "chamber_hours" in d:
+        stated = number(path, "chamber_hours", d["chamber_hours"], low=0.0)
+        made = float(plan.chamber_hours())
+        if abs(stated - made) > 1e-6 * max(1.0, made):
+            raise InputError(f"{path}: field chamber_hours: {stated!r}, but the plan's setpoints, soaks, positions and "
+                             f"dwell make {made:.6g} h (an edited plan?)")
+
+
 def check_positions(d: Mapping, path) -> None:
     """``positions``: a non-empty list of objects with a unique non-empty ``label`` and bench angles
     within +-360 deg (a label given twice overwrote the first: one position silently lost)."""
@@ -88,7 +119,7 @@ def check_plan_fields(d: Mapping, path) -> None:
             raise InputError(f"{path}: field setpoints[{k}].{bad[0]}: not a field of a setpoint")
         number(path, f"setpoints[{k}].setpoint_C", s["setpoint_C"], low=lo, high=hi)
         number(path, f"setpoints[{k}].soak_s", s["soak_s"], low=0.0)
-    number(path, "tau_s", d["tau_s"], low=0.0, strict_low=True)
+    number(path, "tau_s", d["tau_s"], low=0.0, strict_low=True, high=MAX_TAU_S)
     if "repetitions" in d:
         r = d["repetitions"]
         if isinstance(r, bool) or not isinstance(r, int) or r < 1:
@@ -104,3 +135,17 @@ def check_plan_fields(d: Mapping, path) -> None:
     if "name" in d and not isinstance(d["name"], str):
         raise InputError(f"{path}: field name: expected a text, got {d['name']!r}")
     check_positions(d, path)
+    # a soak shorter than the chamber's move to its setpoint: the visits would be labelled with a
+    # temperature the chamber had not reached (an edited plan of soak_s 1 at 1 degC/min: the
+    # simulated visits of -40 degC read about 20)
+    from .plan import AMBIENT_C, CHAMBER_RATE_C_PER_MIN
+
+    rate = float(d.get("chamber_rate_C_per_min", CHAMBER_RATE_C_PER_MIN))
+    prev = float(d.get("start_C", AMBIENT_C))
+    for k, s in enumerate(sps):
+        sp = float(s["setpoint_C"])
+        need = abs(sp - prev) / rate * 60.0
+        if float(s["soak_s"]) < need:
+            raise InputError(f"{path}: field setpoints[{k}].soak_s: {s['soak_s']!r} s, but the chamber at {rate:g} degC/min "
+                             f"needs {need:.6g} s to move from {prev:g} to {sp:g} degC")
+        prev = sp

@@ -52,6 +52,7 @@ class RampPlan:
     tau_s: float = 30.0
     move_s: float = MOVE_S
     name: str = ""
+    effects: Optional[tuple] = None      # the model the plan was made for (its document's predicted.effects)
 
     #: the bench cycles through the positions for the whole program: no repetition count
     repetitions = 1
@@ -99,20 +100,25 @@ class RampPlan:
 
     @classmethod
     def from_dict(cls, d: Mapping, source: str = "plan") -> "RampPlan":
+        from .plan_fields import check_totals, plan_effects
+
         require_format(d, RAMP_FORMAT, 1, source, "a ramp plan", "ramp plan")
         check_ramp_fields(d, source)
+        effects = plan_effects(d, source)
         try:
             plan = cls(program_C=tuple(float(v) for v in d["program_C"]), rate_C_per_min=float(d["rate_C_per_min"]),
                        hold_s=float(d.get("hold_s", 0.0)), move_s=float(d.get("move_s", MOVE_S)),
                        tau_s=float(d["tau_s"]),
                        positions={str(p["label"]): (float(p["axis1_deg"]), float(p["axis2_deg"]))
-                                  for p in d["positions"]}, name=str(d.get("name", "")))
+                                  for p in d["positions"]}, name=str(d.get("name", "")),
+                       effects=effects)
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{source}: a ramp plan needs program_C, rate_C_per_min, tau_s and positions "
                              f"(label, axis1_deg, axis2_deg): {exc!r}") from None
         if len(plan.program_C) < 2 or not plan.positions or not plan.tau_s > 0 or not plan.rate_C_per_min > 0:
             raise InputError(f"{source}: a ramp plan needs two program temperatures, one position, tau_s > 0 "
                              "and rate_C_per_min > 0")
+        check_totals(d, plan, source)
         return plan
 
 
@@ -134,7 +140,7 @@ def check_ramp_fields(d: Mapping, path) -> None:
     ``hold_s``, ``move_s`` >= 0; ``positions`` a non-empty list of objects with a unique non-empty
     ``label`` and bench angles within +-360 deg. Before, ``RampPlan.from_dict`` took a rate of
     Infinity and a label given twice (the second overwrote the first, one position silently lost)."""
-    from .plan_fields import check_positions, number
+    from .plan_fields import MAX_TAU_S, check_positions, number
 
     for key in ("program_C", "rate_C_per_min", "tau_s", "positions"):
         if key not in d:
@@ -150,7 +156,7 @@ def check_ramp_fields(d: Mapping, path) -> None:
             raise InputError(f"{path}: field program_C[{k}]: {values[k]:g} degC repeats program_C[{k - 1}] "
                              "(a leg must change the temperature; use hold_s for a pause)")
     number(path, "rate_C_per_min", d["rate_C_per_min"], low=0.0, strict_low=True, high=MAX_CHAMBER_RATE_C_PER_MIN)
-    number(path, "tau_s", d["tau_s"], low=0.0, strict_low=True)
+    number(path, "tau_s", d["tau_s"], low=0.0, strict_low=True, high=MAX_TAU_S)
     for key in ("hold_s", "move_s"):
         if key in d:
             number(path, key, d[key], low=0.0)
