@@ -394,8 +394,11 @@ def test_every_visit_written_twice_is_refused(tmp_path, valid):
 
 def test_equal_readings_far_apart_are_refused_with_noise_and_read_without(tmp_path):
     """Hand-made: row 40 given row 3's readings, a day later. With sd_* above 0 two averages are never
-    equal: refused; the same file without noise columns (a quantised quiet output visiting one
-    position twice could read equal) is read."""
+    equal: refused. Without noise columns but with the file's `# Q_V2s` the visits are noisy averages
+    too: refused (an outside probe wrote every visit twice with Q_V2s and no sd_*: status ok in 6 of
+    12, every u 0.71 times; 2026-12-02). With no noise stated at all, means written to 10 significant
+    digits or more are averages no two of which are equal by chance: refused; written to a coarse step
+    (a quantised quiet output visiting one position twice reads equal) they are read."""
     tab = independent_table()
     cols = [tab.header.index(c) for c in ("w_x", "w_y", "w_z")]
     for j in cols:
@@ -405,6 +408,14 @@ def test_equal_readings_far_apart_are_refused_with_noise_and_read_without(tmp_pa
     keep = [i for i, h in enumerate(tab.header) if h not in ("sd_x", "sd_y", "sd_z", "n_samples")]
     tab.header = [tab.header[i] for i in keep]
     tab.rows = [[r[i] for i in keep] for r in tab.rows]
+    tab.comments.append("# Q_V2s = 2.5e-07")
+    err = refused(tab.write(tmp_path / "q.csv"))
+    assert err.line == tab.line_of_row(40) and "the file's Q_V2s" in str(err)
+    tab.comments.pop()
+    err = refused(tab.write(tmp_path / "digits.csv"))
+    assert err.line == tab.line_of_row(40) and "written to 10 significant digits" in str(err)
+    for name in ("w_x", "w_y", "w_z"):
+        tab.map(name, lambda v: f"{float(v):.4f}")
     assert read_bench_csv(tab.write(tmp_path / "quiet.csv")).n_visits == 108
 
 

@@ -17,7 +17,7 @@ from .bench_csv import BenchCSVError
 #: a key that differs from one of them only by case, or is a close misspelling, is refused
 #: rather than ignored (docs/bench-csv.md, "Three misreads refused")
 KNOWN_METADATA = ("local_g_m_s2", "local_g_override", "output_unit", "Q_V2s", "power_on_s", "quantisation_lsb",
-                  "u_w_method", "dTdt_method", "ramp", "date", "bench", "t_override")
+                  "u_w_method", "dTdt_method", "ramp", "date", "bench", "t_override", "planned_effects")
 #: metadata keys triadcal's own writers put in a file (simulate, capture and its noise estimate,
 #: fit-raw, the lab file):
 #: accepted as they are, however close to a known key they look (``input_unit``, ``temperature``)
@@ -347,6 +347,20 @@ def check_repeated_readings(path, c: Campaign) -> None:
     if c.u_w is not None:
         se = np.where(np.isfinite(se), se, np.asarray(c.u_w, float))
     q = np.array([written_resolution(w[:, a]) for a in range(3)])
+    try:
+        Q = float(c.metadata.get("Q_V2s", "nan"))
+    except (TypeError, ValueError):
+        Q = float("nan")
+    if Q > 0:
+        # a stated white noise makes every visit a noisy average too, sqrt(Q / tau) its SE (an outside
+        # probe: every visit written twice, noise as # Q_V2s without sd_*: status ok in 6 of 12, u 0.71x)
+        noisy[:] = True
+        se = np.where(np.isfinite(se), se, np.sqrt(Q / np.asarray(c.tau_s, float))[:, None])
+    elif not np.any(noisy) and np.all(q == 0.0):
+        # no noise stated, but every output written to 10 significant digits or more: readings that
+        # equal to the last of them are one average written twice (a quantised quiet output's equal
+        # means are written to its code's step, which q holds)
+        noisy[:] = True
 
     def equal_unlikely(k: int) -> bool:
         """Visit k's three means were written finer than a tenth of their standard error (or it is unknown)."""
@@ -365,7 +379,8 @@ def check_repeated_readings(path, c: Campaign) -> None:
         if dt < span or noisy[i] or noisy[j]:
             why = (f"their averaging windows overlap (time_s {float(c.time_s[j]):g} and {float(c.time_s[i]):g} s, "
                    f"tau_s {float(c.tau_s[j]):g} and {float(c.tau_s[i]):g} s)" if dt < span else
-                   "both average noisy readings (sd or u_w above 0), and two such averages are never equal")
+                   "both average noisy readings (sd or u_w above 0, or the file's Q_V2s; or, with no noise "
+                   "stated, written to 10 significant digits), and two such averages are never equal")
             raise BenchCSVError(
                 path, int(lines[i]), "w_x",
                 f"the same visit twice: w_x, w_y, w_z repeat line {int(lines[j])}'s to the last digit "
