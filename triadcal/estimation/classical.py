@@ -492,7 +492,8 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
 
     g_nom = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3)
     shape = bench_shape(campaign.axis1_deg, campaign.axis2_deg)
-    even = even_term_gate([even_term(even_blocks[ai], g_nom, ai, known.known, shape) for ai in range(3)],
+    even = even_term_gate([even_term(even_blocks[ai], g_nom, ai, known.known, shape, j)
+                           for ai in range(3) for j in range(3)],
                           {a: ordered[f"S_{a}"].u for a in AXES}, {a: ordered[f"K_{a}"].value for a in AXES},
                           campaign.output_unit, gates)
     if even is not None:

@@ -39,7 +39,8 @@ SHIFT_U_MIN = 1.0
 
 @dataclass
 class EvenTerm:
-    """The test of ``c g_a^2`` on one output."""
+    """The test of ``c g_j^2`` on output ``axis`` (``column`` j: the output's own axis, K2, or another,
+    a cross-axis g-squared term)."""
 
     axis: str
     c: float              # output units (at |g_a| = 1)
@@ -48,6 +49,11 @@ class EvenTerm:
     dof: Optional[int]    # None: normal (known noise)
     tau: float            # the bench's scatter of the augmented model, output units (0 with the noise estimated)
     bias_move: float      # mean over the setpoints of c beta_b, output units
+    column: str = ""      # the axis j of g_j^2 (the output's own when empty)
+
+    @property
+    def label(self) -> str:
+        return f"g_{self.column or self.axis}^2 on w_{self.axis}"
 
 
 #: the wobble's variance relative to each axis's positioning error in the shape of the bench's scatter
@@ -103,13 +109,15 @@ def _augmented(parts):
     return c, ff, chi2, dof
 
 
-def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.ndarray] = None) -> Optional[EvenTerm]:
-    """The test of ``c g_a^2`` on output ``ai``; ``blocks``: ``(D, y, s2 or None, idx, tau_s)`` per setpoint
+def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.ndarray] = None,
+              column: Optional[int] = None) -> Optional[EvenTerm]:
+    """The test of ``c g_j^2`` on output ``ai`` (``column`` j, default ``ai``: K2); ``blocks``: ``(D, y, s2 or None, idx, tau_s)`` per setpoint
     block (design of :func:`.classical.residual_design`, mean outputs, known variances of the means,
     visits, their averaging times); ``g`` the nominal gravity per visit (n, 3); ``shape`` the bench's
     scatter per visit and axis (:func:`bench_shape`; None: isotropic, ``1 - g_a^2``). None when the
     column lies in the model's span (every block) or no dof is left."""
-    f_all = [g[idx, ai] ** 2 for _, _, _, idx, _ in blocks]
+    j = ai if column is None else column
+    f_all = [g[idx, j] ** 2 for _, _, _, idx, _ in blocks]
     h = 1.0 - g[:, ai] ** 2 if shape is None else shape[:, ai]
     if known:
         s2 = np.zeros(len(g))
@@ -165,15 +173,15 @@ def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.nd
         p = float(2.0 * stats.t.sf(abs(c) / sd, dof))
         tau, dof_out = 0.0, dof
     move = float(np.mean([c * beta for _, _, beta, _ in parts]))
-    return EvenTerm(AXES[ai], c, sd, p, dof_out, tau, move)
+    return EvenTerm(AXES[ai], c, sd, p, dof_out, tau, move, "" if j == ai else AXES[j])
 
 
 def even_term_gate(terms: list, s_u: dict, k_of: dict, output_unit: str,
                    config: GateConfig = DEFAULT_CONFIG) -> Optional[GateOutcome]:
     """The gate over the outputs' :class:`EvenTerm` (None ones left out): fails (``model_mismatch``)
-    when the smallest Bonferroni p over the tested outputs is below ``gof_p_min`` and that term moves
-    its bias by more than :data:`SHIFT_U_MIN` of ``S_a``'s u (``s_u``: g; ``k_of``: K_a, g per output
-    unit). None when no output could be tested."""
+    when the smallest Bonferroni p over the tested terms is below ``gof_p_min`` and that term moves
+    its output's bias by more than :data:`SHIFT_U_MIN` of ``S_a``'s u (``s_u``: g; ``k_of``: K_a, g per
+    output unit). None when no term could be tested."""
     terms = [t for t in terms if t is not None]
     if not terms:
         return None
@@ -182,16 +190,21 @@ def even_term_gate(terms: list, s_u: dict, k_of: dict, output_unit: str,
     p_b = min(1.0, m * worst.p)
     move_u = abs(worst.bias_move * k_of[worst.axis]) / s_u[worst.axis] if s_u.get(worst.axis) else math.inf
     fails = p_b < config.gof_p_min and move_u > SHIFT_U_MIN
-    a = worst.axis
-    each = ", ".join(f"w_{t.axis}: c {t.c:.3g} +- {t.sd:.2g} {output_unit}" for t in terms)
-    reason = (f"a term c g_{a}^2 on w_{a} (the poses with {a} vertical against the rest, the same at every setpoint; "
-              f"{each}): Bonferroni p = {p_b:.2g} over {m}" + ("" if worst.dof is None else f", Student's t on "
-                                                               f"{worst.dof} dof")
+    a, j = worst.axis, worst.column or worst.axis
+    each = ", ".join(f"{t.label}: c {t.c:.3g} +- {t.sd:.2g} {output_unit}" for t in terms)
+    where = (f"the poses with {a} vertical against the rest" if j == a else
+             f"the poses with {j} vertical against those with the third axis vertical")
+    reason = (f"a term c {worst.label} ({where}, the same at every setpoint; {each}): Bonferroni p = {p_b:.2g} "
+              f"over {m}" + ("" if worst.dof is None else f", Student's t on {worst.dof} dof")
               + f"; left out it moves S_{a} by {move_u:.3g} u")
     if fails:
-        reason += (f" (p < {config.gof_p_min:g} and more than {SHIFT_U_MIN:g} u): the classical model lacks a term even "
-                   f"in the specific force along {a} (K2, a g-squared sensitivity) and took it for the bench's scatter, "
-                   f"which cannot move a vertical axis's output (a small rotation moves it at second order); run "
-                   "`triadcal diagnose`, or `triadcal fit --method joint` with `scale_nonlinearity` among --effects")
+        what = (f"even in the specific force along {a} (K2, a g-squared sensitivity) and took it for the bench's "
+                "scatter, which cannot move a vertical axis's output (a small rotation moves it at second order); run "
+                "`triadcal diagnose`, or `triadcal fit --method joint` with `scale_nonlinearity` among --effects"
+                if j == a else
+                f"of w_{a} in the square of the specific force along {j} (a cross-axis g-squared sensitivity) and "
+                "took it for the bench's scatter, whose random errors do not repeat at every setpoint; run "
+                "`triadcal diagnose`, or `triadcal fit --method joint`, whose structure gate tests it")
+        reason += f" (p < {config.gof_p_min:g} and more than {SHIFT_U_MIN:g} u): the classical model lacks a term " + what
     return GateOutcome("orientation_even_term", not fails, "model_mismatch", reason, p_b,
                        f"Bonferroni p >= {config.gof_p_min:g} or the move of S <= {SHIFT_U_MIN:g} u")
