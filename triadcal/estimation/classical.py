@@ -319,13 +319,26 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         if Q_res is not None:
             fit_noise["residual_to_sd_ratio"] = [float(math.sqrt(r / s)) if s > 0 else None
                                                  for r, s in zip(Q_res, Q_sd)]
+    from .classical_structure import bench_shape, even_term, even_term_gate, geometry_variance
+
+    shape = bench_shape(campaign.axis1_deg, campaign.axis2_deg)
     if use == "residuals":
         sigma = np.sqrt(Q_res[None, :] / campaign.tau_s[:, None])
         noise_desc = (f"residuals of the per-setpoint linear model (nominal gravity, bias, first-order tilt), "
                       f"pooled over {len(block_ids)} setpoint(s), {dof_total} dof per accelerometer; "
                       "variance of a mean taken as Q_eff / tau_s")
+        # eq. 2's propagation: each visit's own variance, the noise plus the bench's scatter where the
+        # kinematics let it move the output (classical_structure.geometry_variance)
+        geo = [geometry_variance(even_blocks[ai], shape[:, ai], campaign.n_visits) for ai in range(3)]
+        if all(v is not None for v in geo):
+            sigma_eq2 = np.sqrt(np.column_stack(geo))
+            noise_desc += ("; eq. 2 propagates each visit's own variance, " + (
+                "the stated noise (sd_*) plus" if known.known else "a noise level plus") + " the bench's scatter "
+                "where its random rotations move the output (the kinematics' shape, Paule-Mandel or moments)")
+        else:
+            sigma_eq2 = sigma
     else:
-        sigma = sd_sigma
+        sigma = sigma_eq2 = sd_sigma
         noise_desc = f"{campaign.output_sigma_method()} (output noise only; bench positioning errors not included)"
 
     # -- eq. 2 per block with exact linear propagation ------------------------------------
@@ -350,7 +363,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
             tilt_notes.append(tilt_arcsec)
         for ai, a in enumerate(AXES):
             v, J = row_estimate(campaign.w[idx, ai], pair, G, ai, blk["where"])
-            V = np.sum(J * J * (sigma[idx, ai] ** 2)[None, :], axis=1)
+            V = np.sum(J * J * (sigma_eq2[idx, ai] ** 2)[None, :], axis=1)
             for bi, b in enumerate(AXES):
                 if b != a:
                     vals[f"Ca_{a}{b}"], us[f"Ca_{a}{b}"] = v[bi], V[bi]
@@ -488,10 +501,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     if use == "residuals" and sd_sigma is not None and Q_res is not None and \
             all(d > 0 and r <= s * _chi2_ppf(0.99, d) / d for r, s, d in zip(Q_res, Q_sd, dof)):
         t_sigma, t_dof = sd_sigma, None
-    from .classical_structure import bench_shape, even_term, even_term_gate
-
     g_nom = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3)
-    shape = bench_shape(campaign.axis1_deg, campaign.axis2_deg)
     even = even_term_gate([even_term(even_blocks[ai], g_nom, ai, known.known, shape, j)
                            for ai in range(3) for j in range(3)],
                           {a: ordered[f"S_{a}"].u for a in AXES}, {a: ordered[f"K_{a}"].value for a in AXES},

@@ -208,3 +208,79 @@ def even_term_gate(terms: list, s_u: dict, k_of: dict, output_unit: str,
         reason += f" (p < {config.gof_p_min:g} and more than {SHIFT_U_MIN:g} u): the classical model lacks a term " + what
     return GateOutcome("orientation_even_term", not fails, "model_mismatch", reason, p_b,
                        f"Bonferroni p >= {config.gof_p_min:g} or the move of S <= {SHIFT_U_MIN:g} u")
+
+
+#: the bench's shaped scatter may reach this many times the pooled residual level (chi2/dof of the
+#: noise-weighted residuals times the largest stated variance) before it is taken for the wrong shape
+PLAUSIBLE_EXCESS = 10.0
+
+
+def _projected(blocks, v_of):
+    """Per block the weighted outputs with the block's design projected out, and the squared entries of
+    the projector ``M = I - U U^T``: ``(e, M2, idx)`` lists (weights ``1 / sqrt(v_of(idx))``)."""
+    out = []
+    for D, y, _, idx, _ in blocks:
+        w = 1.0 / np.sqrt(v_of(idx))
+        Dw, yw = D * w[:, None], y * w
+        U_, sv, _ = np.linalg.svd(Dw, full_matrices=False)
+        Ur = U_[:, sv > sv[0] * 1e-10] if len(sv) and sv[0] > 0 else U_[:, :0]
+        M = np.eye(len(y)) - Ur @ Ur.T
+        out.append((M @ yw, M * M, idx))
+    return out
+
+
+def geometry_variance(blocks, shape_a: np.ndarray, n: int) -> Optional[np.ndarray]:
+    """The variance of each visit's mean output ``a`` (n,), its noise plus the bench's scatter shaped by
+    the kinematics: ``s2_i + tau2 shape_ia`` with ``s2`` the stated noise and ``tau2`` by Paule-Mandel
+    on the per-setpoint models (``chi2 = dof``); with no stated noise ``alpha / tau_s_i + tau2 shape_ia``,
+    both by the method of moments on the unweighted-by-noise residuals (``E e_i^2 = sum_k M_ik^2 var_k``
+    of the projector M of each block, least squares over the visits, each component >= 0). ``blocks``
+    as :func:`even_term`'s. None when no dof is left.
+
+    Why: a bench's random rotations move an output where its axis is horizontal and not where it is
+    vertical, and each angle of eq. 2 takes its own poses: one pooled level per output put the angles
+    they move at 1.3-1.9 times their u and the others at 0.3 (an outside probe's bench, 61 clean
+    campaigns: Ca_xz_tempco 4.6 u off with status ok)."""
+    known = all(s2 is not None for _, _, s2, _, _ in blocks)
+    h = np.asarray(shape_a, float)
+    if known:
+        s2 = np.zeros(n)
+        for _, _, v, idx, _ in blocks:
+            s2[idx] = v
+
+        def chi2(t2):
+            return sum(float(e @ e) for e, _, _ in _projected(blocks, lambda idx: s2[idx] + t2 * h[idx]))
+
+        dof = sum(len(idx) - int(np.linalg.matrix_rank(D)) for D, _, _, idx, _ in blocks)
+        if dof <= 0:
+            return None
+        t2 = 0.0
+        if chi2(0.0) > dof and np.any(h > 0):
+            lo, top = 0.0, max(float(np.median(s2)), 1e-300) * 1e8
+            if chi2(top) > dof:
+                # the visits the bench cannot move scatter beyond their noise too: not the bench's shape,
+                # left to the pooled level
+                return None
+            t2 = optimize.brentq(lambda t: chi2(t) - dof, lo, top, xtol=1e-300, rtol=1e-7)
+            # a scatter that the visits the bench moves must hold far beyond what the residuals show
+            # pooled (chi2/dof times the noise) is the insensitive visits' excess read as the bench's (an
+            # independent campaign at one setpoint: x's bench scatter 4000 times its noise, Ca_xz's u 4000")
+            if t2 * float(np.max(h)) > PLAUSIBLE_EXCESS * chi2(0.0) / dof * float(np.max(s2)):
+                return None
+        return s2 + t2 * h
+    tau_s = np.zeros(n)
+    for _, _, _, idx, ts in blocks:
+        tau_s[idx] = ts
+    parts = _projected(blocks, lambda idx: 1.0 / tau_s[idx])      # weights sqrt(tau_s): var tau_s v
+    rows, rhs = [], []
+    for e, M2, idx in parts:
+        rows.append(np.column_stack([M2.sum(axis=1), M2 @ (tau_s[idx] * h[idx])]))
+        rhs.append(e * e)
+    A, b = np.vstack(rows), np.concatenate(rhs)
+    if A.shape[0] <= 2 or not np.any(A[:, 0] > 1e-12):
+        return None
+    coef, _ = optimize.nnls(A, b)
+    alpha, t2 = float(coef[0]), float(coef[1])
+    if not alpha + t2 > 0:
+        return None
+    return alpha / tau_s + t2 * h
