@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import stats
 
 from ..models.campaign import Campaign
 from ..models.sensor import AXES
@@ -153,15 +153,14 @@ def bench_scatter(blocks) -> tuple:
         chi2, per = _weighted_fit(groups, t2, len(blocks))
         return chi2, [(e, h, idx) for (e, h), (_, _, _, idx) in zip(per, blocks)]
 
+    from .classical_structure import paule_mandel
+
     dof = sum(int(np.sum(D.shape[1] - np.linalg.matrix_rank(D))) for D, _, _, _ in groups)
     chi2, resid = fit(0.0)
     if dof <= 0 or chi2 <= dof:
         return 0.0, chi2, resid
-    excess = lambda t2: _weighted_fit(groups, t2)[0] - dof      # noqa: E731
-    lo, hi = 0.0, max(float(np.median(np.concatenate([s2 for _, _, s2, _ in blocks]))), 1e-300)
-    while excess(hi) > 0:
-        lo, hi = hi, hi * 4.0
-    t2 = optimize.brentq(excess, lo, hi, xtol=1e-300, rtol=1e-7)
+    t2 = paule_mandel(lambda t: _weighted_fit(groups, t)[0], dof, np.concatenate([s2 for _, _, s2, _ in blocks]),
+                     math.inf)[0]
     chi2, resid = fit(t2)
     return t2, chi2, resid
 

@@ -83,6 +83,29 @@ def bench_shape(axis1_deg, axis2_deg) -> np.ndarray:
     return out
 
 
+def _per_visit(blocks, k: int, n: int) -> np.ndarray:
+    """Field ``k`` of the blocks (2: the known variances, 4: tau_s) as one array over the n visits."""
+    out = np.zeros(n)
+    for blk in blocks:
+        out[blk[3]] = blk[k]
+    return out
+
+
+def paule_mandel(chi2_of, dof: int, s2: np.ndarray, limit: float) -> tuple:
+    """``(tau2, found)``: Paule & Mandel's ``tau2 >= 0`` at which ``chi2_of(tau2) = dof`` (``chi2_of`` falls
+    with it), bracketed by quadrupling from the median of ``s2`` up to ``limit`` and found by Brent's
+    method to 1e-7 of it; ``(0, True)`` when chi^2 is already at or below dof, ``(limit, False)`` when
+    no root lies below ``limit``."""
+    if chi2_of(0.0) <= dof:
+        return 0.0, True
+    lo, hi = 0.0, max(float(np.median(s2)), 1e-300)
+    while chi2_of(hi) > dof and hi < limit:
+        lo, hi = hi, hi * 4.0
+    if chi2_of(hi) > dof:
+        return hi, False
+    return optimize.brentq(lambda t: chi2_of(t) - dof, lo, hi, xtol=1e-300, rtol=1e-7), True
+
+
 def _partial(blocks, f_all, v_of):
     """Per block the weighted outputs and column ``f`` with the block's design projected out:
     ``(f~, y~, beta_bias, resid_dof)`` lists."""
@@ -120,23 +143,17 @@ def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.nd
     f_all = [g[idx, j] ** 2 for _, _, _, idx, _ in blocks]
     h = 1.0 - g[:, ai] ** 2 if shape is None else shape[:, ai]
     if known:
-        s2 = np.zeros(len(g))
-        for _, _, v, idx, _ in blocks:
-            s2[idx] = v
+        s2 = _per_visit(blocks, 2, len(g))
 
         def chi2_at(t2):
             return _augmented(_partial(blocks, f_all, lambda idx: s2[idx] + t2 * h[idx]))
 
         c, ff, chi2, dof = chi2_at(0.0)
         t2 = 0.0
-        if dof > 0 and ff > 0 and chi2 > dof:
-            lo, hi = 0.0, max(float(np.median(s2)), 1e-300)
-            while chi2_at(hi)[2] > dof and hi < 1e300:
-                lo, hi = hi, hi * 4.0
+        if dof > 0 and ff > 0:
             # no root: the poses with the axis vertical scatter beyond their noise alone (the sd below
             # is then scaled by chi2/dof, as a Birge ratio)
-            t2 = (optimize.brentq(lambda t: chi2_at(t)[2] - dof, lo, hi, xtol=1e-300, rtol=1e-7)
-                  if chi2_at(hi)[2] <= dof else hi)
+            t2 = paule_mandel(lambda t: chi2_at(t)[2], dof, s2, 1e300)[0]
         parts = _partial(blocks, f_all, lambda idx: s2[idx] + t2 * h[idx])
         c, ff, chi2, dof = _augmented(parts)
         if ff <= 0 or dof <= 0:
@@ -160,9 +177,7 @@ def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.nd
             if p_r > p:
                 c, sd, p, dof_out = rel[0], sd_r, p_r, rel[3]
     else:
-        tau_s = np.zeros(len(g))
-        for _, _, _, idx, ts in blocks:
-            tau_s[idx] = ts
+        tau_s = _per_visit(blocks, 4, len(g))
         parts = _partial(blocks, f_all, lambda idx: 1.0 / tau_s[idx])
         c, ff, chi2, dof = _augmented(parts)
         if ff <= 0 or dof <= 0:
@@ -244,9 +259,7 @@ def geometry_variance(blocks, shape_a: np.ndarray, n: int) -> Optional[np.ndarra
     known = all(s2 is not None for _, _, s2, _, _ in blocks)
     h = np.asarray(shape_a, float)
     if known:
-        s2 = np.zeros(n)
-        for _, _, v, idx, _ in blocks:
-            s2[idx] = v
+        s2 = _per_visit(blocks, 2, n)
 
         def chi2(t2):
             return sum(float(e @ e) for e, _, _ in _projected(blocks, lambda idx: s2[idx] + t2 * h[idx]))
@@ -255,22 +268,19 @@ def geometry_variance(blocks, shape_a: np.ndarray, n: int) -> Optional[np.ndarra
         if dof <= 0:
             return None
         t2 = 0.0
-        if chi2(0.0) > dof and np.any(h > 0):
-            lo, top = 0.0, max(float(np.median(s2)), 1e-300) * 1e8
-            if chi2(top) > dof:
+        if np.any(h > 0):
+            t2, found = paule_mandel(chi2, dof, s2, max(float(np.median(s2)), 1e-300) * 1e8)
+            if not found:
                 # the visits the bench cannot move scatter beyond their noise too: not the bench's shape,
                 # left to the pooled level
                 return None
-            t2 = optimize.brentq(lambda t: chi2(t) - dof, lo, top, xtol=1e-300, rtol=1e-7)
             # a scatter that the visits the bench moves must hold far beyond what the residuals show
             # pooled (chi2/dof times the noise) is the insensitive visits' excess read as the bench's (an
             # independent campaign at one setpoint: x's bench scatter 4000 times its noise, Ca_xz's u 4000")
             if t2 * float(np.max(h)) > PLAUSIBLE_EXCESS * chi2(0.0) / dof * float(np.max(s2)):
                 return None
         return s2 + t2 * h
-    tau_s = np.zeros(n)
-    for _, _, _, idx, ts in blocks:
-        tau_s[idx] = ts
+    tau_s = _per_visit(blocks, 4, n)
     parts = _projected(blocks, lambda idx: 1.0 / tau_s[idx])      # weights sqrt(tau_s): var tau_s v
     rows, rhs = [], []
     for e, M2, idx in parts:

@@ -58,21 +58,17 @@ def resolve(effects: Optional[Sequence[str]], campaign, method: str = "joint") -
     :data:`DEFAULT_EFFECTS`; ``note`` says where they came from or how they differ from the plan's
     (None when there is nothing to say)."""
     plan = planned(campaign)
-    if effects is None:
-        if plan is None:
-            return list(DEFAULT_EFFECTS), None
-        if method != "joint":
-            return list(plan), (f"the data were planned for a joint fit with the effects {', '.join(plan) or 'none'} "
-                                f"(# {KEY}); the plan's predicted U holds for that fit, not for the {method} method")
-        return list(plan), (f"effects from the plan these data follow (# {KEY}): {', '.join(plan) or 'none'}; the "
-                            "plan's predicted U holds for them")
-    effects = list(effects)
     if plan is None:
-        return effects, None
-    left, added = [e for e in plan if e not in effects], [e for e in effects if e not in plan]
+        return list(DEFAULT_EFFECTS) if effects is None else list(effects), None
+    given = effects is not None
+    effects = list(effects) if given else list(plan)
     if method != "joint":
         return effects, (f"the data were planned for a joint fit with the effects {', '.join(plan) or 'none'} "
                          f"(# {KEY}); the plan's predicted U holds for that fit, not for the {method} method")
+    left, added = [e for e in plan if e not in effects], [e for e in effects if e not in plan]
+    if not given:
+        return effects, (f"effects from the plan these data follow (# {KEY}): {', '.join(plan) or 'none'}; the "
+                         "plan's predicted U holds for them")
     if not left and not added:
         return effects, None
     return effects, (f"the plan these data follow was made for the effects {', '.join(plan) or 'none'} (# {KEY}); "
