@@ -32,6 +32,9 @@ def test_a_plan_made_for_k3_writes_it_and_the_fit_takes_it(tmp_path, capsys):
     said = [n for n in other.notes if n.startswith("the plan these data follow was made for the effects")]
     assert len(said) == 1 and "left out: scale_cubic" in said[0], other.notes
     assert not any("planned_effects" in n for n in api.fit(csv, effects=PLANNED.split(",")).notes)
+    # the classical method fits none of them: it is not refused for effects nobody gave, and says so
+    classical = api.fit(csv, method="classical")
+    assert any(n.startswith("the data were planned for a joint fit with the effects") for n in classical.notes)
 
 
 def test_the_probes_k3_campaign_fitted_with_its_planned_effects(tmp_path):

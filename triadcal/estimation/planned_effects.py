@@ -61,10 +61,12 @@ def resolve(effects: Optional[Sequence[str]], campaign, method: str = "joint") -
     if plan is None:
         return list(DEFAULT_EFFECTS) if effects is None else list(effects), None
     given = effects is not None
-    effects = list(effects) if given else list(plan)
     if method != "joint":
-        return effects, (f"the data were planned for a joint fit with the effects {', '.join(plan) or 'none'} "
+        # the classical method fits no effects of the joint model: the plan's are not its (they made it
+        # refuse "--effects ... would be ignored" on a planned file that no --effects was given for)
+        return (list(effects) if given else list(DEFAULT_EFFECTS)), (f"the data were planned for a joint fit with the effects {', '.join(plan) or 'none'} "
                          f"(# {KEY}); the plan's predicted U holds for that fit, not for the {method} method")
+    effects = list(effects) if given else list(plan)
     left, added = [e for e in plan if e not in effects], [e for e in effects if e not in plan]
     if not given:
         return effects, (f"effects from the plan these data follow (# {KEY}): {', '.join(plan) or 'none'}; the "
