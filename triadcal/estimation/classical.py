@@ -319,7 +319,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         if Q_res is not None:
             fit_noise["residual_to_sd_ratio"] = [float(math.sqrt(r / s)) if s > 0 else None
                                                  for r, s in zip(Q_res, Q_sd)]
-    from .classical_structure import bench_shape, even_term, even_term_gate, geometry_variance
+    from .classical_structure import bench_shape, even_term, even_term_gate, geometry_variance, odd_term_gate
 
     shape = bench_shape(campaign.axis1_deg, campaign.axis2_deg)
     if use == "residuals":
@@ -502,12 +502,25 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
             all(d > 0 and r <= s * _chi2_ppf(0.99, d) / d for r, s, d in zip(Q_res, Q_sd, dof)):
         t_sigma, t_dof = sd_sigma, None
     g_nom = nominal_gravity(campaign.axis1_deg, campaign.axis2_deg).reshape(-1, 3)
+    from .planned_effects import planned
+
+    plan = planned(campaign) or ()
     even = even_term_gate([even_term(even_blocks[ai], g_nom, ai, known.known, shape, j)
                            for ai in range(3) for j in range(3)],
                           {a: ordered[f"S_{a}"].u for a in AXES}, {a: ordered[f"K_{a}"].value for a in AXES},
-                          campaign.output_unit, gates)
+                          campaign.output_unit, gates, planned="scale_nonlinearity" in plan)
     if even is not None:
         fit["orientation_even_term"] = even.to_dict()
+    # K3: the faces read (1 + K3) g, and only oblique poses (|g_a| between 0 and 1) tell it from K_a
+    odd, odd_note = odd_term_gate([even_term(even_blocks[ai], g_nom, ai, known.known, shape, power=3,
+                                             move_of=[b["pair"].difference[ai] for b in per_block])
+                                   for ai in range(3)],
+                                  {a: ordered[f"K_{a}"].u for a in AXES}, {a: ordered[f"K_{a}"].value for a in AXES},
+                                  G, campaign.output_unit, gates, planned="scale_cubic" in plan)
+    if odd is not None:
+        fit["orientation_odd_term"] = odd.to_dict()
+    if odd_note:
+        notes.append(odd_note)
     tilt = tilt_leak_gate(campaign, per_block, t_sigma, gates, noise_dof=t_dof)
     if tilt is not None:
         fit["tilt_leak"] = tilt.to_dict()
@@ -540,7 +553,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         if sensor_temps is not None:
             result.fit["sensor_temperatures_C"] = sensor_temps
     apply_gates(result, FitEvidence(converged=True, n_obs=3 * campaign.n_visits, n_free=15 * len(per_block),
-                                    extra=[redundancy] + [g for g in (tilt, drift, curvature, sensor_gate, even)
+                                    extra=[redundancy] + [g for g in (tilt, drift, curvature, sensor_gate, even, odd)
                                                                           if g is not None]),
                 config=gates)
     if result.status != "ok":

@@ -48,12 +48,14 @@ class EvenTerm:
     p: float              # two-sided, before Bonferroni
     dof: Optional[int]    # None: normal (known noise)
     tau: float            # the bench's scatter of the augmented model, output units (0 with the noise estimated)
-    bias_move: float      # mean over the setpoints of c beta_b, output units
+    bias_move: float      # mean over the setpoints of c beta_b, output units (power 3: of W_a^a, eq. 2's row norm)
     column: str = ""      # the axis j of g_j^2 (the output's own when empty)
+    power: int = 2        # 3: the odd term c g_a^3 (K3), which moves K_a, not S_a
+    beta: float = 0.0     # bias_move / c: how the estimate takes the term (mean over the setpoints)
 
     @property
     def label(self) -> str:
-        return f"g_{self.column or self.axis}^2 on w_{self.axis}"
+        return f"g_{self.column or self.axis}^{self.power} on w_{self.axis}"
 
 
 #: the wobble's variance relative to each axis's positioning error in the shape of the bench's scatter
@@ -106,11 +108,12 @@ def paule_mandel(chi2_of, dof: int, s2: np.ndarray, limit: float) -> tuple:
     return optimize.brentq(lambda t: chi2_of(t) - dof, lo, hi, xtol=1e-300, rtol=1e-7), True
 
 
-def _partial(blocks, f_all, v_of):
+def _partial(blocks, f_all, v_of, move_of=None):
     """Per block the weighted outputs and column ``f`` with the block's design projected out:
-    ``(f~, y~, beta_bias, resid_dof)`` lists."""
+    ``(f~, y~, beta, resid_dof)`` lists; ``beta`` the bias coefficient of ``f`` on the block's design,
+    or ``move_of[b] @ f`` (the functional by which the estimate takes ``f``) when ``move_of`` is given."""
     out = []
-    for (D, y, _, idx, _), f in zip(blocks, f_all):
+    for b, ((D, y, _, idx, _), f) in enumerate(zip(blocks, f_all)):
         w = 1.0 / np.sqrt(v_of(idx))
         Dw, yw, fw = D * w[:, None], y * w, f * w
         U_, sv, Vt = np.linalg.svd(Dw, full_matrices=False)
@@ -118,7 +121,10 @@ def _partial(blocks, f_all, v_of):
         Ur = U_[:, keep]
         ft, yt = fw - Ur @ (Ur.T @ fw), yw - Ur @ (Ur.T @ yw)
         coef = Vt[keep].T @ ((Ur.T @ fw) / sv[keep])        # g_a^2 on the block's design (weighted)
-        out.append((ft, yt, float(coef[3]) if D.shape[1] > 3 else 0.0, len(y) - int(np.sum(keep))))
+        if float(ft @ ft) <= 1e-20 * float(fw @ fw):      # the column lies in the design's span here
+            ft = np.zeros_like(ft)
+        beta = float(move_of[b] @ f) if move_of is not None else (float(coef[3]) if D.shape[1] > 3 else 0.0)
+        out.append((ft, yt, beta, len(y) - int(np.sum(keep))))
     return out
 
 
@@ -133,20 +139,25 @@ def _augmented(parts):
 
 
 def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.ndarray] = None,
-              column: Optional[int] = None) -> Optional[EvenTerm]:
+              column: Optional[int] = None, power: int = 2, move_of=None) -> Optional[EvenTerm]:
     """The test of ``c g_j^2`` on output ``ai`` (``column`` j, default ``ai``: K2); ``blocks``: ``(D, y, s2 or None, idx, tau_s)`` per setpoint
     block (design of :func:`.classical.residual_design`, mean outputs, known variances of the means,
     visits, their averaging times); ``g`` the nominal gravity per visit (n, 3); ``shape`` the bench's
     scatter per visit and axis (:func:`bench_shape`; None: isotropic, ``1 - g_a^2``). None when the
-    column lies in the model's span (every block) or no dof is left."""
+    column lies in the model's span (every block) or no dof is left.
+
+    ``power`` 3 tests the odd term ``c g_a^3`` (IEEE 1293's K3) instead: on the faces ``g_a^3 = g_a``, so
+    only poses with ``|g_a|`` strictly between 0 and 1 (a plan's oblique poses) tell it from the scale
+    factor; ``move_of`` (per block, the pairing's row ``difference[ai]``) gives how eq. 2's ``W_a^a``
+    takes the term (``bias_move``): all of ``c``, since the faces read ``(1 + K3) g``."""
     j = ai if column is None else column
-    f_all = [g[idx, j] ** 2 for _, _, _, idx, _ in blocks]
+    f_all = [g[idx, j] ** power for _, _, _, idx, _ in blocks]
     h = 1.0 - g[:, ai] ** 2 if shape is None else shape[:, ai]
     if known:
         s2 = _per_visit(blocks, 2, len(g))
 
         def chi2_at(t2):
-            return _augmented(_partial(blocks, f_all, lambda idx: s2[idx] + t2 * h[idx]))
+            return _augmented(_partial(blocks, f_all, lambda idx: s2[idx] + t2 * h[idx], move_of))
 
         c, ff, chi2, dof = chi2_at(0.0)
         t2 = 0.0
@@ -154,7 +165,7 @@ def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.nd
             # no root: the poses with the axis vertical scatter beyond their noise alone (the sd below
             # is then scaled by chi2/dof, as a Birge ratio)
             t2 = paule_mandel(lambda t: chi2_at(t)[2], dof, s2, 1e300)[0]
-        parts = _partial(blocks, f_all, lambda idx: s2[idx] + t2 * h[idx])
+        parts = _partial(blocks, f_all, lambda idx: s2[idx] + t2 * h[idx], move_of)
         c, ff, chi2, dof = _augmented(parts)
         if ff <= 0 or dof <= 0:
             return None
@@ -170,7 +181,7 @@ def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.nd
         # and the same term weighted by the known noise alone, its scale from the residuals (floored at
         # 1): a tau2 estimated near 0 where the bench scatters states c's sd too small (the independent
         # bench at 5"/2", 250 campaigns: |t| of 5 once); the answer is the less significant of the two
-        rel = _augmented(_partial(blocks, f_all, lambda idx: s2[idx]))
+        rel = _augmented(_partial(blocks, f_all, lambda idx: s2[idx], move_of))
         if rel[1] > 0 and rel[3] > 0:
             sd_r = math.sqrt(max(1.0, rel[2] / rel[3]) / rel[1])
             p_r = float(2.0 * stats.t.sf(abs(rel[0]) / sd_r, rel[3]))
@@ -178,7 +189,7 @@ def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.nd
                 c, sd, p, dof_out = rel[0], sd_r, p_r, rel[3]
     else:
         tau_s = _per_visit(blocks, 4, len(g))
-        parts = _partial(blocks, f_all, lambda idx: 1.0 / tau_s[idx])
+        parts = _partial(blocks, f_all, lambda idx: 1.0 / tau_s[idx], move_of)
         c, ff, chi2, dof = _augmented(parts)
         if ff <= 0 or dof <= 0:
             return None
@@ -187,16 +198,20 @@ def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.nd
             return None
         p = float(2.0 * stats.t.sf(abs(c) / sd, dof))
         tau, dof_out = 0.0, dof
-    move = float(np.mean([c * beta for _, _, beta, _ in parts]))
-    return EvenTerm(AXES[ai], c, sd, p, dof_out, tau, move, "" if j == ai else AXES[j])
+    beta = float(np.mean([beta for _, _, beta, _ in parts]))
+    return EvenTerm(AXES[ai], c, sd, p, dof_out, tau, c * beta, "" if j == ai else AXES[j], power, beta)
 
 
 def even_term_gate(terms: list, s_u: dict, k_of: dict, output_unit: str,
-                   config: GateConfig = DEFAULT_CONFIG) -> Optional[GateOutcome]:
+                   config: GateConfig = DEFAULT_CONFIG, planned: bool = False) -> Optional[GateOutcome]:
     """The gate over the outputs' :class:`EvenTerm` (None ones left out): fails (``model_mismatch``)
     when the smallest Bonferroni p over the tested terms is below ``gof_p_min`` and that term moves
     its output's bias by more than :data:`SHIFT_U_MIN` of ``S_a``'s u (``s_u``: g; ``k_of``: K_a, g per
-    output unit). None when no term could be tested."""
+    output unit). None when no term could be tested.
+
+    ``planned``: the data's plan names ``scale_nonlinearity`` (K2), which this method lacks; the gate then
+    fails too where an own-axis term the data cannot tell from 0 (:data:`HIDDEN_SD` SD of c) would move
+    S by more than :data:`SHIFT_U_MIN` u."""
     terms = [t for t in terms if t is not None]
     if not terms:
         return None
@@ -205,6 +220,8 @@ def even_term_gate(terms: list, s_u: dict, k_of: dict, output_unit: str,
     p_b = min(1.0, m * worst.p)
     move_u = abs(worst.bias_move * k_of[worst.axis]) / s_u[worst.axis] if s_u.get(worst.axis) else math.inf
     fails = p_b < config.gof_p_min and move_u > SHIFT_U_MIN
+    hidden = _hidden([t for t in terms if not t.column],
+                     lambda t, mv: abs(mv * k_of[t.axis]) / s_u[t.axis] if s_u.get(t.axis) else math.inf)
     a, j = worst.axis, worst.column or worst.axis
     each = ", ".join(f"{t.label}: c {t.c:.3g} +- {t.sd:.2g} {output_unit}" for t in terms)
     where = (f"the poses with {a} vertical against the rest" if j == a else
@@ -221,8 +238,81 @@ def even_term_gate(terms: list, s_u: dict, k_of: dict, output_unit: str,
                 "took it for the bench's scatter, whose random errors do not repeat at every setpoint; run "
                 "`triadcal diagnose`, or `triadcal fit --method joint`, whose structure gate tests it")
         reason += f" (p < {config.gof_p_min:g} and more than {SHIFT_U_MIN:g} u): the classical model lacks a term " + what
+    elif planned and hidden is not None and hidden[1] > SHIFT_U_MIN:
+        fails = True
+        reason += _planned_reason("scale_nonlinearity", "K2", f"S_{hidden[0].axis}", hidden, output_unit)
     return GateOutcome("orientation_even_term", not fails, "model_mismatch", reason, p_b,
                        f"Bonferroni p >= {config.gof_p_min:g} or the move of S <= {SHIFT_U_MIN:g} u")
+
+
+def odd_term_gate(terms: list, k_u: dict, k_of: dict, gravity_g: float, output_unit: str,
+                  config: GateConfig = DEFAULT_CONFIG, planned: bool = False) -> tuple:
+    """The gate over the outputs' odd terms ``c g_a^3`` (:func:`even_term` with ``power`` 3; None ones, on
+    plans with no oblique pose, left out): fails (``model_mismatch``) when the smallest Bonferroni p is
+    below ``gof_p_min`` and the term moves ``K_a`` by more than :data:`SHIFT_U_MIN` of its u. Eq. 2's
+    ``K_a = G / N_a`` with ``N_a`` moved by ``c beta``: ``dK_a = K_a^2 c beta / G`` (``k_u``, ``k_of``: g
+    per output unit). ``(gate, note)``, both None when no term could be tested; ``note`` says how far a
+    K3 the oblique poses cannot tell from 0 (:data:`HIDDEN_SD` SD of c) would move K (over
+    :data:`SHIFT_U_MIN` u). ``planned``: the data's plan names ``scale_cubic``, which this method lacks: then
+    that move fails the gate.
+
+    An outside probe (2026-12-02): a 24-position plan made for ``scale_cubic``, K3 = 12 ug/g^3, fitted by
+    the classical method: K 8-9 u off with status ok (the oblique poses only entered its noise estimate)."""
+    terms = [t for t in terms if t is not None]
+    if not terms:
+        return None, None
+    m = len(terms)
+    worst = min(terms, key=lambda t: t.p)
+    p_b = min(1.0, m * worst.p)
+    a = worst.axis
+    dK = k_of[a] ** 2 * worst.bias_move / gravity_g
+    move_u = abs(dK) / k_u[a] if k_u.get(a) else math.inf
+    fails = p_b < config.gof_p_min and move_u > SHIFT_U_MIN
+    hidden = _hidden(terms, lambda t, mv: abs(k_of[t.axis] ** 2 * mv / gravity_g) / k_u[t.axis]
+                     if k_u.get(t.axis) else math.inf)
+    note = None
+    if not fails and hidden is not None and hidden[1] > SHIFT_U_MIN:
+        note = (f"K holds for K3 = 0 (the classical model is linear in g): a cubic term the oblique poses cannot tell "
+                f"from 0 ({HIDDEN_SD:g} SD of c, {hidden[0].label} {HIDDEN_SD * hidden[0].sd:.2g} {output_unit}) would "
+                f"move K_{hidden[0].axis} by {hidden[1]:.3g} u; `triadcal fit --method joint` with `scale_cubic` "
+                "among --effects estimates K3 and widens K by it")
+    each = ", ".join(f"{t.label}: c {t.c:.3g} +- {t.sd:.2g} {output_unit}" for t in terms)
+    reason = (f"a term c {worst.label} (the oblique poses against the faces, the same at every setpoint; {each}): "
+              f"Bonferroni p = {p_b:.2g} over {m}" + ("" if worst.dof is None else f", Student's t on {worst.dof} dof")
+              + f"; left out it moves K_{a} by {move_u:.3g} u ({dK / k_of[a] * 1e6:+.3g} ppm)")
+    if fails:
+        reason += (f" (p < {config.gof_p_min:g} and more than {SHIFT_U_MIN:g} u): the classical model lacks a term odd "
+                   f"in the specific force along {a} (K3, a cubic sensitivity: the faces read (1 + K3) g, and eq. 2 "
+                   f"takes it into K_{a}); run `triadcal diagnose`, or `triadcal fit --method joint` with "
+                   "`scale_cubic` among --effects")
+    elif planned and hidden is not None and hidden[1] > SHIFT_U_MIN:
+        fails = True
+        reason += _planned_reason("scale_cubic", "K3", f"K_{hidden[0].axis}", hidden, output_unit)
+    return GateOutcome("orientation_odd_term", not fails, "model_mismatch", reason, p_b,
+                       f"Bonferroni p >= {config.gof_p_min:g} or the move of K <= {SHIFT_U_MIN:g} u"), (
+        None if fails else note)
+
+
+#: how many SD of c a term the data cannot tell from 0 may have, for the moves said of it
+HIDDEN_SD = 2.0
+
+
+def _hidden(terms, move_u):
+    """``(term, u)``: the term whose :data:`HIDDEN_SD` SD of c moves its estimate the most (in its u), by
+    ``move_u(term, move at that c)``; None with no term."""
+    best = None
+    for t in terms:
+        u = move_u(t, HIDDEN_SD * t.sd * t.beta)
+        if best is None or u > best[1]:
+            best = (t, u)
+    return best
+
+
+def _planned_reason(effect: str, symbol: str, moved: str, hidden, output_unit: str) -> str:
+    return (f"; the plan these data follow names `{effect}` (# planned_effects), which the classical method "
+            f"lacks: {symbol} as large as the data cannot tell from 0 ({HIDDEN_SD:g} SD, {hidden[0].label} "
+            f"{HIDDEN_SD * hidden[0].sd:.2g} {output_unit}) moves {moved} by {hidden[1]:.3g} u (more than "
+            f"{SHIFT_U_MIN:g}); fit with `--method joint`, for which the plan was made")
 
 
 #: the bench's shaped scatter may reach this many times the pooled residual level (chi2/dof of the
