@@ -225,3 +225,57 @@ def test_a_resume_with_another_emulated_unit_is_refused(tmp_path, emulated_captu
                         "--no-progress"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 1 and "holds visits of another emulated unit" in r.stderr, (r.returncode, r.stderr)
     assert "--emulate-preset" in r.stderr and (out / "emulator_truth.json").read_bytes() == before
+
+
+def _stepped_plan_file(path, effects=("bench_tilt", "scale_cubic"), setpoints=(20.0,), tau_s=10.0):
+    from triadcal.planning.plan import Plan
+
+    plan = Plan(setpoints_C=tuple(setpoints), positions=dict(DEFAULT_PLAN), tau_s=tau_s, name="probe")
+    path.write_text(json.dumps(plan.to_dict(predicted={"effects": list(effects)})), encoding="utf-8")
+    return path
+
+
+def test_capture_runs_a_stepped_plan_file_and_carries_its_effects(tmp_path):
+    """`capture --plan PLAN.json` (a stepped plan of `triadcal plan`): its setpoints, positions and tau
+    drive the emulated campaign and the effects it was made for reach the CSV's header, so a fit without
+    --effects fits them (docs/plan.md, "From the plan to the fit"). Before: a stepped plan file could
+    not drive a capture (--plan took a position CSV only) and a stepped capture wrote no planned effects."""
+    plan = _stepped_plan_file(tmp_path / "plan.json")
+    out = tmp_path / "camp"
+    env = dict(os.environ, OMP_NUM_THREADS="1", XDG_CACHE_HOME=str(tmp_path / "xdg"), MPLBACKEND="Agg")
+    r = subprocess.run([sys.executable, "-m", "triadcal", "capture", "--emulate", "--out", str(out), "--plan", str(plan),
+                        "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2", "--stab-window-s", "30",
+                        "--stab-hold-s", "30", "--emulate-effects", "bench_tilt", "--emulate-self-heating-tau-s", "60",
+                        "--emulate-seed", "3", "--no-progress"], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    text = (out / CSV_NAME).read_text()
+    assert "# planned_effects = bench_tilt,scale_cubic\n" in text
+    campaign = read_bench_csv(out / CSV_NAME)
+    assert campaign.n_visits == 12 and np.all(campaign.tau_s == 10.0)
+    assert sorted(set(campaign.position.tolist())) == sorted(DEFAULT_PLAN)
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--setpoints", "20,70"], r"--setpoints 20,70: the plan .* visits 20 degC"),
+    (["--setpoints", "20", "--tau-s", "30"], r"--tau-s 30: the plan .* says tau_s = 10 s"),
+])
+def test_a_plan_file_refuses_a_program_that_differs_from_it(tmp_path, capsys, extra, message):
+    """Setpoints or tau given besides a plan file and different from its: refused (exit 1) before any
+    instrument is opened (the data would carry the plan's effects and not follow it)."""
+    import re
+
+    from triadcal.cli import main
+
+    plan = _stepped_plan_file(tmp_path / "plan.json")
+    assert main(["capture", "--emulate", "--out", str(tmp_path / "c"), "--plan", str(plan), *extra]) == 1
+    assert re.search(message, capsys.readouterr().err)
+    assert not (tmp_path / "c").exists()
+
+
+def test_a_ramp_plan_given_to_plan_is_sent_to_ramp(tmp_path, capsys):
+    from triadcal.cli import main
+
+    assert main(["plan", "--ramp", "--target", "thermal_lag:U<=0.5min", "--range", "-40:70", "-o",
+                 str(tmp_path / "ramp.json"), "--quiet"]) == 0
+    assert main(["capture", "--emulate", "--out", str(tmp_path / "c"), "--plan", str(tmp_path / "ramp.json")]) == 1
+    assert "a ramp plan; run it with --ramp" in capsys.readouterr().err

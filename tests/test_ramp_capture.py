@@ -345,7 +345,7 @@ def test_ramp_and_setpoints_exclude_each_other_and_the_folder_kinds_do_not_mix(t
     path = tmp_path / "ramp.json"
     RampPlan(program_C=(20.0, -10.0, 20.0)).save(path)
     assert main(["capture", "--ramp", str(path), "--setpoints", "20", "--out", str(tmp_path / "o")]) == 1
-    assert "--setpoints (stepped) or --ramp" in capsys.readouterr().err
+    assert "--setpoints (stepped), --plan PLAN.json" in capsys.readouterr().err
     assert main(["capture", "--ramp", str(path), "--tau-s", "60", "--out", str(tmp_path / "o")]) == 1
     assert "tau_s = 30" in capsys.readouterr().err
     # a ramp capture's folder is not a stepped capture's, and the other way round

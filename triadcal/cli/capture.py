@@ -20,8 +20,11 @@ def register(sub) -> None:
                     "visits complete. Run the same command again to resume an interrupted campaign.")
     p.add_argument("--out", required=True, metavar="DIR", help="campaign directory")
     p.add_argument("--plan", default="default",
-                   help="'default' (the 12-position plan) or a CSV file position,axis1_deg,axis2_deg")
-    p.add_argument("--setpoints", help="chamber setpoints in degC, in order, e.g. 20,70,-40 (or --ramp)")
+                   help="'default' (the 12-position plan), a CSV file position,axis1_deg,axis2_deg, or the stepped "
+                        "plan file of 'triadcal plan' (PLAN.json: its setpoints, positions, repetitions and tau; the "
+                        "effects it was made for go into the CSV as # planned_effects)")
+    p.add_argument("--setpoints", help="chamber setpoints in degC, in order, e.g. 20,70,-40 (or --ramp, or a "
+                                       "plan file's)")
     p.add_argument("--ramp", metavar="RAMP_PLAN.json",
                    help="continuous ramp instead of setpoints: the ramp plan of 'triadcal plan --ramp'; the chamber "
                         "follows its program while the bench cycles through its positions, recording back to back, "
@@ -93,8 +96,14 @@ def run(args) -> int:
     from ..models.campaign import DEFAULT_PLAN
 
     out = output(args)
+    extra = {}
+    stepped = _stepped_plan(args)
+    if stepped is not None:
+        if stepped.effects is not None:        # the model the plan predicted U for: the fit's default effects
+            extra["planned_effects"] = ",".join(stepped.effects) or "none"
     if (args.setpoints is None) == (args.ramp is None):
-        raise InputError("give the chamber's program: --setpoints (stepped) or --ramp RAMP_PLAN.json (continuous)")
+        raise InputError("give the chamber's program: --setpoints (stepped), --plan PLAN.json (a stepped plan of "
+                         "'triadcal plan') or --ramp RAMP_PLAN.json (continuous)")
     ramp = None
     if args.ramp is not None:
         from ..hardware.ramp_capture import read_ramp_plan
@@ -106,7 +115,8 @@ def run(args) -> int:
             raise InputError(f"--tau-s {args.tau_s:g}: the ramp plan {args.ramp} says tau_s = {ramp.tau_s:g} s")
         args.tau_s = ramp.tau_s
     args.tau_s = 30.0 if args.tau_s is None else args.tau_s
-    plan = DEFAULT_PLAN if args.plan == "default" else plan_from_csv(args.plan)
+    plan = (stepped.visit_positions() if stepped is not None else DEFAULT_PLAN if args.plan == "default"
+            else plan_from_csv(args.plan))
     if args.config and args.instruments:
         raise InputError("give --config (a ports file) or --instruments (an instruments file), not both")
     if args.emulate:
@@ -132,7 +142,6 @@ def run(args) -> int:
             cfg[section][key] = value
     emulator = None
     unit = args.unit
-    extra = {}
     if args.emulate:
         emulator = build_emulator(args, tempfile.mkdtemp(prefix="triadcal-emulator-"), prefix="emulate-")
         emulator.start()
@@ -176,7 +185,7 @@ def run(args) -> int:
         if ramp is not None:
             raise InputError(f"{args.instruments}: --ramp needs an IMU with temperatures ([imu]); an analog unit "
                              "through [dmm] is captured at --setpoints")
-        return _run_voltmeter(args, out, plan, cfg, dmm_cfg, settings)
+        return _run_voltmeter(args, out, plan, cfg, dmm_cfg, settings, extra)
     try:
         imu, bench, chamber = open_instruments(cfg)
         settings.output_unit = imu_metadata(imu).get("output_unit", settings.output_unit)
@@ -240,7 +249,35 @@ def run(args) -> int:
     return 0
 
 
-def _run_voltmeter(args, out, plan, cfg, dmm_cfg, settings) -> int:
+def _stepped_plan(args):
+    """The stepped plan file of ``triadcal plan`` given as ``--plan PLAN.json`` (None for 'default' or a
+    position CSV): its setpoints and tau become ``args.setpoints`` and ``args.tau_s``; a value given
+    besides that differs from the plan's is refused (the data would not follow the plan whose predicted U
+    and effects they carry), as is a ramp plan (``--ramp``)."""
+    from pathlib import Path
+
+    if args.plan == "default" or Path(args.plan).suffix.lower() != ".json":
+        return None
+    from ..planning.plan import Plan
+    from ..planning.ramp import load_plan
+
+    plan = load_plan(args.plan)
+    if not isinstance(plan, Plan):
+        raise InputError(f"{args.plan}: a ramp plan; run it with --ramp {args.plan} (--plan takes a stepped plan "
+                         "of 'triadcal plan' or a position CSV)")
+    if args.ramp is not None:
+        raise InputError(f"--ramp: the positions come from the ramp plan {args.ramp}; do not give --plan")
+    setpoints = ",".join(f"{float(sp):g}" for sp in plan.setpoints_C)
+    if args.setpoints is not None and float_list(args.setpoints) != [float(sp) for sp in plan.setpoints_C]:
+        raise InputError(f"--setpoints {args.setpoints}: the plan {args.plan} visits {setpoints} degC; drop "
+                         "--setpoints (or make another plan)")
+    if args.tau_s is not None and args.tau_s != plan.tau_s:
+        raise InputError(f"--tau-s {args.tau_s:g}: the plan {args.plan} says tau_s = {plan.tau_s:g} s; drop --tau-s")
+    args.setpoints, args.tau_s = setpoints, float(plan.tau_s)
+    return plan
+
+
+def _run_voltmeter(args, out, plan, cfg, dmm_cfg, settings, extra=None) -> int:
     """``--instruments`` with ``[dmm]`` and no ``[imu]``: an analog unit, voltages from the meter(s),
     temperatures from the chamber's PV (hardware.voltmeter_capture.capture_voltmeter)."""
     from ..hardware.capture import CaptureError, open_bench
@@ -274,7 +311,8 @@ def _run_voltmeter(args, out, plan, cfg, dmm_cfg, settings) -> int:
         try:
             report = capture_voltmeter(args.out, plan=plan, setpoints_C=float_list(args.setpoints),
                                        voltmeter=voltmeter, bench=bench, chamber=chamber, settings=settings,
-                                       time_scale=time_scale, progress=_progress_bar(out))
+                                       time_scale=time_scale, progress=_progress_bar(out),
+                                       extra_metadata=extra or None)
         except (CaptureError, BenchError, DmmError) as exc:
             raise InputError(str(exc)) from None
         finally:

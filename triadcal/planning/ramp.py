@@ -170,7 +170,7 @@ def read_ramp_plan(path) -> "RampPlan":
     d = read_json(path)
     if isinstance(d, dict) and d.get("format") == "triadcal.plan":
         raise InputError(f"{path}: a stepped plan (format 'triadcal.plan'); capture --ramp takes a ramp plan "
-                         f"({RAMP_FORMAT!r}, written by 'triadcal plan --ramp'); run a stepped plan with --setpoints")
+                         f"({RAMP_FORMAT!r}, written by 'triadcal plan --ramp'); run a stepped plan with --plan PLAN.json")
     return RampPlan.from_dict(d, str(path))
 
 
