@@ -217,7 +217,9 @@ def test_a_resume_with_another_emulated_unit_is_refused(tmp_path, emulated_captu
     out = tmp_path / "campaign"
     shutil.copytree(emulated_capture, out)
     before = (out / "emulator_truth.json").read_bytes()
-    env = dict(os.environ, OMP_NUM_THREADS="1", XDG_CACHE_HOME=str(tmp_path / "xdg"), MPLBACKEND="Agg")
+    (tmp_path / "tmp").mkdir()
+    env = dict(os.environ, OMP_NUM_THREADS="1", XDG_CACHE_HOME=str(tmp_path / "xdg"), MPLBACKEND="Agg",
+               TMPDIR=str(tmp_path / "tmp"))
     r = subprocess.run([sys.executable, "-m", "triadcal", "capture", "--emulate", "--out", str(out),
                         "--setpoints", "20", "--time-scale", "240", "--emulate-rate-hz", "5", "--settle-s", "2",
                         "--stab-window-s", "30", "--stab-hold-s", "30", "--emulate-effects", "bench_tilt",
@@ -225,6 +227,8 @@ def test_a_resume_with_another_emulated_unit_is_refused(tmp_path, emulated_captu
                         "--no-progress"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 1 and "holds visits of another emulated unit" in r.stderr, (r.returncode, r.stderr)
     assert "--emulate-preset" in r.stderr and (out / "emulator_truth.json").read_bytes() == before
+    # the refused run's emulator folder is removed as a finished run's is (it was left behind)
+    assert sorted(p.name for p in (tmp_path / "tmp").iterdir() if p.name.startswith("triadcal-emulator-")) == []
 
 
 def _stepped_plan_file(path, effects=("bench_tilt", "scale_cubic"), setpoints=(20.0,), tau_s=10.0):

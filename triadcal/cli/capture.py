@@ -160,12 +160,12 @@ def run(args) -> int:
             try:
                 before = Truth.load(truth_path).to_dict()
             except (OSError, ValueError, KeyError, TypeError, InputError) as exc:
-                emulator.stop()
+                _stop_emulator(emulator)
                 raise InputError(f"{truth_path}: cannot be read ({exc}): the emulated unit of the rows already "
                                  "captured is not known; choose another --out") from None
             now = emulator.truth.to_dict()
             if before != now:
-                emulator.stop()
+                _stop_emulator(emulator)
                 differs = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
                 raise InputError(f"{args.out} holds visits of another emulated unit ({truth_path}: its "
                                  f"{', '.join(differs)} differ from this emulator's): a resume must emulate the same "
@@ -212,12 +212,7 @@ def run(args) -> int:
             chamber.close()
     finally:
         if emulator is not None:
-            emulator.stop()
-            # its folder (pty links, ports, a copy of the truth already saved in --out) was left in
-            # the temporary directory by every run: 112 of them after a day of tests
-            import shutil
-
-            shutil.rmtree(emulator.directory, ignore_errors=True)
+            _stop_emulator(emulator)
     r = report
     session_visits = r.visits_done - r.visits_done_before
     if ramp is not None:
@@ -247,6 +242,16 @@ def run(args) -> int:
     if emulator is not None:
         out.say(f"the emulator's frames: {fates_text(emulator.summary()['fates'])}")
     return 0
+
+
+def _stop_emulator(emulator) -> None:
+    """Stop the emulator and remove its folder (pty links, ports, a copy of the truth already saved in
+    --out): every run left it in the temporary directory, 112 after a day of tests, and a resume refused
+    for another emulated unit still did."""
+    import shutil
+
+    emulator.stop()
+    shutil.rmtree(emulator.directory, ignore_errors=True)
 
 
 def _stepped_plan(args):
