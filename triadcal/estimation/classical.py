@@ -210,7 +210,7 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
         raise InputError(f"{src}: a fit takes one unit in one mechanical state; found units {units} and "
                          f"states {sorted(set(campaign.state.tolist()))} (select one, e.g. with Campaign.select)")
     G = campaign.gravity_g
-    notes: list[str] = [campaign.gravity_note()] if campaign.gravity_note() else []
+    notes: list[str] = [n for n in (campaign.gravity_note(), campaign.thermometer_note()) if n]
     blocks = campaign.setpoint_blocks
     up = campaign.up_axis()
     block_ids = sorted(np.unique(blocks), key=lambda b: float(np.min(campaign.time_s[blocks == b])))

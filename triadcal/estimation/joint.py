@@ -367,6 +367,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
         notes.append(sensor_note)
     if campaign.gravity_note():
         notes.append(campaign.gravity_note())
+    if campaign.thermometer_note():
+        notes.append(campaign.thermometer_note())
     if bench_errors is not None:
         whitening = _bench_whitening(campaign, model, noise, bench_errors, whitening, notes)
     notes += lab_scope_notes(campaign, bench_errors, systematics)

@@ -69,6 +69,13 @@ def up_axis_label(axis1_deg, axis2_deg, threshold: float = 0.99):
     return np.array(out)
 
 
+
+#: every sensor's median distance from the chamber's setpoints beyond which a result notes it (degC; a
+#: self-heated unit reads 1-5 degC above, a ramp's lag a few degC behind its program)
+THERMOMETER_OFFSET_NOTE_C = 10.0
+#: the three sensors' median spread within a visit beyond which a result notes it (degC)
+THERMOMETER_SPREAD_NOTE_C = 5.0
+
 @dataclass
 class Campaign:
     """Visits of a bench campaign (one row of bench CSV v1 each).
@@ -153,6 +160,34 @@ class Campaign:
         return ("the data state no local gravity (# local_g_m_s2): standard gravity 9.80665 m/s^2 assumed, so K and S "
                 "are in g of it; a site's is 9.78-9.83 m/s^2 (up to 0.3 % in K, beyond these u): state it for a "
                 "certificate")
+
+    def thermometer_note(self) -> Optional[str]:
+        """A note when the thermometers read far from the chamber (every sensor's median of ``t - setpoint``
+        beyond :data:`THERMOMETER_OFFSET_NOTE_C`; not on a ramp, whose unit trails its program by its lag) or from each
+        other (their median spread within a visit beyond :data:`THERMOMETER_SPREAD_NOTE_C`), else None.
+        The fit takes the readings as the temperature: an oven-controlled unit reads so, but thermometers
+        off by ``d`` put every value "at T_ref" at the true ``T_ref - d``, moved by its tempco times ``d``
+        with status ok (a probe's file with readings 40 degC above the setpoints: no word)."""
+        S = np.asarray(self.setpoint_C, float)
+        t = np.asarray(self.t, float)
+        if t.size == 0 or not np.all(np.isfinite(t)):
+            return None
+        off = np.median(t - S[:, None], axis=0)
+        spread = float(np.median(np.ptp(t, axis=1)))
+        parts = []
+        ramp = (self.extra or {}).get("program_C") is not None
+        if not ramp and np.all(np.abs(off) > THERMOMETER_OFFSET_NOTE_C):
+            parts.append("the accelerometers' temperatures read " + ", ".join(f"{o:+.3g}" for o in off)
+                         + " degC (x, y, z) from the chamber's setpoints (median over the visits)")
+        if spread > THERMOMETER_SPREAD_NOTE_C:
+            parts.append(f"the three sensors differ by {spread:.3g} degC within a visit (median)")
+        if not parts:
+            return None
+        return ("; ".join(parts) + ": an oven-controlled or self-heated unit reads so, thermometers off by d do too; "
+                "the fit takes the readings as the temperature, so with thermometers off by d every value at the "
+                "reference temperature is the unit's at the true T_ref - d, moved by its tempco times d (a K "
+                "tempco of 20 ppm/degC and d = 10 degC: 200 ppm); check the thermometers, or state their "
+                "uncertainty as Type B ([thermometers] u_C of --lab)")
 
     @property
     def gravity_g(self) -> float:
