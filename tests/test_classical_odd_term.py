@@ -120,18 +120,20 @@ def test_clean_oblique_campaigns_are_not_refused_by_the_odd_term(tmp_path, sigma
         assert abs(np.mean(np.array(ps) < 0.05) - 0.05) < 3 * np.sqrt(0.05 * 0.95 / 100), ps
 
 
-def test_a_plan_for_k2_refuses_the_classical_fit_that_cannot_estimate_it(tmp_path):
+@pytest.mark.parametrize("effect", ["scale_nonlinearity", "scale_asymmetry"])
+def test_a_plan_for_k2_refuses_the_classical_fit_that_cannot_estimate_it(tmp_path, effect):
     """The even gate's twin: the example campaign (12 positions) with a plan line naming
-    scale_nonlinearity: K2 at 2 SD of what the data show (3.4 uV on y) moves S_y by 1.6 u, so the
-    classical result, ok without the line, is refused with it, naming the planned effect."""
+    scale_nonlinearity (or scale_asymmetry, c |g_a|, which the faces read as c g_a^2): a term at 2 SD
+    of what the data show (3.4 uV on y) moves S_y by 1.6 u, so the classical result, ok without the
+    line, is refused with it, naming the planned effect."""
     from triadcal import api
 
     src = Path(__file__).parents[1] / "examples" / "data" / "campaign.csv"
     assert api.fit(src, method="classical").status == "ok"
     path = tmp_path / "k2.csv"
-    path.write_text("# planned_effects = bench_tilt,angle_tempco,scale_tempco,bias_tempco,scale_nonlinearity\n"
+    path.write_text(f"# planned_effects = bench_tilt,angle_tempco,scale_tempco,bias_tempco,{effect}\n"
                     + src.read_text(), encoding="utf-8")
     res = api.fit(path, method="classical")
     gate = res.fit["orientation_even_term"]
     assert res.status == "model_mismatch" and not gate["passed"]
-    assert "names `scale_nonlinearity`" in gate["reason"], gate["reason"]
+    assert f"names `{effect}`" in gate["reason"], gate["reason"]

@@ -508,7 +508,8 @@ def fit_classical(campaign: Campaign, reference_temperature_C: float = 20.0, *,
     even = even_term_gate([even_term(even_blocks[ai], g_nom, ai, known.known, shape, j)
                            for ai in range(3) for j in range(3)],
                           {a: ordered[f"S_{a}"].u for a in AXES}, {a: ordered[f"K_{a}"].value for a in AXES},
-                          campaign.output_unit, gates, planned="scale_nonlinearity" in plan)
+                          campaign.output_unit, gates,
+                          planned=next((e for e in ("scale_nonlinearity", "scale_asymmetry") if e in plan), None))
     if even is not None:
         fit["orientation_even_term"] = even.to_dict()
     # K3: the faces read (1 + K3) g, and only oblique poses (|g_a| between 0 and 1) tell it from K_a

@@ -203,13 +203,14 @@ def even_term(blocks, g: np.ndarray, ai: int, known: bool, shape: Optional[np.nd
 
 
 def even_term_gate(terms: list, s_u: dict, k_of: dict, output_unit: str,
-                   config: GateConfig = DEFAULT_CONFIG, planned: bool = False) -> Optional[GateOutcome]:
+                   config: GateConfig = DEFAULT_CONFIG, planned: Optional[str] = None) -> Optional[GateOutcome]:
     """The gate over the outputs' :class:`EvenTerm` (None ones left out): fails (``model_mismatch``)
     when the smallest Bonferroni p over the tested terms is below ``gof_p_min`` and that term moves
     its output's bias by more than :data:`SHIFT_U_MIN` of ``S_a``'s u (``s_u``: g; ``k_of``: K_a, g per
     output unit). None when no term could be tested.
 
-    ``planned``: the data's plan names ``scale_nonlinearity`` (K2), which this method lacks; the gate then
+    ``planned``: the effect the data's plan names that this method lacks and that reads on the faces as
+    ``c g_a^2`` (``scale_nonlinearity``, K2; ``scale_asymmetry``, ``c |g_a|``), or None; the gate then
     fails too where an own-axis term the data cannot tell from 0 (:data:`HIDDEN_SD` SD of c) would move
     S by more than :data:`SHIFT_U_MIN` u."""
     terms = [t for t in terms if t is not None]
@@ -240,7 +241,8 @@ def even_term_gate(terms: list, s_u: dict, k_of: dict, output_unit: str,
         reason += f" (p < {config.gof_p_min:g} and more than {SHIFT_U_MIN:g} u): the classical model lacks a term " + what
     elif planned and hidden is not None and hidden[1] > SHIFT_U_MIN:
         fails = True
-        reason += _planned_reason("scale_nonlinearity", "K2", f"S_{hidden[0].axis}", hidden, output_unit)
+        reason += _planned_reason(planned, "K2" if planned == "scale_nonlinearity" else "an asymmetry",
+                                  f"S_{hidden[0].axis}", hidden, output_unit)
     return GateOutcome("orientation_even_term", not fails, "model_mismatch", reason, p_b,
                        f"Bonferroni p >= {config.gof_p_min:g} or the move of S <= {SHIFT_U_MIN:g} u")
 
