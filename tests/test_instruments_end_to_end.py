@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from scatter_gates import assert_right_or_scatter
 from triadcal.hardware.capture import CSV_NAME, EVENTS_NAME, STATE_NAME, load_instruments
 from triadcal.hardware.drivers.dmm import samples_for_tau
 from triadcal.hardware.emulator import Emulated34465A, EmulatorTiming, _Pty, emulate
@@ -62,7 +63,8 @@ def capture_cmd(instruments: Path, out: Path, tau_s: float, unit: str, settle_s:
 
 def fit_and_check(csv: Path, truth, tmp_path: Path, label: str, z_max: float = 3.0) -> dict:
     """`triadcal fit --method joint --effects bench_tilt` of the campaign; the angles, K and S
-    within ``z_max`` u of the emulator's truth, status ok, chi2/dof reported. Returns the z-scores.
+    within ``z_max`` u of the emulator's truth, status ok (or one refusal by a test of the data's
+    scatter, tests/scatter_gates.py), chi2/dof reported. Returns the z-scores.
 
     The DMM campaigns are deterministic (fixed seeds, the meter's own clock), so 3 u holds for
     them once and for all. The IMU stream's recording windows depend on the reader's timing,
@@ -83,7 +85,9 @@ def fit_and_check(csv: Path, truth, tmp_path: Path, label: str, z_max: float = 3
     for k in ("Ca_xy", "K_x", "S_x"):
         p = result["parameters"][k]
         print(f"[{label}]   {k}: {p['value']:.7g} +- {p['u']:.2g} {p['unit']} (truth {float(truth.parameters[k]):.7g})")
-    assert result["status"] == "ok", (result["status"], result.get("gates"))
+    # status ok; a capture's recording windows are a new draw on each run, so one of the gates that
+    # test the data's scatter may refuse it at its size of ~0.001 (tests/scatter_gates.py), nothing else
+    assert_right_or_scatter([result], max_refusals=1, label=(label, result["status"]))
     assert math.isfinite(chi2) and 0.3 < chi2 < 3.0, chi2
     bad = {k: v for k, v in z.items() if k in RECOVERED and not abs(v) < z_max}
     assert not bad, (bad, z)
