@@ -262,7 +262,10 @@ def test_the_temperature_column_sets_the_reference_temperature_and_range(tmp_pat
     the static samples and the range is theirs, with a note of the span (an outside probe: reported and
     certified "at the reference temperature 20 degC", S 6-10 u from the truth there). Each hold is at
     one temperature here (the moves between them ramp), so the static mean is the holds' mean, by hand.
-    Without the column the 20 degC is nominal and the certificate says the recording's temperature."""
+    Without the column the 20 degC is nominal and the certificate says the recording's temperature.
+    With it, a tempco the fit leaves out moves the values by more than their u (the gate unseen_tempco,
+    tests/test_raw_unseen_tempco.py): refused until the unit's tempco bounds are stated, then ok with
+    every u widened by their Type B."""
     from triadcal.cli import main as cli
 
     ups = twelve_poses()
@@ -272,10 +275,16 @@ def test_the_temperature_column_sets_the_reference_temperature_and_range(tmp_pat
                   np.repeat(hold_T, 2))
     p = write_recording(tmp_path / "t.csv", w, extra={"temp_C": T})
     rc, err = run_cli(capsys, p, "--rate", RATE, "--poses", "unknown", "--local-g", "9.81", "--temperature-column",
-                      "temp_C", "--json", tmp_path / "r.json")
+                      "temp_C", "--json", tmp_path / "u.json")
+    assert rc == 3 and "gate unseen_tempco failed (unidentifiable)" in err and "--scale-tempco-bound" in err, err
+    u = json.loads((tmp_path / "u.json").read_text())
+    assert u["status"] == "unidentifiable" and u["reference_temperature_C"] == pytest.approx(hold_T.mean(), abs=0.05)
+    rc, err = run_cli(capsys, p, "--rate", RATE, "--poses", "unknown", "--local-g", "9.81", "--temperature-column",
+                      "temp_C", "--bias-tempco-bound", "50", "--scale-tempco-bound", "20", "--json", tmp_path / "r.json")
     assert rc == 0, err
     r = json.loads((tmp_path / "r.json").read_text())
     assert r["status"] == "ok"
+    assert all(r["parameters"][n]["u"] > u["parameters"][n]["u"] for n in ("K_x", "S_y", "Ca_xy"))
     assert r["reference_temperature_C"] == pytest.approx(hold_T.mean(), abs=0.05)        # 31.5
     assert r["temperature_range_C"] == pytest.approx([25.0, 38.0], abs=0.05)
     assert any("spans 25.0 .. 38.0 degC" in n and "fits no thermal terms" in n for n in r["notes"]), r["notes"]

@@ -64,6 +64,13 @@ def register(sub) -> None:
     p.add_argument("--temperature-column", metavar="COLUMN", default=None,
                    help="column with the unit's temperature in degC; with --diagnose the bias tempco is a "
                         "candidate (docs/diagnosis.md, \"Diagnosing real recordings\")")
+    p.add_argument("--bias-tempco-bound", type=float, default=None, metavar="UG_PER_DEGC",
+                   help="with --temperature-column: the largest bias tempco of the unit (ug/degC, a datasheet's): "
+                        "what it moves, where the poses' temperatures differ, enters the u as Type B (else the "
+                        "gate unseen_tempco judges it; docs/raw.md)")
+    p.add_argument("--scale-tempco-bound", type=float, default=None, metavar="PPM_PER_DEGC",
+                   help="with --temperature-column: the largest scale-factor tempco (ppm/degC), as "
+                        "--bias-tempco-bound")
     p.add_argument("--diagnose", metavar="OUT.json",
                    help="after the fit, diagnose the static intervals (where the residual lies, which candidate "
                         "term shrinks it on held-out intervals) and write a triadcal.diagnosis JSON "
@@ -110,6 +117,12 @@ def check_options(args) -> None:
         raise InputError("--bench-csv needs known poses (--poses known): free orientations have no bench angles")
     if args.posterior and not args.sample:
         raise InputError("--posterior needs sampling (--sample)")
+    for option, value in (("--bias-tempco-bound", args.bias_tempco_bound),
+                          ("--scale-tempco-bound", args.scale_tempco_bound)):
+        _number(option, value, low_open=False, what="a tempco's largest magnitude")
+        if value is not None and args.temperature_column is None:
+            raise InputError(f"{option} needs the unit's temperature (--temperature-column): without it the "
+                             "poses' temperatures are not known")
 
 
 def run(args) -> int:
@@ -131,6 +144,7 @@ def run(args) -> int:
         out = fit_raw(args.data, args.rate, columns=name_list(args.columns) if args.columns else None,
                       unit=args.unit, poses=args.poses, labels=args.labels, intervals=args.intervals,
                       temperature_column=args.temperature_column, local_g_override=args.local_g_override,
+                      tempco_bounds={"bias": args.bias_tempco_bound, "scale": args.scale_tempco_bound},
                       local_g_m_s2=args.local_g, placement_sd_deg=args.placement_sd_deg,
                       misalignment_sd_deg=args.misalignment_sd_deg,
                       counts_per_g=args.counts_per_g, serial=args.serial, window_s=args.static_window_s,

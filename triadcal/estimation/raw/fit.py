@@ -16,6 +16,7 @@ from ...io.raw import RawRecording, check_declared_unit, read_intervals, read_ra
 from ...models.campaign import Campaign
 from ...models.units import STANDARD_GRAVITY_M_S2
 from .motion import interval_turns, turning_gate
+from .tempco import apply_unseen_tempco, unseen_tempco
 from ..gates import (
     add_outcome,
     DEFAULT_CONFIG,
@@ -189,7 +190,8 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
             min_duration_s: float = 2.0, json_path=None, bench_csv_path=None, sample: bool = False,
             posterior_path=None, priors=None, ess: float = 2000, seed: int = 0, max_steps: int = 20000,
             progress=None, n_walkers: Optional[int] = None, gates: GateConfig = DEFAULT_CONFIG,
-            temperature_column: Optional[str] = None, local_g_override: bool = False) -> RawFit:
+            temperature_column: Optional[str] = None, local_g_override: bool = False,
+            tempco_bounds: Optional[dict] = None) -> RawFit:
     """Calibrate from a raw recording (``triadcal fit-raw``).
 
     ``data`` is a CSV path (read with :func:`triadcal.io.raw.read_raw_csv` at the stated
@@ -204,7 +206,10 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
     receives the arviz InferenceData, ``priors`` overrides :func:`raw_priors` by name, ``ess``,
     ``seed``, ``max_steps``, ``progress`` as in :func:`triadcal.estimation.posterior.sample`.
     ``temperature_column``: a column of the file with the unit's temperature (degC), kept on the
-    recording for the diagnosis (``diagnose_raw``); the calibration does not use it.
+    recording for the diagnosis (``diagnose_raw``) and for the gate ``unseen_tempco``
+    (:mod:`.tempco`): where the poses' temperatures differ, what a bias or scale tempco the fit leaves
+    out moves; ``tempco_bounds`` {"bias": ug/degC, "scale": ppm/degC}, a datasheet's bounds stated by the
+    user, carry it into the u as Type B instead.
     ``local_g_override``: accept a local g outside Earth's surface range (:func:`check_raw_options`).
     ``local_g_m_s2`` None (not stated): :data:`ASSUMED_LOCAL_G_M_S2` is used, the result says so
     (``extra.local_g_stated`` false, a note with what it can cost K and S) and no certificate is issued.
@@ -237,7 +242,7 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
                                  json_path=json_path, bench_csv_path=bench_csv_path, sample=sample,
                                  posterior_path=posterior_path, priors=priors, ess=ess, seed=seed,
                                  max_steps=max_steps, progress=progress, n_walkers=n_walkers, gates=gates,
-                                 local_g_stated=local_g_stated)
+                                 local_g_stated=local_g_stated, tempco_bounds=tempco_bounds)
     except StaticIntervalError as exc:
         if str(rec.source) in str(exc):
             raise
@@ -246,7 +251,8 @@ def fit_raw(data, rate_hz: Optional[float] = None, *, columns: Optional[Sequence
 
 def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, placement_sd_deg,
                       misalignment_sd_deg, counts_per_g, json_path, bench_csv_path, sample, posterior_path, priors,
-                      ess, seed, max_steps, progress, n_walkers, gates, local_g_stated=True) -> RawFit:
+                      ess, seed, max_steps, progress, n_walkers, gates, local_g_stated=True,
+                      tempco_bounds=None) -> RawFit:
     campaign = None
     if poses == "known":
         result, problem, sol = fit_known_poses(avg, gravity_g=gravity_g, scale_unit=rec.scale_unit,
@@ -269,6 +275,8 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
         add_outcome(result, gate)
     if note:
         result.notes.append(note)
+    tempco = _unseen_tempco_block(result, rec, avg, poses, gravity_g, serial, misalignment_sd_deg, gates,
+                                  tempco_bounds)
     run = None
     if sample:
         opts = dict(serial=serial, scale_unit=rec.scale_unit, priors=priors, posterior_path=posterior_path,
@@ -301,6 +309,8 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
     if not local_g_stated:
         result.notes.append(assumed_g_note(result))
     recording_temperature(result, rec, avg)
+    if tempco is not None:
+        add_outcome(result, apply_unseen_tempco(result, tempco))
     if json_path is not None:
         result.save(json_path)
     if bench_csv_path is not None:
@@ -315,7 +325,35 @@ def _fit_raw_detected(rec, det, avg, *, poses, gravity_g, serial, local_g_m_s2, 
 
 
 #: a recording whose static intervals span more than this (degC) gets a note of what the span can cost
+#: and the gate ``unseen_tempco``
 TEMPERATURE_SPAN_NOTE_C = 1.0
+
+
+def _unseen_tempco_block(result, rec, avg, poses, gravity_g, serial, misalignment_sd_deg, gates, bounds):
+    """:func:`.tempco.unseen_tempco` of the least-squares ``result`` where the static intervals'
+    temperatures span more than :data:`TEMPERATURE_SPAN_NOTE_C`; the refits hold the placement SD the
+    fit chose (known poses) and weight the gravity norms by the noise of the means (free poses)."""
+    if rec.temperature_C is None or result.status not in ("ok", "model_mismatch"):
+        return None
+    T = np.concatenate([rec.temperature_C[a:b] for a, b in zip(avg.start, avg.end)])
+    if not float(np.max(T) - np.min(T)) > TEMPERATURE_SPAN_NOTE_C:
+        return None
+    pose_T = np.array([np.mean(rec.temperature_C[a:b]) for a, b in zip(avg.start, avg.end)])
+    if poses == "known":
+        sd = float(result.fit["placement_sd_deg"])
+
+        def refit(w):
+            r, _, s = fit_known_poses(replace(avg, w=w), gravity_g=gravity_g, scale_unit=rec.scale_unit,
+                                      serial=serial, placement_sd_deg=sd, misalignment_sd_deg=misalignment_sd_deg,
+                                      gates=gates)
+            return r, float(s.r @ s.r)
+    else:
+        noise = float(result.fit["noise_variance_g2"])
+
+        def refit(w):
+            r, _, s = fit_unknown_poses(rec, replace(avg, w=w), gravity_g=gravity_g, serial=serial, gates=gates)
+            return r, float(s.r @ s.r) / noise
+    return unseen_tempco(result, avg.w, pose_T, float(np.mean(T)), refit, bounds)
 
 
 def recording_temperature(result: CalibrationResult, rec: RawRecording, avg: PoseAverages) -> None:
