@@ -148,6 +148,9 @@ def test_cli_budget_refuses_unknown_unit():
     (("--thermal", "--accelerometer", "AK-15", "--K", "5", "--sigma1", "0"),
      "--K, --sigma1 are eq. 4's (the bench test): not used by --thermal"),
     (("--thermal", "--T0", "-300"), "--T0 (T0_C) = -300: must be >= -273.15"),
+    # an outside probe: the other budget's options at their default values were accepted in silence
+    (("--thermal", "--K", "1"), "--K is eq. 4's (the bench test): not used by --thermal"),
+    (("--T0", "20", "--dT", "0.2"), "--dT, --T0 are eq. 5-7's: add --thermal"),
     (("--thermal", "--cte-body", "22.9", "--cte-accelerometer", "15"), "beyond any solid's expansion"),
     (("--K", "1e300", "--Q", "1e300"), "the budget overflows"),
 ])

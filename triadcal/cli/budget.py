@@ -14,25 +14,25 @@ def register(sub) -> None:
                     "11.52\"), with the standard deviation of the classical estimate per angle for comparison. "
                     "--thermal: eq. 5-7, thermal drift of the axes for a unit of the paper's Table 1 "
                     "(--accelerometer) or for all of them.")
-    p.add_argument("--K", type=float, default=1.0, metavar="G_PER_V", help="scale factor K, g/V (default 1)")
-    p.add_argument("--Q", type=float, default=3e-9, metavar="V2S", help="white-noise intensity, V^2 s (default 3e-9)")
-    p.add_argument("--tau", type=float, default=30.0, metavar="S", help="averaging time per position, s (default 30)")
-    p.add_argument("--sigma1", type=float, default=5.0, metavar="ARCSEC",
+    p.add_argument("--K", type=float, default=None, metavar="G_PER_V", help="scale factor K, g/V (default 1)")
+    p.add_argument("--Q", type=float, default=None, metavar="V2S", help="white-noise intensity, V^2 s (default 3e-9)")
+    p.add_argument("--tau", type=float, default=None, metavar="S", help="averaging time per position, s (default 30)")
+    p.add_argument("--sigma1", type=float, default=None, metavar="ARCSEC",
                    help="bench positioning error, arcsec (default 5)")
-    p.add_argument("--sigma2", type=float, default=2.0, metavar="ARCSEC", help="wobble of the axes, arcsec (default 2)")
-    p.add_argument("--G", type=float, default=1.0, metavar="G", help="local gravity, g (default 1)")
+    p.add_argument("--sigma2", type=float, default=None, metavar="ARCSEC", help="wobble of the axes, arcsec (default 2)")
+    p.add_argument("--G", type=float, default=None, metavar="G", help="local gravity, g (default 1)")
     p.add_argument("--thermal", action="store_true", help="thermal drift budget, eq. 5-7")
     p.add_argument("--accelerometer", metavar="NAME",
                    help="unit of Table 1 (A-18, AK-15, BA-3, A-18T, AK-18, AAK-02, QA-3000); default: all")
     p.add_argument("--k-ca", type=float, default=None, metavar="ARCSEC_PER_C",
                    help="tempco of the reference plane for eq. 7 (default 1.5 quartz, 6 silicon)")
-    p.add_argument("--dT", type=float, default=0.2, metavar="DEGC", help="temperature error, degC (default 0.2)")
-    p.add_argument("--cte-body", type=float, default=22.9e-6, metavar="PER_C",
+    p.add_argument("--dT", type=float, default=None, metavar="DEGC", help="temperature error, degC (default 0.2)")
+    p.add_argument("--cte-body", type=float, default=None, metavar="PER_C",
                    help="CTE of the IMU body parts, 1/degC (default 22.9e-6, D-16)")
-    p.add_argument("--cte-accelerometer", type=float, default=15e-6, metavar="PER_C",
+    p.add_argument("--cte-accelerometer", type=float, default=None, metavar="PER_C",
                    help="CTE of the accelerometer body, 1/degC (default 15e-6, steel)")
-    p.add_argument("--T-max", type=float, default=85.0, metavar="DEGC", help="maximum temperature, degC (default 85)")
-    p.add_argument("--T0", type=float, default=20.0, metavar="DEGC", help="normal temperature, degC (default 20)")
+    p.add_argument("--T-max", type=float, default=None, metavar="DEGC", help="maximum temperature, degC (default 85)")
+    p.add_argument("--T0", type=float, default=None, metavar="DEGC", help="normal temperature, degC (default 20)")
     p.add_argument("--json", metavar="OUT", help="write the budget tables (triadcal.budget v1)")
     add_output_options(p)
     p.set_defaults(func=run)
@@ -55,7 +55,7 @@ def _table(b) -> str:
     return "\n".join(lines)
 
 
-#: the options of each budget and their defaults: an option of the other budget given is refused
+#: the options of each budget and their defaults (the parser's are None): an option of the other budget given is refused
 #: (an outside probe: `budget --dT 5` and `budget --thermal --K 5` printed the unchanged table, exit 0)
 EQ4_OPTIONS = {"K": 1.0, "Q": 3e-9, "tau": 30.0, "sigma1": 5.0, "sigma2": 2.0, "G": 1.0}
 THERMAL_OPTIONS = {"k_ca": None, "dT": 0.2, "cte_body": 22.9e-6, "cte_accelerometer": 15e-6, "T_max": 85.0,
@@ -68,9 +68,14 @@ def run(args) -> int:
 
     own, other, why = ((THERMAL_OPTIONS, EQ4_OPTIONS, "eq. 4's (the bench test): not used by --thermal")
                        if args.thermal else (EQ4_OPTIONS, THERMAL_OPTIONS, "eq. 5-7's: add --thermal"))
-    given = ["--" + k.replace("_", "-") for k, v in other.items() if getattr(args, k) != v]
+    # given at all, whatever its value (the defaults are None: `--K 1 --thermal`, the default's value, was
+    # accepted in silence by a check against the default -- an outside probe)
+    given = ["--" + k.replace("_", "-") for k in other if getattr(args, k) is not None]
     if given:
         raise InputError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} {why}")
+    for k, v in {**EQ4_OPTIONS, **THERMAL_OPTIONS}.items():
+        if getattr(args, k) is None:
+            setattr(args, k, v)
     out = output(args)
     tables = budget(thermal=args.thermal, accelerometer_name=args.accelerometer, K_g_per_V=args.K, Q_V2s=args.Q,
                     tau_s=args.tau, sigma1_arcsec=args.sigma1, sigma2_arcsec=args.sigma2, G_g=args.G,
