@@ -62,6 +62,24 @@ def test_stepped_plan_holds_the_thermal_lag_and_predicts_no_U_for_it(tmp_path):
     assert all(t["met"] for t in pred["target"].values())
 
 
+@pytest.mark.parametrize("effect,kind", [("bias_warmup", "S"), ("scale_warmup", "K")])
+def test_a_warmup_whose_time_constant_is_held_has_its_offsets_held_too(tmp_path, effect, kind):
+    """An outside probe: --effects bench_tilt,bias_warmup planned "met" with S_x_warmup at a predicted U
+    of 3.9e12 g (K_x_warmup 1.05e13 ppm), only the time constant listed as not estimated; its own
+    simulation of the plan, fitted with the effect, was refused by warmup_seen and warmup_offsets. The
+    offsets go with their time constant, and the reason says to fit without the effect."""
+    pred_path = tmp_path / "pred.json"
+    assert main(["plan", "--target", "Ca:U<=5arcsec", "--effects", f"bench_tilt,{effect}", "--range", "-40:85",
+                 "-o", str(tmp_path / "p.json"), "--json", str(pred_path), "--quiet"]) == 0
+    pred = json.loads(pred_path.read_text())
+    held = pred["assumptions"]["not_estimated"]
+    assert f"{kind}_warmup_tau" in held
+    for a in "xyz":
+        assert f"{kind}_{a}_warmup" in held and "warmup_seen" in held[f"{kind}_{a}_warmup"], held
+        assert f"{kind}_{a}_warmup" not in pred["parameters"]
+        assert f"{kind}_{a}_warmup" not in json.loads((tmp_path / "p.json").read_text())["predicted"]["U"]
+
+
 def test_target_on_thermal_lag_cannot_be_met_by_a_stepped_plan(tmp_path, capsys):
     code = main(["plan", "--target", "Ca:U<=5arcsec, thermal_lag:U<=1min", "--effects", LAG_EFFECTS,
                  "--range", "-40:85", "--positions", "12", "-o", str(tmp_path / "p.json")])

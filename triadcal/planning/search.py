@@ -214,6 +214,25 @@ CRITERION = ("the fewest chamber hours whose predicted U (Fisher information, be
 HELD_NEGLIGIBLE = 0.01
 
 
+def warmup_offsets_held(d, hold: Mapping) -> dict:
+    """The offsets at power-on of a warm-up whose time constant the plan holds (``hold``): with the
+    time constant held the offsets' columns are those of a transient over before the first visit
+    (an outside probe: ``--effects bench_tilt,bias_warmup`` planned "met" with ``S_x_warmup`` at a
+    predicted U of 3.9e12 g, and the fit of the planned campaign was refused by ``warmup_seen`` and
+    ``warmup_offsets``). Held with the time constant, and said: the fit must leave the effect out."""
+    out = {}
+    for tau, kind, effect in (("S_warmup_tau", "S", "bias_warmup"), ("K_warmup_tau", "K", "scale_warmup")):
+        if tau in hold:
+            for a in "xyz":
+                n = f"{kind}_{a}_warmup"
+                if n in d.names:
+                    out[n] = (f"the warm-up's time constant is held (not determined by this plan), so its offset at "
+                              f"power-on is a transient over before the first visit that the data cannot show: the "
+                              f"fit of this plan's campaign with {effect} is refused (warmup_seen); fit without it, "
+                              "which it does not move, or record from power-on")
+    return out
+
+
 def requested_but_held(d, effects: Sequence[str], exempt: Mapping = ()) -> dict:
     """The parameters of the effects asked for (``effects``, i.e. --effects) that the plan of ``d``
     holds (``d.problems``), name -> reason; ``exempt`` (the time constants a stepped plan holds by
@@ -446,6 +465,7 @@ def search(target_text: str, lo: float, hi: float, *, lab=None, Q_V2s: float = D
                 continue
             # the fit's gates on time constants: hold those the plan cannot determine (thermal_lag)
             hold = undetermined_time_constants(d, Q_V2s, max(taus), max(repetitions), at_rest=True)
+            hold.update(warmup_offsets_held(d, hold))
             if hold:
                 d = design(plan, effects, lab, preset, hold={**d.problems, **hold})
             if targets is None:
