@@ -32,17 +32,9 @@ SHAREABLE_EQUIPMENT = SHAREABLE_SECTIONS
 
 # NOT_PASS_NOTE (a held-back verdict's note starts with it), refusals and hold-backs of a comparison's own (a negative rho, data out of order, a held-back note)
 from .guards import (BENCH_MOUNTED, NEGATIVE_RHO_REASON, NOT_PASS_NOTE, _held_note, _hold,  # noqa: E402,F401
-                     bench_contradicts_sharing, check_data_order)
-
-
-def same_calibration(before: CalibrationResult, after: CalibrationResult) -> bool:
-    """True when ``before`` and ``after`` are one calibration: same unit, method and source, and
-    every parameter's value and u identical (a file compared with itself or a copy of it)."""
-    if (before.unit, before.method, before.extra.get("source")) != (after.unit, after.method, after.extra.get("source")):
-        return False
-    if set(before.parameters) != set(after.parameters):
-        return False
-    return all(before[n].value == after[n].value and before[n].u == after[n].u for n in before.parameters)
+                     COPY_Z_MAX, bench_contradicts_sharing, check_data_order, copied_data,
+                     same_calibration)
+from .rotation import rotation_verdict  # noqa: E402
 
 
 def shared_sha256(before: Mapping, after: Mapping) -> Optional[str]:
@@ -464,6 +456,9 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
         if bench_contradicts_sharing(bench, bench_shared, level, params, overall, alt,
                                      overall_verdict(alt.parameters, alt.joint, tolerance_arcsec), notes):
             overall, held_back = "inconclusive", True
+    if angles:
+        overall, held_back = rotation_verdict(d, cov, angles, level, before, after, shared_equipment, overall,
+                                              held_back, notes)
     if same_calibration(before, after):
         src = before.extra.get("source")
         notes.insert(0, NOT_PASS_NOTE + f"{tag_b} and {tag_a} are the same calibration (unit {before.unit}, method "
@@ -477,6 +472,13 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
                      "of the estimators and options, not a drift of the unit, and u(d), which treats them as two "
                      "independent calibrations, is not the uncertainty of that difference; compare two "
                      "calibrations")
+    copy = None if data or same_calibration(before, after) else copied_data(params)
+    if copy is not None:
+        notes.insert(0, NOT_PASS_NOTE + f"{tag_b} and {tag_a} agree in all {len(params)} parameters to within "
+                     f"{COPY_Z_MAX:g} of u(d) (largest |z| {copy:.2g}), which two independent calibrations do with "
+                     "a probability below 1e-23: they are fits of the same data (a copy re-exported -- rows "
+                     "reordered, numbers rewritten, times moved -- has another data_sha256), not two "
+                     "calibrations; compare two calibrations")
     src_b, src_a = before.extra.get("source"), after.extra.get("source")
     if not data and src_b and src_b == src_a and not (before.extra.get("data_sha256") and after.extra.get("data_sha256")):
         # an outside probe removed data_sha256 from a joint and a classical fit of one file: compare said pass
@@ -496,7 +498,7 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
             + f" -- significant after Holm's correction over the {len(_unjudged(params))} parameters without a "
             "tolerance (family-wise false alarms at most " + f"{1 - level:.0%}" + "); they enter the overall verdict "
             "only with a tolerance: give --param-tolerance NAME=VALUE to judge them")
-    if overall == "pass" and (same_calibration(before, after) or missing_angles or moved):
+    if overall == "pass" and (same_calibration(before, after) or missing_angles or moved or copy is not None):
         overall = "inconclusive"
     if data:  # a "fail" between two fits of one data set would name a drift the unit never had
         overall = "inconclusive"
