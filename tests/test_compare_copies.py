@@ -126,3 +126,37 @@ def test_a_single_angle_that_moved_still_fails(tmp_path):
           str(tmp_path / "c.json")])
     c = json.loads((tmp_path / "c.json").read_text())
     assert c["overall"] == "fail" and not any("rigid rotation" in n for n in c["notes"]), (c["overall"], c["notes"])
+
+
+# -- a drift that is the tempcos times one temperature error (judgement/compare/thermometer.py) ---------------
+
+def _range_fit(seed, truth=None, dT=0.0):
+    from dataclasses import replace
+
+    text, t = simulate_campaign(np.random.default_rng(seed), truth=truth, setpoints_C=(-10.0, 20.0, 50.0))
+    c = parse_bench_csv(text)
+    if dT:
+        c = replace(c, t=c.t + dT)                     # the thermometers read dT high
+    return fit(c), t
+
+
+def test_a_thermometer_read_differently_is_not_the_unit_failing(tmp_path):
+    """The independent bench's unit twice over -10..50 degC, unchanged; the after campaign's thermometers
+    0.5 degC high: every value with a tempco moves by -c x 0.5. Fitted back: delta within 0.1 degC of
+    0.5, and the fail held back as inconclusive; the same pair without the offset gets no such note."""
+    rb, truth = _range_fit(41)
+    ra, _ = _range_fit(141, truth=truth, dT=0.5)
+    rc, _ = _range_fit(241, truth=truth)
+    assert rb.status == ra.status == rc.status == "ok"
+    for r, name in ((rb, "b"), (ra, "a"), (rc, "c")):
+        r.save(tmp_path / f"{name}.json")
+    main(["compare", str(tmp_path / "b.json"), str(tmp_path / "a.json"), "--tolerance", "none", "--json",
+          str(tmp_path / "ba.json")])
+    c = json.loads((tmp_path / "ba.json").read_text())
+    note = next(n for n in c["notes"] if "one temperature error" in n)
+    delta = float(note.split("thermometers read ")[1].split(" +- ")[0])
+    assert abs(delta - 0.5) < 0.1 and c["overall"] == "inconclusive", (delta, c["overall"])
+    main(["compare", str(tmp_path / "b.json"), str(tmp_path / "c.json"), "--tolerance", "none", "--json",
+          str(tmp_path / "bc.json")])
+    c = json.loads((tmp_path / "bc.json").read_text())
+    assert not any("one temperature error" in n for n in c["notes"]), c["notes"]

@@ -35,6 +35,7 @@ from .guards import (BENCH_MOUNTED, NEGATIVE_RHO_REASON, NOT_PASS_NOTE, _held_no
                      COPY_Z_MAX, bench_contradicts_sharing, check_data_order, copied_data,
                      same_calibration)
 from .rotation import rotation_verdict  # noqa: E402
+from .thermometer import thermometer_verdict  # noqa: E402
 
 
 def shared_sha256(before: Mapping, after: Mapping) -> Optional[str]:
@@ -459,6 +460,7 @@ def compare(before: CalibrationResult, after: CalibrationResult, *, tolerance_ar
     if angles:
         overall, held_back = rotation_verdict(d, cov, angles, level, before, after, shared_equipment, overall,
                                               held_back, notes)
+    overall, held_back = thermometer_verdict(params, before, after, level, overall, held_back, notes)
     if same_calibration(before, after):
         src = before.extra.get("source")
         notes.insert(0, NOT_PASS_NOTE + f"{tag_b} and {tag_a} are the same calibration (unit {before.unit}, method "
