@@ -101,3 +101,39 @@ def test_the_noise_floor_leaves_out_the_steps_across_a_gap(tmp_path):
     y = 0.0005 * t + np.random.default_rng(3).normal(0.0, 0.003, t.size)
     assert np.std(np.diff(y)) / np.sqrt(2) > 0.004
     assert white_floor(t, y) == pytest.approx(0.003, rel=0.1)
+
+
+def test_the_noise_floor_of_a_coarsely_logged_record_is_the_noise(tmp_path):
+    """thermal_cycle.white_floor on a record logged every 30 s through ramps of 1 and 3 degC/min with a
+    tempco of 0.049 m/s2/degC (5 mg/degC) and white noise 0.003: the first differences hold the signal's
+    change between samples (their floor is 5 times the noise), the second differences do not; an outside
+    probe's such record had its floor at 7.4 times the noise and a bias step "explained"."""
+    from triadcal.estimation.thermal_cycle import white_floor
+
+    t = np.arange(0.0, 6 * 3600.0, 30.0)
+    legs = np.interp(t, [0, 3600, 5400, 9000, 12600, 16200, 21600], [20, 80, 20, -40, 20, 50, 20])
+    y = 0.049 * legs + np.random.default_rng(4).normal(0.0, 0.003, t.size)
+    assert np.std(np.diff(y)) / np.sqrt(2) > 5 * 0.003
+    assert white_floor(t, y) == pytest.approx(0.003, rel=0.15)
+    # finely logged, the floor is the first differences' as before
+    tf = np.arange(0.0, 3000.0, 2.0)
+    yf = 0.0005 * tf + np.random.default_rng(5).normal(0.0, 0.003, tf.size)
+    assert white_floor(tf, yf) == np.std(np.diff(yf)) / np.sqrt(2)
+
+
+def test_three_axes_of_one_triad_in_another_unit_are_refused():
+    """io.thermal_cycle_csv.check_outputs: three columns whose medians' norm is 1.00 "m/s2" (a triad in g
+    under the default unit; an outside probe's was fitted, every value 9.8 times too small, exit 0) are
+    refused naming the likely unit; the same in m/s2, or one column alone, pass."""
+    from triadcal.errors import InputError
+    from triadcal.io.thermal_cycle_csv import check_outputs
+
+    rng = np.random.default_rng(1)
+    up = np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
+    y = up[None, :] + rng.normal(0.0, 1e-3, (500, 3))
+    rows = np.arange(2, 502)
+    with pytest.raises(InputError, match=r"norm of their medians is (1|0\.99\d*) m/s2 = 0.102 g.*\(in g\? give --unit\)"):
+        check_outputs("c.csv", ["ax", "ay", "az"], y, rows, "m/s2")
+    check_outputs("c.csv", ["ax", "ay", "az"], y * 9.80665, rows, "m/s2")
+    check_outputs("c.csv", ["ax", "ay", "az"], y, rows, "g")
+    check_outputs("c.csv", ["az"], y[:, 2:], rows, "m/s2")

@@ -108,6 +108,8 @@ G_IN_UNIT = {"m/s2": 9.80665, "m/s^2": 9.80665, "m/s²": 9.80665, "g": 1.0, "mg"
 #: a static pose's output along one axis is at most 1 g plus the bias; beyond this many g (its median)
 #: the unit is not the one stated
 MAX_STATIC_G = 1.5
+#: the band of the norm of three columns' medians (g) that the three axes of one triad at rest read
+TRIAD_NORM_G = (0.5, 1.5)
 #: a sample this far from its output's range (in g) is not an acceleration of a unit at rest (an
 #: outside probe's 1e30 read and named "linear", noise floor 1.7e28)
 MAX_READING_G = 1000.0
@@ -117,7 +119,8 @@ def check_outputs(path, columns, y, row_lines, unit: str) -> None:
     """Refuse outputs no static pose gives: a column that reads one value on every row (a stuck or
     unconnected channel: an outside probe's was named ``linear``, "explained", noise floor 0); and,
     in a unit whose g is known (:data:`G_IN_UNIT`), a sample beyond :data:`MAX_READING_G` or a column
-    whose median is beyond :data:`MAX_STATIC_G` (an output in m/s^2 read as g: |z| 9.8 "g", exit 0)."""
+    whose median is beyond :data:`MAX_STATIC_G` (an output in m/s^2 read as g: |z| 9.8 "g", exit 0), or
+    three columns whose medians' norm lies outside :data:`TRIAD_NORM_G` (a triad in g read as m/s^2)."""
     for i, c in enumerate(columns):
         v = y[:, i]
         if np.ptp(v) == 0:
@@ -139,6 +142,17 @@ def check_outputs(path, columns, y, row_lines, unit: str) -> None:
             raise InputError(f"{path}: column '{c}': its median |{med:.4g}| {unit} is {med / g:.3g} g, beyond the "
                              f"{MAX_STATIC_G:g} g an axis at rest reads: the output is not in {unit}"
                              + (f" (in {' or '.join(others)}? give --unit)" if others else " (give --unit)"))
+    if len(columns) == 3:
+        # three outputs of one triad at rest read 1 g together, whatever the pose (an outside probe's triad in
+        # g under the default m/s2: a norm of 1.00 "m/s2", every value 9.8 times too small, exit 0)
+        norm = float(np.linalg.norm(np.median(y[:, :3], axis=0)))
+        if not TRIAD_NORM_G[0] * g <= norm <= TRIAD_NORM_G[1] * g:
+            others = [u for u in ("m/s2", "g", "mg") if TRIAD_NORM_G[0] <= norm / G_IN_UNIT[u] <= TRIAD_NORM_G[1]]
+            raise InputError(f"{path}: columns {', '.join(repr(c) for c in columns)}: the norm of their medians is "
+                             f"{norm:.4g} {unit} = {norm / g:.3g} g, where the three axes of a triad at rest read 1 g "
+                             f"together: the outputs are not in {unit}"
+                             + (f" (in {' or '.join(others)}? give --unit)" if others else " (give --unit)")
+                             + "; if they are not the three axes of one unit, judge them one at a time")
 
 
 #: a sample further than this many robust SDs from the running median of its 9 neighbours is a glitch
