@@ -355,3 +355,17 @@ def test_an_input_refused_whole_is_counted_and_named_as_an_input(tmp_path, clien
     assert "1 unit/state pairs" in said and "1 input(s) refused whole" in said
     page = (tmp_path / "out" / "fleet.html").read_text(encoding="utf-8")
     assert "cut.csv" in page and "input(s) refused whole" in page
+
+
+def test_relative_paths_reach_workers_whose_working_directory_differs(fleet_csv, tmp_path, client, monkeypatch):
+    """The cluster's worker processes keep the directory they started in; the client moves elsewhere and
+    names its input and --out relative to it (an outside probe's external scheduler: "results in
+    outS2/results" printed, the results written under the worker's folder, the client's left empty)."""
+    import shutil
+
+    shutil.copy(fleet_csv, tmp_path / "fleet.csv")
+    monkeypatch.chdir(tmp_path)
+    rep = batch(["fleet.csv"], "out", client=client)
+    assert rep.n_fitted == 6
+    assert sorted(p.name for p in (tmp_path / "out" / "results").glob("*.json")) == [
+        f"SN-{i:04d}__initial.json" for i in range(1, 7)]

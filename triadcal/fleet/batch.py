@@ -465,8 +465,12 @@ def batch(inputs: Sequence, out_dir, *, lab=None, scheduler: Optional[str] = Non
 
             n_workers = max(1, len(client.scheduler_info().get("workers", {})) or workers)
             tasks = plan_tasks(files, n_workers)
-            futures = {client.submit(fit_file_part, f, str(out_dir), i, k, lab, options, pure=False): (f, i, k)
-                       for f, i, k in tasks}
+            # absolute paths to the workers: a worker of an external scheduler has its own working directory
+            # (an outside probe: --out outS2 relative, "results in outS2/results" printed, the 8 results
+            # written under the worker's folder and the client's left empty; relative inputs not found)
+            where = str(out_dir.resolve())
+            futures = {client.submit(fit_file_part, str(Path(f).resolve()), where, i, k, lab, options, pure=False):
+                       (f, i, k) for f, i, k in tasks}
             said = set()
             for fut in as_completed(list(futures)):
                 try:
