@@ -211,7 +211,7 @@ def test_ramp_captures_over_seeds_recover_the_unit(tmp_path):
     failed a CI now and then (CI73: seed 13's y at 1.66 on 75 dof, p 0.0003; 2026-12-02: seed 15's
     pooled 1.35 on 207 dof, p 0.0006; 2026-12-03: seed 15's thermal_play beyond 3.29, a z that over 49
     captures had SD 1.00, 1.05 on a loaded machine). They may refuse twice in all (three or more:
-    1.2e-5 for a right model). The captures' scatter is the emulator's
+    2e-5 for a right model). The captures' scatter is the emulator's
     white noise: over 34 captures (30 on a machine loaded with 8 busy processes) the noise drawn in
     the recording windows, read back from the emulator, had z^2 1.004 +- 0.016 per visit mean against
     1.013 and 0.994 in the windows of as many frames just before and after (no selection of windows

@@ -559,7 +559,8 @@ def fit_joint(campaign: Campaign, effects: Sequence[str] = DEFAULT_EFFECTS, *,
     from .structure import one_branch_hysteresis_hint, residual_checks
 
     structure, extra_gates = residual_checks(result, campaign, noise, sol, dof, chi2_dof, model.reference_temperature_C,
-                                             u, problem.names, plain=loss == "l2" and whitening is None)
+                                             u, problem.names, plain=loss == "l2" and whitening is None,
+                                             p_min=gates.gof_p_min)
     if "thermal_lag" in result.parameters and loss == "l2" and whitening is None:
         from .thermal_lag_form import rate_form_play
 

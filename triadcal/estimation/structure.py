@@ -403,12 +403,13 @@ def drift_note(conf: dict, stated_u: Optional[float] = None) -> Optional[str]:
 
 
 def residual_checks(result, campaign, noise, sol, dof: int, chi2_dof: float, reference_temperature_C: float,
-                    u: np.ndarray, names, plain: bool):
+                    u: np.ndarray, names, plain: bool, p_min: float = 1e-3):
     """The joint fit's checks of its residuals and model form: ``(structure, gates)``. ``structure``:
     :func:`structure_gap` with the noise estimated (the goodness of fit's evidence, also
     ``result.fit["structure"]``), else None; ``gates``: the ``structure`` gate
     (:func:`structure_shift`, its evidence in ``result.fit["structure_shift"]``) and, with the rate-form
-    ``thermal_lag`` in the result, the ``lag_form`` gate (:mod:`.lag_validity`). ``plain``: least
+    ``thermal_lag`` in the result, the ``lag_form`` gate (:mod:`.lag_validity`), and the
+    ``correlated_residuals`` gate at ``p_min`` (:mod:`.serial_correlation`). ``plain``: least
     squares without a robust loss or whitening, the fits these tests are made for."""
     structure = None
     finite = plain and bool(np.all(np.isfinite(sol.J)))
@@ -422,6 +423,11 @@ def residual_checks(result, campaign, noise, sol, dof: int, chi2_dof: float, ref
         if shift is not None:
             result.fit["structure_shift"] = dict(shift)
         gates = [structure_outcome(shift)]
+        from .serial_correlation import correlated_residuals_gate
+
+        corr = correlated_residuals_gate(campaign, noise.sigma, sol.r, sol.J, p_min, result)
+        if corr is not None:
+            gates.append(corr)
         conf = drift_confounding(campaign, sol.J, names, u, 1.0 if noise.known else float(np.sqrt(max(chi2_dof, 0.0))))
         if conf is not None:
             result.fit["bias_drift_confounding"] = conf

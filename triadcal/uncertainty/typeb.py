@@ -106,8 +106,13 @@ def lab_scope_notes(campaign, bench_errors, systematics) -> list:
     held in 75 of 150 with U ~ 9 ppm, and the certificate was issued; with ``[gravity] u_ppm = 20``
     144 of 150."""
     if bench_errors is None and not systematics:
-        return ["uncertainties are Type A only: the bench's own errors (positioning, wobble) are not in "
-                "them; give them with --lab LAB.toml ([bench] sigma_position_arcsec, sigma_wobble_arcsec)"]
+        # an independent bench's encoder zeros of 30 arcsec: Ca_xz and Ca_zx 66-101 u off, on the 12 positions
+        # and on an oblique plan alike (docs/lab.md: axis 1's zero is a rotation of the unit about its y axis)
+        return ["uncertainties are Type A only: the bench's own errors are not in them, neither the random ones "
+                "(positioning, wobble) nor the systematic ones -- an encoder zero of axis 1 moves Ca_xz and Ca_zx "
+                "one to one (1 arcsec of it: 1 arcsec of each), the fixture's rotation, the axes' non-orthogonality "
+                "and the local g too; give them with --lab LAB.toml ([bench] sigma_position_arcsec, "
+                "sigma_wobble_arcsec, encoder_zero_u_arcsec, ...; docs/lab.md)"]
     if not systematics:
         return ["no systematic errors of the lab declared (encoder zeros, non-orthogonality, fixture, g): "
                 "u holds the output noise and the bench's random errors only"]
